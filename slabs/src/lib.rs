@@ -1,0 +1,1 @@
+//! slabs (under construction)
