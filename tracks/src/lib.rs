@@ -2,6 +2,8 @@
 //!
 //! - [`cubemap`]: the six faces of a panorama, pixel ↔ direction, tile grids, [`CubeMap`]
 //!   storage. Every crate addresses panoramas through this module.
+//! - [`manifest`]: the walkthrough database manifest (content-addressed objects, tiles, PTM
+//!   level ranges, ACH per segment).
 //! - [`track`]: named 3D polylines read from TOML, optionally Catmull-Rom smoothed, sampled
 //!   into [`ReferenceViewpoint`]s; consecutive viewpoints bound a segment.
 //!
@@ -23,6 +25,7 @@
 //! ```
 
 pub mod cubemap;
+pub mod manifest;
 pub mod slab;
 pub mod track;
 

@@ -1,0 +1,190 @@
+//! The walkthrough database manifest: what a server streams and a viewer draws.
+//!
+//! A database is a directory of immutable, content-addressed files plus `manifest.json`:
+//!
+//! ```text
+//! DB/manifest.json          Manifest (this module), written last and atomically
+//! DB/objects/HH/HASH        every payload (PTM tile files, meshes, background maps), named by
+//!                           the lowercase hex BLAKE3 hash of its bytes, HH = first two hex digits
+//! ```
+//!
+//! Because every payload is named by its hash, any static HTTP server can serve a database
+//! (`GET /manifest.json`, `GET /objects/HH/HASH`, `Range:` for one PTM level group), caches can
+//! keep files forever, and `verify` is a hash check per file.
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::{SlabRange, TileId};
+
+/// Manifest format version written by this crate.
+pub const MANIFEST_VERSION: u32 = 1;
+
+/// A content-addressed file of the database.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct ObjectRef {
+    /// Lowercase hex BLAKE3 of the whole file (64 characters).
+    pub hash: String,
+    /// File size in bytes.
+    pub size: u64,
+}
+
+impl ObjectRef {
+    /// Path of the object relative to the database root: `objects/HH/HASH`.
+    /// `None` when the hash is not 64 lowercase hex digits (never build paths from bad ids).
+    pub fn rel_path(&self) -> Option<String> {
+        object_rel_path(&self.hash)
+    }
+}
+
+/// `objects/HH/HASH` for a valid hash, else `None`.
+pub fn object_rel_path(hash: &str) -> Option<String> {
+    let ok = hash.len() == 64
+        && hash
+            .bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b));
+    ok.then(|| format!("objects/{}/{}", &hash[..2], hash))
+}
+
+/// One level group of a PTM file: a byte range inside the tile's object.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LevelRef {
+    /// Level number: 0 is the full resolution, larger is coarser.
+    pub level: u32,
+    /// Width and height of the image at this level.
+    pub width: u32,
+    pub height: u32,
+    /// Byte offset and length of the group inside the object.
+    pub offset: u64,
+    pub len: u64,
+    /// Lowercase hex BLAKE3 of the group's bytes, so a single range can be checked alone.
+    pub hash: String,
+}
+
+/// A tile's colour as a progressive texture map.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PtmRef {
+    pub object: ObjectRef,
+    pub width: u32,
+    pub height: u32,
+    /// 1 grey, 3 RGB, 4 RGBA (alpha = the slab's opacity mask).
+    pub channels: u8,
+    /// Groups in stream order: the header + lowest level first, then coarse to fine.
+    pub levels: Vec<LevelRef>,
+}
+
+/// One slab tile of one reference viewpoint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TileEntry {
+    pub tile: TileId,
+    /// Slab index, 0 = nearest.
+    pub slab: u32,
+    /// Radial depth range of the tile's opaque pixels, metres.
+    pub depth_min: f64,
+    pub depth_max: f64,
+    /// Opaque pixels in the tile.
+    pub opaque_pixels: u32,
+    /// False when occlusion culling dropped the tile (its payload is then absent).
+    pub kept: bool,
+    pub ptm: Option<PtmRef>,
+    /// Depth mesh (compact binary, quantised depth).
+    pub mesh: Option<ObjectRef>,
+}
+
+/// Stable key of a tile in a track: `v{viewpoint}-s{slab}-{face}-{tx}-{ty}`.
+pub fn tile_key(viewpoint: usize, slab: u32, tile: TileId) -> String {
+    format!(
+        "v{viewpoint:04}-s{slab}-{}-{}-{}",
+        tile.face.short_name(),
+        tile.tx,
+        tile.ty
+    )
+}
+
+/// A reference viewpoint with everything drawn from it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ViewpointEntry {
+    pub index: usize,
+    /// Arc length along the track, metres.
+    pub s: f64,
+    pub position: DVec3,
+    /// Sky/background layer (no mesh): a PTM of the N × 6N cube map, alpha = 255 where sky.
+    pub background: Option<PtmRef>,
+    pub tiles: Vec<TileEntry>,
+}
+
+/// Average coverage hint of one tile for one track segment (PTM §5 adapted to tracks).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AchEntry {
+    /// Reference viewpoint owning the tile.
+    pub viewpoint: usize,
+    pub slab: u32,
+    pub tile: TileId,
+    /// Fraction of all visible pixels along the segment that this tile covers (sums to ≤ 1).
+    pub ach: f64,
+}
+
+/// The part of a track between two consecutive reference viewpoints.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SegmentEntry {
+    pub from: usize,
+    pub to: usize,
+    /// Tiles seen from this segment, by descending `ach`.
+    pub ach: Vec<AchEntry>,
+}
+
+/// One track of the database.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrackEntry {
+    pub name: String,
+    /// The track description (TOML, as `TrackSet::to_toml`), so clients can rebuild the curve.
+    pub track_toml: String,
+    pub length: f64,
+    pub viewpoints: Vec<ViewpointEntry>,
+    pub segments: Vec<SegmentEntry>,
+}
+
+/// The manifest (`manifest.json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub version: u32,
+    pub scene: String,
+    pub face_size: u32,
+    pub tile_size: u32,
+    pub slabs: Vec<SlabRange>,
+    /// α used for occlusion culling, and the variant (`conservative` or `paper`).
+    pub cull_alpha: Option<f64>,
+    pub cull_variant: Option<String>,
+    pub tracks: Vec<TrackEntry>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Face;
+
+    #[test]
+    fn object_paths_reject_anything_but_hashes() {
+        let h = "ab".repeat(32);
+        assert_eq!(object_rel_path(&h).unwrap(), format!("objects/ab/{h}"));
+        for bad in [
+            "",
+            "../etc/passwd",
+            &"AB".repeat(32),
+            &"ab".repeat(31),
+            &format!("{}/x", "a".repeat(62)),
+        ] {
+            assert!(object_rel_path(bad).is_none(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn tile_keys_are_stable() {
+        let t = TileId {
+            face: Face::NegZ,
+            tx: 3,
+            ty: 0,
+        };
+        assert_eq!(tile_key(7, 2, t), "v0007-s2-nz-3-0");
+    }
+}
