@@ -2,6 +2,7 @@
 //!
 //! - [`cubemap`]: the six faces of a panorama, pixel ↔ direction, tile grids, [`CubeMap`]
 //!   storage. Every crate addresses panoramas through this module.
+//! - [`camera`]: the perspective camera (yaw/pitch/FOV convention) used everywhere.
 //! - [`manifest`]: the walkthrough database manifest (content-addressed objects, tiles, PTM
 //!   level ranges, ACH per segment).
 //! - [`track`]: named 3D polylines read from TOML, optionally Catmull-Rom smoothed, sampled
@@ -24,11 +25,13 @@
 //! assert_eq!(c.face, Face::PosX);
 //! ```
 
+pub mod camera;
 pub mod cubemap;
 pub mod manifest;
 pub mod slab;
 pub mod track;
 
+pub use camera::PerspectiveCamera;
 pub use cubemap::{CubeMap, Face, FaceCoord, TileGrid, TileId};
 pub use slab::SlabRange;
 pub use track::{ReferenceViewpoint, Sampling, Smoothing, Track, TrackError, TrackSet};
