@@ -1,0 +1,183 @@
+//! PTM encoder: pyramid → header, lowest level, one group per level coarse to fine.
+
+use super::pyramid::{is_rebuilt, max_levels, predict, stored_count, MipChain};
+use super::{Image, PtmError, FIXED_HEADER_LEN, FORMAT_VERSION, MAGIC};
+
+/// How group payloads are coded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// The paper's layout byte for byte: packed residuals, then the partial level.
+    Raw = 0,
+    /// Residuals and differences from the upsampled parent level, one zstd frame per group.
+    Zstd = 1,
+}
+
+impl Method {
+    pub(crate) fn from_byte(b: u8) -> Option<Method> {
+        match b {
+            0 => Some(Method::Raw),
+            1 => Some(Method::Zstd),
+            _ => None,
+        }
+    }
+}
+
+/// Encoder settings.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct EncodeOptions {
+    pub method: Method,
+    /// zstd level for [`Method::Zstd`] (1 fast … 19 small).
+    pub zstd_level: i32,
+    /// Number of levels to store; `None` = down to 1 × 1.
+    pub levels: Option<u8>,
+}
+
+impl Default for EncodeOptions {
+    fn default() -> Self {
+        EncodeOptions {
+            method: Method::Zstd,
+            zstd_level: 9,
+            levels: None,
+        }
+    }
+}
+
+/// A stream chunk of an encoded PTM: what a client fetches to add one level.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct GroupSpan {
+    /// Level completed by this chunk (0 = full resolution).
+    pub level: u32,
+    pub width: u32,
+    pub height: u32,
+    /// Byte range in the file (chunk 0 includes the header).
+    pub offset: u64,
+    pub len: u64,
+}
+
+/// An encoded PTM file and its chunk table (coarse to fine).
+#[derive(Clone, Debug)]
+pub struct Encoded {
+    pub bytes: Vec<u8>,
+    pub groups: Vec<GroupSpan>,
+}
+
+/// Encodes `image` as a PTM.
+pub fn encode(image: &Image, opts: &EncodeOptions) -> Result<Encoded, PtmError> {
+    let level_count = opts
+        .levels
+        .unwrap_or_else(|| max_levels(image.width, image.height));
+    let chain = MipChain::build(image, level_count)?;
+    let lowest = chain.levels.last().expect("at least one level");
+    let mut payloads = Vec::with_capacity(level_count as usize);
+    payloads.push(code(lowest_plain(lowest, opts.method), opts)?);
+    for n in (0..level_count as usize - 1).rev() {
+        let plain = group_plain(
+            &chain.levels[n],
+            &chain.levels[n + 1],
+            &chain.residuals[n],
+            opts.method,
+        );
+        payloads.push(code(plain, opts)?);
+    }
+    let mut bytes = Vec::with_capacity(
+        FIXED_HEADER_LEN + 4 * payloads.len() + payloads.iter().map(Vec::len).sum::<usize>(),
+    );
+    bytes.extend_from_slice(&MAGIC);
+    bytes.push(FORMAT_VERSION);
+    bytes.push(opts.method as u8);
+    bytes.push(image.channels);
+    bytes.push(level_count);
+    bytes.extend_from_slice(&image.width.to_le_bytes());
+    bytes.extend_from_slice(&image.height.to_le_bytes());
+    for p in &payloads {
+        let len = u32::try_from(p.len()).map_err(|_| {
+            PtmError::InvalidImage(format!("a group of {} bytes is too large", p.len()))
+        })?;
+        bytes.extend_from_slice(&len.to_le_bytes());
+    }
+    let mut groups = Vec::with_capacity(payloads.len());
+    for (g, p) in payloads.iter().enumerate() {
+        let start = if g == 0 { 0 } else { bytes.len() };
+        bytes.extend_from_slice(p);
+        let level = &chain.levels[level_count as usize - 1 - g];
+        groups.push(GroupSpan {
+            level: (level_count as usize - 1 - g) as u32,
+            width: level.width,
+            height: level.height,
+            offset: start as u64,
+            len: (bytes.len() - start) as u64,
+        });
+    }
+    Ok(Encoded { bytes, groups })
+}
+
+fn code(plain: Vec<u8>, opts: &EncodeOptions) -> Result<Vec<u8>, PtmError> {
+    match opts.method {
+        Method::Raw => Ok(plain),
+        Method::Zstd => zstd::bulk::compress(&plain, opts.zstd_level)
+            .map_err(|e| PtmError::InvalidImage(format!("zstd: {e}"))),
+    }
+}
+
+/// The lowest level before compression.
+fn lowest_plain(img: &Image, method: Method) -> Vec<u8> {
+    match method {
+        Method::Raw => img.data.clone(),
+        Method::Zstd => {
+            let c = img.channels as usize;
+            let mut out = Vec::with_capacity(img.data.len());
+            for k in 0..c {
+                let mut prev = 0u8;
+                for v in img.data.iter().skip(k).step_by(c) {
+                    out.push(v.wrapping_sub(prev));
+                    prev = *v;
+                }
+            }
+            out
+        }
+    }
+}
+
+/// Packs values 0..=3 four to a byte, low bits first.
+pub(crate) fn pack_residuals(res: &[u8]) -> Vec<u8> {
+    let mut out = vec![0u8; res.len().div_ceil(4)];
+    for (t, &r) in res.iter().enumerate() {
+        out[t / 4] |= (r & 3) << (2 * (t % 4));
+    }
+    out
+}
+
+/// One level group before compression: packed residuals, then the partial level (raw: pixels
+/// interleaved; zstd: per channel plane, difference from the parent prediction).
+fn group_plain(level: &Image, parent: &Image, residuals: &[u8], method: Method) -> Vec<u8> {
+    let (w, h, c) = (level.width, level.height, level.channels as usize);
+    let mut out = pack_residuals(residuals);
+    out.reserve(stored_count(w, h) * c);
+    match method {
+        Method::Raw => {
+            for y in 0..h {
+                for x in 0..w {
+                    if !is_rebuilt(x, y, w, h) {
+                        let at = (y as usize * w as usize + x as usize) * c;
+                        out.extend_from_slice(&level.data[at..at + c]);
+                    }
+                }
+            }
+        }
+        Method::Zstd => {
+            for k in 0..c {
+                for y in 0..h {
+                    let row = y as usize * w as usize;
+                    for x in 0..w {
+                        if !is_rebuilt(x, y, w, h) {
+                            let v = level.data[(row + x as usize) * c + k];
+                            let p = predict(&parent.data, parent.width, parent.height, c, x, y, k);
+                            out.push(v.wrapping_sub(p));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,493 @@
+//! Codec tests: bit-exact round trips, extreme images, streaming equivalence, progressive
+//! quality, hostile input (a short fuzz run here; `PTM_FUZZ_CASES=N` runs a long one).
+
+use proptest::prelude::*;
+
+use super::*;
+
+fn opts(method: Method) -> EncodeOptions {
+    EncodeOptions {
+        method,
+        zstd_level: 3,
+        levels: None,
+    }
+}
+
+fn roundtrip(img: &Image, o: &EncodeOptions) {
+    let enc = encode(img, o).unwrap();
+    let back = decode(&enc.bytes, Limits::default()).unwrap();
+    assert_eq!(&back, img, "{img:?} {o:?}");
+}
+
+/// A smooth-with-texture deterministic image (what tiles look like).
+fn textured(w: u32, h: u32, c: u8, seed: u32) -> Image {
+    Image::from_fn(w, h, c, |x, y, k| {
+        let mut v = x.wrapping_mul(3) ^ y.wrapping_mul(5) ^ (k as u32 * 77) ^ seed;
+        v = v.wrapping_mul(2_654_435_761) >> 30; // noise 0..=3
+        ((x * 2 + y + k as u32 * 40 + v) & 0xff) as u8
+    })
+}
+
+fn image_strategy(max: u32) -> impl Strategy<Value = Image> {
+    (1..=max, 1..=max, 1u8..=4, any::<u64>(), 0u8..3).prop_map(|(w, h, c, seed, kind)| {
+        let mut s = seed | 1;
+        Image::from_fn(w, h, c, |x, y, k| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            match kind {
+                0 => s as u8,                                                         // noise
+                1 => ((x + 2 * y + k as u32 * 30) as u8).wrapping_add((s & 3) as u8), // smooth
+                _ => {
+                    if (s >> 60) & 1 == 1 {
+                        255
+                    } else {
+                        0
+                    }
+                } // binary, like alpha
+            }
+        })
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 96, ..ProptestConfig::default() })]
+
+    #[test]
+    fn roundtrip_is_bit_exact_for_any_size_and_channels(img in image_strategy(300), raw in any::<bool>()) {
+        let o = opts(if raw { Method::Raw } else { Method::Zstd });
+        roundtrip(&img, &o);
+    }
+
+    #[test]
+    fn fewer_levels_round_trip(img in image_strategy(40), keep in 1u8..8) {
+        let levels = keep.min(max_levels(img.width(), img.height()));
+        let o = EncodeOptions { levels: Some(levels), ..opts(Method::Zstd) };
+        let enc = encode(&img, &o).unwrap();
+        prop_assert_eq!(enc.groups.len(), levels as usize);
+        prop_assert_eq!(decode(&enc.bytes, Limits::default()).unwrap(), img);
+    }
+
+    /// Whole, byte by byte, or in arbitrary pieces: the same levels come out.
+    #[test]
+    fn decoding_is_independent_of_chunking(img in image_strategy(24), cuts in proptest::collection::vec(any::<usize>(), 0..12)) {
+        let enc = encode(&img, &opts(Method::Zstd)).unwrap();
+        let mut cuts: Vec<usize> = cuts.into_iter().map(|c| c % (enc.bytes.len() + 1)).collect();
+        cuts.push(0);
+        cuts.push(enc.bytes.len());
+        cuts.sort_unstable();
+        let mut dec = Decoder::new(Limits::default());
+        let mut status = Status::NeedMore;
+        for w in cuts.windows(2) {
+            status = dec.push(&enc.bytes[w[0]..w[1]]).unwrap();
+        }
+        prop_assert_eq!(status, Status::Done);
+        prop_assert_eq!(dec.finest().unwrap(), &img);
+        let mut one = Decoder::new(Limits::default());
+        for b in &enc.bytes {
+            one.push(std::slice::from_ref(b)).unwrap();
+        }
+        prop_assert_eq!(one.into_levels(), dec.into_levels());
+    }
+
+    /// Short fuzz run: arbitrary bytes never panic and never decode to something inconsistent.
+    #[test]
+    fn arbitrary_bytes_are_rejected_cleanly(bytes in proptest::collection::vec(any::<u8>(), 0..300)) {
+        check_hostile(&bytes);
+    }
+
+    #[test]
+    fn mutated_files_are_rejected_cleanly(img in image_strategy(20), raw in any::<bool>(), flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..4), cut in any::<usize>()) {
+        let enc = encode(&img, &opts(if raw { Method::Raw } else { Method::Zstd })).unwrap();
+        let mut bytes = enc.bytes.clone();
+        for (at, x) in flips {
+            let at = at % bytes.len();
+            bytes[at] ^= x.max(1);
+        }
+        bytes.truncate(1 + cut % bytes.len());
+        check_hostile(&bytes);
+    }
+}
+
+/// Feeds hostile bytes whole and in two pieces; any outcome but a panic or an inconsistent
+/// result is fine.
+fn check_hostile(bytes: &[u8]) {
+    let limits = Limits {
+        max_side: 4096,
+        max_decoded_bytes: 1 << 24,
+    };
+    let whole = decode(bytes, limits);
+    if let Ok(img) = &whole {
+        assert_eq!(
+            img.data().len(),
+            img.width() as usize * img.height() as usize * img.channels() as usize
+        );
+    }
+    let mut dec = Decoder::new(limits);
+    let half = bytes.len() / 2;
+    let split = dec
+        .push(&bytes[..half])
+        .and_then(|_| dec.push(&bytes[half..]));
+    match (&whole, split) {
+        (Ok(a), Ok(Status::Done)) => assert_eq!(Some(a), dec.finest()),
+        (Err(PtmError::Truncated { .. }), Ok(Status::NeedMore)) => {}
+        (Err(_), Err(_)) => {}
+        (w, s) => panic!("whole {w:?} vs split {s:?}"),
+    }
+}
+
+/// The long fuzz run: `PTM_FUZZ_CASES=200000 cargo test --release -p streamer long_fuzz -- --ignored`.
+#[test]
+#[ignore = "long fuzz run; set PTM_FUZZ_CASES"]
+fn long_fuzz() {
+    let cases: u32 = std::env::var("PTM_FUZZ_CASES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(20_000);
+    let mut runner = proptest::test_runner::TestRunner::new(ProptestConfig {
+        cases,
+        failure_persistence: None,
+        ..ProptestConfig::default()
+    });
+    let strat = (
+        image_strategy(48),
+        any::<bool>(),
+        proptest::collection::vec((any::<usize>(), any::<u8>()), 0..6),
+        any::<usize>(),
+        proptest::collection::vec(any::<u8>(), 0..64),
+    );
+    runner
+        .run(&strat, |(img, raw, flips, cut, junk)| {
+            let enc = encode(&img, &opts(if raw { Method::Raw } else { Method::Zstd })).unwrap();
+            let mut bytes = enc.bytes.clone();
+            for (at, x) in flips {
+                let at = at % bytes.len();
+                bytes[at] ^= x.max(1);
+            }
+            if cut % 3 == 0 {
+                bytes.truncate(cut % (bytes.len() + 1));
+            }
+            if cut % 5 == 1 {
+                bytes.extend_from_slice(&junk);
+            }
+            check_hostile(&bytes);
+            check_hostile(&junk);
+            Ok(())
+        })
+        .unwrap();
+}
+
+#[test]
+fn extreme_images_round_trip() {
+    for &(w, h) in &[
+        (1, 1),
+        (1, 2),
+        (2, 1),
+        (1, 7),
+        (7, 1),
+        (2, 2),
+        (3, 3),
+        (5, 4),
+        (257, 3),
+        (64, 64),
+    ] {
+        for c in 1..=4u8 {
+            for method in [Method::Raw, Method::Zstd] {
+                let o = opts(method);
+                roundtrip(&Image::from_fn(w, h, c, |_, _, _| 0), &o);
+                roundtrip(&Image::from_fn(w, h, c, |_, _, _| 255), &o);
+                roundtrip(
+                    &Image::from_fn(w, h, c, |x, y, _| if (x + y) % 2 == 0 { 0 } else { 255 }),
+                    &o,
+                );
+                roundtrip(
+                    &Image::from_fn(
+                        w,
+                        h,
+                        c,
+                        |x, _, k| if (x + k as u32) % 2 == 0 { 255 } else { 0 },
+                    ),
+                    &o,
+                );
+                roundtrip(
+                    &Image::from_fn(w, h, c, |_, y, _| if y % 2 == 0 { 255 } else { 0 }),
+                    &o,
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn raw_method_is_the_papers_layout_with_residual_overhead() {
+    // 1024² RGB, the paper's example. The partial levels together hold exactly as many samples
+    // as level 0 (3/4 · (1 + 1/4 + …) = 1); the 2-bit residuals add 1/4 byte per sample of
+    // every level above 0: 1/4 · (1/4 + 1/16 + …) = 1/12 ≈ 8.3 %. The paper's "+6 %" is the
+    // finest level's residuals alone (1/4 · 1/4 = 6.25 %).
+    let img = textured(1024, 1024, 3, 1);
+    let enc = encode(&img, &opts(Method::Raw)).unwrap();
+    let base = img.data().len() as f64;
+    let overhead = enc.bytes.len() as f64 / base - 1.0;
+    assert!((0.0833..0.0834).contains(&overhead), "overhead {overhead}");
+    // Group 1 (level L−2 = 2×2 from 1×1): residual byte(s) then three stored pixels.
+    let g1 = &enc.groups[1];
+    assert_eq!((g1.width, g1.height, g1.level), (2, 2, 9));
+    assert_eq!(g1.len, 1 + 3 * 3);
+}
+
+#[test]
+fn chunk_table_matches_header_and_allows_range_requests() {
+    let img = textured(37, 21, 4, 2);
+    let enc = encode(&img, &EncodeOptions::default()).unwrap();
+    let mut dec = Decoder::new(Limits::default());
+    let first = &enc.groups[0];
+    assert_eq!(first.offset, 0);
+    dec.push(&enc.bytes[..first.len as usize]).unwrap();
+    let header = dec.header().unwrap().clone();
+    assert_eq!(header.file_len(), enc.bytes.len() as u64);
+    for (g, span) in enc.groups.iter().enumerate() {
+        let r = header.chunk_range(g).unwrap();
+        assert_eq!((r.start, r.end - r.start), (span.offset, span.len));
+        assert_eq!(
+            (span.width, span.height),
+            level_dims(37, 21, span.level),
+            "group {g}"
+        );
+        if g > 0 {
+            // A client holding the earlier chunks fetches exactly this byte range.
+            let status = dec
+                .push(&enc.bytes[r.start as usize..r.end as usize])
+                .unwrap();
+            assert_eq!(dec.finest_level(), Some(span.level));
+            assert_eq!(status == Status::Done, span.level == 0);
+        }
+    }
+    assert!(header.chunk_range(enc.groups.len()).is_none());
+    assert_eq!(dec.level(0).unwrap(), &img);
+    assert_eq!(dec.level(99), None);
+}
+
+/// Mean squared error of `coarse` upsampled (nearest) to `img`'s size.
+fn mse_upsampled(img: &Image, coarse: &Image, level: u32) -> f64 {
+    let mut sum = 0.0;
+    for y in 0..img.height() {
+        for x in 0..img.width() {
+            for k in 0..img.channels() {
+                let a = img.get(x, y, k).unwrap() as f64;
+                let b = coarse.get(x >> level, y >> level, k).unwrap() as f64;
+                sum += (a - b) * (a - b);
+            }
+        }
+    }
+    sum / img.data().len() as f64
+}
+
+#[test]
+fn every_prefix_decodes_and_quality_never_drops() {
+    for (seed, (w, h, c)) in [(64, 64, 4), (45, 30, 3), (17, 33, 1), (128, 96, 3)]
+        .into_iter()
+        .enumerate()
+    {
+        let img = textured(w, h, c, seed as u32);
+        let enc = encode(&img, &EncodeOptions::default()).unwrap();
+        let mut dec = Decoder::new(Limits::default());
+        let mut last = f64::INFINITY;
+        for span in &enc.groups {
+            dec.push(&enc.bytes[span.offset as usize..(span.offset + span.len) as usize])
+                .unwrap();
+            let level = dec.finest_level().unwrap();
+            assert_eq!(level, span.level);
+            let err = mse_upsampled(&img, dec.finest().unwrap(), level);
+            assert!(
+                err <= last,
+                "{w}×{h}: level {level} error {err} after {last}"
+            );
+            last = err;
+        }
+        assert_eq!(last, 0.0);
+    }
+}
+
+fn header_bytes(method: u8, c: u8, levels: u8, w: u32, h: u32, lens: &[u32]) -> Vec<u8> {
+    let mut b = MAGIC.to_vec();
+    b.extend_from_slice(&[FORMAT_VERSION, method, c, levels]);
+    b.extend_from_slice(&w.to_le_bytes());
+    b.extend_from_slice(&h.to_le_bytes());
+    for l in lens {
+        b.extend_from_slice(&l.to_le_bytes());
+    }
+    b
+}
+
+#[test]
+fn hostile_headers_give_typed_errors() {
+    let l = Limits::default();
+    let e = |b: &[u8]| decode(b, l).unwrap_err();
+    assert!(matches!(e(b"JUNKJUNKJUNKJUNK"), PtmError::BadMagic(_)));
+    let mut v = header_bytes(1, 3, 1, 1, 1, &[10]);
+    v[4] = 9;
+    assert_eq!(e(&v), PtmError::UnsupportedVersion(9));
+    assert_eq!(
+        e(&header_bytes(7, 3, 1, 1, 1, &[10])),
+        PtmError::UnknownMethod(7)
+    );
+    assert!(matches!(
+        e(&header_bytes(1, 0, 1, 1, 1, &[1])),
+        PtmError::BadHeader {
+            field: "channels",
+            ..
+        }
+    ));
+    assert!(matches!(
+        e(&header_bytes(1, 5, 1, 1, 1, &[1])),
+        PtmError::BadHeader {
+            field: "channels",
+            ..
+        }
+    ));
+    assert!(matches!(
+        e(&header_bytes(1, 3, 1, 0, 1, &[1])),
+        PtmError::BadHeader { field: "width", .. }
+    ));
+    assert!(matches!(
+        e(&header_bytes(1, 3, 1, 4, 0, &[1])),
+        PtmError::BadHeader {
+            field: "height",
+            ..
+        }
+    ));
+    // Wrong level counts: zero, and more than halving down to 1×1 allows.
+    assert!(matches!(
+        e(&header_bytes(1, 3, 0, 4, 4, &[])),
+        PtmError::BadHeader {
+            field: "levels",
+            ..
+        }
+    ));
+    assert!(matches!(
+        e(&header_bytes(1, 3, 4, 4, 4, &[1, 1, 1, 1])),
+        PtmError::BadHeader {
+            field: "levels",
+            ..
+        }
+    ));
+    // Sizes that overflow naive arithmetic are stopped by the limits before any allocation.
+    assert!(matches!(
+        e(&header_bytes(1, 4, 33, u32::MAX, u32::MAX, &[])),
+        PtmError::LimitsExceeded { what: "width", .. }
+    ));
+    let tight = Limits {
+        max_side: 16_384,
+        max_decoded_bytes: 1000,
+    };
+    assert!(matches!(
+        decode(&header_bytes(1, 4, 1, 16_384, 16_384, &[1]), tight).unwrap_err(),
+        PtmError::LimitsExceeded {
+            what: "decoded bytes",
+            ..
+        }
+    ));
+    // Group lengths that cannot hold their level.
+    assert!(matches!(
+        e(&header_bytes(0, 1, 1, 2, 2, &[5])),
+        PtmError::GroupLength { group: 0, .. }
+    ));
+    assert!(matches!(
+        e(&header_bytes(1, 1, 2, 2, 2, &[9, u32::MAX])),
+        PtmError::GroupLength { group: 1, .. }
+    ));
+    assert!(matches!(
+        e(&header_bytes(1, 1, 2, 2, 2, &[0, 9])),
+        PtmError::GroupLength { group: 0, .. }
+    ));
+}
+
+#[test]
+fn truncation_is_need_more_then_truncated() {
+    let img = textured(9, 7, 3, 3);
+    let enc = encode(&img, &EncodeOptions::default()).unwrap();
+    for cut in 0..enc.bytes.len() {
+        let mut dec = Decoder::new(Limits::default());
+        assert_eq!(dec.push(&enc.bytes[..cut]).unwrap(), Status::NeedMore);
+        assert!(matches!(
+            decode(&enc.bytes[..cut], Limits::default()),
+            Err(PtmError::Truncated { .. })
+        ));
+    }
+}
+
+#[test]
+fn trailing_bytes_and_reuse_after_error_are_errors() {
+    let img = textured(4, 4, 1, 4);
+    let mut bytes = encode(&img, &EncodeOptions::default()).unwrap().bytes;
+    bytes.push(0);
+    assert_eq!(
+        decode(&bytes, Limits::default()),
+        Err(PtmError::TrailingBytes(1))
+    );
+    let mut dec = Decoder::new(Limits::default());
+    assert!(dec.push(b"nope, not a ptm").is_ok());
+    assert!(dec.push(b"!").is_err());
+    assert_eq!(dec.push(b""), Err(PtmError::Poisoned));
+}
+
+#[test]
+fn bad_residuals_are_caught_in_raw_groups() {
+    // 2×2 grey, all 255 → parent 255, residual 3; the rebuilt pixel would be > 255 if any
+    // stored pixel dropped below… here we make the residual impossible instead.
+    let img = Image::from_fn(2, 2, 1, |_, _, _| 255);
+    let mut bytes = encode(&img, &opts(Method::Raw)).unwrap().bytes;
+    // Layout: header (16 + 8) | group 0: 1 byte | group 1: 1 residual byte, 3 pixels.
+    assert_eq!(bytes.len(), 24 + 1 + 4);
+    bytes[25] = 3; // residual 3 with parent 255 and three stored 255s → 4·255 + 3 − 765 = 258
+    assert!(matches!(
+        decode(&bytes, Limits::default()),
+        Err(PtmError::BadResidual {
+            level: 0,
+            x: 1,
+            y: 1,
+            channel: 0,
+            value: 258
+        })
+    ));
+    // A 2×1 image: its one block has two pixels, so residuals above 1 are impossible.
+    let img = Image::from_fn(2, 1, 1, |x, _, _| x as u8);
+    let mut bytes = encode(&img, &opts(Method::Raw)).unwrap().bytes;
+    bytes[25] = 2;
+    assert!(matches!(
+        decode(&bytes, Limits::default()),
+        Err(PtmError::BadResidual { value: 2, .. })
+    ));
+    // Non-zero padding bits after the last residual.
+    bytes[25] = 0b0100_0001;
+    assert!(matches!(
+        decode(&bytes, Limits::default()),
+        Err(PtmError::BadResidual { .. })
+    ));
+}
+
+#[test]
+fn encoder_rejects_inconsistent_input() {
+    assert!(Image::new(0, 4, 1, vec![]).is_err());
+    assert!(Image::new(2, 2, 5, vec![0; 20]).is_err());
+    assert!(Image::new(2, 2, 3, vec![0; 11]).is_err());
+    let img = textured(4, 4, 1, 0);
+    let o = EncodeOptions {
+        levels: Some(4),
+        ..EncodeOptions::default()
+    };
+    assert!(encode(&img, &o).is_err());
+    let o = EncodeOptions {
+        levels: Some(0),
+        ..EncodeOptions::default()
+    };
+    assert!(encode(&img, &o).is_err());
+}
+
+#[test]
+fn prediction_compresses_textured_tiles_well() {
+    let img = textured(256, 256, 4, 5);
+    let raw = encode(&img, &opts(Method::Raw)).unwrap().bytes.len();
+    let z = encode(&img, &EncodeOptions::default()).unwrap().bytes.len();
+    assert!(z * 2 < raw, "zstd {z} vs raw {raw}");
+}
