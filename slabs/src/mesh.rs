@@ -1,0 +1,712 @@
+//! Depth meshes of one tile: a regular grid and an adaptive Delaunay mesh (`spade`).
+//!
+//! Vertices sit on pixel centres: `[x, y, r]` with `x, y` continuous face-pixel coordinates
+//! (pixel `(i, j)` has its centre at `(i + 0.5, j + 0.5)`) and `r` the radial depth in metres.
+//! A triangle stands for the flat 3D triangle through `dir(x, y) · r` of its vertices, which
+//! is what a renderer draws. Seen from the reference viewpoint, the inverse *planar* depth
+//! `q = |F + uR + vU| / r` of a flat triangle is affine in face pixels, which is how depth is
+//! interpolated here.
+//!
+//! A tile's mesh covers the lattice of pixel centres from its own first pixel up to the first
+//! pixel of the next tile on the same face, so neighbouring tiles of one face join without
+//! cracks; the outer half pixel at each face edge, and isolated pixels that no triangle can
+//! span, stay uncovered and are counted in [`MeshStats::uncovered_pixels`].
+//!
+//! Depth error is measured as parallax in pixels at the track's largest baseline `B`:
+//! `B · |1/r − 1/r_mesh| / θ_pixel` with `θ_pixel = (π/2)/N`. Two neighbouring opaque pixels
+//! are separated by a *discontinuity* when neither side's linear extrapolation of `q`
+//! predicts the other within `discontinuity_px` of such parallax; no triangle spans one.
+
+use serde::{Deserialize, Serialize};
+use spade::{DelaunayTriangulation, Point2, Triangulation};
+use tracks::cubemap::{pixel_dir, uv_from_pixel_f};
+use tracks::{CubeMap, Face, TileGrid, TileId};
+
+use crate::boundaries::theta_pixel;
+
+/// A tile's depth mesh: vertices `[x, y, r]` (face pixels, radial metres), triangles as
+/// index triples (counter-clockwise in image coordinates is not guaranteed).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TileMesh {
+    pub vertices: Vec<[f32; 3]>,
+    pub indices: Vec<u32>,
+}
+
+impl TileMesh {
+    pub fn triangle_count(&self) -> usize {
+        self.indices.len() / 3
+    }
+}
+
+/// Parameters shared by both mesh builders.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MeshParams {
+    /// Grid step in pixels (≥ 1) of the regular mesh.
+    pub step: u32,
+    /// Bound on the adaptive mesh's depth error, parallax pixels at `baseline_m`.
+    pub max_error_px: f64,
+    /// The track's largest baseline `B`, metres (0 for a single viewpoint: then every
+    /// depth error is zero parallax and a bound of one pixel at 1 m is used instead).
+    pub baseline_m: f64,
+    /// Parallax (pixels at `baseline_m`) above which neighbours are a discontinuity.
+    pub discontinuity_px: f64,
+}
+
+impl Default for MeshParams {
+    fn default() -> Self {
+        MeshParams {
+            step: 4,
+            max_error_px: 0.5,
+            baseline_m: 1.0,
+            discontinuity_px: 1.0,
+        }
+    }
+}
+
+/// What a mesh costs and how well it reproduces the depth.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct MeshStats {
+    pub triangles: usize,
+    pub vertices: usize,
+    /// Opaque pixels inside some triangle.
+    pub covered_pixels: usize,
+    /// Opaque pixels of the tile inside no triangle.
+    pub uncovered_pixels: usize,
+    /// Largest and mean parallax error over covered pixels that touch no discontinuity.
+    pub max_error_px: f64,
+    pub mean_error_px: f64,
+}
+
+/// The lattice of pixel centres a tile's mesh spans, with per-pixel depth data.
+pub(crate) struct Field {
+    face: Face,
+    n: u32,
+    x0: u32,
+    y0: u32,
+    /// Tile's own pixel rectangle end (exclusive), face pixels.
+    x1: u32,
+    y1: u32,
+    w: usize,
+    h: usize,
+    valid: Vec<bool>,
+    r: Vec<f64>,
+    q: Vec<f64>,
+    dnorm: Vec<f64>,
+    /// Discontinuity between `(i, j)` and `(i + 1, j)` / `(i, j + 1)`.
+    disc_right: Vec<bool>,
+    disc_down: Vec<bool>,
+    /// Connected component over continuous edges; `u32::MAX` for transparent pixels.
+    comp: Vec<u32>,
+    /// Parallax pixels per unit of `1/r`: `B / θ_pixel`.
+    px_per_inv_m: f64,
+}
+
+fn norm_d(x: f64, y: f64, n: u32) -> f64 {
+    let (u, v) = uv_from_pixel_f(x, y, n);
+    (1.0 + u * u + v * v).sqrt()
+}
+
+impl Field {
+    pub(crate) fn new(
+        depth: &CubeMap<f32>,
+        mask: &CubeMap<bool>,
+        grid: TileGrid,
+        tile: TileId,
+        params: &MeshParams,
+    ) -> Field {
+        let n = grid.face_size;
+        let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+        let xe = x1.min(n - 1);
+        let ye = y1.min(n - 1);
+        let (w, h) = ((xe - x0 + 1) as usize, (ye - y0 + 1) as usize);
+        let face = tile.face;
+        let b = if params.baseline_m > 0.0 {
+            params.baseline_m
+        } else {
+            1.0
+        };
+        let px_per_inv_m = b / theta_pixel(n);
+        let ok = |x: i64, y: i64| -> Option<f64> {
+            if x < 0 || y < 0 || x >= n as i64 || y >= n as i64 {
+                return None;
+            }
+            let (x, y) = (x as u32, y as u32);
+            let d = *depth.get(face, x, y) as f64;
+            (*mask.get(face, x, y) && d.is_finite() && d > 0.0)
+                .then(|| norm_d(x as f64 + 0.5, y as f64 + 0.5, n) / d)
+        };
+        let len = w * h;
+        let mut f = Field {
+            face,
+            n,
+            x0,
+            y0,
+            x1,
+            y1,
+            w,
+            h,
+            valid: vec![false; len],
+            r: vec![f64::INFINITY; len],
+            q: vec![0.0; len],
+            dnorm: vec![1.0; len],
+            disc_right: vec![false; len],
+            disc_down: vec![false; len],
+            comp: vec![u32::MAX; len],
+            px_per_inv_m,
+        };
+        for j in 0..h {
+            for i in 0..w {
+                let k = j * w + i;
+                let (x, y) = (x0 + i as u32, y0 + j as u32);
+                f.dnorm[k] = norm_d(x as f64 + 0.5, y as f64 + 0.5, n);
+                if let Some(q) = ok(x as i64, y as i64) {
+                    f.valid[k] = true;
+                    f.q[k] = q;
+                    f.r[k] = *depth.get(face, x, y) as f64;
+                }
+            }
+        }
+        // Discontinuities by second differences of q (exactly zero across a plane).
+        let thr = params.discontinuity_px;
+        let scale = |k: usize| px_per_inv_m / f.dnorm[k];
+        for j in 0..h {
+            for i in 0..w {
+                let k = j * w + i;
+                if !f.valid[k] {
+                    continue;
+                }
+                let (x, y) = ((x0 as usize + i) as i64, (y0 as usize + j) as i64);
+                let s = scale(k);
+                let resid = |a: (i64, i64), b: (i64, i64), dx: i64, dy: i64| -> Option<f64> {
+                    let (qa, qb) = (ok(a.0, a.1)?, ok(b.0, b.1)?);
+                    let before = ok(a.0 - dx, a.1 - dy);
+                    let after = ok(b.0 + dx, b.1 + dy);
+                    let e1 = before.map_or((qb - qa).abs(), |qp| (qb - (2.0 * qa - qp)).abs());
+                    let e2 = after.map_or((qa - qb).abs(), |qn| (qa - (2.0 * qb - qn)).abs());
+                    Some(e1.min(e2))
+                };
+                if i + 1 < w {
+                    if let Some(e) = resid((x, y), (x + 1, y), 1, 0) {
+                        f.disc_right[k] = e * s > thr;
+                    }
+                }
+                if j + 1 < h {
+                    if let Some(e) = resid((x, y), (x, y + 1), 0, 1) {
+                        f.disc_down[k] = e * s > thr;
+                    }
+                }
+            }
+        }
+        f.label_components();
+        f
+    }
+
+    fn label_components(&mut self) {
+        let (w, h) = (self.w, self.h);
+        let mut next = 0u32;
+        let mut stack = Vec::new();
+        for start in 0..w * h {
+            if !self.valid[start] || self.comp[start] != u32::MAX {
+                continue;
+            }
+            self.comp[start] = next;
+            stack.push(start);
+            while let Some(k) = stack.pop() {
+                let (i, j) = (k % w, k / w);
+                let mut visit = |m: usize, open: bool| {
+                    if open && self.valid[m] && self.comp[m] == u32::MAX {
+                        self.comp[m] = next;
+                        stack.push(m);
+                    }
+                };
+                if i + 1 < w {
+                    visit(k + 1, !self.disc_right[k]);
+                }
+                if i > 0 {
+                    visit(k - 1, !self.disc_right[k - 1]);
+                }
+                if j + 1 < h {
+                    visit(k + w, !self.disc_down[k]);
+                }
+                if j > 0 {
+                    visit(k - w, !self.disc_down[k - w]);
+                }
+            }
+            next += 1;
+        }
+    }
+
+    fn idx(&self, i: usize, j: usize) -> usize {
+        j * self.w + i
+    }
+
+    /// Whether pixel `(i, j)` touches a discontinuity edge.
+    fn at_discontinuity(&self, i: usize, j: usize) -> bool {
+        let k = self.idx(i, j);
+        self.disc_right[k]
+            || self.disc_down[k]
+            || (i > 0 && self.disc_right[k - 1])
+            || (j > 0 && self.disc_down[k - self.w])
+    }
+
+    /// Whether local pixel `(i, j)` belongs to the tile itself (not the next tile's edge).
+    fn in_tile(&self, i: usize, j: usize) -> bool {
+        self.x0 + (i as u32) < self.x1 && self.y0 + (j as u32) < self.y1
+    }
+
+    fn error_px(&self, k: usize, q_mesh: f64) -> f64 {
+        (self.q[k] - q_mesh).abs() * self.px_per_inv_m / self.dnorm[k]
+    }
+
+    /// Emit a vertex for local pixel `(i, j)`.
+    fn vertex(&self, i: usize, j: usize) -> [f32; 3] {
+        [
+            (self.x0 as f64 + i as f64 + 0.5) as f32,
+            (self.y0 as f64 + j as f64 + 0.5) as f32,
+            self.r[self.idx(i, j)] as f32,
+        ]
+    }
+}
+
+/// Pixels with centres inside triangle `t` (local lattice coordinates, edges inclusive),
+/// with the barycentric weights of each.
+fn raster(t: [(f64, f64); 3], w: usize, h: usize, mut visit: impl FnMut(usize, usize, [f64; 3])) {
+    let [a, b, c] = t;
+    let area = (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0);
+    if area.abs() < 1e-12 {
+        return;
+    }
+    let xmin = a.0.min(b.0).min(c.0).ceil().max(0.0) as usize;
+    let ymin = a.1.min(b.1).min(c.1).ceil().max(0.0) as usize;
+    let xmax = (a.0.max(b.0).max(c.0).floor() as usize).min(w - 1);
+    let ymax = (a.1.max(b.1).max(c.1).floor() as usize).min(h - 1);
+    let eps = 1e-9;
+    for j in ymin..=ymax {
+        for i in xmin..=xmax {
+            let p = (i as f64, j as f64);
+            let w0 = ((b.0 - p.0) * (c.1 - p.1) - (b.1 - p.1) * (c.0 - p.0)) / area;
+            let w1 = ((c.0 - p.0) * (a.1 - p.1) - (c.1 - p.1) * (a.0 - p.0)) / area;
+            let w2 = 1.0 - w0 - w1;
+            if w0 >= -eps && w1 >= -eps && w2 >= -eps {
+                visit(i, j, [w0, w1, w2]);
+            }
+        }
+    }
+}
+
+/// Builder that deduplicates lattice vertices.
+struct MeshOut<'f> {
+    field: &'f Field,
+    slot: Vec<u32>,
+    mesh: TileMesh,
+}
+
+impl<'f> MeshOut<'f> {
+    fn new(field: &'f Field) -> Self {
+        MeshOut {
+            field,
+            slot: vec![u32::MAX; field.w * field.h],
+            mesh: TileMesh::default(),
+        }
+    }
+    fn v(&mut self, i: usize, j: usize) -> u32 {
+        let k = self.field.idx(i, j);
+        if self.slot[k] == u32::MAX {
+            self.slot[k] = self.mesh.vertices.len() as u32;
+            self.mesh.vertices.push(self.field.vertex(i, j));
+        }
+        self.slot[k]
+    }
+    fn tri(&mut self, a: (usize, usize), b: (usize, usize), c: (usize, usize)) {
+        let (a, b, c) = (self.v(a.0, a.1), self.v(b.0, b.1), self.v(c.0, c.1));
+        self.mesh.indices.extend([a, b, c]);
+    }
+}
+
+/// A regular mesh with vertices every `step` pixels. A cell whose pixels are all opaque
+/// and free of discontinuities becomes two triangles; any other cell falls back to
+/// one-pixel cells, of which only triangles over three continuous opaque pixels are kept.
+pub(crate) fn grid_mesh(field: &Field, step: u32) -> TileMesh {
+    let step = step.max(1) as usize;
+    let axis = |len: usize| -> Vec<usize> {
+        let mut v: Vec<usize> = (0..len).step_by(step).collect();
+        if *v.last().unwrap_or(&0) != len - 1 {
+            v.push(len - 1);
+        }
+        v
+    };
+    let (xs, ys) = (axis(field.w), axis(field.h));
+    let mut out = MeshOut::new(field);
+    let f = field;
+    for b in 0..ys.len().saturating_sub(1) {
+        for a in 0..xs.len().saturating_sub(1) {
+            let (i0, i1, j0, j1) = (xs[a], xs[a + 1], ys[b], ys[b + 1]);
+            let mut whole = true;
+            'cell: for j in j0..=j1 {
+                for i in i0..=i1 {
+                    let k = f.idx(i, j);
+                    if !f.valid[k] || (i < i1 && f.disc_right[k]) || (j < j1 && f.disc_down[k]) {
+                        whole = false;
+                        break 'cell;
+                    }
+                }
+            }
+            if whole {
+                out.tri((i0, j0), (i1, j0), (i1, j1));
+                out.tri((i0, j0), (i1, j1), (i0, j1));
+                continue;
+            }
+            for j in j0..j1 {
+                for i in i0..i1 {
+                    unit_cell(f, &mut out, i, j);
+                }
+            }
+        }
+    }
+    out.mesh
+}
+
+/// The two triangles of the one-pixel cell at `(i, j)`, each kept only over continuous
+/// opaque pixels; the diagonal is chosen so that a single missing corner loses one triangle.
+fn unit_cell(f: &Field, out: &mut MeshOut, i: usize, j: usize) {
+    let k = f.idx(i, j);
+    let (tl, tr, bl, br) = (k, k + 1, k + f.w, k + f.w + 1);
+    let v = |m: usize| f.valid[m];
+    let top = v(tl) && v(tr) && !f.disc_right[tl];
+    let bottom = v(bl) && v(br) && !f.disc_right[bl];
+    let left = v(tl) && v(bl) && !f.disc_down[tl];
+    let right = v(tr) && v(br) && !f.disc_down[tr];
+    let p = |m: usize| (m % f.w, m / f.w);
+    if v(tl) && v(br) && (top && right || left && bottom) {
+        // Diagonal tl–br.
+        if top && right {
+            out.tri(p(tl), p(tr), p(br));
+        }
+        if left && bottom {
+            out.tri(p(tl), p(br), p(bl));
+        }
+    } else {
+        // Diagonal tr–bl.
+        if top && left {
+            out.tri(p(tl), p(tr), p(bl));
+        }
+        if right && bottom {
+            out.tri(p(tr), p(br), p(bl));
+        }
+    }
+}
+
+/// An adaptive mesh: a Delaunay triangulation of the lattice, refined by inserting the worst
+/// pixel of every triangle whose error exceeds `max_error_px`, that covers a transparent
+/// pixel or another continuous surface, or whose corners are not one continuous surface.
+/// Every lattice point can be inserted, so refinement ends; triangles whose corners are not
+/// one surface and that cover no further pixel are dropped.
+pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
+    let f = field;
+    let (w, h) = (f.w, f.h);
+    let mut tri: DelaunayTriangulation<Point2<f64>> = DelaunayTriangulation::new();
+    let mut is_vertex = vec![false; w * h];
+    let mut pending: Vec<(usize, usize)> = vec![(0, 0), (w - 1, 0), (0, h - 1), (w - 1, h - 1)];
+    let mut keep: Vec<[(usize, usize); 3]> = Vec::new();
+    loop {
+        pending.retain(|&(i, j)| !is_vertex[f.idx(i, j)]);
+        pending.sort_unstable();
+        pending.dedup();
+        if pending.is_empty() {
+            break;
+        }
+        for &(i, j) in &pending {
+            is_vertex[f.idx(i, j)] = true;
+            // Lattice points are distinct and finite: insertion cannot fail.
+            tri.insert(Point2::new(i as f64, j as f64)).ok();
+        }
+        pending.clear();
+        keep.clear();
+        for face in tri.inner_faces() {
+            let pos = face.positions();
+            let c: [(usize, usize); 3] = pos.map(|p| (p.x.round() as usize, p.y.round() as usize));
+            let ks = c.map(|(i, j)| f.idx(i, j));
+            let surface = ks.iter().all(|&k| f.valid[k])
+                && f.comp[ks[0]] == f.comp[ks[1]]
+                && f.comp[ks[1]] == f.comp[ks[2]];
+            let comp = f.comp[ks[0]];
+            let qs = ks.map(|k| f.q[k]);
+            // Worst offending pixel: (badness class, error), larger is worse.
+            let mut worst: Option<((usize, usize), u8, f64)> = None;
+            let centre = (
+                (c[0].0 + c[1].0 + c[2].0) as f64 / 3.0,
+                (c[0].1 + c[1].1 + c[2].1) as f64 / 3.0,
+            );
+            let pts = c.map(|(i, j)| (i as f64, j as f64));
+            raster(pts, w, h, |i, j, bary| {
+                let k = f.idx(i, j);
+                if is_vertex[k] {
+                    return;
+                }
+                let (class, err) = if !surface {
+                    // Prefer opaque pixels near the centre, to cover what can be covered.
+                    let d = (i as f64 - centre.0).powi(2) + (j as f64 - centre.1).powi(2);
+                    (if f.valid[k] { 2 } else { 1 }, -d)
+                } else if !f.valid[k] || f.comp[k] != comp {
+                    (3, 0.0)
+                } else {
+                    let qm = bary[0] * qs[0] + bary[1] * qs[1] + bary[2] * qs[2];
+                    let e = f.error_px(k, qm);
+                    if e <= max_error_px {
+                        return;
+                    }
+                    (2, e)
+                };
+                if worst.is_none_or(|(_, wc, we)| (class, err) > (wc, we)) {
+                    worst = Some(((i, j), class, err));
+                }
+            });
+            match worst {
+                Some((p, _, _)) => pending.push(p),
+                None if surface => keep.push(c),
+                None => {}
+            }
+        }
+    }
+    let mut out = MeshOut::new(f);
+    for [a, b, c] in keep {
+        out.tri(a, b, c);
+    }
+    out.mesh
+}
+
+/// Measure a mesh against the field it was built from, by an independent route: each
+/// triangle is lifted to 3D (`dir · r`) and every pixel centre inside its image is
+/// intersected with its plane.
+pub(crate) fn mesh_stats(f: &Field, mesh: &TileMesh) -> MeshStats {
+    let depth = rasterise_3d(mesh, f.face, f.n, (f.x0, f.y0, f.w, f.h));
+    let mut s = MeshStats {
+        triangles: mesh.triangle_count(),
+        vertices: mesh.vertices.len(),
+        ..MeshStats::default()
+    };
+    let mut sum = 0.0;
+    let mut counted = 0usize;
+    for j in 0..f.h {
+        for i in 0..f.w {
+            let k = f.idx(i, j);
+            if !f.valid[k] || !f.in_tile(i, j) {
+                continue;
+            }
+            match depth[k] {
+                Some(rm) => {
+                    s.covered_pixels += 1;
+                    if !f.at_discontinuity(i, j) {
+                        let e = (1.0 / f.r[k] - 1.0 / rm).abs() * f.px_per_inv_m;
+                        s.max_error_px = s.max_error_px.max(e);
+                        sum += e;
+                        counted += 1;
+                    }
+                }
+                None => s.uncovered_pixels += 1,
+            }
+        }
+    }
+    s.mean_error_px = if counted > 0 {
+        sum / counted as f64
+    } else {
+        0.0
+    };
+    s
+}
+
+/// Depth of `mesh` at the pixel centres of the window `(x0, y0, w, h)` of `face` (row-major,
+/// `None` where no triangle covers the centre), by ray–plane intersection in 3D.
+pub fn rasterise_3d(
+    mesh: &TileMesh,
+    face: Face,
+    face_size: u32,
+    window: (u32, u32, usize, usize),
+) -> Vec<Option<f64>> {
+    let (x0, y0, w, h) = window;
+    let mut out = vec![None; w * h];
+    for t in mesh.indices.chunks_exact(3) {
+        let v = [0, 1, 2].map(|m| mesh.vertices[t[m] as usize]);
+        let p3 = v.map(|[x, y, r]| {
+            tracks::cubemap::subpixel_dir(face, x as f64, y as f64, face_size) * r as f64
+        });
+        let normal = (p3[1] - p3[0]).cross(p3[2] - p3[0]);
+        let local = v.map(|[x, y, _]| (x as f64 - 0.5 - x0 as f64, y as f64 - 0.5 - y0 as f64));
+        raster(local, w, h, |i, j, _| {
+            let dir = pixel_dir(face, x0 + i as u32, y0 + j as u32, face_size);
+            let denom = normal.dot(dir);
+            if denom.abs() > 1e-300 {
+                let r = normal.dot(p3[0]) / denom;
+                if r.is_finite() && r > 0.0 {
+                    out[j * w + i] = Some(r);
+                }
+            }
+        });
+    }
+    out
+}
+
+/// Both meshes of one tile with their statistics.
+pub struct TileMeshes {
+    pub grid: TileMesh,
+    pub grid_stats: MeshStats,
+    pub adaptive: TileMesh,
+    pub adaptive_stats: MeshStats,
+}
+
+/// Build the grid and the adaptive mesh of one tile of a slab layer.
+pub fn mesh_tile(
+    depth: &CubeMap<f32>,
+    mask: &CubeMap<bool>,
+    grid: TileGrid,
+    tile: TileId,
+    params: &MeshParams,
+) -> TileMeshes {
+    let f = Field::new(depth, mask, grid, tile, params);
+    let g = grid_mesh(&f, params.step);
+    let a = adaptive_mesh(&f, params.max_error_px);
+    TileMeshes {
+        grid_stats: mesh_stats(&f, &g),
+        adaptive_stats: mesh_stats(&f, &a),
+        grid: g,
+        adaptive: a,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tracks::cubemap::pixel_dir;
+
+    fn params(b: f64, err: f64) -> MeshParams {
+        MeshParams {
+            step: 4,
+            max_error_px: err,
+            baseline_m: b,
+            discontinuity_px: 1.0,
+        }
+    }
+
+    fn all_tiles(depth: &CubeMap<f32>, tile: u32, p: &MeshParams) -> Vec<(TileId, TileMeshes)> {
+        let mask = depth.map(|d| d.is_finite());
+        let grid = TileGrid::new(depth.face_size(), tile).unwrap();
+        grid.tiles()
+            .map(|t| (t, mesh_tile(depth, &mask, grid, t, p)))
+            .collect()
+    }
+
+    /// Radial depth of the planes x = ±a, y = ±a, z = ±a (a box around the viewpoint).
+    fn box_depth(n: u32, a: f64) -> CubeMap<f32> {
+        CubeMap::from_fn(n, |f, x, y| {
+            let d = pixel_dir(f, x, y, n);
+            (a / d.abs().max_element()) as f32
+        })
+    }
+
+    #[test]
+    fn planes_are_reproduced_by_two_triangles_per_tile() {
+        let p = params(5.0, 0.25);
+        for (t, m) in all_tiles(&box_depth(16, 3.0), 8, &p) {
+            assert_eq!(m.adaptive.triangle_count(), 2, "{t:?}");
+            assert!(
+                m.adaptive_stats.max_error_px < 1e-3,
+                "{t:?} {:?}",
+                m.adaptive_stats
+            );
+            assert!(m.grid_stats.max_error_px < 1e-3, "{t:?} {:?}", m.grid_stats);
+            assert_eq!(m.adaptive_stats.uncovered_pixels, 0);
+            assert_eq!(m.grid_stats.uncovered_pixels, 0);
+            assert_eq!(m.grid_stats.covered_pixels, 64);
+        }
+    }
+
+    /// Rolling hills in direction space plus a near box in front of face +x: smooth
+    /// curvature and sharp discontinuities.
+    fn bumpy_with_step(n: u32) -> CubeMap<f32> {
+        CubeMap::from_fn(n, |f, x, y| {
+            let d = pixel_dir(f, x, y, n);
+            let r = 6.0 + 1.5 * (3.0 * d.x).sin() * (2.0 * d.y).cos() + d.z;
+            if f == Face::PosX && (n / 4..n / 2).contains(&x) && y > n / 3 {
+                1.2
+            } else {
+                r as f32
+            }
+        })
+    }
+
+    #[test]
+    fn adaptive_mesh_error_is_within_the_bound_on_non_discontinuity_pixels() {
+        let depth = bumpy_with_step(32);
+        for bound in [0.25, 1.0, 4.0] {
+            let p = params(2.0, bound);
+            let mut tris = 0;
+            for (t, m) in all_tiles(&depth, 16, &p) {
+                let s = m.adaptive_stats;
+                // f32 vertex depths add far less than 1e-3 px.
+                assert!(s.max_error_px <= bound + 1e-3, "{t:?} bound {bound}: {s:?}");
+                tris += s.triangles;
+            }
+            assert!(tris > 12, "refinement happened");
+        }
+        // A looser bound never needs more triangles.
+        let count = |b: f64| -> usize {
+            all_tiles(&depth, 16, &params(2.0, b))
+                .iter()
+                .map(|(_, m)| m.adaptive.triangle_count())
+                .sum()
+        };
+        assert!(count(0.25) >= count(1.0) && count(1.0) >= count(4.0));
+    }
+
+    #[test]
+    fn no_triangle_spans_a_discontinuity() {
+        let n = 32;
+        let depth = bumpy_with_step(n);
+        let p = params(2.0, 0.5);
+        for (t, m) in all_tiles(&depth, 16, &p) {
+            for mesh in [&m.grid, &m.adaptive] {
+                for tri in mesh.indices.chunks_exact(3) {
+                    let r: Vec<f32> = tri.iter().map(|&i| mesh.vertices[i as usize][2]).collect();
+                    let near = r.iter().filter(|&&r| r == 1.2).count();
+                    assert!(near == 0 || near == 3, "{t:?}: triangle depths {r:?}");
+                }
+            }
+            // Both sides of the step are at least two pixels wide: everything is covered.
+            assert_eq!(m.adaptive_stats.uncovered_pixels, 0, "{t:?}");
+            assert_eq!(m.grid_stats.uncovered_pixels, 0, "{t:?}");
+        }
+    }
+
+    #[test]
+    fn rasterised_mesh_depth_matches_source_depth() {
+        // The named acceptance test: re-rasterise each adaptive mesh over its tile and
+        // compare with the source depth on every covered, non-discontinuity pixel.
+        let n = 32;
+        let depth = bumpy_with_step(n);
+        let mask = depth.map(|d| d.is_finite());
+        let (b, bound) = (3.0, 0.5);
+        let p = params(b, bound);
+        let grid = TileGrid::new(n, 8).unwrap();
+        let theta = theta_pixel(n);
+        let mut checked = 0;
+        for t in grid.tiles() {
+            let f = Field::new(&depth, &mask, grid, t, &p);
+            let mesh = adaptive_mesh(&f, bound);
+            let (x0, y0, x1, y1) = grid.pixel_rect(t);
+            let w = (x1 - x0) as usize;
+            let got = rasterise_3d(&mesh, t.face, n, (x0, y0, w, (y1 - y0) as usize));
+            for (k, r) in got.iter().enumerate() {
+                let (i, j) = (k % w, k / w);
+                let Some(r) = r else { continue };
+                if f.at_discontinuity(i, j) {
+                    continue;
+                }
+                let src = *depth.get(t.face, x0 + i as u32, y0 + j as u32) as f64;
+                let px = b * (1.0 / src - 1.0 / r).abs() / theta;
+                assert!(px <= bound + 1e-3, "{t:?} ({i},{j}): {px} px");
+                checked += 1;
+            }
+        }
+        assert!(checked > 6 * 32 * 32 * 9 / 10, "{checked}");
+    }
+}

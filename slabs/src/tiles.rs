@@ -1,0 +1,222 @@
+//! Slab layers → tiles: opacity masks, empty-tile removal, per-tile depth range and mesh.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use tracks::{CubeMap, SlabRange, TileGrid, TileId};
+
+use crate::mesh::{mesh_tile, MeshParams, MeshStats, TileMesh};
+use crate::SlabsError;
+
+/// One slab layer of one viewpoint: radial depth (`+inf` where the slab holds nothing) and
+/// the binary opacity mask.
+#[derive(Clone, Copy, Debug)]
+pub struct LayerInput<'a> {
+    pub depth: &'a CubeMap<f32>,
+    pub mask: &'a CubeMap<bool>,
+}
+
+/// The binary opacity mask of a slab layer: alpha ≥ 128 and a finite positive depth.
+pub fn mask_from_layer(color: &CubeMap<[u8; 4]>, depth: &CubeMap<f32>) -> CubeMap<bool> {
+    let data = color
+        .as_slice()
+        .iter()
+        .zip(depth.as_slice())
+        .map(|(c, &d)| c[3] >= 128 && d.is_finite() && d > 0.0)
+        .collect();
+    CubeMap::from_vec(color.face_size(), data).unwrap_or_else(|| CubeMap::filled(0, false))
+}
+
+/// The mask of a layer known only by its depth: every finite positive depth is opaque.
+pub fn mask_from_depth(depth: &CubeMap<f32>) -> CubeMap<bool> {
+    depth.map(|&d| d.is_finite() && d > 0.0)
+}
+
+/// Split one depth map into per-slab layers of what the viewpoint itself sees: depth where
+/// it falls in the slab, `+inf` elsewhere. (Rendered layers also hold what nearer slabs
+/// hide; this is the split of the visible surface only.)
+pub fn split_depth(depth: &CubeMap<f32>, slabs: &[SlabRange]) -> Vec<CubeMap<f32>> {
+    slabs
+        .par_iter()
+        .map(|s| {
+            depth.map(|&d| {
+                if s.contains(d as f64) {
+                    d
+                } else {
+                    f32::INFINITY
+                }
+            })
+        })
+        .collect()
+}
+
+/// Which mesh a tile carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MeshKind {
+    Grid,
+    Adaptive,
+}
+
+/// Parameters of [`tile_sample`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TileParams {
+    /// Tile side in pixels, a power of two.
+    pub tile_size: u32,
+    pub mesh: MeshParams,
+    /// Which of the two meshes [`SlabTile::mesh`] holds (both are measured).
+    pub keep: MeshKind,
+}
+
+/// A non-empty tile of one slab layer of one viewpoint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SlabTile {
+    pub viewpoint: usize,
+    pub slab: usize,
+    pub tile: TileId,
+    /// Nearest and farthest opaque depth in the tile, metres.
+    pub depth_min: f32,
+    pub depth_max: f32,
+    /// Opaque pixels in the tile (≥ 1: empty tiles are not stored).
+    pub opaque_pixels: u32,
+    /// Pixels in the tile (smaller than `tile_size²` for edge tiles of odd face sizes).
+    pub pixels: u32,
+    /// Opacity bits of the tile's pixel rectangle, row-major, bit `i % 8` of byte `i / 8`.
+    #[serde(skip)]
+    pub mask: Vec<u8>,
+    #[serde(skip)]
+    pub mesh: TileMesh,
+    pub grid_stats: MeshStats,
+    pub adaptive_stats: MeshStats,
+}
+
+impl SlabTile {
+    /// Whether pixel `(dx, dy)` of the tile rectangle (width `w`) is opaque.
+    pub fn is_opaque(&self, dx: u32, dy: u32, w: u32) -> bool {
+        let i = (dy * w + dx) as usize;
+        self.mask.get(i / 8).is_some_and(|b| b >> (i % 8) & 1 == 1)
+    }
+}
+
+/// Tiles of one slab layer.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LayerTiles {
+    pub slab: usize,
+    /// Tiles of the grid (all faces) before empty-tile removal.
+    pub tiles_before: usize,
+    /// The non-empty tiles, in tile-index order.
+    pub tiles: Vec<SlabTile>,
+}
+
+/// All slab layers of one viewpoint, tiled and meshed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SampleTiles {
+    pub viewpoint: usize,
+    pub grid: TileGrid,
+    pub layers: Vec<LayerTiles>,
+}
+
+/// Tile one slab layer: empty tiles removed, depth range, mask bits and meshes per tile.
+pub fn tile_layer(
+    viewpoint: usize,
+    slab: usize,
+    layer: LayerInput,
+    params: &TileParams,
+) -> Result<LayerTiles, SlabsError> {
+    let n = layer.depth.face_size();
+    if layer.mask.face_size() != n {
+        return Err(SlabsError::Parameter(format!(
+            "slab {slab}: mask face size {} differs from depth face size {n}",
+            layer.mask.face_size()
+        )));
+    }
+    let grid = TileGrid::new(n, params.tile_size).ok_or_else(|| {
+        SlabsError::Parameter(format!(
+            "tile size {} must be a power of two and the face size {n} non-zero",
+            params.tile_size
+        ))
+    })?;
+    let ids: Vec<TileId> = grid.tiles().collect();
+    let tiles: Vec<SlabTile> = ids
+        .par_iter()
+        .filter_map(|&t| {
+            let (x0, y0, x1, y1) = grid.pixel_rect(t);
+            let mut lo = f32::INFINITY;
+            let mut hi = 0.0f32;
+            let mut count = 0u32;
+            let w = x1 - x0;
+            let mut bits = vec![0u8; ((w * (y1 - y0)) as usize).div_ceil(8)];
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    if *layer.mask.get(t.face, x, y) {
+                        let d = *layer.depth.get(t.face, x, y);
+                        lo = lo.min(d);
+                        hi = hi.max(d);
+                        count += 1;
+                        let i = ((y - y0) * w + (x - x0)) as usize;
+                        bits[i / 8] |= 1 << (i % 8);
+                    }
+                }
+            }
+            if count == 0 {
+                return None;
+            }
+            let m = mesh_tile(layer.depth, layer.mask, grid, t, &params.mesh);
+            Some(SlabTile {
+                viewpoint,
+                slab,
+                tile: t,
+                depth_min: lo,
+                depth_max: hi,
+                opaque_pixels: count,
+                pixels: w * (y1 - y0),
+                mask: bits,
+                mesh: match params.keep {
+                    MeshKind::Grid => m.grid,
+                    MeshKind::Adaptive => m.adaptive,
+                },
+                grid_stats: m.grid_stats,
+                adaptive_stats: m.adaptive_stats,
+            })
+        })
+        .collect();
+    Ok(LayerTiles {
+        slab,
+        tiles_before: grid.tile_count(),
+        tiles,
+    })
+}
+
+/// Tile every slab layer of one viewpoint (`layers[k]` is slab `k`).
+pub fn tile_sample(
+    viewpoint: usize,
+    layers: &[LayerInput],
+    params: &TileParams,
+) -> Result<SampleTiles, SlabsError> {
+    let n = layers.first().map_or(1, |l| l.depth.face_size());
+    if let Some((k, l)) = layers
+        .iter()
+        .enumerate()
+        .find(|(_, l)| l.depth.face_size() != n)
+    {
+        return Err(SlabsError::Parameter(format!(
+            "slab {k}: face size {} differs from slab 0's {n}",
+            l.depth.face_size()
+        )));
+    }
+    let grid = TileGrid::new(n, params.tile_size).ok_or_else(|| {
+        SlabsError::Parameter(format!(
+            "tile size {} must be a power of two",
+            params.tile_size
+        ))
+    })?;
+    let layers = layers
+        .iter()
+        .enumerate()
+        .map(|(k, l)| tile_layer(viewpoint, k, *l, params))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(SampleTiles {
+        viewpoint,
+        grid,
+        layers,
+    })
+}
