@@ -4,6 +4,19 @@
 //! - [`ptm`]: progressive texture maps — lossless mip levels sent coarse to fine.
 //! - [`db`]: the content-addressed database directory (writer, reader, `verify`), the compact
 //!   mesh format and ACH (average coverage hints) per track segment.
+//! - [`server`]: the HTTP tile server (`run(listener, db, config, stats, shutdown)`): manifest
+//!   and content-addressed objects with `Range:`, shaping, limits, graceful shutdown.
+//! - [`client`]: checked downloads with reconnect ([`client::Connection`]), the prioritised
+//!   cancellable [`client::Fetcher`], the distance-evicting [`client::Cache`], and the budget
+//!   rules ([`client::plan`]) with prefetch ([`client::MotionTracker`]).
+//! - [`visibility`]: CPU reference of the viewer's tile-visibility pass (live pixel counts and
+//!   needed levels per tile for a camera).
+//! - [`walk`]: the headless walk simulator, its report and plot, a synthetic test database and
+//!   the load generator.
 
+pub mod client;
 pub mod db;
 pub mod ptm;
+pub mod server;
+pub mod visibility;
+pub mod walk;

@@ -1,0 +1,260 @@
+//! The RAM cache: downloaded, checked bytes under a byte budget.
+//!
+//! Entries are keyed by [`FetchKey`] (content-addressed, so a group shared by several tiles
+//! is stored once). Each entry remembers the track positions (arc length `s`) of the
+//! viewpoints that use it and counts its current users (`refs`). When room is needed, entries
+//! nobody uses are evicted farthest-first from the current position along the track (the
+//! city paper's eviction by adjacency depth, on a track); entries in use are never evicted,
+//! and an insert that cannot fit is refused, so the budget is never exceeded.
+
+use std::collections::HashMap;
+
+use bytes::Bytes;
+
+use super::http::FetchKey;
+
+#[derive(Debug)]
+struct Entry {
+    data: Bytes,
+    /// Arc lengths of the viewpoints whose tiles use this entry.
+    positions: Vec<f64>,
+    refs: u32,
+}
+
+impl Entry {
+    fn distance(&self, s: f64) -> f64 {
+        self.positions
+            .iter()
+            .map(|p| (p - s).abs())
+            .fold(f64::INFINITY, f64::min)
+    }
+}
+
+/// Why an insert was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CacheError {
+    #[error("{need} bytes do not fit: budget {budget}, {pinned} bytes in use")]
+    NoRoom { need: u64, budget: u64, pinned: u64 },
+}
+
+/// Byte-budgeted cache with distance eviction and reference counts.
+#[derive(Debug)]
+pub struct Cache {
+    budget: u64,
+    used: u64,
+    position: f64,
+    entries: HashMap<FetchKey, Entry>,
+    evictions: u64,
+}
+
+impl Cache {
+    pub fn new(budget_bytes: u64) -> Cache {
+        Cache {
+            budget: budget_bytes,
+            used: 0,
+            position: 0.0,
+            entries: HashMap::new(),
+            evictions: 0,
+        }
+    }
+
+    pub fn budget(&self) -> u64 {
+        self.budget
+    }
+
+    /// Bytes held (always ≤ the budget).
+    pub fn used(&self) -> u64 {
+        self.used
+    }
+
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    pub fn evictions(&self) -> u64 {
+        self.evictions
+    }
+
+    /// The current position along the track (arc length), used to rank evictions.
+    pub fn set_position(&mut self, s: f64) {
+        if s.is_finite() {
+            self.position = s;
+        }
+    }
+
+    pub fn contains(&self, key: &FetchKey) -> bool {
+        self.entries.contains_key(key)
+    }
+
+    pub fn get(&self, key: &FetchKey) -> Option<&Bytes> {
+        self.entries.get(key).map(|e| &e.data)
+    }
+
+    /// Insert checked bytes used by a viewpoint at arc length `s`. A key already present
+    /// only gains the position. Evicts unused entries farthest from the current position
+    /// until the bytes fit; refuses when they cannot.
+    pub fn insert(&mut self, key: FetchKey, data: Bytes, s: f64) -> Result<(), CacheError> {
+        if let Some(e) = self.entries.get_mut(&key) {
+            if !e.positions.contains(&s) {
+                e.positions.push(s);
+            }
+            return Ok(());
+        }
+        let need = data.len() as u64;
+        self.make_room(need)?;
+        self.used += need;
+        self.entries.insert(
+            key,
+            Entry {
+                data,
+                positions: vec![s],
+                refs: 0,
+            },
+        );
+        Ok(())
+    }
+
+    fn make_room(&mut self, need: u64) -> Result<(), CacheError> {
+        if self.used + need <= self.budget {
+            return Ok(());
+        }
+        let pinned: u64 = self
+            .entries
+            .values()
+            .filter(|e| e.refs > 0)
+            .map(|e| e.data.len() as u64)
+            .sum();
+        if pinned + need > self.budget {
+            return Err(CacheError::NoRoom {
+                need,
+                budget: self.budget,
+                pinned,
+            });
+        }
+        let s = self.position;
+        let mut victims: Vec<(f64, FetchKey)> = self
+            .entries
+            .iter()
+            .filter(|(_, e)| e.refs == 0)
+            .map(|(k, e)| (e.distance(s), k.clone()))
+            .collect();
+        // Farthest first; ties broken by key so eviction is deterministic.
+        victims.sort_by(|a, b| b.0.total_cmp(&a.0).then_with(|| a.1.cmp(&b.1)));
+        for (_, k) in victims {
+            if self.used + need <= self.budget {
+                break;
+            }
+            if let Some(e) = self.entries.remove(&k) {
+                self.used -= e.data.len() as u64;
+                self.evictions += 1;
+            }
+        }
+        Ok(())
+    }
+
+    /// One more user of `key` (it will not be evicted while used). `false` if absent.
+    pub fn acquire(&mut self, key: &FetchKey) -> bool {
+        match self.entries.get_mut(key) {
+            Some(e) => {
+                e.refs += 1;
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// One user fewer; the entry stays cached (evictable) when the count reaches zero.
+    pub fn release(&mut self, key: &FetchKey) {
+        if let Some(e) = self.entries.get_mut(key) {
+            e.refs = e.refs.saturating_sub(1);
+        }
+    }
+
+    pub fn refs(&self, key: &FetchKey) -> u32 {
+        self.entries.get(key).map_or(0, |e| e.refs)
+    }
+
+    /// Drop an entry regardless of users (e.g. the server's database changed).
+    pub fn remove(&mut self, key: &FetchKey) -> Option<Bytes> {
+        let e = self.entries.remove(key)?;
+        self.used -= e.data.len() as u64;
+        Some(e.data)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn key(i: u32) -> FetchKey {
+        FetchKey {
+            object: format!("{i:064x}"),
+            range: None,
+        }
+    }
+
+    #[test]
+    fn evicts_farthest_from_the_position_first() {
+        let mut c = Cache::new(300);
+        c.insert(key(1), Bytes::from(vec![0; 100]), 0.0).unwrap();
+        c.insert(key(2), Bytes::from(vec![0; 100]), 10.0).unwrap();
+        c.insert(key(3), Bytes::from(vec![0; 100]), 20.0).unwrap();
+        c.set_position(18.0);
+        c.insert(key(4), Bytes::from(vec![0; 100]), 18.0).unwrap();
+        assert!(!c.contains(&key(1)), "the entry farthest behind goes");
+        assert!(c.contains(&key(2)) && c.contains(&key(3)) && c.contains(&key(4)));
+        assert_eq!(c.used(), 300);
+    }
+
+    #[test]
+    fn entries_in_use_are_never_evicted_and_overflow_is_refused() {
+        let mut c = Cache::new(200);
+        c.insert(key(1), Bytes::from(vec![0; 100]), 0.0).unwrap();
+        c.insert(key(2), Bytes::from(vec![0; 100]), 0.0).unwrap();
+        assert!(c.acquire(&key(1)));
+        assert!(c.acquire(&key(2)));
+        let err = c.insert(key(3), Bytes::from(vec![0; 50]), 0.0).unwrap_err();
+        assert!(matches!(err, CacheError::NoRoom { pinned: 200, .. }));
+        c.release(&key(2));
+        c.insert(key(3), Bytes::from(vec![0; 50]), 0.0).unwrap();
+        assert!(c.contains(&key(1)) && !c.contains(&key(2)));
+    }
+
+    #[test]
+    fn shared_entries_count_their_users() {
+        let mut c = Cache::new(100);
+        c.insert(key(1), Bytes::from(vec![0; 60]), 0.0).unwrap();
+        // A second tile at another viewpoint uses the same bytes: stored once.
+        c.insert(key(1), Bytes::from(vec![0; 60]), 5.0).unwrap();
+        assert_eq!(c.used(), 60);
+        c.acquire(&key(1));
+        c.acquire(&key(1));
+        c.release(&key(1));
+        assert_eq!(c.refs(&key(1)), 1);
+        assert!(c.insert(key(2), Bytes::from(vec![0; 60]), 0.0).is_err());
+        c.release(&key(1));
+        c.insert(key(2), Bytes::from(vec![0; 60]), 0.0).unwrap();
+    }
+
+    proptest! {
+        #[test]
+        fn never_exceeds_the_budget(ops in proptest::collection::vec((0u32..20, 1usize..120, 0.0f64..50.0, 0u8..4), 1..200)) {
+            let mut c = Cache::new(500);
+            for (k, len, s, op) in ops {
+                match op {
+                    0 | 1 => { let _ = c.insert(key(k), Bytes::from(vec![1; len]), s); }
+                    2 => { c.acquire(&key(k)); }
+                    _ => { c.release(&key(k)); c.set_position(s); }
+                }
+                prop_assert!(c.used() <= c.budget());
+                let sum: u64 = (0..20).filter_map(|i| c.get(&key(i))).map(|b| b.len() as u64).sum();
+                prop_assert_eq!(sum, c.used());
+            }
+        }
+    }
+}

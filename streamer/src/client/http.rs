@@ -1,0 +1,363 @@
+//! One HTTP/1 connection to a database server, with reconnect and back-off, and checked
+//! downloads: every body is hashed (BLAKE3) and compared with the hash the manifest gives
+//! before anyone sees it.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use bytes::{Bytes, BytesMut};
+use http_body_util::{BodyExt, Empty};
+use hyper::client::conn::http1::SendRequest;
+use hyper::{header, Request, StatusCode};
+use hyper_util::rt::TokioIo;
+use tokio::net::TcpStream;
+use tracks::manifest::{object_rel_path, Manifest};
+
+/// Where a database is served: `http://HOST:PORT[/PREFIX]`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ServerUrl {
+    /// `host:port` to connect to.
+    pub authority: String,
+    /// Path prefix without a trailing slash (may be empty).
+    pub prefix: String,
+}
+
+impl ServerUrl {
+    /// Parse `http://host:port/prefix` (only plain `http`; port defaults to 80).
+    pub fn parse(text: &str) -> Result<ServerUrl, ClientError> {
+        let bad = |why: &str| ClientError::Url(format!("`{text}`: {why}"));
+        let rest = text
+            .strip_prefix("http://")
+            .ok_or_else(|| bad("only http:// URLs are supported"))?;
+        let (auth, path) = match rest.find('/') {
+            Some(i) => (&rest[..i], &rest[i..]),
+            None => (rest, ""),
+        };
+        if auth.is_empty() || auth.contains('@') {
+            return Err(bad("missing or unsupported host"));
+        }
+        let authority = if auth.rsplit_once(':').is_some_and(|(_, p)| p.parse::<u16>().is_ok())
+        {
+            auth.to_string()
+        } else if auth.contains(':') && !auth.starts_with('[') {
+            return Err(bad("port is not a number"));
+        } else {
+            format!("{auth}:80")
+        };
+        Ok(ServerUrl {
+            authority,
+            prefix: path.trim_end_matches('/').to_string(),
+        })
+    }
+
+    fn host(&self) -> &str {
+        &self.authority
+    }
+}
+
+/// What a client asks for: a whole object or one byte range of it, and the hash its bytes
+/// must have.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct FetchKey {
+    /// Object hash (64 lowercase hex digits).
+    pub object: String,
+    /// `(offset, len)`; `None` = the whole object.
+    pub range: Option<(u64, u64)>,
+}
+
+/// Client failures.
+#[derive(Debug, Clone, thiserror::Error)]
+#[non_exhaustive]
+pub enum ClientError {
+    #[error("bad server URL {0}")]
+    Url(String),
+    #[error("object id `{0}` is not a valid hash")]
+    BadObject(String),
+    #[error("connecting to {addr}: {message}")]
+    Connect { addr: String, message: String },
+    #[error("{path}: HTTP {status}: {reason}")]
+    Status {
+        path: String,
+        status: u16,
+        reason: String,
+    },
+    #[error("{path}: {message}")]
+    Transfer { path: String, message: String },
+    #[error("{path}: checksum mismatch {attempts} times in a row")]
+    Checksum { path: String, attempts: u32 },
+    #[error("{path}: response of {len} bytes, expected {expected}")]
+    Length { path: String, len: u64, expected: u64 },
+    #[error("manifest: {0}")]
+    Manifest(String),
+    #[error("request cancelled")]
+    Cancelled,
+    #[error("gave up after {attempts} attempts: {last}")]
+    GaveUp { attempts: u32, last: Box<ClientError> },
+}
+
+impl ClientError {
+    /// Whether trying again (after reconnecting) may help.
+    fn is_retryable(&self) -> bool {
+        match self {
+            ClientError::Connect { .. } | ClientError::Transfer { .. } => true,
+            ClientError::Status { status, .. } => *status >= 500,
+            _ => false,
+        }
+    }
+}
+
+/// Retry and back-off settings.
+#[derive(Clone, Debug)]
+pub struct RetryPolicy {
+    /// Attempts per request (connection failures and 5xx), at least 1.
+    pub attempts: u32,
+    pub backoff_start: Duration,
+    pub backoff_max: Duration,
+    /// Re-downloads after a checksum mismatch before giving up.
+    pub checksum_attempts: u32,
+    /// Longest body accepted, bytes.
+    pub max_body: u64,
+}
+
+impl Default for RetryPolicy {
+    fn default() -> Self {
+        RetryPolicy {
+            attempts: 12,
+            backoff_start: Duration::from_millis(25),
+            backoff_max: Duration::from_secs(1),
+            checksum_attempts: 4,
+            max_body: 256 << 20,
+        }
+    }
+}
+
+/// Counters shared by all connections of a client.
+#[derive(Debug, Default)]
+pub struct ClientStats {
+    pub requests: AtomicU64,
+    pub bytes: AtomicU64,
+    pub checksum_failures: AtomicU64,
+    pub reconnects: AtomicU64,
+}
+
+/// One keep-alive connection, reopened on demand.
+pub struct Connection {
+    url: ServerUrl,
+    sender: Option<SendRequest<Empty<Bytes>>>,
+    policy: RetryPolicy,
+    stats: Arc<ClientStats>,
+}
+
+impl Connection {
+    pub fn new(url: ServerUrl, policy: RetryPolicy, stats: Arc<ClientStats>) -> Connection {
+        Connection {
+            url,
+            sender: None,
+            policy,
+            stats,
+        }
+    }
+
+    async fn connect(&mut self) -> Result<&mut SendRequest<Empty<Bytes>>, ClientError> {
+        if self.sender.as_ref().is_some_and(|s| s.is_closed() || !s.is_ready()) {
+            self.sender = None;
+        }
+        if self.sender.is_none() {
+            let addr = self.url.authority.clone();
+            let err = |e: &dyn std::fmt::Display| ClientError::Connect {
+                addr: addr.clone(),
+                message: e.to_string(),
+            };
+            let stream = tokio::time::timeout(Duration::from_secs(5), TcpStream::connect(&addr))
+                .await
+                .map_err(|e| err(&e))?
+                .map_err(|e| err(&e))?;
+            let _ = stream.set_nodelay(true);
+            let (sender, conn) = hyper::client::conn::http1::handshake(TokioIo::new(stream))
+                .await
+                .map_err(|e| err(&e))?;
+            tokio::spawn(async move {
+                if let Err(e) = conn.await {
+                    tracing::debug!("client connection: {e}");
+                }
+            });
+            self.stats.reconnects.fetch_add(1, Ordering::Relaxed);
+            self.sender = Some(sender);
+        }
+        self.sender.as_mut().ok_or(ClientError::Cancelled)
+    }
+
+    /// One GET, no retry. `cancel` is checked between body chunks; a cancelled transfer
+    /// drops the connection (the rest of the body would otherwise block it).
+    async fn get_once(
+        &mut self,
+        path: &str,
+        range: Option<(u64, u64)>,
+        cancel: Option<&AtomicBool>,
+    ) -> Result<Bytes, ClientError> {
+        let max_body = self.policy.max_body;
+        let host = self.url.host().to_string();
+        let tr = |m: &dyn std::fmt::Display| ClientError::Transfer {
+            path: path.to_string(),
+            message: m.to_string(),
+        };
+        let mut builder = Request::get(path).header(header::HOST, host);
+        if let Some((off, len)) = range {
+            if len == 0 {
+                return Ok(Bytes::new());
+            }
+            builder = builder.header(header::RANGE, format!("bytes={}-{}", off, off + len - 1));
+        }
+        let req = builder.body(Empty::new()).map_err(|e| tr(&e))?;
+        let sender = self.connect().await?;
+        sender.ready().await.map_err(|e| tr(&e))?;
+        let resp = match sender.send_request(req).await {
+            Ok(r) => r,
+            Err(e) => {
+                self.sender = None;
+                return Err(tr(&e));
+            }
+        };
+        let status = resp.status();
+        let ok = if range.is_some() {
+            status == StatusCode::PARTIAL_CONTENT
+        } else {
+            status == StatusCode::OK
+        };
+        let mut body = resp.into_body();
+        if !ok {
+            let mut reason = Vec::new();
+            while let Some(f) = body.frame().await {
+                match f {
+                    Ok(f) => {
+                        if let Some(d) = f.data_ref() {
+                            reason.extend_from_slice(&d[..d.len().min(512 - reason.len().min(512))]);
+                        }
+                    }
+                    Err(_) => {
+                        self.sender = None;
+                        break;
+                    }
+                }
+            }
+            return Err(ClientError::Status {
+                path: path.to_string(),
+                status: status.as_u16(),
+                reason: String::from_utf8_lossy(&reason).trim().to_string(),
+            });
+        }
+        let mut out = BytesMut::new();
+        while let Some(frame) = body.frame().await {
+            if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+                self.sender = None;
+                return Err(ClientError::Cancelled);
+            }
+            let frame = match frame {
+                Ok(f) => f,
+                Err(e) => {
+                    self.sender = None;
+                    return Err(tr(&e));
+                }
+            };
+            if let Some(d) = frame.data_ref() {
+                if out.len() as u64 + d.len() as u64 > max_body {
+                    self.sender = None;
+                    return Err(tr(&format!("body longer than {max_body} bytes")));
+                }
+                out.extend_from_slice(d);
+            }
+        }
+        self.stats.requests.fetch_add(1, Ordering::Relaxed);
+        self.stats.bytes.fetch_add(out.len() as u64, Ordering::Relaxed);
+        Ok(out.freeze())
+    }
+
+    /// GET with reconnect and exponential back-off on connection errors and 5xx.
+    pub async fn get(
+        &mut self,
+        path: &str,
+        range: Option<(u64, u64)>,
+        cancel: Option<&AtomicBool>,
+    ) -> Result<Bytes, ClientError> {
+        let full = format!("{}{}", self.url.prefix, path);
+        let mut delay = self.policy.backoff_start;
+        let attempts = self.policy.attempts.max(1);
+        let mut attempt = 0;
+        loop {
+            attempt += 1;
+            match self.get_once(&full, range, cancel).await {
+                Ok(b) => return Ok(b),
+                Err(e) if e.is_retryable() && attempt < attempts => {
+                    tracing::debug!("{full}: {e}; retrying in {delay:?}");
+                    self.sender = None;
+                    tokio::time::sleep(delay).await;
+                    delay = (delay * 2).min(self.policy.backoff_max);
+                    if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+                        return Err(ClientError::Cancelled);
+                    }
+                }
+                Err(e) if e.is_retryable() => {
+                    return Err(ClientError::GaveUp {
+                        attempts,
+                        last: Box::new(e),
+                    })
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    /// Download `key` and check it against `expected_hash`; a mismatch is re-downloaded
+    /// (up to `checksum_attempts` times) and never returned.
+    pub async fn fetch_checked(
+        &mut self,
+        key: &FetchKey,
+        expected_hash: &str,
+        cancel: Option<&AtomicBool>,
+    ) -> Result<Bytes, ClientError> {
+        let rel = object_rel_path(&key.object)
+            .ok_or_else(|| ClientError::BadObject(key.object.clone()))?;
+        let path = format!("/{rel}");
+        let attempts = self.policy.checksum_attempts.max(1);
+        for _ in 0..attempts {
+            let data = self.get(&path, key.range, cancel).await?;
+            if let Some((_, len)) = key.range {
+                if data.len() as u64 != len {
+                    self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
+                    continue;
+                }
+            }
+            if blake3::hash(&data).to_hex().as_str() == expected_hash {
+                return Ok(data);
+            }
+            self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
+            tracing::warn!("{path}: checksum mismatch, fetching again");
+        }
+        Err(ClientError::Checksum { path, attempts })
+    }
+
+    /// Download and parse `manifest.json`.
+    pub async fn manifest(&mut self) -> Result<Manifest, ClientError> {
+        let raw = self.get("/manifest.json", None, None).await?;
+        serde_json::from_slice(&raw).map_err(|e| ClientError::Manifest(e.to_string()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn urls_parse() {
+        let u = ServerUrl::parse("http://127.0.0.1:8080/db/").unwrap();
+        assert_eq!(u.authority, "127.0.0.1:8080");
+        assert_eq!(u.prefix, "/db");
+        let u = ServerUrl::parse("http://example.org").unwrap();
+        assert_eq!(u.authority, "example.org:80");
+        assert_eq!(u.prefix, "");
+        for bad in ["https://x", "ftp://x", "http://", "http://a:b/", "http://u@h/"] {
+            assert!(ServerUrl::parse(bad).is_err(), "{bad}");
+        }
+    }
+}

@@ -1,0 +1,434 @@
+//! The HTTP tile server: serves a database directory (`manifest.json`, `objects/HH/HASH`).
+//!
+//! [`run`] takes a bound listener, the database, a [`ServerConfig`] and a shutdown future, in
+//! the shape of a plain accept loop: a semaphore bounds the open connections, each
+//! connection runs in its own task (one connection's error never stops the server), and the
+//! shutdown future starts a graceful drain. Responses carry `ETag` = content hash and
+//! `Cache-Control: immutable`, so any static server can stand in for this one; this one adds
+//! per-connection bandwidth shaping and added latency for simulation.
+//!
+//! Paths are never taken from the request: an object request names a hash, the hash is
+//! validated ([`tracks::manifest::object_rel_path`]) and must be one the manifest lists, and
+//! only then is `DB/objects/HH/HASH` opened.
+
+mod range;
+mod shape;
+
+use std::collections::HashSet;
+use std::convert::Infallible;
+use std::future::Future;
+use std::io::SeekFrom;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use bytes::Bytes;
+use http_body_util::Full;
+use hyper::body::Incoming;
+use hyper::header::{self, HeaderValue};
+use hyper::{Method, Request, Response, StatusCode};
+use hyper_util::rt::{TokioIo, TokioTimer};
+use tokio::io::{AsyncReadExt, AsyncSeekExt};
+use tokio::net::TcpListener;
+use tokio::sync::{watch, Semaphore};
+use tokio::task::JoinSet;
+use tracks::manifest::{object_rel_path, Manifest};
+
+pub use range::{parse_range, RangeError};
+pub use shape::{parse_duration, parse_rate, Shaped};
+
+/// Server limits and simulation settings.
+#[derive(Clone, Debug)]
+pub struct ServerConfig {
+    /// Open connections at most; further clients wait in the listen backlog.
+    pub max_connections: usize,
+    /// Time allowed to receive a request's headers.
+    pub header_timeout: Duration,
+    /// Largest request head (headers) accepted, bytes.
+    pub max_header_bytes: usize,
+    /// Largest response body (one range or one whole object), bytes.
+    pub max_range_bytes: u64,
+    /// Per-connection write rate, bits per second (`None` = unlimited).
+    pub throttle_bps: Option<u64>,
+    /// Added before each response.
+    pub latency: Duration,
+    /// Fault injection for tests and demos: flip one byte in every Nth object response.
+    pub corrupt_every: Option<u64>,
+    /// How long a graceful shutdown waits for open connections.
+    pub drain_timeout: Duration,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        ServerConfig {
+            max_connections: 256,
+            header_timeout: Duration::from_secs(5),
+            max_header_bytes: 16 * 1024,
+            max_range_bytes: 64 << 20,
+            throttle_bps: None,
+            latency: Duration::ZERO,
+            corrupt_every: None,
+            drain_timeout: Duration::from_secs(5),
+        }
+    }
+}
+
+/// Errors that stop the server from starting or accepting.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ServerError {
+    #[error("reading {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: not a database manifest: {message}")]
+    Manifest { path: PathBuf, message: String },
+    #[error("accepting connections: {0}")]
+    Accept(std::io::Error),
+}
+
+/// Counters, readable while the server runs.
+#[derive(Debug, Default)]
+pub struct ServerStats {
+    pub connections: AtomicU64,
+    pub requests: AtomicU64,
+    pub client_errors: AtomicU64,
+    pub bytes_sent: AtomicU64,
+    pub corrupted: AtomicU64,
+}
+
+/// A loaded database as the server sees it: the manifest bytes and the set of object hashes.
+#[derive(Debug)]
+pub struct ServedDb {
+    root: PathBuf,
+    manifest_bytes: Bytes,
+    manifest_etag: String,
+    objects: HashSet<String>,
+}
+
+impl ServedDb {
+    /// Read and check `root/manifest.json`; remember every object hash it lists.
+    pub fn open(root: &Path) -> Result<ServedDb, ServerError> {
+        let path = root.join("manifest.json");
+        let raw = std::fs::read(&path).map_err(|source| ServerError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        let manifest: Manifest =
+            serde_json::from_slice(&raw).map_err(|e| ServerError::Manifest {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+        let objects = manifest_objects(&manifest);
+        if let Some(bad) = objects.iter().find(|h| object_rel_path(h).is_none()) {
+            return Err(ServerError::Manifest {
+                path,
+                message: format!("object hash `{bad}` is not 64 lowercase hex digits"),
+            });
+        }
+        Ok(ServedDb {
+            root: root.to_path_buf(),
+            manifest_etag: format!("\"{}\"", blake3::hash(&raw).to_hex()),
+            manifest_bytes: Bytes::from(raw),
+            objects,
+        })
+    }
+}
+
+/// Every object hash a manifest refers to.
+pub fn manifest_objects(m: &Manifest) -> HashSet<String> {
+    let mut out = HashSet::new();
+    for t in &m.tracks {
+        for vp in &t.viewpoints {
+            if let Some(bg) = &vp.background {
+                out.insert(bg.object.hash.clone());
+            }
+            for tile in &vp.tiles {
+                if let Some(p) = &tile.ptm {
+                    out.insert(p.object.hash.clone());
+                }
+                if let Some(m) = &tile.mesh {
+                    out.insert(m.hash.clone());
+                }
+            }
+        }
+    }
+    out
+}
+
+struct Shared {
+    db: ServedDb,
+    config: ServerConfig,
+    stats: Arc<ServerStats>,
+}
+
+/// Serve `db` on `listener` until `shutdown` completes, then drain open connections (up to
+/// `config.drain_timeout`). Returns the counters.
+pub async fn run(
+    listener: TcpListener,
+    db: ServedDb,
+    config: ServerConfig,
+    stats: Arc<ServerStats>,
+    shutdown: impl Future<Output = ()>,
+) -> Result<(), ServerError> {
+    let limit = Arc::new(Semaphore::new(config.max_connections.max(1)));
+    let drain = config.drain_timeout;
+    let shared = Arc::new(Shared { db, config, stats });
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let mut tasks = JoinSet::new();
+    tokio::pin!(shutdown);
+    loop {
+        while tasks.try_join_next().is_some() {}
+        let permit = tokio::select! {
+            _ = &mut shutdown => break,
+            p = limit.clone().acquire_owned() => match p {
+                Ok(p) => p,
+                Err(_) => break,
+            },
+        };
+        let (stream, _peer) = tokio::select! {
+            _ = &mut shutdown => break,
+            r = listener.accept() => match r {
+                Ok(c) => c,
+                Err(e) if is_transient(&e) => {
+                    tracing::warn!("accept: {e}");
+                    tokio::time::sleep(Duration::from_millis(20)).await;
+                    continue;
+                }
+                Err(e) => return Err(ServerError::Accept(e)),
+            },
+        };
+        let shared = shared.clone();
+        let mut stop = stop_rx.clone();
+        tasks.spawn(async move {
+            let _permit = permit;
+            shared.stats.connections.fetch_add(1, Ordering::Relaxed);
+            let _ = stream.set_nodelay(true);
+            let io = TokioIo::new(Shaped::new(stream, shared.config.throttle_bps));
+            let svc_shared = shared.clone();
+            let service = hyper::service::service_fn(move |req| {
+                let s = svc_shared.clone();
+                async move { Ok::<_, Infallible>(handle(&s, req).await) }
+            });
+            let mut builder = hyper::server::conn::http1::Builder::new();
+            builder
+                .timer(TokioTimer::new())
+                .header_read_timeout(shared.config.header_timeout)
+                .max_buf_size(shared.config.max_header_bytes.max(8192));
+            let conn = builder.serve_connection(io, service);
+            tokio::pin!(conn);
+            tokio::select! {
+                r = conn.as_mut() => {
+                    if let Err(e) = r { tracing::debug!("connection: {e}"); }
+                }
+                _ = async { let _ = stop.wait_for(|s| *s).await; } => {
+                    conn.as_mut().graceful_shutdown();
+                    if let Err(e) = conn.as_mut().await { tracing::debug!("connection: {e}"); }
+                }
+            }
+        });
+    }
+    drop(listener);
+    let _ = stop_tx.send(true);
+    let drained = tokio::time::timeout(drain, async {
+        while tasks.join_next().await.is_some() {}
+    })
+    .await;
+    if drained.is_err() {
+        tasks.abort_all();
+    }
+    Ok(())
+}
+
+fn is_transient(e: &std::io::Error) -> bool {
+    use std::io::ErrorKind::*;
+    matches!(
+        e.kind(),
+        ConnectionAborted | ConnectionReset | Interrupted | WouldBlock
+    ) || e.raw_os_error() == Some(24) // EMFILE: out of descriptors, retry later
+}
+
+type Resp = Response<Full<Bytes>>;
+
+fn reply(status: StatusCode, reason: impl Into<String>) -> Resp {
+    let mut r = Response::new(Full::new(Bytes::from(reason.into() + "\n")));
+    *r.status_mut() = status;
+    r.headers_mut().insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static("text/plain; charset=utf-8"),
+    );
+    r
+}
+
+async fn handle(s: &Shared, req: Request<Incoming>) -> Resp {
+    s.stats.requests.fetch_add(1, Ordering::Relaxed);
+    if !s.config.latency.is_zero() {
+        tokio::time::sleep(s.config.latency).await;
+    }
+    let resp = route(s, &req).await;
+    if resp.status().is_client_error() {
+        s.stats.client_errors.fetch_add(1, Ordering::Relaxed);
+    }
+    use hyper::body::Body;
+    let n = resp.body().size_hint().exact().unwrap_or(0);
+    s.stats.bytes_sent.fetch_add(n, Ordering::Relaxed);
+    resp
+}
+
+async fn route(s: &Shared, req: &Request<Incoming>) -> Resp {
+    let head_only = req.method() == Method::HEAD;
+    if req.method() != Method::GET && !head_only {
+        return reply(
+            StatusCode::METHOD_NOT_ALLOWED,
+            "only GET and HEAD are served",
+        );
+    }
+    let has_body = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .is_some_and(|v| v.as_bytes() != b"0")
+        || req.headers().contains_key(header::TRANSFER_ENCODING);
+    if has_body {
+        return reply(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "request bodies are not accepted",
+        );
+    }
+    let path = req.uri().path();
+    if path.contains("..") || path.contains('\\') || path.contains("//") || path.contains('%') {
+        return reply(StatusCode::BAD_REQUEST, "path must be /manifest.json or /objects/HH/HASH");
+    }
+    let mut resp = if path == "/manifest.json" {
+        let mut r = Response::new(Full::new(s.db.manifest_bytes.clone()));
+        let h = r.headers_mut();
+        h.insert(header::CONTENT_TYPE, HeaderValue::from_static("application/json"));
+        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+        if let Ok(v) = HeaderValue::from_str(&s.db.manifest_etag) {
+            h.insert(header::ETAG, v);
+        }
+        r
+    } else if let Some(rest) = path.strip_prefix("/objects/") {
+        match object(s, rest, req).await {
+            Ok(r) => r,
+            Err(r) => r,
+        }
+    } else {
+        reply(
+            StatusCode::NOT_FOUND,
+            "unknown path; served: /manifest.json, /objects/HH/HASH",
+        )
+    };
+    if head_only {
+        *resp.body_mut() = Full::new(Bytes::new());
+    }
+    resp
+}
+
+async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp, Resp> {
+    let bad = || {
+        reply(
+            StatusCode::BAD_REQUEST,
+            "object id must be objects/HH/HASH with HASH 64 lowercase hex digits",
+        )
+    };
+    let (hh, hash) = rest.split_once('/').ok_or_else(bad)?;
+    let rel = object_rel_path(hash).ok_or_else(bad)?;
+    if hh != &hash[..2] {
+        return Err(bad());
+    }
+    if !s.db.objects.contains(hash) {
+        return Err(reply(
+            StatusCode::NOT_FOUND,
+            format!("object {hash} is not in this database"),
+        ));
+    }
+    let etag = format!("\"{hash}\"");
+    if req
+        .headers()
+        .get(header::IF_NONE_MATCH)
+        .is_some_and(|v| v.as_bytes() == etag.as_bytes() || v.as_bytes() == b"*")
+    {
+        let mut r = reply(StatusCode::NOT_MODIFIED, "");
+        *r.body_mut() = Full::new(Bytes::new());
+        add_object_headers(&mut r, &etag);
+        return Ok(r);
+    }
+    let path = s.db.root.join(rel);
+    let not_there = |e: std::io::Error| {
+        tracing::warn!("{}: {e}", path.display());
+        reply(
+            StatusCode::NOT_FOUND,
+            format!("object {hash} is listed but not readable"),
+        )
+    };
+    let mut file = tokio::fs::File::open(&path).await.map_err(not_there)?;
+    let size = file.metadata().await.map_err(not_there)?.len();
+    let range = match req.headers().get(header::RANGE) {
+        None => None,
+        Some(v) => {
+            let text = v.to_str().map_err(|_| {
+                reply(StatusCode::BAD_REQUEST, "Range header is not ASCII")
+            })?;
+            match parse_range(text, size, s.config.max_range_bytes) {
+                Ok(r) => Some(r),
+                Err(e @ RangeError::Unsatisfiable { .. }) => {
+                    let mut r = reply(StatusCode::RANGE_NOT_SATISFIABLE, e.to_string());
+                    if let Ok(v) = HeaderValue::from_str(&format!("bytes */{size}")) {
+                        r.headers_mut().insert(header::CONTENT_RANGE, v);
+                    }
+                    return Err(r);
+                }
+                Err(e @ RangeError::TooLarge { .. }) => {
+                    return Err(reply(StatusCode::RANGE_NOT_SATISFIABLE, e.to_string()))
+                }
+                Err(e) => return Err(reply(StatusCode::BAD_REQUEST, e.to_string())),
+            }
+        }
+    };
+    let (offset, len) = range.unwrap_or((0, size));
+    if len > s.config.max_range_bytes {
+        return Err(reply(
+            StatusCode::RANGE_NOT_SATISFIABLE,
+            format!("object of {len} bytes is larger than the limit; ask for ranges"),
+        ));
+    }
+    let mut data = vec![0u8; len as usize];
+    file.seek(SeekFrom::Start(offset)).await.map_err(not_there)?;
+    file.read_exact(&mut data).await.map_err(not_there)?;
+    if let Some(n) = s.config.corrupt_every.filter(|&n| n > 0) {
+        let k = s.stats.requests.load(Ordering::Relaxed);
+        if k % n == 0 && !data.is_empty() {
+            let i = (k as usize * 7919) % data.len();
+            data[i] ^= 0x5a;
+            s.stats.corrupted.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+    let mut r = Response::new(Full::new(Bytes::from(data)));
+    add_object_headers(&mut r, &etag);
+    if range.is_some() {
+        *r.status_mut() = StatusCode::PARTIAL_CONTENT;
+        let cr = format!("bytes {}-{}/{}", offset, offset + len - 1, size);
+        if let Ok(v) = HeaderValue::from_str(&cr) {
+            r.headers_mut().insert(header::CONTENT_RANGE, v);
+        }
+    }
+    Ok(r)
+}
+
+fn add_object_headers(r: &mut Resp, etag: &str) {
+    let h = r.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static("application/octet-stream"),
+    );
+    h.insert(
+        header::CACHE_CONTROL,
+        HeaderValue::from_static("public, max-age=31536000, immutable"),
+    );
+    h.insert(header::ACCEPT_RANGES, HeaderValue::from_static("bytes"));
+    if let Ok(v) = HeaderValue::from_str(etag) {
+        h.insert(header::ETAG, v);
+    }
+}

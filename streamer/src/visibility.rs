@@ -1,0 +1,286 @@
+//! CPU reference of the viewer's tile-visibility pass: which tiles (and backgrounds) cover the
+//! pixels of a camera, how many pixels each covers, and which PTM level those pixels need.
+//!
+//! [`SceneIndex`] indexes one track of a manifest (per viewpoint, per slab, a dense tile
+//! table). [`SceneIndex::count`] casts one ray per sample of the camera image and, for each
+//! given reference viewpoint (the two ends of the current segment, with their blend weights),
+//! finds what that viewpoint's layers show along the ray:
+//!
+//! 1. slabs are visited front to back (slab 0 first); for slab `k`, the tile is first looked up
+//!    in the ray's own direction (no parallax), then twice refined: the ray is intersected with
+//!    the sphere of radius `(depth_min + depth_max) / 2` of the tile found around the viewpoint,
+//!    and the tile is looked up again in the direction viewpoint → intersection;
+//! 2. the first slab whose tile is kept and has opaque pixels wins the sample; no tile in any
+//!    slab means the sample shows the viewpoint's background;
+//! 3. the needed level: a screen pixel spans `α_c = 2·tan(fov/2)/width` radians at distance
+//!    `d_c` from the camera, a level-0 texel spans about `α_v = 2/face_size` at distance `d_v`
+//!    from the viewpoint; level `l` is enough while `2^l · α_v · d_v ≤ α_c · d_c`, so the
+//!    needed level is `floor(log2(α_c·d_c / (α_v·d_v)))`, at least 0 (backgrounds: `d_c = d_v`).
+//!
+//! Each sample stands for `width·height / samples` screen pixels and counts with the
+//! viewpoint's blend weight. The result per tile is a histogram of pixels by needed level, so a
+//! client can say exactly which fraction of the needed pixels it holds at their needed level —
+//! and use the totals as the live visible-pixel counts of Goss & Yuasa.
+
+use glam::DVec3;
+use tracks::manifest::{Manifest, TrackEntry};
+use tracks::{FaceCoord, PerspectiveCamera, TileGrid};
+
+/// Levels tracked per histogram (level 0 .. `MAX_LEVELS − 1`; coarser needs are clamped).
+pub const MAX_LEVELS: usize = 16;
+
+/// What a sample of the camera shows from one viewpoint.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Surface {
+    /// Position of the tile in `viewpoints[viewpoint].tiles`.
+    Tile { viewpoint: usize, tile: usize },
+    Background { viewpoint: usize },
+}
+
+/// Visible pixels of one surface, by the level they need.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SurfaceCount {
+    pub surface: Surface,
+    /// Weighted screen pixels needing exactly level `l` at index `l`.
+    pub pixels_by_level: [f64; MAX_LEVELS],
+}
+
+impl SurfaceCount {
+    pub fn pixels(&self) -> f64 {
+        self.pixels_by_level.iter().sum()
+    }
+
+    /// The finest level any of its pixels needs.
+    pub fn finest_needed(&self) -> u32 {
+        self.pixels_by_level
+            .iter()
+            .position(|&p| p > 0.0)
+            .unwrap_or(0) as u32
+    }
+
+    /// Pixels satisfied when the finest level held is `level` (`None` = nothing held).
+    pub fn satisfied(&self, level: Option<u32>) -> f64 {
+        match level {
+            None => 0.0,
+            Some(l) => self.pixels_by_level[(l as usize).min(MAX_LEVELS - 1)..]
+                .iter()
+                .sum(),
+        }
+    }
+}
+
+struct Layer {
+    /// Tile position per `TileGrid::tile_index`, only kept tiles with opaque pixels.
+    tiles: Vec<Option<usize>>,
+}
+
+struct ViewpointIndex {
+    position: DVec3,
+    /// Per slab.
+    layers: Vec<Layer>,
+    /// Mid depth per tile position.
+    mid_depth: Vec<f64>,
+}
+
+/// One track of a manifest, indexed for visibility queries.
+pub struct SceneIndex {
+    grid: TileGrid,
+    viewpoints: Vec<ViewpointIndex>,
+}
+
+impl SceneIndex {
+    /// `None` when the manifest's face/tile sizes are not a valid grid or the track is absent.
+    pub fn new(m: &Manifest, track: usize) -> Option<SceneIndex> {
+        let grid = TileGrid::new(m.face_size, m.tile_size)?;
+        let t: &TrackEntry = m.tracks.get(track)?;
+        let slabs = m.slabs.len().max(1);
+        let viewpoints = t
+            .viewpoints
+            .iter()
+            .map(|vp| {
+                let mut layers: Vec<Layer> = (0..slabs)
+                    .map(|_| Layer {
+                        tiles: vec![None; grid.tile_count()],
+                    })
+                    .collect();
+                let mut mid_depth = Vec::with_capacity(vp.tiles.len());
+                for (i, tile) in vp.tiles.iter().enumerate() {
+                    let mid = 0.5 * (tile.depth_min + tile.depth_max);
+                    mid_depth.push(mid);
+                    let usable = tile.kept
+                        && tile.ptm.is_some()
+                        && tile.opaque_pixels > 0
+                        && mid.is_finite()
+                        && mid > 0.0
+                        && tile.tile.tx < grid.tiles_per_side()
+                        && tile.tile.ty < grid.tiles_per_side();
+                    if let (true, Some(layer)) = (usable, layers.get_mut(tile.slab as usize)) {
+                        layer.tiles[grid.tile_index(tile.tile)] = Some(i);
+                    }
+                }
+                ViewpointIndex {
+                    position: vp.position,
+                    layers,
+                    mid_depth,
+                }
+            })
+            .collect();
+        Some(SceneIndex { grid, viewpoints })
+    }
+
+    fn lookup(&self, vp: &ViewpointIndex, slab: usize, dir: DVec3) -> Option<usize> {
+        let fc = FaceCoord::from_dir(dir)?;
+        let (x, y) = fc.to_pixel(self.grid.face_size);
+        let t = self.grid.tile_of_pixel(fc.face, x, y);
+        vp.layers[slab].tiles[self.grid.tile_index(t)]
+    }
+
+    /// What viewpoint `vi` shows along the ray `origin + t·dir`: the surface and the hit
+    /// point (`None` for the background).
+    pub fn trace(&self, vi: usize, origin: DVec3, dir: DVec3) -> Option<(Surface, Option<DVec3>)> {
+        let vp = self.viewpoints.get(vi)?;
+        for slab in 0..vp.layers.len() {
+            let Some(mut tile) = self.lookup(vp, slab, dir) else {
+                continue;
+            };
+            let mut hit = None;
+            for _ in 0..2 {
+                let Some(p) = ray_sphere(origin, dir, vp.position, vp.mid_depth[tile]) else {
+                    hit = None;
+                    break;
+                };
+                match self.lookup(vp, slab, p - vp.position) {
+                    Some(t) => {
+                        tile = t;
+                        hit = Some(p);
+                    }
+                    None => {
+                        hit = None;
+                        break;
+                    }
+                }
+            }
+            if let Some(p) = hit {
+                let p = ray_sphere(origin, dir, vp.position, vp.mid_depth[tile]).unwrap_or(p);
+                return Some((
+                    Surface::Tile {
+                        viewpoint: vi,
+                        tile,
+                    },
+                    Some(p),
+                ));
+            }
+        }
+        Some((Surface::Background { viewpoint: vi }, None))
+    }
+
+    /// Count visible pixels per surface for `camera`, sampling its image with
+    /// `samples_x × samples_y` rays, for each `(viewpoint, blend weight)`.
+    pub fn count(
+        &self,
+        camera: &PerspectiveCamera,
+        viewpoints: &[(usize, f64)],
+        samples_x: u32,
+        samples_y: u32,
+    ) -> Vec<SurfaceCount> {
+        let (sx, sy) = (samples_x.max(1), samples_y.max(1));
+        let (w, h) = (camera.width.max(1) as f64, camera.height.max(1) as f64);
+        let px_per_sample = w * h / (sx as f64 * sy as f64);
+        let alpha_c = 2.0 * (camera.fov_deg.to_radians() * 0.5).tan() / w;
+        let alpha_v = 2.0 / self.grid.face_size as f64;
+        let mut counts: std::collections::HashMap<Surface, [f64; MAX_LEVELS]> =
+            std::collections::HashMap::new();
+        for j in 0..sy {
+            for i in 0..sx {
+                let x = (i as f64 + 0.5) * w / sx as f64;
+                let y = (j as f64 + 0.5) * h / sy as f64;
+                let dir = camera.ray_dir(x, y);
+                for &(vi, weight) in viewpoints {
+                    if weight <= 0.0 {
+                        continue;
+                    }
+                    let Some((surface, hit)) = self.trace(vi, camera.position, dir) else {
+                        continue;
+                    };
+                    let q = match hit {
+                        Some(p) => {
+                            let d_c = (p - camera.position).length();
+                            let d_v = (p - self.viewpoints[vi].position).length().max(1e-9);
+                            alpha_c * d_c / (alpha_v * d_v)
+                        }
+                        None => alpha_c / alpha_v,
+                    };
+                    let level = if q > 1.0 {
+                        (q.log2().floor() as usize).min(MAX_LEVELS - 1)
+                    } else {
+                        0
+                    };
+                    counts.entry(surface).or_insert([0.0; MAX_LEVELS])[level] +=
+                        weight * px_per_sample;
+                }
+            }
+        }
+        let mut out: Vec<SurfaceCount> = counts
+            .into_iter()
+            .map(|(surface, pixels_by_level)| SurfaceCount {
+                surface,
+                pixels_by_level,
+            })
+            .collect();
+        out.sort_by(|a, b| a.surface.cmp(&b.surface));
+        out
+    }
+}
+
+/// The far intersection of the ray `o + t·d` (t > 0) with the sphere `|p − c| = r`.
+fn ray_sphere(o: DVec3, d: DVec3, c: DVec3, r: f64) -> Option<DVec3> {
+    let d = d.try_normalize()?;
+    let oc = o - c;
+    let b = d.dot(oc);
+    let disc = b * b - (oc.length_squared() - r * r);
+    if disc < 0.0 {
+        return None;
+    }
+    let t = -b + disc.sqrt();
+    (t > 1e-9).then(|| o + d * t)
+}
+
+/// Blend weights of the two viewpoints bounding the segment that holds arc length `s`
+/// (`vp_s` sorted): `[(i, 1 − f), (i + 1, f)]`, or the single viewpoint of a one-point track.
+pub fn blend_weights(vp_s: &[f64], s: f64) -> Vec<(usize, f64)> {
+    match vp_s.len() {
+        0 => Vec::new(),
+        1 => vec![(0, 1.0)],
+        n => {
+            let i = vp_s.partition_point(|&v| v <= s).saturating_sub(1).min(n - 2);
+            let len = vp_s[i + 1] - vp_s[i];
+            let f = if len > 0.0 {
+                ((s - vp_s[i]) / len).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            vec![(i, 1.0 - f), (i + 1, f)]
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ray_sphere_takes_the_far_side_from_inside() {
+        let p = ray_sphere(DVec3::ZERO, DVec3::X, DVec3::ZERO, 2.0).unwrap();
+        assert!((p - DVec3::new(2.0, 0.0, 0.0)).length() < 1e-12);
+        let p = ray_sphere(DVec3::new(1.0, 0.0, 0.0), DVec3::NEG_X, DVec3::ZERO, 2.0).unwrap();
+        assert!((p - DVec3::new(-2.0, 0.0, 0.0)).length() < 1e-12);
+        assert!(ray_sphere(DVec3::new(5.0, 0.0, 0.0), DVec3::X, DVec3::ZERO, 2.0).is_none());
+    }
+
+    #[test]
+    fn blend_weights_follow_the_segment() {
+        assert_eq!(blend_weights(&[0.0, 4.0, 8.0], 5.0), vec![(1, 0.75), (2, 0.25)]);
+        assert_eq!(blend_weights(&[0.0, 4.0], 9.0), vec![(0, 0.0), (1, 1.0)]);
+        assert_eq!(blend_weights(&[3.0], 9.0), vec![(0, 1.0)]);
+    }
+}
