@@ -11,6 +11,7 @@
 //!   as parallax pixels at the track's largest baseline.
 pub mod boundaries;
 pub mod histogram;
+pub mod io;
 pub mod mesh;
 pub mod tiles;
 
