@@ -1,5 +1,20 @@
 //! Prerendering: cube-map colour, radial depth and slab layers at reference viewpoints.
 //!
 //! - [`store`]: the prerender directory layout shared with later stages.
+//! - [`scene`]: the scene model ([`scene::Scene`], [`scene::Shape`], materials, lights, sky)
+//!   with exact f64 ray queries ([`scene::Scene::first_hit`]).
+//! - [`parse`]: the TOML scene format (read and write).
+//! - [`scenes`]: built-in procedural scenes (`castle`, `nature`) with their tracks.
+//! - [`render`]: cube maps of colour + radial depth, slab layers in one pass, low-res depth,
+//!   perspective ground truth.
 
+mod accel;
+mod geom;
+pub mod parse;
+pub mod render;
+pub mod scene;
+pub mod scenes;
+mod shade;
 pub mod store;
+
+pub use accel::Hit;
