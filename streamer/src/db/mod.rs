@@ -1,1 +1,327 @@
-//! db (in progress)
+//! The walkthrough database: a directory of immutable content-addressed objects plus a
+//! manifest (types in [`tracks::manifest`]).
+//!
+//! Main types: [`DbWriter`] (puts objects, writes the manifest last), [`Database`] (opens a
+//! database, reads objects, byte ranges and single PTM level groups with their checksums),
+//! [`verify()`] → [`Report`] (every file's hash and size, every level range's hash), the compact
+//! [`mesh`] format and [`ach`] (average coverage hints per track segment).
+//!
+//! ```text
+//! DB/manifest.json          the Manifest, written last, atomically
+//! DB/manifest.json.blake3   lowercase hex BLAKE3 of manifest.json (so a flipped byte in the
+//!                           manifest is caught too), written right after it
+//! DB/objects/HH/HASH        payloads named by their BLAKE3; HH = the hash's first two digits
+//! ```
+//!
+//! Every file is written to a temporary name in its final directory and renamed into place, so
+//! a killed writer never leaves a file that looks complete. Objects already present with the
+//! right size are not rewritten, which is what makes `build` resumable.
+
+pub mod ach;
+pub mod mesh;
+mod verify;
+
+use std::fs;
+use std::io::{self, Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+
+use tracks::manifest::{object_rel_path, LevelRef, Manifest, ObjectRef, PtmRef, MANIFEST_VERSION};
+
+use crate::ptm;
+
+pub use verify::{verify, Problem, Report};
+
+/// Name of the manifest file in a database directory.
+pub const MANIFEST_FILE: &str = "manifest.json";
+/// Name of the manifest's checksum file.
+pub const MANIFEST_HASH_FILE: &str = "manifest.json.blake3";
+
+/// Errors of the database layer; each names the file at fault.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DbError {
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: io::Error },
+    /// The file's content is wrong (bad JSON, wrong hash or size, unknown version, …).
+    #[error("{path}: {message}")]
+    Format { path: PathBuf, message: String },
+    /// A request that does not fit the database (bad hash, range outside an object, …).
+    #[error("{0}")]
+    Request(String),
+}
+
+impl DbError {
+    fn io(path: &Path, source: io::Error) -> DbError {
+        DbError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+    fn format(path: &Path, message: impl Into<String>) -> DbError {
+        DbError::Format {
+            path: path.to_path_buf(),
+            message: message.into(),
+        }
+    }
+}
+
+/// Lowercase hex BLAKE3 of `bytes`.
+pub fn hash_hex(bytes: &[u8]) -> String {
+    blake3::hash(bytes).to_hex().to_string()
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same directory and a rename.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DbError> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    fs::create_dir_all(dir).map_err(|e| DbError::io(dir, e))?;
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = dir.join(format!(".{name}.tmp.{}", std::process::id()));
+    let result = (|| {
+        let mut f = fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        fs::rename(&tmp, path)
+    })();
+    result.map_err(|e| {
+        fs::remove_file(&tmp).ok(); // best effort: the write error is what gets reported
+        DbError::io(path, e)
+    })
+}
+
+/// Builds a database directory; objects first, the manifest last ([`DbWriter::finish`]).
+#[derive(Debug)]
+pub struct DbWriter {
+    root: PathBuf,
+    /// Objects written by this writer, and their bytes.
+    pub objects_written: u64,
+    pub bytes_written: u64,
+    /// Objects that were already present (resumed or shared content).
+    pub objects_reused: u64,
+}
+
+impl DbWriter {
+    /// Opens (creating if needed) a database directory for writing. An existing manifest is
+    /// left in place until [`DbWriter::finish`] replaces it.
+    pub fn create(root: &Path) -> Result<DbWriter, DbError> {
+        let objects = root.join("objects");
+        fs::create_dir_all(&objects).map_err(|e| DbError::io(&objects, e))?;
+        Ok(DbWriter {
+            root: root.to_path_buf(),
+            objects_written: 0,
+            bytes_written: 0,
+            objects_reused: 0,
+        })
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// Stores `bytes` as an object named by its hash; reuses an existing object of that name
+    /// and size.
+    pub fn put(&mut self, bytes: &[u8]) -> Result<ObjectRef, DbError> {
+        let hash = hash_hex(bytes);
+        let rel = object_rel_path(&hash).expect("blake3 hex is a valid object name");
+        let path = self.root.join(rel);
+        let obj = ObjectRef {
+            hash,
+            size: bytes.len() as u64,
+        };
+        if fs::metadata(&path).is_ok_and(|m| m.is_file() && m.len() == obj.size) {
+            self.objects_reused += 1;
+            return Ok(obj);
+        }
+        write_atomic(&path, bytes)?;
+        self.objects_written += 1;
+        self.bytes_written += obj.size;
+        Ok(obj)
+    }
+
+    /// Stores an encoded PTM and describes its level groups for the manifest.
+    pub fn put_ptm(&mut self, enc: &ptm::Encoded, channels: u8) -> Result<PtmRef, DbError> {
+        let object = self.put(&enc.bytes)?;
+        Ok(ptm_ref(object, enc, channels))
+    }
+
+    /// Writes the manifest (atomically) and its checksum file: the database is complete.
+    pub fn finish(&self, manifest: &Manifest) -> Result<(), DbError> {
+        let path = self.root.join(MANIFEST_FILE);
+        let mut json = serde_json::to_vec_pretty(manifest)
+            .map_err(|e| DbError::format(&path, e.to_string()))?;
+        json.push(b'\n');
+        write_atomic(&path, &json)?;
+        write_atomic(
+            &self.root.join(MANIFEST_HASH_FILE),
+            format!("{}\n", hash_hex(&json)).as_bytes(),
+        )
+    }
+}
+
+/// The manifest entry of an encoded PTM stored as `object`.
+pub fn ptm_ref(object: ObjectRef, enc: &ptm::Encoded, channels: u8) -> PtmRef {
+    let levels = enc
+        .groups
+        .iter()
+        .map(|g| {
+            let range = g.offset as usize..(g.offset + g.len) as usize;
+            LevelRef {
+                level: g.level,
+                width: g.width,
+                height: g.height,
+                offset: g.offset,
+                len: g.len,
+                hash: hash_hex(&enc.bytes[range]),
+            }
+        })
+        .collect::<Vec<_>>();
+    let (width, height) = levels.last().map_or((0, 0), |l| (l.width, l.height));
+    PtmRef {
+        object,
+        width,
+        height,
+        channels,
+        levels,
+    }
+}
+
+/// A database opened for reading.
+#[derive(Debug, Clone)]
+pub struct Database {
+    root: PathBuf,
+    manifest: Manifest,
+}
+
+impl Database {
+    /// Reads and checks `DIR/manifest.json` (against its checksum file when present).
+    pub fn open(dir: &Path) -> Result<Database, DbError> {
+        let manifest = read_manifest(dir)?;
+        Ok(Database {
+            root: dir.to_path_buf(),
+            manifest,
+        })
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// Path of the object with this hash; `None` for anything that is not a valid hash.
+    pub fn object_path(&self, hash: &str) -> Option<PathBuf> {
+        object_rel_path(hash).map(|rel| self.root.join(rel))
+    }
+
+    /// The whole object, checked against its size and hash.
+    pub fn read_object(&self, obj: &ObjectRef) -> Result<Vec<u8>, DbError> {
+        let path = self
+            .object_path(&obj.hash)
+            .ok_or_else(|| DbError::Request(format!("invalid object hash {:?}", obj.hash)))?;
+        let bytes = fs::read(&path).map_err(|e| DbError::io(&path, e))?;
+        if bytes.len() as u64 != obj.size {
+            return Err(DbError::format(
+                &path,
+                format!("size {} (manifest says {})", bytes.len(), obj.size),
+            ));
+        }
+        let got = hash_hex(&bytes);
+        if got != obj.hash {
+            return Err(DbError::format(&path, format!("content hash is {got}")));
+        }
+        Ok(bytes)
+    }
+
+    /// `len` bytes at `offset` of an object (not hash-checked: ranges carry their own hash).
+    pub fn read_range(&self, obj: &ObjectRef, offset: u64, len: u64) -> Result<Vec<u8>, DbError> {
+        let end = offset
+            .checked_add(len)
+            .filter(|&e| e <= obj.size)
+            .ok_or_else(|| {
+                DbError::Request(format!(
+                    "range {offset}+{len} outside object {} of {} bytes",
+                    obj.hash, obj.size
+                ))
+            })?;
+        let path = self
+            .object_path(&obj.hash)
+            .ok_or_else(|| DbError::Request(format!("invalid object hash {:?}", obj.hash)))?;
+        let mut f = fs::File::open(&path).map_err(|e| DbError::io(&path, e))?;
+        let mut buf = vec![0u8; (end - offset) as usize];
+        f.seek(SeekFrom::Start(offset))
+            .and_then(|_| f.read_exact(&mut buf))
+            .map_err(|e| DbError::io(&path, e))?;
+        Ok(buf)
+    }
+
+    /// Stream chunk `group` of a PTM (0 = header + lowest level), checked against its hash.
+    pub fn read_level(&self, ptm: &PtmRef, group: usize) -> Result<Vec<u8>, DbError> {
+        let l = ptm.levels.get(group).ok_or_else(|| {
+            DbError::Request(format!(
+                "PTM {} has {} level groups, not {}",
+                ptm.object.hash,
+                ptm.levels.len(),
+                group + 1
+            ))
+        })?;
+        let bytes = self.read_range(&ptm.object, l.offset, l.len)?;
+        let got = hash_hex(&bytes);
+        if got != l.hash {
+            let path = self.object_path(&ptm.object.hash).unwrap_or_default();
+            return Err(DbError::format(
+                &path,
+                format!(
+                    "level group {group} (bytes {}..{}) hash is {got}, manifest says {}",
+                    l.offset,
+                    l.offset + l.len,
+                    l.hash
+                ),
+            ));
+        }
+        Ok(bytes)
+    }
+}
+
+/// Reads `DIR/manifest.json`, checking its checksum file when present and its version.
+pub fn read_manifest(dir: &Path) -> Result<Manifest, DbError> {
+    let path = dir.join(MANIFEST_FILE);
+    let bytes = fs::read(&path).map_err(|e| DbError::io(&path, e))?;
+    let hash_path = dir.join(MANIFEST_HASH_FILE);
+    match fs::read_to_string(&hash_path) {
+        Ok(text) => {
+            let got = hash_hex(&bytes);
+            if text.trim() != got {
+                return Err(DbError::format(
+                    &path,
+                    format!("content hash {got} does not match {}", hash_path.display()),
+                ));
+            }
+        }
+        Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+        Err(e) => return Err(DbError::io(&hash_path, e)),
+    }
+    parse_manifest(&path, &bytes)
+}
+
+/// Parses manifest bytes read from `path` and checks the version.
+pub(crate) fn parse_manifest(path: &Path, bytes: &[u8]) -> Result<Manifest, DbError> {
+    let m: Manifest = serde_json::from_slice(bytes)
+        .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
+    if m.version != MANIFEST_VERSION {
+        return Err(DbError::format(
+            path,
+            format!(
+                "manifest version {} (this build reads {MANIFEST_VERSION})",
+                m.version
+            ),
+        ));
+    }
+    Ok(m)
+}
+
+#[cfg(test)]
+mod tests;

@@ -164,7 +164,7 @@ fn long_fuzz() {
                 let at = at % bytes.len();
                 bytes[at] ^= x.max(1);
             }
-            if cut % 3 == 0 {
+            if cut.is_multiple_of(3) {
                 bytes.truncate(cut % (bytes.len() + 1));
             }
             if cut % 5 == 1 {
@@ -197,20 +197,26 @@ fn extreme_images_round_trip() {
                 roundtrip(&Image::from_fn(w, h, c, |_, _, _| 0), &o);
                 roundtrip(&Image::from_fn(w, h, c, |_, _, _| 255), &o);
                 roundtrip(
-                    &Image::from_fn(w, h, c, |x, y, _| if (x + y) % 2 == 0 { 0 } else { 255 }),
-                    &o,
-                );
-                roundtrip(
                     &Image::from_fn(
                         w,
                         h,
                         c,
-                        |x, _, k| if (x + k as u32) % 2 == 0 { 255 } else { 0 },
+                        |x, y, _| if (x + y).is_multiple_of(2) { 0 } else { 255 },
                     ),
                     &o,
                 );
                 roundtrip(
-                    &Image::from_fn(w, h, c, |_, y, _| if y % 2 == 0 { 255 } else { 0 }),
+                    &Image::from_fn(w, h, c, |x, _, k| {
+                        if (x + k as u32).is_multiple_of(2) {
+                            255
+                        } else {
+                            0
+                        }
+                    }),
+                    &o,
+                );
+                roundtrip(
+                    &Image::from_fn(w, h, c, |_, y, _| if y.is_multiple_of(2) { 255 } else { 0 }),
                     &o,
                 );
             }

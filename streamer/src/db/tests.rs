@@ -1,0 +1,229 @@
+//! Database writer/reader/verify tests on a tiny database.
+
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use tracks::manifest::*;
+use tracks::{Face, SlabRange, TileId};
+
+use super::mesh::{encode_mesh, MeshData};
+use super::*;
+use crate::ptm::{encode, EncodeOptions, Image};
+
+fn tmpdir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("railview-db-{name}-{}", std::process::id()));
+    let _ = fs::remove_dir_all(&d);
+    fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Writes a small database: 2 viewpoints, 3 tiles each (one culled), a background each.
+fn build(dir: &Path) -> (Manifest, DbWriter) {
+    let mut w = DbWriter::create(dir).unwrap();
+    let mut viewpoints = Vec::new();
+    for v in 0..2usize {
+        let mut tiles = Vec::new();
+        for t in 0..3u32 {
+            let tile = TileId {
+                face: Face::ALL[t as usize],
+                tx: t,
+                ty: 1,
+            };
+            let kept = t != 2;
+            let (ptm, mesh) = if kept {
+                let img = Image::from_fn(16, 16, 4, |x, y, c| {
+                    (x * 9 + y * 3 + c as u32 * 50 + v as u32 * 7 + t) as u8
+                });
+                let enc = encode(&img, &EncodeOptions::default()).unwrap();
+                let mesh = MeshData {
+                    vertices: vec![
+                        [0.5, 0.5, 3.0],
+                        [15.5, 0.5, 3.5],
+                        [0.5, 15.5, 4.0 + t as f32 * 10.0 + v as f32],
+                    ],
+                    indices: vec![0, 1, 2],
+                };
+                (
+                    Some(w.put_ptm(&enc, 4).unwrap()),
+                    Some(w.put(&encode_mesh(&mesh).unwrap()).unwrap()),
+                )
+            } else {
+                (None, None)
+            };
+            tiles.push(TileEntry {
+                tile,
+                slab: t % 2,
+                depth_min: 3.0,
+                depth_max: 5.0,
+                opaque_pixels: 200,
+                kept,
+                ptm,
+                mesh,
+            });
+        }
+        let bg = Image::from_fn(8, 48, 4, |x, y, c| (x + y + c as u32 + v as u32) as u8);
+        let background = Some(
+            w.put_ptm(&encode(&bg, &EncodeOptions::default()).unwrap(), 4)
+                .unwrap(),
+        );
+        viewpoints.push(ViewpointEntry {
+            index: v,
+            s: v as f64 * 2.0,
+            position: DVec3::new(v as f64 * 2.0, 1.7, 0.0),
+            background,
+            tiles,
+        });
+    }
+    let m = Manifest {
+        version: MANIFEST_VERSION,
+        scene: "test".into(),
+        face_size: 32,
+        tile_size: 16,
+        slabs: vec![
+            SlabRange {
+                near: 0.0,
+                far: 4.0,
+            },
+            SlabRange {
+                near: 4.0,
+                far: f64::INFINITY,
+            },
+        ],
+        cull_alpha: Some(1.0),
+        cull_variant: Some("conservative".into()),
+        tracks: vec![TrackEntry {
+            name: "main".into(),
+            track_toml: String::new(),
+            length: 2.0,
+            viewpoints,
+            segments: vec![SegmentEntry {
+                from: 0,
+                to: 1,
+                ach: vec![],
+            }],
+        }],
+    };
+    w.finish(&m).unwrap();
+    (m, w)
+}
+
+fn all_files(dir: &Path) -> Vec<PathBuf> {
+    let mut out = vec![];
+    for e in fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            out.extend(all_files(&p));
+        } else {
+            out.push(p);
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn write_open_read_levels() {
+    let dir = tmpdir("rw");
+    let (m, w) = build(&dir);
+    // 4 tile PTMs, 2 backgrounds and 4 meshes, all distinct.
+    assert_eq!(w.objects_written, 10);
+    let db = Database::open(&dir).unwrap();
+    assert_eq!(db.manifest(), &m);
+    let tile = &m.tracks[0].viewpoints[1].tiles[0];
+    let p = tile.ptm.as_ref().unwrap();
+    let whole = db.read_object(&p.object).unwrap();
+    let mut stream = Vec::new();
+    for g in 0..p.levels.len() {
+        stream.extend(db.read_level(p, g).unwrap());
+    }
+    assert_eq!(stream, whole);
+    assert_eq!(
+        crate::ptm::decode(&whole, crate::ptm::Limits::default())
+            .unwrap()
+            .width(),
+        16
+    );
+    assert!(db.read_level(p, p.levels.len()).is_err());
+    assert!(db.read_range(&p.object, p.object.size - 1, 2).is_err());
+    assert!(db.read_range(&p.object, u64::MAX, 2).is_err());
+    assert!(db.object_path("../../etc/passwd").is_none());
+    // Rebuilding reuses every object (resume).
+    let (_, w2) = build(&dir);
+    assert_eq!((w2.objects_written, w2.objects_reused), (0, 10));
+    let r = verify(&dir).unwrap();
+    assert!(r.is_intact(), "{r:?}");
+    assert_eq!(
+        (
+            r.objects_referenced,
+            r.files_checked,
+            r.level_ranges_checked
+        ),
+        (6 + 4, 10, r.level_ranges_checked)
+    );
+    assert!(r.level_ranges_checked >= 6 * 5);
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_flipped_byte_in_any_file_is_caught_and_named() {
+    let dir = tmpdir("flip");
+    build(&dir);
+    let files = all_files(&dir);
+    assert_eq!(files.len(), 12);
+    for f in &files {
+        let orig = fs::read(f).unwrap();
+        for at in [0, orig.len() / 2, orig.len() - 1] {
+            let mut bad = orig.clone();
+            bad[at] ^= 0x10;
+            fs::write(f, &bad).unwrap();
+            let r = verify(&dir).unwrap();
+            assert!(!r.is_intact(), "{} byte {at}", f.display());
+            assert!(
+                r.problems.iter().any(|p| &p.path == f),
+                "{} byte {at}: {:?}",
+                f.display(),
+                r.problems
+            );
+        }
+        fs::write(f, &orig).unwrap();
+    }
+    assert!(verify(&dir).unwrap().is_intact());
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn missing_truncated_and_stray_files() {
+    let dir = tmpdir("missing");
+    let (m, _) = build(&dir);
+    let mesh = m.tracks[0].viewpoints[0].tiles[1].mesh.clone().unwrap();
+    let mesh_path = dir.join(mesh.rel_path().unwrap());
+    fs::remove_file(&mesh_path).unwrap();
+    let r = verify(&dir).unwrap();
+    assert_eq!(r.problems.len(), 1, "{r:?}");
+    assert_eq!(r.problems[0].path, mesh_path);
+    assert!(r.problems[0].what.contains("missing"));
+    // A leftover temporary file and an unreferenced object are notes, not damage.
+    fs::write(mesh_path.with_file_name(".x.tmp.1"), b"partial").unwrap();
+    let stray = dir.join(object_rel_path(&hash_hex(b"stray")).unwrap());
+    write_atomic(&stray, b"stray").unwrap();
+    let r = verify(&dir).unwrap();
+    assert_eq!(r.problems.len(), 1);
+    assert_eq!(r.notes.len(), 2, "{:?}", r.notes);
+    // Truncating a PTM: its hash, size and level ranges are all reported on that file.
+    let p = m.tracks[0].viewpoints[0].tiles[0].ptm.clone().unwrap();
+    let pp = dir.join(p.object.rel_path().unwrap());
+    let bytes = fs::read(&pp).unwrap();
+    fs::write(&pp, &bytes[..bytes.len() - 3]).unwrap();
+    let r = verify(&dir).unwrap();
+    assert!(
+        r.problems.iter().filter(|x| x.path == pp).count() >= 3,
+        "{:?}",
+        r.problems
+    );
+    // No manifest at all.
+    fs::remove_file(dir.join(MANIFEST_FILE)).unwrap();
+    let r = verify(&dir).unwrap();
+    assert!(r.problems.iter().any(|x| x.path == dir.join(MANIFEST_FILE)));
+    assert!(Database::open(&dir).is_err());
+    fs::remove_dir_all(&dir).unwrap();
+}

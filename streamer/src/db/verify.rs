@@ -1,0 +1,301 @@
+//! `verify`: checks every file of a database and names each damaged or missing one.
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use tracks::manifest::{object_rel_path, Manifest, ObjectRef, PtmRef};
+
+use super::{hash_hex, parse_manifest, DbError, MANIFEST_FILE, MANIFEST_HASH_FILE};
+use crate::ptm;
+
+/// One thing wrong with a database.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Problem {
+    /// The file at fault.
+    pub path: PathBuf,
+    pub what: String,
+}
+
+/// The result of [`verify`].
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Report {
+    /// Distinct objects the manifest references.
+    pub objects_referenced: usize,
+    /// Files under `objects/` whose content was hashed.
+    pub files_checked: usize,
+    pub bytes_checked: u64,
+    /// PTM level groups whose range hash was checked.
+    pub level_ranges_checked: usize,
+    /// Damage: the database is intact only when this is empty.
+    pub problems: Vec<Problem>,
+    /// Harmless findings (leftover temporary files of a killed writer, unreferenced objects).
+    pub notes: Vec<Problem>,
+}
+
+impl Report {
+    pub fn is_intact(&self) -> bool {
+        self.problems.is_empty()
+    }
+}
+
+/// Checks the manifest, its checksum, every object's size and hash (referenced or not), and
+/// every PTM level range's hash. `Err` only when `dir` itself cannot be read.
+pub fn verify(dir: &Path) -> Result<Report, DbError> {
+    let mut report = Report::default();
+    fs::read_dir(dir).map_err(|e| DbError::io(dir, e))?;
+    let problem = |path: PathBuf, what: String| Problem { path, what };
+
+    let manifest_path = dir.join(MANIFEST_FILE);
+    let hash_path = dir.join(MANIFEST_HASH_FILE);
+    let manifest = match fs::read(&manifest_path) {
+        Err(e) => {
+            report
+                .problems
+                .push(problem(manifest_path.clone(), e.to_string()));
+            None
+        }
+        Ok(bytes) => {
+            match fs::read_to_string(&hash_path) {
+                Err(e) => report.problems.push(problem(
+                    hash_path.clone(),
+                    format!("{e} (the manifest cannot be checked)"),
+                )),
+                Ok(text)
+                    if object_rel_path(text.trim_end_matches('\n')).is_none()
+                        || !text.ends_with('\n') =>
+                {
+                    report.problems.push(problem(
+                        hash_path.clone(),
+                        "not a BLAKE3 hex line: the file is damaged".into(),
+                    ))
+                }
+                Ok(text) => {
+                    let got = hash_hex(&bytes);
+                    if text.trim_end() != got {
+                        let what = format!("manifest.json hashes to {got}, manifest.json.blake3 says {}: one of the two is damaged", text.trim_end());
+                        report
+                            .problems
+                            .push(problem(manifest_path.clone(), what.clone()));
+                        report.problems.push(problem(hash_path.clone(), what));
+                    }
+                }
+            }
+            match parse_manifest(&manifest_path, &bytes) {
+                Ok(m) => Some(m),
+                Err(e) => {
+                    report
+                        .problems
+                        .push(problem(manifest_path.clone(), strip_path(&e)));
+                    None
+                }
+            }
+        }
+    };
+
+    // Every object the manifest references, with the PTM ranges inside it.
+    let mut wanted: BTreeMap<String, (u64, Vec<&PtmRef>)> = BTreeMap::new();
+    let mut bad_refs = Vec::new();
+    if let Some(m) = &manifest {
+        for_each_object(m, &mut |obj, ptm| {
+            if object_rel_path(&obj.hash).is_none() {
+                bad_refs.push(format!("invalid object hash {:?}", obj.hash));
+                return;
+            }
+            let e = wanted
+                .entry(obj.hash.clone())
+                .or_insert((obj.size, Vec::new()));
+            if e.0 != obj.size {
+                bad_refs.push(format!(
+                    "object {} listed with sizes {} and {}",
+                    obj.hash, e.0, obj.size
+                ));
+            }
+            if let Some(p) = ptm {
+                e.1.push(p);
+            }
+        });
+    }
+    for what in bad_refs {
+        report.problems.push(problem(dir.join(MANIFEST_FILE), what));
+    }
+    report.objects_referenced = wanted.len();
+
+    // Every file under objects/.
+    let objects = dir.join("objects");
+    let mut seen = BTreeMap::new();
+    match fs::read_dir(&objects) {
+        Err(e) => {
+            if !wanted.is_empty() || e.kind() != std::io::ErrorKind::NotFound {
+                report
+                    .problems
+                    .push(problem(objects.clone(), e.to_string()));
+            }
+        }
+        Ok(entries) => {
+            let mut subdirs: Vec<_> = entries.filter_map(Result::ok).collect();
+            subdirs.sort_by_key(|e| e.file_name());
+            for sub in subdirs {
+                let sub_path = sub.path();
+                let Ok(files) = fs::read_dir(&sub_path) else {
+                    report
+                        .notes
+                        .push(problem(sub_path, "not a directory of objects".into()));
+                    continue;
+                };
+                let mut files: Vec<_> = files.filter_map(Result::ok).collect();
+                files.sort_by_key(|e| e.file_name());
+                for f in files {
+                    let path = f.path();
+                    let name = f.file_name().to_string_lossy().into_owned();
+                    if name.starts_with('.') && name.contains(".tmp.") {
+                        report.notes.push(problem(
+                            path,
+                            "temporary file of an interrupted write".into(),
+                        ));
+                        continue;
+                    }
+                    let Some(rel) = object_rel_path(&name) else {
+                        report
+                            .problems
+                            .push(problem(path, "not an object name (64 hex digits)".into()));
+                        continue;
+                    };
+                    if dir.join(&rel) != path {
+                        report.problems.push(problem(
+                            path,
+                            format!("object stored in the wrong directory (belongs in {rel})"),
+                        ));
+                        continue;
+                    }
+                    let bytes = match fs::read(&path) {
+                        Ok(b) => b,
+                        Err(e) => {
+                            report.problems.push(problem(path, e.to_string()));
+                            continue;
+                        }
+                    };
+                    report.files_checked += 1;
+                    report.bytes_checked += bytes.len() as u64;
+                    let got = hash_hex(&bytes);
+                    if got != name {
+                        report.problems.push(problem(
+                            path.clone(),
+                            format!("content hash is {got}: the file is damaged"),
+                        ));
+                    }
+                    match wanted.get(&name) {
+                        None => report.notes.push(problem(
+                            path.clone(),
+                            "not referenced by the manifest".into(),
+                        )),
+                        Some((size, ptms)) => {
+                            if bytes.len() as u64 != *size {
+                                report.problems.push(problem(
+                                    path.clone(),
+                                    format!("size {} but the manifest says {size}", bytes.len()),
+                                ));
+                            }
+                            for p in ptms {
+                                check_ptm(&path, &bytes, p, &mut report);
+                            }
+                        }
+                    }
+                    seen.insert(name, ());
+                }
+            }
+        }
+    }
+    for hash in wanted.keys() {
+        if !seen.contains_key(hash) {
+            let rel = object_rel_path(hash).expect("checked above");
+            report.problems.push(problem(
+                dir.join(rel),
+                "missing (referenced by the manifest)".into(),
+            ));
+        }
+    }
+    Ok(report)
+}
+
+/// Checks each level range of a PTM object and that the PTM header agrees with the manifest.
+fn check_ptm(path: &Path, bytes: &[u8], p: &PtmRef, report: &mut Report) {
+    let mut push = |what: String| {
+        report.problems.push(Problem {
+            path: path.to_path_buf(),
+            what,
+        })
+    };
+    for (g, l) in p.levels.iter().enumerate() {
+        let Some(end) = l
+            .offset
+            .checked_add(l.len)
+            .filter(|&e| e <= bytes.len() as u64)
+        else {
+            push(format!(
+                "level group {g}: range {}+{} outside the file",
+                l.offset, l.len
+            ));
+            continue;
+        };
+        let got = hash_hex(&bytes[l.offset as usize..end as usize]);
+        if got != l.hash {
+            push(format!(
+                "level group {g} (level {}, bytes {}..{end}): hash is {got}, manifest says {}",
+                l.level, l.offset, l.hash
+            ));
+        }
+    }
+    let mut dec = ptm::Decoder::new(ptm::Limits::default());
+    let header_len = p
+        .levels
+        .first()
+        .map_or(0, |l| l.len as usize)
+        .min(bytes.len());
+    match dec.push(&bytes[..header_len]) {
+        Err(e) => push(format!("PTM header: {e}")),
+        Ok(_) => {
+            if let Some(h) = dec.header() {
+                if (h.width, h.height, h.channels) != (p.width, p.height, p.channels)
+                    || h.levels as usize != p.levels.len()
+                    || h.file_len() != bytes.len() as u64
+                {
+                    push(format!(
+                        "PTM header says {}×{}×{} with {} levels and {} bytes; manifest says {}×{}×{} with {} levels",
+                        h.width, h.height, h.channels, h.levels, h.file_len(), p.width, p.height, p.channels, p.levels.len()
+                    ));
+                }
+            } else {
+                push("PTM header incomplete in level group 0".into());
+            }
+        }
+    }
+    report.level_ranges_checked += p.levels.len();
+}
+
+fn for_each_object<'m>(m: &'m Manifest, f: &mut dyn FnMut(&'m ObjectRef, Option<&'m PtmRef>)) {
+    for t in &m.tracks {
+        for v in &t.viewpoints {
+            if let Some(b) = &v.background {
+                f(&b.object, Some(b));
+            }
+            for tile in &v.tiles {
+                if let Some(p) = &tile.ptm {
+                    f(&p.object, Some(p));
+                }
+                if let Some(mesh) = &tile.mesh {
+                    f(mesh, None);
+                }
+            }
+        }
+    }
+}
+
+/// The message of an error whose path is reported separately.
+fn strip_path(e: &DbError) -> String {
+    match e {
+        DbError::Io { source, .. } => source.to_string(),
+        DbError::Format { message, .. } => message.clone(),
+        DbError::Request(m) => m.clone(),
+    }
+}
