@@ -1,0 +1,301 @@
+//! CPU reference of the GPU path: executes a [`FramePlan`] with the same math as
+//! `render.wgsl`/`blend.wgsl` (f32 uniforms, projective texturing from the reference
+//! viewpoint, reversed-Z depth test, opacity mask at 0.5, trilinear sampling with the same
+//! clamping) but without wgpu: near-plane clipping, edge-function rasterisation at pixel
+//! centres and perspective-correct interpolation are done here.
+//!
+//! It is slow and meant for small images: tests compare it with the GPU and state the
+//! tolerance (rasterisation tie rules at shared edges and texture-filter precision differ).
+
+use glam::{Mat4, Vec3, Vec4};
+use tracks::Face;
+
+use crate::gpu::Frame;
+use crate::plan::{FramePlan, ViewPass, NEAR_M};
+use crate::refview::RefView;
+use crate::texture::{linear_to_srgb, Layer};
+
+fn face_of(d: Vec3) -> Face {
+    let a = d.abs();
+    if a.x >= a.y && a.x >= a.z {
+        if d.x > 0.0 {
+            Face::PosX
+        } else {
+            Face::NegX
+        }
+    } else if a.y >= a.z {
+        if d.y > 0.0 {
+            Face::PosY
+        } else {
+            Face::NegY
+        }
+    } else if d.z > 0.0 {
+        Face::PosZ
+    } else {
+        Face::NegZ
+    }
+}
+
+fn basis(f: Face) -> (Vec3, Vec3, Vec3) {
+    (f.forward().as_vec3(), f.right().as_vec3(), f.up().as_vec3())
+}
+
+fn pixel_on_face(f: Face, d: Vec3, n: f32) -> (f64, f64) {
+    let (fw, r, u) = basis(f);
+    let z = d.dot(fw);
+    let (uu, vv) = (d.dot(r) / z, d.dot(u) / z);
+    (((uu + 1.0) * 0.5 * n) as f64, ((1.0 - vv) * 0.5 * n) as f64)
+}
+
+/// Colour (linear RGB) and coverage (0 or 1) of one view pass.
+pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Vec<[f32; 4]> {
+    let (w, h) = (width as usize, height as usize);
+    let u = &pass.uniforms;
+    let n = u.origin_rel[3];
+    let lod = u.params[0];
+    let mut color = vec![[0.0f32; 4]; w * h];
+    let mut depth = vec![0.0f32; w * h];
+    let v3 = |a: [f32; 4]| Vec3::new(a[0], a[1], a[2]);
+    // Background.
+    if let Some(bg) = view.layers.first() {
+        for y in 0..h {
+            for x in 0..w {
+                let ndc_x = (x as f32 + 0.5) / width as f32 * 2.0 - 1.0;
+                let ndc_y = 1.0 - (y as f32 + 0.5) / height as f32 * 2.0;
+                let d = v3(u.ray_forward) + ndc_x * v3(u.ray_right) + ndc_y * v3(u.ray_up);
+                let f = face_of(d);
+                let (px, py) = pixel_on_face(f, d, n);
+                let c = bg.sample(lod, f, px, py);
+                if c[3] > 0.0 {
+                    color[y * w + x] = [c[0], c[1], c[2], 1.0];
+                }
+            }
+        }
+    }
+    let m = Mat4::from_cols_array_2d(&u.clip_from_cam);
+    let origin = v3(u.origin_rel);
+    for &ti in &pass.visible {
+        let tile = &view.tiles[ti];
+        let face = tile.tile.face;
+        let Some(layer) = view.layers.get(tile.slab as usize + 1) else {
+            continue;
+        };
+        let tile_lod = lod.max(pass.tile_min_level.get(ti).copied().unwrap_or(0) as f32);
+        let (fw, r, up) = basis(face);
+        let verts: Vec<(Vec4, Vec3)> = tile
+            .mesh
+            .vertices
+            .iter()
+            .map(|v| {
+                let uu = 2.0 * v.pos_in_face[0] / n - 1.0;
+                let vv = 1.0 - 2.0 * v.pos_in_face[1] / n;
+                let p = (fw + uu * r + vv * up).normalize() * v.depth_m;
+                (m * (p + origin).extend(1.0), p)
+            })
+            .collect();
+        for tri in tile.mesh.indices.chunks_exact(3) {
+            let poly = clip_near([
+                verts[tri[0] as usize],
+                verts[tri[1] as usize],
+                verts[tri[2] as usize],
+            ]);
+            for k in 1..poly.len().saturating_sub(1) {
+                raster(
+                    [poly[0], poly[k], poly[k + 1]],
+                    (width, height),
+                    &mut |idx, z, p| {
+                        if z <= depth[idx] {
+                            return;
+                        }
+                        let (px, py) = pixel_on_face(face, p, n);
+                        let c = layer.sample(tile_lod, face, px, py);
+                        if c[3] >= 0.5 {
+                            depth[idx] = z;
+                            color[idx] = [c[0], c[1], c[2], 1.0];
+                        }
+                    },
+                );
+            }
+        }
+    }
+    color
+}
+
+/// Sutherland–Hodgman against the near plane `w ≥ NEAR_M` (the GPU's `z ≤ w` with
+/// `z = NEAR_M`).
+fn clip_near(tri: [(Vec4, Vec3); 3]) -> Vec<(Vec4, Vec3)> {
+    let near = NEAR_M as f32;
+    let mut out = Vec::with_capacity(4);
+    for i in 0..3 {
+        let (a, b) = (tri[i], tri[(i + 1) % 3]);
+        let (da, db) = (a.0.w - near, b.0.w - near);
+        if da >= 0.0 {
+            out.push(a);
+        }
+        if (da >= 0.0) != (db >= 0.0) {
+            let t = da / (da - db);
+            out.push((a.0.lerp(b.0, t), a.1.lerp(b.1, t)));
+        }
+    }
+    out
+}
+
+/// Rasterise one clipped triangle: `frag(pixel index, ndc depth, interpolated p_ref)` for
+/// every pixel centre inside it.
+fn raster(tri: [(Vec4, Vec3); 3], size: (u32, u32), frag: &mut impl FnMut(usize, f32, Vec3)) {
+    let (w, h) = (size.0 as f32, size.1 as f32);
+    let s: Vec<(f32, f32, f32, f32)> = tri
+        .iter()
+        .map(|(c, _)| {
+            let iw = 1.0 / c.w;
+            (
+                (c.x * iw + 1.0) * 0.5 * w,
+                (1.0 - c.y * iw) * 0.5 * h,
+                c.z * iw,
+                iw,
+            )
+        })
+        .collect();
+    let area = (s[1].0 - s[0].0) * (s[2].1 - s[0].1) - (s[2].0 - s[0].0) * (s[1].1 - s[0].1);
+    if area == 0.0 || !area.is_finite() {
+        return;
+    }
+    let minx = s.iter().map(|p| p.0).fold(f32::INFINITY, f32::min).max(0.0);
+    let maxx = s
+        .iter()
+        .map(|p| p.0)
+        .fold(f32::NEG_INFINITY, f32::max)
+        .min(w);
+    let miny = s.iter().map(|p| p.1).fold(f32::INFINITY, f32::min).max(0.0);
+    let maxy = s
+        .iter()
+        .map(|p| p.1)
+        .fold(f32::NEG_INFINITY, f32::max)
+        .min(h);
+    if minx >= maxx || miny >= maxy {
+        return;
+    }
+    let (x0, x1) = (
+        (minx - 0.5).floor().max(0.0) as u32,
+        (maxx as u32).min(size.0 - 1),
+    );
+    let (y0, y1) = (
+        (miny - 0.5).floor().max(0.0) as u32,
+        (maxy as u32).min(size.1 - 1),
+    );
+    let edge = |a: usize, b: usize, x: f32, y: f32| {
+        (s[b].0 - s[a].0) * (y - s[a].1) - (s[b].1 - s[a].1) * (x - s[a].0)
+    };
+    for py in y0..=y1 {
+        for px in x0..=x1 {
+            let (x, y) = (px as f32 + 0.5, py as f32 + 0.5);
+            let b0 = edge(1, 2, x, y) / area;
+            let b1 = edge(2, 0, x, y) / area;
+            let b2 = edge(0, 1, x, y) / area;
+            if b0 < 0.0 || b1 < 0.0 || b2 < 0.0 {
+                continue;
+            }
+            let z = b0 * s[0].2 + b1 * s[1].2 + b2 * s[2].2;
+            let (q0, q1, q2) = (b0 * s[0].3, b1 * s[1].3, b2 * s[2].3);
+            let p = (tri[0].1 * q0 + tri[1].1 * q1 + tri[2].1 * q2) / (q0 + q1 + q2);
+            frag(py as usize * size.0 as usize + px as usize, z, p);
+        }
+    }
+}
+
+/// Blend of view passes exactly as `fs_blend`.
+pub fn blend(passes: &[(f32, Vec<[f32; 4]>)], width: u32, height: u32) -> Frame {
+    let count = (width * height) as usize;
+    let mut rgba = Vec::with_capacity(count * 4);
+    let empty = vec![[0.0f32; 4]; count];
+    let a = passes.first().map_or(&empty, |p| &p.1);
+    let b = passes.get(1).map_or(&empty, |p| &p.1);
+    let (wa0, wb0) = (
+        passes.first().map_or(0.0, |p| p.0),
+        passes.get(1).map_or(0.0, |p| p.0),
+    );
+    for i in 0..count {
+        let (ca, cb) = (a[i], b[i]);
+        let (wa, wb) = (wa0 * ca[3], wb0 * cb[3]);
+        let mix = |wa: f32, wb: f32| -> [u8; 4] {
+            let c: [f32; 3] = std::array::from_fn(|k| (ca[k] * wa + cb[k] * wb) / (wa + wb));
+            [
+                linear_to_srgb(c[0]),
+                linear_to_srgb(c[1]),
+                linear_to_srgb(c[2]),
+                255,
+            ]
+        };
+        let px = if wa + wb > 0.0 {
+            mix(wa, wb)
+        } else if ca[3] + cb[3] > 0.0 {
+            mix(ca[3], cb[3])
+        } else {
+            [0, 0, 0, 0]
+        };
+        rgba.extend_from_slice(&px);
+    }
+    Frame {
+        width,
+        height,
+        rgba,
+    }
+}
+
+/// Execute a plan on the CPU.
+pub fn render(plan: &FramePlan, views: &[RefView]) -> Frame {
+    let passes: Vec<(f32, Vec<[f32; 4]>)> = plan
+        .passes
+        .iter()
+        .take(2)
+        .filter_map(|p| {
+            let v = views.get(p.view)?;
+            Some((p.weight as f32, view_pass(p, v, plan.width, plan.height)))
+        })
+        .collect();
+    blend(&passes, plan.width, plan.height)
+}
+
+/// The plain panorama of the first pass's view, as `fs_panorama`.
+pub fn render_panorama(plan: &FramePlan, views: &[RefView]) -> Frame {
+    let (w, h) = (plan.width, plan.height);
+    let mut rgba = vec![0u8; (w * h * 4) as usize];
+    let Some(pass) = plan.passes.first() else {
+        return Frame {
+            width: w,
+            height: h,
+            rgba,
+        };
+    };
+    let Some(layer): Option<&Layer> = views.get(pass.view).and_then(|v| v.layers.first()) else {
+        return Frame {
+            width: w,
+            height: h,
+            rgba,
+        };
+    };
+    let u = &pass.uniforms;
+    let v3 = |a: [f32; 4]| Vec3::new(a[0], a[1], a[2]);
+    for y in 0..h {
+        for x in 0..w {
+            let ndc_x = (x as f32 + 0.5) / w as f32 * 2.0 - 1.0;
+            let ndc_y = 1.0 - (y as f32 + 0.5) / h as f32 * 2.0;
+            let d = v3(u.ray_forward) + ndc_x * v3(u.ray_right) + ndc_y * v3(u.ray_up);
+            let f = face_of(d);
+            let (px, py) = pixel_on_face(f, d, u.origin_rel[3]);
+            let c = layer.sample(u.params[0], f, px, py);
+            let i = ((y * w + x) * 4) as usize;
+            rgba[i..i + 4].copy_from_slice(&[
+                linear_to_srgb(c[0]),
+                linear_to_srgb(c[1]),
+                linear_to_srgb(c[2]),
+                255,
+            ]);
+        }
+    }
+    Frame {
+        width: w,
+        height: h,
+        rgba,
+    }
+}

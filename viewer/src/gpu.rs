@@ -1,0 +1,846 @@
+//! The wgpu executor of a [`FramePlan`]: headless (offscreen targets + readback) or into any
+//! colour target the caller owns (the egui app).
+//!
+//! Per reference view it keeps a [`GpuView`]: one 2D-array texture (layer 0 background,
+//! layer `k + 1` slab `k`, faces stacked `N × 6N`, full mip chain), one vertex and index buffer
+//! with every tile mesh, and a small storage buffer of per-tile face/layer/min-level. A frame
+//! is one render pass per view (background, then tile runs with a reversed-Z depth test and
+//! the opacity mask) into an `Rgba16Float` target, then a full-screen blend pass.
+
+use std::collections::HashMap;
+
+use wgpu::util::DeviceExt;
+
+use crate::plan::{FramePlan, ViewUniforms};
+use crate::refview::RefView;
+
+const VIEW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
+const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// Format of the final image (sRGB-encoded RGBA8, alpha 0 = hole).
+pub const OUTPUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
+
+/// Errors of the GPU path.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum GpuError {
+    #[error("no GPU adapter (wgpu found none; install mesa-vulkan-drivers for lavapipe): {0}")]
+    NoAdapter(String),
+    #[error("requesting a device failed: {0}")]
+    Device(String),
+    #[error("reading the frame back failed: {0}")]
+    Readback(String),
+    #[error("plan refers to view {0}, but only {1} views were given")]
+    MissingView(usize, usize),
+    #[error("image {width}x{height} exceeds the device limit {limit}")]
+    TooLarge { width: u32, height: u32, limit: u32 },
+}
+
+/// A rendered frame: sRGB RGBA8, rows from the top; alpha 0 marks hole pixels.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    pub width: u32,
+    pub height: u32,
+    pub rgba: Vec<u8>,
+}
+
+impl Frame {
+    /// Fraction of pixels that no view covers.
+    pub fn hole_fraction(&self) -> f64 {
+        let n = (self.width as usize * self.height as usize).max(1);
+        self.rgba.chunks(4).filter(|p| p[3] == 0).count() as f64 / n as f64
+    }
+}
+
+/// Device and queue.
+pub struct Gpu {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: wgpu::AdapterInfo,
+}
+
+impl Gpu {
+    /// The default adapter (`WGPU_BACKEND` may force `vulkan` or `gl`); lavapipe on machines
+    /// without a GPU.
+    pub fn new() -> Result<Gpu, GpuError> {
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: None,
+            apply_limit_buckets: false,
+        }))
+        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let info = adapter.get_info();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("railview"),
+            required_limits: wgpu::Limits::default().using_resolution(adapter.limits()),
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::Device(e.to_string()))?;
+        Ok(Gpu {
+            device,
+            queue,
+            info,
+        })
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct GpuVertex {
+    pos_in_face: [f32; 2],
+    depth_m: f32,
+    packed: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct BlendUniforms {
+    weights: [f32; 4],
+}
+
+/// GPU copy of one reference view.
+pub struct GpuView {
+    texture: wgpu::Texture,
+    vertices: wgpu::Buffer,
+    indices: wgpu::Buffer,
+    tile_info: wgpu::Buffer,
+    uniforms: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+    /// First index of every tile, plus the end.
+    index_start: Vec<u32>,
+    /// Per tile `face | layer << 8`, uploaded with the frame's min levels.
+    face_layer: Vec<u32>,
+    /// Bytes uploaded (textures + meshes).
+    pub bytes: u64,
+}
+
+struct Targets {
+    width: u32,
+    height: u32,
+    view_views: [wgpu::TextureView; 2],
+    depth_view: wgpu::TextureView,
+    output: wgpu::Texture,
+    output_view: wgpu::TextureView,
+}
+
+/// Executes frame plans.
+pub struct Renderer {
+    pub gpu: Gpu,
+    view_bgl: wgpu::BindGroupLayout,
+    blend_bgl: wgpu::BindGroupLayout,
+    background: wgpu::RenderPipeline,
+    mesh: wgpu::RenderPipeline,
+    panorama: wgpu::RenderPipeline,
+    blend: wgpu::RenderPipeline,
+    sampler: wgpu::Sampler,
+    blend_uniforms: wgpu::Buffer,
+    views: HashMap<usize, GpuView>,
+    targets: Option<Targets>,
+}
+
+fn bgl_entry(binding: u32, ty: wgpu::BindingType) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+        ty,
+        count: None,
+    }
+}
+
+fn uniform_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    bgl_entry(
+        binding,
+        wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+    )
+}
+
+fn texture_entry(binding: u32, dim: wgpu::TextureViewDimension) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::FRAGMENT,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable: true },
+            view_dimension: dim,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
+impl Renderer {
+    pub fn new(gpu: Gpu) -> Renderer {
+        let device = &gpu.device;
+        let view_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("view"),
+            entries: &[
+                uniform_entry(0),
+                texture_entry(1, wgpu::TextureViewDimension::D2Array),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 3,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+            ],
+        });
+        let blend_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("blend"),
+            entries: &[
+                uniform_entry(0),
+                texture_entry(1, wgpu::TextureViewDimension::D2),
+                texture_entry(2, wgpu::TextureViewDimension::D2),
+            ],
+        });
+        let render = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("render.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("render.wgsl").into()),
+        });
+        let blend_src = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("blend.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("blend.wgsl").into()),
+        });
+        let view_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("view"),
+            bind_group_layouts: &[Some(&view_bgl)],
+            immediate_size: 0,
+        });
+        let blend_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("blend"),
+            bind_group_layouts: &[Some(&blend_bgl)],
+            immediate_size: 0,
+        });
+        let depth = |compare, write| {
+            Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(write),
+                depth_compare: Some(compare),
+                stencil: Default::default(),
+                bias: Default::default(),
+            })
+        };
+        let vertex_attrs = wgpu::vertex_attr_array![0 => Float32x2, 1 => Float32, 2 => Uint32];
+        let mk = |label: &str,
+                  module: &wgpu::ShaderModule,
+                  layout: &wgpu::PipelineLayout,
+                  vs: &str,
+                  fs: &str,
+                  buffers: &[Option<wgpu::VertexBufferLayout<'_>>],
+                  format: wgpu::TextureFormat,
+                  depth_stencil: Option<wgpu::DepthStencilState>| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(label),
+                layout: Some(layout),
+                vertex: wgpu::VertexState {
+                    module,
+                    entry_point: Some(vs),
+                    compilation_options: Default::default(),
+                    buffers,
+                },
+                primitive: wgpu::PrimitiveState {
+                    cull_mode: None,
+                    ..Default::default()
+                },
+                depth_stencil,
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module,
+                    entry_point: Some(fs),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let background = mk(
+            "background",
+            &render,
+            &view_layout,
+            "vs_full",
+            "fs_background",
+            &[],
+            VIEW_FORMAT,
+            depth(wgpu::CompareFunction::Always, false),
+        );
+        let mesh = mk(
+            "mesh",
+            &render,
+            &view_layout,
+            "vs_mesh",
+            "fs_mesh",
+            &[Some(wgpu::VertexBufferLayout {
+                array_stride: std::mem::size_of::<GpuVertex>() as u64,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &vertex_attrs,
+            })],
+            VIEW_FORMAT,
+            depth(wgpu::CompareFunction::Greater, true),
+        );
+        let panorama = mk(
+            "panorama",
+            &render,
+            &view_layout,
+            "vs_full",
+            "fs_panorama",
+            &[],
+            OUTPUT_FORMAT,
+            None,
+        );
+        let blend = mk(
+            "blend",
+            &blend_src,
+            &blend_layout,
+            "vs_full",
+            "fs_blend",
+            &[],
+            OUTPUT_FORMAT,
+            None,
+        );
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("layers"),
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            mipmap_filter: wgpu::MipmapFilterMode::Nearest,
+            ..Default::default()
+        });
+        let blend_uniforms = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("blend"),
+            size: std::mem::size_of::<BlendUniforms>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Renderer {
+            gpu,
+            view_bgl,
+            blend_bgl,
+            background,
+            mesh,
+            panorama,
+            blend,
+            sampler,
+            blend_uniforms,
+            views: HashMap::new(),
+            targets: None,
+        }
+    }
+
+    /// Drop every uploaded view (call when the set of views changes identity).
+    pub fn forget_views(&mut self) {
+        self.views.clear();
+    }
+
+    /// Drop one uploaded view (e.g. after new tiles or levels arrived for it).
+    pub fn invalidate_view(&mut self, index: usize) {
+        self.views.remove(&index);
+    }
+
+    /// Bytes held by uploaded views.
+    pub fn uploaded_bytes(&self) -> u64 {
+        self.views.values().map(|v| v.bytes).sum()
+    }
+
+    fn upload(&self, view: &RefView) -> GpuView {
+        let device = &self.gpu.device;
+        let n = view.face_size;
+        let layers = view.layers.len().max(1) as u32;
+        let mips = view.layers.first().map_or(1, |l| l.levels.len()) as u32;
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("view layers"),
+            size: wgpu::Extent3d {
+                width: n,
+                height: 6 * n,
+                depth_or_array_layers: layers,
+            },
+            mip_level_count: mips,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba8UnormSrgb,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let mut bytes = 0u64;
+        for (li, layer) in view.layers.iter().enumerate() {
+            for (level, map) in layer.levels.iter().enumerate().take(mips as usize) {
+                let m = map.face_size();
+                let data: &[u8] = bytemuck::cast_slice(map.as_slice());
+                bytes += data.len() as u64;
+                self.gpu.queue.write_texture(
+                    wgpu::TexelCopyTextureInfo {
+                        texture: &texture,
+                        mip_level: level as u32,
+                        origin: wgpu::Origin3d {
+                            x: 0,
+                            y: 0,
+                            z: li as u32,
+                        },
+                        aspect: wgpu::TextureAspect::All,
+                    },
+                    data,
+                    wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(4 * m),
+                        rows_per_image: Some(6 * m),
+                    },
+                    wgpu::Extent3d {
+                        width: m,
+                        height: 6 * m,
+                        depth_or_array_layers: 1,
+                    },
+                );
+            }
+        }
+        let mut verts: Vec<GpuVertex> = Vec::new();
+        let mut idx: Vec<u32> = Vec::new();
+        let mut index_start = Vec::with_capacity(view.tiles.len() + 1);
+        let mut face_layer = Vec::with_capacity(view.tiles.len());
+        for (ti, tile) in view.tiles.iter().enumerate() {
+            index_start.push(idx.len() as u32);
+            let base = verts.len() as u32;
+            let face = tile.tile.face.index() as u32;
+            verts.extend(tile.mesh.vertices.iter().map(|v| GpuVertex {
+                pos_in_face: v.pos_in_face,
+                depth_m: v.depth_m,
+                packed: ((ti as u32) << 3) | face,
+            }));
+            idx.extend(tile.mesh.indices.iter().map(|i| base + i));
+            face_layer.push(face | ((tile.slab + 1) << 8));
+        }
+        index_start.push(idx.len() as u32);
+        // Buffers are never empty (bindings of size 0 are invalid).
+        if verts.is_empty() {
+            verts.push(GpuVertex {
+                pos_in_face: [0.0; 2],
+                depth_m: 0.0,
+                packed: 0,
+            });
+        }
+        idx.resize(idx.len().max(4), 0);
+        let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("tile vertices"),
+            contents: bytemuck::cast_slice(&verts),
+            usage: wgpu::BufferUsages::VERTEX,
+        });
+        let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("tile indices"),
+            contents: bytemuck::cast_slice(&idx),
+            usage: wgpu::BufferUsages::INDEX,
+        });
+        bytes += (verts.len() * std::mem::size_of::<GpuVertex>() + idx.len() * 4) as u64;
+        let tile_info = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("tile info"),
+            size: (8 * face_layer.len().max(1)) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("view uniforms"),
+            size: std::mem::size_of::<ViewUniforms>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let tex_view = texture.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("view"),
+            layout: &self.view_bgl,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: uniforms.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&tex_view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::Sampler(&self.sampler),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: tile_info.as_entire_binding(),
+                },
+            ],
+        });
+        GpuView {
+            texture,
+            vertices,
+            indices,
+            tile_info,
+            uniforms,
+            bind_group,
+            index_start,
+            face_layer,
+            bytes,
+        }
+    }
+
+    fn ensure_view(&mut self, view: &RefView) {
+        let stale = match self.views.get(&view.index) {
+            Some(g) => {
+                g.face_layer.len() != view.tiles.len()
+                    || g.texture.size().width != view.face_size
+                    || g.texture.size().depth_or_array_layers != view.layers.len().max(1) as u32
+            }
+            None => true,
+        };
+        if stale {
+            let g = self.upload(view);
+            self.views.insert(view.index, g);
+        }
+    }
+
+    fn ensure_targets(&mut self, width: u32, height: u32) -> Result<(), GpuError> {
+        let limit = self.gpu.device.limits().max_texture_dimension_2d;
+        if width > limit || height > limit {
+            return Err(GpuError::TooLarge {
+                width,
+                height,
+                limit,
+            });
+        }
+        if matches!(&self.targets, Some(t) if t.width == width && t.height == height) {
+            return Ok(());
+        }
+        let device = &self.gpu.device;
+        let size = wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        };
+        let tex = |label, format, usage| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size,
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage,
+                view_formats: &[],
+            })
+        };
+        let view_usage =
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
+        let views = [
+            tex("view 0", VIEW_FORMAT, view_usage),
+            tex("view 1", VIEW_FORMAT, view_usage),
+        ];
+        let depth = tex(
+            "depth",
+            DEPTH_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT,
+        );
+        let output = tex(
+            "output",
+            OUTPUT_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+        );
+        let view_views = [
+            views[0].create_view(&Default::default()),
+            views[1].create_view(&Default::default()),
+        ];
+        self.targets = Some(Targets {
+            width,
+            height,
+            depth_view: depth.create_view(&Default::default()),
+            output_view: output.create_view(&Default::default()),
+            view_views,
+            output,
+        });
+        Ok(())
+    }
+
+    /// Record and submit the frame into the internal output target; waits for the GPU.
+    pub fn draw(&mut self, plan: &FramePlan, views: &[RefView]) -> Result<(), GpuError> {
+        for p in &plan.passes {
+            let v = views
+                .get(p.view)
+                .ok_or(GpuError::MissingView(p.view, views.len()))?;
+            self.ensure_view(v);
+        }
+        self.ensure_targets(plan.width, plan.height)?;
+        let mut enc = self
+            .gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("frame"),
+            });
+        self.encode(&mut enc, plan, views, None);
+        self.gpu.queue.submit([enc.finish()]);
+        self.gpu
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        Ok(())
+    }
+
+    /// Encode the frame's passes; the blend goes into `output` or the internal target.
+    /// Views and targets must have been prepared ([`Renderer::draw`] does it).
+    fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        plan: &FramePlan,
+        views: &[RefView],
+        output: Option<&wgpu::TextureView>,
+    ) {
+        let Some(targets) = &self.targets else {
+            return;
+        };
+        for (slot, pass) in plan.passes.iter().take(2).enumerate() {
+            let Some(g) = views.get(pass.view).and_then(|v| self.views.get(&v.index)) else {
+                continue;
+            };
+            self.gpu
+                .queue
+                .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
+            let info: Vec<[u32; 2]> = g
+                .face_layer
+                .iter()
+                .zip(&pass.tile_min_level)
+                .map(|(&fl, &lvl)| [fl, lvl])
+                .collect();
+            if !info.is_empty() {
+                self.gpu
+                    .queue
+                    .write_buffer(&g.tile_info, 0, bytemuck::cast_slice(&info));
+            }
+            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("view"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &targets.view_views[slot],
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &targets.depth_view,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(0.0),
+                        store: wgpu::StoreOp::Discard,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            rp.set_bind_group(0, &g.bind_group, &[]);
+            rp.set_pipeline(&self.background);
+            rp.draw(0..3, 0..1);
+            if !pass.runs.is_empty() {
+                rp.set_pipeline(&self.mesh);
+                rp.set_vertex_buffer(0, g.vertices.slice(..));
+                rp.set_index_buffer(g.indices.slice(..), wgpu::IndexFormat::Uint32);
+                for run in &pass.runs {
+                    let (a, b) = (
+                        g.index_start[run.first],
+                        g.index_start[run.first + run.count],
+                    );
+                    if b > a {
+                        rp.draw_indexed(a..b, 0, 0..1);
+                    }
+                }
+            }
+        }
+        let weights = BlendUniforms {
+            weights: [
+                plan.passes.first().map_or(0.0, |p| p.weight as f32),
+                plan.passes.get(1).map_or(0.0, |p| p.weight as f32),
+                plan.passes.len().min(2) as f32,
+                0.0,
+            ],
+        };
+        self.gpu
+            .queue
+            .write_buffer(&self.blend_uniforms, 0, bytemuck::bytes_of(&weights));
+        let bg = self
+            .gpu
+            .device
+            .create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("blend"),
+                layout: &self.blend_bgl,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: self.blend_uniforms.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: wgpu::BindingResource::TextureView(&targets.view_views[0]),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: wgpu::BindingResource::TextureView(&targets.view_views[1]),
+                    },
+                ],
+            });
+        let out = output.unwrap_or(&targets.output_view);
+        let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("blend"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: out,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                    store: wgpu::StoreOp::Store,
+                },
+            })],
+            depth_stencil_attachment: None,
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        rp.set_pipeline(&self.blend);
+        rp.set_bind_group(0, &bg, &[]);
+        rp.draw(0..3, 0..1);
+    }
+
+    /// Draw the plain panorama of `plan.passes[0]`'s view (its background layer as one cube
+    /// map, no slabs, no blending) into the internal output target; waits for the GPU.
+    pub fn draw_panorama(&mut self, plan: &FramePlan, views: &[RefView]) -> Result<(), GpuError> {
+        let pass = plan.passes.first().ok_or(GpuError::MissingView(0, 0))?;
+        let v = views
+            .get(pass.view)
+            .ok_or(GpuError::MissingView(pass.view, views.len()))?;
+        self.ensure_view(v);
+        self.ensure_targets(plan.width, plan.height)?;
+        let (Some(g), Some(targets)) = (self.views.get(&v.index), &self.targets) else {
+            return Err(GpuError::MissingView(pass.view, views.len()));
+        };
+        self.gpu
+            .queue
+            .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
+        let mut enc = self
+            .gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("pano"),
+            });
+        {
+            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("panorama"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &targets.output_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: None,
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            rp.set_pipeline(&self.panorama);
+            rp.set_bind_group(0, &g.bind_group, &[]);
+            rp.draw(0..3, 0..1);
+        }
+        self.gpu.queue.submit([enc.finish()]);
+        self.gpu
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        Ok(())
+    }
+
+    /// Copy the internal output target to the CPU.
+    pub fn read_output(&self) -> Result<Frame, GpuError> {
+        let t = self
+            .targets
+            .as_ref()
+            .ok_or_else(|| GpuError::Readback("nothing drawn yet".into()))?;
+        let (w, h) = (t.width, t.height);
+        let bpr = (w * 4).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
+            * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let device = &self.gpu.device;
+        let buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: (bpr * h) as u64,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut enc = device.create_command_encoder(&Default::default());
+        enc.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo {
+                texture: &t.output,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buf,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(bpr),
+                    rows_per_image: None,
+                },
+            },
+            wgpu::Extent3d {
+                width: w,
+                height: h,
+                depth_or_array_layers: 1,
+            },
+        );
+        self.gpu.queue.submit([enc.finish()]);
+        let slice = buf.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            // The receiver outlives the poll below; a send error cannot happen.
+            tx.send(r).ok();
+        });
+        device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let data = slice
+            .get_mapped_range()
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let mut rgba = Vec::with_capacity((w * h * 4) as usize);
+        for row in 0..h as usize {
+            let start = row * bpr as usize;
+            rgba.extend_from_slice(&data[start..start + 4 * w as usize]);
+        }
+        Ok(Frame {
+            width: w,
+            height: h,
+            rgba,
+        })
+    }
+
+    /// Draw a plan and read it back.
+    pub fn render(&mut self, plan: &FramePlan, views: &[RefView]) -> Result<Frame, GpuError> {
+        self.draw(plan, views)?;
+        self.read_output()
+    }
+}

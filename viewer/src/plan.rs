@@ -1,0 +1,415 @@
+//! The frame plan: everything the GPU does for one frame, as plain data.
+//!
+//! [`plan_frame`] takes the reference views of a track (sorted by arc length), the camera and
+//! its arc length, and decides which two views are blended and with which weights
+//! ([`blend_pair`]), which tiles of each view are inside the view frustum and within the slab
+//! budget, in which order they are drawn, and the uniforms of every pass (camera-relative,
+//! reversed-Z, see [`ViewUniforms`]). [`crate::gpu`] executes a plan; [`crate::cpu`] executes
+//! the same plan without the GPU as a reference.
+
+use glam::{DMat4, DVec3, DVec4};
+use tracks::PerspectiveCamera;
+
+use crate::refview::RefView;
+
+/// Near plane distance, metres. Reversed-Z with an infinite far plane keeps depth precision
+/// from here to tens of kilometres, so content at 0.1 m and 10 km can share a frame.
+pub const NEAR_M: f64 = 0.01;
+
+/// Errors planning a frame (bad camera or no views).
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[non_exhaustive]
+pub enum PlanError {
+    #[error("no reference views to draw")]
+    NoViews,
+    #[error("camera {field} is invalid: {value}")]
+    Camera { field: &'static str, value: f64 },
+    #[error("reference views are not sorted by arc length at view {0}")]
+    Unsorted(usize),
+}
+
+/// What the frame-time budget lets the renderer draw.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DrawBudget {
+    /// Slabs drawn per view (the first always is).
+    pub max_slabs: usize,
+    /// Added to the level of detail (1 = half resolution textures).
+    pub lod_bias: f32,
+    /// Draw the second reference view (blending and hole filling).
+    pub blend: bool,
+}
+
+impl Default for DrawBudget {
+    fn default() -> Self {
+        DrawBudget {
+            max_slabs: usize::MAX,
+            lod_bias: 0.0,
+            blend: true,
+        }
+    }
+}
+
+/// Uniforms of one view pass (WGSL `View`), camera-relative: the GPU never sees absolute
+/// world coordinates, only `ref − camera` computed in f64 and rotated/projected in f32.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ViewUniforms {
+    /// Projection × rotation (world orientation, camera at the origin → clip), column-major.
+    pub clip_from_cam: [[f32; 4]; 4],
+    /// Reference viewpoint minus camera position (xyz); w = face size in pixels.
+    pub origin_rel: [f32; 4],
+    /// World ray through a pixel = forward + ndc_x·ray_right + ndc_y·ray_up.
+    pub ray_right: [f32; 4],
+    pub ray_up: [f32; 4],
+    pub ray_forward: [f32; 4],
+    /// x = frame level of detail, y = width, z = height, w = number of mip levels.
+    pub params: [f32; 4],
+}
+
+/// A run of consecutive tiles (indices into `RefView::tiles`) drawn with one call.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TileRun {
+    pub first: usize,
+    pub count: usize,
+}
+
+/// One reference view's pass.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewPass {
+    /// Index into the views slice given to [`plan_frame`].
+    pub view: usize,
+    /// Blend weight in the final image (the two weights sum to 1).
+    pub weight: f64,
+    pub uniforms: ViewUniforms,
+    /// Visible tiles within the budget, nearest slab first.
+    pub visible: Vec<usize>,
+    /// `visible` merged into runs of consecutive tiles.
+    pub runs: Vec<TileRun>,
+    /// Per tile of the view: the coarsest of the frame level and the tile's finest level.
+    pub tile_min_level: Vec<u32>,
+}
+
+/// Everything drawn in one frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FramePlan {
+    pub width: u32,
+    pub height: u32,
+    /// One pass (a single view) or two (the views around the camera).
+    pub passes: Vec<ViewPass>,
+}
+
+/// The smooth blend weight of the second view at fraction `t ∈ [0, 1]` of a segment:
+/// `3t² − 2t³` (smoothstep). It is exactly 0 and 1 at the reference samples, so a reference
+/// sample is reproduced by its own view alone; its slope vanishes there, so the image changes
+/// slowly near samples, where the reference view is most accurate, and the weights are C¹
+/// across samples (no visible kink when a segment ends and the next begins). A linear ramp
+/// would be exact at samples too but kinks there; a nearest-view switch would pop.
+pub fn smooth_weight(t: f64) -> f64 {
+    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// The two views around arc length `s` and the weight of the second:
+/// `(a, b, w_b)` with `a ≤ b`. Outside the track, at a sample, or on a zero-length segment the
+/// weight is 0 (view `a` alone).
+pub fn blend_pair(arcs: &[f64], s: f64) -> Option<(usize, usize, f64)> {
+    let n = arcs.len();
+    if n == 0 {
+        return None;
+    }
+    if n == 1 || s.is_nan() || s <= arcs[0] {
+        return Some((0, (n > 1) as usize, 0.0));
+    }
+    if s >= arcs[n - 1] {
+        return Some((n - 1, n - 2, 0.0));
+    }
+    // Last sample with arc ≤ s.
+    let a = arcs.partition_point(|&x| x <= s) - 1;
+    let b = (a + 1).min(n - 1);
+    let len = arcs[b] - arcs[a];
+    let w = if len > 0.0 {
+        smooth_weight((s - arcs[a]) / len)
+    } else {
+        0.0
+    };
+    Some((a, b, w))
+}
+
+/// Rotation + reversed-Z infinite perspective of `camera`, as `clip_from_cam` (f64).
+pub fn clip_from_cam(camera: &PerspectiveCamera) -> DMat4 {
+    let (r, u, f) = camera.basis();
+    // View space: x right, y up, looking along -z.
+    let view_from_world = DMat4::from_cols(
+        DVec4::new(r.x, u.x, -f.x, 0.0),
+        DVec4::new(r.y, u.y, -f.y, 0.0),
+        DVec4::new(r.z, u.z, -f.z, 0.0),
+        DVec4::W,
+    );
+    let t = (camera.fov_deg.to_radians() * 0.5).tan();
+    let (w, h) = (camera.width.max(1) as f64, camera.height.max(1) as f64);
+    let sx = 1.0 / t;
+    let sy = w / (h * t);
+    // clip = (sx·x, sy·y, near, -z): depth = near / distance, 1 at the near plane, → 0 far.
+    let proj = DMat4::from_cols(
+        DVec4::new(sx, 0.0, 0.0, 0.0),
+        DVec4::new(0.0, sy, 0.0, 0.0),
+        DVec4::new(0.0, 0.0, 0.0, -1.0),
+        DVec4::new(0.0, 0.0, NEAR_M, 0.0),
+    );
+    proj * view_from_world
+}
+
+fn check_camera(c: &PerspectiveCamera) -> Result<(), PlanError> {
+    let bad = |field, value: f64| Err(PlanError::Camera { field, value });
+    if !c.position.is_finite() {
+        return bad("position", c.position.length());
+    }
+    if !(c.fov_deg > 0.0 && c.fov_deg < 179.0) {
+        return bad("fov_deg", c.fov_deg);
+    }
+    if !c.yaw_deg.is_finite() {
+        return bad("yaw_deg", c.yaw_deg);
+    }
+    if !c.pitch_deg.is_finite() {
+        return bad("pitch_deg", c.pitch_deg);
+    }
+    Ok(())
+}
+
+/// Level of detail of the frame: log2 of texels per screen pixel at the image centre
+/// (`tan(fov/2)·N / width`), never below 0. Near the reference viewpoints the angular mapping
+/// between the screen and the cube map is close to the identity, so one level per frame is
+/// accurate there and the CPU reference computes exactly the same value.
+pub fn frame_lod(camera: &PerspectiveCamera, face_size: u32, bias: f32) -> f32 {
+    let t = (camera.fov_deg.to_radians() * 0.5).tan();
+    let ratio = t * face_size as f64 / camera.width.max(1) as f64;
+    (ratio.log2().max(0.0) as f32 + bias).max(0.0)
+}
+
+/// Plan one frame. `views` must be sorted by arc length; `s` is the camera's arc length.
+pub fn plan_frame(
+    views: &[RefView],
+    camera: &PerspectiveCamera,
+    s: f64,
+    budget: DrawBudget,
+) -> Result<FramePlan, PlanError> {
+    check_camera(camera)?;
+    if views.is_empty() {
+        return Err(PlanError::NoViews);
+    }
+    if let Some(i) = views
+        .windows(2)
+        .position(|w| w[0].s.partial_cmp(&w[1].s).is_none_or(|o| o.is_gt()))
+    {
+        return Err(PlanError::Unsorted(i + 1));
+    }
+    let arcs: Vec<f64> = views.iter().map(|v| v.s).collect();
+    let (a, b, wb) = blend_pair(&arcs, s).ok_or(PlanError::NoViews)?;
+    let mut pairs = vec![(a, 1.0 - wb)];
+    if b != a && budget.blend {
+        pairs.push((b, wb));
+    } else {
+        pairs[0].1 = 1.0;
+    }
+    let passes = pairs
+        .into_iter()
+        .map(|(vi, weight)| plan_view(&views[vi], vi, weight, camera, budget))
+        .collect();
+    Ok(FramePlan {
+        width: camera.width.max(1),
+        height: camera.height.max(1),
+        passes,
+    })
+}
+
+fn plan_view(
+    view: &RefView,
+    vi: usize,
+    weight: f64,
+    camera: &PerspectiveCamera,
+    budget: DrawBudget,
+) -> ViewPass {
+    let m = clip_from_cam(camera);
+    let origin_rel = view.position - camera.position;
+    let (r, u, f) = camera.basis();
+    let t = (camera.fov_deg.to_radians() * 0.5).tan();
+    let (w, h) = (camera.width.max(1) as f64, camera.height.max(1) as f64);
+    let ty = t * h / w;
+    let lod = frame_lod(camera, view.face_size, budget.lod_bias);
+    let levels = view.layers.first().map_or(1, |l| l.levels.len());
+    let v4 = |v: DVec3, w: f64| [v.x as f32, v.y as f32, v.z as f32, w as f32];
+    let uniforms = ViewUniforms {
+        clip_from_cam: m.as_mat4().to_cols_array_2d(),
+        origin_rel: v4(origin_rel, view.face_size as f64),
+        ray_right: v4(r * t, 0.0),
+        ray_up: v4(u * ty, 0.0),
+        ray_forward: v4(f, 0.0),
+        params: [lod, w as f32, h as f32, levels as f32],
+    };
+    // Frustum side planes in view space (x right, y up, -z forward), inward distances.
+    let side = |a: f64, b: f64, c: f64| DVec3::new(a, b, c) / (a * a + b * b + c * c).sqrt();
+    let planes = [
+        side(-1.0, 0.0, -t),
+        side(1.0, 0.0, -t),
+        side(0.0, -1.0, -ty),
+        side(0.0, 1.0, -ty),
+    ];
+    let visible: Vec<usize> = view
+        .tiles
+        .iter()
+        .enumerate()
+        .filter(|(_, tile)| (tile.slab as usize) < budget.max_slabs.max(1))
+        .filter(|(_, tile)| {
+            let c = tile.bound_center + origin_rel;
+            let cv = DVec3::new(c.dot(r), c.dot(u), -c.dot(f));
+            let rad = tile.bound_radius * (1.0 + 1e-6) + 1e-6;
+            // Behind the near plane entirely?
+            if -cv.z + rad < NEAR_M {
+                return false;
+            }
+            planes.iter().all(|p| p.dot(cv) >= -rad)
+        })
+        .map(|(i, _)| i)
+        .collect();
+    let mut runs: Vec<TileRun> = Vec::new();
+    for &i in &visible {
+        match runs.last_mut() {
+            Some(run) if run.first + run.count == i => run.count += 1,
+            _ => runs.push(TileRun { first: i, count: 1 }),
+        }
+    }
+    let frame_level = lod.floor() as u32;
+    let tile_min_level = view
+        .tiles
+        .iter()
+        .map(|t| t.finest_level.max(frame_level))
+        .collect();
+    ViewPass {
+        view: vi,
+        weight,
+        uniforms,
+        visible,
+        runs,
+        tile_min_level,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn weights_are_exact_at_samples_and_smooth_between() {
+        assert_eq!(smooth_weight(0.0), 0.0);
+        assert_eq!(smooth_weight(1.0), 1.0);
+        assert_eq!(smooth_weight(0.5), 0.5);
+        // Zero slope at the ends (finite difference).
+        assert!(smooth_weight(1e-4) < 1e-7);
+        assert!(1.0 - smooth_weight(1.0 - 1e-4) < 1e-7);
+        // Monotonic.
+        let mut prev = 0.0;
+        for i in 1..=100 {
+            let w = smooth_weight(i as f64 / 100.0);
+            assert!(w >= prev);
+            prev = w;
+        }
+    }
+
+    #[test]
+    fn position_exactly_on_a_sample_uses_that_view_alone() {
+        let arcs = [0.0, 2.5, 5.0, 7.5];
+        assert_eq!(blend_pair(&arcs, 2.5), Some((1, 2, 0.0)));
+        let (a, b, w) = blend_pair(&arcs, 3.75).unwrap();
+        assert_eq!((a, b), (1, 2));
+        assert!((w - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn first_and_last_sample() {
+        let arcs = [0.0, 2.5, 5.0];
+        assert_eq!(blend_pair(&arcs, 0.0), Some((0, 1, 0.0)));
+        assert_eq!(blend_pair(&arcs, -3.0), Some((0, 1, 0.0)));
+        assert_eq!(blend_pair(&arcs, 5.0), Some((2, 1, 0.0)));
+        assert_eq!(blend_pair(&arcs, 99.0), Some((2, 1, 0.0)));
+        assert_eq!(blend_pair(&[4.0], 1.0), Some((0, 0, 0.0)));
+        assert_eq!(blend_pair(&[], 1.0), None);
+    }
+
+    #[test]
+    fn zero_length_segment() {
+        let arcs = [0.0, 3.0, 3.0, 6.0];
+        let (a, _, w) = blend_pair(&arcs, 3.0).unwrap();
+        assert_eq!(w, 0.0);
+        assert!(a == 1 || a == 2);
+        // Just past it: the second (non-degenerate) segment.
+        let (a, b, w) = blend_pair(&arcs, 4.5).unwrap();
+        assert_eq!((a, b), (2, 3));
+        assert!((w - 0.5).abs() < 1e-12);
+    }
+
+    fn cam(yaw: f64, pitch: f64) -> PerspectiveCamera {
+        PerspectiveCamera {
+            position: DVec3::new(1.0, 2.0, 3.0),
+            yaw_deg: yaw,
+            pitch_deg: pitch,
+            fov_deg: 90.0,
+            width: 200,
+            height: 100,
+        }
+    }
+
+    #[test]
+    fn projection_matches_the_camera_rays_and_is_reversed_z() {
+        for (yaw, pitch) in [(0.0, 0.0), (30.0, 10.0), (0.0, 90.0), (123.0, -90.0)] {
+            let c = cam(yaw, pitch);
+            let m = clip_from_cam(&c);
+            for (px, py) in [(0.5, 0.5), (100.0, 50.0), (199.5, 99.5), (13.25, 77.0)] {
+                for dist in [0.1, 1.0, 10_000.0] {
+                    let p = c.ray_dir(px, py) * dist;
+                    let clip = m * p.extend(1.0);
+                    let (nx, ny, nz) = (clip.x / clip.w, clip.y / clip.w, clip.z / clip.w);
+                    let sx = (nx + 1.0) * 0.5 * 200.0;
+                    let sy = (1.0 - ny) * 0.5 * 100.0;
+                    assert!(
+                        (sx - px).abs() < 1e-6 && (sy - py).abs() < 1e-6,
+                        "{yaw} {pitch}"
+                    );
+                    let d = p.dot(c.forward());
+                    assert!((nz - NEAR_M / d).abs() < 1e-12);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn looking_straight_up_and_down_gives_finite_uniforms() {
+        for pitch in [90.0, -90.0] {
+            let m = clip_from_cam(&cam(45.0, pitch));
+            assert!(m.is_finite());
+        }
+    }
+
+    #[test]
+    fn bad_cameras_are_errors() {
+        let mut c = cam(0.0, 0.0);
+        c.fov_deg = 0.0;
+        assert!(matches!(
+            plan_frame(&[], &c, 0.0, DrawBudget::default()),
+            Err(PlanError::Camera { .. })
+        ));
+        c.fov_deg = 90.0;
+        assert_eq!(
+            plan_frame(&[], &c, 0.0, DrawBudget::default()),
+            Err(PlanError::NoViews)
+        );
+    }
+
+    #[test]
+    fn frame_lod_grows_with_texels_per_pixel() {
+        let mut c = cam(0.0, 0.0);
+        c.width = 64;
+        assert_eq!(frame_lod(&c, 64, 0.0), 0.0);
+        assert!((frame_lod(&c, 256, 0.0) - 2.0).abs() < 1e-6);
+        assert!((frame_lod(&c, 64, 1.0) - 1.0).abs() < 1e-6);
+    }
+}

@@ -1,0 +1,489 @@
+//! Reference views: what the renderer draws from one reference viewpoint.
+//!
+//! A [`RefView`] holds, for one viewpoint, a stack of cube-map texture layers (layer 0 is the
+//! sky/background, layer `k + 1` is slab `k`) and the kept tiles of every slab, each with a
+//! small depth mesh ([`TileMesh`]: vertices in face-pixel coordinates plus radial depth, placed
+//! in 3D along the viewpoint's rays) and the finest texture level that has arrived
+//! ([`ViewTile::finest_level`]; coarser levels stand in for missing finer ones).
+//!
+//! [`RefView::from_layers`] builds a view from dense per-slab layers (colour with a binary
+//! opacity mask and radial depth), e.g. a prerender directory's `slab_K` files.
+
+use glam::DVec3;
+use tracks::cubemap::{subpixel_dir, Face, FaceCoord};
+use tracks::{CubeMap, TileGrid, TileId};
+
+use crate::texture::{dilate_masked, Layer};
+
+/// Errors building a reference view from layers.
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[non_exhaustive]
+pub enum ViewError {
+    #[error("layer {layer}: face size {got} differs from the view's {expected}")]
+    FaceSize {
+        layer: usize,
+        got: u32,
+        expected: u32,
+    },
+    #[error("tile size {0} is not a power of two")]
+    TileSize(u32),
+    #[error("mesh step {0} must be between 1 and the tile size")]
+    MeshStep(u32),
+    #[error("view position is not finite: {0:?}")]
+    Position(DVec3),
+}
+
+/// A depth-mesh vertex: face-pixel position (level-0 pixel units, corners at integers) and
+/// radial depth from the reference viewpoint, metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MeshVertex {
+    pub pos_in_face: [f32; 2],
+    pub depth_m: f32,
+}
+
+/// A triangle mesh over one tile, all vertices on the tile's face.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TileMesh {
+    pub vertices: Vec<MeshVertex>,
+    pub indices: Vec<u32>,
+}
+
+impl MeshVertex {
+    /// Position relative to the reference viewpoint, metres.
+    pub fn pos_from_ref(&self, face: Face, face_size: u32) -> DVec3 {
+        subpixel_dir(
+            face,
+            self.pos_in_face[0] as f64,
+            self.pos_in_face[1] as f64,
+            face_size,
+        ) * self.depth_m as f64
+    }
+}
+
+/// One kept slab tile of a reference view.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewTile {
+    pub tile: TileId,
+    pub slab: u32,
+    pub mesh: TileMesh,
+    /// Finest texture level present (0 = full resolution); finer levels are not sampled.
+    pub finest_level: u32,
+    /// Bounding sphere of the mesh relative to the reference viewpoint.
+    pub bound_center: DVec3,
+    pub bound_radius: f64,
+}
+
+/// Everything drawn from one reference viewpoint.
+#[derive(Clone, Debug)]
+pub struct RefView {
+    /// Viewpoint index along the track.
+    pub index: usize,
+    /// Arc length, metres.
+    pub s: f64,
+    pub position: DVec3,
+    pub face_size: u32,
+    pub tile_size: u32,
+    /// Layer 0: background (alpha 255 where sky); layer `k + 1`: slab `k` (alpha = mask).
+    pub layers: Vec<Layer>,
+    /// Kept tiles, sorted by slab then tile index.
+    pub tiles: Vec<ViewTile>,
+}
+
+/// How dense layers are turned into tile meshes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MeshParams {
+    /// Grid step in pixels (1 = a vertex at every pixel corner).
+    pub step: u32,
+    /// Two neighbouring depths `a < b` belong to different surfaces when `b > a·(1 + jump)`.
+    pub jump: f64,
+}
+
+impl Default for MeshParams {
+    fn default() -> Self {
+        MeshParams {
+            step: 2,
+            jump: 0.08,
+        }
+    }
+}
+
+/// One dense slab layer: colour (alpha is the binary opacity mask) and radial depth
+/// (`+inf` where the slab holds nothing).
+pub struct DenseLayer<'a> {
+    pub color: &'a CubeMap<[u8; 4]>,
+    pub depth: &'a CubeMap<f32>,
+}
+
+impl RefView {
+    /// Build a view from a background cube map (alpha 255 where sky) and dense slab layers.
+    pub fn from_layers(
+        index: usize,
+        s: f64,
+        position: DVec3,
+        tile_size: u32,
+        params: MeshParams,
+        background: &CubeMap<[u8; 4]>,
+        slabs: &[DenseLayer<'_>],
+    ) -> Result<RefView, ViewError> {
+        if !position.is_finite() {
+            return Err(ViewError::Position(position));
+        }
+        let n = background.face_size();
+        let grid = TileGrid::new(n, tile_size).ok_or(ViewError::TileSize(tile_size))?;
+        if params.step == 0 || params.step > tile_size {
+            return Err(ViewError::MeshStep(params.step));
+        }
+        for (i, l) in slabs.iter().enumerate() {
+            for got in [l.color.face_size(), l.depth.face_size()] {
+                if got != n {
+                    return Err(ViewError::FaceSize {
+                        layer: i + 1,
+                        got,
+                        expected: n,
+                    });
+                }
+            }
+        }
+        let mut layers = vec![Layer::from_rgba(dilate_masked(background))];
+        let mut tiles = Vec::new();
+        for (k, l) in slabs.iter().enumerate() {
+            // A pixel is part of the slab when its mask is set and its depth is usable.
+            let depth = CubeMap::from_fn(n, |f, x, y| {
+                let d = *l.depth.get(f, x, y);
+                let opaque = l.color.get(f, x, y)[3] >= 128 && d.is_finite() && d > 0.0;
+                if opaque {
+                    d
+                } else {
+                    f32::INFINITY
+                }
+            });
+            let color = CubeMap::from_fn(n, |f, x, y| {
+                let c = *l.color.get(f, x, y);
+                let a = if depth.get(f, x, y).is_finite() {
+                    255
+                } else {
+                    0
+                };
+                [c[0], c[1], c[2], a]
+            });
+            layers.push(Layer::from_rgba(dilate_masked(&color)));
+            for tile in grid.tiles() {
+                if let Some(mesh) = tile_mesh(&depth, &grid, tile, params) {
+                    tiles.push(ViewTile::new(tile, k as u32, mesh, n));
+                }
+            }
+        }
+        Ok(RefView {
+            index,
+            s,
+            position,
+            face_size: n,
+            tile_size,
+            layers,
+            tiles,
+        })
+    }
+
+    /// A plain panorama: the whole colour cube map as the only (background) layer, no tiles.
+    /// What an ordinary panorama viewer draws; the baseline of the viewer benchmark.
+    pub fn panorama(index: usize, s: f64, position: DVec3, color: &CubeMap<[u8; 4]>) -> RefView {
+        let opaque = color.map(|c| [c[0], c[1], c[2], 255]);
+        RefView {
+            index,
+            s,
+            position,
+            face_size: color.face_size(),
+            tile_size: color.face_size().next_power_of_two(),
+            layers: vec![Layer::from_rgba(opaque)],
+            tiles: Vec::new(),
+        }
+    }
+
+    /// Number of slabs (layers beyond the background).
+    pub fn slab_count(&self) -> usize {
+        self.layers.len().saturating_sub(1)
+    }
+
+    /// Triangles over all tiles.
+    pub fn triangle_count(&self) -> usize {
+        self.tiles.iter().map(|t| t.mesh.indices.len() / 3).sum()
+    }
+}
+
+impl ViewTile {
+    /// A tile with all levels present and its bounding sphere computed from the mesh.
+    pub fn new(tile: TileId, slab: u32, mesh: TileMesh, face_size: u32) -> ViewTile {
+        let pts: Vec<DVec3> = mesh
+            .vertices
+            .iter()
+            .map(|v| v.pos_from_ref(tile.face, face_size))
+            .collect();
+        let (lo, hi) = pts.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        );
+        let center = if pts.is_empty() {
+            DVec3::ZERO
+        } else {
+            (lo + hi) * 0.5
+        };
+        let radius = pts
+            .iter()
+            .map(|p| p.distance(center))
+            .fold(0.0f64, f64::max);
+        ViewTile {
+            tile,
+            slab,
+            mesh,
+            finest_level: 0,
+            bound_center: center,
+            bound_radius: radius,
+        }
+    }
+}
+
+/// Depth of the slab layer at pixel `(x, y)` of `face`, where `(x, y)` may lie one pixel outside
+/// the face: such pixels are looked up on the neighbouring face through their direction.
+fn depth_around(depth: &CubeMap<f32>, face: Face, x: i64, y: i64) -> f32 {
+    let n = depth.face_size() as i64;
+    if (0..n).contains(&x) && (0..n).contains(&y) {
+        return *depth.get(face, x as u32, y as u32);
+    }
+    let dir = subpixel_dir(face, x as f64 + 0.5, y as f64 + 0.5, n as u32);
+    match FaceCoord::from_dir(dir) {
+        Some(c) => {
+            let (px, py) = c.to_pixel(n as u32);
+            *depth.get(c.face, px, py)
+        }
+        None => f32::INFINITY,
+    }
+}
+
+/// Depth of a shared mesh corner: the nearest surface among the (up to four) pixels around it,
+/// averaged over the pixels of that surface. A function of the corner's direction only (the
+/// canonical face is the one `FaceCoord::from_dir` picks), so tiles and faces that share a
+/// corner agree exactly and no crack opens between continuous neighbours.
+fn corner_depth(depth: &CubeMap<f32>, face: Face, cx: u32, cy: u32, jump: f64) -> Option<f32> {
+    let n = depth.face_size();
+    let dir = subpixel_dir(face, cx as f64, cy as f64, n);
+    let (face, cx, cy) = match FaceCoord::from_dir(dir) {
+        Some(c) => {
+            let (x, y) = c.to_pixel_f(n);
+            (c.face, x.round() as i64, y.round() as i64)
+        }
+        None => (face, cx as i64, cy as i64),
+    };
+    let ds = [
+        depth_around(depth, face, cx - 1, cy - 1),
+        depth_around(depth, face, cx, cy - 1),
+        depth_around(depth, face, cx - 1, cy),
+        depth_around(depth, face, cx, cy),
+    ];
+    let front = ds.iter().copied().fold(f32::INFINITY, f32::min);
+    if !front.is_finite() {
+        return None;
+    }
+    let limit = front as f64 * (1.0 + jump);
+    let (sum, count) = ds
+        .iter()
+        .filter(|d| d.is_finite() && (**d as f64) <= limit)
+        .fold((0.0f64, 0u32), |(s, c), d| (s + *d as f64, c + 1));
+    Some((sum / count as f64) as f32)
+}
+
+fn same_surface(a: f32, b: f32, jump: f64) -> bool {
+    let (lo, hi) = if a < b { (a, b) } else { (b, a) };
+    (hi as f64) <= lo as f64 * (1.0 + jump)
+}
+
+/// The depth mesh of one tile of a slab layer (`depth` = +inf outside the slab), or `None`
+/// when the tile holds no slab pixel.
+///
+/// A grid of cells `step` pixels wide. A cell whose corner pixels all agree with the shared
+/// corner depths is continuous and uses the shared corner vertices; a cell across a depth
+/// jump gets its own four vertices at its own pixels' depths, so it neither stretches a
+/// "rubber sheet" over the jump nor moves at the reference viewpoint. Cells without any slab
+/// pixel are left out (the opacity mask cuts partial cells exactly).
+pub fn tile_mesh(
+    depth: &CubeMap<f32>,
+    grid: &TileGrid,
+    tile: TileId,
+    params: MeshParams,
+) -> Option<TileMesh> {
+    let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+    let face = tile.face;
+    let step = params.step.max(1);
+    let xs: Vec<u32> = (x0..x1).step_by(step as usize).chain([x1]).collect();
+    let ys: Vec<u32> = (y0..y1).step_by(step as usize).chain([y1]).collect();
+    let (nx, ny) = (xs.len(), ys.len());
+    let corners: Vec<Option<f32>> = ys
+        .iter()
+        .flat_map(|&y| xs.iter().map(move |&x| (x, y)))
+        .map(|(x, y)| corner_depth(depth, face, x, y, params.jump))
+        .collect();
+    let mut mesh = TileMesh::default();
+    let mut shared: Vec<Option<u32>> = vec![None; nx * ny];
+    let vertex = |mesh: &mut TileMesh, x: u32, y: u32, d: f32| -> u32 {
+        mesh.vertices.push(MeshVertex {
+            pos_in_face: [x as f32, y as f32],
+            depth_m: d,
+        });
+        (mesh.vertices.len() - 1) as u32
+    };
+    for j in 0..ny - 1 {
+        for i in 0..nx - 1 {
+            let (cx0, cx1, cy0, cy1) = (xs[i], xs[i + 1], ys[j], ys[j + 1]);
+            // Slab pixels of the cell; empty cells are not drawn.
+            let mut cell: Vec<f32> = Vec::new();
+            for y in cy0..cy1 {
+                for x in cx0..cx1 {
+                    let d = *depth.get(face, x, y);
+                    if d.is_finite() {
+                        cell.push(d);
+                    }
+                }
+            }
+            if cell.is_empty() {
+                continue;
+            }
+            // The cell pixel touching each corner (clamped inside the cell).
+            let own = [
+                (cx0, cy0),
+                (cx1 - 1, cy0),
+                (cx0, cy1 - 1),
+                (cx1 - 1, cy1 - 1),
+            ]
+            .map(|(x, y)| *depth.get(face, x, y));
+            let ids = [(i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1)];
+            let continuous = ids.iter().zip(own).all(|(&(ci, cj), o)| {
+                matches!(corners[cj * nx + ci], Some(c) if o.is_finite() && same_surface(c, o, params.jump))
+            });
+            let v: [u32; 4] = if continuous {
+                ids.map(|(ci, cj)| {
+                    let k = cj * nx + ci;
+                    *shared[k].get_or_insert_with(|| {
+                        vertex(
+                            &mut mesh,
+                            xs[ci],
+                            ys[cj],
+                            corners[k].unwrap_or(f32::INFINITY),
+                        )
+                    })
+                })
+            } else {
+                cell.sort_by(f32::total_cmp);
+                let median = cell[cell.len() / 2];
+                let pos = [(cx0, cy0), (cx1, cy0), (cx0, cy1), (cx1, cy1)];
+                let mut out = [0u32; 4];
+                for c in 0..4 {
+                    let d = if own[c].is_finite() { own[c] } else { median };
+                    out[c] = vertex(&mut mesh, pos[c].0, pos[c].1, d);
+                }
+                out
+            };
+            // Two triangles, split along the diagonal whose ends are closer in depth.
+            let dd = |a: u32, b: u32| {
+                (mesh.vertices[a as usize].depth_m - mesh.vertices[b as usize].depth_m).abs()
+            };
+            if dd(v[0], v[3]) <= dd(v[1], v[2]) {
+                mesh.indices.extend([v[0], v[2], v[3], v[0], v[3], v[1]]);
+            } else {
+                mesh.indices.extend([v[0], v[2], v[1], v[1], v[2], v[3]]);
+            }
+        }
+    }
+    (!mesh.indices.is_empty()).then_some(mesh)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sphere_depth(n: u32, r: f32) -> CubeMap<f32> {
+        CubeMap::filled(n, r)
+    }
+
+    #[test]
+    fn constant_depth_gives_one_watertight_mesh_per_tile() {
+        let n = 8;
+        let d = sphere_depth(n, 5.0);
+        let grid = TileGrid::new(n, 4).unwrap();
+        let p = MeshParams { step: 2, jump: 0.1 };
+        for t in grid.tiles() {
+            let m = tile_mesh(&d, &grid, t, p).unwrap();
+            // 2x2 cells, shared corners: 9 vertices, 8 triangles.
+            assert_eq!(m.vertices.len(), 9, "{t:?}");
+            assert_eq!(m.indices.len(), 24);
+            assert!(m.vertices.iter().all(|v| v.depth_m == 5.0));
+        }
+    }
+
+    #[test]
+    fn corners_shared_across_faces_get_identical_depth() {
+        // Depth varies with direction, so any asymmetry across faces would show.
+        let n = 8;
+        let d = CubeMap::from_fn(n, |f, x, y| {
+            let dir = tracks::cubemap::pixel_dir(f, x, y, n);
+            (3.0 + dir.x + 0.5 * dir.y) as f32
+        });
+        for f in Face::ALL {
+            for (cx, cy) in [(0, 0), (n, 0), (0, 3), (n, 5), (4, n)] {
+                let a = corner_depth(&d, f, cx, cy, 0.5).unwrap();
+                let dir = subpixel_dir(f, cx as f64, cy as f64, n);
+                // The same corner seen from every face that holds it.
+                for g in Face::ALL {
+                    if let Some((u, v)) = g.uv_from_dir(dir) {
+                        if u.abs() <= 1.0 + 1e-9 && v.abs() <= 1.0 + 1e-9 {
+                            let (x, y) = ((u + 1.0) * 0.5 * n as f64, (1.0 - v) * 0.5 * n as f64);
+                            let b = corner_depth(&d, g, x.round() as u32, y.round() as u32, 0.5)
+                                .unwrap();
+                            assert_eq!(a, b, "{f:?} {cx},{cy} vs {g:?}");
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn depth_jump_cells_do_not_stretch() {
+        let n = 8;
+        // Left half of +z at 2 m, right half at 20 m.
+        let d = CubeMap::from_fn(
+            n,
+            |f, x, _| {
+                if f == Face::PosZ && x < 4 {
+                    2.0
+                } else {
+                    20.0
+                }
+            },
+        );
+        let grid = TileGrid::new(n, 8).unwrap();
+        let t = TileId {
+            face: Face::PosZ,
+            tx: 0,
+            ty: 0,
+        };
+        let m = tile_mesh(&d, &grid, t, MeshParams { step: 2, jump: 0.1 }).unwrap();
+        for tri in m.indices.chunks(3) {
+            let ds: Vec<f32> = tri
+                .iter()
+                .map(|&i| m.vertices[i as usize].depth_m)
+                .collect();
+            let (lo, hi) = ds
+                .iter()
+                .fold((f32::MAX, 0f32), |(a, b), &d| (a.min(d), b.max(d)));
+            assert!(hi <= lo * 1.1, "stretched triangle {ds:?}");
+        }
+    }
+
+    #[test]
+    fn empty_tiles_have_no_mesh() {
+        let d = CubeMap::filled(8, f32::INFINITY);
+        let grid = TileGrid::new(8, 4).unwrap();
+        for t in grid.tiles() {
+            assert!(tile_mesh(&d, &grid, t, MeshParams::default()).is_none());
+        }
+    }
+}

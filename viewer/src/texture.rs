@@ -1,0 +1,244 @@
+//! Cube-map texture layers with mip chains, and the CPU sampler that mirrors the GPU's.
+//!
+//! A [`Layer`] is one cube map (`N × 6N` on the GPU, faces stacked in `Face` order) with its
+//! mip levels; colour is sRGB-encoded RGBA8, alpha is the opacity mask. Texels outside the
+//! mask carry the colour of their nearest opaque neighbours ([`dilate_masked`]) so bilinear
+//! filtering at a mask edge never pulls in black.
+
+use tracks::{CubeMap, Face};
+
+/// One cube-map layer and its mip chain (level 0 first).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Layer {
+    pub levels: Vec<CubeMap<[u8; 4]>>,
+}
+
+/// sRGB byte → linear.
+pub fn srgb_to_linear(c: u8) -> f32 {
+    let c = c as f32 / 255.0;
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Linear → sRGB byte (rounded).
+pub fn linear_to_srgb(c: f32) -> u8 {
+    let c = c.clamp(0.0, 1.0);
+    let s = if c <= 0.003_130_8 {
+        c * 12.92
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    };
+    (s * 255.0).round() as u8
+}
+
+impl Layer {
+    /// Level 0 from `rgba`, then halve while the face size is even.
+    pub fn from_rgba(rgba: CubeMap<[u8; 4]>) -> Layer {
+        let mut levels = vec![rgba];
+        loop {
+            let last = levels.last().expect("level 0 exists");
+            let n = last.face_size();
+            if n < 2 || n % 2 != 0 {
+                break;
+            }
+            let next = downsample(last);
+            levels.push(next);
+        }
+        Layer { levels }
+    }
+
+    pub fn face_size(&self) -> u32 {
+        self.levels[0].face_size()
+    }
+
+    /// Bilinear sample of level `level` at level-0 face-pixel position `(x, y)` (continuous,
+    /// clamped half a texel inside the face so faces never bleed into each other), linear RGBA.
+    pub fn sample_level(&self, level: usize, face: Face, x: f64, y: f64) -> [f32; 4] {
+        let map = &self.levels[level.min(self.levels.len() - 1)];
+        let scale = map.face_size() as f64 / self.face_size() as f64;
+        let n = map.face_size() as f64;
+        let (x, y) = (
+            (x * scale).clamp(0.5, n - 0.5),
+            (y * scale).clamp(0.5, n - 0.5),
+        );
+        let (fx, fy) = (x - 0.5, y - 0.5);
+        let (ix, iy) = (fx.floor(), fy.floor());
+        let (tx, ty) = ((fx - ix) as f32, (fy - iy) as f32);
+        let max = map.face_size() - 1;
+        let at = |dx: f64, dy: f64| -> [f32; 4] {
+            let px = ((ix + dx).max(0.0) as u32).min(max);
+            let py = ((iy + dy).max(0.0) as u32).min(max);
+            let c = map.get(face, px, py);
+            [
+                srgb_to_linear(c[0]),
+                srgb_to_linear(c[1]),
+                srgb_to_linear(c[2]),
+                c[3] as f32 / 255.0,
+            ]
+        };
+        let (a, b, c, d) = (at(0.0, 0.0), at(1.0, 0.0), at(0.0, 1.0), at(1.0, 1.0));
+        let mut out = [0.0f32; 4];
+        for k in 0..4 {
+            let top = a[k] + (b[k] - a[k]) * tx;
+            let bottom = c[k] + (d[k] - c[k]) * tx;
+            out[k] = top + (bottom - top) * ty;
+        }
+        out
+    }
+
+    /// Trilinear sample at level of detail `lod` (fractional, clamped to the chain).
+    pub fn sample(&self, lod: f32, face: Face, x: f64, y: f64) -> [f32; 4] {
+        let max = (self.levels.len() - 1) as f32;
+        let lod = lod.clamp(0.0, max);
+        let l0 = lod.floor();
+        let t = lod - l0;
+        let a = self.sample_level(l0 as usize, face, x, y);
+        if t == 0.0 {
+            return a;
+        }
+        let b = self.sample_level(l0 as usize + 1, face, x, y);
+        std::array::from_fn(|k| a[k] + (b[k] - a[k]) * t)
+    }
+}
+
+/// Halve a cube map: colour averaged in linear light weighted by alpha, alpha averaged.
+pub fn downsample(map: &CubeMap<[u8; 4]>) -> CubeMap<[u8; 4]> {
+    let n = map.face_size() / 2;
+    CubeMap::from_fn(n, |f, x, y| {
+        let mut rgb = [0.0f32; 3];
+        let mut plain = [0.0f32; 3];
+        let mut alpha = 0.0f32;
+        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let c = map.get(f, 2 * x + dx, 2 * y + dy);
+            let a = c[3] as f32 / 255.0;
+            for k in 0..3 {
+                let l = srgb_to_linear(c[k]);
+                rgb[k] += l * a;
+                plain[k] += l;
+            }
+            alpha += a;
+        }
+        let col: [f32; 3] = if alpha > 0.0 {
+            rgb.map(|v| v / alpha)
+        } else {
+            plain.map(|v| v / 4.0)
+        };
+        [
+            linear_to_srgb(col[0]),
+            linear_to_srgb(col[1]),
+            linear_to_srgb(col[2]),
+            (alpha / 4.0 * 255.0).round() as u8,
+        ]
+    })
+}
+
+/// Give texels with alpha 0 the mean colour of their opaque 8-neighbours (two passes, so a
+/// two-texel band around every mask edge is filled); alpha is left as it is.
+pub fn dilate_masked(map: &CubeMap<[u8; 4]>) -> CubeMap<[u8; 4]> {
+    let n = map.face_size() as i64;
+    let mut cur = map.clone();
+    let mut filled: CubeMap<bool> = map.map(|c| c[3] > 0);
+    for _ in 0..2 {
+        let prev = cur.clone();
+        let prev_filled = filled.clone();
+        for f in Face::ALL {
+            for y in 0..n {
+                for x in 0..n {
+                    if *prev_filled.get(f, x as u32, y as u32) {
+                        continue;
+                    }
+                    let mut sum = [0u32; 3];
+                    let mut count = 0;
+                    for dy in -1..=1i64 {
+                        for dx in -1..=1i64 {
+                            let (px, py) = (x + dx, y + dy);
+                            if px < 0 || py < 0 || px >= n || py >= n {
+                                continue;
+                            }
+                            if *prev_filled.get(f, px as u32, py as u32) {
+                                let c = prev.get(f, px as u32, py as u32);
+                                for k in 0..3 {
+                                    sum[k] += c[k] as u32;
+                                }
+                                count += 1;
+                            }
+                        }
+                    }
+                    if let Some(mean) = sum
+                        .iter()
+                        .map(|s| s.checked_div(count))
+                        .collect::<Option<Vec<u32>>>()
+                    {
+                        let c = cur.get_mut(f, x as u32, y as u32);
+                        for k in 0..3 {
+                            c[k] = mean[k] as u8;
+                        }
+                        *filled.get_mut(f, x as u32, y as u32) = true;
+                    }
+                }
+            }
+        }
+    }
+    cur
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_round_trips_every_byte() {
+        for b in 0..=255u8 {
+            assert_eq!(linear_to_srgb(srgb_to_linear(b)), b);
+        }
+    }
+
+    #[test]
+    fn mip_chain_halves_while_even_and_keeps_constant_colour() {
+        let l = Layer::from_rgba(CubeMap::filled(12, [200, 100, 50, 255]));
+        let sizes: Vec<u32> = l.levels.iter().map(|m| m.face_size()).collect();
+        assert_eq!(sizes, vec![12, 6, 3]);
+        for m in &l.levels {
+            assert!(m.as_slice().iter().all(|c| *c == [200, 100, 50, 255]));
+        }
+    }
+
+    #[test]
+    fn transparent_texels_do_not_darken_mips() {
+        let mut m = CubeMap::filled(4, [0u8, 0, 0, 0]);
+        *m.get_mut(Face::PosX, 0, 0) = [255, 255, 255, 255];
+        let d = downsample(&m);
+        assert_eq!(*d.get(Face::PosX, 0, 0), [255, 255, 255, 64]);
+    }
+
+    #[test]
+    fn sampling_at_texel_centres_is_exact() {
+        let m = CubeMap::from_fn(4, |f, x, y| {
+            [x as u8 * 60, y as u8 * 60, f.index() as u8, 255]
+        });
+        let l = Layer::from_rgba(m.clone());
+        for f in Face::ALL {
+            for y in 0..4 {
+                for x in 0..4 {
+                    let s = l.sample(0.0, f, x as f64 + 0.5, y as f64 + 0.5);
+                    let c = m.get(f, x, y);
+                    for k in 0..3 {
+                        assert!((s[k] - srgb_to_linear(c[k])).abs() < 1e-6);
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn dilation_fills_a_band_around_the_mask() {
+        let mut m = CubeMap::filled(8, [0u8, 0, 0, 0]);
+        *m.get_mut(Face::PosY, 3, 3) = [90, 80, 70, 255];
+        let d = dilate_masked(&m);
+        assert_eq!(*d.get(Face::PosY, 5, 5), [90, 80, 70, 0]);
+        assert_eq!(*d.get(Face::PosY, 6, 6), [0, 0, 0, 0]);
+    }
+}
