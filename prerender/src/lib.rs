@@ -4,12 +4,14 @@
 //! - [`scene`]: the scene model ([`scene::Scene`], [`scene::Shape`], materials, lights, sky)
 //!   with exact f64 ray queries ([`scene::Scene::first_hit`]).
 //! - [`parse`]: the TOML scene format (read and write).
+//! - [`job`]: rendering a track into a prerender directory (resume, shards, report).
 //! - [`scenes`]: built-in procedural scenes (`castle`, `nature`) with their tracks.
 //! - [`render`]: cube maps of colour + radial depth, slab layers in one pass, low-res depth,
 //!   perspective ground truth.
 
 mod accel;
 mod geom;
+pub mod job;
 pub mod parse;
 pub mod render;
 pub mod scene;

@@ -80,6 +80,12 @@ fn ray_color(scene: &Scene, o: DVec3, d: DVec3, shadows: bool) -> (DVec3, Option
     }
 }
 
+/// Colour (sRGB8) and radial depth seen along one unit ray: what a pixel-centre ray gives.
+pub fn trace_ray(scene: &Scene, origin: DVec3, dir: DVec3, shadows: bool) -> ([u8; 3], f32) {
+    let (c, h) = ray_color(scene, origin, dir, shadows);
+    (to_srgb8(c), depth_f32(h))
+}
+
 /// Subpixel offsets (within a pixel, in pixel units) of a `ss × ss` stratified grid.
 fn offsets(ss: u32) -> Vec<(f64, f64)> {
     let ss = ss.max(1);
@@ -316,3 +322,7 @@ pub fn render_perspective(
         depth: depth.into_iter().flatten().collect(),
     }
 }
+
+#[cfg(test)]
+#[path = "render_tests.rs"]
+mod tests;
