@@ -33,8 +33,13 @@ pub const MAX_LEVELS: usize = 16;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Surface {
     /// Position of the tile in `viewpoints[viewpoint].tiles`.
-    Tile { viewpoint: usize, tile: usize },
-    Background { viewpoint: usize },
+    Tile {
+        viewpoint: usize,
+        tile: usize,
+    },
+    Background {
+        viewpoint: usize,
+    },
 }
 
 /// Visible pixels of one surface, by the level they need.
@@ -252,7 +257,10 @@ pub fn blend_weights(vp_s: &[f64], s: f64) -> Vec<(usize, f64)> {
         0 => Vec::new(),
         1 => vec![(0, 1.0)],
         n => {
-            let i = vp_s.partition_point(|&v| v <= s).saturating_sub(1).min(n - 2);
+            let i = vp_s
+                .partition_point(|&v| v <= s)
+                .saturating_sub(1)
+                .min(n - 2);
             let len = vp_s[i + 1] - vp_s[i];
             let f = if len > 0.0 {
                 ((s - vp_s[i]) / len).clamp(0.0, 1.0)
@@ -279,7 +287,10 @@ mod tests {
 
     #[test]
     fn blend_weights_follow_the_segment() {
-        assert_eq!(blend_weights(&[0.0, 4.0, 8.0], 5.0), vec![(1, 0.75), (2, 0.25)]);
+        assert_eq!(
+            blend_weights(&[0.0, 4.0, 8.0], 5.0),
+            vec![(1, 0.75), (2, 0.25)]
+        );
         assert_eq!(blend_weights(&[0.0, 4.0], 9.0), vec![(0, 0.0), (1, 1.0)]);
         assert_eq!(blend_weights(&[3.0], 9.0), vec![(0, 1.0)]);
     }

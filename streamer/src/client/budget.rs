@@ -13,8 +13,12 @@
 //! beyond it are dropped from residency (remove), and if the next part is missing and no
 //! download for that item is running, it is requested — only when the running link estimate
 //! says it arrives within `δt_max` (coarsest parts are always requested: nothing can be shown
-//! without them). Prefetched items (the next segment's tiles) are requested at a priority below
-//! every current request.
+//! without them). Prefetched items (the next segment's tiles) rank below every current request
+//! of the same kind: priorities are, from first to last, current coarsest parts (3 + w),
+//! prefetched coarsest parts (2 + w), current refinements (1 + w), prefetched refinements
+//! (0 + w), with `w` ∈ [0, 1) the item's normalised weight. Putting the next segment's
+//! coarsest levels before the current segment's refinements is what lets prefetch work at all
+//! on a busy link (otherwise refinements of the current segment never run out).
 
 /// Download sizes and memory costs of one item's parts.
 #[derive(Clone, Debug, PartialEq)]
@@ -57,7 +61,10 @@ impl ItemInfo {
     /// The finest level shown with `k` parts, `None` when no level is complete.
     pub fn level_with(&self, k: usize) -> Option<u32> {
         let groups = k.checked_sub(self.first_level_part)?;
-        groups.checked_sub(1).and_then(|g| self.levels.get(g)).copied()
+        groups
+            .checked_sub(1)
+            .and_then(|g| self.levels.get(g))
+            .copied()
     }
 }
 
@@ -111,7 +118,11 @@ impl LinkEstimate {
         let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
         if slope <= 1e-12 {
             // All sizes alike (or no size effect): attribute the mean time to bandwidth.
-            let bps = if my > 0.0 { mx * 8.0 / my } else { f64::INFINITY };
+            let bps = if my > 0.0 {
+                mx * 8.0 / my
+            } else {
+                f64::INFINITY
+            };
             return (bps.max(1.0), 0.0);
         }
         let latency = (my - slope * mx).max(0.0);
@@ -204,7 +215,7 @@ pub struct PlanInput<'a> {
 pub struct PartRequest {
     pub item: usize,
     pub part: usize,
-    /// Larger is sooner; prefetch requests are below 1, current ones at least 1.
+    /// Larger is sooner (see the module docs for the four bands).
     pub priority: f64,
 }
 
@@ -219,7 +230,11 @@ pub struct Plan {
 }
 
 /// Share `memory` among `(item, weight, cap)` in descending weight; returns target parts.
-pub fn allocate(items: &[ItemInfo], cands: &[(usize, f64, usize)], memory: u64) -> Vec<(usize, usize)> {
+pub fn allocate(
+    items: &[ItemInfo],
+    cands: &[(usize, f64, usize)],
+    memory: u64,
+) -> Vec<(usize, usize)> {
     let mut order: Vec<&(usize, f64, usize)> = cands.iter().filter(|c| c.0 < items.len()).collect();
     order.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
     let mut remaining = memory;
@@ -236,7 +251,10 @@ pub fn allocate(items: &[ItemInfo], cands: &[(usize, f64, usize)], memory: u64) 
         weight_left -= w;
         let cap = cap.min(info.parts());
         let min = info.min_parts().min(cap);
-        let mut k = (min..=cap).rev().find(|&k| info.mem(k) <= share).unwrap_or(0);
+        let mut k = (min..=cap)
+            .rev()
+            .find(|&k| info.mem(k) <= share)
+            .unwrap_or(0);
         if k == 0 && info.mem(min) <= remaining {
             k = min;
         }
@@ -299,7 +317,7 @@ pub fn plan(inp: &PlanInput) -> Plan {
                 out.requests.push(PartRequest {
                     item: i,
                     part: have,
-                    priority: if essential { 2.0 } else { 1.0 } + weight[i].min(1.0) * 0.999,
+                    priority: if essential { 3.0 } else { 1.0 } + weight[i].min(1.0) * 0.999,
                 });
             }
         }
@@ -310,7 +328,13 @@ pub fn plan(inp: &PlanInput) -> Plan {
             .prefetch
             .iter()
             .filter(|a| a.0 < n && !is_cand[a.0])
-            .map(|&(i, a)| (i, a.max(0.0) / sum.max(f64::MIN_POSITIVE), inp.items[i].parts()))
+            .map(|&(i, a)| {
+                (
+                    i,
+                    a.max(0.0) / sum.max(f64::MIN_POSITIVE),
+                    inp.items[i].parts(),
+                )
+            })
             .collect();
         for (i, target) in allocate(inp.items, &pre, inp.memory_bytes) {
             let info = &inp.items[i];
@@ -322,7 +346,7 @@ pub fn plan(inp: &PlanInput) -> Plan {
                     out.requests.push(PartRequest {
                         item: i,
                         part: have,
-                        priority: if essential { 0.5 } else { 0.0 } + w.min(1.0) * 0.499,
+                        priority: if essential { 2.0 } else { 0.0 } + w.min(1.0) * 0.999,
                     });
                 }
             }
@@ -390,9 +414,15 @@ mod tests {
             dt_max_s: 0.5,
             link: &slow,
         };
-        assert!(plan(&inp).requests.is_empty(), "60 B at 1 kbit/s takes 0.5 s + latency");
+        assert!(
+            plan(&inp).requests.is_empty(),
+            "60 B at 1 kbit/s takes 0.5 s + latency"
+        );
         let none = [0];
-        let p = plan(&PlanInput { have: &none, ..inp.clone() });
+        let p = plan(&PlanInput {
+            have: &none,
+            ..inp.clone()
+        });
         assert_eq!(p.requests.len(), 1);
         assert_eq!(p.requests[0].part, 0);
         let fast = LinkEstimate::new(1e7, 0.05);
@@ -404,7 +434,11 @@ mod tests {
     fn visibility_caps_at_the_needed_level_and_prefetch_ranks_last() {
         let items = vec![tile(), tile(), tile()];
         let link = LinkEstimate::new(1e9, 0.0);
-        let live = [LiveCount { item: 1, pixels: 500.0, needed_level: 2 }];
+        let live = [LiveCount {
+            item: 1,
+            pixels: 500.0,
+            needed_level: 2,
+        }];
         let inp = PlanInput {
             items: &items,
             have: &[0, 3, 0],
@@ -422,10 +456,24 @@ mod tests {
         assert_eq!(p.targets, vec![(1, 3, 3)]);
         assert_eq!(p.requests.len(), 1);
         assert_eq!(p.requests[0].item, 2);
-        assert!(p.requests[0].priority < 1.0);
-        let p = plan(&PlanInput { mode: PriorityMode::Combined { ach_weight: 0.5 }, ..inp });
+        assert!(p.requests[0].priority < 3.0);
+        let p = plan(&PlanInput {
+            mode: PriorityMode::Combined { ach_weight: 0.5 },
+            ..inp.clone()
+        });
         assert_eq!(p.requests.first().map(|r| r.item), Some(0));
-        assert!(p.requests.iter().all(|r| r.item != 2 || r.priority < 1.0));
+        let pre = p.requests.iter().find(|r| r.item == 2).unwrap();
+        assert!(pre.priority < p.requests[0].priority);
+        // A prefetched refinement ranks below a current refinement.
+        let have = [2, 3, 2];
+        let p = plan(&PlanInput {
+            have: &have,
+            mode: PriorityMode::Combined { ach_weight: 0.5 },
+            ..inp
+        });
+        let cur = p.requests.iter().find(|r| r.item == 0).unwrap();
+        let pre = p.requests.iter().find(|r| r.item == 2).unwrap();
+        assert!(pre.priority < 1.0 && cur.priority >= 1.0);
     }
 
     #[test]

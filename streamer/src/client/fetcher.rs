@@ -200,7 +200,11 @@ impl Drop for Fetcher {
     }
 }
 
-async fn worker(shared: Arc<Shared>, mut conn: Connection, tx: mpsc::UnboundedSender<FetchOutcome>) {
+async fn worker(
+    shared: Arc<Shared>,
+    mut conn: Connection,
+    tx: mpsc::UnboundedSender<FetchOutcome>,
+) {
     loop {
         let job = loop {
             let notified = shared.wake.notified();

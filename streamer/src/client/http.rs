@@ -37,7 +37,9 @@ impl ServerUrl {
         if auth.is_empty() || auth.contains('@') {
             return Err(bad("missing or unsupported host"));
         }
-        let authority = if auth.rsplit_once(':').is_some_and(|(_, p)| p.parse::<u16>().is_ok())
+        let authority = if auth
+            .rsplit_once(':')
+            .is_some_and(|(_, p)| p.parse::<u16>().is_ok())
         {
             auth.to_string()
         } else if auth.contains(':') && !auth.starts_with('[') {
@@ -87,13 +89,20 @@ pub enum ClientError {
     #[error("{path}: checksum mismatch {attempts} times in a row")]
     Checksum { path: String, attempts: u32 },
     #[error("{path}: response of {len} bytes, expected {expected}")]
-    Length { path: String, len: u64, expected: u64 },
+    Length {
+        path: String,
+        len: u64,
+        expected: u64,
+    },
     #[error("manifest: {0}")]
     Manifest(String),
     #[error("request cancelled")]
     Cancelled,
     #[error("gave up after {attempts} attempts: {last}")]
-    GaveUp { attempts: u32, last: Box<ClientError> },
+    GaveUp {
+        attempts: u32,
+        last: Box<ClientError>,
+    },
 }
 
 impl ClientError {
@@ -160,7 +169,11 @@ impl Connection {
     }
 
     async fn connect(&mut self) -> Result<&mut SendRequest<Empty<Bytes>>, ClientError> {
-        if self.sender.as_ref().is_some_and(|s| s.is_closed() || !s.is_ready()) {
+        if self
+            .sender
+            .as_ref()
+            .is_some_and(|s| s.is_closed() || !s.is_ready())
+        {
             self.sender = None;
         }
         if self.sender.is_none() {
@@ -232,7 +245,8 @@ impl Connection {
                 match f {
                     Ok(f) => {
                         if let Some(d) = f.data_ref() {
-                            reason.extend_from_slice(&d[..d.len().min(512 - reason.len().min(512))]);
+                            reason
+                                .extend_from_slice(&d[..d.len().min(512 - reason.len().min(512))]);
                         }
                     }
                     Err(_) => {
@@ -269,7 +283,9 @@ impl Connection {
             }
         }
         self.stats.requests.fetch_add(1, Ordering::Relaxed);
-        self.stats.bytes.fetch_add(out.len() as u64, Ordering::Relaxed);
+        self.stats
+            .bytes
+            .fetch_add(out.len() as u64, Ordering::Relaxed);
         Ok(out.freeze())
     }
 
@@ -356,7 +372,13 @@ mod tests {
         let u = ServerUrl::parse("http://example.org").unwrap();
         assert_eq!(u.authority, "example.org:80");
         assert_eq!(u.prefix, "");
-        for bad in ["https://x", "ftp://x", "http://", "http://a:b/", "http://u@h/"] {
+        for bad in [
+            "https://x",
+            "ftp://x",
+            "http://",
+            "http://a:b/",
+            "http://u@h/",
+        ] {
             assert!(ServerUrl::parse(bad).is_err(), "{bad}");
         }
     }

@@ -57,7 +57,11 @@ fn ptm_parts(p: &PtmRef, field: &str) -> Result<(Vec<Part>, Vec<u32>, Part), Cli
     for (g, l) in p.levels.iter().enumerate() {
         let f = format!("{field}.levels[{g}]");
         check_hash(&l.hash, &format!("{f}.hash"))?;
-        if l.len == 0 || l.offset.checked_add(l.len).is_none_or(|e| e > p.object.size) {
+        if l.len == 0
+            || l.offset
+                .checked_add(l.len)
+                .is_none_or(|e| e > p.object.size)
+        {
             return Err(ClientError::Manifest(format!(
                 "{f}: range {}+{} outside the object of {} bytes",
                 l.offset, l.len, p.object.size
@@ -75,7 +79,9 @@ fn ptm_parts(p: &PtmRef, field: &str) -> Result<(Vec<Part>, Vec<u32>, Part), Cli
         levels.push(l.level);
     }
     if parts.is_empty() {
-        return Err(ClientError::Manifest(format!("{field}: PTM without levels")));
+        return Err(ClientError::Manifest(format!(
+            "{field}: PTM without levels"
+        )));
     }
     let whole = Part {
         key: FetchKey {
@@ -133,8 +139,12 @@ impl ItemTable {
                 items.push(make_item(vi, None, vp.s, parts, 0, levels, whole));
             }
         }
-        let index_of: HashMap<usize, usize> =
-            t.viewpoints.iter().enumerate().map(|(i, v)| (v.index, i)).collect();
+        let index_of: HashMap<usize, usize> = t
+            .viewpoints
+            .iter()
+            .enumerate()
+            .map(|(i, v)| (v.index, i))
+            .collect();
         let mut key_to_tile: HashMap<(usize, u32, tracks::TileId), usize> = HashMap::new();
         for (vi, vp) in t.viewpoints.iter().enumerate() {
             for (ti, tile) in vp.tiles.iter().enumerate() {

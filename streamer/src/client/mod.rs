@@ -20,7 +20,9 @@ pub mod http;
 pub mod items;
 pub mod predict;
 
-pub use budget::{plan, BudgetParams, ItemInfo, LinkEstimate, LiveCount, Plan, PlanInput, PriorityMode};
+pub use budget::{
+    plan, BudgetParams, ItemInfo, LinkEstimate, LiveCount, Plan, PlanInput, PriorityMode,
+};
 pub use cache::{Cache, CacheError};
 pub use fetcher::{FetchOutcome, FetchRequest, Fetcher, FetcherConfig};
 pub use http::{ClientError, ClientStats, Connection, FetchKey, RetryPolicy, ServerUrl};

@@ -90,7 +90,11 @@ pub fn next_segment(m: &MotionTracker, vp_s: &[f64], s: f64, horizon_s: f64) -> 
         cur.checked_sub(1)?
     };
     let boundary = if v > 0.0 { vp_s[cur + 1] } else { vp_s[cur] };
-    let reaches = if v > 0.0 { ahead >= boundary } else { ahead <= boundary };
+    let reaches = if v > 0.0 {
+        ahead >= boundary
+    } else {
+        ahead <= boundary
+    };
     reaches.then_some(next)
 }
 
@@ -123,7 +127,11 @@ mod tests {
         m.observe(0.0, 8.0);
         m.observe(1.0, 9.0);
         assert_eq!(next_segment(&m, &vp, 9.0, 2.0), Some(2));
-        assert_eq!(next_segment(&m, &vp, 9.0, 0.5), None, "boundary not reached yet");
+        assert_eq!(
+            next_segment(&m, &vp, 9.0, 0.5),
+            None,
+            "boundary not reached yet"
+        );
         let mut back = MotionTracker::new();
         back.observe(0.0, 6.0);
         back.observe(1.0, 5.5);
@@ -131,6 +139,10 @@ mod tests {
         let mut end = MotionTracker::new();
         end.observe(0.0, 13.0);
         end.observe(1.0, 14.0);
-        assert_eq!(next_segment(&end, &vp, 14.0, 5.0), None, "no segment past the end");
+        assert_eq!(
+            next_segment(&end, &vp, 14.0, 5.0),
+            None,
+            "no segment past the end"
+        );
     }
 }

@@ -232,10 +232,8 @@ pub async fn run(
     }
     drop(listener);
     let _ = stop_tx.send(true);
-    let drained = tokio::time::timeout(drain, async {
-        while tasks.join_next().await.is_some() {}
-    })
-    .await;
+    let drained =
+        tokio::time::timeout(drain, async { while tasks.join_next().await.is_some() {} }).await;
     if drained.is_err() {
         tasks.abort_all();
     }
@@ -298,12 +296,18 @@ async fn route(s: &Shared, req: &Request<Incoming>) -> Resp {
     }
     let path = req.uri().path();
     if path.contains("..") || path.contains('\\') || path.contains("//") || path.contains('%') {
-        return reply(StatusCode::BAD_REQUEST, "path must be /manifest.json or /objects/HH/HASH");
+        return reply(
+            StatusCode::BAD_REQUEST,
+            "path must be /manifest.json or /objects/HH/HASH",
+        );
     }
     let mut resp = if path == "/manifest.json" {
         let mut r = Response::new(Full::new(s.db.manifest_bytes.clone()));
         let h = r.headers_mut();
-        h.insert(header::CONTENT_TYPE, HeaderValue::from_static("application/json"));
+        h.insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        );
         h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
         if let Ok(v) = HeaderValue::from_str(&s.db.manifest_etag) {
             h.insert(header::ETAG, v);
@@ -368,9 +372,9 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
     let range = match req.headers().get(header::RANGE) {
         None => None,
         Some(v) => {
-            let text = v.to_str().map_err(|_| {
-                reply(StatusCode::BAD_REQUEST, "Range header is not ASCII")
-            })?;
+            let text = v
+                .to_str()
+                .map_err(|_| reply(StatusCode::BAD_REQUEST, "Range header is not ASCII"))?;
             match parse_range(text, size, s.config.max_range_bytes) {
                 Ok(r) => Some(r),
                 Err(e @ RangeError::Unsatisfiable { .. }) => {
@@ -395,7 +399,9 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
         ));
     }
     let mut data = vec![0u8; len as usize];
-    file.seek(SeekFrom::Start(offset)).await.map_err(not_there)?;
+    file.seek(SeekFrom::Start(offset))
+        .await
+        .map_err(not_there)?;
     file.read_exact(&mut data).await.map_err(not_there)?;
     if let Some(n) = s.config.corrupt_every.filter(|&n| n > 0) {
         let k = s.stats.requests.load(Ordering::Relaxed);

@@ -13,20 +13,20 @@
 
 pub mod load;
 mod plot;
+mod sim;
 pub mod synth;
 
 use std::path::Path;
 
 use serde::Serialize;
 use tracks::manifest::Manifest;
-use tracks::{PerspectiveCamera, TrackSet};
+use tracks::TrackSet;
 
 use crate::client::{
-    next_segment, plan, segment_at, BudgetParams, Cache, ClientError, ClientStats, Connection,
-    FetchKey, ItemTable, LinkEstimate, LiveCount, MotionTracker, PlanInput, PriorityMode,
-    RetryPolicy, ServerUrl,
+    BudgetParams, ClientError, ClientStats, Connection, ItemTable, PriorityMode, RetryPolicy,
+    ServerUrl,
 };
-use crate::visibility::{blend_weights, SceneIndex, Surface, SurfaceCount};
+use crate::visibility::SceneIndex;
 
 /// How a run chooses what to download.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -117,7 +117,7 @@ impl Default for WalkConfig {
             pause_s: 3.0,
             budget: BudgetParams::default(),
             cache_bytes: 64 << 20,
-            max_in_flight: 4,
+            max_in_flight: 6,
             screen_width: 1280,
             screen_height: 720,
             fov_deg: 90.0,
@@ -221,7 +221,7 @@ pub enum WalkError {
     Output { path: String, message: String },
 }
 
-struct Scene {
+pub(crate) struct Scene {
     manifest: Manifest,
     table: ItemTable,
     index: SceneIndex,
@@ -263,7 +263,7 @@ pub async fn run_walk(
     let mut runs = Vec::new();
     for &bw in bandwidths {
         for &strategy in strategies {
-            let r = run_one(&mut conn, &stats, &scene, config, strategy, bw).await?;
+            let r = sim::run_one(&mut conn, &stats, &scene, config, strategy, bw).await?;
             progress(&r);
             runs.push(r);
         }
@@ -276,278 +276,6 @@ pub async fn run_walk(
         latency_s: config.latency_s,
         runs,
     })
-}
-
-struct InFlight {
-    item: usize,
-    keys: Vec<(FetchKey, bytes::Bytes)>,
-    issued: f64,
-    arrives: f64,
-    bytes: u64,
-}
-
-async fn run_one(
-    conn: &mut Connection,
-    stats: &ClientStats,
-    scene: &Scene,
-    cfg: &WalkConfig,
-    strategy: Strategy,
-    bandwidth: Option<u64>,
-) -> Result<RunReport, WalkError> {
-    use std::sync::atomic::Ordering;
-    let table = &scene.table;
-    let items = table.infos();
-    let n = items.len();
-    let naive = strategy == Strategy::Naive;
-    let mut cache = Cache::new(if naive { u64::MAX } else { cfg.cache_bytes });
-    let mut link = VirtualLink::new(bandwidth, cfg.latency_s);
-    let mut estimate = LinkEstimate::new(bandwidth.map_or(1e9, |b| b as f64), cfg.latency_s);
-    let mut motion = MotionTracker::new();
-    let mut in_flight: Vec<InFlight> = Vec::new();
-    let mut downloading = vec![false; n];
-    let mut naive_next = 0usize;
-    let mut pinned: Vec<FetchKey> = Vec::new();
-    let failures_before = stats.checksum_failures.load(Ordering::Relaxed);
-    let length = scene.track.length();
-    let walk_s = if cfg.speed_mps > 0.0 { length / cfg.speed_mps } else { 0.0 };
-    let end_t = walk_s + cfg.pause_s.max(0.0);
-    let dt = cfg.frame_dt_s.max(1e-3);
-    let mut frames = Vec::new();
-    let mut bytes = 0u64;
-    let mut requests = 0u64;
-    let mut max_cache = 0u64;
-    let mut first_frame = None;
-    let mut t = 0.0;
-    while t <= end_t + 1e-9 {
-        let s = (t * cfg.speed_mps).min(length);
-        motion.observe(t, s);
-        cache.set_position(s);
-        // Deliver what has arrived by now.
-        let (arrived, pending): (Vec<_>, Vec<_>) =
-            in_flight.into_iter().partition(|f| f.arrives <= t + 1e-9);
-        in_flight = pending;
-        for f in arrived {
-            downloading[f.item] = false;
-            estimate.observe(f.bytes, f.arrives - f.issued);
-            let s_item = table.items[f.item].s;
-            for (key, data) in f.keys {
-                // Refused when the budget is full of data in use: dropped, asked again later.
-                let _ = cache.insert(key, data, s_item);
-            }
-        }
-        // What the frame needs.
-        let pos = scene.track.position_at(s);
-        let tan = scene.track.tangent_at(s);
-        let heading = tan.x.atan2(-tan.z).to_degrees();
-        let (yaw, pitch) = look_at(heading, t);
-        let cam = PerspectiveCamera {
-            position: pos,
-            yaw_deg: yaw,
-            pitch_deg: pitch,
-            fov_deg: cfg.fov_deg,
-            width: cfg.screen_width,
-            height: cfg.screen_height,
-        };
-        let weights = blend_weights(&table.vp_s, s);
-        let counts = scene.index.count(&cam, &weights, cfg.samples_x, cfg.samples_y);
-        let have: Vec<usize> = (0..n)
-            .map(|i| {
-                if naive {
-                    let it = &table.items[i];
-                    let mesh_ok = it.info.first_level_part == 0 || cache.contains(&it.parts[0].key);
-                    if mesh_ok && cache.contains(&it.whole.key) {
-                        it.parts.len()
-                    } else {
-                        0
-                    }
-                } else {
-                    table.items[i]
-                        .parts
-                        .iter()
-                        .take_while(|p| cache.contains(&p.key))
-                        .count()
-                }
-            })
-            .collect();
-        let seg = segment_at(&table.vp_s, s).unwrap_or(0);
-        let ach: &[(usize, f64)] = table.segment_ach.get(seg).map_or(&[], |v| v.as_slice());
-        let (quality, needed, complete) = frame_metrics(table, &items, &have, ach, &counts);
-        if complete && first_frame.is_none() {
-            first_frame = Some(t);
-        }
-        // Decide and issue downloads.
-        let free = cfg.max_in_flight.max(1).saturating_sub(in_flight.len());
-        let mut issue: Vec<(usize, Vec<usize>)> = Vec::new();
-        if naive {
-            while issue.len() < free && naive_next < n {
-                issue.push((naive_next, vec![usize::MAX]));
-                naive_next += 1;
-            }
-        } else {
-            let live: Vec<LiveCount> = counts
-                .iter()
-                .filter_map(|c| {
-                    let item = surface_item(table, c)?;
-                    Some(LiveCount {
-                        item,
-                        pixels: c.pixels(),
-                        needed_level: c.finest_needed(),
-                    })
-                })
-                .collect();
-            let Strategy::Budget { mode, prefetch } = strategy else {
-                unreachable!("naive handled above")
-            };
-            let next = if prefetch {
-                next_segment(&motion, &table.vp_s, s, cfg.prefetch_horizon_s)
-            } else {
-                None
-            };
-            let pre: &[(usize, f64)] = next
-                .and_then(|k| table.segment_ach.get(k))
-                .map_or(&[], |v| v.as_slice());
-            let (memory, dt_max) = cfg.budget.current(motion.still_s());
-            let p = plan(&PlanInput {
-                items: &items,
-                have: &have,
-                downloading: &downloading,
-                ach,
-                live: &live,
-                prefetch: pre,
-                mode,
-                memory_bytes: memory,
-                dt_max_s: dt_max,
-                link: &estimate,
-            });
-            // Resident parts are in use: pin them for this frame.
-            for k in pinned.drain(..) {
-                cache.release(&k);
-            }
-            for &(i, _, resident) in &p.targets {
-                for part in &table.items[i].parts[..resident] {
-                    if cache.acquire(&part.key) {
-                        pinned.push(part.key.clone());
-                    }
-                }
-            }
-            for r in p.requests.iter().take(free) {
-                issue.push((r.item, vec![r.part]));
-            }
-        }
-        for (item, parts) in issue {
-            let it = &table.items[item];
-            let wanted: Vec<&crate::client::Part> = if parts == [usize::MAX] {
-                let mut v = Vec::new();
-                if it.info.first_level_part == 1 {
-                    v.push(&it.parts[0]);
-                }
-                v.push(&it.whole);
-                v
-            } else {
-                parts.iter().map(|&p| &it.parts[p]).collect()
-            };
-            let mut keys = Vec::new();
-            let mut size = 0;
-            for part in &wanted {
-                let data = conn.fetch_checked(&part.key, &part.hash, None).await?;
-                size += data.len() as u64;
-                keys.push((part.key.clone(), data));
-            }
-            requests += wanted.len() as u64;
-            bytes += size;
-            downloading[item] = true;
-            in_flight.push(InFlight {
-                item,
-                keys,
-                issued: t,
-                arrives: link.schedule(t, size),
-                bytes: size,
-            });
-        }
-        max_cache = max_cache.max(cache.used());
-        frames.push(FrameRecord {
-            t_s: t,
-            s_m: s,
-            quality,
-            needed_fraction: needed,
-            complete,
-            bytes,
-            cache_bytes: cache.used(),
-        });
-        t += dt;
-    }
-    let mean = |f: &dyn Fn(&FrameRecord) -> f64| {
-        frames.iter().map(f).sum::<f64>() / frames.len().max(1) as f64
-    };
-    Ok(RunReport {
-        strategy: strategy.name(),
-        bandwidth_bps: bandwidth,
-        time_to_first_frame_s: first_frame,
-        mean_needed_fraction: mean(&|f| f.needed_fraction),
-        mean_quality: mean(&|f| f.quality),
-        bytes,
-        bytes_per_m: if length > 0.0 { bytes as f64 / length } else { 0.0 },
-        requests,
-        checksum_failures: stats.checksum_failures.load(Ordering::Relaxed) - failures_before,
-        cache_budget_bytes: cache.budget(),
-        max_cache_bytes: max_cache,
-        frames,
-    })
-}
-
-fn surface_item(table: &ItemTable, c: &SurfaceCount) -> Option<usize> {
-    match c.surface {
-        Surface::Tile { viewpoint, tile } => table.tile_item(viewpoint, tile),
-        Surface::Background { viewpoint } => table.background_item(viewpoint),
-    }
-}
-
-/// `(quality, needed fraction, complete)` of one frame.
-fn frame_metrics(
-    table: &ItemTable,
-    items: &[crate::client::ItemInfo],
-    have: &[usize],
-    ach: &[(usize, f64)],
-    counts: &[SurfaceCount],
-) -> (f64, f64, bool) {
-    let quality = if ach.is_empty() {
-        0.0
-    } else {
-        ach.iter()
-            .map(|&(i, _)| {
-                let info = &items[i];
-                let groups = info.levels.len().max(1) as f64;
-                have[i].saturating_sub(info.first_level_part) as f64 / groups
-            })
-            .sum::<f64>()
-            / ach.len() as f64
-    };
-    let mut total = 0.0;
-    let mut ok = 0.0;
-    let mut complete = true;
-    for c in counts {
-        let px = c.pixels();
-        if px <= 0.0 {
-            continue;
-        }
-        total += px;
-        // A background the database does not have is never needed.
-        let Some(item) = surface_item(table, c) else {
-            if matches!(c.surface, Surface::Background { .. }) {
-                total -= px;
-            } else {
-                complete = false;
-            }
-            continue;
-        };
-        let level = items[item].level_with(have[item]);
-        if level.is_none() {
-            complete = false;
-        }
-        ok += c.satisfied(level);
-    }
-    let needed = if total > 0.0 { ok / total } else { 1.0 };
-    (quality, needed, complete)
 }
 
 /// Write `walk.json`, `walk.csv`, `walk.png` and `summary.md` into `dir`.
@@ -565,13 +293,25 @@ pub fn write_outputs(report: &WalkReport, dir: &Path) -> Result<(), WalkError> {
     };
     let json = serde_json::to_vec_pretty(report).map_err(|e| err(dir, &e))?;
     write("walk.json", &json)?;
-    let mut csv = String::from("strategy,bandwidth_bps,t_s,s_m,quality,needed_fraction,complete,bytes,cache_bytes\n");
+    let mut csv = String::from(
+        "strategy,bandwidth_bps,t_s,s_m,quality,needed_fraction,complete,bytes,cache_bytes\n",
+    );
     for r in &report.runs {
-        let bw = r.bandwidth_bps.map_or("unlimited".to_string(), |b| b.to_string());
+        let bw = r
+            .bandwidth_bps
+            .map_or("unlimited".to_string(), |b| b.to_string());
         for f in &r.frames {
             csv += &format!(
                 "{},{},{:.3},{:.3},{:.4},{:.4},{},{},{}\n",
-                r.strategy, bw, f.t_s, f.s_m, f.quality, f.needed_fraction, f.complete as u8, f.bytes, f.cache_bytes
+                r.strategy,
+                bw,
+                f.t_s,
+                f.s_m,
+                f.quality,
+                f.needed_fraction,
+                f.complete as u8,
+                f.bytes,
+                f.cache_bytes
             );
         }
     }
@@ -598,7 +338,8 @@ pub fn summary_markdown(r: &WalkReport) -> String {
             "| {} | {} | {} | {:.3} | {:.3} | {} | {:.0} | {} |\n",
             run.bandwidth_bps.map_or("unlimited".into(), format_bps),
             run.strategy,
-            run.time_to_first_frame_s.map_or("never".into(), |t| format!("{t:.2}")),
+            run.time_to_first_frame_s
+                .map_or("never".into(), |t| format!("{t:.2}")),
             run.mean_needed_fraction,
             run.mean_quality,
             run.bytes,

@@ -85,7 +85,13 @@ pub fn plot_png(r: &WalkReport) -> Result<Vec<u8>, image::ImageError> {
             let y = bottom as f64 - frac * (bottom - top) as f64;
             line(&mut img, (left, y), (right, y), grey, frac == 0.5);
         }
-        line(&mut img, (left, top as f64), (left, bottom as f64), grey, false);
+        line(
+            &mut img,
+            (left, top as f64),
+            (left, bottom as f64),
+            grey,
+            false,
+        );
         for run in r.runs.iter().filter(|run| run.bandwidth_bps == *bw) {
             let ci = names.iter().position(|n| *n == run.strategy).unwrap_or(0);
             let c = Rgb(COLOURS[ci % COLOURS.len()].0);
@@ -96,7 +102,13 @@ pub fn plot_png(r: &WalkReport) -> Result<Vec<u8>, image::ImageError> {
                 )
             };
             for w in run.frames.windows(2) {
-                line(&mut img, to_xy(w[0].t_s, w[0].quality), to_xy(w[1].t_s, w[1].quality), c, false);
+                line(
+                    &mut img,
+                    to_xy(w[0].t_s, w[0].quality),
+                    to_xy(w[1].t_s, w[1].quality),
+                    c,
+                    false,
+                );
                 line(
                     &mut img,
                     to_xy(w[0].t_s, w[0].needed_fraction),

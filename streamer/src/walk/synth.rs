@@ -142,8 +142,14 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
             let mut blob = rng.bytes(16); // header
             for l in (0..p.levels).rev() {
                 let w = (side >> l).max(1);
-                let n = ((w * w * 4) as f64 * p.bytes_per_texel / 4.0).ceil().max(1.0) as usize;
-                let offset = if levels.is_empty() { 0 } else { blob.len() as u64 };
+                let n = ((w * w * 4) as f64 * p.bytes_per_texel / 4.0)
+                    .ceil()
+                    .max(1.0) as usize;
+                let offset = if levels.is_empty() {
+                    0
+                } else {
+                    blob.len() as u64
+                };
                 blob.extend(rng.bytes(n));
                 let len = blob.len() as u64 - offset;
                 let hash = blake3::hash(&blob[offset as usize..]).to_hex().to_string();
@@ -212,8 +218,8 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
     Ok(manifest)
 }
 
-/// ACH per segment: pixels per tile over the six 90° cameras of the rendering box at a few
-/// positions along the segment, normalised to sum to 1, descending.
+/// ACH per segment: pixels per tile over the six 90° cameras of the rendering box at nine
+/// positions along the segment (ends included), normalised to sum to 1, descending.
 fn synthetic_ach(m: &Manifest, track: &tracks::Track) -> Vec<SegmentEntry> {
     let Some(index) = SceneIndex::new(m, 0) else {
         return Vec::new();
@@ -223,21 +229,30 @@ fn synthetic_ach(m: &Manifest, track: &tracks::Track) -> Vec<SegmentEntry> {
     let mut out = Vec::new();
     for i in 0..t.viewpoints.len().saturating_sub(1) {
         let mut px: std::collections::HashMap<usize, (usize, f64)> = Default::default();
-        for k in 0..4 {
-            let s = vp_s[i] + (vp_s[i + 1] - vp_s[i]) * (k as f64 + 0.5) / 4.0;
+        for k in 0..=8 {
+            let s = vp_s[i] + (vp_s[i + 1] - vp_s[i]) * k as f64 / 8.0;
             let weights = blend_weights(&vp_s, s);
-            for (yaw, pitch) in [(0.0, 0.0), (90.0, 0.0), (180.0, 0.0), (270.0, 0.0), (0.0, 89.9), (0.0, -89.9)] {
+            for (yaw, pitch) in [
+                (0.0, 0.0),
+                (90.0, 0.0),
+                (180.0, 0.0),
+                (270.0, 0.0),
+                (0.0, 89.9),
+                (0.0, -89.9),
+            ] {
                 let cam = PerspectiveCamera {
                     position: track.position_at(s),
                     yaw_deg: yaw,
                     pitch_deg: pitch,
                     fov_deg: 90.0,
-                    width: 32,
-                    height: 32,
+                    width: 64,
+                    height: 64,
                 };
-                for c in index.count(&cam, &weights, 32, 32) {
+                for c in index.count(&cam, &weights, 64, 64) {
                     if let Surface::Tile { viewpoint, tile } = c.surface {
-                        let e = px.entry(viewpoint * 1_000_000 + tile).or_insert((viewpoint, 0.0));
+                        let e = px
+                            .entry(viewpoint * 1_000_000 + tile)
+                            .or_insert((viewpoint, 0.0));
                         e.0 = viewpoint;
                         e.1 += c.pixels();
                     }
