@@ -22,6 +22,8 @@ struct Cli {
 enum Command {
     /// Render cube-map colour, depth (and optionally slab layers) at the reference viewpoints of a track.
     Prerender(cmd::prerender::Args),
+    /// Render a POV-Ray scene along a track into the same layout (colour, depth, slab layers).
+    ImportPov(cmd::import_pov::Args),
 }
 
 fn main() -> ExitCode {
@@ -35,6 +37,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Prerender(a) => cmd::prerender::run(a),
+        Command::ImportPov(a) => cmd::import_pov::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,6 +1,7 @@
 //! Prerendering: cube-map colour, radial depth and slab layers at reference viewpoints.
 //!
 //! - [`store`]: the prerender directory layout shared with later stages.
+//! - [`pov`]: POV-Ray import: unmodified `.pov` scenes rendered into the same layout.
 //! - [`scene`]: the scene model ([`scene::Scene`], [`scene::Shape`], materials, lights, sky)
 //!   with exact f64 ray queries ([`scene::Scene::first_hit`]).
 //! - [`parse`]: the TOML scene format (read and write).
@@ -13,6 +14,7 @@ mod accel;
 mod geom;
 pub mod job;
 pub mod parse;
+pub mod pov;
 pub mod render;
 pub mod scene;
 pub mod scenes;

@@ -1,3 +1,4 @@
 //! One module per subcommand.
 
+pub mod import_pov;
 pub mod prerender;

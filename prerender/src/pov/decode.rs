@@ -1,0 +1,292 @@
+//! Decoding POV-Ray's images: the two dropped mesh-camera rows, 16-bit fog-trick depth, and
+//! the 2×2 supersampled colour of `--aa`.
+//!
+//! Fog trick (see the POV-Ray notes): channel `i` holds `K·(1 − exp(−d/Dᵢ))`, so
+//! `d = −Dᵢ·ln(1 − v/K)`. Each channel's 16-bit value gives an interval of distances; the
+//! narrowest (relative) interval gives the depth, and every other channel's interval must
+//! contain it. A pixel whose channels disagree did not get the fog (its ray started inside a
+//! solid, or the scene's own fog or gamma leaked in).
+
+use std::path::Path;
+
+use tracks::CubeMap;
+
+use super::PovError;
+
+/// Fog distances and strength of one depth pass.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FogScales {
+    /// `D₁ ≤ D₂ ≤ D₃`, scene units.
+    pub d: [f64; 3],
+    /// Fog colour strength `K` (0.5 when a fog-only pass is subtracted, else 1).
+    pub k: f64,
+}
+
+impl FogScales {
+    /// Wide scales for the low-resolution pass, before anything is known about the scene:
+    /// distances from 1e-3 to 1e5 scene units decode to ~1e-3 relative error.
+    pub fn wide(k: f64) -> FogScales {
+        FogScales {
+            d: [0.01, 10.0, 1.0e4],
+            k,
+        }
+    }
+
+    /// Scales suited to depths seen between `min` and `max` (from the low-resolution pass):
+    /// the nearest depth sits at `x = d/D₁ ≈ 1`, the farthest at `x ≈ 0.5` of `D₃`, which keeps
+    /// the relative error near 2e-5 and leaves room for farther surfaces the low-resolution
+    /// pass missed (saturation only beyond ~11·D₃).
+    pub fn for_range(min: f64, max: f64, k: f64) -> FogScales {
+        if !(min.is_finite() && max.is_finite() && min > 0.0 && max >= min) {
+            return FogScales::wide(k);
+        }
+        let d3 = 2.0 * max;
+        let d1 = min.max(d3 * 1e-4).min(d3);
+        FogScales {
+            d: [d1, (d1 * d3).sqrt(), d3],
+            k,
+        }
+    }
+
+    /// Scales for a slab whose rays travel at most `range` (the note's choice `D₃ = range/2`).
+    pub fn for_slab(range: f64, k: f64) -> FogScales {
+        let d3 = range / 2.0;
+        FogScales {
+            d: [d3 / 100.0, d3 / 10.0, d3],
+            k,
+        }
+    }
+}
+
+/// A decoded fog-trick image.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FogDepth {
+    /// Distance along each ray from its origin; `+inf` where the ray hit nothing.
+    pub t: Vec<f64>,
+    /// Pixels whose channels disagree.
+    pub inconsistent: usize,
+    /// Hit pixels that decode to distance 0.
+    pub zero: usize,
+    /// Pixels with a finite distance.
+    pub hits: usize,
+}
+
+/// Decode fog-trick pixels. `fog_only` is the same view rendered with only the black filter
+/// fog (the scene's own fog), subtracted when present.
+pub fn decode_fog(p1: &[[u16; 3]], fog_only: Option<&[[u16; 3]]>, s: &FogScales) -> FogDepth {
+    // Half a quantisation step per rounding, two roundings when a pass is subtracted, doubled
+    // for the tolerance of POV-Ray's own float arithmetic.
+    let steps = if fog_only.is_some() { 2.0 } else { 1.0 };
+    let e = steps / 65535.0 / s.k;
+    let mut out = FogDepth {
+        t: Vec::with_capacity(p1.len()),
+        inconsistent: 0,
+        zero: 0,
+        hits: 0,
+    };
+    for (i, px) in p1.iter().enumerate() {
+        let v: [f64; 3] = std::array::from_fn(|c| {
+            let base = fog_only.map_or(0.0, |p0| p0[i][c] as f64);
+            (px[c] as f64 - base) / 65535.0 / s.k
+        });
+        if v.iter().all(|&x| x >= 1.0 - e) {
+            out.t.push(f64::INFINITY);
+            continue;
+        }
+        let dist = |c: usize, x: f64| -> f64 {
+            if x <= 0.0 {
+                0.0
+            } else if x >= 1.0 {
+                f64::INFINITY
+            } else {
+                -s.d[c] * (-x).ln_1p()
+            }
+        };
+        let intervals: [(f64, f64); 3] =
+            std::array::from_fn(|c| (dist(c, v[c] - e), dist(c, v[c] + e)));
+        let best = (0..3)
+            .min_by(|&a, &b| {
+                // Relative width; saturated channels (infinite interval) rank last. The
+                // explicit check matters: inf/inf is a negative NaN on x86, which
+                // `total_cmp` would rank first.
+                let w = |c: usize| {
+                    let (lo, hi) = intervals[c];
+                    let r = (hi - lo) / dist(c, v[c]).max(f64::MIN_POSITIVE);
+                    if r.is_finite() {
+                        r
+                    } else {
+                        f64::INFINITY
+                    }
+                };
+                w(a).total_cmp(&w(b))
+            })
+            .unwrap_or(0);
+        let t = dist(best, v[best]);
+        if !t.is_finite() {
+            out.t.push(f64::INFINITY);
+            continue;
+        }
+        let slack = 1e-9 * t;
+        if intervals
+            .iter()
+            .any(|&(lo, hi)| t < lo - slack || t > hi + slack)
+        {
+            out.inconsistent += 1;
+        }
+        if t == 0.0 {
+            out.zero += 1;
+        }
+        out.hits += 1;
+        out.t.push(t);
+    }
+    out
+}
+
+/// Read a PNG POV-Ray wrote, checking its size.
+fn read_png(path: &Path, width: u32, height: u32) -> Result<image::DynamicImage, PovError> {
+    let bytes = std::fs::read(path).map_err(|source| PovError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let img =
+        image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| {
+            PovError::Output {
+                path: path.to_path_buf(),
+                message: format!("not a readable PNG: {e}"),
+            }
+        })?;
+    if img.width() != width || img.height() != height {
+        return Err(PovError::Output {
+            path: path.to_path_buf(),
+            message: format!(
+                "expected {width} × {height} pixels, found {} × {}",
+                img.width(),
+                img.height()
+            ),
+        });
+    }
+    Ok(img)
+}
+
+/// A mesh-camera render of a cube map of `face_size`: 16-bit RGB pixels, the two leading
+/// rows dropped, face-major.
+pub fn read_mesh_png16(path: &Path, face_size: u32) -> Result<Vec<[u16; 3]>, PovError> {
+    let (w, h) = super::frame::mesh_image_size(face_size);
+    let img = read_png(path, w, h)?;
+    if img.color().bits_per_pixel() / img.color().channel_count() as u16 != 16 {
+        return Err(PovError::Output {
+            path: path.to_path_buf(),
+            message: format!("expected a 16-bit PNG, found {:?}", img.color()),
+        });
+    }
+    let rgb = img.to_rgb16();
+    Ok(rgb.pixels().skip(2 * w as usize).map(|p| p.0).collect())
+}
+
+/// A mesh-camera colour render of a cube map of `face_size`, two leading rows dropped.
+pub fn read_mesh_png8(path: &Path, face_size: u32) -> Result<CubeMap<[u8; 3]>, PovError> {
+    let (w, h) = super::frame::mesh_image_size(face_size);
+    let img = read_png(path, w, h)?;
+    let px: Vec<[u8; 3]> = img
+        .to_rgb8()
+        .pixels()
+        .skip(2 * w as usize)
+        .map(|p| p.0)
+        .collect();
+    CubeMap::from_vec(face_size, px).ok_or_else(|| PovError::Output {
+        path: path.to_path_buf(),
+        message: "pixel count does not match the cube map".into(),
+    })
+}
+
+fn srgb_to_linear(c: u8) -> f64 {
+    let c = c as f64 / 255.0;
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+fn linear_to_srgb(l: f64) -> u8 {
+    let c = if l <= 0.0031308 {
+        l * 12.92
+    } else {
+        1.055 * l.powf(1.0 / 2.4) - 0.055
+    };
+    (c.clamp(0.0, 1.0) * 255.0).round() as u8
+}
+
+/// Average 2×2 blocks of a cube map of `2N` into one of `N`, in linear light.
+pub fn downsample_2x(fine: &CubeMap<[u8; 3]>) -> CubeMap<[u8; 3]> {
+    let n = fine.face_size() / 2;
+    CubeMap::from_fn(n, |face, x, y| {
+        let mut acc = [0.0f64; 3];
+        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let p = fine.get(face, 2 * x + dx, 2 * y + dy);
+            for c in 0..3 {
+                acc[c] += srgb_to_linear(p[c]);
+            }
+        }
+        acc.map(|a| linear_to_srgb(a / 4.0))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn encode(d: f64, s: &FogScales, p0: [f64; 3]) -> [u16; 3] {
+        std::array::from_fn(|c| {
+            let v = s.k * (1.0 - (-d / s.d[c]).exp()) + p0[c];
+            (v.clamp(0.0, 1.0) * 65535.0).round() as u16
+        })
+    }
+
+    proptest! {
+        #[test]
+        fn round_trip_is_within_1e4(d in 0.2f64..60.0) {
+            let s = FogScales::for_range(0.5, 30.0, 1.0);
+            let r = decode_fog(&[encode(d, &s, [0.0; 3])], None, &s);
+            prop_assert_eq!(r.inconsistent, 0);
+            prop_assert!(((r.t[0] - d) / d).abs() < 1e-4, "{} vs {}", r.t[0], d);
+        }
+
+        #[test]
+        fn fog_only_pass_is_subtracted(d in 1.0f64..500.0, f in 0.0f64..0.45) {
+            let s = FogScales::for_range(1.0, 300.0, 0.5);
+            let p0 = [f, f * 0.9, f * 0.8];
+            let q0 = std::array::from_fn(|c| (p0[c] * 65535.0).round() as u16);
+            let r = decode_fog(&[encode(d, &s, p0)], Some(&[q0]), &s);
+            prop_assert_eq!(r.inconsistent, 0);
+            prop_assert!(((r.t[0] - d) / d).abs() < 3e-4, "{} vs {}", r.t[0], d);
+        }
+    }
+
+    #[test]
+    fn saturated_channel_is_never_chosen() {
+        // Regression: a saturated first channel (width inf/inf = NaN) was picked as the best.
+        let s = FogScales::wide(1.0);
+        let r = decode_fog(&[[65535, 19080, 23]], None, &s);
+        assert!((r.t[0] - 3.44).abs() < 0.01, "{}", r.t[0]);
+        assert_eq!(r.inconsistent, 0);
+    }
+
+    #[test]
+    fn sky_is_infinite_and_colours_are_inconsistent() {
+        let s = FogScales::for_range(1.0, 10.0, 1.0);
+        let r = decode_fog(&[[65535; 3], [30000, 30000, 30000], [0, 0, 0]], None, &s);
+        assert_eq!(r.t[0], f64::INFINITY);
+        assert_eq!(r.inconsistent, 1, "a grey object colour is not a fog code");
+        assert_eq!((r.zero, r.hits), (1, 2));
+    }
+
+    #[test]
+    fn downsample_of_uniform_is_identity() {
+        let fine = CubeMap::filled(4, [10u8, 128, 250]);
+        let coarse = downsample_2x(&fine);
+        assert_eq!(coarse.face_size(), 2);
+        assert!(coarse.as_slice().iter().all(|p| *p == [10, 128, 250]));
+    }
+}

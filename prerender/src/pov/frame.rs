@@ -1,0 +1,219 @@
+//! railview ↔ POV-Ray coordinate frames and the generated `mesh_camera` meshes.
+//!
+//! railview is right-handed with y up; POV-Ray is left-handed, and its scenes put "up" on
+//! y or on z. The mappings (both orientation-reversing, so a scene is never mirrored):
+//!
+//! | scene up | POV-Ray `<X, Y, Z>` from railview `(x, y, z)` | railview from POV-Ray |
+//! |---|---|---|
+//! | [`UpAxis::Y`] | `<x, y, −z>` | `(X, Y, −Z)` |
+//! | [`UpAxis::Z`] | `<−x, −z, y>` | `(−X, Z, −Y)` |
+//!
+//! The z-up row equals the y-up one followed by the matrix `<−1,0,0, 0,0,1, 0,1,0>`
+//! (a proper rotation taking y to z) of the POV-Ray notes. Track files for imported scenes are
+//! written in railview coordinates, so a POV-Ray camera `location <X, Y, Z>` in a y-up scene is
+//! the track point `[X, Y, -Z]`.
+//!
+//! The mesh camera: one triangle per cube-map pixel, face-major as [`tracks::CubeMap`] stores
+//! them, preceded by one dummy row (see [`write_mesh_camera`]). Each triangle has its centroid
+//! at the origin and its normal along the pixel's direction ([`tracks::cubemap::pixel_dir`]
+//! mapped into the scene's frame), so the rendered image *is* the cube map, row for row.
+
+use std::fmt::Write as _;
+
+use glam::DVec3;
+use tracks::cubemap::{pixel_dir, Face};
+
+/// Which axis is "up" in a POV-Ray scene.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UpAxis {
+    /// y up (most POV-Ray scenes, e.g. the patio).
+    Y,
+    /// z up (e.g. `advanced/landscape.pov`, `balcony.pov`).
+    Z,
+}
+
+impl UpAxis {
+    /// POV-Ray coordinates of a railview point or direction.
+    pub fn pov_from_railview(self, v: DVec3) -> DVec3 {
+        match self {
+            UpAxis::Y => DVec3::new(v.x, v.y, -v.z),
+            UpAxis::Z => DVec3::new(-v.x, -v.z, v.y),
+        }
+    }
+
+    /// railview coordinates of a POV-Ray point or direction.
+    pub fn railview_from_pov(self, p: DVec3) -> DVec3 {
+        match self {
+            UpAxis::Y => DVec3::new(p.x, p.y, -p.z),
+            UpAxis::Z => DVec3::new(-p.x, p.z, -p.y),
+        }
+    }
+
+    /// `y` or `z`, as on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            UpAxis::Y => "y",
+            UpAxis::Z => "z",
+        }
+    }
+
+    /// The SDL vectors of a spherical camera whose image centre looks along railview −z with
+    /// railview +y up (used for equirectangular previews).
+    pub fn spherical_camera_vectors(self) -> &'static str {
+        match self {
+            UpAxis::Y => "direction z up y right x",
+            UpAxis::Z => "direction y up z right -x",
+        }
+    }
+}
+
+impl std::str::FromStr for UpAxis {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "y" | "Y" => Ok(UpAxis::Y),
+            "z" | "Z" => Ok(UpAxis::Z),
+            other => Err(format!("up axis must be `y` or `z`, found `{other}`")),
+        }
+    }
+}
+
+/// Name of the declared mesh in a generated mesh-camera include.
+pub const MESH_NAME: &str = "RvMeshCam";
+/// Name of the declared near distance the dummy row refers to.
+pub const NEAR_NAME: &str = "RvNear";
+
+/// Image size `(width, height)` POV-Ray must render for a cube map of `face_size`: `N` wide
+/// and `6N + 2` high (two leading rows that are dropped, see [`write_mesh_camera`]).
+pub fn mesh_image_size(face_size: u32) -> (u32, u32) {
+    (face_size, 6 * face_size + 2)
+}
+
+/// Corners of a unit triangle centred on the origin whose POV-Ray face normal is `dir`.
+///
+/// The corners sit at 90°, 330° and 210° in the basis `(u, v) = (ref × dir, dir × u)`, so
+/// `(c − a) × (b − a)` (component formula) points along `+dir`; with this winding the
+/// mesh camera shoots along `+dir` (verified against the analytic scene in
+/// `prerender/tests/pov.rs`). The winding is a relation between components, independent of
+/// the frame's handedness.
+pub fn triangle_for_dir(dir: DVec3) -> [DVec3; 3] {
+    let reference = if dir.y.abs() < 0.9 {
+        DVec3::Y
+    } else {
+        DVec3::X
+    };
+    let u = reference.cross(dir).normalize();
+    let v = dir.cross(u);
+    [90.0f64, 330.0, 210.0].map(|deg| {
+        let a = deg.to_radians();
+        a.cos() * u + a.sin() * v
+    })
+}
+
+/// SDL text of the mesh camera for a cube map of `face_size`, directions in `up`'s frame.
+///
+/// Face row 0 is a dummy row of `face_size` identical triangles centred at `<0, −RvNear, 0>`
+/// with normal +y: their rays start exactly at the camera centre whatever the near distance.
+/// It works around two POV-Ray 3.7.0 bugs: the mesh camera maps image row `j ≥ 1` to face row
+/// `j − 1` (so image rows 0 and 1 both show face row 0 and are dropped), and a render thread
+/// decides which objects its rays start inside from its first ray only, which is then always
+/// a ray from the camera centre (rows 0–1 start every thread's first block when the block size
+/// is at most `face_size / threads`).
+pub fn write_mesh_camera(face_size: u32, up: UpAxis) -> String {
+    let n = face_size as usize;
+    let pixels = 6 * n * n;
+    let mut s = String::with_capacity((pixels + n) * 3 * 40 + 256);
+    // Writing into a String cannot fail.
+    let _ = writeln!(
+        s,
+        "// railview mesh camera: cube map {n}x{n}x6, up {}, one triangle per pixel\n\
+         #declare {MESH_NAME} = mesh2 {{\n  vertex_vectors {{ {},",
+        up.name(),
+        3 * (pixels + n)
+    );
+    for i in 0..n {
+        let sep = if i == 0 { "" } else { "," };
+        let _ = writeln!(
+            s,
+            "{sep}<0,0-{NEAR_NAME},1>,<-0.8660254,0-{NEAR_NAME},-0.5>,<0.8660254,0-{NEAR_NAME},-0.5>"
+        );
+    }
+    for face in Face::ALL {
+        for y in 0..face_size {
+            for x in 0..face_size {
+                let dir = up.pov_from_railview(pixel_dir(face, x, y, face_size));
+                let t = triangle_for_dir(dir);
+                let _ = writeln!(
+                    s,
+                    ",<{:.9},{:.9},{:.9}>,<{:.9},{:.9},{:.9}>,<{:.9},{:.9},{:.9}>",
+                    t[0].x, t[0].y, t[0].z, t[1].x, t[1].y, t[1].z, t[2].x, t[2].y, t[2].z
+                );
+            }
+        }
+    }
+    let _ = writeln!(s, "  }}\n  face_indices {{ {},", pixels + n);
+    for k in 0..pixels + n {
+        let sep = if k == 0 { "" } else { "," };
+        let _ = write!(s, "{sep}<{},{},{}>", 3 * k, 3 * k + 1, 3 * k + 2);
+        if k % 8 == 7 {
+            s.push('\n');
+        }
+    }
+    s.push_str("\n  }\n}\n");
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mappings_are_inverse_and_orientation_reversing() {
+        let a = DVec3::new(0.3, -1.7, 2.9);
+        let b = DVec3::new(-4.0, 0.5, 1.25);
+        for up in [UpAxis::Y, UpAxis::Z] {
+            assert_eq!(up.railview_from_pov(up.pov_from_railview(a)), a);
+            // Handedness: the mapped cross product is the negated cross of the mapped vectors.
+            let lhs = up.pov_from_railview(a.cross(b));
+            let rhs = up.pov_from_railview(a).cross(up.pov_from_railview(b));
+            assert!((lhs + rhs).length() < 1e-12, "{up:?}");
+        }
+        // Up maps to up.
+        assert_eq!(UpAxis::Y.pov_from_railview(DVec3::Y), DVec3::Y);
+        assert_eq!(UpAxis::Z.pov_from_railview(DVec3::Y), DVec3::Z);
+    }
+
+    #[test]
+    fn triangle_normal_is_the_direction() {
+        for dir in [
+            DVec3::X,
+            DVec3::NEG_Y,
+            DVec3::Y,
+            DVec3::new(0.3, 0.95, -0.1).normalize(),
+            DVec3::new(-0.6, 0.2, 0.77).normalize(),
+        ] {
+            let [a, b, c] = triangle_for_dir(dir);
+            let n = (c - a).cross(b - a).normalize();
+            assert!((n - dir).length() < 1e-12, "{dir} -> {n}");
+            assert!(((a + b + c) / 3.0).length() < 1e-12);
+            for p in [a, b, c] {
+                assert!((p.length() - 1.0).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn mesh_text_counts_match() {
+        let text = write_mesh_camera(2, UpAxis::Z);
+        let pixels = 6 * 4 + 2;
+        assert!(text.contains(&format!("vertex_vectors {{ {},", 3 * pixels)));
+        assert!(text.contains(&format!("face_indices {{ {},", pixels)));
+        assert_eq!(text.matches('<').count(), 3 * pixels + pixels);
+        assert!(
+            !text.contains(",\n  }"),
+            "trailing comma is a POV-Ray parse error"
+        );
+        assert_eq!(mesh_image_size(2), (2, 14));
+    }
+}

@@ -1,0 +1,592 @@
+//! [`PovImport`]: the passes of one sample, in order, written through [`crate::store`].
+
+use std::collections::HashMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use glam::DVec3;
+use tracks::{CubeMap, ReferenceViewpoint, SlabRange};
+
+use super::decode::{self, FogDepth, FogScales};
+use super::frame::{self, NEAR_NAME};
+use super::runner::{OutputFormat, PovRay, RenderJob, RenderStats};
+use super::sdl::{self, names, PassKind, SceneInfo};
+use super::{PovError, PovOptions};
+use crate::store::{self, LayersMeta, PrerenderDir, SampleMeta};
+
+/// One finished POV-Ray render, for progress and the report.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct RenderRecord {
+    pub sample: usize,
+    /// `lowres-fog`, `lowres-depth`, `depth`, `fog`, `color`, `slab2-depth`, …
+    pub pass: String,
+    /// Cube-map face size the mesh camera rendered (2× the output with `--aa` colour).
+    pub face_size: u32,
+    /// Pixels POV-Ray traced (primary rays, including the two dummy rows).
+    pub pixels: u64,
+    pub stats: RenderStats,
+}
+
+/// Empty slab pixels decode to the slab's ray range (POV-Ray reports the maximum ray distance
+/// as the depth); with `D₃ = range/2` the decoding error there is ~3e-5, so a hit within 1e-4
+/// of `far` cannot be told from an empty pixel and counts as empty.
+const EMPTY_FRACTION: f64 = 1.0 - 1e-4;
+
+/// A POV-Ray scene prepared for import. See the module docs of [`super`].
+pub struct PovImport {
+    scene: PathBuf,
+    scene_sdl: String,
+    info: SceneInfo,
+    opts: PovOptions,
+    povray: PovRay,
+    version: String,
+    records: Vec<RenderRecord>,
+    progress: Option<Box<dyn FnMut(&RenderRecord)>>,
+    /// Whether the scene's own fog shows at a viewpoint (decided by a low-res fog-only pass).
+    has_fog: HashMap<usize, bool>,
+}
+
+/// Camera position and ray range of one mesh-camera render.
+#[derive(Clone, Copy)]
+struct View {
+    pov: DVec3,
+    near: f64,
+    /// `far − near`, or 0 for no limit.
+    range: f64,
+}
+
+impl PovImport {
+    /// Check the scene and the `povray` binary, create the work directory.
+    pub fn new(scene: impl AsRef<Path>, opts: PovOptions) -> Result<PovImport, PovError> {
+        let scene_arg = scene.as_ref();
+        let scene_err = |source| PovError::Scene {
+            path: scene_arg.to_path_buf(),
+            source,
+        };
+        let text = fs::read(scene_arg).map_err(scene_err)?;
+        let scene = fs::canonicalize(scene_arg).map_err(scene_err)?;
+        if opts.face_size == 0 || opts.lowres_face_size == 0 {
+            return Err(PovError::Parameter {
+                name: "face-size",
+                message: "face sizes must be at least 1".into(),
+            });
+        }
+        if let Some(g) = opts.file_gamma {
+            if !(g.is_finite() && g > 0.0) {
+                return Err(PovError::Parameter {
+                    name: "gamma",
+                    message: format!("must be a positive number, found {g}"),
+                });
+            }
+        }
+        let scene_sdl = sdl::sdl_string(&scene).ok_or_else(|| PovError::Parameter {
+            name: "scene",
+            message: format!(
+                "{}: the path cannot be written in an SDL #include (quote, backslash or non-UTF-8)",
+                scene.display()
+            ),
+        })?;
+        let info = SceneInfo::from_text(&String::from_utf8_lossy(&text));
+        store::ensure_writable_dir(&opts.work_dir)?;
+        let povray = PovRay {
+            binary: opts.povray.clone(),
+            threads: opts.threads.max(1),
+            timeout: opts.timeout,
+        };
+        let version = povray.version()?;
+        Ok(PovImport {
+            scene,
+            scene_sdl,
+            info,
+            opts,
+            povray,
+            version,
+            records: Vec::new(),
+            progress: None,
+            has_fog: HashMap::new(),
+        })
+    }
+
+    /// Call `f` after every finished POV-Ray render.
+    pub fn set_progress(&mut self, f: impl FnMut(&RenderRecord) + 'static) {
+        self.progress = Some(Box::new(f));
+    }
+
+    pub fn scene(&self) -> &Path {
+        &self.scene
+    }
+    pub fn scene_info(&self) -> &SceneInfo {
+        &self.info
+    }
+    pub fn options(&self) -> &PovOptions {
+        &self.opts
+    }
+    /// POV-Ray's version line.
+    pub fn povray_version(&self) -> &str {
+        &self.version
+    }
+    /// Every render so far, in order.
+    pub fn records(&self) -> &[RenderRecord] {
+        &self.records
+    }
+
+    /// POV-Ray timings summed over all renders so far.
+    pub fn total_stats(&self) -> RenderStats {
+        let mut t = RenderStats::default();
+        for r in &self.records {
+            t.add(&r.stats);
+        }
+        t
+    }
+
+    fn file_gamma(&self) -> f64 {
+        self.opts.file_gamma.unwrap_or(self.info.assumed_gamma)
+    }
+
+    /// Generate (once) the mesh-camera include for `face_size`.
+    fn mesh_include(&self, face_size: u32) -> Result<PathBuf, PovError> {
+        let path = self
+            .opts
+            .work_dir
+            .join(format!("meshcam_{}_{face_size}.inc", self.opts.up.name()));
+        if !path.exists() {
+            let text = frame::write_mesh_camera(face_size, self.opts.up);
+            store::write_atomic(&path, text.as_bytes())?;
+        }
+        Ok(path)
+    }
+
+    /// Write the wrapper of a pass kind at a face size; returns its path.
+    fn wrapper(&self, kind: PassKind, face_size: u32) -> Result<PathBuf, PovError> {
+        let mesh = self.mesh_include(face_size)?;
+        let mesh_sdl = sdl::sdl_string(&mesh).ok_or_else(|| PovError::Parameter {
+            name: "out",
+            message: format!(
+                "{}: the output path cannot be written in an SDL #include",
+                mesh.display()
+            ),
+        })?;
+        let name = match kind {
+            PassKind::Color => "color",
+            PassKind::Depth => "depth",
+            PassKind::FogOnly => "fog",
+        };
+        let path = self.opts.work_dir.join(format!(
+            "wrap_{name}_{}_{face_size}.pov",
+            self.opts.up.name()
+        ));
+        let text = sdl::mesh_wrapper(kind, &self.scene_sdl, &mesh_sdl, &self.info);
+        store::write_atomic(&path, text.as_bytes())?;
+        Ok(path)
+    }
+
+    /// Run one mesh-camera render; returns the path of the image it wrote.
+    fn render(
+        &mut self,
+        sample: usize,
+        pass: &str,
+        kind: PassKind,
+        face_size: u32,
+        view: View,
+        fog: Option<&FogScales>,
+    ) -> Result<PathBuf, PovError> {
+        let wrapper = self.wrapper(kind, face_size)?;
+        let (width, height) = frame::mesh_image_size(face_size);
+        let stem = format!("s{sample:04}_{pass}");
+        let output = self.opts.work_dir.join(format!("{stem}.png"));
+        let mut declares = vec![
+            (names::CAM_X, view.pov.x),
+            (names::CAM_Y, view.pov.y),
+            (names::CAM_Z, view.pov.z),
+            (NEAR_NAME, view.near),
+            (names::RANGE, view.range),
+        ];
+        if let Some(f) = fog {
+            declares.extend([
+                (names::D1, f.d[0]),
+                (names::D2, f.d[1]),
+                (names::D3, f.d[2]),
+                (names::K, f.k),
+            ]);
+        }
+        let format = match kind {
+            PassKind::Color => OutputFormat::Png8,
+            PassKind::Depth | PassKind::FogOnly => OutputFormat::Png16 {
+                file_gamma: self.file_gamma(),
+            },
+        };
+        let threads = self.povray.threads as u32;
+        let job = RenderJob {
+            name: format!("sample {sample} {pass} ({})", self.scene.display()),
+            wrapper,
+            output: output.clone(),
+            log: self.opts.work_dir.join("logs").join(format!("{stem}.log")),
+            width,
+            height,
+            format,
+            block_size: (width / threads).clamp(1, 32),
+            library_dirs: self
+                .scene
+                .parent()
+                .map(Path::to_path_buf)
+                .into_iter()
+                .collect(),
+            declares,
+        };
+        let stats = self.povray.run(&job)?;
+        let record = RenderRecord {
+            sample,
+            pass: pass.to_string(),
+            face_size,
+            pixels: width as u64 * height as u64,
+            stats,
+        };
+        if let Some(p) = self.progress.as_mut() {
+            p(&record);
+        }
+        self.records.push(record);
+        Ok(output)
+    }
+
+    /// Render and decode a fog-trick depth pass (with the fog-only pass when `fog`).
+    fn depth_pass(
+        &mut self,
+        sample: usize,
+        pass: &str,
+        face_size: u32,
+        view: View,
+        scales: &FogScales,
+        fog: bool,
+    ) -> Result<FogDepth, PovError> {
+        let p0 = if fog {
+            let path = self.render(
+                sample,
+                &format!("{pass}-fog"),
+                PassKind::FogOnly,
+                face_size,
+                view,
+                None,
+            )?;
+            let px = decode::read_mesh_png16(&path, face_size)?;
+            remove(&path)?;
+            Some(px)
+        } else {
+            None
+        };
+        let path = self.render(sample, pass, PassKind::Depth, face_size, view, Some(scales))?;
+        let p1 = decode::read_mesh_png16(&path, face_size)?;
+        remove(&path)?;
+        Ok(decode::decode_fog(&p1, p0.as_deref(), scales))
+    }
+
+    /// Colour through the mesh camera (2×2 supersampled with `antialias`).
+    fn color_pass(
+        &mut self,
+        sample: usize,
+        pass: &str,
+        view: View,
+    ) -> Result<CubeMap<[u8; 3]>, PovError> {
+        let n = self.opts.face_size;
+        let fine = if self.opts.antialias { 2 * n } else { n };
+        let path = self.render(sample, pass, PassKind::Color, fine, view, None)?;
+        let map = decode::read_mesh_png8(&path, fine)?;
+        remove(&path)?;
+        Ok(if self.opts.antialias {
+            decode::downsample_2x(&map)
+        } else {
+            map
+        })
+    }
+
+    /// Whether the scene's own fog shows at this viewpoint (a cheap low-res fog-only pass).
+    fn scene_fog(&mut self, vp: &ReferenceViewpoint) -> Result<bool, PovError> {
+        if let Some(f) = self.has_fog.get(&vp.index) {
+            return Ok(*f);
+        }
+        let view = View {
+            pov: self.opts.up.pov_from_railview(vp.position),
+            near: 0.0,
+            range: 0.0,
+        };
+        let n = self.opts.lowres_face_size;
+        let path = self.render(vp.index, "lowres-fog", PassKind::FogOnly, n, view, None)?;
+        let px = decode::read_mesh_png16(&path, n)?;
+        remove(&path)?;
+        let fog = px.iter().any(|p| p.iter().any(|&c| c > 0));
+        self.has_fog.insert(vp.index, fog);
+        Ok(fog)
+    }
+
+    fn viewpoint_error(&self, vp: &ReferenceViewpoint, message: String) -> PovError {
+        PovError::Viewpoint {
+            index: vp.index,
+            position_railview: vp.position,
+            position_pov: self.opts.up.pov_from_railview(vp.position),
+            message,
+        }
+    }
+
+    /// Reject a base depth pass that is not a valid fog code (camera inside a solid, wrong
+    /// gamma, scene fog leaking through).
+    fn check_depth(
+        &self,
+        vp: &ReferenceViewpoint,
+        pass: &str,
+        d: &FogDepth,
+    ) -> Result<(), PovError> {
+        let total = d.t.len().max(1);
+        let pct = |k: usize| 100.0 * k as f64 / total as f64;
+        if d.inconsistent * 20 > d.hits.max(1) {
+            return Err(self.viewpoint_error(
+                vp,
+                format!(
+                    "{pass} pass: {:.1}% of pixels are not a valid depth code. Most likely the \
+                     camera is inside a solid object (rays starting inside a non-hollow object \
+                     get no fog); otherwise check --up and the depth gamma (File_Gamma {} from \
+                     the scene's assumed_gamma)",
+                    pct(d.inconsistent),
+                    self.file_gamma()
+                ),
+            ));
+        }
+        if d.zero * 2 > total {
+            return Err(self.viewpoint_error(
+                vp,
+                format!(
+                    "{pass} pass: {:.1}% of pixels have depth 0; the camera is inside or on a \
+                     solid object",
+                    pct(d.zero)
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Render a sample's colour, depth and low-resolution depth and write them with the
+    /// sample marker last. An existing marker is removed first, so a failed or killed run
+    /// never leaves a sample that looks complete.
+    pub fn render_base(
+        &mut self,
+        vp: &ReferenceViewpoint,
+        dir: &PrerenderDir,
+    ) -> Result<SampleMeta, PovError> {
+        let start = Instant::now();
+        let first_record = self.records.len();
+        remove(&dir.sample_json(vp.index))?;
+        store::ensure_writable_dir(&dir.sample_dir(vp.index))?;
+        let view = View {
+            pov: self.opts.up.pov_from_railview(vp.position),
+            near: 0.0,
+            range: 0.0,
+        };
+        let fog = self.scene_fog(vp)?;
+        let k = if fog { 0.5 } else { 1.0 };
+        let (n, nl) = (self.opts.face_size, self.opts.lowres_face_size);
+
+        let low = self.depth_pass(vp.index, "lowres-depth", nl, view, &FogScales::wide(k), fog)?;
+        self.check_depth(vp, "low-resolution depth", &low)?;
+        let (min, max) = finite_range(&low.t);
+        let scales = FogScales::for_range(min, max, k);
+        let full = self.depth_pass(vp.index, "depth", n, view, &scales, fog)?;
+        self.check_depth(vp, "depth", &full)?;
+        let color = self.color_pass(vp.index, "color", view)?;
+
+        let lowres = to_cube(nl, &low.t, |t| t)?;
+        let depth = to_cube(n, &full.t, |t| t)?;
+        store::write_atomic(&dir.color_png(vp.index), &store::encode_rgb_png(&color))?;
+        store::write_depth_exr(&dir.depth_exr(vp.index), &depth)?;
+        store::write_depth_exr(&dir.lowres_depth_exr(vp.index), &lowres)?;
+        let meta = SampleMeta {
+            index: vp.index,
+            s: vp.s,
+            position: vp.position,
+            face_size: n,
+            lowres_face_size: nl,
+            seconds: start.elapsed().as_secs_f64(),
+            primary_rays: self.records[first_record..].iter().map(|r| r.pixels).sum(),
+        };
+        store::write_json(&dir.sample_json(vp.index), &meta)?;
+        Ok(meta)
+    }
+
+    /// Render a sample's slab layers (colour + depth per slab) and write them with the
+    /// layers marker last. Needs the sample's base pass (its low-resolution depth sets the
+    /// fog scales of an unbounded last slab). Pixels with nothing in a slab get alpha 0 and
+    /// depth `+inf`; their colour is what the ray saw (background or sky) and is kept.
+    pub fn render_slabs(
+        &mut self,
+        vp: &ReferenceViewpoint,
+        slabs: &[SlabRange],
+        dir: &PrerenderDir,
+    ) -> Result<LayersMeta, PovError> {
+        let start = Instant::now();
+        remove(&dir.layers_json(vp.index))?;
+        let lowres = store::read_depth_exr(&dir.lowres_depth_exr(vp.index))?;
+        let (min, max) = finite_range(
+            &lowres
+                .as_slice()
+                .iter()
+                .map(|&d| d as f64)
+                .collect::<Vec<_>>(),
+        );
+        let fog = self.scene_fog(vp)?;
+        let k = if fog { 0.5 } else { 1.0 };
+        let pov = self.opts.up.pov_from_railview(vp.position);
+        let n = self.opts.face_size;
+        for (i, slab) in slabs.iter().enumerate() {
+            let range = if slab.far.is_finite() {
+                slab.far - slab.near
+            } else {
+                0.0
+            };
+            let view = View {
+                pov,
+                near: slab.near,
+                range,
+            };
+            let scales = if range > 0.0 {
+                FogScales::for_slab(range, k)
+            } else {
+                FogScales::for_range(min, max, k)
+            };
+            let d = self.depth_pass(vp.index, &format!("slab{i}-depth"), n, view, &scales, fog)?;
+            let color = self.color_pass(vp.index, &format!("slab{i}-color"), view)?;
+            let depth = to_cube(n, &d.t, |t| {
+                if !t.is_finite() || (range > 0.0 && t >= range * EMPTY_FRACTION) {
+                    f64::INFINITY
+                } else {
+                    slab.near + t
+                }
+            })?;
+            let rgba = CubeMap::from_vec(
+                n,
+                color
+                    .as_slice()
+                    .iter()
+                    .zip(depth.as_slice())
+                    .map(|(c, z)| [c[0], c[1], c[2], if z.is_finite() { 255 } else { 0 }])
+                    .collect(),
+            )
+            .ok_or_else(|| PovError::Output {
+                path: dir.slab_color_png(vp.index, i),
+                message: "colour and depth sizes differ".into(),
+            })?;
+            store::write_atomic(
+                &dir.slab_color_png(vp.index, i),
+                &store::encode_rgba_png(&rgba),
+            )?;
+            store::write_depth_exr(&dir.slab_depth_exr(vp.index, i), &depth)?;
+        }
+        let meta = LayersMeta {
+            slabs: slabs.to_vec(),
+            seconds: start.elapsed().as_secs_f64(),
+        };
+        store::write_json(&dir.layers_json(vp.index), &meta)?;
+        Ok(meta)
+    }
+
+    /// Equirectangular colour preview (`width × width/2`) with POV-Ray's spherical camera,
+    /// centred on railview −z, written to `out` as PNG.
+    pub fn render_preview(
+        &mut self,
+        vp: &ReferenceViewpoint,
+        width: u32,
+        out: &Path,
+    ) -> Result<(), PovError> {
+        let width = width.max(2);
+        let wrapper = self
+            .opts
+            .work_dir
+            .join(format!("wrap_spherical_{}.pov", self.opts.up.name()));
+        let text = sdl::spherical_wrapper(&self.scene_sdl, self.opts.up.spherical_camera_vectors());
+        store::write_atomic(&wrapper, text.as_bytes())?;
+        let pov = self.opts.up.pov_from_railview(vp.position);
+        let stem = format!("s{:04}_preview", vp.index);
+        let output = self.opts.work_dir.join(format!("{stem}.png"));
+        let job = RenderJob {
+            name: format!("sample {} preview ({})", vp.index, self.scene.display()),
+            wrapper,
+            output: output.clone(),
+            log: self.opts.work_dir.join("logs").join(format!("{stem}.log")),
+            width,
+            height: width / 2,
+            format: OutputFormat::Png8,
+            block_size: 32,
+            library_dirs: self
+                .scene
+                .parent()
+                .map(Path::to_path_buf)
+                .into_iter()
+                .collect(),
+            declares: vec![
+                (names::CAM_X, pov.x),
+                (names::CAM_Y, pov.y),
+                (names::CAM_Z, pov.z),
+            ],
+        };
+        let stats = self.povray.run(&job)?;
+        let record = RenderRecord {
+            sample: vp.index,
+            pass: "preview".into(),
+            face_size: 0,
+            pixels: width as u64 * (width / 2) as u64,
+            stats,
+        };
+        if let Some(p) = self.progress.as_mut() {
+            p(&record);
+        }
+        self.records.push(record);
+        let bytes = fs::read(&output).map_err(|source| PovError::Io {
+            path: output.clone(),
+            source,
+        })?;
+        store::write_atomic(out, &bytes)?;
+        remove(&output)
+    }
+
+    /// Delete the generated mesh includes (tens of MB at large face sizes); logs and
+    /// wrappers stay for inspection.
+    pub fn remove_mesh_includes(&self) -> Result<(), PovError> {
+        let entries = fs::read_dir(&self.opts.work_dir).map_err(|source| PovError::Io {
+            path: self.opts.work_dir.clone(),
+            source,
+        })?;
+        for e in entries.flatten() {
+            let name = e.file_name();
+            let name = name.to_string_lossy();
+            if name.starts_with("meshcam_") && name.ends_with(".inc") {
+                remove(&e.path())?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Remove a file if it exists.
+fn remove(path: &Path) -> Result<(), PovError> {
+    match fs::remove_file(path) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(source) => Err(PovError::Io {
+            path: path.to_path_buf(),
+            source,
+        }),
+    }
+}
+
+/// Smallest positive and largest finite value (`(inf, inf)` if none).
+fn finite_range(t: &[f64]) -> (f64, f64) {
+    t.iter()
+        .filter(|x| x.is_finite() && **x > 0.0)
+        .fold((f64::INFINITY, f64::INFINITY), |(lo, hi), &x| {
+            (lo.min(x), if hi.is_finite() { hi.max(x) } else { x })
+        })
+}
+
+fn to_cube(n: u32, t: &[f64], f: impl Fn(f64) -> f64) -> Result<CubeMap<f32>, PovError> {
+    CubeMap::from_vec(n, t.iter().map(|&x| f(x) as f32).collect()).ok_or_else(|| PovError::Output {
+        path: PathBuf::from(format!("depth pass of face size {n}")),
+        message: format!("{} pixels do not form a cube map", t.len()),
+    })
+}
