@@ -235,11 +235,12 @@ mod tests {
         assert_eq!(decode_mesh(&encode_mesh(&flat).unwrap()).unwrap(), flat);
         let empty = MeshData::default();
         assert_eq!(decode_mesh(&encode_mesh(&empty).unwrap()).unwrap(), empty);
-        let mut big = MeshData::default();
-        big.vertices = (0..70_000)
-            .map(|i| [(i % 256) as f32 + 0.5, (i / 256) as f32 + 0.5, 3.0])
-            .collect();
-        big.indices = vec![0, 1, 69_999];
+        let big = MeshData {
+            vertices: (0..70_000)
+                .map(|i| [(i % 256) as f32 + 0.5, (i / 256) as f32 + 0.5, 3.0])
+                .collect(),
+            indices: vec![0, 1, 69_999],
+        };
         let bytes = encode_mesh(&big).unwrap();
         assert_eq!(bytes[5], 1);
         assert_eq!(decode_mesh(&bytes).unwrap(), big);
