@@ -1,4 +1,16 @@
-//! `railview prerender`.
+//! `railview prerender`: render the reference viewpoints of a track with the built-in ray
+//! tracer into a prerender directory (layout in `prerender::store`).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use indicatif::{ProgressBar, ProgressStyle};
+use prerender::job::{self, ReportInput, RunStats, Shard};
+use prerender::render::RenderOptions;
+use prerender::scene::Scene;
+use prerender::store::{self, PrerenderDir};
+use tracks::{SlabRange, Track, TrackSet};
 
 /// Arguments of `railview prerender`.
 #[derive(clap::Args)]
@@ -6,11 +18,169 @@ pub struct Args {
     /// Built-in scene name (`castle`, `nature`) or a scene TOML file.
     #[arg(long)]
     pub scene: String,
+    /// A track of the scene (built-in or `[[track]]` in the scene file), or a track TOML file.
+    #[arg(long, default_value = "main")]
+    pub track: String,
+    /// Pixels along a cube face.
+    #[arg(long, default_value_t = 512)]
+    pub face_size: u32,
+    /// Output directory (created; resumable).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Face size of the fast depth-only pass.
+    #[arg(long, default_value_t = 64)]
+    pub lowres_face_size: u32,
+    /// Colour rays per pixel along each axis.
+    #[arg(long, default_value_t = 1)]
+    pub supersample: u32,
+    /// Skip shadow rays.
+    #[arg(long)]
+    pub no_shadows: bool,
+    /// Also render slab layers for these depth ranges, e.g. `0-10,10-40,40-inf`.
+    #[arg(long)]
+    pub slabs: Option<String>,
+    /// Render only viewpoints with index % N == K (`K/N`).
+    #[arg(long)]
+    pub shard: Option<String>,
+}
+
+/// The scene, its tracks (if it has any) and its display name.
+fn load_scene(spec: &str) -> anyhow::Result<(Scene, Option<TrackSet>)> {
+    if let Some(b) = prerender::scenes::builtin(spec) {
+        return Ok((b.scene, Some(b.tracks)));
+    }
+    let path = Path::new(spec);
+    if !path.exists() {
+        bail!(
+            "scene `{spec}` is neither a built-in scene ({}) nor an existing file",
+            prerender::scenes::NAMES.join(", ")
+        );
+    }
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading scene file {}", path.display()))?;
+    let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let loader = move |rel: &str| -> Result<Vec<u8>, String> {
+        std::fs::read(base.join(rel)).map_err(|e| format!("{}: {e}", base.join(rel).display()))
+    };
+    let scene = Scene::parse_toml_with(&text, spec, &loader)?;
+    let tracks = prerender::parse::tracks_from_scene_toml(&text, spec)?;
+    Ok((scene, tracks))
+}
+
+fn pick_track(spec: &str, scene_tracks: Option<&TrackSet>) -> anyhow::Result<Track> {
+    if let Some(t) = scene_tracks.and_then(|s| s.get(spec)) {
+        return Ok(t.clone());
+    }
+    let path = Path::new(spec);
+    if !path.is_file() {
+        let names = scene_tracks.map_or(String::from("none"), |s| s.names().join(", "));
+        bail!("track `{spec}` is neither a track of the scene (tracks: {names}) nor a track file");
+    }
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading track file {}", path.display()))?;
+    let set = TrackSet::parse(&text, spec)?;
+    match set.tracks.as_slice() {
+        [one] => Ok(one.clone()),
+        _ => match set.get("main") {
+            Some(t) => Ok(t.clone()),
+            None => bail!(
+                "{spec}: holds several tracks ({}) and none is named `main`",
+                set.names().join(", ")
+            ),
+        },
+    }
+}
+
+fn bar(len: usize, what: &str) -> ProgressBar {
+    let pb = ProgressBar::new(len as u64);
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{msg:>14} [{elapsed_precise}] {wide_bar} {pos}/{len} (eta {eta})",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    pb.set_message(what.to_string());
+    pb
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    anyhow::bail!(
-        "prerender of `{}`: the ray tracer is not built yet",
-        args.scene
-    )
+    let started = Instant::now();
+    if args.face_size == 0 || args.lowres_face_size == 0 {
+        bail!("--face-size and --lowres-face-size must be at least 1");
+    }
+    if args.supersample == 0 || args.supersample > 16 {
+        bail!("--supersample must be between 1 and 16");
+    }
+    let shard = args
+        .shard
+        .as_deref()
+        .map(Shard::parse)
+        .transpose()
+        .map_err(anyhow::Error::msg)?;
+    let slabs: Vec<SlabRange> = match &args.slabs {
+        Some(s) => SlabRange::parse_list(s).map_err(|e| anyhow::anyhow!("--slabs: {e}"))?,
+        None => Vec::new(),
+    };
+    let (scene, scene_tracks) = load_scene(&args.scene)?;
+    let track = pick_track(&args.track, scene_tracks.as_ref())?;
+    store::ensure_writable_dir(&args.out).context("output directory")?;
+    let dir = PrerenderDir::new(&args.out);
+    let one = TrackSet {
+        tracks: vec![track.clone()],
+    };
+    store::write_atomic(&dir.track_toml(), one.to_toml().as_bytes())?;
+
+    let viewpoints = track.viewpoints();
+    let mine: Vec<_> = viewpoints
+        .iter()
+        .copied()
+        .filter(|v| shard.is_none_or(|s| s.covers(v.index)))
+        .collect();
+    let opts = RenderOptions {
+        face_size: args.face_size,
+        supersample: args.supersample,
+        shadows: !args.no_shadows,
+    };
+    let pb = bar(mine.len(), "samples");
+    let mut stats = job::render_track(
+        &dir,
+        &scene,
+        &mine,
+        opts,
+        args.lowres_face_size,
+        None,
+        &|_, _| pb.inc(1),
+    )?;
+    pb.finish();
+    if !slabs.is_empty() {
+        let pb = bar(mine.len(), "slab layers");
+        let s: RunStats =
+            job::write_slab_layers_with(&dir, &scene, &mine, &slabs, opts, &|_, _| pb.inc(1))?;
+        pb.finish();
+        stats.render_seconds += s.render_seconds;
+    }
+    let report = job::write_report(
+        &dir,
+        &ReportInput {
+            scene: &args.scene,
+            track: &track.name,
+            viewpoints: &viewpoints,
+            face_size: args.face_size,
+            lowres_face_size: args.lowres_face_size,
+            slabs: &slabs,
+            shard,
+            seconds: started.elapsed().as_secs_f64(),
+            stats: &stats,
+        },
+    )?;
+    eprintln!(
+        "{} of {} samples complete in {} ({} rendered, {} skipped); {:.0} primary rays/s",
+        report.extra["complete_samples"],
+        report.samples,
+        args.out.display(),
+        stats.rendered,
+        stats.skipped,
+        report.rays_per_second
+    );
+    Ok(())
 }
