@@ -24,6 +24,8 @@ enum Command {
     Prerender(cmd::prerender::Args),
     /// Render a POV-Ray scene along a track into the same layout (colour, depth, slab layers).
     ImportPov(cmd::import_pov::Args),
+    /// Check every file of a database (hashes, sizes, PTM level ranges); exit 0 only when intact.
+    Verify(cmd::verify::Args),
 }
 
 fn main() -> ExitCode {
@@ -38,6 +40,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Prerender(a) => cmd::prerender::run(a),
         Command::ImportPov(a) => cmd::import_pov::run(a),
+        Command::Verify(a) => cmd::verify::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

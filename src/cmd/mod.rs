@@ -2,3 +2,4 @@
 
 pub mod import_pov;
 pub mod prerender;
+pub mod verify;
