@@ -28,6 +28,9 @@ pub struct RenderRecord {
     pub stats: RenderStats,
 }
 
+/// Called after every finished render.
+type ProgressFn = Box<dyn FnMut(&RenderRecord)>;
+
 /// Empty slab pixels decode to the slab's ray range (POV-Ray reports the maximum ray distance
 /// as the depth); with `D₃ = range/2` the decoding error there is ~3e-5, so a hit within 1e-4
 /// of `far` cannot be told from an empty pixel and counts as empty.
@@ -42,7 +45,7 @@ pub struct PovImport {
     povray: PovRay,
     version: String,
     records: Vec<RenderRecord>,
-    progress: Option<Box<dyn FnMut(&RenderRecord)>>,
+    progress: Option<ProgressFn>,
     /// Whether the scene's own fog shows at a viewpoint (decided by a low-res fog-only pass).
     has_fog: HashMap<usize, bool>,
 }
