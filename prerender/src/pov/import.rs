@@ -26,6 +26,22 @@ pub struct RenderRecord {
     /// Pixels POV-Ray traced (primary rays, including the two dummy rows).
     pub pixels: u64,
     pub stats: RenderStats,
+    /// For depth passes: what the decoded image held.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth: Option<DepthSummary>,
+}
+
+/// Summary of a decoded depth pass (distances along the rays, from their origins).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DepthSummary {
+    pub hits: usize,
+    pub sky: usize,
+    /// Hits whose channels disagree (no fog: ray started inside a solid, wrong gamma).
+    pub inconsistent: usize,
+    pub zero: usize,
+    pub min: Option<f64>,
+    pub max: Option<f64>,
+    pub fog_scales: FogScales,
 }
 
 /// Called after every finished render.
@@ -244,6 +260,7 @@ impl PovImport {
             face_size,
             pixels: width as u64 * height as u64,
             stats,
+            depth: None,
         };
         if let Some(p) = self.progress.as_mut() {
             p(&record);
@@ -280,7 +297,20 @@ impl PovImport {
         let path = self.render(sample, pass, PassKind::Depth, face_size, view, Some(scales))?;
         let p1 = decode::read_mesh_png16(&path, face_size)?;
         remove(&path)?;
-        Ok(decode::decode_fog(&p1, p0.as_deref(), scales))
+        let decoded = decode::decode_fog(&p1, p0.as_deref(), scales);
+        let (min, max) = finite_range(&decoded.t);
+        if let Some(last) = self.records.last_mut() {
+            last.depth = Some(DepthSummary {
+                hits: decoded.hits,
+                sky: decoded.t.len() - decoded.hits,
+                inconsistent: decoded.inconsistent,
+                zero: decoded.zero,
+                min: min.is_finite().then_some(min),
+                max: max.is_finite().then_some(max),
+                fog_scales: *scales,
+            });
+        }
+        Ok(decoded)
     }
 
     /// Colour through the mesh camera (2×2 supersampled with `antialias`).
@@ -535,6 +565,7 @@ impl PovImport {
             face_size: 0,
             pixels: width as u64 * (width / 2) as u64,
             stats,
+            depth: None,
         };
         if let Some(p) = self.progress.as_mut() {
             p(&record);

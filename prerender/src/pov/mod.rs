@@ -42,7 +42,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 pub use frame::UpAxis;
-pub use import::{PovImport, RenderRecord};
+pub use import::{DepthSummary, PovImport, RenderRecord};
 pub use runner::RenderStats;
 
 use crate::store::StoreError;
