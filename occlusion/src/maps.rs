@@ -66,22 +66,25 @@ impl OcclusionMap {
 }
 
 /// When two neighbouring occluder pixels are treated as a gap rather than one surface.
+///
+/// Inverse depth changes at a steady rate across a plane (exactly for planar depth, closely
+/// for radial depth over a few pixels), also a plane seen at a grazing angle, and changes
+/// rate without jumping at a crease. So a step in `1/d` from a pixel to its farther neighbour
+/// is a gap when it is more than `slope_factor` times the steps just before and just after
+/// it in the same direction (a missing step counts as zero), and when it opens by more than
+/// `min_parallax_px` pixels over the cell: `B·(1/d_near − 1/d_far) > min_parallax_px·θ_pixel`
+/// (θ_pixel = (π/2)/N, `B` the cell's largest offset).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DiscontinuityRule {
-    /// Depth ratio far/near above which neighbours are not one surface, as `1 + k·θ_pixel`
-    /// (θ_pixel = (π/2)/N): a surface seen at a grazing angle γ steps by about
-    /// `θ_pixel / tan γ` per pixel, so `k = 16` accepts surfaces down to about 3.6°.
-    pub ratio_per_pixel_angle: f64,
-    /// …and the jump must open by more than this fraction of a pixel over the cell's largest
-    /// offset `B`: `B·(1/d_near − 1/d_far) > min_parallax_px · θ_pixel`.
+    pub slope_factor: f64,
     pub min_parallax_px: f64,
 }
 
 impl Default for DiscontinuityRule {
     fn default() -> Self {
         DiscontinuityRule {
-            ratio_per_pixel_angle: 16.0,
-            min_parallax_px: 0.1,
+            slope_factor: 1.5,
+            min_parallax_px: 0.25,
         }
     }
 }
@@ -108,12 +111,23 @@ pub fn neighbour(face: Face, x: u32, y: u32, dx: i32, dy: i32, n: u32) -> (Face,
 pub fn hole_punched(map: &OcclusionMap, rule: DiscontinuityRule, cell_radius: f64) -> CubeMap<u8> {
     let n = map.face_size();
     let theta_px = std::f64::consts::FRAC_PI_2 / n as f64;
-    let max_ratio = 1.0 + rule.ratio_per_pixel_angle * theta_px;
     let min_parallax = rule.min_parallax_px * theta_px;
     let depth = &map.depth;
     let opaque = &map.opaque;
-    let is_gap = |near: f64, far: f64| {
-        far > near * max_ratio && cell_radius * (1.0 / near - 1.0 / far) > min_parallax
+    // Inverse depth at a pixel, if it is an occluder.
+    let w = |f: Face, x: u32, y: u32| -> Option<f64> {
+        (*opaque.get(f, x, y) != 0).then(|| 1.0 / *depth.get(f, x, y) as f64)
+    };
+    let step = |face: Face, x: u32, y: u32, dx: i32, dy: i32| -> (Face, u32, u32) {
+        let inside = (x > 0 || dx >= 0)
+            && (y > 0 || dy >= 0)
+            && (x + 1 < n || dx <= 0)
+            && (y + 1 < n || dy <= 0);
+        if inside {
+            (face, (x as i32 + dx) as u32, (y as i32 + dy) as u32)
+        } else {
+            neighbour(face, x, y, dx, dy, n)
+        }
     };
     let mut out = opaque.clone();
     let nn = n as usize * n as usize;
@@ -128,19 +142,25 @@ pub fn hole_punched(map: &OcclusionMap, rule: DiscontinuityRule, cell_radius: f6
                     if face_px[i] == 0 {
                         continue;
                     }
-                    let d = *depth.get(face, x, y) as f64;
-                    let border = x == 0 || y == 0 || x + 1 == n || y + 1 == n;
+                    let wp = 1.0 / *depth.get(face, x, y) as f64;
                     for (dx, dy) in [(-1, 0), (1, 0), (0, -1), (0, 1)] {
-                        let (f2, x2, y2) = if border {
-                            neighbour(face, x, y, dx, dy, n)
-                        } else {
-                            (face, (x as i32 + dx) as u32, (y as i32 + dy) as u32)
-                        };
-                        if *opaque.get(f2, x2, y2) == 0 {
+                        let (f2, x2, y2) = step(face, x, y, dx, dy);
+                        let Some(wq) = w(f2, x2, y2) else { continue };
+                        let s = wp - wq;
+                        // Only the nearer pixel of a pair is punched; it must open a gap.
+                        if s <= 0.0 || cell_radius * s <= min_parallax {
                             continue;
                         }
-                        let d2 = *depth.get(f2, x2, y2) as f64;
-                        if d2 > d && is_gap(d, d2) {
+                        let (fb, xb, yb) = step(face, x, y, -dx, -dy);
+                        let before = w(fb, xb, yb).map_or(0.0, |wb| (wb - wp).abs());
+                        // Past a face edge the direction of travel turns: no "after" step.
+                        let after = if f2 == face {
+                            let (fa, xa, ya) = step(f2, x2, y2, dx, dy);
+                            w(fa, xa, ya).map_or(0.0, |wa| (wq - wa).abs())
+                        } else {
+                            0.0
+                        };
+                        if s > rule.slope_factor * before.max(after) + 1e-6 * wp {
                             face_px[i] = 0;
                             break;
                         }
