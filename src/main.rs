@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod cmd;
+mod report;
 
 #[derive(Parser)]
 #[command(
@@ -20,6 +21,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// The whole system on the built-in castle scene in one command, then a report.
+    Demo(cmd::demo::Args),
     /// Render cube-map colour, depth (and optionally slab layers) at the reference viewpoints of a track.
     Prerender(cmd::prerender::Args),
     /// Render a POV-Ray scene along a track into the same layout (colour, depth, slab layers).
@@ -37,16 +40,21 @@ fn main() -> ExitCode {
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
-    let result = match cli.command {
-        Command::Prerender(a) => cmd::prerender::run(a),
-        Command::ImportPov(a) => cmd::import_pov::run(a),
-        Command::Verify(a) => cmd::verify::run(a),
-    };
-    match result {
+    match dispatch(cli.command) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Run one subcommand; `demo` also calls this to run the pipeline's stages in this process.
+fn dispatch(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Demo(a) => cmd::demo::run(a),
+        Command::Prerender(a) => cmd::prerender::run(a),
+        Command::ImportPov(a) => cmd::import_pov::run(a),
+        Command::Verify(a) => cmd::verify::run(a),
     }
 }

@@ -1,0 +1,520 @@
+//! `railview demo [--out railview-demo] [--face-size N]`: the whole system on the built-in
+//! `castle` scene in one command, then a report.
+//!
+//! Each stage is the ordinary `railview` subcommand, parsed and run in this process, so the
+//! demo shows exactly what a person typing the commands would get. A stage is skipped when
+//! `OUT/demo.json` says the same command completed and its outputs are still there; a stage
+//! that was killed midway simply runs again and resumes from what it wrote. A subcommand this
+//! build does not have yet makes its section of the report say "not available".
+
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::error::ErrorKind;
+use clap::Parser;
+
+use crate::report::{self, Layout, RunLog, StageRecord, StageStatus};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Output directory: the prerender work dir, the database, walks, evaluation, frames and the report.
+    #[arg(long, default_value = "railview-demo")]
+    pub out: PathBuf,
+    /// Cube-map face size of the reference panoramas, pixels.
+    #[arg(long, default_value_t = 128)]
+    pub face_size: u32,
+    /// Built-in scene.
+    #[arg(long, default_value = "castle")]
+    pub scene: String,
+    /// Track of the scene.
+    #[arg(long, default_value = "main")]
+    pub track: String,
+    /// Never open the viewer window; render a headless flythrough instead.
+    #[arg(long)]
+    pub no_window: bool,
+    /// Only rebuild the report from what is already in OUT.
+    #[arg(long)]
+    pub report_only: bool,
+}
+
+/// One subcommand the demo runs.
+struct Stage {
+    name: &'static str,
+    /// Arguments after `railview`.
+    argv: Vec<String>,
+    /// Files whose presence (with a completed log record) proves the stage done.
+    outputs: Vec<PathBuf>,
+    /// Stages that must be done first.
+    requires: Vec<&'static str>,
+}
+
+/// `railview a b` with shell quoting where needed, for people to copy.
+fn command_line(argv: &[String]) -> String {
+    let mut s = String::from("railview");
+    for a in argv {
+        s.push(' ');
+        let plain = !a.is_empty()
+            && a.chars()
+                .all(|c| c.is_ascii_alphanumeric() || "-_./,:=+@%".contains(c));
+        if plain {
+            s += a;
+        } else {
+            s += &format!("'{}'", a.replace('\'', "'\\''"));
+        }
+    }
+    s
+}
+
+fn path_arg(p: &Path) -> String {
+    p.display().to_string()
+}
+
+/// Whether this build of `railview` has subcommand `name`.
+fn has_command(name: &str) -> bool {
+    match crate::Cli::try_parse_from(["railview", name, "--help"]) {
+        Ok(_) => true,
+        Err(e) => e.kind() == ErrorKind::DisplayHelp,
+    }
+}
+
+fn display_available() -> bool {
+    ["DISPLAY", "WAYLAND_DISPLAY"]
+        .iter()
+        .any(|v| std::env::var_os(v).is_some_and(|x| !x.is_empty()))
+}
+
+/// Run one stage (or reuse it), record the outcome in the log, and save the log.
+fn run_stage(
+    layout: &Layout,
+    log: &mut RunLog,
+    stage: &Stage,
+    step: usize,
+    steps: usize,
+) -> StageStatus {
+    let command = command_line(&stage.argv);
+    if let Some(prev) = log.stage(stage.name) {
+        if prev.status == StageStatus::Done
+            && prev.command == command
+            && stage.outputs.iter().all(|p| p.exists())
+        {
+            eprintln!("[{step}/{steps}] {}: reused ({command})", stage.name);
+            return StageStatus::Done;
+        }
+    }
+    let mut record = StageRecord {
+        name: stage.name.to_string(),
+        command: command.clone(),
+        status: StageStatus::Unavailable,
+        seconds: 0.0,
+        message: None,
+    };
+    let missing: Vec<&str> = stage
+        .requires
+        .iter()
+        .copied()
+        .filter(|r| log.stage(r).is_none_or(|s| s.status != StageStatus::Done))
+        .collect();
+    if !missing.is_empty() {
+        record.message = Some(format!("needs `{}` first", missing.join("`, `")));
+        eprintln!(
+            "[{step}/{steps}] {}: skipped, {}",
+            stage.name,
+            record.message.as_deref().unwrap_or("")
+        );
+        return finish(layout, log, record);
+    }
+    let argv: Vec<OsString> = std::iter::once(OsString::from("railview"))
+        .chain(stage.argv.iter().map(OsString::from))
+        .collect();
+    let cli = match crate::Cli::try_parse_from(argv) {
+        Ok(cli) => cli,
+        Err(e) => {
+            let text = e.to_string();
+            let first = text
+                .lines()
+                .next()
+                .unwrap_or("")
+                .trim_start_matches("error: ")
+                .to_string();
+            if e.kind() == ErrorKind::InvalidSubcommand {
+                record.message = Some(format!(
+                    "this build of railview has no `{}` command",
+                    stage.argv[0]
+                ));
+            } else {
+                record.status = StageStatus::Failed;
+                record.message = Some(format!("arguments not accepted: {first}"));
+            }
+            eprintln!(
+                "[{step}/{steps}] {}: {}",
+                stage.name,
+                record.message.as_deref().unwrap_or("")
+            );
+            return finish(layout, log, record);
+        }
+    };
+    eprintln!("[{step}/{steps}] {}: {command}", stage.name);
+    let start = Instant::now();
+    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        crate::dispatch(cli.command)
+    }));
+    record.seconds = start.elapsed().as_secs_f64();
+    match outcome {
+        Ok(Ok(())) => {
+            record.status = StageStatus::Done;
+            eprintln!(
+                "[{step}/{steps}] {}: done in {:.1} s",
+                stage.name, record.seconds
+            );
+        }
+        Ok(Err(e)) => {
+            record.status = StageStatus::Failed;
+            record.message = Some(format!("{e:#}"));
+            eprintln!("[{step}/{steps}] {}: failed: {e:#}", stage.name);
+        }
+        Err(_) => {
+            record.status = StageStatus::Failed;
+            record.message = Some("the command panicked (see the message above)".into());
+            eprintln!("[{step}/{steps}] {}: panicked", stage.name);
+        }
+    }
+    finish(layout, log, record)
+}
+
+fn finish(layout: &Layout, log: &mut RunLog, record: StageRecord) -> StageStatus {
+    let status = record.status;
+    log.record(record);
+    if let Err(e) = log.save(layout) {
+        eprintln!("warning: {e:#}");
+    }
+    status
+}
+
+/// The pipeline's stages for these arguments, in order.
+fn pipeline(args: &Args, layout: &Layout, headless: bool) -> Vec<Stage> {
+    let work = layout.work();
+    let db = layout.db();
+    let n = args.face_size.to_string();
+    let mut stages = vec![
+        Stage {
+            name: "prerender",
+            argv: vec![
+                "prerender".into(),
+                "--scene".into(),
+                args.scene.clone(),
+                "--track".into(),
+                args.track.clone(),
+                "--face-size".into(),
+                n.clone(),
+                "--out".into(),
+                path_arg(&work),
+            ],
+            outputs: vec![work.join("prerender.json")],
+            requires: vec![],
+        },
+        Stage {
+            name: "slabs",
+            argv: vec!["slabs".into(), path_arg(&work)],
+            outputs: vec![work.join("slabs.json")],
+            requires: vec!["prerender"],
+        },
+        Stage {
+            name: "cull",
+            argv: vec![
+                "cull".into(),
+                path_arg(&work),
+                "--alpha".into(),
+                "1.0,0.9,0.8".into(),
+                "--oracle".into(),
+            ],
+            outputs: vec![work.join("cull.json")],
+            requires: vec!["slabs"],
+        },
+        Stage {
+            name: "build",
+            argv: vec![
+                "build".into(),
+                "--scene".into(),
+                args.scene.clone(),
+                "--track".into(),
+                args.track.clone(),
+                "--face-size".into(),
+                n.clone(),
+                "--out".into(),
+                path_arg(&db),
+            ],
+            outputs: vec![db.join("manifest.json")],
+            requires: vec![],
+        },
+        Stage {
+            name: "walk",
+            argv: vec![
+                "walk".into(),
+                path_arg(&db),
+                "--speed".into(),
+                "3".into(),
+                "--bandwidth".into(),
+                "2mbit,unlimited".into(),
+                "--strategy".into(),
+                "naive,ach+prefetch".into(),
+                "--pause".into(),
+                "1".into(),
+                "--out".into(),
+                path_arg(&layout.walk()),
+            ],
+            outputs: vec![layout.walk().join("walk.json")],
+            requires: vec!["build"],
+        },
+        Stage {
+            name: "eval",
+            argv: vec![
+                "eval".into(),
+                path_arg(&db),
+                "--out".into(),
+                path_arg(&layout.eval()),
+            ],
+            outputs: vec![layout.eval().join("eval.json")],
+            requires: vec!["build"],
+        },
+    ];
+    if headless {
+        stages.push(Stage {
+            name: "flythrough",
+            argv: vec![
+                "flythrough".into(),
+                path_arg(&db),
+                "-o".into(),
+                path_arg(&layout.frames()),
+            ],
+            outputs: vec![layout.frames()],
+            requires: vec!["build"],
+        });
+    }
+    stages
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        (8..=4096).contains(&args.face_size),
+        "--face-size {} is out of range (8..=4096)",
+        args.face_size
+    );
+    let layout = Layout::new(&args.out);
+    let mut log = RunLog::load_or_default(&layout, &args.scene, &args.track, args.face_size);
+    anyhow::ensure!(
+        log.scene == args.scene && log.track == args.track && log.face_size == args.face_size,
+        "{} holds a demo of {} / {} at face size {}; use another --out or delete it",
+        layout.root().display(),
+        log.scene,
+        log.track,
+        log.face_size
+    );
+    if args.report_only {
+        let written = report::write_report(&layout, &log)?;
+        println!(
+            "report: {} ({} tables, {} images; not available: {})",
+            written.html.display(),
+            written.tables.len(),
+            written.images.len(),
+            if written.unavailable.is_empty() {
+                "none".to_string()
+            } else {
+                written.unavailable.join(", ")
+            }
+        );
+        return Ok(());
+    }
+    std::fs::create_dir_all(layout.root())
+        .with_context(|| format!("creating {}", layout.root().display()))?;
+    let window = !args.no_window && display_available() && has_command("view");
+    let stages = pipeline(&args, &layout, !window);
+    let steps = stages.len();
+    let start = Instant::now();
+    for (i, stage) in stages.iter().enumerate() {
+        run_stage(&layout, &mut log, stage, i + 1, steps);
+    }
+    let written = report::write_report(&layout, &log).context("writing the report")?;
+
+    println!();
+    println!(
+        "railview demo: {} / {} (face size {}), {:.1} s",
+        args.scene,
+        args.track,
+        args.face_size,
+        start.elapsed().as_secs_f64()
+    );
+    println!("  prerendered panoramas: {}", layout.work().display());
+    println!("  database:              {}", layout.db().display());
+    if !window {
+        let why = if args.no_window {
+            "--no-window"
+        } else if !display_available() {
+            "no display (DISPLAY/WAYLAND_DISPLAY unset)"
+        } else {
+            "this build has no `view` command"
+        };
+        println!(
+            "  flythrough frames:     {} (headless: {why})",
+            layout.frames().display()
+        );
+    }
+    println!("  report:                {}", written.html.display());
+    println!("                         {}", written.markdown.display());
+    if !written.unavailable.is_empty() {
+        println!(
+            "  not available yet:     {}",
+            written.unavailable.join(", ")
+        );
+    }
+    println!("Open the viewer later:");
+    println!("  railview view {}", layout.db().display());
+    println!(
+        "  railview serve {} --addr 127.0.0.1:8080   # then: railview view http://127.0.0.1:8080",
+        layout.db().display()
+    );
+
+    if window
+        && log
+            .stage("build")
+            .is_some_and(|s| s.status == StageStatus::Done)
+    {
+        view_window(&layout, &mut log)?;
+    }
+    let failed: Vec<&str> = log
+        .stages
+        .iter()
+        .filter(|s| s.status == StageStatus::Failed)
+        .map(|s| s.name.as_str())
+        .collect();
+    anyhow::ensure!(
+        failed.is_empty(),
+        "stages failed: {} (details in {} and the report)",
+        failed.join(", "),
+        layout.log().display()
+    );
+    Ok(())
+}
+
+/// Serve the database on loopback and open the viewer window on it until it is closed.
+fn view_window(layout: &Layout, log: &mut RunLog) -> anyhow::Result<()> {
+    use streamer::server::{self, ServedDb, ServerConfig, ServerStats};
+    let db = ServedDb::open(&layout.db())?;
+    let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
+    let listener = rt
+        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
+        .context("binding 127.0.0.1")?;
+    let url = format!("http://{}", listener.local_addr()?);
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let task = rt.spawn(server::run(
+        listener,
+        db,
+        ServerConfig::default(),
+        std::sync::Arc::new(ServerStats::default()),
+        async {
+            // A dropped sender also stops the server.
+            let _ = stop_rx.await;
+        },
+    ));
+    println!(
+        "serving {} on {url}; opening the viewer (close the window to finish)",
+        layout.db().display()
+    );
+    let stage = Stage {
+        name: "view",
+        argv: vec!["view".into(), url],
+        outputs: vec![],
+        requires: vec!["build"],
+    };
+    run_stage(layout, log, &stage, 1, 1);
+    drop(stop_tx);
+    rt.block_on(task).context("server task")??;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn command_lines_quote_what_a_shell_would_split() {
+        let argv = vec![
+            "walk".to_string(),
+            "my db".to_string(),
+            "--x".into(),
+            "it's".into(),
+        ];
+        assert_eq!(command_line(&argv), "railview walk 'my db' --x 'it'\\''s'");
+        assert_eq!(
+            command_line(&["cull".into(), "a/b".into(), "1.0,0.9".into()]),
+            "railview cull a/b 1.0,0.9"
+        );
+    }
+
+    #[test]
+    fn known_and_unknown_subcommands() {
+        assert!(has_command("demo"));
+        assert!(!has_command("no-such-command"));
+    }
+
+    #[test]
+    fn unknown_stage_is_recorded_as_unavailable_not_failed() {
+        let dir = std::env::temp_dir().join(format!("railview-demo-stage-{}", std::process::id()));
+        let layout = Layout::new(&dir);
+        let mut log = RunLog::load_or_default(&layout, "castle", "main", 16);
+        let stage = Stage {
+            name: "nothing",
+            argv: vec!["no-such-command".into()],
+            outputs: vec![],
+            requires: vec![],
+        };
+        assert_eq!(
+            run_stage(&layout, &mut log, &stage, 1, 1),
+            StageStatus::Unavailable
+        );
+        let rec = log.stage("nothing").unwrap();
+        assert!(rec
+            .message
+            .as_deref()
+            .unwrap()
+            .contains("no `no-such-command`"));
+        // A stage whose prerequisite is not done does not run.
+        let dependent = Stage {
+            name: "after",
+            argv: vec!["demo".into(), "--report-only".into()],
+            outputs: vec![],
+            requires: vec!["nothing"],
+        };
+        assert_eq!(
+            run_stage(&layout, &mut log, &dependent, 1, 1),
+            StageStatus::Unavailable
+        );
+        assert!(log
+            .stage("after")
+            .unwrap()
+            .message
+            .as_deref()
+            .unwrap()
+            .contains("needs `nothing`"));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn bad_arguments_of_an_existing_command_fail() {
+        let dir = std::env::temp_dir().join(format!("railview-demo-args-{}", std::process::id()));
+        let layout = Layout::new(&dir);
+        let mut log = RunLog::load_or_default(&layout, "castle", "main", 16);
+        let stage = Stage {
+            name: "bad",
+            argv: vec!["demo".into(), "--no-such-flag".into()],
+            outputs: vec![],
+            requires: vec![],
+        };
+        assert_eq!(
+            run_stage(&layout, &mut log, &stage, 1, 1),
+            StageStatus::Failed
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}

@@ -1,0 +1,139 @@
+//! Pictures for the report: the four horizontal faces of a stored cube map laid out as one
+//! 360° strip, and plain copies of the plots other stages wrote.
+
+use std::path::Path;
+
+use anyhow::Context;
+use image::{DynamicImage, GenericImage, GenericImageView, ImageFormat};
+use tracks::Face;
+
+/// Faces around the horizon, left to right, so that each face's right edge meets the next
+/// face's left edge (see the table in `tracks::cubemap`).
+pub const STRIP_FACES: [Face; 4] = [Face::PosX, Face::PosZ, Face::NegX, Face::NegZ];
+
+/// Largest face edge drawn in the report; bigger faces are scaled down.
+pub const MAX_STRIP_FACE: u32 = 256;
+
+/// Read a stored cube map (`N × 6N`, faces stacked in `Face` order) and return the horizon
+/// strip (`4N × N`, RGB or RGBA as stored), scaled down to at most [`MAX_STRIP_FACE`] per face.
+pub fn horizon_strip(cube_png: &Path) -> anyhow::Result<DynamicImage> {
+    let img = image::open(cube_png).with_context(|| format!("reading {}", cube_png.display()))?;
+    let (w, h) = img.dimensions();
+    anyhow::ensure!(
+        w > 0 && h == 6 * w,
+        "{}: expected a cube map of N × 6N pixels, found {w} × {h}",
+        cube_png.display()
+    );
+    let n = w;
+    let mut strip = match &img {
+        DynamicImage::ImageRgba8(_) | DynamicImage::ImageLumaA8(_) => {
+            DynamicImage::new_rgba8(4 * n, n)
+        }
+        _ => DynamicImage::new_rgb8(4 * n, n),
+    };
+    for (i, face) in STRIP_FACES.iter().enumerate() {
+        let view = img.view(0, face.index() as u32 * n, n, n);
+        strip
+            .copy_from(&*view, i as u32 * n, 0)
+            .context("composing the horizon strip")?;
+    }
+    if n > MAX_STRIP_FACE {
+        strip = strip.resize_exact(
+            4 * MAX_STRIP_FACE,
+            MAX_STRIP_FACE,
+            image::imageops::FilterType::Triangle,
+        );
+    }
+    Ok(strip)
+}
+
+/// Write `img` as PNG into `path` (temp file + rename).
+pub fn save_png(img: &DynamicImage, path: &Path) -> anyhow::Result<()> {
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut bytes, ImageFormat::Png)
+        .with_context(|| format!("encoding {}", path.display()))?;
+    prerender::store::write_atomic(path, bytes.get_ref())
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+/// Copy an image into the report directory after checking that it decodes, so the page never
+/// links a broken picture.
+pub fn copy_checked(src: &Path, dst: &Path) -> anyhow::Result<()> {
+    let bytes = std::fs::read(src).with_context(|| format!("reading {}", src.display()))?;
+    image::load_from_memory(&bytes).with_context(|| format!("decoding {}", src.display()))?;
+    prerender::store::write_atomic(dst, &bytes)
+        .with_context(|| format!("writing {}", dst.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use image::{Rgb, RgbImage, Rgba, RgbaImage};
+
+    fn tmp(name: &str) -> std::path::PathBuf {
+        let d =
+            std::env::temp_dir().join(format!("railview-report-img-{}-{name}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn strip_takes_the_horizontal_faces_in_order() {
+        let n = 4;
+        // Each face filled with its storage index.
+        let cube = RgbImage::from_fn(n, 6 * n, |_, y| Rgb([(y / n) as u8 * 10, 0, 0]));
+        let dir = tmp("strip");
+        let path = dir.join("color.png");
+        cube.save(&path).unwrap();
+        let strip = horizon_strip(&path).unwrap().to_rgb8();
+        assert_eq!(strip.dimensions(), (4 * n, n));
+        for (i, face) in STRIP_FACES.iter().enumerate() {
+            let px = strip.get_pixel(i as u32 * n + 1, 1);
+            assert_eq!(px[0], face.index() as u8 * 10, "strip slot {i}");
+        }
+    }
+
+    #[test]
+    fn strip_keeps_alpha_of_slab_layers() {
+        let n = 2;
+        let cube = RgbaImage::from_fn(n, 6 * n, |x, _| {
+            Rgba([1, 2, 3, if x == 0 { 0 } else { 255 }])
+        });
+        let dir = tmp("alpha");
+        let path = dir.join("slab.png");
+        cube.save(&path).unwrap();
+        let strip = horizon_strip(&path).unwrap();
+        assert!(strip.color().has_alpha());
+        assert_eq!(strip.to_rgba8().get_pixel(0, 0)[3], 0);
+        assert_eq!(strip.to_rgba8().get_pixel(1, 0)[3], 255);
+    }
+
+    #[test]
+    fn strip_rejects_an_image_that_is_not_a_cube_map() {
+        let dir = tmp("bad");
+        let path = dir.join("wide.png");
+        RgbImage::new(8, 8).save(&path).unwrap();
+        let e = horizon_strip(&path).unwrap_err().to_string();
+        assert!(e.contains("N × 6N") && e.contains("8 × 8"), "{e}");
+    }
+
+    #[test]
+    fn big_faces_are_scaled_down() {
+        let n = MAX_STRIP_FACE + 2;
+        let dir = tmp("big");
+        let path = dir.join("big.png");
+        RgbImage::new(n, 6 * n).save(&path).unwrap();
+        let strip = horizon_strip(&path).unwrap();
+        assert_eq!(strip.dimensions(), (4 * MAX_STRIP_FACE, MAX_STRIP_FACE));
+    }
+
+    #[test]
+    fn copy_refuses_a_broken_image() {
+        let dir = tmp("copy");
+        let src = dir.join("broken.png");
+        std::fs::write(&src, b"\x89PNG\r\n\x1a\nnot really").unwrap();
+        let e = copy_checked(&src, &dir.join("out.png")).unwrap_err();
+        assert!(format!("{e:#}").contains("broken.png"));
+        assert!(!dir.join("out.png").exists());
+    }
+}

@@ -1,0 +1,401 @@
+//! The demo report in a real browser: builds a small fixture demo directory (tiny generated
+//! images and stage reports with the documented field names), runs
+//! `railview demo --report-only` on it, and loads `report/index.html` in headless Chromium with
+//! a check script that records, after the page's load event, every image's `naturalWidth` and
+//! every table id into the DOM that `--dump-dom` prints.
+//!
+//! Needs `/usr/bin/chromium` (the test script installs it). Set `RAILVIEW_SKIP_BROWSER=1` to
+//! turn the browser part off explicitly; without Chromium and without that variable, the test
+//! fails rather than passing silently.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use image::{Rgb, RgbImage, Rgba, RgbaImage};
+use serde_json::{json, Value};
+
+const FACE: u32 = 8;
+const SAMPLES: usize = 3;
+
+fn tmp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("railview-report-{name}-{}", std::process::id()));
+    if d.exists() {
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn write_json(path: &Path, v: &Value) {
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    std::fs::write(path, serde_json::to_vec_pretty(v).unwrap()).unwrap();
+}
+
+fn plot(path: &Path, w: u32, h: u32) {
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    RgbImage::from_fn(w, h, |x, y| Rgb([(x * 7) as u8, (y * 5) as u8, 128]))
+        .save(path)
+        .unwrap();
+}
+
+/// A demo directory as the stages would leave it, at 8² faces and 3 samples.
+fn fixture(root: &Path) {
+    let work = root.join("work");
+    let slabs = [(0.0, Some(10.0)), (10.0, Some(60.0)), (60.0, None)];
+    write_json(
+        &work.join("prerender.json"),
+        &json!({"scene": "castle", "renderer": "builtin", "track": "main", "samples": SAMPLES,
+                "face_size": FACE, "lowres_face_size": 4, "seconds": 1.5,
+                "rays_per_second": 123456.0, "viewpoints": [], "slabs": [], "extra": null}),
+    );
+    for i in 0..SAMPLES {
+        let dir = work.join(format!("samples/{i:04}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        RgbImage::from_fn(FACE, 6 * FACE, |x, y| {
+            Rgb([(y / FACE * 40) as u8, (x * 20) as u8, i as u8 * 60])
+        })
+        .save(dir.join("color.png"))
+        .unwrap();
+        write_json(
+            &dir.join("sample.json"),
+            &json!({"index": i, "s": i as f64 * 2.5, "position": [i as f64 * 2.5, 1.7, 0.0],
+                    "face_size": FACE, "lowres_face_size": 4, "seconds": 0.5, "primary_rays": 384}),
+        );
+        for (k, _) in slabs.iter().enumerate() {
+            let sd = dir.join(format!("slab_{k}"));
+            std::fs::create_dir_all(&sd).unwrap();
+            RgbaImage::from_fn(FACE, 6 * FACE, |x, _| {
+                Rgba([
+                    200,
+                    100,
+                    k as u8 * 80,
+                    if (x + k as u32).is_multiple_of(3) {
+                        0
+                    } else {
+                        255
+                    },
+                ])
+            })
+            .save(sd.join("color.png"))
+            .unwrap();
+        }
+        let ranges: Vec<Value> = slabs
+            .iter()
+            .map(|(n, f)| json!({"near": n, "far": f}))
+            .collect();
+        write_json(
+            &dir.join("layers.json"),
+            &json!({"slabs": ranges, "seconds": 0.2}),
+        );
+    }
+    let slab_rows: Vec<Value> = slabs
+        .iter()
+        .enumerate()
+        .map(|(k, (n, f))| {
+            json!({"near": n, "far": f, "tiles_before": 18, "tiles_after": 18 - 4 * k,
+                   "pixels": 1000 - 200 * k, "bytes": 4000 - 800 * k})
+        })
+        .collect();
+    write_json(
+        &work.join("slabs.json"),
+        &json!({"slabs": slab_rows, "tile_size": 4,
+                "criterion": {"max_spacing_m": 2.5, "parallax_px": [3.1, 0.8]}}),
+    );
+    plot(&work.join("histogram.png"), 60, 30);
+    let run = |alpha: f64, variant: &str, oracle: bool| {
+        let rows: Vec<Value> = (0..3)
+            .map(|k| {
+                let mut r = json!({"slab": k, "tiles_before": 54, "tiles_after": 54 - 10 * k,
+                                   "bytes_before": 54 * 64, "bytes_after": (54 - 10 * k) * 64});
+                if oracle {
+                    r["false_culls"] = json!(0);
+                    r["false_cull_pixels"] = json!(0);
+                    r["kept_never_visible"] = json!(k);
+                    r["visible_tiles"] = json!(40);
+                }
+                r
+            })
+            .collect();
+        json!({"alpha": alpha, "variant": variant, "slabs": rows, "seconds": 0.01})
+    };
+    write_json(
+        &work.join("cull.json"),
+        &json!({"viewpoints": SAMPLES, "face_size": FACE, "tile_size": 4,
+                "slab_ranges": [], "load_seconds": 0.1,
+                "oracle": {"per_segment": 4, "face_size": 8, "source": "geometry", "seconds": 0.3},
+                "runs": [run(1.0, "conservative", true), run(0.9, "conservative", true),
+                         run(1.0, "paper", true)]}),
+    );
+    plot(&work.join("cull_tiles.png"), 48, 8);
+    write_json(&root.join("db/manifest.json"), &json!({"scene": "castle"}));
+    std::fs::create_dir_all(root.join("db/objects")).unwrap();
+    std::fs::write(root.join("db/objects/ab12"), vec![7u8; 3000]).unwrap();
+    write_json(
+        &root.join("walk/walk.json"),
+        &json!({"scene": "castle", "track": "main", "length_m": 5.0, "speed_mps": 3.0,
+                "latency_s": 0.05, "runs": [
+                    {"strategy": "naive", "bandwidth_bps": 2000000, "time_to_first_frame_s": 0.8,
+                     "mean_needed_fraction": 0.5, "mean_quality": 0.4, "bytes": 90000, "bytes_per_m": 18000.0},
+                    {"strategy": "ach+prefetch", "bandwidth_bps": null, "time_to_first_frame_s": null,
+                     "mean_needed_fraction": 0.95, "mean_quality": 0.9, "bytes": 9000, "bytes_per_m": 1800.0}]}),
+    );
+    plot(&root.join("walk/walk.png"), 80, 40);
+    let rows: Vec<Value> = (0..4)
+        .map(|i| {
+            json!({"config": if i < 2 { "slabs=auto" } else { "slabs=1" }, "position": i as f64,
+                   "at_reference": i % 2 == 0, "psnr_db": 30.0 + i as f64, "ssim": 0.9,
+                   "hole_fraction": 0.01, "frame_ms": 4.0})
+        })
+        .collect();
+    write_json(&root.join("eval/eval.json"), &json!({ "rows": rows }));
+    plot(&root.join("eval/error_vs_frame_ms.png"), 50, 40);
+    plot(&root.join("eval/error_vs_bytes.png"), 50, 40);
+    for i in 0..5 {
+        plot(&root.join(format!("frames/{i:04}.png")), 16, 9);
+    }
+    write_json(
+        &root.join("demo.json"),
+        &json!({"scene": "castle", "track": "main", "face_size": FACE, "stages": [
+            {"name": "prerender", "command": "railview prerender --scene castle --track main --face-size 8 --out work",
+             "status": "done", "seconds": 1.5},
+            {"name": "view", "command": "railview view http://127.0.0.1:1", "status": "unavailable",
+             "seconds": 0.0, "message": "this build of railview has no `view` command"}]}),
+    );
+}
+
+fn report_only(root: &Path) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_railview"))
+        .args(["demo", "--report-only", "--face-size", "8", "--out"])
+        .arg(root)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        out.status.success(),
+        "railview demo --report-only failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    stdout
+}
+
+/// The check results the injected script wrote into the page: (image srcs with their
+/// naturalWidth, table ids, ids of "not available" notes' sections).
+struct Checked {
+    images: Vec<(String, u64)>,
+    tables: Vec<String>,
+    unavailable: usize,
+}
+
+const CHECK_SCRIPT: &str = r#"<script>
+window.addEventListener('load', () => {
+  const r = {
+    images: [...document.images].map(i => [i.getAttribute('src'), i.complete ? i.naturalWidth : 0]),
+    tables: [...document.querySelectorAll('table[id]')].map(t => t.id),
+    unavailable: document.querySelectorAll('p.unavailable').length,
+  };
+  const out = document.createElement('pre');
+  out.id = 'railview-check';
+  out.textContent = JSON.stringify(r);
+  document.body.appendChild(out);
+});
+</script>"#;
+
+/// Load the page in headless Chromium; `None` when explicitly switched off.
+fn browse(report_dir: &Path) -> Option<Checked> {
+    if std::env::var_os("RAILVIEW_SKIP_BROWSER").is_some_and(|v| v == "1") {
+        eprintln!("RAILVIEW_SKIP_BROWSER=1: browser check switched off");
+        return None;
+    }
+    let chromium = ["/usr/bin/chromium", "/usr/bin/chromium-browser"]
+        .into_iter()
+        .map(Path::new)
+        .find(|p| p.exists())
+        .expect(
+            "Chromium is not installed (apt-get install chromium, or set RAILVIEW_SKIP_BROWSER=1)",
+        );
+    let html = std::fs::read_to_string(report_dir.join("index.html")).unwrap();
+    assert!(html.contains("</body>"));
+    // A test-only copy of the page, beside it so relative image links resolve the same way.
+    let check = report_dir.join("check.html");
+    std::fs::write(
+        &check,
+        html.replace("</body>", &format!("{CHECK_SCRIPT}\n</body>")),
+    )
+    .unwrap();
+    let profile = report_dir.join(".chromium-profile");
+    let out = Command::new(chromium)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--allow-file-access-from-files",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg("--dump-dom")
+        .arg(format!(
+            "file://{}",
+            check.canonicalize().unwrap().display()
+        ))
+        .output()
+        .unwrap();
+    let dom = String::from_utf8_lossy(&out.stdout);
+    let start = dom.find("<pre id=\"railview-check\">").unwrap_or_else(|| {
+        panic!(
+            "the check script did not run; chromium said:\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    });
+    let body = &dom[start + "<pre id=\"railview-check\">".len()..];
+    let text = &body[..body.find("</pre>").unwrap()];
+    let text = text
+        .replace("&lt;", "<")
+        .replace("&gt;", ">")
+        .replace("&amp;", "&");
+    let v: Value = serde_json::from_str(&text).unwrap();
+    std::fs::remove_file(&check).ok();
+    std::fs::remove_dir_all(&profile).ok();
+    Some(Checked {
+        images: v["images"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| (p[0].as_str().unwrap().to_string(), p[1].as_u64().unwrap()))
+            .collect(),
+        tables: v["tables"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| t.as_str().unwrap().to_string())
+            .collect(),
+        unavailable: v["unavailable"].as_u64().unwrap() as usize,
+    })
+}
+
+#[test]
+fn full_report_loads_every_image_and_table_in_chromium() {
+    let root = tmp_dir("full");
+    fixture(&root);
+    let stdout = report_only(&root);
+    assert!(stdout.contains("report:"), "{stdout}");
+    let report = root.join("report");
+    let md = std::fs::read_to_string(report.join("index.md")).unwrap();
+    let html = std::fs::read_to_string(report.join("index.html")).unwrap();
+    for attr in ["src=\"http", "href=\"http", "src=\"//", "href=\"//", "url("] {
+        assert!(
+            !html.contains(attr),
+            "the page loads nothing from outside ({attr})"
+        );
+    }
+    for (needle, why) in [
+        (
+            "| 1.00 | Tiles | 54 | 54 | 0.0% | 54 | 44 | 18.5% |",
+            "paper-style tiles row",
+        ),
+        (
+            "Reproduce: `railview cull",
+            "culling numbers carry their command",
+        ),
+        (
+            "Reproduce: `railview walk",
+            "walk numbers carry their command",
+        ),
+        ("| PTM compressed (database on disk) |", "database size row"),
+        ("![viewpoint 1 at s = 2.50 m", "a viewpoint image"),
+        ("(histogram.png)", "the depth histogram"),
+        (
+            "| slabs=auto | 1 | 30.000 | 31.000 |",
+            "eval means at and between references",
+        ),
+    ] {
+        assert!(
+            md.contains(needle),
+            "index.md lacks {why} ({needle}):\n{md}"
+        );
+    }
+    let Some(checked) = browse(&report) else {
+        return;
+    };
+    let bad: Vec<&(String, u64)> = checked.images.iter().filter(|(_, w)| *w == 0).collect();
+    assert!(bad.is_empty(), "images that did not load: {bad:?}");
+    // 3 viewpoints, histogram, full view + 3 slab layers, cull debug image, walk plot,
+    // 2 eval plots, 3 flythrough frames.
+    assert_eq!(checked.images.len(), 15, "{:?}", checked.images);
+    for id in [
+        "stages",
+        "prerender",
+        "slab-table",
+        "slab-criterion",
+        "culling-conservative",
+        "culling-paper",
+        "false-culls",
+        "db-sizes",
+        "walk",
+        "eval",
+    ] {
+        assert!(
+            checked.tables.contains(&id.to_string()),
+            "table #{id} missing: {:?}",
+            checked.tables
+        );
+    }
+    assert_eq!(
+        checked.unavailable, 0,
+        "every section of the full fixture is available"
+    );
+    std::fs::remove_dir_all(&root).ok();
+}
+
+#[test]
+fn empty_demo_directory_gives_a_report_that_says_what_is_missing() {
+    let root = tmp_dir("empty");
+    report_only(&root);
+    let report = root.join("report");
+    let md = std::fs::read_to_string(report.join("index.md")).unwrap();
+    assert!(
+        md.contains("> **Not available:** no `prerender.json` was found"),
+        "{md}"
+    );
+    assert!(
+        md.contains("> **Not available:** no `walk/walk.json` was found"),
+        "{md}"
+    );
+    let Some(checked) = browse(&report) else {
+        return;
+    };
+    assert!(checked.images.is_empty());
+    assert_eq!(checked.tables, vec!["stages".to_string()]);
+    assert!(checked.unavailable >= 7, "{}", checked.unavailable);
+    std::fs::remove_dir_all(&root).ok();
+}
+
+#[test]
+fn a_broken_stage_image_is_left_out_not_linked() {
+    let root = tmp_dir("broken");
+    fixture(&root);
+    std::fs::write(root.join("walk/walk.png"), b"\x89PNG\r\n\x1a\ntruncated").unwrap();
+    report_only(&root);
+    let report = root.join("report");
+    let md = std::fs::read_to_string(report.join("index.md")).unwrap();
+    assert!(
+        !md.contains("(walk.png)"),
+        "a broken plot must not be linked"
+    );
+    assert!(
+        md.contains("walk.png"),
+        "the note names the broken file:\n{md}"
+    );
+    let Some(checked) = browse(&report) else {
+        return;
+    };
+    assert!(
+        checked.images.iter().all(|(_, w)| *w > 0),
+        "{:?}",
+        checked.images
+    );
+    std::fs::remove_dir_all(&root).ok();
+}
