@@ -27,6 +27,12 @@ enum Command {
     Prerender(cmd::prerender::Args),
     /// Render a POV-Ray scene along a track into the same layout (colour, depth, slab layers).
     ImportPov(cmd::import_pov::Args),
+    /// Serve a database over HTTP (ranges, ETags, optional shaping and added latency).
+    Serve(cmd::serve::Args),
+    /// Simulate walks streaming a database over loopback HTTP; report quality and bytes.
+    Walk(cmd::walk::Args),
+    /// Many concurrent clients against a database server: throughput and latency.
+    Load(cmd::load::Args),
     /// Check every file of a database (hashes, sizes, PTM level ranges); exit 0 only when intact.
     Verify(cmd::verify::Args),
 }
@@ -55,6 +61,9 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Prerender(a) => cmd::prerender::run(a),
         Command::ImportPov(a) => cmd::import_pov::run(a),
+        Command::Serve(a) => cmd::serve::run(a),
+        Command::Walk(a) => cmd::walk::run(a),
+        Command::Load(a) => cmd::load::run(a),
         Command::Verify(a) => cmd::verify::run(a),
     }
 }

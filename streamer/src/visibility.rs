@@ -232,7 +232,7 @@ impl SceneIndex {
                 pixels_by_level,
             })
             .collect();
-        out.sort_by(|a, b| a.surface.cmp(&b.surface));
+        out.sort_by_key(|a| a.surface);
         out
     }
 }

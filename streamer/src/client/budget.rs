@@ -13,12 +13,11 @@
 //! beyond it are dropped from residency (remove), and if the next part is missing and no
 //! download for that item is running, it is requested — only when the running link estimate
 //! says it arrives within `δt_max` (coarsest parts are always requested: nothing can be shown
-//! without them). Prefetched items (the next segment's tiles) rank below every current request
-//! of the same kind: priorities are, from first to last, current coarsest parts (3 + w),
-//! prefetched coarsest parts (2 + w), current refinements (1 + w), prefetched refinements
-//! (0 + w), with `w` ∈ [0, 1) the item's normalised weight. Putting the next segment's
-//! coarsest levels before the current segment's refinements is what lets prefetch work at all
-//! on a busy link (otherwise refinements of the current segment never run out).
+//! without them). Prefetched items (the next segment's tiles) rank below every current request,
+//! as the city paper's prefetching module asks: priorities are, from first to last, current
+//! coarsest parts (3 + w), current refinements (1 + w), prefetched coarsest parts
+//! (0.5 + w/2), prefetched refinements (w/2), with `w` ∈ [0, 1) the item's normalised weight.
+//! So prefetch only uses request slots the current view leaves idle.
 
 /// Download sizes and memory costs of one item's parts.
 #[derive(Clone, Debug, PartialEq)]
@@ -178,7 +177,8 @@ pub enum PriorityMode {
     Ach,
     /// Live visible-pixel counts per missing tile (Goss & Yuasa).
     Visibility,
-    /// `w · ACH/ΣACH + (1 − w) · px/Σpx`.
+    /// Weight `w · ACH/ΣACH + (1 − w) · px/Σpx`; tiles only in the ACH list are held at
+    /// their coarsest level, visible tiles up to the level their pixels need.
     Combined { ach_weight: f64 },
 }
 
@@ -282,7 +282,13 @@ pub fn plan(inp: &PlanInput) -> Plan {
     if use_ach {
         for &(i, a) in inp.ach.iter().filter(|a| a.0 < n) {
             weight[i] += ach_w * a.max(0.0) / sum_ach.max(f64::MIN_POSITIVE);
-            cap[i] = inp.items[i].parts();
+            // Combined: ACH broadens (every tile of the segment gets its coarsest level, ready
+            // for a turn of the head), live counts sharpen (visible tiles up to their need).
+            cap[i] = if use_live {
+                inp.items[i].min_parts()
+            } else {
+                inp.items[i].parts()
+            };
             is_cand[i] = true;
         }
     }
@@ -290,11 +296,7 @@ pub fn plan(inp: &PlanInput) -> Plan {
         for c in inp.live.iter().filter(|c| c.item < n) {
             weight[c.item] += (1.0 - ach_w) * c.pixels.max(0.0) / sum_px.max(f64::MIN_POSITIVE);
             let need = inp.items[c.item].parts_for_level(c.needed_level);
-            cap[c.item] = if use_ach && inp.ach.iter().any(|a| a.0 == c.item) {
-                cap[c.item].max(need)
-            } else {
-                need
-            };
+            cap[c.item] = cap[c.item].max(need);
             is_cand[c.item] = true;
         }
     }
@@ -346,7 +348,7 @@ pub fn plan(inp: &PlanInput) -> Plan {
                     out.requests.push(PartRequest {
                         item: i,
                         part: have,
-                        priority: if essential { 2.0 } else { 0.0 } + w.min(1.0) * 0.999,
+                        priority: if essential { 0.5 } else { 0.0 } + w.min(1.0) * 0.499,
                     });
                 }
             }
@@ -456,7 +458,7 @@ mod tests {
         assert_eq!(p.targets, vec![(1, 3, 3)]);
         assert_eq!(p.requests.len(), 1);
         assert_eq!(p.requests[0].item, 2);
-        assert!(p.requests[0].priority < 3.0);
+        assert!(p.requests[0].priority < 1.0);
         let p = plan(&PlanInput {
             mode: PriorityMode::Combined { ach_weight: 0.5 },
             ..inp.clone()
@@ -464,11 +466,18 @@ mod tests {
         assert_eq!(p.requests.first().map(|r| r.item), Some(0));
         let pre = p.requests.iter().find(|r| r.item == 2).unwrap();
         assert!(pre.priority < p.requests[0].priority);
-        // A prefetched refinement ranks below a current refinement.
+        // Combined: a tile only in the ACH list stops at its coarsest level.
         let have = [2, 3, 2];
         let p = plan(&PlanInput {
             have: &have,
             mode: PriorityMode::Combined { ach_weight: 0.5 },
+            ..inp.clone()
+        });
+        assert!(p.requests.iter().all(|r| r.item != 0));
+        // A prefetched refinement ranks below a current refinement.
+        let p = plan(&PlanInput {
+            have: &have,
+            mode: PriorityMode::Ach,
             ..inp
         });
         let cur = p.requests.iter().find(|r| r.item == 0).unwrap();

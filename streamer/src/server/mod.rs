@@ -405,7 +405,7 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
     file.read_exact(&mut data).await.map_err(not_there)?;
     if let Some(n) = s.config.corrupt_every.filter(|&n| n > 0) {
         let k = s.stats.requests.load(Ordering::Relaxed);
-        if k % n == 0 && !data.is_empty() {
+        if k.is_multiple_of(n) && !data.is_empty() {
             let i = (k as usize * 7919) % data.len();
             data[i] ^= 0x5a;
             s.stats.corrupted.fetch_add(1, Ordering::Relaxed);

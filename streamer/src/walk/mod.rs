@@ -192,7 +192,8 @@ pub struct RunReport {
     pub bytes_per_m: f64,
     pub requests: u64,
     pub checksum_failures: u64,
-    pub cache_budget_bytes: u64,
+    /// `null` = unlimited (naive keeps everything).
+    pub cache_budget_bytes: Option<u64>,
     pub max_cache_bytes: u64,
     #[serde(skip)]
     pub frames: Vec<FrameRecord>,
@@ -356,9 +357,9 @@ pub fn summary_markdown(r: &WalkReport) -> String {
 
 /// `56 kbit/s`, `2 Mbit/s`.
 pub fn format_bps(b: u64) -> String {
-    if b >= 1_000_000 && b % 1_000_000 == 0 {
+    if b >= 1_000_000 && b.is_multiple_of(1_000_000) {
         format!("{} Mbit/s", b / 1_000_000)
-    } else if b >= 1000 && b % 1000 == 0 {
+    } else if b >= 1000 && b.is_multiple_of(1000) {
         format!("{} kbit/s", b / 1000)
     } else {
         format!("{b} bit/s")

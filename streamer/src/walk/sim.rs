@@ -316,7 +316,7 @@ pub(crate) async fn run_one(
         },
         requests: sim.requests,
         checksum_failures: stats.checksum_failures.load(Ordering::Relaxed) - failures_before,
-        cache_budget_bytes: sim.cache.budget(),
+        cache_budget_bytes: (!naive).then(|| sim.cache.budget()),
         max_cache_bytes: max_cache,
         frames,
     })

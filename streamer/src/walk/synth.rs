@@ -94,7 +94,7 @@ fn corridor_hit(o: DVec3, d: DVec3, half_width: f64) -> Option<f64> {
         best = best.min(-o.y / d.y);
     }
     if d.y < 0.6 && best.is_infinite() {
-        best = 30.0 / d.y.abs().max(0.3).min(1.0);
+        best = 30.0 / d.y.abs().clamp(0.3, 1.0);
     }
     best.is_finite().then_some(best)
 }
