@@ -33,6 +33,14 @@ enum Command {
     Walk(cmd::walk::Args),
     /// Many concurrent clients against a database server: throughput and latency.
     Load(cmd::load::Args),
+    /// Render one reconstructed view (headless): --at METRES --yaw --pitch --fov --size -o.
+    Render(cmd::render::Args),
+    /// Render frames along the whole track (headless).
+    Flythrough(cmd::flythrough::Args),
+    /// Reconstructed views against ground truth (PSNR, SSIM, holes, frame time).
+    Eval(cmd::eval::Args),
+    /// Frame time of two views × all slabs against a plain single-panorama draw.
+    BenchViewer(cmd::bench_viewer::Args),
     /// Check every file of a database (hashes, sizes, PTM level ranges); exit 0 only when intact.
     Verify(cmd::verify::Args),
 }
@@ -64,6 +72,10 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Serve(a) => cmd::serve::run(a),
         Command::Walk(a) => cmd::walk::run(a),
         Command::Load(a) => cmd::load::run(a),
+        Command::Render(a) => cmd::render::run(a),
+        Command::Flythrough(a) => cmd::flythrough::run(a),
+        Command::Eval(a) => cmd::eval::run(a),
+        Command::BenchViewer(a) => cmd::bench_viewer::run(a),
         Command::Verify(a) => cmd::verify::run(a),
     }
 }

@@ -1,9 +1,13 @@
 //! One module per subcommand.
 
+pub mod bench_viewer;
 pub mod demo;
+pub mod eval;
+pub mod flythrough;
 pub mod import_pov;
 pub mod load;
 pub mod prerender;
+pub mod render;
 pub mod serve;
 pub mod walk;
 pub mod verify;

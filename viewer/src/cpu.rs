@@ -47,7 +47,7 @@ fn pixel_on_face(f: Face, d: Vec3, n: f32) -> (f64, f64) {
     (((uu + 1.0) * 0.5 * n) as f64, ((1.0 - vv) * 0.5 * n) as f64)
 }
 
-/// Colour (linear RGB) and coverage (0 or 1) of one view pass.
+/// Colour (linear RGB) and distance to the camera (0 = hole) of one view pass.
 pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Vec<[f32; 4]> {
     let (w, h) = (width as usize, height as usize);
     let u = &pass.uniforms;
@@ -67,7 +67,7 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Ve
                 let (px, py) = pixel_on_face(f, d, n);
                 let c = bg.sample(lod, f, px, py);
                 if c[3] > 0.0 {
-                    color[y * w + x] = [c[0], c[1], c[2], 1.0];
+                    color[y * w + x] = [c[0], c[1], c[2], SKY_DISTANCE];
                 }
             }
         }
@@ -111,7 +111,8 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Ve
                         let c = layer.sample(tile_lod, face, px, py);
                         if c[3] >= 0.5 {
                             depth[idx] = z;
-                            color[idx] = [c[0], c[1], c[2], 1.0];
+                            let dist = (p + origin).length().clamp(1e-3, SKY_DISTANCE);
+                            color[idx] = [c[0], c[1], c[2], dist];
                         }
                     },
                 );
@@ -203,7 +204,13 @@ fn raster(tri: [(Vec4, Vec3); 3], size: (u32, u32), frag: &mut impl FnMut(usize,
     }
 }
 
-/// Blend of view passes exactly as `fs_blend`.
+/// Distance written for the sky (as `SKY_DISTANCE` in `render.wgsl`).
+pub const SKY_DISTANCE: f32 = 60000.0;
+/// Depth preference of the blend (as `SHARPNESS` in `blend.wgsl`).
+pub const SHARPNESS: f32 = 20.0;
+
+/// Blend of view passes exactly as `fs_blend`: alpha of a pass is 0 for a hole, else the
+/// distance to the camera.
 pub fn blend(passes: &[(f32, Vec<[f32; 4]>)], width: u32, height: u32) -> Frame {
     let count = (width * height) as usize;
     let mut rgba = Vec::with_capacity(count * 4);
@@ -215,25 +222,33 @@ pub fn blend(passes: &[(f32, Vec<[f32; 4]>)], width: u32, height: u32) -> Frame 
         passes.get(1).map_or(0.0, |p| p.0),
     );
     for i in 0..count {
-        let (ca, cb) = (a[i], b[i]);
-        let (wa, wb) = (wa0 * ca[3], wb0 * cb[3]);
-        let mix = |wa: f32, wb: f32| -> [u8; 4] {
-            let c: [f32; 3] = std::array::from_fn(|k| (ca[k] * wa + cb[k] * wb) / (wa + wb));
-            [
-                linear_to_srgb(c[0]),
-                linear_to_srgb(c[1]),
-                linear_to_srgb(c[2]),
-                255,
-            ]
-        };
-        let px = if wa + wb > 0.0 {
-            mix(wa, wb)
-        } else if ca[3] + cb[3] > 0.0 {
-            mix(ca[3], cb[3])
-        } else {
-            [0, 0, 0, 0]
-        };
-        rgba.extend_from_slice(&px);
+        let (pa, pb) = (a[i], b[i]);
+        let ca = if pa[3] > 0.0 { 1.0 } else { 0.0 };
+        let cb = if pb[3] > 0.0 { 1.0 } else { 0.0 };
+        if ca + cb == 0.0 {
+            rgba.extend_from_slice(&[0, 0, 0, 0]);
+            continue;
+        }
+        let mut dmin = pa[3].max(pb[3]);
+        if ca > 0.0 {
+            dmin = dmin.min(pa[3]);
+        }
+        if cb > 0.0 {
+            dmin = dmin.min(pb[3]);
+        }
+        let na = ca * (-SHARPNESS * (pa[3] / dmin - 1.0)).max(-80.0).exp();
+        let nb = cb * (-SHARPNESS * (pb[3] / dmin - 1.0)).max(-80.0).exp();
+        let (mut wa, mut wb) = (wa0 * na, wb0 * nb);
+        if wa + wb <= 0.0 {
+            (wa, wb) = (ca, cb);
+        }
+        let c: [f32; 3] = std::array::from_fn(|k| (pa[k] * wa + pb[k] * wb) / (wa + wb));
+        rgba.extend_from_slice(&[
+            linear_to_srgb(c[0]),
+            linear_to_srgb(c[1]),
+            linear_to_srgb(c[2]),
+            255,
+        ]);
     }
     Frame {
         width,

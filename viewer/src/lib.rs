@@ -25,9 +25,12 @@
 
 pub mod cpu;
 pub mod gpu;
+pub mod headless;
 pub mod metrics;
 pub mod plan;
+pub mod plot;
 pub mod refview;
+pub mod source;
 pub mod synth;
 pub mod texture;
 

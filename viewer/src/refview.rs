@@ -199,6 +199,20 @@ impl RefView {
         }
     }
 
+    /// The nearest layer's colour per texel (first slab whose mask is set, else the
+    /// background): the single panorama an ordinary viewer would show from here.
+    pub fn flatten(&self) -> CubeMap<[u8; 4]> {
+        let n = self.face_size;
+        CubeMap::from_fn(n, |f, x, y| {
+            let front = self.layers[1..]
+                .iter()
+                .chain(self.layers.first())
+                .map(|l| *l.levels[0].get(f, x, y))
+                .find(|c| c[3] >= 128);
+            front.unwrap_or([0, 0, 0, 0])
+        })
+    }
+
     /// Number of slabs (layers beyond the background).
     pub fn slab_count(&self) -> usize {
         self.layers.len().saturating_sub(1)

@@ -1,6 +1,10 @@
 // Reference-view passes (background + slab tile meshes) and the blend of two views.
 // Mirrors crate::cpu; keep the two in step.
 
+// Alpha of a view pass: 0 = hole, else the distance from the camera (metres); the sky is
+// farther than anything (f16 keeps values up to 65504).
+const SKY_DISTANCE: f32 = 60000.0;
+
 struct View {
     clip_from_cam: mat4x4<f32>,
     origin_rel: vec4<f32>,   // ref - camera (xyz), w = face size
@@ -106,7 +110,7 @@ fn fs_background(in: FullOut) -> @location(0) vec4<f32> {
     if c.a <= 0.0 {
         discard;
     }
-    return vec4<f32>(c.rgb, 1.0);
+    return vec4<f32>(c.rgb, SKY_DISTANCE);
 }
 
 // The plain panorama (one cube map, no slabs, no blending): the baseline an ordinary
@@ -158,6 +162,7 @@ fn fs_mesh(in: MeshOut) -> @location(0) vec4<f32> {
     if c.a < 0.5 {
         discard;
     }
-    return vec4<f32>(c.rgb, 1.0);
+    let dist = clamp(length(in.pos_from_ref + view.origin_rel.xyz), 1e-3, SKY_DISTANCE);
+    return vec4<f32>(c.rgb, dist);
 }
 

@@ -1,0 +1,182 @@
+//! `railview eval`: reconstructed views at and between reference samples against the ground
+//! truth from the same camera (PSNR, SSIM, hole fraction, frame time) over configurations.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use viewer::gpu::{Gpu, Renderer};
+use viewer::headless::{
+    default_configs, eval_positions, evaluate, open, parse_size, summarize, EvalRow, Truth,
+};
+use viewer::plot::{ranges, scatter, SERIES_COLORS};
+use viewer::source::LoadOptions;
+
+/// Arguments of `railview eval`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Database or prerender directory of a built-in scene, or `synth:street`.
+    pub db: String,
+    /// Output directory: eval.json, eval.csv, eval.md, psnr_vs_frame_ms.png, psnr_vs_bytes.png.
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, default_value = "256x192")]
+    pub size: String,
+    #[arg(long, default_value_t = 90.0)]
+    pub fov: f64,
+    /// Segments evaluated from the start of the track.
+    #[arg(long, default_value_t = 3)]
+    pub segments: usize,
+    /// Positions evaluated inside each segment.
+    #[arg(long, default_value_t = 1)]
+    pub between: usize,
+    #[arg(long)]
+    pub track: Option<String>,
+}
+
+#[derive(serde::Serialize)]
+struct EvalJson<'a> {
+    db: &'a str,
+    scene: &'a str,
+    width: u32,
+    height: u32,
+    fov_deg: f64,
+    adapter: String,
+    rows: &'a [EvalRow],
+    summary: Vec<viewer::headless::EvalSummary>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let size = parse_size(&args.size).map_err(anyhow::Error::msg)?;
+    let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
+        .with_context(|| format!("opening {}", args.db))?;
+    let truth = Truth::for_scene(&walk.scene).ok_or_else(|| {
+        anyhow::anyhow!(
+            "no ground truth for scene `{}` (needs a built-in scene or synth:street)",
+            walk.scene
+        )
+    })?;
+    prerender::store::ensure_writable_dir(&args.out)?;
+    let mut renderer = Renderer::new(Gpu::new()?);
+    let configs = default_configs();
+    let positions = eval_positions(&walk, args.segments, args.between);
+    let bar = indicatif::ProgressBar::new((positions.len() * configs.len()) as u64);
+    let rows = evaluate(
+        &mut renderer,
+        &walk,
+        &truth,
+        &configs,
+        &positions,
+        size,
+        args.fov,
+        |_| bar.inc(1),
+    )?;
+    bar.finish_and_clear();
+    let summary = summarize(&rows);
+    let json = EvalJson {
+        db: &args.db,
+        scene: &walk.scene,
+        width: size.0,
+        height: size.1,
+        fov_deg: args.fov,
+        adapter: format!(
+            "{} ({:?})",
+            renderer.gpu.info.name, renderer.gpu.info.backend
+        ),
+        rows: &rows,
+        summary: summary.clone(),
+    };
+    prerender::store::write_json(&args.out.join("eval.json"), &json)?;
+
+    let mut csv =
+        String::from("config,position,at_reference,psnr_db,ssim,hole_fraction,frame_ms,db_bytes\n");
+    for r in &rows {
+        writeln!(
+            csv,
+            "{},{},{},{:.3},{:.4},{:.6},{:.3},{}",
+            r.config,
+            r.position,
+            r.at_reference,
+            r.psnr_db,
+            r.ssim,
+            r.hole_fraction,
+            r.frame_ms,
+            r.db_bytes
+        )?;
+    }
+    prerender::store::write_atomic(&args.out.join("eval.csv"), csv.as_bytes())?;
+
+    // Plots: one series per configuration.
+    let series = |x: fn(&EvalRow) -> f64| -> Vec<Vec<(f64, f64)>> {
+        summary
+            .iter()
+            .map(|s| {
+                rows.iter()
+                    .filter(|r| r.config == s.config)
+                    .map(|r| (x(r), r.psnr_db))
+                    .collect()
+            })
+            .collect()
+    };
+    let by_time = series(|r| r.frame_ms);
+    let by_bytes = series(|r| r.db_bytes as f64);
+    for (name, s) in [
+        ("psnr_vs_frame_ms.png", &by_time),
+        ("psnr_vs_bytes.png", &by_bytes),
+    ] {
+        let mut bytes = Vec::new();
+        scatter(s).write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )?;
+        prerender::store::write_atomic(&args.out.join(name), &bytes)?;
+    }
+
+    let mut md = format!(
+        "# Viewer evaluation: {}\n\nScene `{}`, {}x{} px, FOV {}°, adapter {}. Ground truth: the \
+         scene's ray tracer from the same camera. The resampling floor is the error at the \
+         reference samples; interpolation error is measured between them.\n\n",
+        args.db, walk.scene, size.0, size.1, args.fov, json.adapter
+    );
+    md.push_str("| config | floor PSNR dB | floor SSIM | between PSNR dB | between SSIM | between holes % | frame ms | DB bytes |\n|---|---|---|---|---|---|---|---|\n");
+    for s in &summary {
+        writeln!(
+            md,
+            "| {} | {:.2} | {:.4} | {:.2} | {:.4} | {:.3} | {:.2} | {} |",
+            s.config,
+            s.floor_psnr_db,
+            s.floor_ssim,
+            s.between_psnr_db,
+            s.between_ssim,
+            s.between_hole_fraction * 100.0,
+            s.frame_ms,
+            s.db_bytes
+        )?;
+    }
+    let legend: Vec<String> = summary
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            format!(
+                "{} = {}",
+                SERIES_COLORS[i % SERIES_COLORS.len()].1,
+                s.config
+            )
+        })
+        .collect();
+    let (x0, x1, y0, y1) = ranges(&by_time);
+    writeln!(
+        md,
+        "\n![PSNR against frame time](psnr_vs_frame_ms.png)\n\nx: frame time {x0:.2}–{x1:.2} ms, y: PSNR {y0:.1}–{y1:.1} dB; {}.\n",
+        legend.join(", ")
+    )?;
+    let (x0, x1, y0, y1) = ranges(&by_bytes);
+    writeln!(
+        md,
+        "![PSNR against database bytes](psnr_vs_bytes.png)\n\nx: database bytes {x0:.0}–{x1:.0}, y: PSNR {y0:.1}–{y1:.1} dB; {}.",
+        legend.join(", ")
+    )?;
+    prerender::store::write_atomic(&args.out.join("eval.md"), md.as_bytes())?;
+    eprint!("{md}");
+    Ok(())
+}

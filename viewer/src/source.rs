@@ -1,0 +1,338 @@
+//! Where reference views come from: a walkthrough database (`manifest.json` + objects, read
+//! through `streamer::db`) or a prerender directory (`prerender.json` + `samples/`, read
+//! through `prerender::store`, meshed here). [`open`] picks by what the directory holds.
+
+use std::path::Path;
+
+use glam::DVec3;
+use prerender::store::{self, PrerenderDir};
+use streamer::db::{mesh::decode_mesh, Database};
+use streamer::ptm::{Decoder, Limits};
+use tracks::manifest::{PtmRef, TrackEntry};
+use tracks::{CubeMap, SlabRange, TileGrid, Track, TrackSet};
+
+use crate::refview::{DenseLayer, MeshParams, MeshVertex, RefView, TileMesh, ViewTile};
+use crate::texture::{dilate_masked, Layer};
+
+/// Errors opening a walkthrough source; each names the file or entry at fault.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SourceError {
+    #[error("{0}: neither a database (manifest.json) nor a prerender directory (prerender.json)")]
+    Unknown(String),
+    #[error(transparent)]
+    Db(#[from] streamer::db::DbError),
+    #[error(transparent)]
+    Store(#[from] store::StoreError),
+    #[error("{what}: {message}")]
+    Format { what: String, message: String },
+    #[error("track `{0}` not found (available: {1})")]
+    NoTrack(String, String),
+    #[error(transparent)]
+    View(#[from] crate::refview::ViewError),
+}
+
+fn format_err(what: impl Into<String>, message: impl ToString) -> SourceError {
+    SourceError::Format {
+        what: what.into(),
+        message: message.to_string(),
+    }
+}
+
+/// Reference views along one track, with what is needed to place a camera and to evaluate.
+pub struct Walkthrough {
+    /// Scene name (`castle`, …) as recorded by the prerenderer.
+    pub scene: String,
+    pub track: Track,
+    pub views: Vec<RefView>,
+    pub slabs: Vec<SlabRange>,
+    /// Bytes of payload read (database objects, or prerender files' decoded size).
+    pub bytes: u64,
+}
+
+impl Walkthrough {
+    /// Camera position at arc length `s` (clamped to the track).
+    pub fn position_at(&self, s: f64) -> DVec3 {
+        self.track.position_at(s)
+    }
+}
+
+/// How much of each PTM to use: `None` = all levels, `Some(g)` = the first `g` level groups
+/// (simulates tiles whose fine levels have not arrived yet).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LoadOptions {
+    pub level_groups: Option<usize>,
+    pub mesh: MeshParams,
+}
+
+/// Open a database or prerender directory.
+pub fn open(
+    dir: &Path,
+    track: Option<&str>,
+    opts: LoadOptions,
+) -> Result<Walkthrough, SourceError> {
+    if dir.join(streamer::db::MANIFEST_FILE).is_file() {
+        from_database(&Database::open(dir)?, track, opts)
+    } else if PrerenderDir::new(dir).report_json().is_file() {
+        from_prerender(dir, track, opts.mesh)
+    } else {
+        Err(SourceError::Unknown(dir.display().to_string()))
+    }
+}
+
+fn pick_track<'a>(
+    entries: &'a [TrackEntry],
+    name: Option<&str>,
+) -> Result<&'a TrackEntry, SourceError> {
+    let names = || {
+        entries
+            .iter()
+            .map(|t| t.name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    match name {
+        Some(n) => entries
+            .iter()
+            .find(|t| t.name == n)
+            .ok_or_else(|| SourceError::NoTrack(n.to_string(), names())),
+        None => entries
+            .first()
+            .ok_or_else(|| SourceError::NoTrack("(any)".into(), names())),
+    }
+}
+
+fn parse_track(toml: &str, name: &str, source: &str) -> Result<Track, SourceError> {
+    let set = TrackSet::parse(toml, source).map_err(|e| format_err(source, e))?;
+    set.get(name)
+        .or_else(|| set.tracks.first())
+        .cloned()
+        .ok_or_else(|| SourceError::NoTrack(name.to_string(), set.names().join(", ")))
+}
+
+/// Decode the first `groups` level groups of a PTM (all when `None`): the finest decoded
+/// image as RGBA and its level.
+fn decode_ptm(
+    db: &Database,
+    ptm: &PtmRef,
+    groups: Option<usize>,
+    what: &str,
+) -> Result<(Vec<u8>, u32, u32, u32), SourceError> {
+    let count = groups
+        .unwrap_or(ptm.levels.len())
+        .clamp(1, ptm.levels.len().max(1));
+    let mut dec = Decoder::new(Limits::default());
+    for g in 0..count.min(ptm.levels.len()) {
+        let bytes = db.read_level(ptm, g)?;
+        dec.push(&bytes).map_err(|e| format_err(what, e))?;
+    }
+    let level = dec
+        .finest_level()
+        .ok_or_else(|| format_err(what, "no level decoded"))?;
+    let img = dec
+        .finest()
+        .ok_or_else(|| format_err(what, "no level decoded"))?;
+    let c = img.channels() as usize;
+    let rgba: Vec<u8> = img
+        .data()
+        .chunks_exact(c.max(1))
+        .flat_map(|p| match c {
+            1 => [p[0], p[0], p[0], 255],
+            2 => [p[0], p[0], p[0], p[1]],
+            3 => [p[0], p[1], p[2], 255],
+            _ => [p[0], p[1], p[2], p[3]],
+        })
+        .collect();
+    Ok((rgba, img.width(), img.height(), level))
+}
+
+/// Views from a database: tile PTMs pasted into per-slab cube-map layers, meshes decoded.
+pub fn from_database(
+    db: &Database,
+    track: Option<&str>,
+    opts: LoadOptions,
+) -> Result<Walkthrough, SourceError> {
+    let m = db.manifest();
+    let entry = pick_track(&m.tracks, track)?;
+    let track = parse_track(&entry.track_toml, &entry.name, "manifest.json track_toml")?;
+    let n = m.face_size;
+    let grid = TileGrid::new(n, m.tile_size)
+        .ok_or_else(|| format_err("manifest.json tile_size", m.tile_size))?;
+    let mut bytes = 0u64;
+    let mut views = Vec::with_capacity(entry.viewpoints.len());
+    for vp in &entry.viewpoints {
+        let what = format!("viewpoint {}", vp.index);
+        let background = match &vp.background {
+            Some(ptm) => {
+                bytes += ptm.object.size;
+                let (rgba, w, h, _) = decode_ptm(db, ptm, None, &format!("{what} background"))?;
+                if (w, h) != (n, 6 * n) {
+                    return Err(format_err(
+                        format!("{what} background"),
+                        format!("{w}x{h}, expected {n}x{}", 6 * n),
+                    ));
+                }
+                let px: Vec<[u8; 4]> = rgba
+                    .chunks_exact(4)
+                    .map(|p| [p[0], p[1], p[2], p[3]])
+                    .collect();
+                CubeMap::from_vec(n, px).ok_or_else(|| format_err(&what, "background size"))?
+            }
+            None => CubeMap::filled(n, [0, 0, 0, 0]),
+        };
+        let mut layers: Vec<CubeMap<[u8; 4]>> =
+            vec![CubeMap::filled(n, [0, 0, 0, 0]); m.slabs.len()];
+        let mut tiles = Vec::new();
+        for t in vp.tiles.iter().filter(|t| t.kept) {
+            let (Some(ptm), Some(mesh_ref)) = (&t.ptm, &t.mesh) else {
+                continue;
+            };
+            let key = tracks::manifest::tile_key(vp.index, t.slab, t.tile);
+            let layer = layers.get_mut(t.slab as usize).ok_or_else(|| {
+                format_err(&key, format!("slab {} beyond the manifest's slabs", t.slab))
+            })?;
+            bytes += ptm.object.size + mesh_ref.size;
+            let (rgba, w, h, level) = decode_ptm(db, ptm, opts.level_groups, &key)?;
+            let (x0, y0, x1, y1) = grid.pixel_rect(t.tile);
+            let scale = 1u32 << level.min(16);
+            if w * scale < x1 - x0 || h * scale < y1 - y0 {
+                return Err(format_err(
+                    &key,
+                    format!(
+                        "PTM level {level} is {w}x{h}, tile is {}x{}",
+                        x1 - x0,
+                        y1 - y0
+                    ),
+                ));
+            }
+            // Missing finer levels: the coarse level stands in (nearest), and the tile's min
+            // level keeps the renderer from sampling finer than what arrived.
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let (sx, sy) = (((x - x0) / scale).min(w - 1), ((y - y0) / scale).min(h - 1));
+                    let i = ((sy * w + sx) * 4) as usize;
+                    *layer.get_mut(t.tile.face, x, y) =
+                        [rgba[i], rgba[i + 1], rgba[i + 2], rgba[i + 3]];
+                }
+            }
+            let mesh = decode_mesh(&db.read_object(mesh_ref)?).map_err(|e| format_err(&key, e))?;
+            let mesh = TileMesh {
+                vertices: mesh
+                    .vertices
+                    .iter()
+                    .map(|v| MeshVertex {
+                        pos_in_face: [v[0], v[1]],
+                        depth_m: v[2],
+                    })
+                    .collect(),
+                indices: mesh.indices,
+            };
+            let mut vt = ViewTile::new(t.tile, t.slab, mesh, n);
+            vt.finest_level = level;
+            tiles.push(vt);
+        }
+        tiles.sort_by_key(|t| (t.slab, grid.tile_index(t.tile)));
+        let mut all = vec![Layer::from_rgba(dilate_masked(&background))];
+        all.extend(layers.iter().map(|l| Layer::from_rgba(dilate_masked(l))));
+        views.push(RefView {
+            index: vp.index,
+            s: vp.s,
+            position: vp.position,
+            face_size: n,
+            tile_size: m.tile_size,
+            layers: all,
+            tiles,
+        });
+    }
+    Ok(Walkthrough {
+        scene: m.scene.clone(),
+        track,
+        views,
+        slabs: m.slabs.clone(),
+        bytes,
+    })
+}
+
+/// Views from a prerender directory: per-slab layers (`slab_K/`) meshed with `params`; the
+/// background is the colour where the depth is infinite. A directory without slab layers is
+/// one slab holding everything.
+pub fn from_prerender(
+    dir: &Path,
+    track: Option<&str>,
+    params: MeshParams,
+) -> Result<Walkthrough, SourceError> {
+    let pd = PrerenderDir::new(dir);
+    let report = pd.read_report()?;
+    let toml = std::fs::read_to_string(pd.track_toml())
+        .map_err(|e| format_err(pd.track_toml().display().to_string(), e))?;
+    let track = parse_track(
+        &toml,
+        track.unwrap_or(&report.track),
+        &pd.track_toml().display().to_string(),
+    )?;
+    let mut views = Vec::new();
+    let mut bytes = 0u64;
+    for vp in &report.viewpoints {
+        let i = vp.index;
+        let color = store::read_rgb_png(&pd.color_png(i))?;
+        let depth = store::read_depth_exr(&pd.depth_exr(i))?;
+        let n = color.face_size();
+        let background = CubeMap::from_fn(n, |f, x, y| {
+            let c = color.get(f, x, y);
+            let sky = !depth.get(f, x, y).is_finite();
+            [c[0], c[1], c[2], if sky { 255 } else { 0 }]
+        });
+        let mut slab_maps = Vec::new();
+        for k in 0..report.slabs.len() {
+            let c = store::read_rgba_png(&pd.slab_color_png(i, k))?;
+            let d = store::read_depth_exr(&pd.slab_depth_exr(i, k))?;
+            slab_maps.push((c, d));
+        }
+        if slab_maps.is_empty() {
+            let c = CubeMap::from_fn(n, |f, x, y| {
+                let p = color.get(f, x, y);
+                [
+                    p[0],
+                    p[1],
+                    p[2],
+                    if depth.get(f, x, y).is_finite() {
+                        255
+                    } else {
+                        0
+                    },
+                ]
+            });
+            slab_maps.push((c, depth.clone()));
+        }
+        bytes += slab_maps.len() as u64 * 8 * (6 * n as u64 * n as u64);
+        let dense: Vec<DenseLayer<'_>> = slab_maps
+            .iter()
+            .map(|(c, d)| DenseLayer { color: c, depth: d })
+            .collect();
+        let tile = n.max(1).next_power_of_two().min(32);
+        views.push(RefView::from_layers(
+            i,
+            vp.s,
+            vp.position,
+            tile,
+            params,
+            &background,
+            &dense,
+        )?);
+    }
+    let slabs = if report.slabs.is_empty() {
+        vec![SlabRange {
+            near: 0.0,
+            far: f64::INFINITY,
+        }]
+    } else {
+        report.slabs.clone()
+    };
+    Ok(Walkthrough {
+        scene: report.scene.clone(),
+        track,
+        views,
+        slabs,
+        bytes,
+    })
+}
