@@ -13,6 +13,16 @@ use prerender::render::{render_cube, render_depth_lowres, render_slabs, RenderOp
 use prerender::scenes::builtin;
 use tracks::SlabRange;
 
+fn render_cube_timed(
+    scene: &prerender::scene::Scene,
+    pos: glam::DVec3,
+    opts: RenderOptions,
+) -> f64 {
+    let t = Instant::now();
+    black_box(render_cube(scene, pos, opts));
+    t.elapsed().as_secs_f64()
+}
+
 fn bench(c: &mut Criterion) {
     for name in ["castle", "nature"] {
         let b = builtin(name).expect("built-in scene");
@@ -32,7 +42,33 @@ fn bench(c: &mut Criterion) {
             r.color.as_slice().len() as f64 / s,
             r.primary_rays as f64 / s
         );
+        let t = Instant::now();
+        black_box(render_depth_lowres(&b.scene, pos, 512));
+        let sd = t.elapsed().as_secs_f64();
+        let no_shadows = render_cube_timed(
+            &b.scene,
+            pos,
+            RenderOptions {
+                shadows: false,
+                ..opts
+            },
+        );
+        println!(
+            "{name}: depth only 6x512² {sd:.3} s ({:.0} rays/s); shaded without shadows {no_shadows:.3} s",
+            6.0 * 512.0 * 512.0 / sd
+        );
         let slabs = SlabRange::parse_list("0-8,8-25,25-inf").expect("slab list");
+        let t = Instant::now();
+        let layers = render_slabs(&b.scene, pos, &slabs, opts);
+        let s3 = t.elapsed().as_secs_f64();
+        let filled: Vec<usize> = layers
+            .iter()
+            .map(|l| l.color.as_slice().iter().filter(|c| c[3] == 255).count())
+            .collect();
+        println!(
+            "{name}: 3 slab layers 6x512² with shadows {s3:.3} s ({:.2}x the single layer), texels per layer {filled:?}",
+            s3 / s
+        );
         let mut g = c.benchmark_group(name);
         g.sample_size(10);
         g.bench_function("cube_512_shadows", |bch| {

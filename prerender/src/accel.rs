@@ -166,9 +166,10 @@ impl Accel {
 
     /// The first hit with `lo <= t < hi` along the unit ray `o + t d`.
     pub fn closest(&self, o: DVec3, d: DVec3, lo: f64, hi: f64) -> Option<Hit> {
+        let inv = d.recip();
         let mut best: Option<Hit> = None;
         for (i, p) in self.prims.iter().enumerate().skip(self.bounded) {
-            if let Some((t, part)) = p.crossings(o, d).first_in(lo, hi) {
+            if let Some((t, part)) = p.crossings_inv(o, d, inv).first_in(lo, hi) {
                 let h = Hit {
                     t,
                     prim: i as u32,
@@ -189,7 +190,7 @@ impl Accel {
         bvh.ray_traverse(ray, &mut rh, |_, id| {
             let limit = best.map_or(hi, |b| b.t.min(hi));
             // `<=` on the limit so an exact tie can still go to a lower id.
-            let c = self.prims[id].crossings(o, d);
+            let c = self.prims[id].crossings_inv(o, d, inv);
             for k in 0..2 {
                 let t = c.t[k];
                 if t >= lo && t <= limit && t < hi {
@@ -212,8 +213,9 @@ impl Accel {
 
     /// Whether anything lies at `lo <= t < hi` along the ray (shadow rays).
     pub fn occluded(&self, o: DVec3, d: DVec3, lo: f64, hi: f64) -> bool {
+        let inv = d.recip();
         for p in &self.prims[self.bounded..] {
-            if p.crossings(o, d).first_in(lo, hi).is_some() {
+            if p.crossings_inv(o, d, inv).first_in(lo, hi).is_some() {
                 return true;
             }
         }
@@ -223,7 +225,11 @@ impl Accel {
         };
         ray.tmax = self.bound32(hi, shift);
         !bvh.ray_traverse_miss(ray, |_, id| {
-            if self.prims[id].crossings(o, d).first_in(lo, hi).is_some() {
+            if self.prims[id]
+                .crossings_inv(o, d, inv)
+                .first_in(lo, hi)
+                .is_some()
+            {
                 0.0
             } else {
                 f32::INFINITY
@@ -242,8 +248,9 @@ impl Accel {
     ) {
         debug_assert_eq!(ranges.len(), out.len());
         out.iter_mut().for_each(|h| *h = None);
+        let inv = d.recip();
         let consider = |id: usize, p: &Prim, out: &mut [Option<Hit>]| {
-            let c = p.crossings(o, d);
+            let c = p.crossings_inv(o, d, inv);
             for (k, &(lo, hi)) in ranges.iter().enumerate() {
                 if let Some((t, part)) = c.first_in(lo, hi) {
                     let h = Hit {

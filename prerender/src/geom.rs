@@ -123,8 +123,14 @@ impl Prim {
     }
 
     /// All surface crossings of the ray `o + t d` (`d` unit), any sign of `t`.
-    #[inline]
+    #[cfg(test)]
     pub fn crossings(&self, o: DVec3, d: DVec3) -> Crossings {
+        self.crossings_inv(o, d, d.recip())
+    }
+
+    /// [`Prim::crossings`] with the ray's precomputed `inv = 1 / d`.
+    #[inline]
+    pub fn crossings_inv(&self, o: DVec3, d: DVec3, inv: DVec3) -> Crossings {
         match *self {
             Prim::Sphere { center, radius } => {
                 let oc = o - center;
@@ -141,7 +147,6 @@ impl Prim {
                 }
             }
             Prim::Box { min, max } => {
-                let inv = d.recip();
                 let ta = (min - o) * inv;
                 let tb = (max - o) * inv;
                 let mut t0 = f64::NEG_INFINITY;

@@ -5,6 +5,21 @@
 //! so serial and parallel runs give identical pixels. Depth is the exact radial distance of
 //! the surface hit by the pixel-centre ray (`+inf` for sky); colour is sRGB8, averaged in
 //! linear light over `supersample²` stratified rays when `supersample > 1`.
+//!
+//! ```
+//! use prerender::render::{composite_layers, render_cube, render_sky, render_slabs, RenderOptions};
+//! use prerender::scenes::builtin;
+//! use tracks::SlabRange;
+//!
+//! let castle = builtin("castle").unwrap();
+//! let at = castle.tracks.get("main").unwrap().viewpoints()[3].position;
+//! let opts = RenderOptions { face_size: 8, supersample: 1, shadows: true };
+//! let cube = render_cube(&castle.scene, at, opts);
+//! let slabs = SlabRange::parse_list("0-10,10-inf").unwrap();
+//! let layers = render_slabs(&castle.scene, at, &slabs, opts);
+//! let (color, depth) = composite_layers(&layers, &render_sky(&castle.scene, 8, 1));
+//! assert_eq!((color, depth), (cube.color, cube.depth));
+//! ```
 
 use glam::DVec3;
 use rayon::prelude::*;

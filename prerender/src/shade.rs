@@ -63,8 +63,14 @@ pub(crate) fn shade(scene: &Scene, o: DVec3, d: DVec3, hit: &Hit, shadows: bool)
         }
         let dir = v / dist;
         let ndl = n.dot(dir);
-        if ndl > 0.0 && !(shadows && scene.occluded(start, dir, 0.0, dist * (1.0 - 1e-9))) {
-            light += l.color * (ndl / (dist * dist));
+        let add = l.color * (ndl / (dist * dist));
+        // A light adding less than 0.2% to what is already there changes no sRGB8 level
+        // worth a shadow ray.
+        if ndl > 0.0
+            && add.max_element() > 2e-3 * light.max_element()
+            && !(shadows && scene.occluded(start, dir, 0.0, dist * (1.0 - 1e-9)))
+        {
+            light += add;
         }
     }
     albedo * light
