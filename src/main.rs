@@ -27,6 +27,8 @@ enum Command {
     Prerender(cmd::prerender::Args),
     /// Render a POV-Ray scene along a track into the same layout (colour, depth, slab layers).
     ImportPov(cmd::import_pov::Args),
+    /// Cull slab tiles no viewpoint of the track can see (extended projections, α); --oracle measures.
+    Cull(cmd::cull::Args),
     /// Serve a database over HTTP (ranges, ETags, optional shaping and added latency).
     Serve(cmd::serve::Args),
     /// Simulate walks streaming a database over loopback HTTP; report quality and bytes.
@@ -69,6 +71,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Prerender(a) => cmd::prerender::run(a),
         Command::ImportPov(a) => cmd::import_pov::run(a),
+        Command::Cull(a) => cmd::cull::run(a),
         Command::Serve(a) => cmd::serve::run(a),
         Command::Walk(a) => cmd::walk::run(a),
         Command::Load(a) => cmd::load::run(a),

@@ -350,3 +350,10 @@ pub fn score(decision: &ViewpointCull, grid: &TileGrid, vis: &Visibility) -> Vec
         })
         .collect()
 }
+
+/// The built-in ray tracer's scenes are exact geometry.
+impl Geometry for prerender::scene::Scene {
+    fn first_hit(&self, origin: DVec3, dir: DVec3, t_max: f64) -> Option<f64> {
+        prerender::scene::Scene::first_hit(self, origin, dir, t_max)
+    }
+}

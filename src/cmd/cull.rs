@@ -1,0 +1,416 @@
+//! `railview cull DIR`: track-dependent occlusion culling of the slab tiles that
+//! `railview slabs DIR` wrote, for every α and variant, optionally judged by the exact oracle.
+//!
+//! Writes (each atomically):
+//! - `DIR/cull.json`: `runs`, one per (α, variant), each with `alpha`, `variant` and per slab
+//!   `tiles_before`, `tiles_after`, `bytes_before`, `bytes_after` (raw RGBA8 tile sizes) and,
+//!   with `--oracle`, `false_culls`, `false_cull_pixels`, `kept_never_visible`.
+//! - `DIR/cull.md`: the paper's Tables 1–2 per variant.
+//! - `DIR/cull_tiles.json`: the kept/culled decision of every tile of every run, for the
+//!   database build (format: `occlusion::report::TileDecisions`).
+//! - `DIR/cull/<variant>-a<alpha>.png`: one atlas per run; a row per viewpoint, a column per
+//!   slab, faces side by side, a block per tile: kept green (olive: never seen by the oracle),
+//!   culled blue, culled but seen magenta, empty dark.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use glam::DVec3;
+use indicatif::{ProgressBar, ProgressStyle};
+use occlusion::oracle::segment_samples;
+use occlusion::report::{
+    atlas_png, markdown, paper_table, CullReport, OracleInfo, RunDecisions, RunReport,
+    TileDecisions, ViewpointDecisions,
+};
+use occlusion::{
+    cull_viewpoint, mark_visible, raw_rgba_bytes, score, Cell, CullParams, MatchRule, SlabLayer,
+    TileInfo, Variant, Visibility,
+};
+use prerender::scene::Scene;
+use prerender::store::{self, PrerenderDir, PrerenderReport};
+use slabs::io::{self as sio, TilesFile};
+use tracks::{SlabRange, TileGrid, TrackSet};
+
+/// Arguments of `railview cull`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Prerender directory, after `railview slabs DIR`.
+    pub dir: PathBuf,
+    /// Opacity thresholds α, comma-separated (1 = fully opaque windows only).
+    #[arg(long, default_value = "1.0,0.9,0.8")]
+    pub alpha: String,
+    /// `conservative`, `paper` or `both`.
+    #[arg(long, default_value = "both")]
+    pub variant: String,
+    /// Also run the exact oracle (built-in or TOML scenes: ray casting through the geometry).
+    #[arg(long)]
+    pub oracle: bool,
+    /// Oracle positions per track segment (both ends included).
+    #[arg(long, default_value_t = 16)]
+    pub oracle_per_segment: usize,
+    /// Oracle rays per face side (default: the layers' face size).
+    #[arg(long)]
+    pub oracle_face_size: Option<u32>,
+}
+
+/// Everything loaded for one reference viewpoint.
+struct Loaded {
+    index: usize,
+    grid: TileGrid,
+    layers: Vec<SlabLayer>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let t_start = Instant::now();
+    let dir = PrerenderDir::new(&args.dir);
+    let pre: PrerenderReport = dir
+        .read_report()
+        .context("reading the prerender report (run `railview prerender` first)")?;
+    let alphas = parse_alphas(&args.alpha)?;
+    let variants = match args.variant.as_str() {
+        "both" => vec![Variant::Conservative, Variant::Paper],
+        s => vec![Variant::parse(s)
+            .with_context(|| format!("--variant `{s}`: expected conservative, paper or both"))?],
+    };
+    let params: Vec<CullParams> = variants
+        .iter()
+        .flat_map(|&v| alphas.iter().map(move |&a| (a, v)))
+        .map(|(a, v)| CullParams::new(a, v))
+        .collect::<Result<_, _>>()?;
+    if pre.viewpoints.is_empty() {
+        bail!("{}: no viewpoints", dir.report_json().display());
+    }
+    if args.oracle && args.oracle_per_segment == 0 {
+        bail!("--oracle-per-segment must be at least 1");
+    }
+    let geometry = if args.oracle {
+        Some(load_geometry(&pre)?)
+    } else {
+        None
+    };
+    let path = TrackPath::new(&dir, &pre);
+    let count = pre.viewpoints.len();
+
+    let mut runs: Vec<RunReport> = Vec::new();
+    let mut decisions: Vec<RunDecisions> = params
+        .iter()
+        .map(|p| RunDecisions {
+            alpha: p.alpha,
+            variant: p.variant,
+            viewpoints: Vec::new(),
+        })
+        .collect();
+    let mut vis_all: Vec<Visibility> = Vec::new();
+    let mut first: Option<(TileGrid, Vec<SlabRange>)> = None;
+    let mut load_seconds = 0.0;
+    let mut oracle_seconds = 0.0;
+    let oracle_n = args.oracle_face_size;
+    let rule = MatchRule::default();
+
+    let pb = ProgressBar::new(count as u64);
+    pb.set_style(
+        ProgressStyle::with_template("cull {bar:40} {pos}/{len} viewpoints {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    // Viewpoint i is finished once the segment to i + 1 has been traced (oracle) — keep the
+    // previous one loaded until then.
+    let mut prev: Option<(Loaded, Option<Visibility>)> = None;
+    for (k, vp) in pre.viewpoints.iter().enumerate() {
+        let t = Instant::now();
+        let cur = load_viewpoint(&dir, vp.index)?;
+        load_seconds += t.elapsed().as_secs_f64();
+        match &first {
+            None => first = Some((cur.grid, cur.layers.iter().map(|l| l.range).collect())),
+            Some((g, r)) => {
+                let ranges: Vec<SlabRange> = cur.layers.iter().map(|l| l.range).collect();
+                if *g != cur.grid || *r != ranges {
+                    bail!(
+                        "viewpoint {}: tile grid or slab ranges differ from viewpoint {} (re-run `railview slabs`)",
+                        vp.index,
+                        pre.viewpoints[0].index
+                    );
+                }
+            }
+        }
+        let cur_vis = geometry
+            .as_ref()
+            .map(|_| Visibility::new(cur.grid.face_size, cur.layers.len()));
+        if let Some(scene) = &geometry {
+            let t = Instant::now();
+            let n = oracle_n.unwrap_or(cur.grid.face_size);
+            let positions = match &prev {
+                Some(_) => segment_samples(&path.between(k - 1), args.oracle_per_segment),
+                None if count == 1 => vec![vp.position],
+                None => Vec::new(),
+            };
+            for x in positions {
+                let depth = occlusion::oracle::depth_from_geometry(scene, x, n);
+                if let Some((p, Some(pv))) = &prev {
+                    mark_visible(x, &depth, path.position(k - 1), &p.layers, &rule, pv);
+                }
+                if let Some(cv) = &cur_vis {
+                    mark_visible(x, &depth, path.position(k), &cur.layers, &rule, cv);
+                }
+            }
+            oracle_seconds += t.elapsed().as_secs_f64();
+        }
+        if let Some((p, pv)) = prev.take() {
+            finish(
+                &p,
+                k - 1,
+                &path,
+                &params,
+                &mut runs,
+                &mut decisions,
+                pv.as_ref(),
+            )?;
+            if let Some(v) = pv {
+                vis_all.push(v);
+            }
+            pb.inc(1);
+        }
+        prev = Some((cur, cur_vis));
+    }
+    if let Some((p, pv)) = prev.take() {
+        finish(
+            &p,
+            count - 1,
+            &path,
+            &params,
+            &mut runs,
+            &mut decisions,
+            pv.as_ref(),
+        )?;
+        if let Some(v) = pv {
+            vis_all.push(v);
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+
+    let (grid, ranges) = first.context("no viewpoint was loaded")?;
+    let report = CullReport {
+        viewpoints: count,
+        face_size: grid.face_size,
+        tile_size: grid.tile_size,
+        slab_ranges: ranges,
+        runs,
+        oracle: geometry.as_ref().map(|_| OracleInfo {
+            per_segment: args.oracle_per_segment,
+            face_size: oracle_n.unwrap_or(grid.face_size),
+            source: "geometry".into(),
+            seconds: oracle_seconds,
+        }),
+        load_seconds,
+    };
+    store::write_json(&args.dir.join("cull.json"), &report)?;
+    store::write_atomic(&args.dir.join("cull.md"), markdown(&report).as_bytes())?;
+    store::write_json(
+        &args.dir.join("cull_tiles.json"),
+        &TileDecisions {
+            grid,
+            runs: decisions.clone(),
+        },
+    )?;
+    let vis = (!vis_all.is_empty()).then_some(vis_all.as_slice());
+    for d in &decisions {
+        let name = format!("{}-a{}.png", d.variant.name(), d.alpha);
+        store::write_atomic(
+            &args.dir.join("cull").join(name),
+            &atlas_png(&grid, &d.viewpoints, vis),
+        )?;
+    }
+    for v in &variants {
+        let rs: Vec<&RunReport> = report.runs.iter().filter(|r| r.variant == *v).collect();
+        println!("variant {}:\n{}", v.name(), paper_table(&rs));
+    }
+    if let Some(o) = &report.oracle {
+        println!(
+            "oracle: {} positions per segment, {}² per face, {:.2} s",
+            o.per_segment, o.face_size, o.seconds
+        );
+    }
+    println!(
+        "wrote {}, cull.md, cull_tiles.json, cull/*.png ({:.2} s)",
+        args.dir.join("cull.json").display(),
+        t_start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// Run every (α, variant) on one loaded viewpoint and record the results.
+fn finish(
+    l: &Loaded,
+    k: usize,
+    path: &TrackPath,
+    params: &[CullParams],
+    runs: &mut Vec<RunReport>,
+    decisions: &mut [RunDecisions],
+    vis: Option<&Visibility>,
+) -> anyhow::Result<()> {
+    let cell = path.cell(k);
+    for (j, p) in params.iter().enumerate() {
+        let t = Instant::now();
+        let c = cull_viewpoint(&cell, &l.grid, &l.layers, p)
+            .with_context(|| format!("culling viewpoint {}", l.index))?;
+        let secs = t.elapsed().as_secs_f64();
+        if runs.len() <= j {
+            runs.push(RunReport::new(p.alpha, p.variant, l.layers.len()));
+        }
+        let scores = vis.map(|v| score(&c, &l.grid, v));
+        runs[j].add(&c, scores.as_deref());
+        runs[j].seconds += secs;
+        decisions[j]
+            .viewpoints
+            .push(ViewpointDecisions::new(l.index, &l.grid, &c));
+    }
+    Ok(())
+}
+
+fn parse_alphas(s: &str) -> anyhow::Result<Vec<f64>> {
+    s.split(',')
+        .map(|a| {
+            let v: f64 = a
+                .trim()
+                .parse()
+                .with_context(|| format!("--alpha `{a}`: not a number"))?;
+            if !(v > 0.0 && v <= 1.0) {
+                bail!("--alpha {v}: must be in (0, 1]");
+            }
+            Ok(v)
+        })
+        .collect()
+}
+
+/// The tiles and layers of one viewpoint, from `tiles.json` and the slab layer images.
+fn load_viewpoint(dir: &PrerenderDir, index: usize) -> anyhow::Result<Loaded> {
+    let jp = sio::tiles_json(dir, index);
+    let file: TilesFile = store::read_json(&jp).with_context(|| {
+        format!("reading tiles of viewpoint {index} (run `railview slabs` first)")
+    })?;
+    let grid = file.grid;
+    let mut layers = Vec::with_capacity(file.layers.len());
+    for rec in &file.layers {
+        let (depth, mask) = sio::read_layer(dir, index, rec.slab)?;
+        if depth.face_size() != grid.face_size {
+            bail!(
+                "{}: slab {} layer is {}² but the tile grid is {}²",
+                jp.display(),
+                rec.slab,
+                depth.face_size(),
+                grid.face_size
+            );
+        }
+        let tiles = rec
+            .tiles
+            .iter()
+            .map(|t| TileInfo {
+                id: t.tile,
+                depth_min: t.depth_min as f64,
+                depth_max: t.depth_max as f64,
+                bytes: raw_rgba_bytes(&grid, t.tile),
+            })
+            .collect();
+        layers.push(SlabLayer {
+            range: rec.range,
+            alpha: mask.map(|&m| if m { 255 } else { 0 }),
+            depth,
+            tiles,
+        });
+    }
+    Ok(Loaded {
+        index,
+        grid,
+        layers,
+    })
+}
+
+/// Exact geometry of a built-in or TOML scene for the oracle.
+fn load_geometry(pre: &PrerenderReport) -> anyhow::Result<Scene> {
+    if pre.renderer != "builtin" {
+        bail!(
+            "--oracle: scene `{}` was rendered by `{}`; the oracle needs exact geometry \
+             (built-in or TOML scenes), or depth renders at the oracle positions, which this \
+             command does not make",
+            pre.scene,
+            pre.renderer
+        );
+    }
+    if let Some(b) = prerender::scenes::builtin(&pre.scene) {
+        return Ok(b.scene);
+    }
+    let path = Path::new(&pre.scene);
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("--oracle: reading scene file {}", path.display()))?;
+    let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let loader = move |rel: &str| -> Result<Vec<u8>, String> {
+        std::fs::read(base.join(rel)).map_err(|e| format!("{}: {e}", base.join(rel).display()))
+    };
+    Ok(Scene::parse_toml_with(&text, &pre.scene, &loader)?)
+}
+
+/// The track between the reference viewpoints: the curve from `DIR/track.toml` when it
+/// matches the report, else straight segments.
+struct TrackPath {
+    positions: Vec<DVec3>,
+    arcs: Vec<f64>,
+    curve: Option<(Vec<DVec3>, Vec<f64>)>,
+}
+
+impl TrackPath {
+    fn new(dir: &PrerenderDir, pre: &PrerenderReport) -> TrackPath {
+        let positions: Vec<DVec3> = pre.viewpoints.iter().map(|v| v.position).collect();
+        let arcs: Vec<f64> = pre.viewpoints.iter().map(|v| v.s).collect();
+        let curve = std::fs::read_to_string(dir.track_toml())
+            .ok()
+            .and_then(|t| TrackSet::parse(&t, "track.toml").ok())
+            .and_then(|set| {
+                let t = set.get(&pre.track).or_else(|| set.tracks.first())?.clone();
+                let c = t.curve().to_vec();
+                let a = occlusion::input::arc_lengths(&c);
+                // Use the curve only if it reproduces the viewpoints.
+                let ok = positions.iter().zip(&arcs).all(|(p, &s)| {
+                    occlusion::input::point_at(&c, &a, s).distance(*p) <= 1e-6 * (1.0 + p.length())
+                });
+                ok.then_some((c, a))
+            });
+        TrackPath {
+            positions,
+            arcs,
+            curve,
+        }
+    }
+
+    fn position(&self, k: usize) -> DVec3 {
+        self.positions[k]
+    }
+
+    fn cell(&self, k: usize) -> Cell {
+        match &self.curve {
+            Some((c, a)) => {
+                let mut cell = Cell::along_curve(c, a, &self.arcs, k);
+                cell.viewpoint = self.positions[k];
+                cell
+            }
+            None => Cell::straight(&self.positions, k),
+        }
+    }
+
+    /// The polyline from viewpoint `k` to `k + 1`, both ends included.
+    fn between(&self, k: usize) -> Vec<DVec3> {
+        let (a, b) = (self.positions[k], self.positions[k + 1]);
+        let mut out = vec![a];
+        if let Some((c, arc)) = &self.curve {
+            let (s0, s1) = (self.arcs[k], self.arcs[k + 1]);
+            out.extend(
+                c.iter()
+                    .zip(arc)
+                    .filter(|(_, &s)| s > s0 && s < s1)
+                    .map(|(p, _)| *p),
+            );
+        }
+        out.push(b);
+        out
+    }
+}
