@@ -93,13 +93,15 @@ fn fixture(root: &Path) {
         .enumerate()
         .map(|(k, (n, f))| {
             json!({"near": n, "far": f, "tiles_before": 18, "tiles_after": 18 - 4 * k,
-                   "pixels": 1000 - 200 * k, "bytes": 4000 - 800 * k})
+                   "opaque_pixels": 1000 - 200 * k, "pixels": 1152,
+                   "texture_bytes": 4000 - 800 * k, "mesh_bytes": 900})
         })
         .collect();
     write_json(
         &work.join("slabs.json"),
         &json!({"slabs": slab_rows, "tile_size": 4,
-                "criterion": {"max_spacing_m": 2.5, "parallax_px": [3.1, 0.8]}}),
+                "criterion": {"max_spacing_m": 2.5, "parallax_px": [3.1, 0.8],
+                              "summary": "3 slab(s) from 2 candidate valley(s)"}}),
     );
     plot(&work.join("histogram.png"), 60, 30);
     let run = |alpha: f64, variant: &str, oracle: bool| {
@@ -148,10 +150,10 @@ fn fixture(root: &Path) {
         })
         .collect();
     write_json(&root.join("eval/eval.json"), &json!({ "rows": rows }));
-    plot(&root.join("eval/error_vs_frame_ms.png"), 50, 40);
-    plot(&root.join("eval/error_vs_bytes.png"), 50, 40);
+    plot(&root.join("eval/psnr_vs_frame_ms.png"), 50, 40);
+    plot(&root.join("eval/psnr_vs_bytes.png"), 50, 40);
     for i in 0..5 {
-        plot(&root.join(format!("frames/{i:04}.png")), 16, 9);
+        plot(&root.join(format!("frames/frame_{i:04}.png")), 16, 9);
     }
     write_json(
         &root.join("demo.json"),

@@ -192,12 +192,12 @@ fn finish(layout: &Layout, log: &mut RunLog, record: StageRecord) -> StageStatus
     status
 }
 
-/// The pipeline's stages for these arguments, in order.
-fn pipeline(args: &Args, layout: &Layout, headless: bool) -> Vec<Stage> {
+/// The stages that make the database, in order.
+fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
     let work = layout.work();
     let db = layout.db();
     let n = args.face_size.to_string();
-    let mut stages = vec![
+    vec![
         Stage {
             name: "prerender",
             argv: vec![
@@ -248,13 +248,22 @@ fn pipeline(args: &Args, layout: &Layout, headless: bool) -> Vec<Stage> {
             outputs: vec![db.join("manifest.json")],
             requires: vec![],
         },
+    ]
+}
+
+/// The stages that use the database: from `source`, the database or, while no `build`
+/// exists, the prerender directory (the viewer reads either).
+fn use_stages(layout: &Layout, source: &Path, headless: bool) -> Vec<Stage> {
+    let db = layout.db();
+    let needs: &'static str = if source == db { "build" } else { "slabs" };
+    let mut stages = vec![
         Stage {
             name: "walk",
             argv: vec![
                 "walk".into(),
                 path_arg(&db),
                 "--speed".into(),
-                "3".into(),
+                "1.5".into(),
                 "--bandwidth".into(),
                 "2mbit,unlimited".into(),
                 "--strategy".into(),
@@ -271,12 +280,16 @@ fn pipeline(args: &Args, layout: &Layout, headless: bool) -> Vec<Stage> {
             name: "eval",
             argv: vec![
                 "eval".into(),
-                path_arg(&db),
+                path_arg(source),
                 "--out".into(),
                 path_arg(&layout.eval()),
+                "--size".into(),
+                "160x120".into(),
+                "--segments".into(),
+                "2".into(),
             ],
             outputs: vec![layout.eval().join("eval.json")],
-            requires: vec!["build"],
+            requires: vec![needs],
         },
     ];
     if headless {
@@ -284,16 +297,40 @@ fn pipeline(args: &Args, layout: &Layout, headless: bool) -> Vec<Stage> {
             name: "flythrough",
             argv: vec![
                 "flythrough".into(),
-                path_arg(&db),
+                path_arg(source),
                 "-o".into(),
                 path_arg(&layout.frames()),
+                "--frames".into(),
+                "24".into(),
+                "--size".into(),
+                "320x180".into(),
             ],
-            outputs: vec![layout.frames()],
-            requires: vec!["build"],
+            outputs: vec![layout.frames().join("flythrough.json")],
+            requires: vec![needs],
         });
     }
     stages
 }
+
+/// Mesa prints "XDG_RUNTIME_DIR is invalid or not set" for every GPU stage when the variable
+/// is missing (containers, CI); point it at a private directory before any thread starts.
+#[cfg(unix)]
+fn set_runtime_dir() {
+    use std::os::unix::fs::PermissionsExt;
+    if std::env::var_os("XDG_RUNTIME_DIR").is_some() {
+        return;
+    }
+    let dir = std::env::temp_dir().join("railview-xdg");
+    let made = std::fs::create_dir_all(&dir)
+        .and_then(|()| std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700)));
+    match made {
+        Ok(()) => std::env::set_var("XDG_RUNTIME_DIR", &dir),
+        Err(e) => tracing::debug!("{}: {e}", dir.display()),
+    }
+}
+
+#[cfg(not(unix))]
+fn set_runtime_dir() {}
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     anyhow::ensure!(
@@ -328,12 +365,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(layout.root())
         .with_context(|| format!("creating {}", layout.root().display()))?;
+    set_runtime_dir();
     let window = !args.no_window && display_available() && has_command("view");
-    let stages = pipeline(&args, &layout, !window);
-    let steps = stages.len();
     let start = Instant::now();
-    for (i, stage) in stages.iter().enumerate() {
+    let first = build_stages(&args, &layout);
+    let steps = first.len() + use_stages(&layout, &layout.db(), !window).len();
+    for (i, stage) in first.iter().enumerate() {
         run_stage(&layout, &mut log, stage, i + 1, steps);
+    }
+    let built = log
+        .stage("build")
+        .is_some_and(|s| s.status == StageStatus::Done);
+    let source = if built { layout.db() } else { layout.work() };
+    for (i, stage) in use_stages(&layout, &source, !window).iter().enumerate() {
+        run_stage(&layout, &mut log, stage, first.len() + i + 1, steps);
     }
     let written = report::write_report(&layout, &log).context("writing the report")?;
 

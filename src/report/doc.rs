@@ -92,8 +92,8 @@ white-space:nowrap}p.cmd::before{content:'reproduce: ';color:#5b6b7b}\
 pre{background:#f1f1ee;padding:.6rem;overflow-x:auto}\
 p.unavailable{background:#fff6e5;border-left:3px solid #d99a1e;padding:.4rem .6rem}\
 div.figs{display:flex;flex-wrap:wrap;gap:1rem;align-items:flex-start}\
-figure{margin:0;max-width:100%}figure img{max-width:100%;height:auto;border:1px solid #ccd2d8;\
-image-rendering:pixelated}figcaption{font-size:.85rem;color:#4a5560}\
+figure{margin:0;max-width:100%}figure img{max-width:100%;min-width:min(100%,24rem);height:auto;\
+border:1px solid #ccd2d8;image-rendering:pixelated}figcaption{font-size:.85rem;color:#4a5560}\
 img.checker{background:repeating-conic-gradient(#d0d0d0 0% 25%,#fff 0% 50%) 50%/16px 16px}";
 
 /// The whole page.

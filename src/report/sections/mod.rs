@@ -1,0 +1,280 @@
+//! The report's sections, each built from one stage's outputs. Stage reports are read as JSON
+//! values by their documented field names (issues 2–8), so a stage that adds fields never
+//! breaks the report and a missing stage gives an "not available" note.
+
+use std::path::{Path, PathBuf};
+
+use serde_json::Value;
+
+mod results;
+mod scene;
+mod tables;
+
+use super::doc::{Block, Table};
+use super::images;
+use super::{Layout, RunLog, StageStatus};
+
+/// The blocks of the page and the ids of sections whose inputs were missing.
+pub struct Built {
+    pub blocks: Vec<Block>,
+    pub unavailable: Vec<String>,
+}
+
+struct Ctx<'a> {
+    layout: &'a Layout,
+    log: &'a RunLog,
+    dir: &'a Path,
+    blocks: Vec<Block>,
+    unavailable: Vec<String>,
+    current: String,
+}
+
+impl Ctx<'_> {
+    fn section(&mut self, id: &str, title: &str) {
+        self.current = id.to_string();
+        self.blocks.push(Block::Section {
+            id: id.into(),
+            title: title.into(),
+        });
+    }
+    fn push(&mut self, b: Block) {
+        self.blocks.push(b);
+    }
+    /// Note that (part of) the current section is missing, and why.
+    fn missing(&mut self, why: String) {
+        if !self.unavailable.contains(&self.current) {
+            self.unavailable.push(self.current.clone());
+        }
+        self.blocks.push(Block::Unavailable(why));
+    }
+    /// The command the demo ran for `stage`, or the one a person would run.
+    fn command(&self, stage: &str, fallback: String) -> String {
+        self.log
+            .stage(stage)
+            .map(|s| s.command.clone())
+            .unwrap_or(fallback)
+    }
+    /// Why a stage's outputs are missing, from the log.
+    fn why_missing(&self, stage: &str, file: &str) -> String {
+        match self.log.stage(stage) {
+            Some(s) if s.status != StageStatus::Done => format!(
+                "`{}` {}{}",
+                s.command,
+                s.status.label(),
+                s.message
+                    .as_deref()
+                    .map(|m| format!(": {}", first_line(m)))
+                    .unwrap_or_default()
+            ),
+            _ => format!("no `{file}` was found in {}", self.layout.root().display()),
+        }
+    }
+    fn path_arg(&self, p: PathBuf) -> String {
+        p.display().to_string()
+    }
+    /// Compose a cube map's horizon strip into the report directory; `None` (with a note)
+    /// when the source is missing or unreadable.
+    fn strip(&mut self, src: &Path, name: &str) -> Option<String> {
+        match images::horizon_strip(src)
+            .and_then(|img| images::save_png(&img, &self.dir.join(name)))
+        {
+            Ok(()) => Some(name.to_string()),
+            Err(e) => {
+                self.missing(format!("{e:#}"));
+                None
+            }
+        }
+    }
+    fn copy(&mut self, src: &Path, name: &str) -> Option<String> {
+        match images::copy_checked(src, &self.dir.join(name)) {
+            Ok(()) => Some(name.to_string()),
+            Err(e) => {
+                self.missing(format!("{e:#}"));
+                None
+            }
+        }
+    }
+}
+
+fn first_line(s: &str) -> &str {
+    s.lines().next().unwrap_or("")
+}
+
+fn read_json(path: &Path) -> Result<Value, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    serde_json::from_slice(&bytes).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+fn num(v: &Value, key: &str) -> Option<f64> {
+    v.get(key).and_then(Value::as_f64)
+}
+
+fn fmt_num(x: Option<f64>, decimals: usize) -> String {
+    match x {
+        Some(x) if x.is_finite() => format!("{x:.decimals$}"),
+        Some(_) => "∞".into(),
+        None => "–".into(),
+    }
+}
+
+fn fmt_int(x: Option<f64>) -> String {
+    fmt_num(x, 0)
+}
+
+fn fmt_mb(bytes: f64) -> String {
+    format!("{:.3}", bytes / 1e6)
+}
+
+fn reduction(before: f64, after: f64) -> String {
+    if before > 0.0 {
+        format!("{:.1}%", 100.0 * (before - after.min(before)) / before)
+    } else {
+        "–".into()
+    }
+}
+
+/// Depth in metres; JSON `null` is infinity (the slab convention).
+fn fmt_depth(v: Option<&Value>) -> String {
+    match v {
+        Some(Value::Null) => "∞".into(),
+        Some(v) => fmt_num(v.as_f64(), 2),
+        None => "–".into(),
+    }
+}
+
+fn pngs_in(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map(|rd| {
+            rd.filter_map(Result::ok)
+                .map(|e| e.path())
+                .filter(|p| {
+                    p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png")) && p.is_file()
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+/// First, middle and last of `n` (deduplicated).
+fn spread(n: usize) -> Vec<usize> {
+    let mut v = Vec::new();
+    for i in [0, n / 2, n.saturating_sub(1)] {
+        if i < n && !v.contains(&i) {
+            v.push(i);
+        }
+    }
+    v
+}
+
+/// Every section, in reading order.
+pub fn build(layout: &Layout, log: &RunLog, dir: &Path) -> Built {
+    let mut c = Ctx {
+        layout,
+        log,
+        dir,
+        blocks: Vec::new(),
+        unavailable: Vec::new(),
+        current: String::new(),
+    };
+    overview(&mut c);
+    let prerender = scene::viewpoints(&mut c);
+    let slabs = scene::histogram(&mut c);
+    scene::layers(&mut c);
+    let cull = tables::culling(&mut c);
+    tables::sizes(&mut c, prerender.as_ref(), slabs.as_ref(), cull.as_ref());
+    results::streaming(&mut c);
+    results::evaluation(&mut c);
+    results::frames(&mut c);
+    results::later(&mut c);
+    Built {
+        blocks: c.blocks,
+        unavailable: c.unavailable,
+    }
+}
+
+fn overview(c: &mut Ctx) {
+    c.section("overview", "What ran");
+    c.push(Block::Para(format!(
+        "The `{}` scene along its `{}` track, pre-rendered as cube maps of {}² pixels per face, \
+         split into depth slabs, culled, encoded as progressive texture maps, streamed and \
+         viewed. Each number below is followed by the command that reproduces it; the stage \
+         outputs live in {}.",
+        c.log.scene,
+        c.log.track,
+        c.log.face_size,
+        c.layout.root().display()
+    )));
+    let rows = c
+        .log
+        .stages
+        .iter()
+        .map(|s| {
+            vec![
+                s.name.clone(),
+                s.status.label().to_string(),
+                if s.status == StageStatus::Done {
+                    format!("{:.1}", s.seconds)
+                } else {
+                    "–".into()
+                },
+                s.command.clone(),
+                s.message
+                    .as_deref()
+                    .map(first_line)
+                    .unwrap_or("")
+                    .to_string(),
+            ]
+        })
+        .collect();
+    c.push(Block::Table(Table {
+        id: "stages".into(),
+        caption: "Stages of this demo (wall time of the run that completed each)".into(),
+        header: ["stage", "status", "seconds", "command", "note"]
+            .map(String::from)
+            .to_vec(),
+        rows,
+    }));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spread_picks_first_middle_last_once() {
+        assert_eq!(spread(0), Vec::<usize>::new());
+        assert_eq!(spread(1), vec![0]);
+        assert_eq!(spread(2), vec![0, 1]);
+        assert_eq!(spread(9), vec![0, 4, 8]);
+    }
+
+    #[test]
+    fn depth_null_is_infinity() {
+        assert_eq!(fmt_depth(Some(&Value::Null)), "∞");
+        assert_eq!(fmt_depth(Some(&serde_json::json!(12.5))), "12.50");
+        assert_eq!(fmt_depth(None), "–");
+    }
+
+    #[test]
+    fn reduction_of_nothing_is_a_dash() {
+        assert_eq!(reduction(0.0, 0.0), "–");
+        assert_eq!(reduction(200.0, 50.0), "75.0%");
+        assert_eq!(reduction(10.0, 20.0), "0.0%");
+    }
+
+    #[test]
+    fn criterion_numbers_are_flattened() {
+        let v = serde_json::json!({"criterion": {"max_spacing_m": 2.5, "parallax_px": [1.25, 0.5]},
+                                   "tile_size": 32, "huge": [[1]]});
+        let mut out = Vec::new();
+        for (k, x) in v.as_object().unwrap() {
+            scene::flatten(k, x, &mut out);
+        }
+        assert!(out.contains(&("criterion.max_spacing_m".into(), "2.5".into())));
+        assert!(out.contains(&("criterion.parallax_px".into(), "1.25, 0.5".into())));
+        assert!(out.contains(&("tile_size".into(), "32".into())));
+        assert!(!out.iter().any(|(k, _)| k == "huge"));
+    }
+}
