@@ -25,6 +25,8 @@ enum Command {
     Demo(cmd::demo::Args),
     /// Render cube-map colour, depth (and optionally slab layers) at the reference viewpoints of a track.
     Prerender(cmd::prerender::Args),
+    /// Choose slab boundaries, render missing slab layers, tile and mesh them, report.
+    Slabs(cmd::slabs::Args),
     /// Render a POV-Ray scene along a track into the same layout (colour, depth, slab layers).
     ImportPov(cmd::import_pov::Args),
     /// Cull slab tiles no viewpoint of the track can see (extended projections, α); --oracle measures.
@@ -70,6 +72,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Prerender(a) => cmd::prerender::run(a),
+        Command::Slabs(a) => cmd::slabs::run(a),
         Command::ImportPov(a) => cmd::import_pov::run(a),
         Command::Cull(a) => cmd::cull::run(a),
         Command::Serve(a) => cmd::serve::run(a),

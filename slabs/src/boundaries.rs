@@ -15,11 +15,17 @@
 //! Meyer & Neyret's `h·tan(a)/e` (slice spacing × viewing slope over the feature size): at
 //! most 1 means fewer layers suffice.
 //!
-//! The candidates are (a) runs of empty bins between finite depths and (b) local minima of
-//! the smoothed histogram that are at most `valley_ratio` of the lower of the two peaks on
-//! either side. Starting from all candidates, the one with the smallest parallax is removed
-//! (merging its two clusters, whose representative depth is the merged mode) while it fails
-//! the test, so the result is the fewest boundaries that all pass.
+//! Candidates are (a) runs of empty bins between finite depths and (b) local minima of
+//! the smoothed histogram at most `valley_ratio` of the lower of the highest peaks on either
+//! side. A depth cluster only needs its own slab where something nearer hides it, so the
+//! low-res depth maps are also scanned for *occlusion edges*: neighbouring pixels whose
+//! depths jump (inverse planar depth off both sides' linear prediction, so sloping ground
+//! is no edge) by a gap that opens wider than the pixel threshold at `B/2`. Each edge
+//! `(z_near, z_far]` wants a boundary inside it; the fewest candidates that separate them
+//! are found by greedy interval stabbing (by far end), and a candidate is placed only if
+//! the solid angle it newly reveals (gap × edge length, summed) is at least
+//! `min_edge_fraction` of the panorama. The report gives, per candidate, both numbers: the
+//! cluster parallax `δ/θ_pixel` and the revealed fraction.
 
 use serde::{Deserialize, Serialize};
 use tracks::{CubeMap, SlabRange};
@@ -38,6 +44,9 @@ pub struct ChooseParams {
     pub valley_ratio: f64,
     /// A boundary is placed when the parallax between its clusters exceeds this many pixels.
     pub threshold_px: f64,
+    /// A boundary must separate occlusion edges (gaps wider than `threshold_px` at `B/2`)
+    /// that reveal at least this fraction of the panorama's solid angle.
+    pub min_edge_fraction: f64,
 }
 
 impl Default for ChooseParams {
@@ -45,8 +54,9 @@ impl Default for ChooseParams {
         ChooseParams {
             bins: 128,
             smoothing_passes: 2,
-            valley_ratio: 0.5,
+            valley_ratio: 0.9,
             threshold_px: 1.0,
+            min_edge_fraction: 1e-3,
         }
     }
 }
@@ -67,6 +77,9 @@ pub struct Candidate {
     pub parallax_px: f64,
     /// Smoothed histogram value at the candidate over the lower neighbouring peak.
     pub valley_depth_ratio: f64,
+    /// Solid angle (per viewpoint) that opens up at `B/2` along occlusion edges whose near
+    /// side is in front of the candidate and far side behind it, as a fraction of 4π.
+    pub edge_fraction: f64,
     pub accepted: bool,
     pub reason: String,
 }
@@ -86,6 +99,9 @@ pub struct CriterionReport {
     pub candidates: Vec<Candidate>,
     /// Fraction of the average panorama's solid angle that is sky.
     pub sky_fraction: f64,
+    /// Occlusion edges no boundary separates (no valley inside them, or too rare to pay
+    /// for a slab), as a fraction of the panorama's solid angle.
+    pub unresolved_edge_fraction: f64,
     /// Set when the choice was given, not computed (`--slabs LIST`).
     pub manual: bool,
     /// One line per decision for people.
@@ -127,12 +143,96 @@ pub fn choose(
     params: &ChooseParams,
 ) -> SlabChoice {
     let hist = DepthHistogram::build(lowres_depths, params.bins);
-    choose_from_histogram(hist, max_spacing_m, face_size, params)
+    let b = if max_spacing_m.is_finite() {
+        max_spacing_m.max(0.0)
+    } else {
+        0.0
+    };
+    let edges = occlusion_edges(
+        lowres_depths,
+        b / 2.0,
+        theta_pixel(face_size) * params.threshold_px,
+    );
+    choose_with_edges(hist, &edges, max_spacing_m, face_size, params)
 }
 
-/// [`choose`] on a histogram already built.
-pub fn choose_from_histogram(
+/// A pair of neighbouring low-res pixels across which the surface jumps: a viewer `B/2`
+/// off the viewpoint sees a gap open between them wider than the threshold.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OcclusionEdge {
+    pub near_m: f64,
+    pub far_m: f64,
+    /// Solid angle a viewer `B/2` away sees open up along this edge (the gap angle times
+    /// the edge's length), divided by the number of viewpoints.
+    pub weight_sr: f64,
+}
+
+/// Occlusion edges of every map: horizontal and vertical neighbours on one face, both
+/// finite, whose inverse planar depth `q = |D|/r` is predicted by neither side's linear
+/// extrapolation within `min_gap_rad / half_baseline_m` of inverse depth (a plane has zero
+/// second difference of `q`, so sloping ground is not an edge). Sky neighbours are not
+/// edges: sky is the background layer.
+pub fn occlusion_edges(
+    maps: &[CubeMap<f32>],
+    half_baseline_m: f64,
+    min_gap_rad: f64,
+) -> Vec<OcclusionEdge> {
+    let mut out = Vec::new();
+    if half_baseline_m <= 0.0 {
+        return out;
+    }
+    let views = maps.len().max(1) as f64;
+    for m in maps {
+        let n = m.face_size();
+        let dn = |x: u32, y: u32| -> f64 {
+            let (u, v) = tracks::cubemap::uv_from_pixel_f(x as f64 + 0.5, y as f64 + 0.5, n);
+            (1.0 + u * u + v * v).sqrt()
+        };
+        for face in tracks::Face::ALL {
+            let q = |x: i64, y: i64| -> Option<(f64, f64)> {
+                if x < 0 || y < 0 || x >= n as i64 || y >= n as i64 {
+                    return None;
+                }
+                let r = *m.get(face, x as u32, y as u32) as f64;
+                (r.is_finite() && r > 0.0).then(|| (dn(x as u32, y as u32) / r, r))
+            };
+            for y in 0..n as i64 {
+                for x in 0..n as i64 {
+                    let Some((qa, ra)) = q(x, y) else { continue };
+                    for (dx, dy) in [(1i64, 0i64), (0, 1)] {
+                        let Some((qb, rb)) = q(x + dx, y + dy) else {
+                            continue;
+                        };
+                        let e1 = q(x - dx, y - dy)
+                            .map_or((qb - qa).abs(), |(qp, _)| (qb - (2.0 * qa - qp)).abs());
+                        let e2 = q(x + 2 * dx, y + 2 * dy)
+                            .map_or((qa - qb).abs(), |(qn, _)| (qa - (2.0 * qb - qn)).abs());
+                        // Residual in inverse radial depth, then the gap it opens at B/2.
+                        let resid = e1.min(e2) / dn(x as u32, y as u32);
+                        let gap = half_baseline_m * (1.0 / ra.min(rb) - 1.0 / ra.max(rb));
+                        if half_baseline_m * resid > min_gap_rad && gap > min_gap_rad {
+                            out.push(OcclusionEdge {
+                                near_m: ra.min(rb),
+                                far_m: ra.max(rb),
+                                // Solid angle revealed at B/2: gap × edge length.
+                                weight_sr: gap
+                                    * tracks::cubemap::pixel_solid_angle(x as u32, y as u32, n)
+                                        .sqrt()
+                                    / views,
+                            });
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// [`choose`] on a histogram and occlusion edges already computed.
+pub fn choose_with_edges(
     hist: DepthHistogram,
+    edges: &[OcclusionEdge],
     max_spacing_m: f64,
     face_size: u32,
     params: &ChooseParams,
@@ -152,6 +252,7 @@ pub fn choose_from_histogram(
         threshold_px: params.threshold_px,
         candidates: Vec::new(),
         sky_fraction: if all > 0.0 { hist.sky_sr / all } else { 0.0 },
+        unresolved_edge_fraction: 0.0,
         manual: false,
         summary: String::new(),
     };
@@ -166,6 +267,19 @@ pub fn choose_from_histogram(
     }
     let smooth = hist.smoothed(params.smoothing_passes);
     let cands = find_candidates(&hist, &smooth, params.valley_ratio);
+    // Fractions of the whole panorama (4π sr per viewpoint).
+    let finite = 4.0 * std::f64::consts::PI;
+    let edge_fraction: Vec<f64> = cands
+        .iter()
+        .map(|c| {
+            edges
+                .iter()
+                .filter(|e| e.near_m < c.depth_m && e.far_m >= c.depth_m)
+                .map(|e| e.weight_sr)
+                .sum::<f64>()
+                / finite
+        })
+        .collect();
     let mode_depth = |lo: usize, hi: usize| -> f64 {
         // Mode of bins lo..hi (exclusive) by the raw weights; fall back to the centre.
         let mut best = (lo, -1.0);
@@ -176,9 +290,7 @@ pub fn choose_from_histogram(
         }
         hist.centre_m(best.0)
     };
-    // Live candidates; repeatedly drop the weakest failing one.
-    let mut live: Vec<usize> = (0..cands.len()).collect();
-    let mut decided: Vec<Option<Candidate>> = (0..cands.len()).map(|_| None).collect();
+    // Representative depths of the clusters either side of `live[k]` among `live`.
     let evaluate = |live: &[usize], k: usize| -> (f64, f64, f64) {
         let c = &cands[live[k]];
         let lo = if k == 0 {
@@ -198,44 +310,85 @@ pub fn choose_from_histogram(
         );
         (near, far, cluster_parallax_rad(b / 2.0, near, far))
     };
-    loop {
-        let mut weakest: Option<(usize, f64, f64, f64)> = None;
-        for k in 0..live.len() {
-            let (near, far, p) = evaluate(&live, k);
-            if weakest.is_none_or(|w| p < w.3) {
-                weakest = Some((k, near, far, p));
+    // Interval stabbing: every occlusion edge (near, far] wants a boundary inside it, so
+    // that its two sides land in different slabs. Greedy by far end picks the fewest
+    // candidates that separate them (optimal for stabbing intervals with points); a
+    // candidate that would separate less than `min_edge_fraction` of the panorama is
+    // not worth a slab, and its edge is left unresolved.
+    let mut order: Vec<usize> = (0..edges.len()).collect();
+    order.sort_by(|&i, &j| edges[i].far_m.total_cmp(&edges[j].far_m));
+    let mut stabbed = vec![false; edges.len()];
+    let mut placed = vec![false; cands.len()];
+    let stabs = |c: &Cand, e: &OcclusionEdge| e.near_m < c.depth_m && e.far_m >= c.depth_m;
+    let gain = |ci: usize, stabbed: &[bool]| -> f64 {
+        edges
+            .iter()
+            .zip(stabbed)
+            .filter(|(e, s)| !**s && stabs(&cands[ci], e))
+            .map(|(e, _)| e.weight_sr)
+            .sum::<f64>()
+            / finite
+    };
+    let mut gains: Vec<f64> = (0..cands.len()).map(|ci| gain(ci, &stabbed)).collect();
+    let mut placed_gain = vec![0.0; cands.len()];
+    for &ei in &order {
+        if stabbed[ei] {
+            continue;
+        }
+        let e = &edges[ei];
+        let Some(ci) = (0..cands.len()).rev().find(|&ci| stabs(&cands[ci], e)) else {
+            continue;
+        };
+        if placed[ci] || gains[ci] < params.min_edge_fraction {
+            continue;
+        }
+        placed[ci] = true;
+        placed_gain[ci] = gains[ci];
+        for (k, e) in edges.iter().enumerate() {
+            if stabs(&cands[ci], e) {
+                stabbed[k] = true;
             }
         }
-        let Some((k, near, far, p)) = weakest else {
-            break;
-        };
-        let px = p / theta;
-        if px > params.threshold_px {
-            break;
-        }
-        let c = &cands[live[k]];
-        decided[live[k]] = Some(Candidate {
-            kind: c.kind.into(),
-            depth_m: c.depth_m,
-            near_cluster_m: near,
-            far_cluster_m: far,
-            parallax_rad: p,
-            parallax_px: px,
-            valley_depth_ratio: c.ratio,
-            accepted: false,
-            reason: format!(
-                "parallax {px:.3} px <= {} px: nothing behind {near:.3} m is revealed within {:.3} m of a viewpoint",
-                params.threshold_px,
-                b / 2.0
-            ),
-        });
-        live.remove(k);
+        gains = (0..cands.len()).map(|ci| gain(ci, &stabbed)).collect();
     }
-    for k in 0..live.len() {
-        let (near, far, p) = evaluate(&live, k);
-        let c = &cands[live[k]];
+    let live: Vec<usize> = (0..cands.len()).filter(|&ci| placed[ci]).collect();
+    let unresolved: f64 = edges
+        .iter()
+        .zip(&stabbed)
+        .filter(|(_, s)| !**s)
+        .map(|(e, _)| e.weight_sr)
+        .sum::<f64>()
+        / finite;
+    let mut decided: Vec<Option<Candidate>> = (0..cands.len()).map(|_| None).collect();
+    // Report each candidate against the clusters between its placed neighbours.
+    for ci in 0..cands.len() {
+        let mut with: Vec<usize> = live.clone();
+        if !placed[ci] {
+            with.push(ci);
+            with.sort_unstable();
+        }
+        let k = with.iter().position(|&x| x == ci).unwrap_or(0);
+        let (near, far, p) = evaluate(&with, k);
+        let c = &cands[ci];
         let px = p / theta;
-        decided[live[k]] = Some(Candidate {
+        let all_edges = edge_fraction[ci];
+        let reason = if placed[ci] {
+            format!(
+                "separates occlusion edges covering {:.2e} of the panorama that no nearer boundary separates (clusters {near:.3} m / {far:.3} m slide {px:.3} px)",
+                placed_gain[ci]
+            )
+        } else if all_edges < params.min_edge_fraction {
+            format!(
+                "occlusion edges across {:.3} m cover {all_edges:.2e} < {:.1e} of the panorama: the surfaces on either side are continuous or too small to matter",
+                c.depth_m, params.min_edge_fraction
+            )
+        } else {
+            format!(
+                "its occlusion edges ({all_edges:.2e}) are separated by a placed boundary already, or leave less than {:.1e} for it",
+                params.min_edge_fraction
+            )
+        };
+        decided[ci] = Some(Candidate {
             kind: c.kind.into(),
             depth_m: c.depth_m,
             near_cluster_m: near,
@@ -243,11 +396,9 @@ pub fn choose_from_histogram(
             parallax_rad: p,
             parallax_px: px,
             valley_depth_ratio: c.ratio,
-            accepted: true,
-            reason: format!(
-                "parallax {px:.3} px > {} px: surfaces near {far:.3} m can be disoccluded behind {near:.3} m",
-                params.threshold_px
-            ),
+            edge_fraction: all_edges,
+            accepted: placed[ci],
+            reason,
         });
     }
     report.candidates = decided.into_iter().flatten().collect();
@@ -261,10 +412,12 @@ pub fn choose_from_histogram(
         }
     }
     slabs.extend(SlabRange::new(near, f64::INFINITY));
+    report.unresolved_edge_fraction = unresolved;
     report.summary = format!(
-        "{} slab(s) from {} candidate valley(s): B/2 = {:.3} m, θ_pixel = {:.3e} rad (N = {}), threshold {} px",
+        "{} slab(s) from {} candidate valley(s), occlusion edges left in one slab: {:.2e} of the panorama; B/2 = {:.3} m, θ_pixel = {:.3e} rad (N = {}), threshold {} px",
         slabs.len(),
         cands.len(),
+        unresolved,
         b / 2.0,
         theta,
         face_size,
@@ -355,17 +508,11 @@ fn find_candidates(hist: &DepthHistogram, smooth: &[f64], valley_ratio: f64) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use tracks::Face;
 
-    /// Faces ±x at `near`, everything else at `far`.
+    /// The left third of every face at `near` (a wall edge in front of a far surface),
+    /// everything else at `far`.
     fn two_depths(n: u32, near: f32, far: f32) -> CubeMap<f32> {
-        CubeMap::from_fn(n, |f, _, _| {
-            if matches!(f, Face::PosX | Face::NegX) {
-                near
-            } else {
-                far
-            }
-        })
+        CubeMap::from_fn(n, |_, x, _| if x < n / 3 { near } else { far })
     }
 
     #[test]
@@ -390,7 +537,7 @@ mod tests {
     fn distant_clusters_or_no_baseline_need_one_slab() {
         let m = two_depths(16, 1000.0, 5000.0);
         // (0.5)(1e-3 − 2e-4) = 4e-4 rad < (π/2)/256 = 6.1e-3 rad.
-        let c = choose(&[m.clone()], 1.0, 256, &ChooseParams::default());
+        let c = choose(std::slice::from_ref(&m), 1.0, 256, &ChooseParams::default());
         assert_eq!(c.slabs.len(), 1);
         assert!(c.criterion.candidates.iter().all(|c| !c.accepted));
         assert!(!c.criterion.candidates.is_empty());
@@ -407,7 +554,7 @@ mod tests {
     fn higher_resolution_needs_more_slabs() {
         let m = two_depths(16, 100.0, 200.0);
         // δ = 0.5 · 0.005 = 2.5e-3 rad: below a pixel at N = 256, above at N = 2048.
-        let lo = choose(&[m.clone()], 1.0, 256, &ChooseParams::default());
+        let lo = choose(std::slice::from_ref(&m), 1.0, 256, &ChooseParams::default());
         let hi = choose(&[m], 1.0, 2048, &ChooseParams::default());
         assert_eq!((lo.slabs.len(), hi.slabs.len()), (1, 2));
     }

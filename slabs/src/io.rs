@@ -150,7 +150,7 @@ pub fn decode_mesh(rec: &TileRecord, bin: &[u8], what: &str) -> Result<TileMesh,
                 bin.len()
             ))
         })?;
-    if ni % 3 != 0 {
+    if !ni.is_multiple_of(3) {
         return Err(err(format!("index count {ni} is not a multiple of 3")));
     }
     let b = &bin[start..end];

@@ -13,6 +13,8 @@ pub mod boundaries;
 pub mod histogram;
 pub mod io;
 pub mod mesh;
+pub mod plot;
+pub mod report;
 pub mod tiles;
 
 pub use boundaries::{choose, ChooseParams, CriterionReport, SlabChoice};

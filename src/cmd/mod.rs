@@ -10,5 +10,6 @@ pub mod load;
 pub mod prerender;
 pub mod render;
 pub mod serve;
+pub mod slabs;
 pub mod walk;
 pub mod verify;

@@ -1,0 +1,247 @@
+//! `railview slabs DIR`: choose slab boundaries, render missing slab layers (built-in
+//! scenes), tile and mesh every layer, write tiles files and the report.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use indicatif::{ProgressBar, ProgressStyle};
+use prerender::store::{self, LayersMeta, PrerenderDir, PrerenderReport};
+use slabs::boundaries::{self, ChooseParams, SlabChoice};
+use slabs::io as sio;
+use slabs::mesh::MeshParams;
+use slabs::report::SlabsReport;
+use slabs::tiles::{tile_sample, LayerInput, MeshKind, TileParams};
+use tracks::{CubeMap, SlabRange};
+
+/// Arguments of `railview slabs`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Prerender directory (written by `railview prerender` or `import-pov`).
+    pub dir: PathBuf,
+    /// Tile side in pixels (a power of two).
+    #[arg(long, default_value_t = 32)]
+    pub tile_size: u32,
+    /// Grid step of the regular mesh, pixels.
+    #[arg(long, default_value_t = 4)]
+    pub mesh_step: u32,
+    /// Error bound of the adaptive mesh: parallax pixels at the track's largest baseline.
+    #[arg(long, default_value_t = 0.5)]
+    pub mesh_error: f64,
+    /// Which mesh tiles.bin stores: `adaptive` or `grid` (both are measured).
+    #[arg(long, default_value = "adaptive")]
+    pub mesh: String,
+    /// Parallax (pixels at the largest baseline) that makes neighbouring pixels a discontinuity.
+    #[arg(long, default_value_t = 1.0)]
+    pub discontinuity: f64,
+    /// `auto`, or slab ranges `0-1000,1000-10000,10000-inf` (metres).
+    #[arg(long, default_value = "auto")]
+    pub slabs: String,
+    /// Pixels of parallax above which a histogram valley becomes a boundary.
+    #[arg(long, default_value_t = 1.0)]
+    pub threshold_px: f64,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let t0 = Instant::now();
+    let dir = PrerenderDir::new(&args.dir);
+    let pre: PrerenderReport = dir
+        .read_report()
+        .context("reading the prerender report (run `railview prerender` first)")?;
+    let keep = match args.mesh.as_str() {
+        "adaptive" => MeshKind::Adaptive,
+        "grid" => MeshKind::Grid,
+        other => bail!("--mesh `{other}`: expected `adaptive` or `grid`"),
+    };
+    if !args.tile_size.is_power_of_two() {
+        bail!("--tile-size {}: must be a power of two", args.tile_size);
+    }
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    if args.mesh_step == 0 || !positive(args.mesh_error) || !positive(args.discontinuity) {
+        bail!("--mesh-step, --mesh-error and --discontinuity must be positive");
+    }
+    let indices: Vec<usize> = pre.viewpoints.iter().map(|v| v.index).collect();
+    if indices.is_empty() {
+        bail!("{}: no viewpoints", dir.report_json().display());
+    }
+    let max_spacing = pre
+        .viewpoints
+        .windows(2)
+        .map(|w| w[0].position.distance(w[1].position))
+        .fold(0.0, f64::max);
+
+    // Slab boundaries: from existing layers, the command line, or the low-res depth.
+    let lowres: Vec<CubeMap<f32>> = indices
+        .iter()
+        .map(|&i| sio::read_lowres(&dir, i))
+        .collect::<Result<_, _>>()
+        .context("reading the low-resolution depth passes")?;
+    let params = ChooseParams {
+        threshold_px: args.threshold_px,
+        ..ChooseParams::default()
+    };
+    let existing: Vec<Option<LayersMeta>> = indices.iter().map(|&i| dir.layers_meta(i)).collect();
+    let rendered: Option<Vec<SlabRange>> =
+        existing.iter().flatten().next().map(|m| m.slabs.clone());
+    let choice: SlabChoice = if let Some(slabs) = &rendered {
+        if args.slabs != "auto" {
+            let want =
+                SlabRange::parse_list(&args.slabs).map_err(|e| anyhow::anyhow!("--slabs: {e}"))?;
+            if &want != slabs {
+                bail!(
+                    "the samples already have slab layers {}; remove the slab_K directories and layers.json to render {}",
+                    labels(slabs),
+                    labels(&want)
+                );
+            }
+        }
+        boundaries::manual(slabs.clone(), &lowres, max_spacing, pre.face_size, &params)
+    } else if args.slabs == "auto" {
+        boundaries::choose(&lowres, max_spacing, pre.face_size, &params)
+    } else {
+        let want =
+            SlabRange::parse_list(&args.slabs).map_err(|e| anyhow::anyhow!("--slabs: {e}"))?;
+        boundaries::manual(want, &lowres, max_spacing, pre.face_size, &params)
+    };
+    drop(lowres);
+    eprintln!("{}", choice.criterion.summary);
+
+    // Render the layers that are missing.
+    let missing: Vec<usize> = indices
+        .iter()
+        .zip(&existing)
+        .filter(|(_, m)| m.as_ref().map(|m| &m.slabs) != Some(&choice.slabs))
+        .map(|(&i, _)| i)
+        .collect();
+    if !missing.is_empty() && !choice.slabs.is_empty() {
+        render_layers(&dir, &pre, &choice.slabs, &missing)?;
+    }
+
+    let mesh = MeshParams {
+        step: args.mesh_step,
+        max_error_px: args.mesh_error,
+        baseline_m: max_spacing,
+        discontinuity_px: args.discontinuity,
+    };
+    let tp = TileParams {
+        tile_size: args.tile_size,
+        mesh,
+        keep,
+    };
+    let mut report = SlabsReport::new(&choice, pre.face_size, args.tile_size, mesh, keep);
+    let bar = progress(indices.len() as u64, "tiling");
+    for &i in &indices {
+        let layers = (0..choice.slabs.len())
+            .map(|k| sio::read_layer(&dir, i, k))
+            .collect::<Result<Vec<_>, _>>()?;
+        let inputs: Vec<LayerInput> = layers
+            .iter()
+            .map(|(depth, mask)| LayerInput { depth, mask })
+            .collect();
+        let tiles = tile_sample(i, &inputs, &tp).with_context(|| format!("sample {i}: tiling"))?;
+        let (file, bin) = sio::encode_tiles(&tiles, &choice.slabs, mesh, keep);
+        sio::write_tiles(&dir, i, &file, &bin)?;
+        report.add_sample(&tiles);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    report.seconds = t0.elapsed().as_secs_f64();
+
+    let root = dir.root();
+    store::write_json(&root.join("slabs.json"), &report)?;
+    store::write_atomic(&root.join("slabs.md"), report.markdown().as_bytes())?;
+    let rejected: Vec<f64> = choice
+        .criterion
+        .candidates
+        .iter()
+        .filter(|c| !c.accepted)
+        .map(|c| c.depth_m)
+        .collect();
+    let img = slabs::plot::plot_histogram(&choice.histogram, &choice.slabs, &rejected, 800, 300);
+    store::write_atomic(&root.join("histogram.png"), &slabs::plot::encode_png(&img))?;
+    for (k, s) in report.slabs.iter().enumerate() {
+        eprintln!(
+            "slab {k} {}: tiles {} -> {}, adaptive mesh {} triangles (max {:.3} px), grid {} triangles (max {:.3} px)",
+            SlabRange { near: s.near, far: s.far }.label(),
+            s.tiles_before,
+            s.tiles_after,
+            s.adaptive_mesh.triangles,
+            s.adaptive_mesh.max_error_px,
+            s.grid_mesh.triangles,
+            s.grid_mesh.max_error_px
+        );
+    }
+    eprintln!("wrote {}", root.join("slabs.json").display());
+    Ok(())
+}
+
+fn labels(s: &[SlabRange]) -> String {
+    s.iter().map(|r| r.label()).collect::<Vec<_>>().join(",")
+}
+
+fn progress(n: u64, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(n);
+    if let Ok(style) = ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} {eta}") {
+        bar.set_style(style);
+    }
+    bar.set_message(what.to_string());
+    bar
+}
+
+/// Render slab layers of `missing` samples with the built-in ray tracer.
+fn render_layers(
+    dir: &PrerenderDir,
+    pre: &PrerenderReport,
+    slabs: &[SlabRange],
+    missing: &[usize],
+) -> anyhow::Result<()> {
+    if pre.renderer != "builtin" {
+        bail!(
+            "samples {:?} have no slab layers {} and renderer `{}` cannot be driven from `railview slabs` yet: render them with that renderer's command (e.g. `railview import-pov --slabs {}`)",
+            missing,
+            labels(slabs),
+            pre.renderer,
+            labels(slabs)
+        );
+    }
+    let scene = match prerender::scenes::builtin(&pre.scene) {
+        Some(b) => b.scene,
+        None => {
+            let text = std::fs::read_to_string(&pre.scene)
+                .with_context(|| format!("reading scene `{}`", pre.scene))?;
+            prerender::scene::Scene::parse_toml(&text, &pre.scene)?
+        }
+    };
+    let opts = prerender::render::RenderOptions {
+        face_size: pre.face_size,
+        supersample: 1,
+        shadows: true,
+    };
+    let bar = progress(missing.len() as u64, "rendering slab layers");
+    for &i in missing {
+        let vp = pre
+            .viewpoints
+            .iter()
+            .find(|v| v.index == i)
+            .with_context(|| format!("viewpoint {i} is not in prerender.json"))?;
+        let t = Instant::now();
+        let layers = prerender::render::render_slabs(&scene, vp.position, slabs, opts);
+        for (k, l) in layers.iter().enumerate() {
+            store::write_atomic(&dir.slab_color_png(i, k), &store::encode_rgba_png(&l.color))?;
+            store::write_depth_exr(&dir.slab_depth_exr(i, k), &l.depth)?;
+        }
+        store::write_json(
+            &dir.layers_json(i),
+            &LayersMeta {
+                slabs: slabs.to_vec(),
+                seconds: t.elapsed().as_secs_f64(),
+            },
+        )?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let mut pre = pre.clone();
+    pre.slabs = slabs.to_vec();
+    store::write_json(&dir.report_json(), &pre)?;
+    Ok(())
+}
