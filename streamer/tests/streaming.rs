@@ -393,6 +393,13 @@ async fn walks_report_every_run_and_respect_the_budgets() {
                 "{} over budget",
                 r.strategy
             );
+            assert!(
+                r.resident_within_budget,
+                "{} over its memory budget",
+                r.strategy
+            );
+            assert!(r.max_resident_bytes > 0);
+            assert!(r.max_resident_bytes <= cfg.budget.memory_static_bytes);
         }
         if r.strategy != "ach" && r.strategy != "ach+prefetch" {
             assert!(

@@ -485,6 +485,24 @@ mod tests {
         assert!(pre.priority < 1.0 && cur.priority >= 1.0);
     }
 
+    proptest::proptest! {
+        #[test]
+        fn allocation_never_exceeds_the_budget(
+            weights in proptest::collection::vec((0.0f64..1.0, 0usize..6), 1..40),
+            memory in 0u64..20_000,
+        ) {
+            let items: Vec<ItemInfo> = weights.iter().map(|_| tile()).collect();
+            let cands: Vec<(usize, f64, usize)> =
+                weights.iter().enumerate().map(|(i, &(w, cap))| (i, w, cap)).collect();
+            let t = allocate(&items, &cands, memory);
+            let used: u64 = t.iter().map(|&(i, k)| items[i].mem(k)).sum();
+            proptest::prop_assert!(used <= memory);
+            for &(i, k) in &t {
+                proptest::prop_assert!(k <= cands[i].2.min(5));
+            }
+        }
+    }
+
     #[test]
     fn link_estimate_recovers_bandwidth_and_latency() {
         let mut e = LinkEstimate::new(1e6, 0.1);

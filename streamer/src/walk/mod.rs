@@ -195,6 +195,10 @@ pub struct RunReport {
     /// `null` = unlimited (naive keeps everything).
     pub cache_budget_bytes: Option<u64>,
     pub max_cache_bytes: u64,
+    /// Largest texture memory held resident by the budget rules (decoded bytes).
+    pub max_resident_bytes: u64,
+    /// Whether the resident set always fit the memory budget in force (`M` or `M_static`).
+    pub resident_within_budget: bool,
     #[serde(skip)]
     pub frames: Vec<FrameRecord>,
 }

@@ -35,6 +35,9 @@ struct Sim<'a> {
     pinned: Vec<FetchKey>,
     bytes: u64,
     requests: u64,
+    /// Largest texture memory the plan held resident, and whether it ever exceeded `M`.
+    max_resident: u64,
+    over_budget: bool,
     /// Live counts of the latest frame (used again between frames).
     live: Vec<LiveCount>,
     s: f64,
@@ -143,6 +146,8 @@ impl Sim<'_> {
                     dt_max_s: dt_max,
                     link: &self.estimate,
                 });
+                self.max_resident = self.max_resident.max(p.resident_bytes);
+                self.over_budget |= p.resident_bytes > memory;
                 // Resident parts are in use: pin them until the next decision.
                 for k in self.pinned.drain(..) {
                     self.cache.release(&k);
@@ -209,6 +214,8 @@ pub(crate) async fn run_one(
         pinned: Vec::new(),
         bytes: 0,
         requests: 0,
+        max_resident: 0,
+        over_budget: false,
         live: Vec::new(),
         s: 0.0,
     };
@@ -318,6 +325,8 @@ pub(crate) async fn run_one(
         checksum_failures: stats.checksum_failures.load(Ordering::Relaxed) - failures_before,
         cache_budget_bytes: (!naive).then(|| sim.cache.budget()),
         max_cache_bytes: max_cache,
+        max_resident_bytes: sim.max_resident,
+        resident_within_budget: !sim.over_budget,
         frames,
     })
 }
