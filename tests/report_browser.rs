@@ -128,7 +128,7 @@ fn fixture(root: &Path) {
                 "runs": [run(1.0, "conservative", true), run(0.9, "conservative", true),
                          run(1.0, "paper", true)]}),
     );
-    plot(&work.join("cull_tiles.png"), 48, 8);
+    plot(&work.join("cull/conservative-a1.png"), 48, 8);
     write_json(&root.join("db/manifest.json"), &json!({"scene": "castle"}));
     std::fs::create_dir_all(root.join("db/objects")).unwrap();
     std::fs::write(root.join("db/objects/ab12"), vec![7u8; 3000]).unwrap();

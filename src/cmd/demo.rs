@@ -95,8 +95,13 @@ fn run_stage(
 ) -> StageStatus {
     let command = command_line(&stage.argv);
     if let Some(prev) = log.stage(stage.name) {
+        let inputs_unchanged = !stage
+            .requires
+            .iter()
+            .any(|r| log.ran_now.iter().any(|n| n == r));
         if prev.status == StageStatus::Done
             && prev.command == command
+            && inputs_unchanged
             && stage.outputs.iter().all(|p| p.exists())
         {
             eprintln!("[{step}/{steps}] {}: reused ({command})", stage.name);
@@ -164,6 +169,7 @@ fn run_stage(
     match outcome {
         Ok(Ok(())) => {
             record.status = StageStatus::Done;
+            log.ran_now.push(stage.name.to_string());
             eprintln!(
                 "[{step}/{steps}] {}: done in {:.1} s",
                 stage.name, record.seconds
@@ -542,6 +548,43 @@ mod tests {
             .as_deref()
             .unwrap()
             .contains("needs `nothing`"));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn completed_stages_are_reused_until_a_stage_they_need_runs_again() {
+        let dir = std::env::temp_dir().join(format!("railview-demo-reuse-{}", std::process::id()));
+        let layout = Layout::new(dir.join("demo"));
+        let inner = dir.join("inner");
+        // A cheap real command: the report of an empty demo directory.
+        let cheap = |name: &'static str, requires: Vec<&'static str>| Stage {
+            name,
+            argv: vec![
+                "demo".into(),
+                "--report-only".into(),
+                "--out".into(),
+                path_arg(&inner.join(name)),
+            ],
+            outputs: vec![inner.join(name).join("report/index.html")],
+            requires,
+        };
+        let (a, b) = (cheap("a", vec![]), cheap("b", vec!["a"]));
+        let mut log = RunLog::load_or_default(&layout, "castle", "main", 16);
+        assert_eq!(run_stage(&layout, &mut log, &a, 1, 2), StageStatus::Done);
+        assert_eq!(run_stage(&layout, &mut log, &b, 2, 2), StageStatus::Done);
+        assert_eq!(log.ran_now, ["a", "b"]);
+        // A second run reuses both.
+        let mut log = RunLog::load_or_default(&layout, "castle", "main", 16);
+        assert_eq!(log.stages.len(), 2);
+        run_stage(&layout, &mut log, &a, 1, 2);
+        run_stage(&layout, &mut log, &b, 2, 2);
+        assert!(log.ran_now.is_empty());
+        // Outputs of `a` gone: `a` runs again, and so does `b`, which reads them.
+        std::fs::remove_dir_all(inner.join("a")).unwrap();
+        let mut log = RunLog::load_or_default(&layout, "castle", "main", 16);
+        run_stage(&layout, &mut log, &a, 1, 2);
+        run_stage(&layout, &mut log, &b, 2, 2);
+        assert_eq!(log.ran_now, ["a", "b"]);
         std::fs::remove_dir_all(&dir).ok();
     }
 

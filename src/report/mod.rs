@@ -127,6 +127,10 @@ pub struct RunLog {
     pub track: String,
     pub face_size: u32,
     pub stages: Vec<StageRecord>,
+    /// Stages that ran (rather than being reused) in this invocation: what depends on them
+    /// must run again too.
+    #[serde(skip)]
+    pub ran_now: Vec<String>,
 }
 
 impl RunLog {
@@ -137,6 +141,7 @@ impl RunLog {
             track: track.to_string(),
             face_size,
             stages: Vec::new(),
+            ran_now: Vec::new(),
         };
         match std::fs::read(layout.log()) {
             Ok(bytes) => match serde_json::from_slice::<RunLog>(&bytes) {

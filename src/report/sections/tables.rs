@@ -149,29 +149,25 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
             rows: fc_rows,
         }));
     }
+    // The culling stage's atlases (`cull/<variant>-a<alpha>.png`: kept and culled tiles).
     let debug: Vec<PathBuf> = path
         .parent()
-        .map(pngs_in)
+        .map(|d| pngs_in(&d.join("cull")))
         .unwrap_or_default()
         .into_iter()
-        .filter(|p| {
-            p.file_name()
-                .and_then(|n| n.to_str())
-                .is_some_and(|n| n.starts_with("cull"))
-        })
-        .take(4)
+        .take(6)
         .collect();
     let mut figs = Vec::new();
     for p in debug {
         let file = p
             .file_name()
             .and_then(|n| n.to_str())
-            .unwrap_or("cull.png")
+            .unwrap_or("atlas.png")
             .to_string();
-        if let Some(name) = c.copy(&p, &file) {
+        if let Some(name) = c.copy(&p, &format!("cull-{file}")) {
             figs.push(Figure {
                 src: name,
-                caption: format!("kept and culled tiles ({file})"),
+                caption: format!("kept and culled tiles, {}", file.trim_end_matches(".png")),
                 checker: false,
             });
         }
