@@ -40,6 +40,10 @@ struct BenchResult {
     slabs: usize,
     triangles: usize,
     full_ms: f64,
+    /// One reference view, all slabs.
+    one_view_ms: f64,
+    /// Two views, first slab only.
+    one_slab_ms: f64,
     plain_ms: f64,
     ratio: f64,
 }
@@ -90,21 +94,40 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )];
     let pano_plan = plan_frame(&pano, &camera, s, DrawBudget::default())?;
     let mut r = Renderer::new(Gpu::new()?);
+    let one_view = DrawBudget {
+        blend: false,
+        ..Default::default()
+    };
+    let one_slab = DrawBudget {
+        max_slabs: 1,
+        ..Default::default()
+    };
+    let variants = [DrawBudget::default(), one_view, one_slab];
     for _ in 0..3 {
         r.draw(&plan, &walk.views)?;
         r.draw_panorama(&pano_plan, &pano)?;
     }
     let (mut full, mut plain) = (Vec::new(), Vec::new());
+    let mut others: Vec<Vec<f64>> = vec![Vec::new(); variants.len() - 1];
     for _ in 0..args.frames {
-        let t = Instant::now();
-        let plan = plan_frame(&walk.views, &camera, s, DrawBudget::default())?;
-        r.draw(&plan, &walk.views)?;
-        full.push(t.elapsed().as_secs_f64() * 1e3);
+        for (k, budget) in variants.iter().enumerate() {
+            let t = Instant::now();
+            let plan = plan_frame(&walk.views, &camera, s, *budget)?;
+            r.draw(&plan, &walk.views)?;
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            if k == 0 {
+                full.push(ms);
+            } else {
+                others[k - 1].push(ms);
+            }
+        }
         let t = Instant::now();
         let p = plan_frame(&pano, &camera, s, DrawBudget::default())?;
         r.draw_panorama(&p, &pano)?;
         plain.push(t.elapsed().as_secs_f64() * 1e3);
     }
+    let one_view_ms = median(others[0].clone());
+    let one_slab_ms = median(others[1].clone());
     let (full_ms, plain_ms) = (median(full), median(plain));
     let res = BenchResult {
         adapter: format!("{} ({:?})", r.gpu.info.name, r.gpu.info.backend),
@@ -118,6 +141,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .map(|p| walk.views[p.view].triangle_count())
             .sum(),
         full_ms,
+        one_view_ms,
+        one_slab_ms,
         plain_ms,
         ratio: full_ms / plain_ms,
     };

@@ -47,31 +47,23 @@ fn pixel_on_face(f: Face, d: Vec3, n: f32) -> (f64, f64) {
     (((uu + 1.0) * 0.5 * n) as f64, ((1.0 - vv) * 0.5 * n) as f64)
 }
 
-/// Colour (linear RGB) and distance to the camera (0 = hole) of one view pass.
-pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Vec<[f32; 4]> {
+/// One view pass: colour (linear RGB) with the distance to the camera in alpha (0 = hole),
+/// and the drawn tile per pixel (index + 1, 0 = none).
+pub struct PassImage {
+    pub color: Vec<[f32; 4]>,
+    pub tile: Vec<u32>,
+}
+
+/// Execute one view pass.
+pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> PassImage {
     let (w, h) = (width as usize, height as usize);
     let u = &pass.uniforms;
     let n = u.origin_rel[3];
     let lod = u.params[0];
     let mut color = vec![[0.0f32; 4]; w * h];
     let mut depth = vec![0.0f32; w * h];
+    let mut tile_id = vec![0u32; w * h];
     let v3 = |a: [f32; 4]| Vec3::new(a[0], a[1], a[2]);
-    // Background.
-    if let Some(bg) = view.layers.first() {
-        for y in 0..h {
-            for x in 0..w {
-                let ndc_x = (x as f32 + 0.5) / width as f32 * 2.0 - 1.0;
-                let ndc_y = 1.0 - (y as f32 + 0.5) / height as f32 * 2.0;
-                let d = v3(u.ray_forward) + ndc_x * v3(u.ray_right) + ndc_y * v3(u.ray_up);
-                let f = face_of(d);
-                let (px, py) = pixel_on_face(f, d, n);
-                let c = bg.sample(lod, f, px, py);
-                if c[3] > 0.0 {
-                    color[y * w + x] = [c[0], c[1], c[2], SKY_DISTANCE];
-                }
-            }
-        }
-    }
     let m = Mat4::from_cols_array_2d(&u.clip_from_cam);
     let origin = v3(u.origin_rel);
     for &ti in &pass.visible {
@@ -113,13 +105,33 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Ve
                             depth[idx] = z;
                             let dist = (p + origin).length().clamp(1e-3, SKY_DISTANCE);
                             color[idx] = [c[0], c[1], c[2], dist];
+                            tile_id[idx] = ti as u32 + 1;
                         }
                     },
                 );
             }
         }
     }
-    color
+    // Background where no tile drew (as the GPU, after the meshes).
+    if let Some(bg) = view.layers.first() {
+        for y in 0..h {
+            for x in 0..w {
+                let ndc_x = (x as f32 + 0.5) / width as f32 * 2.0 - 1.0;
+                let ndc_y = 1.0 - (y as f32 + 0.5) / height as f32 * 2.0;
+                let d = v3(u.ray_forward) + ndc_x * v3(u.ray_right) + ndc_y * v3(u.ray_up);
+                let f = face_of(d);
+                let (px, py) = pixel_on_face(f, d, n);
+                let c = bg.sample(lod, f, px, py);
+                if c[3] > 0.0 && depth[y * w + x] == 0.0 {
+                    color[y * w + x] = [c[0], c[1], c[2], SKY_DISTANCE];
+                }
+            }
+        }
+    }
+    PassImage {
+        color,
+        tile: tile_id,
+    }
 }
 
 /// Sutherland–Hodgman against the near plane `w ≥ NEAR_M` (the GPU's `z ≤ w` with
@@ -265,7 +277,10 @@ pub fn render(plan: &FramePlan, views: &[RefView]) -> Frame {
         .take(2)
         .filter_map(|p| {
             let v = views.get(p.view)?;
-            Some((p.weight as f32, view_pass(p, v, plan.width, plan.height)))
+            Some((
+                p.weight as f32,
+                view_pass(p, v, plan.width, plan.height).color,
+            ))
         })
         .collect();
     blend(&passes, plan.width, plan.height)

@@ -4,8 +4,8 @@
 //! Per reference view it keeps a [`GpuView`]: one 2D-array texture (layer 0 background,
 //! layer `k + 1` slab `k`, faces stacked `N × 6N`, full mip chain), one vertex and index buffer
 //! with every tile mesh, and a small storage buffer of per-tile face/layer/min-level. A frame
-//! is one render pass per view (background, then tile runs with a reversed-Z depth test and
-//! the opacity mask) into an `Rgba16Float` target, then a full-screen blend pass.
+//! is one render pass per view (tile runs front slab first with a reversed-Z depth test and
+//! the opacity mask, then the background where no tile drew) into an `Rgba16Float` target, then a full-screen blend pass.
 
 use std::collections::HashMap;
 
@@ -16,6 +16,8 @@ use crate::refview::RefView;
 
 const VIEW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// Tile-id target of a view pass: tile index + 1, 0 = no tile.
+const ID_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 /// Format of the final image (sRGB-encoded RGBA8, alpha 0 = hole).
 pub const OUTPUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
 
@@ -120,6 +122,7 @@ struct Targets {
     width: u32,
     height: u32,
     view_views: [wgpu::TextureView; 2],
+    id_views: [wgpu::TextureView; 2],
     depth_view: wgpu::TextureView,
     output: wgpu::Texture,
     output_view: wgpu::TextureView,
@@ -134,6 +137,7 @@ pub struct Renderer {
     mesh: wgpu::RenderPipeline,
     panorama: wgpu::RenderPipeline,
     blend: wgpu::RenderPipeline,
+    feedback: wgpu::ComputePipeline,
     sampler: wgpu::Sampler,
     blend_uniforms: wgpu::Buffer,
     views: HashMap<usize, GpuView>,
@@ -234,6 +238,15 @@ impl Renderer {
                 bias: Default::default(),
             })
         };
+        let target = |format| {
+            Some(wgpu::ColorTargetState {
+                format,
+                blend: None,
+                write_mask: wgpu::ColorWrites::ALL,
+            })
+        };
+        let pass_targets = [target(VIEW_FORMAT), target(ID_FORMAT)];
+        let output_target = [target(OUTPUT_FORMAT)];
         let vertex_attrs = wgpu::vertex_attr_array![0 => Float32x2, 1 => Float32, 2 => Uint32];
         let mk = |label: &str,
                   module: &wgpu::ShaderModule,
@@ -241,7 +254,7 @@ impl Renderer {
                   vs: &str,
                   fs: &str,
                   buffers: &[Option<wgpu::VertexBufferLayout<'_>>],
-                  format: wgpu::TextureFormat,
+                  targets: &[Option<wgpu::ColorTargetState>],
                   depth_stencil: Option<wgpu::DepthStencilState>| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(label),
@@ -262,11 +275,7 @@ impl Renderer {
                     module,
                     entry_point: Some(fs),
                     compilation_options: Default::default(),
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
+                    targets,
                 }),
                 multiview_mask: None,
                 cache: None,
@@ -279,8 +288,10 @@ impl Renderer {
             "vs_full",
             "fs_background",
             &[],
-            VIEW_FORMAT,
-            depth(wgpu::CompareFunction::Always, false),
+            &pass_targets,
+            // Drawn after the meshes at depth 0 (the reversed-Z far plane, the clear
+            // value): only pixels no mesh covered pass, so the sky costs only where it shows.
+            depth(wgpu::CompareFunction::GreaterEqual, false),
         );
         let mesh = mk(
             "mesh",
@@ -293,7 +304,7 @@ impl Renderer {
                 step_mode: wgpu::VertexStepMode::Vertex,
                 attributes: &vertex_attrs,
             })],
-            VIEW_FORMAT,
+            &pass_targets,
             depth(wgpu::CompareFunction::Greater, true),
         );
         let panorama = mk(
@@ -303,7 +314,7 @@ impl Renderer {
             "vs_full",
             "fs_panorama",
             &[],
-            OUTPUT_FORMAT,
+            &output_target,
             None,
         );
         let blend = mk(
@@ -313,9 +324,21 @@ impl Renderer {
             "vs_full",
             "fs_blend",
             &[],
-            OUTPUT_FORMAT,
+            &output_target,
             None,
         );
+        let feedback_src = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("feedback.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("feedback.wgsl").into()),
+        });
+        let feedback = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("feedback"),
+            layout: None,
+            module: &feedback_src,
+            entry_point: Some("count"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("layers"),
             mag_filter: wgpu::FilterMode::Linear,
@@ -337,6 +360,7 @@ impl Renderer {
             mesh,
             panorama,
             blend,
+            feedback,
             sampler,
             blend_uniforms,
             views: HashMap::new(),
@@ -558,6 +582,12 @@ impl Renderer {
             OUTPUT_FORMAT,
             wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
         );
+        let id_usage =
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
+        let id_views = [
+            tex("ids 0", ID_FORMAT, id_usage).create_view(&Default::default()),
+            tex("ids 1", ID_FORMAT, id_usage).create_view(&Default::default()),
+        ];
         let view_views = [
             views[0].create_view(&Default::default()),
             views[1].create_view(&Default::default()),
@@ -568,6 +598,7 @@ impl Renderer {
             depth_view: depth.create_view(&Default::default()),
             output_view: output.create_view(&Default::default()),
             view_views,
+            id_views,
             output,
         });
         Ok(())
@@ -629,15 +660,26 @@ impl Renderer {
             }
             let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("view"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &targets.view_views[slot],
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
+                color_attachments: &[
+                    Some(wgpu::RenderPassColorAttachment {
+                        view: &targets.view_views[slot],
+                        depth_slice: None,
+                        resolve_target: None,
+                        ops: wgpu::Operations {
+                            load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                            store: wgpu::StoreOp::Store,
+                        },
+                    }),
+                    Some(wgpu::RenderPassColorAttachment {
+                        view: &targets.id_views[slot],
+                        depth_slice: None,
+                        resolve_target: None,
+                        ops: wgpu::Operations {
+                            load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                            store: wgpu::StoreOp::Store,
+                        },
+                    }),
+                ],
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                     view: &targets.depth_view,
                     depth_ops: Some(wgpu::Operations {
@@ -651,8 +693,6 @@ impl Renderer {
                 multiview_mask: None,
             });
             rp.set_bind_group(0, &g.bind_group, &[]);
-            rp.set_pipeline(&self.background);
-            rp.draw(0..3, 0..1);
             if !pass.runs.is_empty() {
                 rp.set_pipeline(&self.mesh);
                 rp.set_vertex_buffer(0, g.vertices.slice(..));
@@ -667,6 +707,8 @@ impl Renderer {
                     }
                 }
             }
+            rp.set_pipeline(&self.background);
+            rp.draw(0..3, 0..1);
         }
         let weights = BlendUniforms {
             weights: [
@@ -836,6 +878,80 @@ impl Renderer {
             height: h,
             rgba,
         })
+    }
+
+    /// Visible pixels per tile of every view pass of the last [`Renderer::draw`] (tile-id
+    /// targets counted by a compute pass with atomics); `plan` must be the plan drawn.
+    pub fn feedback(
+        &self,
+        plan: &FramePlan,
+        views: &[RefView],
+    ) -> Result<Vec<crate::feedback::ViewCounts>, GpuError> {
+        let t = self
+            .targets
+            .as_ref()
+            .ok_or_else(|| GpuError::Readback("nothing drawn yet".into()))?;
+        let device = &self.gpu.device;
+        let mut out = Vec::new();
+        for (slot, pass) in plan.passes.iter().take(2).enumerate() {
+            let n = views.get(pass.view).map_or(0, |v| v.tiles.len());
+            let size = (4 * n.max(1)) as u64;
+            let counts = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("tile counts"),
+                contents: &vec![0u8; size as usize],
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            });
+            let readback = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("tile counts readback"),
+                size,
+                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+                mapped_at_creation: false,
+            });
+            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("feedback"),
+                layout: &self.feedback.get_bind_group_layout(0),
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: wgpu::BindingResource::TextureView(&t.id_views[slot]),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: counts.as_entire_binding(),
+                    },
+                ],
+            });
+            let mut enc = device.create_command_encoder(&Default::default());
+            {
+                let mut cp = enc.begin_compute_pass(&Default::default());
+                cp.set_pipeline(&self.feedback);
+                cp.set_bind_group(0, &bg, &[]);
+                cp.dispatch_workgroups(t.width.div_ceil(8), t.height.div_ceil(8), 1);
+            }
+            enc.copy_buffer_to_buffer(&counts, 0, &readback, 0, size);
+            self.gpu.queue.submit([enc.finish()]);
+            let slice = readback.slice(..);
+            let (tx, rx) = std::sync::mpsc::channel();
+            slice.map_async(wgpu::MapMode::Read, move |r| {
+                tx.send(r).ok();
+            });
+            device
+                .poll(wgpu::PollType::wait_indefinitely())
+                .map_err(|e| GpuError::Readback(e.to_string()))?;
+            rx.recv()
+                .map_err(|e| GpuError::Readback(e.to_string()))?
+                .map_err(|e| GpuError::Readback(e.to_string()))?;
+            let data = slice
+                .get_mapped_range()
+                .map_err(|e| GpuError::Readback(e.to_string()))?;
+            let mut pixels: Vec<u32> = bytemuck::cast_slice(&data[..]).to_vec();
+            pixels.truncate(n);
+            out.push(crate::feedback::ViewCounts {
+                view: pass.view,
+                pixels,
+            });
+        }
+        Ok(out)
     }
 
     /// Draw a plan and read it back.

@@ -24,6 +24,7 @@
 //! ```
 
 pub mod cpu;
+pub mod feedback;
 pub mod gpu;
 pub mod headless;
 pub mod metrics;

@@ -98,9 +98,16 @@ fn vs_full(@builtin(vertex_index) i: u32) -> FullOut {
     return out;
 }
 
-// Background layer (sky), drawn first; alpha 1 where the layer holds something.
+// A view pass writes colour (alpha = distance, 0 = hole) and the drawn tile (index + 1,
+// 0 = none) for the visibility feedback.
+struct PassOut {
+    @location(0) color: vec4<f32>,
+    @location(1) tile: u32,
+};
+
+// Background layer (sky), drawn after the meshes where none drew.
 @fragment
-fn fs_background(in: FullOut) -> @location(0) vec4<f32> {
+fn fs_background(in: FullOut) -> PassOut {
     let ndc = vec2<f32>(in.pos.x / view.params.y * 2.0 - 1.0, 1.0 - in.pos.y / view.params.z * 2.0);
     let d = view.ray_forward.xyz + ndc.x * view.ray_right.xyz + ndc.y * view.ray_up.xyz;
     let f = face_of(d);
@@ -110,7 +117,10 @@ fn fs_background(in: FullOut) -> @location(0) vec4<f32> {
     if c.a <= 0.0 {
         discard;
     }
-    return vec4<f32>(c.rgb, SKY_DISTANCE);
+    var out: PassOut;
+    out.color = vec4<f32>(c.rgb, SKY_DISTANCE);
+    out.tile = 0u;
+    return out;
 }
 
 // The plain panorama (one cube map, no slabs, no blending): the baseline an ordinary
@@ -153,7 +163,7 @@ fn vs_mesh(v: MeshIn) -> MeshOut {
 // Projective texturing from the reference viewpoint: exact at the reference sample whatever
 // the mesh depth; the opacity mask cuts the slab.
 @fragment
-fn fs_mesh(in: MeshOut) -> @location(0) vec4<f32> {
+fn fs_mesh(in: MeshOut) -> PassOut {
     let info = tile_info[in.tile];
     let f = info.x & 7u;
     let layer = info.x >> 8u;
@@ -163,6 +173,9 @@ fn fs_mesh(in: MeshOut) -> @location(0) vec4<f32> {
         discard;
     }
     let dist = clamp(length(in.pos_from_ref + view.origin_rel.xyz), 1e-3, SKY_DISTANCE);
-    return vec4<f32>(c.rgb, dist);
+    var out: PassOut;
+    out.color = vec4<f32>(c.rgb, dist);
+    out.tile = in.tile + 1u;
+    return out;
 }
 

@@ -290,3 +290,41 @@ fn target_of_one_pixel() {
     assert_eq!((frame.width, frame.height, frame.rgba.len()), (1, 1, 4));
     assert_eq!(frame.rgba[3], 255);
 }
+
+#[test]
+fn tile_feedback_counts_match_the_cpu_and_rank_missing_tiles() {
+    let Some(mut r) = renderer() else { return };
+    let mut views = street_views(&Scene::street_slabs());
+    // Fine levels of every third tile of view 0 "have not arrived".
+    for (i, t) in views[0].tiles.iter_mut().enumerate() {
+        if i % 3 == 0 {
+            t.finest_level = 2;
+        }
+    }
+    let cam = camera(0.5, 5.0, -5.0, 96, 64);
+    let plan = plan_frame(&views, &cam, 0.5, DrawBudget::default()).unwrap();
+    let frame = r.render(&plan, &views).unwrap();
+    // Coarse levels stand in: nothing is black where the tile exists.
+    assert!(frame.hole_fraction() < 0.01);
+    let gpu = r.feedback(&plan, &views).unwrap();
+    let cpu = viewer::feedback::cpu_counts(&plan, &views);
+    assert_eq!(gpu.len(), 2);
+    let n = (96 * 64) as i64;
+    for (g, c) in gpu.iter().zip(&cpu) {
+        assert_eq!(g.view, c.view);
+        let total_g: u32 = g.pixels.iter().sum();
+        assert!(total_g > 0);
+        // Same pixels up to rasterisation ties at shared edges (≤ 0.5 % of the image).
+        let diff: i64 = g
+            .pixels
+            .iter()
+            .zip(&c.pixels)
+            .map(|(a, b)| (*a as i64 - *b as i64).abs())
+            .sum();
+        assert!(diff * 200 <= n, "view {}: {diff} pixels differ", g.view);
+    }
+    let req = viewer::feedback::missing_priorities(&plan, &views, &gpu);
+    assert!(!req.is_empty());
+    assert!(req.iter().all(|q| q.view == 0 && q.tile % 3 == 0));
+    assert!(req.windows(2).all(|w| w[0].priority >= w[1].priority));
+}
