@@ -401,3 +401,87 @@ fn a_broken_stage_image_is_left_out_not_linked() {
     );
     std::fs::remove_dir_all(&root).ok();
 }
+
+/// `railview demo` end to end at a tiny size: every stage this build has completes, a second
+/// run reuses all of them, a run killed midway is recovered by the next, and the real report
+/// loads in the browser.
+#[test]
+fn demo_end_to_end_at_a_tiny_size_reuses_and_recovers() {
+    let root = tmp_dir("e2e");
+    let out = root.join("demo");
+    let demo = || {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_railview"));
+        c.args(["demo", "--face-size", "16", "--no-window", "--out"])
+            .arg(&out);
+        c
+    };
+    // Killed midway (whatever it was doing), then run to the end.
+    let mut child = demo()
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let first = demo().output().unwrap();
+    let stderr = String::from_utf8_lossy(&first.stderr).to_string();
+    let stdout = String::from_utf8_lossy(&first.stdout).to_string();
+    assert!(first.status.success(), "demo failed:\n{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("report:") && stdout.contains("railview view"),
+        "{stdout}"
+    );
+
+    let log: Value =
+        serde_json::from_slice(&std::fs::read(out.join("demo.json")).unwrap()).unwrap();
+    let stages = log["stages"].as_array().unwrap();
+    for s in stages {
+        let (name, status) = (s["name"].as_str().unwrap(), s["status"].as_str().unwrap());
+        match status {
+            "done" => {}
+            // Only a command this build lacks, or a stage after one, may be missing.
+            "unavailable" => {
+                let why = s["message"].as_str().unwrap_or("");
+                assert!(
+                    why.contains("has no") || why.contains("needs"),
+                    "{name}: {why}"
+                );
+            }
+            other => panic!("stage {name} {other}: {s}"),
+        }
+    }
+    for must in ["prerender", "slabs", "cull"] {
+        let s = stages.iter().find(|s| s["name"] == must).unwrap();
+        assert_eq!(s["status"], "done", "{must}: {s}");
+    }
+
+    // The second run reuses every completed stage.
+    let second = demo().output().unwrap();
+    assert!(second.status.success());
+    let stderr = String::from_utf8_lossy(&second.stderr);
+    for s in stages.iter().filter(|s| s["status"] == "done") {
+        let name = s["name"].as_str().unwrap();
+        assert!(
+            stderr.contains(&format!("] {name}: reused")),
+            "{name} was not reused:\n{stderr}"
+        );
+    }
+
+    let Some(checked) = browse(&out.join("report")) else {
+        return;
+    };
+    assert!(
+        checked.images.iter().all(|(_, w)| *w > 0),
+        "{:?}",
+        checked.images
+    );
+    for id in ["stages", "prerender", "slab-table", "culling-conservative"] {
+        assert!(
+            checked.tables.contains(&id.to_string()),
+            "#{id}: {:?}",
+            checked.tables
+        );
+    }
+    std::fs::remove_dir_all(&root).ok();
+}

@@ -150,13 +150,22 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
         }));
     }
     // The culling stage's atlases (`cull/<variant>-a<alpha>.png`: kept and culled tiles).
-    let debug: Vec<PathBuf> = path
+    // The conservative run at α = 1 and the most aggressive paper run say the most; other
+    // atlases are in the culling directory.
+    let all: Vec<PathBuf> = path
         .parent()
         .map(|d| pngs_in(&d.join("cull")))
-        .unwrap_or_default()
-        .into_iter()
-        .take(6)
+        .unwrap_or_default();
+    let preferred: Vec<PathBuf> = ["conservative-a1.png", "paper-a0.8.png"]
+        .iter()
+        .filter_map(|n| all.iter().find(|p| p.file_name().is_some_and(|f| f == *n)))
+        .cloned()
         .collect();
+    let debug = if preferred.is_empty() {
+        all.into_iter().take(2).collect()
+    } else {
+        preferred
+    };
     let mut figs = Vec::new();
     for p in debug {
         let file = p
