@@ -297,16 +297,18 @@ mod tests {
             ..r
         };
         assert_eq!(q.opaque_count(&r2), 4 * 8);
-        // Nearest opaque pixel in r2 is (5, 2) at 5 + 5 + 1 = 11; the block minimum may be lower.
-        assert!(q.min_depth(&r2) <= 11.0);
-        assert!(q.min_depth(&r2) >= 8.0);
-        assert_eq!(
-            q.min_depth(&PixelRect {
-                face: Face::PosX,
-                ..r
-            }),
-            f32::INFINITY
-        );
+        // Along the face's own axis: planar depth d·cos of the nearest pixel (5, 2) at
+        // depth 11 bounds it; the 8-pixel blocks reach back to x = 3 (depth 8) at worst.
+        let z = q.min_planar_depth(&r2, Face::NegY);
+        let near = 11.0 * tracks::cubemap::pixel_dir(Face::NegY, 5, 2, n).dot(Face::NegY.forward());
+        assert!(z <= near && z >= 8.0 * 0.5, "{z} {near}");
+        let px = PixelRect {
+            face: Face::PosX,
+            ..r
+        };
+        assert_eq!(q.min_planar_depth(&px, Face::PosX), f64::INFINITY);
+        // Along a neighbour's axis the same pixels are partly beside it: nearer.
+        assert!(q.min_planar_depth(&r2, Face::PosX) < z);
     }
 
     #[test]

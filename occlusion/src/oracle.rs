@@ -193,11 +193,21 @@ pub fn mark_visible(
                     continue;
                 };
                 let (cx, cy) = c.to_pixel(n);
-                for (k, l) in layers.iter().enumerate() {
-                    // Exact geometry: the point's own distance decides its slab.
-                    if !l.range.contains(r) {
-                        continue;
-                    }
+                // The pixel the point falls in, in whichever slab stores this surface there
+                // (a surface crossing a slab boundary is split by pixel centres).
+                let centre = layers
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, l)| *l.alpha.get(c.face, cx, cy) >= 128)
+                    .map(|(k, l)| (k, (*l.depth.get(c.face, cx, cy) as f64 - r).abs()))
+                    .filter(|&(_, e)| e <= tol * r)
+                    .min_by(|a, b| a.1.total_cmp(&b.1));
+                if let Some((k, _)) = centre {
+                    vis.mark(k, c.face, cx, cy);
+                    continue;
+                }
+                // Otherwise a neighbouring pixel of the slab the distance falls in.
+                if let Some((k, l)) = layers.iter().enumerate().find(|(_, l)| l.range.contains(r)) {
                     if let Some((bx, by)) =
                         best_match(l, c.face, cx, cy, r, tol, rule.search_radius)
                     {
