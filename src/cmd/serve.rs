@@ -51,14 +51,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("binding {}", args.addr))?;
         let local = listener.local_addr()?;
         eprintln!(
-            "serving {} on http://{local} (Ctrl-C stops)",
+            "serving {} on http://{local} (Ctrl-C or SIGTERM stops)",
             args.db.display()
         );
         let stats = Arc::new(ServerStats::default());
-        let shutdown = async {
-            if let Err(e) = tokio::signal::ctrl_c().await {
-                tracing::warn!("waiting for Ctrl-C: {e}");
-                std::future::pending::<()>().await;
+        // Ctrl-C or SIGTERM start a graceful drain.
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+            .context("installing the SIGTERM handler")?;
+        let shutdown = async move {
+            tokio::select! {
+                r = tokio::signal::ctrl_c() => {
+                    if let Err(e) = r {
+                        tracing::warn!("waiting for Ctrl-C: {e}");
+                        std::future::pending::<()>().await;
+                    }
+                }
+                _ = term.recv() => {}
             }
         };
         server::run(listener, db, config, stats.clone(), shutdown).await?;

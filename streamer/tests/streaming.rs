@@ -247,6 +247,66 @@ async fn fetcher_serves_by_priority_and_drops_cancelled_requests() {
 }
 
 #[tokio::test]
+async fn a_running_request_can_be_cancelled_and_the_worker_goes_on() {
+    let params = synth::SynthParams {
+        face_size: 128,
+        tile_size: 64,
+        ..synth::SynthParams::default()
+    };
+    let (dir, m) = temp_db("cancel", &params);
+    // 8 kbit/s: a whole 64×64 tile (about 8 kB) takes seconds, long enough to cancel it.
+    let slow = ServerConfig {
+        throttle_bps: Some(8_000),
+        ..ServerConfig::default()
+    };
+    let srv = start(&dir, slow, "127.0.0.1:0").await;
+    let table = ItemTable::new(&m, 0).unwrap();
+    let whole = &table.items[0].whole;
+    let mut f = Fetcher::new(
+        srv.url(),
+        FetcherConfig {
+            max_in_flight: 1,
+            ..FetcherConfig::default()
+        },
+    );
+    f.submit(FetchRequest {
+        key: whole.key.clone(),
+        expected_hash: whole.hash.clone(),
+        priority: 1.0,
+    });
+    tokio::time::sleep(Duration::from_millis(150)).await;
+    assert!(f.is_pending(&whole.key));
+    f.cancel(&whole.key);
+    let out = tokio::time::timeout(Duration::from_secs(5), f.next())
+        .await
+        .unwrap()
+        .unwrap();
+    assert!(
+        matches!(out.result, Err(ClientError::Cancelled)),
+        "{:?}",
+        out.result
+    );
+    // The same worker serves the next request (on a fresh connection).
+    let level = &table.items[1].parts[1];
+    f.submit(FetchRequest {
+        key: level.key.clone(),
+        expected_hash: level.hash.clone(),
+        priority: 1.0,
+    });
+    let out = tokio::time::timeout(Duration::from_secs(5), f.next())
+        .await
+        .unwrap()
+        .unwrap();
+    assert_eq!(
+        blake3::hash(&out.result.unwrap()).to_hex().as_str(),
+        level.hash
+    );
+    drop(f);
+    srv.stop().await;
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test]
 async fn corrupted_responses_are_fetched_again_and_never_returned() {
     let (dir, m) = temp_db("corrupt", &synth::SynthParams::default());
     let reqs = level_requests(&m, 20);

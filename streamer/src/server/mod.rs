@@ -109,18 +109,26 @@ pub struct ServedDb {
 }
 
 impl ServedDb {
-    /// Read and check `root/manifest.json`; remember every object hash it lists.
+    /// Read and check `root/manifest.json` (through the database reader: version, and the
+    /// checksum file when present); remember every object hash it lists.
     pub fn open(root: &Path) -> Result<ServedDb, ServerError> {
         let path = root.join("manifest.json");
+        let manifest: Manifest =
+            crate::db::read_manifest(root).map_err(|e| ServerError::Manifest {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+        // The bytes served are the bytes checked (re-read: the reader does not return them).
         let raw = std::fs::read(&path).map_err(|source| ServerError::Io {
             path: path.clone(),
             source,
         })?;
-        let manifest: Manifest =
-            serde_json::from_slice(&raw).map_err(|e| ServerError::Manifest {
-                path: path.clone(),
-                message: e.to_string(),
-            })?;
+        if serde_json::from_slice::<Manifest>(&raw).ok().as_ref() != Some(&manifest) {
+            return Err(ServerError::Manifest {
+                path,
+                message: "changed while it was being opened".into(),
+            });
+        }
         let objects = manifest_objects(&manifest);
         if let Some(bad) = objects.iter().find(|h| object_rel_path(h).is_none()) {
             return Err(ServerError::Manifest {
