@@ -13,17 +13,36 @@ use prerender::render::{render_cube, render_depth_lowres, render_slabs, RenderOp
 use prerender::scenes::builtin;
 use tracks::SlabRange;
 
-fn render_cube_timed(
-    scene: &prerender::scene::Scene,
-    pos: glam::DVec3,
-    opts: RenderOptions,
-) -> f64 {
+/// CPU seconds (user + system) this process has used so far, from `/proc/self/stat`; `None`
+/// where that is not available. On a shared machine, CPU time / cores is what the wall time
+/// would be with the cores to ourselves.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+/// Run `f` once: (wall seconds, CPU seconds) and its result.
+fn timed<T>(f: impl FnOnce() -> T) -> (f64, f64, T) {
+    let c0 = cpu_seconds();
     let t = Instant::now();
-    black_box(render_cube(scene, pos, opts));
-    t.elapsed().as_secs_f64()
+    let r = black_box(f());
+    let wall = t.elapsed().as_secs_f64();
+    let cpu = match (c0, cpu_seconds()) {
+        (Some(a), Some(b)) => b - a,
+        _ => f64::NAN,
+    };
+    (wall, cpu, r)
 }
 
 fn bench(c: &mut Criterion) {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as f64;
+    println!(
+        "cores: {cores}; `cpu` = process CPU seconds, `cpu/cores` = wall time on an idle machine"
+    );
     for name in ["castle", "nature"] {
         let b = builtin(name).expect("built-in scene");
         let vps = b.tracks.get("main").expect("track main").viewpoints();
@@ -33,41 +52,48 @@ fn bench(c: &mut Criterion) {
             supersample: 1,
             shadows: true,
         };
-        // One timed run for the throughput line.
-        let t = Instant::now();
-        let r = render_cube(&b.scene, pos, opts);
-        let s = t.elapsed().as_secs_f64();
         println!(
-            "{name}: 6x512² cube map with shadows {s:.3} s, {:.0} shaded samples/s, {:.0} primary rays/s",
-            r.color.as_slice().len() as f64 / s,
-            r.primary_rays as f64 / s
+            "{name}: {} primitives, viewpoint {pos}",
+            b.scene.primitive_count()
         );
-        let t = Instant::now();
-        black_box(render_depth_lowres(&b.scene, pos, 512));
-        let sd = t.elapsed().as_secs_f64();
-        let no_shadows = render_cube_timed(
-            &b.scene,
-            pos,
-            RenderOptions {
-                shadows: false,
-                ..opts
-            },
-        );
+        let (w, cpu, r) = timed(|| render_cube(&b.scene, pos, opts));
+        let idle = cpu / cores;
         println!(
-            "{name}: depth only 6x512² {sd:.3} s ({:.0} rays/s); shaded without shadows {no_shadows:.3} s",
-            6.0 * 512.0 * 512.0 / sd
+            "{name}: cube 6x512² shadows: wall {w:.3} s, cpu {cpu:.2} s, cpu/cores {idle:.3} s; \
+             {:.0} shaded samples/s and {:.0} primary rays/s (at cpu/cores)",
+            r.color.as_slice().len() as f64 / idle,
+            r.primary_rays as f64 / idle
+        );
+        let (w2, cpu2, _) = timed(|| {
+            render_cube(
+                &b.scene,
+                pos,
+                RenderOptions {
+                    shadows: false,
+                    ..opts
+                },
+            )
+        });
+        println!(
+            "{name}: cube 6x512² no shadows: wall {w2:.3} s, cpu/cores {:.3} s",
+            cpu2 / cores
+        );
+        let (w3, cpu3, _) = timed(|| render_depth_lowres(&b.scene, pos, 512));
+        println!(
+            "{name}: depth only 6x512²: wall {w3:.3} s, cpu/cores {:.3} s ({:.0} rays/s)",
+            cpu3 / cores,
+            6.0 * 512.0 * 512.0 / (cpu3 / cores)
         );
         let slabs = SlabRange::parse_list("0-8,8-25,25-inf").expect("slab list");
-        let t = Instant::now();
-        let layers = render_slabs(&b.scene, pos, &slabs, opts);
-        let s3 = t.elapsed().as_secs_f64();
+        let (w4, cpu4, layers) = timed(|| render_slabs(&b.scene, pos, &slabs, opts));
         let filled: Vec<usize> = layers
             .iter()
             .map(|l| l.color.as_slice().iter().filter(|c| c[3] == 255).count())
             .collect();
         println!(
-            "{name}: 3 slab layers 6x512² with shadows {s3:.3} s ({:.2}x the single layer), texels per layer {filled:?}",
-            s3 / s
+            "{name}: 3 slab layers 6x512² shadows: wall {w4:.3} s, cpu/cores {:.3} s ({:.2}x the single layer by cpu), texels per layer {filled:?}",
+            cpu4 / cores,
+            cpu4 / cpu
         );
         let mut g = c.benchmark_group(name);
         g.sample_size(10);

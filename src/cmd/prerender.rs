@@ -103,6 +103,11 @@ fn bar(len: usize, what: &str) -> ProgressBar {
     pb
 }
 
+/// Store errors already name the file and include their cause: keep the message single.
+fn store_error(e: store::StoreError) -> anyhow::Error {
+    anyhow::anyhow!("{e}")
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let started = Instant::now();
     if args.face_size == 0 || args.lowres_face_size == 0 {
@@ -123,12 +128,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let (scene, scene_tracks) = load_scene(&args.scene)?;
     let track = pick_track(&args.track, scene_tracks.as_ref())?;
-    store::ensure_writable_dir(&args.out).context("output directory")?;
+    store::ensure_writable_dir(&args.out)
+        .map_err(store_error)
+        .context("output directory")?;
     let dir = PrerenderDir::new(&args.out);
     let one = TrackSet {
         tracks: vec![track.clone()],
     };
-    store::write_atomic(&dir.track_toml(), one.to_toml().as_bytes())?;
+    store::write_atomic(&dir.track_toml(), one.to_toml().as_bytes()).map_err(store_error)?;
 
     let viewpoints = track.viewpoints();
     let mine: Vec<_> = viewpoints
@@ -150,12 +157,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.lowres_face_size,
         None,
         &|_, _| pb.inc(1),
-    )?;
+    )
+    .map_err(store_error)?;
     pb.finish();
     if !slabs.is_empty() {
         let pb = bar(mine.len(), "slab layers");
         let s: RunStats =
-            job::write_slab_layers_with(&dir, &scene, &mine, &slabs, opts, &|_, _| pb.inc(1))?;
+            job::write_slab_layers_with(&dir, &scene, &mine, &slabs, opts, &|_, _| pb.inc(1))
+                .map_err(store_error)?;
         pb.finish();
         stats.render_seconds += s.render_seconds;
     }
@@ -172,7 +181,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             seconds: started.elapsed().as_secs_f64(),
             stats: &stats,
         },
-    )?;
+    )
+    .map_err(store_error)?;
     eprintln!(
         "{} of {} samples complete in {} ({} rendered, {} skipped); {:.0} primary rays/s",
         report.extra["complete_samples"],
