@@ -5,7 +5,7 @@
 use std::borrow::Cow;
 
 use super::encode::Method;
-use super::pyramid::{is_rebuilt, level_dims, max_levels, predict, stored_count};
+use super::pyramid::{is_rebuilt, level_dims, max_levels, stored_count};
 use super::{Header, Image, Limits, PtmError, FIXED_HEADER_LEN, FORMAT_VERSION, MAGIC};
 
 /// What the decoder needs next.
@@ -71,7 +71,11 @@ fn plain_len(h: &Header, g: usize) -> u64 {
         w as u64 * h2 as u64 * c
     } else {
         let (pw, ph) = level_dims(h.width, h.height, level + 1);
-        (pw as u64 * ph as u64 * c).div_ceil(4) + stored_count(w, h2) as u64 * c
+        let residuals = match h.method {
+            Method::Raw => (pw as u64 * ph as u64 * c).div_ceil(4),
+            Method::Zstd => pw as u64 * ph as u64 * c,
+        };
+        residuals + stored_count(w, h2) as u64 * c
     }
 }
 
@@ -348,6 +352,7 @@ fn lowest_from_plain(plain: &[u8], w: u32, h: u32, c: u8, method: Method) -> Ima
 }
 
 /// Rebuilds level `level` (`w × h`) from its parent, residuals and partial level (eq. 3).
+/// (Method::Zstd levels go through `predict::decode_level`.)
 fn level_from_plain(
     plain: &[u8],
     parent: &Image,
@@ -357,6 +362,15 @@ fn level_from_plain(
     method: Method,
 ) -> Result<Image, PtmError> {
     let c = parent.channels as usize;
+    if method == Method::Zstd {
+        let data = super::predict::decode_level(plain, parent, w, h, level)?;
+        return Ok(Image {
+            width: w,
+            height: h,
+            channels: c as u8,
+            data,
+        });
+    }
     let (pw, ph) = (parent.width, parent.height);
     let n_res = pw as usize * ph as usize * c;
     let (res_bytes, pixels) = plain.split_at(n_res.div_ceil(4));
@@ -371,30 +385,12 @@ fn level_from_plain(
     }
     let mut data = vec![0u8; w as usize * h as usize * c];
     let mut src = pixels.iter();
-    match method {
-        Method::Raw => {
-            for y in 0..h {
-                for x in 0..w {
-                    if !is_rebuilt(x, y, w, h) {
-                        let at = (y as usize * w as usize + x as usize) * c;
-                        for v in &mut data[at..at + c] {
-                            *v = *src.next().expect("length checked");
-                        }
-                    }
-                }
-            }
-        }
-        Method::Zstd => {
-            for k in 0..c {
-                for y in 0..h {
-                    let row = y as usize * w as usize;
-                    for x in 0..w {
-                        if !is_rebuilt(x, y, w, h) {
-                            let p = predict(&parent.data, pw, ph, c, x, y, k);
-                            data[(row + x as usize) * c + k] =
-                                src.next().expect("length checked").wrapping_add(p);
-                        }
-                    }
+    for y in 0..h {
+        for x in 0..w {
+            if !is_rebuilt(x, y, w, h) {
+                let at = (y as usize * w as usize + x as usize) * c;
+                for v in &mut data[at..at + c] {
+                    *v = *src.next().expect("length checked");
                 }
             }
         }

@@ -1,6 +1,6 @@
 //! PTM encoder: pyramid → header, lowest level, one group per level coarse to fine.
 
-use super::pyramid::{is_rebuilt, max_levels, predict, stored_count, MipChain};
+use super::pyramid::{is_rebuilt, max_levels, stored_count, MipChain};
 use super::{Image, PtmError, FIXED_HEADER_LEN, FORMAT_VERSION, MAGIC};
 
 /// How group payloads are coded.
@@ -36,7 +36,7 @@ impl Default for EncodeOptions {
     fn default() -> Self {
         EncodeOptions {
             method: Method::Zstd,
-            zstd_level: 9,
+            zstd_level: 19,
             levels: None,
         }
     }
@@ -150,6 +150,9 @@ pub(crate) fn pack_residuals(res: &[u8]) -> Vec<u8> {
 /// One level group before compression: packed residuals, then the partial level (raw: pixels
 /// interleaved; zstd: per channel plane, difference from the parent prediction).
 fn group_plain(level: &Image, parent: &Image, residuals: &[u8], method: Method) -> Vec<u8> {
+    if method == Method::Zstd {
+        return super::predict::encode_level(level, parent, residuals);
+    }
     let (w, h, c) = (level.width, level.height, level.channels as usize);
     let mut out = pack_residuals(residuals);
     out.reserve(stored_count(w, h) * c);
@@ -164,20 +167,7 @@ fn group_plain(level: &Image, parent: &Image, residuals: &[u8], method: Method) 
                 }
             }
         }
-        Method::Zstd => {
-            for k in 0..c {
-                for y in 0..h {
-                    let row = y as usize * w as usize;
-                    for x in 0..w {
-                        if !is_rebuilt(x, y, w, h) {
-                            let v = level.data[(row + x as usize) * c + k];
-                            let p = predict(&parent.data, parent.width, parent.height, c, x, y, k);
-                            out.push(v.wrapping_sub(p));
-                        }
-                    }
-                }
-            }
-        }
+        Method::Zstd => unreachable!("handled above"),
     }
     out
 }

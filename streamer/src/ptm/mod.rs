@@ -36,11 +36,11 @@
 //! Group 0 as a *stream chunk* includes the header, so fetching chunk 0 gives everything
 //! needed to ask for any other chunk by byte range ([`Encoded::groups`], [`Header::chunk_range`]).
 //!
-//! With method 1 each group's payload is one zstd frame of: the packed residuals, then every
-//! stored pixel's difference (mod 256) from a bilinear upsampling of the parent level, one
-//! channel plane after another. The lowest level is coded as differences from the previous
-//! value in each channel plane. Level groups decode independently of each other once the
-//! parent level is known.
+//! With method 1 each group's payload is one zstd frame of: one byte per residual, coded
+//! relative to the residual the neighbours predict, then every stored sample's difference
+//! (mod 256) from its prediction, samples interleaved (see `predict.rs`). The lowest level is
+//! coded as differences from the previous value in each channel plane. A group decodes once
+//! its parent level is known.
 //!
 //! ```
 //! use streamer::ptm::{encode, Decoder, EncodeOptions, Image, Limits, Status};
@@ -57,6 +57,7 @@
 
 mod decode;
 mod encode;
+mod predict;
 mod pyramid;
 
 pub use decode::{decode, Decoder, Status};

@@ -1,5 +1,5 @@
 //! The integer mip pyramid: box filter with remainders (eq. 1), block geometry on odd edges,
-//! reconstruction of the missing pixel (eq. 3), and the parent-level predictor.
+//! and which pixel eq. 3 rebuilds.
 
 use super::{Image, PtmError};
 
@@ -104,25 +104,6 @@ fn reduce(img: &Image) -> (Image, Vec<u8>) {
         data: parent,
     };
     (parent, res)
-}
-
-/// Bilinear (9-3-3-1)/16 upsampling of `parent` at child pixel (x, y), channel `k`.
-#[inline]
-pub(crate) fn predict(parent: &[u8], pw: u32, ph: u32, c: usize, x: u32, y: u32, k: usize) -> u8 {
-    let i = x >> 1;
-    let j = y >> 1;
-    let i2 = if x & 1 == 0 {
-        i.saturating_sub(1)
-    } else {
-        (i + 1).min(pw - 1)
-    };
-    let j2 = if y & 1 == 0 {
-        j.saturating_sub(1)
-    } else {
-        (j + 1).min(ph - 1)
-    };
-    let at = |i: u32, j: u32| parent[(j as usize * pw as usize + i as usize) * c + k] as u32;
-    ((9 * at(i, j) + 3 * at(i2, j) + 3 * at(i, j2) + at(i2, j2) + 8) >> 4) as u8
 }
 
 #[cfg(test)]

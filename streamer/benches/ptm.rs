@@ -1,0 +1,152 @@
+//! PTM codec benchmark on 256×256 RGBA tiles.
+//!
+//! Tiles: the six faces of the built-in `castle` rendered at 256 px from the first reference
+//! viewpoint of track `main` (alpha = 255 on geometry, 0 on sky, as a near slab's mask), plus
+//! one deterministic synthetic texture for comparison. Measures encode and decode throughput
+//! (MB/s of RGBA pixels), PNG decode of the same tile with the `image` crate, and prints sizes:
+//! PTM (zstd) against PNG of the base level and against the raw mip chain.
+//!
+//! `cargo bench -p streamer --bench ptm`
+
+use std::hint::black_box;
+use std::io::Cursor;
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use prerender::render::{render_cube, RenderOptions};
+use streamer::ptm::{decode, encode, EncodeOptions, Image, Limits, Method};
+use tracks::Face;
+
+const N: u32 = 256;
+
+fn castle_tiles() -> Vec<(String, Image)> {
+    let built = prerender::scenes::builtin("castle").expect("castle is built in");
+    let track = built.tracks.get("main").expect("castle has track main");
+    let vp = &track.viewpoints()[0];
+    let cube = render_cube(
+        &built.scene,
+        vp.position,
+        RenderOptions {
+            face_size: N,
+            supersample: 1,
+            shadows: true,
+        },
+    );
+    Face::ALL
+        .iter()
+        .map(|&f| {
+            let (c, d) = (cube.color.face(f), cube.depth.face(f));
+            let img = Image::from_fn(N, N, 4, |x, y, k| {
+                let i = (y * N + x) as usize;
+                if k == 3 {
+                    if d[i].is_finite() {
+                        255
+                    } else {
+                        0
+                    }
+                } else {
+                    c[i][k as usize]
+                }
+            });
+            (format!("castle-{}", f.short_name()), img)
+        })
+        .collect()
+}
+
+fn synthetic_tile() -> Image {
+    Image::from_fn(N, N, 4, |x, y, k| {
+        let (fx, fy) = (x as f64 / 17.0, y as f64 / 23.0);
+        let v =
+            128.0 + 60.0 * (fx + k as f64).sin() * (fy * 1.3).cos() + ((x * 7 + y * 13) % 9) as f64;
+        if k == 3 {
+            255
+        } else {
+            v as u8
+        }
+    })
+}
+
+fn png_bytes(img: &Image) -> Vec<u8> {
+    let mut out = Vec::new();
+    image::RgbaImage::from_raw(img.width(), img.height(), img.data().to_vec())
+        .expect("size matches")
+        .write_to(&mut Cursor::new(&mut out), image::ImageFormat::Png)
+        .expect("png encode");
+    out
+}
+
+fn raw_mip_chain_bytes(img: &Image) -> u64 {
+    let mut total = 0u64;
+    let (mut w, mut h) = (img.width(), img.height());
+    loop {
+        total += w as u64 * h as u64 * img.channels() as u64;
+        if w == 1 && h == 1 {
+            return total;
+        }
+        (w, h) = (w.div_ceil(2), h.div_ceil(2));
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    let mut tiles = castle_tiles();
+    tiles.push(("synthetic".into(), synthetic_tile()));
+    let opts = EncodeOptions::default();
+    let raw_opts = EncodeOptions {
+        method: Method::Raw,
+        ..opts
+    };
+    println!(
+        "\n{:<12} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8}",
+        "tile", "rgba", "mipchain", "ptm-raw", "png", "ptm-zstd", "vs png", "vs mips"
+    );
+    let (mut sum_png, mut sum_ptm, mut sum_mips, mut sum_raw) = (0u64, 0u64, 0u64, 0u64);
+    for (name, img) in &tiles {
+        let png = png_bytes(img).len() as u64;
+        let ptm = encode(img, &opts).unwrap().bytes.len() as u64;
+        let raw = encode(img, &raw_opts).unwrap().bytes.len() as u64;
+        let mips = raw_mip_chain_bytes(img);
+        if name.starts_with("castle") {
+            sum_png += png;
+            sum_ptm += ptm;
+            sum_mips += mips;
+            sum_raw += raw;
+        }
+        println!(
+            "{name:<12} {:>9} {mips:>9} {raw:>9} {png:>9} {ptm:>9} {:>8.3} {:>8.3}",
+            img.data().len(),
+            ptm as f64 / png as f64,
+            ptm as f64 / mips as f64
+        );
+    }
+    println!(
+        "castle total: ptm/png {:.3}, ptm/mipchain {:.3}, ptm-raw/base {:.4}, mipchain/ptm {:.2}:1\n",
+        sum_ptm as f64 / sum_png as f64,
+        sum_ptm as f64 / sum_mips as f64,
+        sum_raw as f64 / (6 * N * N * 4) as f64,
+        sum_mips as f64 / sum_ptm as f64
+    );
+
+    let mut g = c.benchmark_group("ptm-256-rgba");
+    g.throughput(Throughput::Bytes((N * N * 4) as u64));
+    let (name, img) = &tiles[Face::PosX.index()];
+    let enc = encode(img, &opts).unwrap().bytes;
+    let png = png_bytes(img);
+    g.bench_function(format!("encode/{name}"), |b| {
+        b.iter(|| encode(black_box(img), &opts).unwrap())
+    });
+    g.bench_function(format!("decode/{name}"), |b| {
+        b.iter(|| decode(black_box(&enc), Limits::default()).unwrap())
+    });
+    g.bench_function(format!("png-decode/{name}"), |b| {
+        b.iter(|| {
+            image::load_from_memory_with_format(black_box(&png), image::ImageFormat::Png).unwrap()
+        })
+    });
+    let raw = encode(img, &raw_opts).unwrap().bytes;
+    g.bench_function(format!("decode-raw-method/{name}"), |b| {
+        b.iter(|| decode(black_box(&raw), Limits::default()).unwrap())
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
