@@ -414,3 +414,4 @@ fn timeout_kills_the_render_and_leaves_no_complete_sample() {
     assert!(e.to_string().contains("sample 0"), "{e}");
     assert_no_sample(&dir);
 }
+

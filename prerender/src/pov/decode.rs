@@ -11,6 +11,7 @@ use std::path::Path;
 
 use tracks::CubeMap;
 
+use super::frame::MeshLayout;
 use super::PovError;
 
 /// Fog distances and strength of one depth pass.
@@ -69,6 +70,8 @@ pub struct FogDepth {
     pub zero: usize,
     /// Pixels with a finite distance.
     pub hits: usize,
+    /// Pixels whose channels all clipped on top of the scene's fog (decoded as misses).
+    pub clipped: usize,
 }
 
 /// Decode fog-trick pixels. `fog_only` is the same view rendered with only the black filter
@@ -83,6 +86,7 @@ pub fn decode_fog(p1: &[[u16; 3]], fog_only: Option<&[[u16; 3]]>, s: &FogScales)
         inconsistent: 0,
         zero: 0,
         hits: 0,
+        clipped: 0,
     };
     for (i, px) in p1.iter().enumerate() {
         let v: [f64; 3] = std::array::from_fn(|c| {
@@ -102,8 +106,18 @@ pub fn decode_fog(p1: &[[u16; 3]], fog_only: Option<&[[u16; 3]]>, s: &FogScales)
                 -s.d[c] * (-x).ln_1p()
             }
         };
-        let intervals: [(f64, f64); 3] =
-            std::array::from_fn(|c| (dist(c, v[c] - e), dist(c, v[c] + e)));
+        // A channel at 65535 on top of the scene's own fog was clipped: it only bounds the
+        // distance from below.
+        let clipped: [bool; 3] =
+            std::array::from_fn(|c| px[c] == u16::MAX && fog_only.is_some_and(|p0| p0[i][c] > 0));
+        let intervals: [(f64, f64); 3] = std::array::from_fn(|c| {
+            let hi = if clipped[c] {
+                f64::INFINITY
+            } else {
+                dist(c, v[c] + e)
+            };
+            (dist(c, v[c] - e), hi)
+        });
         let best = (0..3)
             .min_by(|&a, &b| {
                 // Relative width; saturated channels (infinite interval) rank last. The
@@ -122,6 +136,13 @@ pub fn decode_fog(p1: &[[u16; 3]], fog_only: Option<&[[u16; 3]]>, s: &FogScales)
             })
             .unwrap_or(0);
         let t = dist(best, v[best]);
+        if clipped[best] {
+            // Every channel clipped (a ray into dense scene fog that hits nothing, e.g. one
+            // starting underground): nothing to decode; counted, and treated as a miss.
+            out.clipped += 1;
+            out.t.push(f64::INFINITY);
+            continue;
+        }
         if !t.is_finite() {
             out.t.push(f64::INFINITY);
             continue;
@@ -168,10 +189,19 @@ fn read_png(path: &Path, width: u32, height: u32) -> Result<image::DynamicImage,
     Ok(img)
 }
 
-/// A mesh-camera render of a cube map of `face_size`: 16-bit RGB pixels, the two leading
-/// rows dropped, face-major.
-pub fn read_mesh_png16(path: &Path, face_size: u32) -> Result<Vec<[u16; 3]>, PovError> {
-    let (w, h) = super::frame::mesh_image_size(face_size);
+/// The cube-map rows of a mesh-camera image (dummy rows dropped), row-major.
+fn cube_rows<P: Copy>(img: &[P], layout: &MeshLayout) -> Vec<P> {
+    let (w, h) = layout.image_size();
+    let w = w as usize;
+    (0..h)
+        .filter(|&j| layout.cube_row(j).is_some())
+        .flat_map(|j| img[j as usize * w..(j as usize + 1) * w].iter().copied())
+        .collect()
+}
+
+/// A mesh-camera render as 16-bit RGB cube-map pixels, face-major.
+pub fn read_mesh_png16(path: &Path, layout: &MeshLayout) -> Result<Vec<[u16; 3]>, PovError> {
+    let (w, h) = layout.image_size();
     let img = read_png(path, w, h)?;
     if img.color().bits_per_pixel() / img.color().channel_count() as u16 != 16 {
         return Err(PovError::Output {
@@ -179,21 +209,16 @@ pub fn read_mesh_png16(path: &Path, face_size: u32) -> Result<Vec<[u16; 3]>, Pov
             message: format!("expected a 16-bit PNG, found {:?}", img.color()),
         });
     }
-    let rgb = img.to_rgb16();
-    Ok(rgb.pixels().skip(2 * w as usize).map(|p| p.0).collect())
+    let px: Vec<[u16; 3]> = img.to_rgb16().pixels().map(|p| p.0).collect();
+    Ok(cube_rows(&px, layout))
 }
 
-/// A mesh-camera colour render of a cube map of `face_size`, two leading rows dropped.
-pub fn read_mesh_png8(path: &Path, face_size: u32) -> Result<CubeMap<[u8; 3]>, PovError> {
-    let (w, h) = super::frame::mesh_image_size(face_size);
+/// A mesh-camera colour render as a cube map.
+pub fn read_mesh_png8(path: &Path, layout: &MeshLayout) -> Result<CubeMap<[u8; 3]>, PovError> {
+    let (w, h) = layout.image_size();
     let img = read_png(path, w, h)?;
-    let px: Vec<[u8; 3]> = img
-        .to_rgb8()
-        .pixels()
-        .skip(2 * w as usize)
-        .map(|p| p.0)
-        .collect();
-    CubeMap::from_vec(face_size, px).ok_or_else(|| PovError::Output {
+    let px: Vec<[u8; 3]> = img.to_rgb8().pixels().map(|p| p.0).collect();
+    CubeMap::from_vec(layout.face_size, cube_rows(&px, layout)).ok_or_else(|| PovError::Output {
         path: path.to_path_buf(),
         message: "pixel count does not match the cube map".into(),
     })
@@ -271,6 +296,26 @@ mod tests {
         let r = decode_fog(&[[65535, 19080, 23]], None, &s);
         assert!((r.t[0] - 3.44).abs() < 0.01, "{}", r.t[0]);
         assert_eq!(r.inconsistent, 0);
+    }
+
+    #[test]
+    fn clipped_channels_only_bound_the_distance() {
+        // Regression: underground rays in the patio's ground fog clipped every channel.
+        let s = FogScales::for_range(40.0, 10000.0, 0.5);
+        let p0 = [[50000u16, 52000, 55000]; 2];
+        let d = 300.0;
+        let hit: [u16; 3] = std::array::from_fn(|c| {
+            let v = 0.5 * (1.0 - (-d / s.d[c]).exp()) + p0[0][c] as f64 / 65535.0;
+            (v.min(1.0) * 65535.0).round() as u16
+        });
+        let r = decode_fog(&[[65535; 3], hit], Some(&p0), &s);
+        assert_eq!(r.t[0], f64::INFINITY);
+        assert_eq!((r.clipped, r.inconsistent), (1, 0));
+        assert!(
+            hit.contains(&65535) && !hit.iter().all(|&c| c == 65535),
+            "{hit:?}"
+        );
+        assert!(((r.t[1] - d) / d).abs() < 1e-3, "{}", r.t[1]);
     }
 
     #[test]

@@ -14,9 +14,10 @@
 //! the track point `[X, Y, -Z]`.
 //!
 //! The mesh camera: one triangle per cube-map pixel, face-major as [`tracks::CubeMap`] stores
-//! them, preceded by one dummy row (see [`write_mesh_camera`]). Each triangle has its centroid
-//! at the origin and its normal along the pixel's direction ([`tracks::cubemap::pixel_dir`]
-//! mapped into the scene's frame), so the rendered image *is* the cube map, row for row.
+//! them, with dummy rows interleaved at block starts ([`MeshLayout`]). Each triangle has its
+//! centroid at the origin and its normal along the pixel's direction
+//! ([`tracks::cubemap::pixel_dir`] mapped into the scene's frame), so the rendered image *is*
+//! the cube map, row for row, once the dummy rows are dropped.
 
 use std::fmt::Write as _;
 
@@ -84,13 +85,56 @@ pub const MESH_NAME: &str = "RvMeshCam";
 /// Name of the declared near distance the dummy row refers to.
 pub const NEAR_NAME: &str = "RvNear";
 
-/// Image size `(width, height)` POV-Ray must render for a cube map of `face_size`: `N` wide
-/// and `6N + 2` high (two leading rows that are dropped, see [`write_mesh_camera`]).
-pub fn mesh_image_size(face_size: u32) -> (u32, u32) {
-    (face_size, 6 * face_size + 2)
+/// Render block size (`+BS`) of every mesh-camera render; the layout depends on it.
+pub const BLOCK: u32 = 16;
+
+/// Where the cube-map rows sit in a mesh-camera image.
+///
+/// Two POV-Ray 3.7.0 bugs shape it. (1) The mesh camera maps image row `j ≥ 1` to mesh face
+/// row `j − 1` (image rows 0 and 1 both show face row 0). (2) A render thread decides which
+/// objects its rays start inside (which switches fog, atmosphere and media on or off) from its
+/// first ray only, and which block a thread takes first is a race. So every block's first
+/// image row (rows `0, B, 2B, …` for blocks of `B` pixels) shows a *dummy* face row whose rays
+/// start exactly at the camera centre; whichever block a thread starts with, its first ray is
+/// then a camera-centre ray. Dummy triangles are centred at `<0, −RvNear, 0>` with normal +y,
+/// so their rays start at the camera for any near distance.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MeshLayout {
+    pub face_size: u32,
+    /// Per mesh face row: `None` for a dummy row, else the cube-map row (face-major) it holds.
+    pub rows: Vec<Option<u32>>,
 }
 
-/// Corners of a unit triangle centred on the origin whose POV-Ray face normal is `dir`.
+impl MeshLayout {
+    pub fn new(face_size: u32) -> MeshLayout {
+        let total = 6 * face_size;
+        let mut rows = Vec::with_capacity(total as usize + total as usize / BLOCK as usize + 2);
+        let mut next = 0;
+        while next < total {
+            let f = rows.len() as u32;
+            if f == 0 || (f + 1) % BLOCK == 0 {
+                rows.push(None);
+            } else {
+                rows.push(Some(next));
+                next += 1;
+            }
+        }
+        MeshLayout { face_size, rows }
+    }
+
+    /// Image size `(width, height)` POV-Ray must render.
+    pub fn image_size(&self) -> (u32, u32) {
+        (self.face_size, self.rows.len() as u32 + 1)
+    }
+
+    /// The cube-map row shown by image row `j`, `None` for a dummy row.
+    pub fn cube_row(&self, j: u32) -> Option<u32> {
+        let f = j.checked_sub(1)?;
+        self.rows.get(f as usize).copied().flatten()
+    }
+}
+
+/// Corners of a unit triangle centred on the origin whose mesh-camera ray goes along `dir`.
 ///
 /// The corners sit at 90°, 330° and 210° in the basis `(u, v) = (ref × dir, dir × u)`, so
 /// `(c − a) × (b − a)` (component formula) points along `+dir`; with this winding the
@@ -111,49 +155,47 @@ pub fn triangle_for_dir(dir: DVec3) -> [DVec3; 3] {
     })
 }
 
-/// SDL text of the mesh camera for a cube map of `face_size`, directions in `up`'s frame.
-///
-/// Face row 0 is a dummy row of `face_size` identical triangles centred at `<0, −RvNear, 0>`
-/// with normal +y: their rays start exactly at the camera centre whatever the near distance.
-/// It works around two POV-Ray 3.7.0 bugs: the mesh camera maps image row `j ≥ 1` to face row
-/// `j − 1` (so image rows 0 and 1 both show face row 0 and are dropped), and a render thread
-/// decides which objects its rays start inside from its first ray only, which is then always
-/// a ray from the camera centre (rows 0–1 start every thread's first block when the block size
-/// is at most `face_size / threads`).
-pub fn write_mesh_camera(face_size: u32, up: UpAxis) -> String {
-    let n = face_size as usize;
-    let pixels = 6 * n * n;
-    let mut s = String::with_capacity((pixels + n) * 3 * 40 + 256);
+/// SDL text of the mesh camera for `layout`, directions in `up`'s frame: one triangle per
+/// cube-map pixel in [`tracks::CubeMap`] order, with the dummy rows of [`MeshLayout`].
+pub fn write_mesh_camera(layout: &MeshLayout, up: UpAxis) -> String {
+    let n = layout.face_size;
+    let faces = layout.rows.len() * n as usize;
+    let mut s = String::with_capacity(faces * 3 * 40 + 256);
     // Writing into a String cannot fail.
     let _ = writeln!(
         s,
-        "// railview mesh camera: cube map {n}x{n}x6, up {}, one triangle per pixel\n\
+        "// railview mesh camera: cube map {n}x{n}x6, up {}, block {BLOCK}, one triangle per pixel\n\
          #declare {MESH_NAME} = mesh2 {{\n  vertex_vectors {{ {},",
         up.name(),
-        3 * (pixels + n)
+        3 * faces
     );
-    for i in 0..n {
-        let sep = if i == 0 { "" } else { "," };
-        let _ = writeln!(
-            s,
-            "{sep}<0,0-{NEAR_NAME},1>,<-0.8660254,0-{NEAR_NAME},-0.5>,<0.8660254,0-{NEAR_NAME},-0.5>"
-        );
-    }
-    for face in Face::ALL {
-        for y in 0..face_size {
-            for x in 0..face_size {
-                let dir = up.pov_from_railview(pixel_dir(face, x, y, face_size));
-                let t = triangle_for_dir(dir);
-                let _ = writeln!(
-                    s,
-                    ",<{:.9},{:.9},{:.9}>,<{:.9},{:.9},{:.9}>,<{:.9},{:.9},{:.9}>",
-                    t[0].x, t[0].y, t[0].z, t[1].x, t[1].y, t[1].z, t[2].x, t[2].y, t[2].z
-                );
+    let mut first = true;
+    for row in &layout.rows {
+        for x in 0..n {
+            let sep = if first { "" } else { "," };
+            first = false;
+            match row {
+                None => {
+                    let _ = writeln!(
+                        s,
+                        "{sep}<0,0-{NEAR_NAME},1>,<-0.8660254,0-{NEAR_NAME},-0.5>,<0.8660254,0-{NEAR_NAME},-0.5>"
+                    );
+                }
+                Some(r) => {
+                    let face = Face::from_index((r / n) as usize).unwrap_or(Face::PosX);
+                    let dir = up.pov_from_railview(pixel_dir(face, x, r % n, n));
+                    let t = triangle_for_dir(dir);
+                    let _ = writeln!(
+                        s,
+                        "{sep}<{:.9},{:.9},{:.9}>,<{:.9},{:.9},{:.9}>,<{:.9},{:.9},{:.9}>",
+                        t[0].x, t[0].y, t[0].z, t[1].x, t[1].y, t[1].z, t[2].x, t[2].y, t[2].z
+                    );
+                }
             }
         }
     }
-    let _ = writeln!(s, "  }}\n  face_indices {{ {},", pixels + n);
-    for k in 0..pixels + n {
+    let _ = writeln!(s, "  }}\n  face_indices {{ {faces},");
+    for k in 0..faces {
         let sep = if k == 0 { "" } else { "," };
         let _ = write!(s, "{sep}<{},{},{}>", 3 * k, 3 * k + 1, 3 * k + 2);
         if k % 8 == 7 {
@@ -205,15 +247,34 @@ mod tests {
 
     #[test]
     fn mesh_text_counts_match() {
-        let text = write_mesh_camera(2, UpAxis::Z);
-        let pixels = 6 * 4 + 2;
-        assert!(text.contains(&format!("vertex_vectors {{ {},", 3 * pixels)));
-        assert!(text.contains(&format!("face_indices {{ {},", pixels)));
-        assert_eq!(text.matches('<').count(), 3 * pixels + pixels);
+        let layout = MeshLayout::new(2);
+        let text = write_mesh_camera(&layout, UpAxis::Z);
+        let faces = layout.rows.len() * 2;
+        assert!(text.contains(&format!("vertex_vectors {{ {},", 3 * faces)));
+        assert!(text.contains(&format!("face_indices {{ {faces},")));
+        assert_eq!(text.matches('<').count(), 3 * faces + faces);
         assert!(
             !text.contains(",\n  }"),
             "trailing comma is a POV-Ray parse error"
         );
-        assert_eq!(mesh_image_size(2), (2, 14));
+    }
+
+    #[test]
+    fn every_block_starts_with_a_dummy_row_and_all_cube_rows_appear_once() {
+        for n in [1, 2, 15, 16, 17, 64] {
+            let layout = MeshLayout::new(n);
+            let (w, h) = layout.image_size();
+            assert_eq!(w, n);
+            let mut seen = Vec::new();
+            for j in 0..h {
+                if j % BLOCK == 0 {
+                    assert_eq!(layout.cube_row(j), None, "n {n} image row {j}");
+                }
+                seen.extend(layout.cube_row(j));
+            }
+            assert_eq!(seen, (0..6 * n).collect::<Vec<_>>(), "n {n}");
+            // Image rows 0 and 1 both show face row 0 (the POV-Ray 3.7.0 row offset).
+            assert_eq!(layout.cube_row(1), None);
+        }
     }
 }

@@ -9,7 +9,7 @@ use glam::DVec3;
 use tracks::{CubeMap, ReferenceViewpoint, SlabRange};
 
 use super::decode::{self, FogDepth, FogScales};
-use super::frame::{self, NEAR_NAME};
+use super::frame::{self, MeshLayout, NEAR_NAME};
 use super::runner::{OutputFormat, PovRay, RenderJob, RenderStats};
 use super::sdl::{self, names, PassKind, SceneInfo};
 use super::{PovError, PovOptions};
@@ -39,6 +39,8 @@ pub struct DepthSummary {
     /// Hits whose channels disagree (no fog: ray started inside a solid, wrong gamma).
     pub inconsistent: usize,
     pub zero: usize,
+    /// Pixels whose channels all clipped on the scene's own fog (decoded as misses).
+    pub clipped: usize,
     pub min: Option<f64>,
     pub max: Option<f64>,
     pub fog_scales: FogScales,
@@ -165,12 +167,13 @@ impl PovImport {
 
     /// Generate (once) the mesh-camera include for `face_size`.
     fn mesh_include(&self, face_size: u32) -> Result<PathBuf, PovError> {
-        let path = self
-            .opts
-            .work_dir
-            .join(format!("meshcam_{}_{face_size}.inc", self.opts.up.name()));
+        let path = self.opts.work_dir.join(format!(
+            "meshcam_{}_{face_size}_b{}.inc",
+            self.opts.up.name(),
+            frame::BLOCK
+        ));
         if !path.exists() {
-            let text = frame::write_mesh_camera(face_size, self.opts.up);
+            let text = frame::write_mesh_camera(&MeshLayout::new(face_size), self.opts.up);
             store::write_atomic(&path, text.as_bytes())?;
         }
         Ok(path)
@@ -211,7 +214,7 @@ impl PovImport {
         fog: Option<&FogScales>,
     ) -> Result<PathBuf, PovError> {
         let wrapper = self.wrapper(kind, face_size)?;
-        let (width, height) = frame::mesh_image_size(face_size);
+        let (width, height) = MeshLayout::new(face_size).image_size();
         let stem = format!("s{sample:04}_{pass}");
         let output = self.opts.work_dir.join(format!("{stem}.png"));
         let mut declares = vec![
@@ -235,7 +238,6 @@ impl PovImport {
                 file_gamma: self.file_gamma(),
             },
         };
-        let threads = self.povray.threads as u32;
         let job = RenderJob {
             name: format!("sample {sample} {pass} ({})", self.scene.display()),
             wrapper,
@@ -244,7 +246,7 @@ impl PovImport {
             width,
             height,
             format,
-            block_size: (width / threads).clamp(1, 32),
+            block_size: frame::BLOCK,
             library_dirs: self
                 .scene
                 .parent()
@@ -288,14 +290,14 @@ impl PovImport {
                 view,
                 None,
             )?;
-            let px = decode::read_mesh_png16(&path, face_size)?;
+            let px = decode::read_mesh_png16(&path, &MeshLayout::new(face_size))?;
             remove(&path)?;
             Some(px)
         } else {
             None
         };
         let path = self.render(sample, pass, PassKind::Depth, face_size, view, Some(scales))?;
-        let p1 = decode::read_mesh_png16(&path, face_size)?;
+        let p1 = decode::read_mesh_png16(&path, &MeshLayout::new(face_size))?;
         remove(&path)?;
         let decoded = decode::decode_fog(&p1, p0.as_deref(), scales);
         let (min, max) = finite_range(&decoded.t);
@@ -305,6 +307,7 @@ impl PovImport {
                 sky: decoded.t.len() - decoded.hits,
                 inconsistent: decoded.inconsistent,
                 zero: decoded.zero,
+                clipped: decoded.clipped,
                 min: min.is_finite().then_some(min),
                 max: max.is_finite().then_some(max),
                 fog_scales: *scales,
@@ -323,7 +326,7 @@ impl PovImport {
         let n = self.opts.face_size;
         let fine = if self.opts.antialias { 2 * n } else { n };
         let path = self.render(sample, pass, PassKind::Color, fine, view, None)?;
-        let map = decode::read_mesh_png8(&path, fine)?;
+        let map = decode::read_mesh_png8(&path, &MeshLayout::new(fine))?;
         remove(&path)?;
         Ok(if self.opts.antialias {
             decode::downsample_2x(&map)
@@ -344,7 +347,7 @@ impl PovImport {
         };
         let n = self.opts.lowres_face_size;
         let path = self.render(vp.index, "lowres-fog", PassKind::FogOnly, n, view, None)?;
-        let px = decode::read_mesh_png16(&path, n)?;
+        let px = decode::read_mesh_png16(&path, &MeshLayout::new(n))?;
         remove(&path)?;
         let fog = px.iter().any(|p| p.iter().any(|&c| c > 0));
         self.has_fog.insert(vp.index, fog);
