@@ -324,9 +324,9 @@ fn full_report_loads_every_image_and_table_in_chromium() {
     };
     let bad: Vec<&(String, u64)> = checked.images.iter().filter(|(_, w)| *w == 0).collect();
     assert!(bad.is_empty(), "images that did not load: {bad:?}");
-    // 3 viewpoints, histogram, full view + 3 slab layers, cull debug image, walk plot,
-    // 2 eval plots, 3 flythrough frames.
-    assert_eq!(checked.images.len(), 15, "{:?}", checked.images);
+    // 3 viewpoints, histogram, full view + 3 slab strips + 3 slab faces, a culling atlas,
+    // walk plot, 2 eval plots, 3 flythrough frames.
+    assert_eq!(checked.images.len(), 18, "{:?}", checked.images);
     for id in [
         "stages",
         "prerender",

@@ -22,8 +22,9 @@ pub struct Args {
     /// Output directory: the prerender work dir, the database, walks, evaluation, frames and the report.
     #[arg(long, default_value = "railview-demo")]
     pub out: PathBuf,
-    /// Cube-map face size of the reference panoramas, pixels.
-    #[arg(long, default_value_t = 128)]
+    /// Cube-map face size of the reference panoramas, pixels (192: castle gets its three
+    /// slabs and the whole demo takes a few minutes on two cores).
+    #[arg(long, default_value_t = 192)]
     pub face_size: u32,
     /// Built-in scene.
     #[arg(long, default_value = "castle")]
@@ -234,6 +235,8 @@ fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
                 "--alpha".into(),
                 "1.0,0.9,0.8".into(),
                 "--oracle".into(),
+                "--oracle-per-segment".into(),
+                "8".into(),
             ],
             outputs: vec![work.join("cull.json")],
             requires: vec!["slabs"],

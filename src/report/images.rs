@@ -47,6 +47,55 @@ pub fn horizon_strip(cube_png: &Path) -> anyhow::Result<DynamicImage> {
     Ok(strip)
 }
 
+/// One face of a stored cube map (`N × 6N`), scaled down to at most [`MAX_STRIP_FACE`].
+pub fn cube_face(cube_png: &Path, face: Face) -> anyhow::Result<DynamicImage> {
+    let img = image::open(cube_png).with_context(|| format!("reading {}", cube_png.display()))?;
+    let (w, h) = img.dimensions();
+    anyhow::ensure!(
+        w > 0 && h == 6 * w,
+        "{}: expected a cube map of N × 6N pixels, found {w} × {h}",
+        cube_png.display()
+    );
+    let face_img = img.crop_imm(0, face.index() as u32 * w, w, w);
+    Ok(if w > MAX_STRIP_FACE {
+        face_img.resize_exact(
+            MAX_STRIP_FACE,
+            MAX_STRIP_FACE,
+            image::imageops::FilterType::Triangle,
+        )
+    } else {
+        face_img
+    })
+}
+
+/// The horizontal face of an RGBA cube map with the most opaque pixels (where a far slab
+/// has the most to show); `PosX` for an image without alpha or without opaque pixels.
+pub fn busiest_face(cube_png: &Path) -> anyhow::Result<Face> {
+    let img = image::open(cube_png).with_context(|| format!("reading {}", cube_png.display()))?;
+    let (w, h) = img.dimensions();
+    anyhow::ensure!(
+        w > 0 && h == 6 * w,
+        "{}: expected a cube map of N × 6N pixels, found {w} × {h}",
+        cube_png.display()
+    );
+    if !img.color().has_alpha() {
+        return Ok(Face::PosX);
+    }
+    let rgba = img.to_rgba8();
+    let count = |f: Face| {
+        let y0 = f.index() as u32 * w;
+        (y0..y0 + w)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .filter(|&(x, y)| rgba.get_pixel(x, y)[3] > 0)
+            .count()
+    };
+    Ok(STRIP_FACES
+        .iter()
+        .copied()
+        .max_by_key(|&f| (count(f), std::cmp::Reverse(f.index())))
+        .unwrap_or(Face::PosX))
+}
+
 /// Write `img` as PNG into `path` (temp file + rename).
 pub fn save_png(img: &DynamicImage, path: &Path) -> anyhow::Result<()> {
     let mut bytes = std::io::Cursor::new(Vec::new());
@@ -115,6 +164,28 @@ mod tests {
         RgbImage::new(8, 8).save(&path).unwrap();
         let e = horizon_strip(&path).unwrap_err().to_string();
         assert!(e.contains("N × 6N") && e.contains("8 × 8"), "{e}");
+    }
+
+    #[test]
+    fn face_crop_and_busiest_face() {
+        let n = 3;
+        // Only NegX (index 1) and a little of PosZ (index 4) are opaque.
+        let cube = RgbaImage::from_fn(n, 6 * n, |x, y| {
+            let f = y / n;
+            let a = if f == 1 || (f == 4 && x == 0) { 255 } else { 0 };
+            Rgba([f as u8, 0, 0, a])
+        });
+        let dir = tmp("busy");
+        let path = dir.join("slab.png");
+        cube.save(&path).unwrap();
+        assert_eq!(busiest_face(&path).unwrap(), Face::NegX);
+        let face = cube_face(&path, Face::PosZ).unwrap().to_rgba8();
+        assert_eq!(face.dimensions(), (n, n));
+        assert_eq!(face.get_pixel(1, 1)[0], 4);
+        // Nothing opaque anywhere: the first horizon face.
+        let empty = dir.join("empty.png");
+        RgbaImage::new(n, 6 * n).save(&empty).unwrap();
+        assert_eq!(busiest_face(&empty).unwrap(), Face::PosX);
     }
 
     #[test]

@@ -7,6 +7,8 @@ use serde_json::Value;
 
 use super::{fmt_depth, fmt_int, fmt_num, num, read_json, reduction, spread, Ctx};
 use crate::report::doc::{Block, Figure, Table};
+use crate::report::images;
+use tracks::Face;
 
 pub(super) fn viewpoints(c: &mut Ctx) -> Option<Value> {
     c.section("viewpoints", "The scene from a few reference viewpoints");
@@ -275,4 +277,28 @@ pub(super) fn layers(c: &mut Ctx) {
         }
     }
     c.push(Block::Figures(figs));
+    // One face, side by side across the slabs: the face where the farthest slab shows most.
+    let last = meta.slabs.len().saturating_sub(1);
+    let face = images::busiest_face(&pre_dir.slab_color_png(i, last)).unwrap_or(Face::PosX);
+    let mut row = Vec::new();
+    for (k, _) in meta.slabs.iter().enumerate() {
+        let name = format!("layer-{i:04}-slab{k}-{}.png", face.short_name());
+        let made = images::cube_face(&pre_dir.slab_color_png(i, k), face)
+            .and_then(|img| images::save_png(&img, &c.dir.join(&name)));
+        match made {
+            Ok(()) => row.push(Figure {
+                src: name,
+                caption: format!("slab {k}, face {}", face.short_name()),
+                checker: true,
+            }),
+            Err(e) => c.missing(format!("{e:#}")),
+        }
+    }
+    if !row.is_empty() {
+        c.push(Block::Para(format!(
+            "The same viewpoint's {} face, slab by slab:",
+            face.short_name()
+        )));
+        c.push(Block::Figures(row));
+    }
 }
