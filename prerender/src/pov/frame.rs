@@ -112,7 +112,7 @@ impl MeshLayout {
         let mut next = 0;
         while next < total {
             let f = rows.len() as u32;
-            if f == 0 || (f + 1) % BLOCK == 0 {
+            if f == 0 || (f + 1).is_multiple_of(BLOCK) {
                 rows.push(None);
             } else {
                 rows.push(Some(next));
