@@ -95,6 +95,8 @@ pub struct CriterionReport {
     /// `(π/2)/N`.
     pub theta_pixel_rad: f64,
     pub threshold_px: f64,
+    /// [`ChooseParams::min_edge_fraction`].
+    pub min_edge_fraction: f64,
     /// Candidates nearest first.
     pub candidates: Vec<Candidate>,
     /// Fraction of the average panorama's solid angle that is sky.
@@ -250,6 +252,7 @@ pub fn choose_with_edges(
         face_size,
         theta_pixel_rad: theta,
         threshold_px: params.threshold_px,
+        min_edge_fraction: params.min_edge_fraction,
         candidates: Vec::new(),
         sky_fraction: if all > 0.0 { hist.sky_sr / all } else { 0.0 },
         unresolved_edge_fraction: 0.0,
@@ -278,6 +281,7 @@ pub fn choose_with_edges(
                 .map(|e| e.weight_sr)
                 .sum::<f64>()
                 / finite
+                + 0.0 // an empty sum is -0.0
         })
         .collect();
     let mode_depth = |lo: usize, hi: usize| -> f64 {

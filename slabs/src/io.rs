@@ -280,6 +280,7 @@ mod tests {
             tile_size: 4,
             mesh: MeshParams::default(),
             keep: MeshKind::Adaptive,
+            measure_both: true,
         }
     }
 

@@ -79,8 +79,6 @@ pub struct MeshStats {
 
 /// The lattice of pixel centres a tile's mesh spans, with per-pixel depth data.
 pub(crate) struct Field {
-    face: Face,
-    n: u32,
     x0: u32,
     y0: u32,
     /// Tile's own pixel rectangle end (exclusive), face pixels.
@@ -126,19 +124,37 @@ impl Field {
             1.0
         };
         let px_per_inv_m = b / theta_pixel(n);
-        let ok = |x: i64, y: i64| -> Option<f64> {
-            if x < 0 || y < 0 || x >= n as i64 || y >= n as i64 {
-                return None;
+        // Inverse planar depth over the lattice plus a one-pixel border (NaN where
+        // transparent or off the face), for second differences across the lattice edges.
+        let (pw, ph) = (w + 2, h + 2);
+        let mut pq = vec![f64::NAN; pw * ph];
+        let mut pr = vec![f64::INFINITY; pw * ph];
+        let mut pdn = vec![1.0; pw * ph];
+        let fd = depth.face(face);
+        let fm = mask.face(face);
+        for pj in 0..ph {
+            let y = y0 as i64 + pj as i64 - 1;
+            if y < 0 || y >= n as i64 {
+                continue;
             }
-            let (x, y) = (x as u32, y as u32);
-            let d = *depth.get(face, x, y) as f64;
-            (*mask.get(face, x, y) && d.is_finite() && d > 0.0)
-                .then(|| norm_d(x as f64 + 0.5, y as f64 + 0.5, n) / d)
-        };
+            for pi in 0..pw {
+                let x = x0 as i64 + pi as i64 - 1;
+                if x < 0 || x >= n as i64 {
+                    continue;
+                }
+                let k = pj * pw + pi;
+                let dn = norm_d(x as f64 + 0.5, y as f64 + 0.5, n);
+                pdn[k] = dn;
+                let src = y as usize * n as usize + x as usize;
+                let d = fd[src] as f64;
+                if fm[src] && d.is_finite() && d > 0.0 {
+                    pq[k] = dn / d;
+                    pr[k] = d;
+                }
+            }
+        }
         let len = w * h;
         let mut f = Field {
-            face,
-            n,
             x0,
             y0,
             x1,
@@ -154,46 +170,39 @@ impl Field {
             comp: vec![u32::MAX; len],
             px_per_inv_m,
         };
-        for j in 0..h {
-            for i in 0..w {
-                let k = j * w + i;
-                let (x, y) = (x0 + i as u32, y0 + j as u32);
-                f.dnorm[k] = norm_d(x as f64 + 0.5, y as f64 + 0.5, n);
-                if let Some(q) = ok(x as i64, y as i64) {
-                    f.valid[k] = true;
-                    f.q[k] = q;
-                    f.r[k] = *depth.get(face, x, y) as f64;
-                }
-            }
-        }
-        // Discontinuities by second differences of q (exactly zero across a plane).
         let thr = params.discontinuity_px;
-        let scale = |k: usize| px_per_inv_m / f.dnorm[k];
+        // Residual of the jump a→b given the pixels before a and after b (NaN = missing).
+        let resid = |qp: f64, qa: f64, qb: f64, qn: f64| -> f64 {
+            let e1 = if qp.is_nan() {
+                (qb - qa).abs()
+            } else {
+                (qb - (2.0 * qa - qp)).abs()
+            };
+            let e2 = if qn.is_nan() {
+                (qa - qb).abs()
+            } else {
+                (qa - (2.0 * qb - qn)).abs()
+            };
+            e1.min(e2)
+        };
         for j in 0..h {
             for i in 0..w {
                 let k = j * w + i;
-                if !f.valid[k] {
+                let pk = (j + 1) * pw + i + 1;
+                f.dnorm[k] = pdn[pk];
+                let qa = pq[pk];
+                if qa.is_nan() {
                     continue;
                 }
-                let (x, y) = ((x0 as usize + i) as i64, (y0 as usize + j) as i64);
-                let s = scale(k);
-                let resid = |a: (i64, i64), b: (i64, i64), dx: i64, dy: i64| -> Option<f64> {
-                    let (qa, qb) = (ok(a.0, a.1)?, ok(b.0, b.1)?);
-                    let before = ok(a.0 - dx, a.1 - dy);
-                    let after = ok(b.0 + dx, b.1 + dy);
-                    let e1 = before.map_or((qb - qa).abs(), |qp| (qb - (2.0 * qa - qp)).abs());
-                    let e2 = after.map_or((qa - qb).abs(), |qn| (qa - (2.0 * qb - qn)).abs());
-                    Some(e1.min(e2))
-                };
-                if i + 1 < w {
-                    if let Some(e) = resid((x, y), (x + 1, y), 1, 0) {
-                        f.disc_right[k] = e * s > thr;
-                    }
+                f.valid[k] = true;
+                f.q[k] = qa;
+                f.r[k] = pr[pk];
+                let s = px_per_inv_m / pdn[pk];
+                if i + 1 < w && !pq[pk + 1].is_nan() {
+                    f.disc_right[k] = resid(pq[pk - 1], qa, pq[pk + 1], pq[pk + 2]) * s > thr;
                 }
-                if j + 1 < h {
-                    if let Some(e) = resid((x, y), (x, y + 1), 0, 1) {
-                        f.disc_down[k] = e * s > thr;
-                    }
+                if j + 1 < h && !pq[pk + pw].is_nan() {
+                    f.disc_down[k] = resid(pq[pk - pw], qa, pq[pk + pw], pq[pk + 2 * pw]) * s > thr;
                 }
             }
         }
@@ -475,11 +484,22 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
     out.mesh
 }
 
-/// Measure a mesh against the field it was built from, by an independent route: each
-/// triangle is lifted to 3D (`dir · r`) and every pixel centre inside its image is
-/// intersected with its plane.
+/// Measure a mesh against the field it was built from: every pixel centre inside a
+/// triangle gets the triangle's inverse planar depth (affine over it, from the stored f32
+/// vertex depths); the tests check the same numbers by 3D ray casting ([`rasterise_3d`]).
 pub(crate) fn mesh_stats(f: &Field, mesh: &TileMesh) -> MeshStats {
-    let depth = rasterise_3d(mesh, f.face, f.n, (f.x0, f.y0, f.w, f.h));
+    let mut q_mesh = vec![f64::NAN; f.w * f.h];
+    for t in mesh.indices.chunks_exact(3) {
+        let v = [0, 1, 2].map(|m| mesh.vertices[t[m] as usize]);
+        let local = v.map(|[x, y, _]| (x as f64 - 0.5 - f.x0 as f64, y as f64 - 0.5 - f.y0 as f64));
+        let qv = [0, 1, 2].map(|m| {
+            let (i, j) = (local[m].0.round() as usize, local[m].1.round() as usize);
+            f.dnorm[f.idx(i.min(f.w - 1), j.min(f.h - 1))] / v[m][2] as f64
+        });
+        raster(local, f.w, f.h, |i, j, b| {
+            q_mesh[f.idx(i, j)] = b[0] * qv[0] + b[1] * qv[1] + b[2] * qv[2];
+        });
+    }
     let mut s = MeshStats {
         triangles: mesh.triangle_count(),
         vertices: mesh.vertices.len(),
@@ -493,17 +513,16 @@ pub(crate) fn mesh_stats(f: &Field, mesh: &TileMesh) -> MeshStats {
             if !f.valid[k] || !f.in_tile(i, j) {
                 continue;
             }
-            match depth[k] {
-                Some(rm) => {
-                    s.covered_pixels += 1;
-                    if !f.at_discontinuity(i, j) {
-                        let e = (1.0 / f.r[k] - 1.0 / rm).abs() * f.px_per_inv_m;
-                        s.max_error_px = s.max_error_px.max(e);
-                        sum += e;
-                        counted += 1;
-                    }
-                }
-                None => s.uncovered_pixels += 1,
+            if q_mesh[k].is_nan() {
+                s.uncovered_pixels += 1;
+                continue;
+            }
+            s.covered_pixels += 1;
+            if !f.at_discontinuity(i, j) {
+                let e = f.error_px(k, q_mesh[k]);
+                s.max_error_px = s.max_error_px.max(e);
+                sum += e;
+                counted += 1;
             }
         }
     }
@@ -546,7 +565,7 @@ pub fn rasterise_3d(
     out
 }
 
-/// Both meshes of one tile with their statistics.
+/// Both meshes of one tile with their statistics (a mesh not built is empty, its stats zero).
 pub struct TileMeshes {
     pub grid: TileMesh,
     pub grid_stats: MeshStats,
@@ -554,23 +573,32 @@ pub struct TileMeshes {
     pub adaptive_stats: MeshStats,
 }
 
-/// Build the grid and the adaptive mesh of one tile of a slab layer.
+/// Build the meshes of one tile of a slab layer: both, or `only` the one named.
 pub fn mesh_tile(
     depth: &CubeMap<f32>,
     mask: &CubeMap<bool>,
     grid: TileGrid,
     tile: TileId,
     params: &MeshParams,
+    only: Option<crate::tiles::MeshKind>,
 ) -> TileMeshes {
+    use crate::tiles::MeshKind;
     let f = Field::new(depth, mask, grid, tile, params);
-    let g = grid_mesh(&f, params.step);
-    let a = adaptive_mesh(&f, params.max_error_px);
-    TileMeshes {
-        grid_stats: mesh_stats(&f, &g),
-        adaptive_stats: mesh_stats(&f, &a),
-        grid: g,
-        adaptive: a,
+    let mut out = TileMeshes {
+        grid: TileMesh::default(),
+        grid_stats: MeshStats::default(),
+        adaptive: TileMesh::default(),
+        adaptive_stats: MeshStats::default(),
+    };
+    if only != Some(MeshKind::Adaptive) {
+        out.grid = grid_mesh(&f, params.step);
+        out.grid_stats = mesh_stats(&f, &out.grid);
     }
+    if only != Some(MeshKind::Grid) {
+        out.adaptive = adaptive_mesh(&f, params.max_error_px);
+        out.adaptive_stats = mesh_stats(&f, &out.adaptive);
+    }
+    out
 }
 
 #[cfg(test)]
@@ -591,7 +619,7 @@ mod tests {
         let mask = depth.map(|d| d.is_finite());
         let grid = TileGrid::new(depth.face_size(), tile).unwrap();
         grid.tiles()
-            .map(|t| (t, mesh_tile(depth, &mask, grid, t, p)))
+            .map(|t| (t, mesh_tile(depth, &mask, grid, t, p, None)))
             .collect()
     }
 
@@ -692,6 +720,7 @@ mod tests {
         for t in grid.tiles() {
             let f = Field::new(&depth, &mask, grid, t, &p);
             let mesh = adaptive_mesh(&f, bound);
+            let mut worst = 0.0f64;
             let (x0, y0, x1, y1) = grid.pixel_rect(t);
             let w = (x1 - x0) as usize;
             let got = rasterise_3d(&mesh, t.face, n, (x0, y0, w, (y1 - y0) as usize));
@@ -704,8 +733,15 @@ mod tests {
                 let src = *depth.get(t.face, x0 + i as u32, y0 + j as u32) as f64;
                 let px = b * (1.0 / src - 1.0 / r).abs() / theta;
                 assert!(px <= bound + 1e-3, "{t:?} ({i},{j}): {px} px");
+                worst = worst.max(px);
                 checked += 1;
             }
+            // The builder's own measure (affine inverse planar depth) agrees with 3D.
+            let stats = mesh_stats(&f, &mesh);
+            assert!(
+                (stats.max_error_px - worst).abs() < 1e-3,
+                "{t:?}: {stats:?} vs {worst}"
+            );
         }
         assert!(checked > 6 * 32 * 32 * 9 / 10, "{checked}");
     }

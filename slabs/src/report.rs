@@ -186,9 +186,10 @@ impl SlabsReport {
         }
         s.push_str("\n## Candidate boundaries\n\n");
         s.push_str(&format!(
-            "B/2 = {:.3} m, θ_pixel = (π/2)/{} = {:.3e} rad, threshold {} px. A boundary is placed when (B/2)(1/z_near − 1/z_far)/θ_pixel exceeds the threshold (compare Meyer & Neyret's h·tan(a)/e ≤ 1).\n\n",
+            "B/2 = {:.3} m, θ_pixel = (π/2)/{} = {:.3e} rad, threshold {} px, minimum revealed fraction {:.1e}. Occlusion edges are neighbouring low-res pixels whose gap opens wider than the threshold at B/2 (the parallax (B/2)(1/z_near − 1/z_far)/θ_pixel, compare Meyer & Neyret's h·tan(a)/e ≤ 1); the fewest valleys that separate them are placed, each revealing at least the minimum fraction of the panorama. Parallax (px) below is that of the histogram clusters either side of the candidate.\n\n",
             self.criterion.half_baseline_m, self.criterion.face_size,
-            self.criterion.theta_pixel_rad, self.criterion.threshold_px
+            self.criterion.theta_pixel_rad, self.criterion.threshold_px,
+            self.criterion.min_edge_fraction
         ));
         if self.criterion.candidates.is_empty() {
             s.push_str("No gap or valley in the histogram.\n");

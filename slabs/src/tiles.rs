@@ -63,8 +63,10 @@ pub struct TileParams {
     /// Tile side in pixels, a power of two.
     pub tile_size: u32,
     pub mesh: MeshParams,
-    /// Which of the two meshes [`SlabTile::mesh`] holds (both are measured).
+    /// Which of the two meshes [`SlabTile::mesh`] holds.
     pub keep: MeshKind,
+    /// Also build and measure the other mesh (for the report); otherwise its stats are zero.
+    pub measure_both: bool,
 }
 
 /// A non-empty tile of one slab layer of one viewpoint.
@@ -160,7 +162,18 @@ pub fn tile_layer(
             if count == 0 {
                 return None;
             }
-            let m = mesh_tile(layer.depth, layer.mask, grid, t, &params.mesh);
+            let m = mesh_tile(
+                layer.depth,
+                layer.mask,
+                grid,
+                t,
+                &params.mesh,
+                if params.measure_both {
+                    None
+                } else {
+                    Some(params.keep)
+                },
+            );
             Some(SlabTile {
                 viewpoint,
                 slab,

@@ -127,6 +127,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tile_size: args.tile_size,
         mesh,
         keep,
+        measure_both: true,
     };
     let mut report = SlabsReport::new(&choice, pre.face_size, args.tile_size, mesh, keep);
     let bar = progress(indices.len() as u64, "tiling");
