@@ -47,6 +47,8 @@ enum Command {
     BenchViewer(cmd::bench_viewer::Args),
     /// Check every file of a database (hashes, sizes, PTM level ranges); exit 0 only when intact.
     Verify(cmd::verify::Args),
+    /// The whole pipeline into a database: prerender → slabs → cull → encode → ACH, one report.
+    Build(cmd::build::Args),
 }
 
 fn main() -> ExitCode {
@@ -83,5 +85,6 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Eval(a) => cmd::eval::run(a),
         Command::BenchViewer(a) => cmd::bench_viewer::run(a),
         Command::Verify(a) => cmd::verify::run(a),
+        Command::Build(a) => cmd::build::run(a),
     }
 }

@@ -1,6 +1,7 @@
 //! One module per subcommand.
 
 pub mod bench_viewer;
+pub mod build;
 pub mod cull;
 pub mod demo;
 pub mod eval;

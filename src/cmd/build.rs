@@ -1,0 +1,607 @@
+//! `railview build --scene NAME --track NAME --face-size N --out DB`: the whole pipeline —
+//! prerender → slabs → cull → encode (PTM + meshes) → ACH → manifest — with one report.
+//!
+//! Stage outputs live in a work directory (`--work`, default `DB.work/`): the prerender
+//! directory (`prerender/`, which `slabs` and `cull` also write into) and one encoded
+//! viewpoint record per sample (`encode/NNNN.json`). Every stage resumes from what is there,
+//! so a killed build continues where it stopped; objects already in the database are not
+//! rewritten. The report goes to `WORK/build.json` and `WORK/build.md` (not into the database,
+//! whose every file `verify` checks).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use clap::Parser;
+use indicatif::{ProgressBar, ProgressStyle};
+use occlusion::report::TileDecisions;
+use prerender::store::{self, PrerenderDir, PrerenderReport};
+use serde::{Deserialize, Serialize};
+use slabs::io as sio;
+use streamer::db::ach::{segment_ach, AchParams, AchTile, SegmentEnd};
+use streamer::db::mesh::{encode_mesh, MeshData};
+use streamer::db::DbWriter;
+use streamer::ptm::{self, EncodeOptions, Image};
+use tracks::manifest::{
+    Manifest, SegmentEntry, TileEntry, TrackEntry, ViewpointEntry, MANIFEST_VERSION,
+};
+use tracks::{CubeMap, TileGrid, TrackSet};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Built-in scene name or scene TOML path.
+    #[arg(long)]
+    pub scene: String,
+    /// Track of the scene.
+    #[arg(long, default_value = "main")]
+    pub track: String,
+    /// Cube-map face size of the reference panoramas, pixels.
+    #[arg(long, default_value_t = 128)]
+    pub face_size: u32,
+    /// Database directory to write.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Work directory for stage outputs (default: `OUT.work` beside the database). Point it
+    /// at an existing prerender directory's parent layout to reuse its stages.
+    #[arg(long)]
+    pub work: Option<PathBuf>,
+    /// Occlusion culling α used for the database (a run with this α is used or made).
+    #[arg(long, default_value_t = 1.0)]
+    pub alpha: f64,
+    /// zstd level of the PTM groups (19 = smallest practical; lower encodes faster).
+    #[arg(long, default_value_t = 19)]
+    pub zstd_level: i32,
+    /// ACH: viewpoints sampled per track segment, and pixels per side of the six cameras.
+    #[arg(long, default_value_t = 8)]
+    pub ach_samples: usize,
+    #[arg(long, default_value_t = 64)]
+    pub ach_camera_size: u32,
+}
+
+/// Bytes at each stage (raw RGBA8 unless stated).
+#[derive(Clone, Debug, Default, Serialize)]
+struct Sizes {
+    panoramas_rgba: u64,
+    slab_layers_rgba: u64,
+    nonempty_tiles_rgba: u64,
+    kept_tiles_rgba: u64,
+    kept_tiles_ptm: u64,
+    meshes: u64,
+    backgrounds_ptm: u64,
+    database_objects: u64,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+struct SlabRow {
+    slab: usize,
+    tiles_nonempty: usize,
+    tiles_kept: usize,
+    rgba_nonempty: u64,
+    rgba_kept: u64,
+    ptm_kept: u64,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+struct BuildReport {
+    scene: String,
+    track: String,
+    face_size: u32,
+    tile_size: u32,
+    samples: usize,
+    culling: String,
+    sizes: Sizes,
+    slabs: Vec<SlabRow>,
+    seconds: Vec<(String, f64)>,
+    objects_written: u64,
+    objects_reused: u64,
+}
+
+/// What `encode/NNNN.json` holds: a finished viewpoint and what produced it.
+#[derive(Serialize, Deserialize)]
+struct EncodedSample {
+    key: String,
+    entry: ViewpointEntry,
+    rgba_nonempty: Vec<u64>,
+    rgba_kept: Vec<u64>,
+    tiles_nonempty: Vec<usize>,
+}
+
+fn stage(n: usize, what: &str) {
+    eprintln!("[{n}/6] {what}");
+}
+
+fn run_sub(argv: &[String]) -> anyhow::Result<()> {
+    let mut full = vec!["railview".to_string()];
+    full.extend_from_slice(argv);
+    let cli = crate::Cli::try_parse_from(&full)
+        .with_context(|| format!("`{}` is not available in this build", argv[0]))?;
+    crate::dispatch(cli.command).with_context(|| format!("stage `{}`", argv.join(" ")))
+}
+
+fn bar(n: u64, what: &str) -> ProgressBar {
+    let b = ProgressBar::new(n);
+    if let Ok(style) = ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} {eta}") {
+        b.set_style(style);
+    }
+    b.set_message(what.to_string());
+    b
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let t_all = Instant::now();
+    let work = args.work.clone().unwrap_or_else(|| {
+        let mut w = args.out.clone().into_os_string();
+        w.push(".work");
+        PathBuf::from(w)
+    });
+    let pre_root = work.join("prerender");
+    let dir = PrerenderDir::new(&pre_root);
+    let mut report = BuildReport {
+        scene: args.scene.clone(),
+        track: args.track.clone(),
+        face_size: args.face_size,
+        ..BuildReport::default()
+    };
+    let p = |x: &Path| x.display().to_string();
+
+    // 1–3: the other stages, each resuming on its own.
+    let t = Instant::now();
+    stage(1, "prerender");
+    run_sub(&[
+        "prerender".into(),
+        "--scene".into(),
+        args.scene.clone(),
+        "--track".into(),
+        args.track.clone(),
+        "--face-size".into(),
+        args.face_size.to_string(),
+        "--out".into(),
+        p(&pre_root),
+    ])?;
+    report
+        .seconds
+        .push(("prerender".into(), t.elapsed().as_secs_f64()));
+    let t = Instant::now();
+    stage(2, "slabs");
+    if pre_root.join("slabs.json").is_file() {
+        eprintln!("      slabs.json present: reusing the tiles");
+    } else {
+        run_sub(&["slabs".into(), p(&pre_root)])?;
+    }
+    report
+        .seconds
+        .push(("slabs".into(), t.elapsed().as_secs_f64()));
+    let t = Instant::now();
+    stage(3, "cull");
+    let decisions = cull_decisions(&pre_root, args.alpha);
+    let decisions = match decisions {
+        Some(d) => Some(d),
+        None => match run_sub(&[
+            "cull".into(),
+            p(&pre_root),
+            "--alpha".into(),
+            args.alpha.to_string(),
+            "--variant".into(),
+            "conservative".into(),
+        ]) {
+            Ok(()) => cull_decisions(&pre_root, args.alpha),
+            Err(e) => {
+                eprintln!("      culling unavailable ({e:#}): every non-empty tile is kept");
+                None
+            }
+        },
+    };
+    report.culling = match &decisions {
+        Some(_) => format!("conservative, α = {}", args.alpha),
+        None => "none (cull stage unavailable): every non-empty tile kept".into(),
+    };
+    report
+        .seconds
+        .push(("cull".into(), t.elapsed().as_secs_f64()));
+
+    // 4: encode every sample's tiles and background into the database.
+    let t = Instant::now();
+    stage(4, "encode (PTM + meshes)");
+    let mut pre: PrerenderReport = dir.read_report().context("reading the prerender report")?;
+    if pre.slabs.is_empty() {
+        // A resumed prerender rewrites its report without the slabs; the layers know them.
+        if let Some(m) = pre
+            .viewpoints
+            .first()
+            .and_then(|v| dir.layers_meta(v.index))
+        {
+            pre.slabs = m.slabs;
+        }
+    }
+    if pre.slabs.is_empty() {
+        bail!(
+            "{}: no slab layers after the slabs stage",
+            dir.report_json().display()
+        );
+    }
+    let mut writer = DbWriter::create(&args.out)?;
+    let opts = EncodeOptions {
+        zstd_level: args.zstd_level,
+        ..EncodeOptions::default()
+    };
+    let key = format!(
+        "ptm-v{} zstd{} cull:{}",
+        ptm::FORMAT_VERSION,
+        args.zstd_level,
+        report.culling
+    );
+    let enc_dir = work.join("encode");
+    let mut viewpoints = Vec::new();
+    let mut grid = None;
+    let nslabs = pre.slabs.len();
+    let mut rows: Vec<SlabRow> = (0..nslabs)
+        .map(|slab| SlabRow {
+            slab,
+            ..SlabRow::default()
+        })
+        .collect();
+    let b = bar(pre.viewpoints.len() as u64, "encoding");
+    for vp in &pre.viewpoints {
+        let path = enc_dir.join(format!("{:04}.json", vp.index));
+        let cached: Option<EncodedSample> = store::read_json(&path)
+            .ok()
+            .filter(|c: &EncodedSample| c.key == key && all_present(&args.out, &c.entry));
+        let sample = match cached {
+            Some(c) => c,
+            None => {
+                let s =
+                    encode_sample(&dir, vp, &pre, decisions.as_ref(), &opts, &mut writer, &key)?;
+                store::write_json(&path, &s)?;
+                s
+            }
+        };
+        let (file, _) = sio::read_tiles(&dir, vp.index)?;
+        grid = Some(file.grid);
+        for (k, row) in rows.iter_mut().enumerate() {
+            row.tiles_nonempty += sample.tiles_nonempty.get(k).copied().unwrap_or(0);
+            row.rgba_nonempty += sample.rgba_nonempty.get(k).copied().unwrap_or(0);
+            row.rgba_kept += sample.rgba_kept.get(k).copied().unwrap_or(0);
+        }
+        for tile in &sample.entry.tiles {
+            let row = &mut rows[tile.slab as usize];
+            if tile.kept {
+                row.tiles_kept += 1;
+                row.ptm_kept += tile.ptm.as_ref().map_or(0, |p| p.object.size);
+                report.sizes.meshes += tile.mesh.as_ref().map_or(0, |m| m.size);
+            }
+        }
+        report.sizes.backgrounds_ptm += sample
+            .entry
+            .background
+            .as_ref()
+            .map_or(0, |p| p.object.size);
+        viewpoints.push(sample.entry);
+        b.inc(1);
+    }
+    b.finish_and_clear();
+    let grid = grid.context("no viewpoints")?;
+    report.tile_size = grid.tile_size;
+    report.samples = viewpoints.len();
+    let face_px = 6 * (pre.face_size as u64).pow(2) * 4;
+    report.sizes.panoramas_rgba = face_px * viewpoints.len() as u64;
+    report.sizes.slab_layers_rgba = face_px * (viewpoints.len() * nslabs) as u64;
+    report.sizes.nonempty_tiles_rgba = rows.iter().map(|r| r.rgba_nonempty).sum();
+    report.sizes.kept_tiles_rgba = rows.iter().map(|r| r.rgba_kept).sum();
+    report.sizes.kept_tiles_ptm = rows.iter().map(|r| r.ptm_kept).sum();
+    report.slabs = rows;
+    report
+        .seconds
+        .push(("encode".into(), t.elapsed().as_secs_f64()));
+
+    // 5: ACH per segment.
+    let t = Instant::now();
+    stage(5, "ACH per segment");
+    let params = AchParams {
+        samples: args.ach_samples,
+        camera_size: args.ach_camera_size,
+    };
+    let mut segments = Vec::new();
+    let b = bar(viewpoints.len().saturating_sub(1) as u64, "ACH");
+    let mut depth_cache: Vec<(usize, Vec<CubeMap<f32>>)> = Vec::new();
+    for pair in viewpoints.windows(2) {
+        let (a, z) = (&pair[0], &pair[1]);
+        for v in [a, z] {
+            if !depth_cache.iter().any(|(i, _)| *i == v.index) {
+                let maps = (0..nslabs)
+                    .map(|k| store::read_depth_exr(&dir.slab_depth_exr(v.index, k)))
+                    .collect::<Result<Vec<_>, _>>()?;
+                depth_cache.push((v.index, maps));
+            }
+        }
+        depth_cache.retain(|(i, _)| *i == a.index || *i == z.index);
+        let crops: Vec<(usize, &TileEntry, Vec<f32>)> = [a, z]
+            .iter()
+            .flat_map(|v| v.tiles.iter().filter(|t| t.kept).map(move |t| (v.index, t)))
+            .map(|(vi, t)| {
+                let maps = &depth_cache
+                    .iter()
+                    .find(|(i, _)| *i == vi)
+                    .expect("cached")
+                    .1;
+                (vi, t, crop(&maps[t.slab as usize], &grid, t.tile))
+            })
+            .collect();
+        let tiles: Vec<AchTile> = crops
+            .iter()
+            .map(|(vi, t, d)| {
+                let (x0, y0, x1, y1) = grid.pixel_rect(t.tile);
+                AchTile {
+                    viewpoint: *vi,
+                    slab: t.slab,
+                    tile: t.tile,
+                    face_size: grid.face_size,
+                    x0,
+                    y0,
+                    width: x1 - x0,
+                    height: y1 - y0,
+                    depth: d,
+                }
+            })
+            .collect();
+        let end = |v: &ViewpointEntry| SegmentEnd {
+            index: v.index,
+            position: v.position,
+        };
+        segments.push(SegmentEntry {
+            from: a.index,
+            to: z.index,
+            ach: segment_ach(end(a), end(z), &tiles, params),
+        });
+        b.inc(1);
+    }
+    b.finish_and_clear();
+    report
+        .seconds
+        .push(("ach".into(), t.elapsed().as_secs_f64()));
+
+    // 6: the manifest, last.
+    stage(6, "manifest");
+    let track_toml = std::fs::read_to_string(dir.track_toml())
+        .with_context(|| format!("reading {}", dir.track_toml().display()))?;
+    let length = TrackSet::parse(&track_toml, &p(&dir.track_toml()))?
+        .get(&pre.track)
+        .map_or(0.0, |t| t.length());
+    let manifest = Manifest {
+        version: MANIFEST_VERSION,
+        scene: pre.scene.clone(),
+        face_size: pre.face_size,
+        tile_size: grid.tile_size,
+        slabs: pre.slabs.clone(),
+        cull_alpha: decisions.as_ref().map(|_| args.alpha),
+        cull_variant: decisions.as_ref().map(|_| "conservative".to_string()),
+        tracks: vec![TrackEntry {
+            name: pre.track.clone(),
+            track_toml,
+            length,
+            viewpoints,
+            segments,
+        }],
+    };
+    writer.finish(&manifest)?;
+    report.objects_written = writer.objects_written;
+    report.objects_reused = writer.objects_reused;
+    report.sizes.database_objects = walk_size(&args.out.join("objects"));
+    report
+        .seconds
+        .push(("total".into(), t_all.elapsed().as_secs_f64()));
+    store::write_json(&work.join("build.json"), &report)?;
+    let md = markdown(&report);
+    store::write_atomic(&work.join("build.md"), md.as_bytes())?;
+    println!("{md}");
+    eprintln!(
+        "wrote {} (report: {})",
+        args.out.join("manifest.json").display(),
+        work.join("build.md").display()
+    );
+    Ok(())
+}
+
+/// Kept/culled decisions of the conservative run with this α, by viewpoint and slab.
+fn cull_decisions(pre_root: &Path, alpha: f64) -> Option<TileDecisions> {
+    let d: TileDecisions = store::read_json(&pre_root.join("cull_tiles.json")).ok()?;
+    let run = d
+        .runs
+        .iter()
+        .find(|r| (r.alpha - alpha).abs() < 1e-9 && r.variant.name() == "conservative")?
+        .clone();
+    Some(TileDecisions {
+        grid: d.grid,
+        runs: vec![run],
+    })
+}
+
+fn is_culled(d: Option<&TileDecisions>, viewpoint: usize, slab: usize, index: u32) -> bool {
+    let Some(d) = d else { return false };
+    d.runs[0]
+        .viewpoints
+        .iter()
+        .find(|v| v.index == viewpoint)
+        .and_then(|v| v.slabs.iter().find(|s| s.slab == slab))
+        .is_some_and(|s| s.culled.contains(&index))
+}
+
+fn all_present(db: &Path, v: &ViewpointEntry) -> bool {
+    let ok = |o: &tracks::manifest::ObjectRef| {
+        o.rel_path()
+            .and_then(|r| std::fs::metadata(db.join(r)).ok())
+            .is_some_and(|m| m.len() == o.size)
+    };
+    v.background.as_ref().is_none_or(|p| ok(&p.object))
+        && v.tiles
+            .iter()
+            .all(|t| t.ptm.as_ref().is_none_or(|p| ok(&p.object)) && t.mesh.as_ref().is_none_or(ok))
+}
+
+fn crop<T: Copy>(map: &CubeMap<T>, grid: &TileGrid, t: tracks::TileId) -> Vec<T> {
+    let (x0, y0, x1, y1) = grid.pixel_rect(t);
+    let mut out = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+    for y in y0..y1 {
+        for x in x0..x1 {
+            out.push(*map.get(t.face, x, y));
+        }
+    }
+    out
+}
+
+fn encode_sample(
+    dir: &PrerenderDir,
+    vp: &tracks::ReferenceViewpoint,
+    pre: &PrerenderReport,
+    decisions: Option<&TileDecisions>,
+    opts: &EncodeOptions,
+    writer: &mut DbWriter,
+    key: &str,
+) -> anyhow::Result<EncodedSample> {
+    let i = vp.index;
+    let (file, meshes) = sio::read_tiles(dir, i)?;
+    let grid = file.grid;
+    let mut tiles = Vec::new();
+    let (mut rgba_nonempty, mut rgba_kept, mut tiles_nonempty) = (vec![], vec![], vec![]);
+    for (layer, layer_meshes) in file.layers.iter().zip(&meshes) {
+        let k = layer.slab;
+        let color = store::read_rgba_png(&dir.slab_color_png(i, k))?;
+        let (mut ne, mut kept_bytes) = (0u64, 0u64);
+        for (rec, mesh) in layer.tiles.iter().zip(layer_meshes) {
+            let (x0, y0, x1, y1) = grid.pixel_rect(rec.tile);
+            let bytes = ((x1 - x0) * (y1 - y0) * 4) as u64;
+            ne += bytes;
+            let culled = is_culled(decisions, i, k, grid.tile_index(rec.tile) as u32);
+            let (ptm, mesh_ref) = if culled {
+                (None, None)
+            } else {
+                kept_bytes += bytes;
+                let px = crop(&color, &grid, rec.tile);
+                let img = Image::new(x1 - x0, y1 - y0, 4, px.into_iter().flatten().collect())?;
+                let enc = ptm::encode(&img, opts)?;
+                let ptm = writer.put_ptm(&enc, 4)?;
+                let data = MeshData {
+                    vertices: mesh.vertices.clone(),
+                    indices: mesh.indices.clone(),
+                };
+                let mesh_ref = if data.indices.is_empty() {
+                    None
+                } else {
+                    Some(writer.put(&encode_mesh(&data).with_context(|| {
+                        format!("sample {i} slab {k} tile {:?}: mesh", rec.tile)
+                    })?)?)
+                };
+                (Some(ptm), mesh_ref)
+            };
+            tiles.push(TileEntry {
+                tile: rec.tile,
+                slab: k as u32,
+                depth_min: rec.depth_min as f64,
+                depth_max: rec.depth_max as f64,
+                opaque_pixels: rec.opaque_pixels,
+                kept: !culled,
+                ptm,
+                mesh: mesh_ref,
+            });
+        }
+        rgba_nonempty.push(ne);
+        rgba_kept.push(kept_bytes);
+        tiles_nonempty.push(layer.tiles.len());
+    }
+    // Background: the sky where the panorama's depth is infinite (alpha 255), else clear.
+    let color = store::read_rgb_png(&dir.color_png(i))?;
+    let depth = store::read_depth_exr(&dir.depth_exr(i))?;
+    let n = pre.face_size;
+    let data: Vec<u8> = color
+        .as_slice()
+        .iter()
+        .zip(depth.as_slice())
+        .flat_map(|(c, d)| {
+            if d.is_finite() {
+                [0, 0, 0, 0]
+            } else {
+                [c[0], c[1], c[2], 255]
+            }
+        })
+        .collect();
+    let bg = ptm::encode(&Image::new(n, 6 * n, 4, data)?, opts)?;
+    let background = Some(writer.put_ptm(&bg, 4)?);
+    Ok(EncodedSample {
+        key: key.to_string(),
+        entry: ViewpointEntry {
+            index: i,
+            s: vp.s,
+            position: vp.position,
+            background,
+            tiles,
+        },
+        rgba_nonempty,
+        rgba_kept,
+        tiles_nonempty,
+    })
+}
+
+fn walk_size(dir: &Path) -> u64 {
+    let Ok(rd) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    rd.filter_map(Result::ok)
+        .map(|e| {
+            let p = e.path();
+            if p.is_dir() {
+                walk_size(&p)
+            } else {
+                e.metadata().map_or(0, |m| m.len())
+            }
+        })
+        .sum()
+}
+
+fn mib(b: u64) -> String {
+    format!("{:.2} MiB", b as f64 / (1024.0 * 1024.0))
+}
+
+fn markdown(r: &BuildReport) -> String {
+    let s = &r.sizes;
+    let mut m = format!(
+        "# railview build: {} / {}\n\n{} reference viewpoints, faces {} px, tiles {} px. Culling: {}.\n\n## Sizes per stage\n\n| stage | bytes | |\n|---|---|---|\n",
+        r.scene, r.track, r.samples, r.face_size, r.tile_size, r.culling
+    );
+    let base = s.panoramas_rgba.max(1) as f64;
+    for (name, b) in [
+        ("raw panoramas (RGBA8)", s.panoramas_rgba),
+        ("slab layers (RGBA8)", s.slab_layers_rgba),
+        ("empty tiles removed (RGBA8)", s.nonempty_tiles_rgba),
+        ("culled (RGBA8)", s.kept_tiles_rgba),
+        ("PTM compressed (kept tiles)", s.kept_tiles_ptm),
+        ("meshes (compact binary)", s.meshes),
+        ("backgrounds (PTM)", s.backgrounds_ptm),
+        ("database objects on disk", s.database_objects),
+    ] {
+        m += &format!(
+            "| {name} | {} | {:.1} % of panoramas |\n",
+            mib(b),
+            100.0 * b as f64 / base
+        );
+    }
+    m += "\n## Culling table\n\n| slab | tiles non-empty | kept | RGBA8 non-empty | RGBA8 kept | PTM kept |\n|---|---|---|---|---|---|\n";
+    for row in &r.slabs {
+        m += &format!(
+            "| {} | {} | {} | {} | {} | {} |\n",
+            row.slab,
+            row.tiles_nonempty,
+            row.tiles_kept,
+            mib(row.rgba_nonempty),
+            mib(row.rgba_kept),
+            mib(row.ptm_kept)
+        );
+    }
+    m += "\n## Timings\n\n| stage | seconds |\n|---|---|\n";
+    for (name, secs) in &r.seconds {
+        m += &format!("| {name} | {secs:.1} |\n");
+    }
+    m += &format!(
+        "\nObjects written {}, reused {} (a rebuild reuses everything already written).\n",
+        r.objects_written, r.objects_reused
+    );
+    m
+}
