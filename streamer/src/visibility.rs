@@ -6,12 +6,13 @@
 //! given reference viewpoint (the two ends of the current segment, with their blend weights),
 //! finds what that viewpoint's layers show along the ray:
 //!
-//! 1. slabs are visited front to back (slab 0 first); for slab `k`, the tile is first looked up
-//!    in the ray's own direction (no parallax), then twice refined: the ray is intersected with
-//!    the sphere of radius `(depth_min + depth_max) / 2` of the tile found around the viewpoint,
-//!    and the tile is looked up again in the direction viewpoint → intersection;
-//! 2. the first slab whose tile is kept and has opaque pixels wins the sample; no tile in any
-//!    slab means the sample shows the viewpoint's background;
+//! 1. the ray is marched from the camera in geometric steps (48, out to 1.5× the farthest tile
+//!    depth); at each step, the direction viewpoint → step midpoint picks a tile per slab
+//!    (front to back), and the tile is hit when the step's range of distances from the
+//!    viewpoint overlaps the tile's `[depth_min, depth_max]` — so parallax between camera and
+//!    viewpoint is followed and thin depth ranges cannot be stepped over;
+//! 2. the first step with a hit wins (lower slab first within a step); no hit means the
+//!    sample shows the viewpoint's background (or a disocclusion hole);
 //! 3. the needed level: a screen pixel spans `α_c = 2·tan(fov/2)/width` radians at distance
 //!    `d_c` from the camera, a level-0 texel spans about `α_v = 2/face_size` at distance `d_v`
 //!    from the viewpoint; level `l` is enough while `2^l · α_v · d_v ≤ α_c · d_c`, so the
@@ -83,9 +84,14 @@ struct ViewpointIndex {
     position: DVec3,
     /// Per slab.
     layers: Vec<Layer>,
-    /// Mid depth per tile position.
-    mid_depth: Vec<f64>,
+    /// `(depth_min, depth_max)` per tile position.
+    depth: Vec<(f64, f64)>,
+    /// Largest finite tile depth.
+    far: f64,
 }
+
+/// Steps of the depth-range march along each ray.
+const MARCH_STEPS: usize = 48;
 
 /// One track of a manifest, indexed for visibility queries.
 pub struct SceneIndex {
@@ -108,25 +114,29 @@ impl SceneIndex {
                         tiles: vec![None; grid.tile_count()],
                     })
                     .collect();
-                let mut mid_depth = Vec::with_capacity(vp.tiles.len());
+                let mut depth = Vec::with_capacity(vp.tiles.len());
+                let mut far: f64 = 0.0;
                 for (i, tile) in vp.tiles.iter().enumerate() {
-                    let mid = 0.5 * (tile.depth_min + tile.depth_max);
-                    mid_depth.push(mid);
+                    depth.push((tile.depth_min, tile.depth_max));
                     let usable = tile.kept
                         && tile.ptm.is_some()
                         && tile.opaque_pixels > 0
-                        && mid.is_finite()
-                        && mid > 0.0
+                        && tile.depth_min.is_finite()
+                        && tile.depth_max.is_finite()
+                        && tile.depth_min > 0.0
+                        && tile.depth_max >= tile.depth_min
                         && tile.tile.tx < grid.tiles_per_side()
                         && tile.tile.ty < grid.tiles_per_side();
                     if let (true, Some(layer)) = (usable, layers.get_mut(tile.slab as usize)) {
                         layer.tiles[grid.tile_index(tile.tile)] = Some(i);
+                        far = far.max(tile.depth_max);
                     }
                 }
                 ViewpointIndex {
                     position: vp.position,
                     layers,
-                    mid_depth,
+                    depth,
+                    far,
                 }
             })
             .collect();
@@ -141,42 +151,55 @@ impl SceneIndex {
     }
 
     /// What viewpoint `vi` shows along the ray `origin + t·dir`: the surface and the hit
-    /// point (`None` for the background).
+    /// point (`None` for the background). See the module docs for the march.
     pub fn trace(&self, vi: usize, origin: DVec3, dir: DVec3) -> Option<(Surface, Option<DVec3>)> {
         let vp = self.viewpoints.get(vi)?;
-        for slab in 0..vp.layers.len() {
-            let Some(mut tile) = self.lookup(vp, slab, dir) else {
-                continue;
-            };
-            let mut hit = None;
-            for _ in 0..2 {
-                let Some(p) = ray_sphere(origin, dir, vp.position, vp.mid_depth[tile]) else {
-                    hit = None;
-                    break;
+        let dir = dir.try_normalize()?;
+        let background = Some((Surface::Background { viewpoint: vi }, None));
+        if vp.far <= 0.0 {
+            return background;
+        }
+        // Geometric steps from close to the camera to beyond the farthest tile.
+        let t_far = vp.far * 1.5 + (origin - vp.position).length();
+        let t_near = (t_far * 1e-4).max(1e-3);
+        let ratio = (t_far / t_near).powf(1.0 / MARCH_STEPS as f64);
+        let mut t0 = 0.0;
+        let mut r0 = (origin - vp.position).length();
+        let mut t1 = t_near;
+        for _ in 0..=MARCH_STEPS {
+            let p1 = origin + dir * t1;
+            let r1 = (p1 - vp.position).length();
+            let mid = origin + dir * (0.5 * (t0 + t1));
+            let (lo, hi) = (r0.min(r1), r0.max(r1));
+            for slab in 0..vp.layers.len() {
+                let Some(tile) = self.lookup(vp, slab, mid - vp.position) else {
+                    continue;
                 };
-                match self.lookup(vp, slab, p - vp.position) {
-                    Some(t) => {
-                        tile = t;
-                        hit = Some(p);
-                    }
-                    None => {
-                        hit = None;
-                        break;
-                    }
+                let (dmin, dmax) = vp.depth[tile];
+                if hi >= dmin && lo <= dmax {
+                    // Place the hit where the ray's distance from the viewpoint is closest to
+                    // the tile's mid depth within this step.
+                    let target = (0.5 * (dmin + dmax)).clamp(lo, hi);
+                    let f = if hi > lo {
+                        ((target - r0) / (r1 - r0)).clamp(0.0, 1.0)
+                    } else {
+                        0.5
+                    };
+                    let hit = origin + dir * (t0 + (t1 - t0) * f);
+                    return Some((
+                        Surface::Tile {
+                            viewpoint: vi,
+                            tile,
+                        },
+                        Some(hit),
+                    ));
                 }
             }
-            if let Some(p) = hit {
-                let p = ray_sphere(origin, dir, vp.position, vp.mid_depth[tile]).unwrap_or(p);
-                return Some((
-                    Surface::Tile {
-                        viewpoint: vi,
-                        tile,
-                    },
-                    Some(p),
-                ));
-            }
+            t0 = t1;
+            r0 = r1;
+            t1 *= ratio;
         }
-        Some((Surface::Background { viewpoint: vi }, None))
+        background
     }
 
     /// Count visible pixels per surface for `camera`, sampling its image with
@@ -216,7 +239,8 @@ impl SceneIndex {
                         None => alpha_c / alpha_v,
                     };
                     let level = if q > 1.0 {
-                        (q.log2().floor() as usize).min(MAX_LEVELS - 1)
+                        // The epsilon keeps exact powers of two on their level.
+                        ((q.log2() + 1e-9).floor() as usize).min(MAX_LEVELS - 1)
                     } else {
                         0
                     };
@@ -235,19 +259,6 @@ impl SceneIndex {
         out.sort_by_key(|a| a.surface);
         out
     }
-}
-
-/// The far intersection of the ray `o + t·d` (t > 0) with the sphere `|p − c| = r`.
-fn ray_sphere(o: DVec3, d: DVec3, c: DVec3, r: f64) -> Option<DVec3> {
-    let d = d.try_normalize()?;
-    let oc = o - c;
-    let b = d.dot(oc);
-    let disc = b * b - (oc.length_squared() - r * r);
-    if disc < 0.0 {
-        return None;
-    }
-    let t = -b + disc.sqrt();
-    (t > 1e-9).then(|| o + d * t)
 }
 
 /// Blend weights of the two viewpoints bounding the segment that holds arc length `s`
@@ -275,14 +286,56 @@ pub fn blend_weights(vp_s: &[f64], s: f64) -> Vec<(usize, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tracks::manifest::Manifest;
+
+    fn corridor(name: &str) -> (SceneIndex, Manifest) {
+        let dir = std::env::temp_dir().join(format!("railview-vis-{name}-{}", std::process::id()));
+        let m = crate::walk::synth::write_synthetic(&dir, &Default::default()).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        (SceneIndex::new(&m, 0).unwrap(), m)
+    }
+
+    fn cam_at(m: &Manifest, vp: usize, width: u32) -> PerspectiveCamera {
+        PerspectiveCamera {
+            position: m.tracks[0].viewpoints[vp].position,
+            yaw_deg: 90.0,
+            pitch_deg: -20.0,
+            fov_deg: 90.0,
+            width,
+            height: width / 2,
+        }
+    }
 
     #[test]
-    fn ray_sphere_takes_the_far_side_from_inside() {
-        let p = ray_sphere(DVec3::ZERO, DVec3::X, DVec3::ZERO, 2.0).unwrap();
-        assert!((p - DVec3::new(2.0, 0.0, 0.0)).length() < 1e-12);
-        let p = ray_sphere(DVec3::new(1.0, 0.0, 0.0), DVec3::NEG_X, DVec3::ZERO, 2.0).unwrap();
-        assert!((p - DVec3::new(-2.0, 0.0, 0.0)).length() < 1e-12);
-        assert!(ray_sphere(DVec3::new(5.0, 0.0, 0.0), DVec3::X, DVec3::ZERO, 2.0).is_none());
+    fn every_screen_pixel_is_counted_once_per_unit_of_weight() {
+        let (index, m) = corridor("count");
+        let cam = cam_at(&m, 1, 320);
+        let counts = index.count(&cam, &[(1, 0.25), (2, 0.75)], 40, 20);
+        let total: f64 = counts.iter().map(|c| c.pixels()).sum();
+        assert!((total - 320.0 * 160.0).abs() < 1e-6, "{total}");
+        // Looking at a wall and the floor: tiles, not background, cover the view.
+        let tiles: f64 = counts
+            .iter()
+            .filter(|c| matches!(c.surface, Surface::Tile { .. }))
+            .map(|c| c.pixels())
+            .sum();
+        assert!(tiles > 0.9 * total, "{tiles} of {total}");
+    }
+
+    #[test]
+    fn needed_level_follows_screen_resolution_at_the_viewpoint() {
+        let (index, m) = corridor("level");
+        // At the viewpoint, a screen as fine as the panorama (90° over face_size pixels)
+        // needs level 0; one 4× coarser needs level 2.
+        for (width, level) in [(m.face_size, 0u32), (m.face_size / 4, 2)] {
+            let counts = index.count(&cam_at(&m, 1, width), &[(1, 1.0)], 16, 8);
+            for c in counts
+                .iter()
+                .filter(|c| matches!(c.surface, Surface::Tile { .. }))
+            {
+                assert_eq!(c.finest_needed(), level, "width {width}: {c:?}");
+            }
+        }
     }
 
     #[test]

@@ -218,7 +218,7 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
     Ok(manifest)
 }
 
-/// ACH per segment: pixels per tile over the six 90° cameras of the rendering box at nine
+/// ACH per segment: pixels per tile over the six 90° cameras of the rendering box at five
 /// positions along the segment (ends included), normalised to sum to 1, descending.
 fn synthetic_ach(m: &Manifest, track: &tracks::Track) -> Vec<SegmentEntry> {
     let Some(index) = SceneIndex::new(m, 0) else {
@@ -229,8 +229,8 @@ fn synthetic_ach(m: &Manifest, track: &tracks::Track) -> Vec<SegmentEntry> {
     let mut out = Vec::new();
     for i in 0..t.viewpoints.len().saturating_sub(1) {
         let mut px: std::collections::HashMap<usize, (usize, f64)> = Default::default();
-        for k in 0..=8 {
-            let s = vp_s[i] + (vp_s[i + 1] - vp_s[i]) * k as f64 / 8.0;
+        for k in 0..=4 {
+            let s = vp_s[i] + (vp_s[i + 1] - vp_s[i]) * k as f64 / 4.0;
             let weights = blend_weights(&vp_s, s);
             for (yaw, pitch) in [
                 (0.0, 0.0),
@@ -245,10 +245,10 @@ fn synthetic_ach(m: &Manifest, track: &tracks::Track) -> Vec<SegmentEntry> {
                     yaw_deg: yaw,
                     pitch_deg: pitch,
                     fov_deg: 90.0,
-                    width: 64,
-                    height: 64,
+                    width: 32,
+                    height: 32,
                 };
-                for c in index.count(&cam, &weights, 64, 64) {
+                for c in index.count(&cam, &weights, 32, 32) {
                     if let Surface::Tile { viewpoint, tile } = c.surface {
                         let e = px
                             .entry(viewpoint * 1_000_000 + tile)
