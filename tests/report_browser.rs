@@ -40,7 +40,7 @@ fn plot(path: &Path, w: u32, h: u32) {
 
 /// A demo directory as the stages would leave it, at 8² faces and 3 samples.
 fn fixture(root: &Path) {
-    let work = root.join("work");
+    let work = root.join("work/prerender");
     let slabs = [(0.0, Some(10.0)), (10.0, Some(60.0)), (60.0, None)];
     write_json(
         &work.join("prerender.json"),
@@ -129,6 +129,16 @@ fn fixture(root: &Path) {
                          run(1.0, "paper", true)]}),
     );
     plot(&work.join("cull/conservative-a1.png"), 48, 8);
+    write_json(
+        &root.join("work/build.json"),
+        &json!({"scene": "castle", "track": "main", "face_size": FACE, "tile_size": 4,
+                "samples": SAMPLES, "culling": "conservative, α = 1",
+                "sizes": {"panoramas_rgba": 4608, "slab_layers_rgba": 13824,
+                          "nonempty_tiles_rgba": 9000, "kept_tiles_rgba": 7000,
+                          "kept_tiles_ptm": 3000, "meshes": 2000, "backgrounds_ptm": 500,
+                          "database_objects": 5600},
+                "seconds": [["prerender", 1.5], ["encode", 0.5], ["total", 2.0]]}),
+    );
     write_json(&root.join("db/manifest.json"), &json!({"scene": "castle"}));
     std::fs::create_dir_all(root.join("db/objects")).unwrap();
     std::fs::write(root.join("db/objects/ab12"), vec![7u8; 3000]).unwrap();
@@ -306,7 +316,10 @@ fn full_report_loads_every_image_and_table_in_chromium() {
             "Reproduce: `railview walk",
             "walk numbers carry their command",
         ),
-        ("| PTM compressed (database on disk) |", "database size row"),
+        (
+            "| PTM compressed (kept tiles) | 0.003 | 65.1% |",
+            "database size row",
+        ),
         ("![viewpoint 1 at s = 2.50 m", "a viewpoint image"),
         ("(histogram.png)", "the depth histogram"),
         (
@@ -336,6 +349,7 @@ fn full_report_loads_every_image_and_table_in_chromium() {
         "culling-paper",
         "false-culls",
         "db-sizes",
+        "build-seconds",
         "walk",
         "eval",
     ] {
@@ -380,9 +394,16 @@ fn a_broken_stage_image_is_left_out_not_linked() {
     let root = tmp_dir("broken");
     fixture(&root);
     std::fs::write(root.join("walk/walk.png"), b"\x89PNG\r\n\x1a\ntruncated").unwrap();
+    // Without the build report, sizes are estimated from the stage reports.
+    std::fs::remove_file(root.join("work/build.json")).unwrap();
     report_only(&root);
     let report = root.join("report");
     let md = std::fs::read_to_string(report.join("index.md")).unwrap();
+    assert!(
+        md.contains("| raw panoramas | 0.005 | 100.0% | 3 samples × 6 × 8² px |"),
+        "{md}"
+    );
+    assert!(md.contains("| PTM compressed (database on disk) |"), "{md}");
     assert!(
         !md.contains("(walk.png)"),
         "a broken plot must not be linked"
@@ -411,8 +432,16 @@ fn demo_end_to_end_at_a_tiny_size_reuses_and_recovers() {
     let out = root.join("demo");
     let demo = || {
         let mut c = Command::new(env!("CARGO_BIN_EXE_railview"));
-        c.args(["demo", "--face-size", "16", "--no-window", "--out"])
-            .arg(&out);
+        c.args([
+            "demo",
+            "--face-size",
+            "16",
+            "--walk-speed",
+            "36",
+            "--no-window",
+            "--out",
+        ])
+        .arg(&out);
         c
     };
     // Killed midway (whatever it was doing), then run to the end.
@@ -451,7 +480,7 @@ fn demo_end_to_end_at_a_tiny_size_reuses_and_recovers() {
             other => panic!("stage {name} {other}: {s}"),
         }
     }
-    for must in ["prerender", "slabs", "cull"] {
+    for must in ["build", "cull"] {
         let s = stages.iter().find(|s| s["name"] == must).unwrap();
         assert_eq!(s["status"], "done", "{must}: {s}");
     }

@@ -32,6 +32,10 @@ pub struct Args {
     /// Track of the scene.
     #[arg(long, default_value = "main")]
     pub track: String,
+    /// Walking speed of the streaming simulation, m/s (the walk is simulated in virtual
+    /// time, but each frame costs a visibility pass, so faster walks finish sooner).
+    #[arg(long, default_value_t = 4.0)]
+    pub walk_speed: f64,
     /// Never open the viewer window; render a headless flythrough instead.
     #[arg(long)]
     pub no_window: bool,
@@ -100,9 +104,11 @@ fn run_stage(
             .requires
             .iter()
             .any(|r| log.ran_now.iter().any(|n| n == r));
+        // A stage without outputs (the viewer window) is never "reused".
         if prev.status == StageStatus::Done
             && prev.command == command
             && inputs_unchanged
+            && !stage.outputs.is_empty()
             && stage.outputs.iter().all(|p| p.exists())
         {
             eprintln!("[{step}/{steps}] {}: reused ({command})", stage.name);
@@ -199,33 +205,31 @@ fn finish(layout: &Layout, log: &mut RunLog, record: StageRecord) -> StageStatus
     status
 }
 
-/// The stages that make the database, in order.
+/// The stages that make the database, in order: `build` runs prerender → slabs → cull
+/// (conservative, α = 1) → encode → ACH, each resuming; then `cull` runs again over every α
+/// and both variants with the oracle, for the report's tables (it rewrites the same decisions
+/// for the run `build` used).
 fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
-    let work = layout.work();
+    let work = layout.prerender();
     let db = layout.db();
-    let n = args.face_size.to_string();
     vec![
         Stage {
-            name: "prerender",
+            name: "build",
             argv: vec![
-                "prerender".into(),
+                "build".into(),
                 "--scene".into(),
                 args.scene.clone(),
                 "--track".into(),
                 args.track.clone(),
                 "--face-size".into(),
-                n.clone(),
+                args.face_size.to_string(),
                 "--out".into(),
-                path_arg(&work),
+                path_arg(&db),
+                "--work".into(),
+                path_arg(&layout.work()),
             ],
-            outputs: vec![work.join("prerender.json")],
+            outputs: vec![db.join("manifest.json"), layout.work().join("build.json")],
             requires: vec![],
-        },
-        Stage {
-            name: "slabs",
-            argv: vec!["slabs".into(), path_arg(&work)],
-            outputs: vec![work.join("slabs.json")],
-            requires: vec!["prerender"],
         },
         Stage {
             name: "cull",
@@ -239,30 +243,14 @@ fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
                 "8".into(),
             ],
             outputs: vec![work.join("cull.json")],
-            requires: vec!["slabs"],
-        },
-        Stage {
-            name: "build",
-            argv: vec![
-                "build".into(),
-                "--scene".into(),
-                args.scene.clone(),
-                "--track".into(),
-                args.track.clone(),
-                "--face-size".into(),
-                n.clone(),
-                "--out".into(),
-                path_arg(&db),
-            ],
-            outputs: vec![db.join("manifest.json")],
-            requires: vec![],
+            requires: vec!["build"],
         },
     ]
 }
 
 /// The stages that use the database: from `source`, the database or, while no `build`
 /// exists, the prerender directory (the viewer reads either).
-fn use_stages(layout: &Layout, source: &Path, headless: bool) -> Vec<Stage> {
+fn use_stages(args: &Args, layout: &Layout, source: &Path, headless: bool) -> Vec<Stage> {
     let db = layout.db();
     let needs: &'static str = if source == db { "build" } else { "slabs" };
     let mut stages = vec![
@@ -272,7 +260,7 @@ fn use_stages(layout: &Layout, source: &Path, headless: bool) -> Vec<Stage> {
                 "walk".into(),
                 path_arg(&db),
                 "--speed".into(),
-                "1.5".into(),
+                args.walk_speed.to_string(),
                 "--bandwidth".into(),
                 "2mbit,unlimited".into(),
                 "--strategy".into(),
@@ -378,15 +366,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let window = !args.no_window && display_available() && has_command("view");
     let start = Instant::now();
     let first = build_stages(&args, &layout);
-    let steps = first.len() + use_stages(&layout, &layout.db(), !window).len();
+    let steps = first.len() + use_stages(&args, &layout, &layout.db(), !window).len();
     for (i, stage) in first.iter().enumerate() {
         run_stage(&layout, &mut log, stage, i + 1, steps);
     }
     let built = log
         .stage("build")
         .is_some_and(|s| s.status == StageStatus::Done);
-    let source = if built { layout.db() } else { layout.work() };
-    for (i, stage) in use_stages(&layout, &source, !window).iter().enumerate() {
+    let source = if built {
+        layout.db()
+    } else {
+        layout.prerender()
+    };
+    for (i, stage) in use_stages(&args, &layout, &source, !window)
+        .iter()
+        .enumerate()
+    {
         run_stage(&layout, &mut log, stage, first.len() + i + 1, steps);
     }
     let written = report::write_report(&layout, &log).context("writing the report")?;
@@ -399,7 +394,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.face_size,
         start.elapsed().as_secs_f64()
     );
-    println!("  prerendered panoramas: {}", layout.work().display());
+    println!("  prerendered panoramas: {}", layout.prerender().display());
     println!("  database:              {}", layout.db().display());
     if !window {
         let why = if args.no_window {
@@ -475,13 +470,17 @@ fn view_window(layout: &Layout, log: &mut RunLog) -> anyhow::Result<()> {
         "serving {} on {url}; opening the viewer (close the window to finish)",
         layout.db().display()
     );
-    let stage = Stage {
+    let view = |source: String| Stage {
         name: "view",
-        argv: vec!["view".into(), url],
+        argv: vec!["view".into(), source],
         outputs: vec![],
         requires: vec!["build"],
     };
-    run_stage(layout, log, &stage, 1, 1);
+    if run_stage(layout, log, &view(url), 1, 2) != StageStatus::Done {
+        // A viewer that cannot stream yet still opens the database directly.
+        println!("opening the viewer on the database directory instead");
+        run_stage(layout, log, &view(path_arg(&layout.db())), 2, 2);
+    }
     drop(stop_tx);
     rt.block_on(task).context("server task")??;
     Ok(())

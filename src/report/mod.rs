@@ -40,9 +40,14 @@ impl Layout {
     pub fn root(&self) -> &Path {
         &self.root
     }
-    /// The prerender directory (samples, `prerender.json`, `slabs.json`, `cull.json`).
+    /// The build stage's work directory (`build.json`, encoded samples); the prerender
+    /// directory is inside it, where `railview build --work` looks for it.
     pub fn work(&self) -> PathBuf {
         self.root.join("work")
+    }
+    /// The prerender directory (samples, `prerender.json`, `slabs.json`, `cull.json`).
+    pub fn prerender(&self) -> PathBuf {
+        self.work().join("prerender")
     }
     /// The walkthrough database.
     pub fn db(&self) -> PathBuf {
@@ -67,19 +72,11 @@ impl Layout {
     }
     /// The first existing file called `name` in the directories a stage may write it to.
     pub fn find(&self, name: &str) -> Option<PathBuf> {
-        let work = self.work();
-        let db = self.db();
-        [
-            work.clone(),
-            work.join("slabs"),
-            work.join("cull"),
-            db.clone(),
-            db.join("work"),
-            db.join("report"),
-        ]
-        .into_iter()
-        .map(|d| d.join(name))
-        .find(|p| p.is_file())
+        let pre = self.prerender();
+        [pre.clone(), pre.join("slabs"), self.work(), self.db()]
+            .into_iter()
+            .map(|d| d.join(name))
+            .find(|p| p.is_file())
     }
 }
 

@@ -12,7 +12,7 @@ use tracks::Face;
 
 pub(super) fn viewpoints(c: &mut Ctx) -> Option<Value> {
     c.section("viewpoints", "The scene from a few reference viewpoints");
-    let work = c.layout.work();
+    let work = c.layout.prerender();
     let cmd = c.command(
         "prerender",
         format!(
@@ -88,7 +88,7 @@ pub(super) fn histogram(c: &mut Ctx) -> Option<Value> {
     c.section("slabs", "Depth histogram and slab boundaries");
     let cmd = c.command(
         "slabs",
-        format!("railview slabs {}", c.path_arg(c.layout.work())),
+        format!("railview slabs {}", c.path_arg(c.layout.prerender())),
     );
     let Some(path) = c.layout.find("slabs.json") else {
         let why = c.why_missing("slabs", "slabs.json");

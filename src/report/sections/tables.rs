@@ -16,7 +16,7 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
         "cull",
         format!(
             "railview cull {} --alpha 1.0,0.9,0.8 --oracle",
-            c.path_arg(c.layout.work())
+            c.path_arg(c.layout.prerender())
         ),
     );
     let Some(path) = c.layout.find("cull.json") else {
@@ -208,6 +208,95 @@ fn dir_bytes(dir: &Path) -> Option<u64> {
 
 pub(super) fn sizes(c: &mut Ctx, pre: Option<&Value>, slabs: Option<&Value>, cull: Option<&Value>) {
     c.section("sizes", "Database size per stage");
+    if let Some(path) = c.layout.find("build.json") {
+        match read_json(&path) {
+            Ok(build) => {
+                build_sizes(c, &build);
+                return;
+            }
+            Err(e) => c.missing(e),
+        }
+    }
+    estimated_sizes(c, pre, slabs, cull);
+}
+
+/// Sizes and timings from the build stage's own report (`build.json`).
+fn build_sizes(c: &mut Ctx, build: &Value) {
+    let db = c.layout.db();
+    let cmd = c.command(
+        "build",
+        format!(
+            "railview build --scene {} --track {} --face-size {} --out {} --work {}",
+            c.log.scene,
+            c.log.track,
+            c.log.face_size,
+            db.display(),
+            c.layout.work().display()
+        ),
+    );
+    c.push(Block::Command(cmd));
+    let culling = build
+        .get("culling")
+        .and_then(Value::as_str)
+        .unwrap_or("?")
+        .to_string();
+    c.push(Block::Para(format!(
+        "Colour as raw RGBA8 (4 bytes per pixel, the paper's Size unit) up to culling ({culling}),          then as stored: PTM levels compressed, meshes in their compact binary form, and every          object of the database on disk."
+    )));
+    let sizes = build.get("sizes").cloned().unwrap_or(Value::Null);
+    let raw = num(&sizes, "panoramas_rgba").filter(|r| *r > 0.0);
+    let rows: Vec<Vec<String>> = [
+        ("raw panoramas", "panoramas_rgba"),
+        ("slab layers", "slab_layers_rgba"),
+        ("empty tiles removed", "nonempty_tiles_rgba"),
+        ("culled", "kept_tiles_rgba"),
+        ("PTM compressed (kept tiles)", "kept_tiles_ptm"),
+        ("meshes", "meshes"),
+        ("backgrounds (PTM)", "backgrounds_ptm"),
+        ("database objects on disk", "database_objects"),
+    ]
+    .iter()
+    .filter_map(|(label, key)| {
+        let b = num(&sizes, key)?;
+        let rel = raw.map_or("–".into(), |r| format!("{:.1}%", 100.0 * b / r));
+        Some(vec![label.to_string(), fmt_mb(b), rel])
+    })
+    .collect();
+    if rows.is_empty() {
+        c.missing("build.json has no sizes".into());
+        return;
+    }
+    c.push(Block::Table(Table {
+        id: "db-sizes".into(),
+        caption: "Size per stage (MB; share of the raw panoramas)".into(),
+        header: ["stage", "MB", "of raw panoramas"]
+            .map(String::from)
+            .to_vec(),
+        rows,
+    }));
+    let times: Vec<Vec<String>> = build
+        .get("seconds")
+        .and_then(Value::as_array)
+        .into_iter()
+        .flatten()
+        .filter_map(|p| {
+            let name = p.get(0)?.as_str()?;
+            Some(vec![name.to_string(), fmt_num(p.get(1)?.as_f64(), 1)])
+        })
+        .collect();
+    if !times.is_empty() {
+        c.push(Block::Table(Table {
+            id: "build-seconds".into(),
+            caption: "Build time per stage (seconds; a resumed build counts only what it redid)"
+                .into(),
+            header: vec!["stage".into(), "seconds".into()],
+            rows: times,
+        }));
+    }
+}
+
+/// Sizes estimated from the stage reports, when no build report exists.
+fn estimated_sizes(c: &mut Ctx, pre: Option<&Value>, slabs: Option<&Value>, cull: Option<&Value>) {
     c.push(Block::Para(
         "Colour as raw RGBA8 (4 bytes per pixel, the paper's Size unit) up to culling; the last \
          row is the database as written to disk (PTM levels compressed, meshes, manifest)."
@@ -237,11 +326,11 @@ pub(super) fn sizes(c: &mut Ctx, pre: Option<&Value>, slabs: Option<&Value>, cul
     );
     let slab_cmd = c.command(
         "slabs",
-        format!("railview slabs {}", c.path_arg(c.layout.work())),
+        format!("railview slabs {}", c.path_arg(c.layout.prerender())),
     );
     let cull_cmd = c.command(
         "cull",
-        format!("railview cull {}", c.path_arg(c.layout.work())),
+        format!("railview cull {}", c.path_arg(c.layout.prerender())),
     );
     if let (Some(n), Some(s)) = (face, samples) {
         let b = s * 6.0 * n * n * 4.0;
