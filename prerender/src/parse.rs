@@ -64,7 +64,7 @@ pub type AssetLoader<'a> = &'a dyn Fn(&str) -> Result<Vec<u8>, String>;
 #[serde(deny_unknown_fields)]
 struct FileToml {
     sky: Option<SkyToml>,
-    sun: Option<SunToml>,
+    sun: Option<Spanned<SunToml>>,
     #[serde(default)]
     light: Vec<Spanned<LightToml>>,
     #[serde(default)]
@@ -246,17 +246,49 @@ fn parse_desc(
             return Err(invalid(0, "sky".into(), "ambient", "must be >= 0".into()));
         }
     }
-    if let Some(s) = file.sun {
-        desc.sun = Some(Sun {
-            direction: v3(s.direction),
-            color: s.color.map_or(DVec3::ONE, v3),
-        });
+    if let Some(s) = &file.sun {
+        let line = line_of(text, s.span().start);
+        let s = s.get_ref();
+        let direction = v3(s.direction);
+        if !(direction.is_finite() && direction.length() > 0.0) {
+            return Err(invalid(
+                line,
+                "sun".into(),
+                "direction",
+                format!("must be finite and non-zero, found {direction}"),
+            ));
+        }
+        let color = s.color.map_or(DVec3::ONE, v3);
+        if !(color.is_finite() && color.min_element() >= 0.0) {
+            return Err(invalid(
+                line,
+                "sun".into(),
+                "color",
+                format!("must be finite and >= 0, found {color}"),
+            ));
+        }
+        desc.sun = Some(Sun { direction, color });
     }
-    for l in &file.light {
-        desc.lights.push(PointLight {
-            position: v3(l.get_ref().position),
-            color: v3(l.get_ref().color),
-        });
+    for (i, l) in file.light.iter().enumerate() {
+        let line = line_of(text, l.span().start);
+        let (position, color) = (v3(l.get_ref().position), v3(l.get_ref().color));
+        if !position.is_finite() {
+            return Err(invalid(
+                line,
+                format!("light {i}"),
+                "position",
+                format!("must be finite, found {position}"),
+            ));
+        }
+        if !(color.is_finite() && color.min_element() >= 0.0) {
+            return Err(invalid(
+                line,
+                format!("light {i}"),
+                "color",
+                format!("must be finite and >= 0, found {color}"),
+            ));
+        }
+        desc.lights.push(PointLight { position, color });
     }
     let mut by_name: HashMap<String, usize> = HashMap::new();
     for m in &file.material {
@@ -341,12 +373,16 @@ fn parse_desc(
                 ))
             }
         };
-        by_name.insert(m.name.clone(), desc.materials.len());
-        desc.materials.push(Material {
+        let material = Material {
             name: m.name.clone(),
             color: v3(m.color),
             texture,
-        });
+        };
+        material
+            .validate()
+            .map_err(|(field, message)| invalid(line, item.clone(), field, message))?;
+        by_name.insert(m.name.clone(), desc.materials.len());
+        desc.materials.push(material);
     }
     let mut lines = Vec::with_capacity(file.object.len());
     for (i, o) in file.object.iter().enumerate() {
@@ -744,6 +780,34 @@ normal = [0, 1, 0]
         );
         let e = err("[[object]]\ntype='box'\nmin=[0,0,0]\nmax=[1,-1,1]\n");
         assert!(e.to_string().contains("positive"), "{e}");
+    }
+
+    #[test]
+    fn bad_materials_and_lights_name_line_and_field() {
+        let e = err(
+            "\n[[material]]\nname='m'\ncolor=[1,1,1]\ntexture='checker'\ncolor2=[0,0,0]\nsize=-1\n",
+        );
+        assert!(
+            matches!(&e, SceneError::Invalid { field, line: 2, .. } if field == "size"),
+            "{e}"
+        );
+        let e = err("[[material]]\nname='m'\ncolor=[1,-1,1]\n");
+        assert!(
+            matches!(&e, SceneError::Invalid { field, line: 1, .. } if field == "color"),
+            "{e}"
+        );
+        let e = err("[sun]\ndirection=[0,0,0]\n");
+        assert!(
+            matches!(&e, SceneError::Invalid { field, line: 1, .. } if field == "direction"),
+            "{e}"
+        );
+        let e = err("[[light]]\nposition=[0,nan,0]\ncolor=[1,1,1]\n");
+        assert!(
+            matches!(&e, SceneError::Invalid { field, .. } if field == "position"),
+            "{e}"
+        );
+        let e = err("[[material]]\nname='m'\ncolor=[1,1,1]\ntexture='marble'\n");
+        assert!(e.to_string().contains("marble"), "{e}");
     }
 
     #[test]

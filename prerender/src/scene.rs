@@ -297,6 +297,79 @@ pub struct Material {
     pub texture: Texture,
 }
 
+impl Material {
+    /// Colours finite and >= 0, texture sizes positive: `Err((field, message))`.
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        let colour_ok = |c: DVec3| c.is_finite() && c.min_element() >= 0.0;
+        let size_ok = |v: f64| v.is_finite() && v > 0.0;
+        if !colour_ok(self.color) {
+            return Err((
+                "color",
+                format!("must be finite and >= 0, found {}", self.color),
+            ));
+        }
+        let bad: Option<(&'static str, String)> = match &self.texture {
+            Texture::Checker { size, color2 } | Texture::Noise { size, color2 } => {
+                if !size_ok(*size) {
+                    Some((
+                        "size",
+                        format!("must be a positive number of metres, found {size}"),
+                    ))
+                } else if !colour_ok(*color2) {
+                    Some(("color2", format!("must be finite and >= 0, found {color2}")))
+                } else {
+                    None
+                }
+            }
+            Texture::Bricks {
+                mortar,
+                width,
+                height,
+                joint,
+            } => {
+                if !(size_ok(*width) && size_ok(*height)) {
+                    Some((
+                        "brick",
+                        format!("must be positive, found [{width}, {height}]"),
+                    ))
+                } else if !size_ok(*joint) {
+                    Some(("joint", format!("must be positive, found {joint}")))
+                } else if !colour_ok(*mortar) {
+                    Some(("mortar", format!("must be finite and >= 0, found {mortar}")))
+                } else {
+                    None
+                }
+            }
+            Texture::Windows {
+                glass,
+                spacing,
+                size,
+            } => {
+                if !spacing.iter().all(|v| size_ok(*v)) {
+                    Some((
+                        "window_spacing",
+                        format!("must be positive, found {spacing:?}"),
+                    ))
+                } else if !size.iter().all(|v| size_ok(*v)) {
+                    Some(("window_size", format!("must be positive, found {size:?}")))
+                } else if !colour_ok(*glass) {
+                    Some(("glass", format!("must be finite and >= 0, found {glass}")))
+                } else {
+                    None
+                }
+            }
+            Texture::Image { size, .. } => (!size_ok(*size)).then(|| {
+                (
+                    "size",
+                    format!("must be a positive number of metres, found {size}"),
+                )
+            }),
+            Texture::Solid => None,
+        };
+        bad.map_or(Ok(()), Err)
+    }
+}
+
 /// Distant light; `direction` points towards the sun.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sun {
@@ -386,49 +459,8 @@ impl Scene {
                 message,
             };
         for m in &desc.materials {
-            let item = format!("material {:?}", m.name);
-            let colour_ok = |c: DVec3| c.is_finite() && c.min_element() >= 0.0;
-            if !colour_ok(m.color) {
-                return Err(invalid(
-                    0,
-                    item,
-                    "color",
-                    format!("must be >= 0, found {}", m.color),
-                ));
-            }
-            let bad = match &m.texture {
-                Texture::Checker { size, color2 } | Texture::Noise { size, color2 } => {
-                    (!(size.is_finite() && *size > 0.0))
-                        .then_some("size")
-                        .or((!colour_ok(*color2)).then_some("color2"))
-                }
-                Texture::Bricks {
-                    width,
-                    height,
-                    joint,
-                    ..
-                } => [("brick", *width), ("brick", *height), ("joint", *joint)]
-                    .into_iter()
-                    .find(|(_, v)| !(v.is_finite() && *v > 0.0))
-                    .map(|(f, _)| f),
-                Texture::Windows { spacing, size, .. } => (!(spacing
-                    .iter()
-                    .chain(size)
-                    .all(|v| v.is_finite() && *v > 0.0)))
-                .then_some("window"),
-                Texture::Image { size, .. } => {
-                    (!(size.is_finite() && *size > 0.0)).then_some("size")
-                }
-                Texture::Solid => None,
-            };
-            if let Some(field) = bad {
-                return Err(invalid(
-                    0,
-                    item,
-                    field,
-                    "sizes must be positive and colours >= 0".into(),
-                ));
-            }
+            m.validate()
+                .map_err(|(field, msg)| invalid(0, format!("material {:?}", m.name), field, msg))?;
         }
         let mut prims = Vec::new();
         let mut prim_object = Vec::new();
