@@ -199,7 +199,19 @@ fn analytic_scene_depth_and_slabs_match_ground_truth() {
         let low = store::read_depth_exr(&dir.lowres_depth_exr(v.index)).unwrap();
         assert_eq!(low.face_size(), LOWRES);
         assert!(dir.sample_meta(v.index).is_some());
+        assert!(import.base_done(&dir, &v), "resume sees the sample as done");
     }
+    let mut bigger = options(&out);
+    bigger.face_size = 2 * FACE;
+    let other = PovImport::new(repo_file("scenes/pov/analytic.pov"), bigger).unwrap();
+    assert!(
+        !other.base_done(&dir, &vp(0, [0.0, 1.2, 0.0])),
+        "face size changed"
+    );
+    assert!(
+        !import.base_done(&dir, &vp(0, [0.0, 1.3, 0.0])),
+        "position changed"
+    );
 
     // Slab [0, inf) is the plain colour render.
     let v = vp(0, [0.0, 1.2, 0.0]);
@@ -269,7 +281,14 @@ fn analytic_scene_depth_and_slabs_match_ground_truth() {
         );
         assert!(filled > 10, "slab {k}: {filled} filled pixels");
     }
-    assert!(dir.layers_meta(0).is_some());
+    assert!(import.slabs_done(&dir, &v, &slabs));
+    assert!(!import.slabs_done(&dir, &v, &whole));
+
+    // Equirectangular preview through POV-Ray's spherical camera.
+    let preview = out.join("preview.png");
+    import.render_preview(&v, 32, &preview).unwrap();
+    let img = image::open(&preview).unwrap();
+    assert_eq!((img.width(), img.height()), (32, 16));
 }
 
 #[test]
@@ -411,7 +430,7 @@ fn timeout_kills_the_render_and_leaves_no_complete_sample() {
         .render_base(&vp(0, [0.0, 1.2, 0.0]), &dir)
         .unwrap_err();
     assert!(matches!(e, PovError::Timeout { .. }), "{e}");
+    assert!(!import.base_done(&dir, &vp(0, [0.0, 1.2, 0.0])));
     assert!(e.to_string().contains("sample 0"), "{e}");
     assert_no_sample(&dir);
 }
-

@@ -161,13 +161,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             mine.len(),
             vp.position
         );
-        let have_base = dir.sample_meta(vp.index).is_some_and(|m| {
-            m.face_size == args.face_size
-                && m.lowres_face_size == args.lowres_face_size
-                && m.position == vp.position
-        });
-        let have_slabs = dir.layers_meta(vp.index).is_some_and(|m| m.slabs == slabs);
-        if have_base && (slabs.is_empty() || have_slabs) {
+        let have_base = import.base_done(&dir, vp);
+        let have_slabs = slabs.is_empty() || import.slabs_done(&dir, vp, &slabs);
+        if have_base && have_slabs {
             resumed += 1;
             eprintln!("  already complete, skipped");
             continue;
@@ -175,7 +171,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if !have_base {
             import.render_base(vp, &dir)?;
         }
-        if !slabs.is_empty() && !(have_base && have_slabs) {
+        if !slabs.is_empty() && !import.slabs_done(&dir, vp, &slabs) {
             import.render_slabs(vp, &slabs, &dir)?;
         }
         if let Some(w) = args.preview_width {

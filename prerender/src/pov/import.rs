@@ -399,6 +399,26 @@ impl PovImport {
         Ok(())
     }
 
+    /// Whether a sample's base pass is complete for these options: its marker exists and
+    /// matches the face sizes and position (what resuming after a kill checks).
+    pub fn base_done(&self, dir: &PrerenderDir, vp: &ReferenceViewpoint) -> bool {
+        dir.sample_meta(vp.index).is_some_and(|m| {
+            m.face_size == self.opts.face_size
+                && m.lowres_face_size == self.opts.lowres_face_size
+                && m.position == vp.position
+        })
+    }
+
+    /// Whether a sample's slab layers are complete for exactly these slabs.
+    pub fn slabs_done(
+        &self,
+        dir: &PrerenderDir,
+        vp: &ReferenceViewpoint,
+        slabs: &[SlabRange],
+    ) -> bool {
+        self.base_done(dir, vp) && dir.layers_meta(vp.index).is_some_and(|m| m.slabs == slabs)
+    }
+
     /// Render a sample's colour, depth and low-resolution depth and write them with the
     /// sample marker last. An existing marker is removed first, so a failed or killed run
     /// never leaves a sample that looks complete.
