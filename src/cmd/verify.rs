@@ -47,3 +47,64 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exit_status_follows_damage_and_names_the_file() {
+        let dir = std::env::temp_dir().join(format!("railview-verify-cmd-{}", std::process::id()));
+        std::fs::remove_dir_all(&dir).ok();
+        let mut w = streamer::db::DbWriter::create(&dir).unwrap();
+        let obj = w.put(b"some object bytes").unwrap();
+        let manifest = tracks::manifest::Manifest {
+            version: tracks::manifest::MANIFEST_VERSION,
+            scene: "t".into(),
+            face_size: 16,
+            tile_size: 16,
+            slabs: vec![],
+            cull_alpha: None,
+            cull_variant: None,
+            tracks: vec![tracks::manifest::TrackEntry {
+                name: "main".into(),
+                track_toml: String::new(),
+                length: 0.0,
+                viewpoints: vec![tracks::manifest::ViewpointEntry {
+                    index: 0,
+                    s: 0.0,
+                    position: Default::default(),
+                    background: None,
+                    tiles: vec![tracks::manifest::TileEntry {
+                        tile: tracks::TileId {
+                            face: tracks::Face::PosX,
+                            tx: 0,
+                            ty: 0,
+                        },
+                        slab: 0,
+                        depth_min: 1.0,
+                        depth_max: 2.0,
+                        opaque_pixels: 1,
+                        kept: true,
+                        ptm: None,
+                        mesh: Some(obj.clone()),
+                    }],
+                }],
+                segments: vec![],
+            }],
+        };
+        w.finish(&manifest).unwrap();
+        let args = || Args {
+            db: dir.clone(),
+            json: false,
+        };
+        run(args()).unwrap();
+        let path = dir.join(obj.rel_path().unwrap());
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes[3] ^= 1;
+        std::fs::write(&path, &bytes).unwrap();
+        let err = format!("{:#}", run(args()).unwrap_err());
+        assert!(err.contains(&path.display().to_string()), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
