@@ -320,6 +320,10 @@ fn full_report_loads_every_image_and_table_in_chromium() {
             "| PTM compressed (kept tiles) | 0.003 | 65.1% |",
             "database size row",
         ),
+        (
+            "(conservative, α = 1), then as stored",
+            "sizes explained in one sentence",
+        ),
         ("![viewpoint 1 at s = 2.50 m", "a viewpoint image"),
         ("(histogram.png)", "the depth histogram"),
         (

@@ -241,7 +241,9 @@ fn build_sizes(c: &mut Ctx, build: &Value) {
         .unwrap_or("?")
         .to_string();
     c.push(Block::Para(format!(
-        "Colour as raw RGBA8 (4 bytes per pixel, the paper's Size unit) up to culling ({culling}),          then as stored: PTM levels compressed, meshes in their compact binary form, and every          object of the database on disk."
+        "Colour as raw RGBA8 (4 bytes per pixel, the paper's Size unit) up to culling ({culling}), \
+         then as stored: PTM levels compressed, meshes in their compact binary form, and \
+         every object of the database on disk."
     )));
     let sizes = build.get("sizes").cloned().unwrap_or(Value::Null);
     let raw = num(&sizes, "panoramas_rgba").filter(|r| *r > 0.0);
