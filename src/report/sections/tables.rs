@@ -182,6 +182,12 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
         }
     }
     if !figs.is_empty() {
+        c.push(Block::Para(
+            "Atlases: a row per viewpoint, a column per slab, the six faces side by side, a \
+             block per tile: kept green (olive: the oracle never saw it), culled blue, culled \
+             but seen magenta (a false cull), empty dark."
+                .into(),
+        ));
         c.push(Block::Figures(figs));
     }
     Some(report)
