@@ -8,15 +8,15 @@
 //! from below by reading the blocks it touches.
 
 use rayon::prelude::*;
-use tracks::{
-    cubemap::{pixel_dir, subpixel_dir},
-    CubeMap, Face, FaceCoord,
-};
+use tracks::{cubemap::subpixel_dir, CubeMap, Face, FaceCoord};
 
 use crate::window::PixelRect;
 
-/// Side of the blocks of the depth-minimum grid, pixels.
-const BLOCK: u32 = 8;
+/// Side of the blocks of the depth-minimum grids, pixels: 8 at 1024² faces, down to single
+/// pixels at 128² and below (where a block would span many degrees).
+fn block_size(face_size: u32) -> u32 {
+    (face_size / 128).clamp(1, 8)
+}
 
 /// Opacity and nearest occluder depth of the kept tiles of the slabs processed so far.
 #[derive(Clone, Debug)]
@@ -136,30 +136,50 @@ pub fn hole_punched(map: &OcclusionMap, rule: DiscontinuityRule, cell_radius: f6
         .enumerate()
         .for_each(|(fi, face_px)| {
             let face = Face::ALL[fi];
+            let od = opaque.face(face);
+            let dd = depth.face(face);
+            let nu = n as usize;
             for y in 0..n {
                 for x in 0..n {
                     let i = (y * n + x) as usize;
                     if face_px[i] == 0 {
                         continue;
                     }
-                    let wp = 1.0 / *depth.get(face, x, y) as f64;
-                    for (dx, dy) in [(-1, 0), (1, 0), (0, -1), (0, 1)] {
-                        let (f2, x2, y2) = step(face, x, y, dx, dy);
-                        let Some(wq) = w(f2, x2, y2) else { continue };
+                    let wp = 1.0 / dd[i] as f64;
+                    let inner = x >= 2 && y >= 2 && x + 2 < n && y + 2 < n;
+                    for (dx, dy) in [(-1i32, 0i32), (1, 0), (0, -1), (0, 1)] {
+                        let (wq, before, after) = if inner {
+                            // Fast path: all five pixels on this face.
+                            let st = dy as isize * nu as isize + dx as isize;
+                            let at = |k: isize| {
+                                let j = (i as isize + k * st) as usize;
+                                (od[j] != 0).then(|| 1.0 / dd[j] as f64)
+                            };
+                            let Some(wq) = at(1) else { continue };
+                            (
+                                wq,
+                                at(-1).map_or(0.0, |wb| (wb - wp).abs()),
+                                at(2).map_or(0.0, |wa| (wq - wa).abs()),
+                            )
+                        } else {
+                            let (f2, x2, y2) = step(face, x, y, dx, dy);
+                            let Some(wq) = w(f2, x2, y2) else { continue };
+                            let (fb, xb, yb) = step(face, x, y, -dx, -dy);
+                            let before = w(fb, xb, yb).map_or(0.0, |wb| (wb - wp).abs());
+                            // Past a face edge the direction of travel turns: no "after" step.
+                            let after = if f2 == face {
+                                let (fa, xa, ya) = step(f2, x2, y2, dx, dy);
+                                w(fa, xa, ya).map_or(0.0, |wa| (wq - wa).abs())
+                            } else {
+                                0.0
+                            };
+                            (wq, before, after)
+                        };
                         let s = wp - wq;
                         // Only the nearer pixel of a pair is punched; it must open a gap.
                         if s <= 0.0 || cell_radius * s <= min_parallax {
                             continue;
                         }
-                        let (fb, xb, yb) = step(face, x, y, -dx, -dy);
-                        let before = w(fb, xb, yb).map_or(0.0, |wb| (wb - wp).abs());
-                        // Past a face edge the direction of travel turns: no "after" step.
-                        let after = if f2 == face {
-                            let (fa, xa, ya) = step(f2, x2, y2, dx, dy);
-                            w(fa, xa, ya).map_or(0.0, |wa| (wq - wa).abs())
-                        } else {
-                            0.0
-                        };
                         if s > rule.slope_factor * before.max(after) + 1e-6 * wp {
                             face_px[i] = 0;
                             break;
@@ -177,6 +197,7 @@ pub struct WindowQuery {
     n: u32,
     /// Per face `(n + 1)²` prefix sums, face-major.
     sat: Vec<u32>,
+    block: u32,
     blocks: u32,
     planar_min: Vec<f32>,
 }
@@ -198,36 +219,63 @@ impl WindowQuery {
                 }
             }
         });
-        let blocks = n.div_ceil(BLOCK);
+        let block = block_size(n);
+        let blocks = n.div_ceil(block);
         let bb = blocks as usize * blocks as usize;
-        // Per face of the pixels, per face whose forward the depth is measured along: the
-        // block minimum of planar depth d·cos(ω, forward). Opposite faces are never asked.
-        let mut planar_min = vec![f32::INFINITY; 36 * bb];
-        planar_min
-            .par_chunks_mut(6 * bb)
+        // Per face, the block minimum of radial occluder depth …
+        let mut radial_min = vec![f32::INFINITY; 6 * bb];
+        radial_min
+            .par_chunks_mut(bb)
             .enumerate()
             .for_each(|(fi, out)| {
                 let face = Face::ALL[fi];
                 let d = depth.face(face);
                 let o = opaque.face(face);
                 for y in 0..n {
+                    let row = (y / block * blocks) as usize;
                     for x in 0..n {
                         let i = (y * n + x) as usize;
-                        if o[i] == 0 {
+                        if o[i] != 0 {
+                            let slot = &mut out[row + (x / block) as usize];
+                            if d[i] < *slot {
+                                *slot = d[i];
+                            }
+                        }
+                    }
+                }
+            });
+        // … times the smallest cosine between the block and each face axis (at a corner: the
+        // cosine is monotonic in u and in v over a face) bounds the planar depth from below.
+        let mut planar_min = vec![f32::INFINITY; 36 * bb];
+        planar_min
+            .par_chunks_mut(6 * bb)
+            .enumerate()
+            .for_each(|(fi, out)| {
+                let face = Face::ALL[fi];
+                let nf = n as f64;
+                for by in 0..blocks {
+                    for bx in 0..blocks {
+                        let bi = (by * blocks + bx) as usize;
+                        let dmin = radial_min[fi * bb + bi] as f64;
+                        if !dmin.is_finite() {
                             continue;
                         }
-                        let dir = pixel_dir(face, x, y, n);
-                        let bi = ((y / BLOCK) * blocks + x / BLOCK) as usize;
+                        let (x0, x1) = ((bx * block) as f64, ((bx + 1) * block).min(n) as f64);
+                        let (y0, y1) = ((by * block) as f64, ((by + 1) * block).min(n) as f64);
+                        let corners = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)].map(|(x, y)| {
+                            face.dir_from_uv(2.0 * x / nf - 1.0, 1.0 - 2.0 * y / nf)
+                                .normalize()
+                        });
                         for along in Face::ALL {
-                            let c = dir.dot(along.forward());
-                            if c <= -0.5 {
-                                continue;
-                            }
-                            let z = (d[i] as f64 * c) as f32;
-                            let slot = &mut out[along.index() * bb + bi];
-                            if z < *slot {
-                                *slot = z;
-                            }
+                            let c = corners
+                                .iter()
+                                .map(|d| d.dot(along.forward()))
+                                .fold(f64::INFINITY, f64::min);
+                            out[along.index() * bb + bi] = if c > 0.0 {
+                                (dmin * c) as f32
+                            } else {
+                                f32::NEG_INFINITY
+                            };
                         }
                     }
                 }
@@ -235,6 +283,7 @@ impl WindowQuery {
         WindowQuery {
             n,
             sat,
+            block,
             blocks,
             planar_min,
         }
@@ -256,8 +305,8 @@ impl WindowQuery {
         let base = (r.face.index() * 6 + along.index()) * bb;
         let b = &self.planar_min[base..base + bb];
         let mut m = f32::INFINITY;
-        for by in r.y0 / BLOCK..r.y1.div_ceil(BLOCK) {
-            for bx in r.x0 / BLOCK..r.x1.div_ceil(BLOCK) {
+        for by in r.y0 / self.block..r.y1.div_ceil(self.block) {
+            for bx in r.x0 / self.block..r.x1.div_ceil(self.block) {
                 m = m.min(b[(by * self.blocks + bx) as usize]);
             }
         }
