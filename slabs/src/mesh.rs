@@ -417,6 +417,9 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
     let mut is_vertex = vec![false; w * h];
     let mut pending: Vec<(usize, usize)> = vec![(0, 0), (w - 1, 0), (0, h - 1), (w - 1, h - 1)];
     let mut keep: Vec<[(usize, usize); 3]> = Vec::new();
+    // Final verdicts (kept or dropped) by vertex triple: a triangle that survives an
+    // insertion pass unchanged covers the same pixels, so it need not be rasterised again.
+    let mut settled: std::collections::HashMap<[usize; 3], bool> = Default::default();
     loop {
         pending.retain(|&(i, j)| !is_vertex[f.idx(i, j)]);
         pending.sort_unstable();
@@ -435,6 +438,14 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
             let pos = face.positions();
             let c: [(usize, usize); 3] = pos.map(|p| (p.x.round() as usize, p.y.round() as usize));
             let ks = c.map(|(i, j)| f.idx(i, j));
+            let mut key = ks;
+            key.sort_unstable();
+            if let Some(&kept) = settled.get(&key) {
+                if kept {
+                    keep.push(c);
+                }
+                continue;
+            }
             let surface = ks.iter().all(|&k| f.valid[k])
                 && f.comp[ks[0]] == f.comp[ks[1]]
                 && f.comp[ks[1]] == f.comp[ks[2]];
@@ -472,8 +483,12 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
             });
             match worst {
                 Some((p, _, _)) => pending.push(p),
-                None if surface => keep.push(c),
-                None => {}
+                None => {
+                    settled.insert(key, surface);
+                    if surface {
+                        keep.push(c);
+                    }
+                }
             }
         }
     }
