@@ -45,6 +45,8 @@ enum Command {
     Eval(cmd::eval::Args),
     /// Frame time of two views × all slabs against a plain single-panorama draw.
     BenchViewer(cmd::bench_viewer::Args),
+    /// The interactive viewer window (egui): move along the track, look around, budgets.
+    View(cmd::view::Args),
     /// Check every file of a database (hashes, sizes, PTM level ranges); exit 0 only when intact.
     Verify(cmd::verify::Args),
     /// The whole pipeline into a database: prerender → slabs → cull → encode → ACH, one report.
@@ -84,6 +86,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Flythrough(a) => cmd::flythrough::run(a),
         Command::Eval(a) => cmd::eval::run(a),
         Command::BenchViewer(a) => cmd::bench_viewer::run(a),
+        Command::View(a) => cmd::view::run(a),
         Command::Verify(a) => cmd::verify::run(a),
         Command::Build(a) => cmd::build::run(a),
     }

@@ -10,6 +10,7 @@ pub mod import_pov;
 pub mod load;
 pub mod prerender;
 pub mod render;
+pub mod view;
 pub mod serve;
 pub mod slabs;
 pub mod walk;

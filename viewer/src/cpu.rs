@@ -101,7 +101,12 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
                         }
                         let (px, py) = pixel_on_face(face, p, n);
                         let c = layer.sample(tile_lod, face, px, py);
-                        if c[3] >= 0.5 {
+                        let cut = if tile.slab == 0 || tile_lod < 1.0 {
+                            0.5
+                        } else {
+                            0.25
+                        };
+                        if c[3] >= cut {
                             depth[idx] = z;
                             let dist = (p + origin).length().clamp(1e-3, SKY_DISTANCE);
                             color[idx] = [c[0], c[1], c[2], dist];

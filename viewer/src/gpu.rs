@@ -126,6 +126,8 @@ struct Targets {
     depth_view: wgpu::TextureView,
     output: wgpu::Texture,
     output_view: wgpu::TextureView,
+    /// The same texels as plain UNORM (sRGB-encoded bytes), for UIs that expect them.
+    output_view_unorm: wgpu::TextureView,
 }
 
 /// Executes frame plans.
@@ -555,6 +557,7 @@ impl Renderer {
             depth_or_array_layers: 1,
         };
         let tex = |label, format, usage| {
+            let unorm = [wgpu::TextureFormat::Rgba8Unorm];
             device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
                 size,
@@ -563,7 +566,7 @@ impl Renderer {
                 dimension: wgpu::TextureDimension::D2,
                 format,
                 usage,
-                view_formats: &[],
+                view_formats: if format == OUTPUT_FORMAT { &unorm } else { &[] },
             })
         };
         let view_usage =
@@ -580,7 +583,9 @@ impl Renderer {
         let output = tex(
             "output",
             OUTPUT_FORMAT,
-            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::COPY_SRC
+                | wgpu::TextureUsages::TEXTURE_BINDING,
         );
         let id_usage =
             wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
@@ -597,6 +602,10 @@ impl Renderer {
             height,
             depth_view: depth.create_view(&Default::default()),
             output_view: output.create_view(&Default::default()),
+            output_view_unorm: output.create_view(&wgpu::TextureViewDescriptor {
+                format: Some(wgpu::TextureFormat::Rgba8Unorm),
+                ..Default::default()
+            }),
             view_views,
             id_views,
             output,
@@ -812,6 +821,17 @@ impl Renderer {
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| GpuError::Readback(e.to_string()))?;
         Ok(())
+    }
+
+    /// The internal output target of the last draw (for showing it in a window).
+    pub fn output_view(&self) -> Option<&wgpu::TextureView> {
+        self.targets.as_ref().map(|t| &t.output_view)
+    }
+
+    /// The output target viewed as plain `Rgba8Unorm` (the sRGB-encoded bytes undecoded):
+    /// what egui's renderer expects of a user texture.
+    pub fn output_view_unorm(&self) -> Option<&wgpu::TextureView> {
+        self.targets.as_ref().map(|t| &t.output_view_unorm)
     }
 
     /// Copy the internal output target to the CPU.

@@ -23,6 +23,7 @@
 //! # Ok(()) }
 //! ```
 
+pub mod app;
 pub mod cpu;
 pub mod feedback;
 pub mod gpu;

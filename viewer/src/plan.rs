@@ -294,9 +294,66 @@ fn plan_view(
     }
 }
 
+/// The frame-time budget (Marvie, Perret & Bouatouch §5.4): from the mean of recent frame
+/// times, step the drawing down when it is over `target_ms` (first coarser textures, then
+/// the second view, then slabs beyond the first: dropping slabs opens holes, so it comes last) and back up when it is well under (below 60 %), one
+/// step per call so the choice does not oscillate. `slabs` is the number of slabs the views
+/// have.
+pub fn adjust_budget(b: DrawBudget, recent_ms: &[f64], target_ms: f64, slabs: usize) -> DrawBudget {
+    if recent_ms.is_empty() || target_ms.is_nan() || target_ms <= 0.0 {
+        return b;
+    }
+    let mean = recent_ms.iter().sum::<f64>() / recent_ms.len() as f64;
+    let slabs = slabs.max(1);
+    let mut out = b;
+    out.max_slabs = b.max_slabs.min(slabs).max(1);
+    if mean > target_ms {
+        if out.lod_bias < 2.0 {
+            out.lod_bias += 1.0;
+        } else if out.blend {
+            out.blend = false;
+        } else if out.max_slabs > 1 {
+            out.max_slabs -= 1;
+        }
+    } else if mean < 0.6 * target_ms {
+        if out.max_slabs < slabs {
+            out.max_slabs += 1;
+        } else if !out.blend {
+            out.blend = true;
+        } else if out.lod_bias > 0.0 {
+            out.lod_bias = (out.lod_bias - 1.0).max(0.0);
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn budget_steps_down_when_slow_and_back_up_when_fast() {
+        let full = DrawBudget {
+            max_slabs: 3,
+            ..Default::default()
+        };
+        let mut b = full;
+        let mut seen = vec![b];
+        for _ in 0..6 {
+            b = adjust_budget(b, &[50.0, 60.0], 33.0, 3);
+            seen.push(b);
+        }
+        assert_eq!(b.lod_bias, 2.0);
+        assert_eq!(b.max_slabs, 1);
+        assert!(!b.blend);
+        for _ in 0..6 {
+            b = adjust_budget(b, &[5.0], 33.0, 3);
+        }
+        assert_eq!(b, full);
+        // In the comfortable band nothing changes.
+        assert_eq!(adjust_budget(full, &[25.0], 33.0, 3), full);
+        assert_eq!(adjust_budget(full, &[], 33.0, 3), full);
+    }
 
     #[test]
     fn weights_are_exact_at_samples_and_smooth_between() {

@@ -169,7 +169,11 @@ fn fs_mesh(in: MeshOut) -> PassOut {
     let layer = info.x >> 8u;
     let lod = max(view.params.x, f32(info.y));
     let c = sample_face(layer, f, pixel_on_face(f, in.pos_from_ref), lod);
-    if c.a < 0.5 {
+    // Masks are cut at 0.5. From level 1 on, deeper slabs cut at 0.25: where two slabs'
+    // filtered masks meet (they sum to about 1) one of them then always draws, so coarse
+    // levels open no crack at slab boundaries; deeper slabs lie behind, so the depth test
+    // hides what they overhang. Level 0 stays exact.
+    if c.a < select(0.25, 0.5, layer == 1u || lod < 1.0) {
         discard;
     }
     let dist = clamp(length(in.pos_from_ref + view.origin_rel.xyz), 1e-3, SKY_DISTANCE);
