@@ -434,3 +434,42 @@ fn timeout_kills_the_render_and_leaves_no_complete_sample() {
     assert!(e.to_string().contains("sample 0"), "{e}");
     assert_no_sample(&dir);
 }
+
+#[test]
+fn antialiased_colour_is_the_same_view() {
+    let out = tmp("aa");
+    let plain_dir = PrerenderDir::new(out.join("plain"));
+    let aa_dir = PrerenderDir::new(out.join("aa"));
+    let scene = repo_file("scenes/pov/analytic.pov");
+    let v = vp(0, [0.0, 1.2, 0.0]);
+    PovImport::new(&scene, options(&out))
+        .unwrap()
+        .render_base(&v, &plain_dir)
+        .unwrap();
+    let mut opts = options(&out);
+    opts.antialias = true;
+    PovImport::new(&scene, opts)
+        .unwrap()
+        .render_base(&v, &aa_dir)
+        .unwrap();
+    let a = store::read_rgb_png(&plain_dir.color_png(0)).unwrap();
+    let b = store::read_rgb_png(&aa_dir.color_png(0)).unwrap();
+    assert_eq!(b.face_size(), FACE);
+    // 2×2 supersampling only changes edges and texture detail, not what is where.
+    let mean: f64 = a
+        .as_slice()
+        .iter()
+        .zip(b.as_slice())
+        .map(|(p, q)| {
+            (0..3)
+                .map(|c| (p[c] as f64 - q[c] as f64).abs())
+                .sum::<f64>()
+                / 3.0
+        })
+        .sum::<f64>()
+        / a.as_slice().len() as f64;
+    assert!(
+        mean > 0.0 && mean < 12.0,
+        "mean |aa - plain| = {mean} levels"
+    );
+}
