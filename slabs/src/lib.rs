@@ -9,6 +9,34 @@
 //!   carries its depth range, opacity bits and a [`mesh::TileMesh`].
 //! - [`mesh`]: the regular and the adaptive (`spade`) depth mesh of a tile and their error
 //!   as parallax pixels at the track's largest baseline.
+//! - [`io`]: the per-sample `tiles.json` + `tiles.bin` files later stages read;
+//!   [`report`] and [`plot`]: `slabs.json`, `slabs.md`, `histogram.png`.
+//!
+//! ```
+//! use slabs::{choose, tile_sample, ChooseParams, LayerInput, MeshKind, MeshParams, TileParams};
+//! use slabs::tiles::{mask_from_depth, split_depth};
+//! use tracks::CubeMap;
+//!
+//! // A wall 2 m away on the left third of every face, a far surface at 50 m elsewhere.
+//! let depth = CubeMap::from_fn(16, |_, x, _| if x < 5 { 2.0f32 } else { 50.0 });
+//! // Viewpoints 4 m apart, layers of 256 px per face: the wall can reveal the far surface.
+//! let choice = choose(&[depth.clone()], 4.0, 256, &ChooseParams::default());
+//! assert_eq!(choice.slabs.len(), 2);
+//!
+//! let layers = split_depth(&depth, &choice.slabs);
+//! let masks: Vec<_> = layers.iter().map(mask_from_depth).collect();
+//! let inputs: Vec<LayerInput> =
+//!     layers.iter().zip(&masks).map(|(depth, mask)| LayerInput { depth, mask }).collect();
+//! let params = TileParams {
+//!     tile_size: 8,
+//!     mesh: MeshParams { baseline_m: 4.0, ..MeshParams::default() },
+//!     keep: MeshKind::Adaptive,
+//!     measure_both: false,
+//! };
+//! let tiles = tile_sample(0, &inputs, &params).unwrap();
+//! assert_eq!(tiles.layers[0].tiles_before, 12 * 2);
+//! assert!(tiles.layers[0].tiles.len() < 24); // tiles with no wall pixel are removed
+//! ```
 pub mod boundaries;
 pub mod histogram;
 pub mod io;

@@ -150,6 +150,26 @@ impl SlabsReport {
         }
     }
 
+    /// Add one viewpoint from its `tiles.json` (a resumed sample that was not re-tiled).
+    pub fn add_tiles_file(&mut self, file: &crate::io::TilesFile) {
+        self.samples += 1;
+        for l in &file.layers {
+            let Some(s) = self.slabs.get_mut(l.slab) else {
+                continue;
+            };
+            s.tiles_before += l.tiles_before;
+            s.tiles_after += l.tiles.len();
+            for t in &l.tiles {
+                s.opaque_pixels += t.opaque_pixels as u64;
+                s.pixels += t.pixels as u64;
+                s.texture_bytes += 4 * t.pixels as u64;
+                s.mesh_bytes += 12 * t.vertex_count as u64 + 4 * t.index_count as u64;
+                s.grid_mesh.add(&t.grid_stats);
+                s.adaptive_mesh.add(&t.adaptive_stats);
+            }
+        }
+    }
+
     /// The Markdown report.
     pub fn markdown(&self) -> String {
         let mut s = String::new();

@@ -131,7 +131,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let mut report = SlabsReport::new(&choice, pre.face_size, args.tile_size, mesh, keep);
     let bar = progress(indices.len() as u64, "tiling");
+    let mut resumed = 0usize;
     for &i in &indices {
+        // Resume: a sample whose tiles files match these parameters is not tiled again.
+        if let Ok((file, _)) = sio::read_tiles(&dir, i) {
+            let same = file.grid.tile_size == args.tile_size
+                && file.mesh_params == mesh
+                && file.mesh_kind == keep
+                && file
+                    .layers
+                    .iter()
+                    .map(|l| l.range)
+                    .eq(choice.slabs.iter().copied())
+                && !missing.contains(&i);
+            if same {
+                report.add_tiles_file(&file);
+                resumed += 1;
+                bar.inc(1);
+                continue;
+            }
+        }
         let layers = (0..choice.slabs.len())
             .map(|k| sio::read_layer(&dir, i, k))
             .collect::<Result<Vec<_>, _>>()?;
@@ -146,6 +165,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bar.inc(1);
     }
     bar.finish_and_clear();
+    if resumed > 0 {
+        eprintln!("{resumed} sample(s) already tiled with these parameters: kept");
+    }
     report.seconds = t0.elapsed().as_secs_f64();
 
     let root = dir.root();
