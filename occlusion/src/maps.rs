@@ -199,7 +199,9 @@ pub struct WindowQuery {
     sat: Vec<u32>,
     block: u32,
     blocks: u32,
-    planar_min: Vec<f32>,
+    /// `planar_min[level]`: per (face, axis) a grid of `side(level)²` minima; level 0 has one
+    /// cell per block, each level above halves the side (min of 2 × 2).
+    planar_min: Vec<Vec<f32>>,
 }
 
 impl WindowQuery {
@@ -280,12 +282,32 @@ impl WindowQuery {
                     }
                 }
             });
+        let mut levels = vec![planar_min];
+        let mut side = blocks as usize;
+        while side > 1 {
+            let up = side.div_ceil(2);
+            let prev = levels.last().map(|l| l.as_slice()).unwrap_or(&[]);
+            let mut next = vec![f32::INFINITY; 36 * up * up];
+            for g in 0..36 {
+                for y in 0..side {
+                    for x in 0..side {
+                        let v = prev[g * side * side + y * side + x];
+                        let slot = &mut next[g * up * up + (y / 2) * up + x / 2];
+                        if v < *slot {
+                            *slot = v;
+                        }
+                    }
+                }
+            }
+            levels.push(next);
+            side = up;
+        }
         WindowQuery {
             n,
             sat,
             block,
             blocks,
-            planar_min,
+            planar_min: levels,
         }
     }
 
@@ -301,13 +323,22 @@ impl WindowQuery {
     /// occluders inside `r` (`+inf` if none; ≤ 0 if some occluder lies beside or behind
     /// that axis's plane through the viewpoint). Rounded down to f32 conservatively.
     pub fn min_planar_depth(&self, r: &PixelRect, along: Face) -> f64 {
-        let bb = self.blocks as usize * self.blocks as usize;
-        let base = (r.face.index() * 6 + along.index()) * bb;
-        let b = &self.planar_min[base..base + bb];
+        // The finest level at which the rectangle spans at most 4 cells a side.
+        let (b0x, b1x) = (r.x0 / self.block, r.x1.div_ceil(self.block));
+        let (b0y, b1y) = (r.y0 / self.block, r.y1.div_ceil(self.block));
+        let mut level = 0usize;
+        while level + 1 < self.planar_min.len() && ((b1x - 1) >> level) - (b0x >> level) >= 4
+            || level + 1 < self.planar_min.len() && ((b1y - 1) >> level) - (b0y >> level) >= 4
+        {
+            level += 1;
+        }
+        let side = (self.blocks as usize).div_ceil(1 << level);
+        let g = r.face.index() * 6 + along.index();
+        let b = &self.planar_min[level][g * side * side..(g + 1) * side * side];
         let mut m = f32::INFINITY;
-        for by in r.y0 / self.block..r.y1.div_ceil(self.block) {
-            for bx in r.x0 / self.block..r.x1.div_ceil(self.block) {
-                m = m.min(b[(by * self.blocks + bx) as usize]);
+        for by in (b0y >> level)..=((b1y - 1) >> level) {
+            for bx in (b0x >> level)..=((b1x - 1) >> level) {
+                m = m.min(b[by as usize * side + bx as usize]);
             }
         }
         // f32 rounding of d·cos may round up by half an ulp: step one ulp down.
@@ -358,6 +389,39 @@ mod tests {
         assert_eq!(q.min_planar_depth(&px, Face::PosX), f64::INFINITY);
         // Along a neighbour's axis the same pixels are partly beside it: nearer.
         assert!(q.min_planar_depth(&r2, Face::PosX) < z);
+    }
+
+    #[test]
+    fn pyramid_minimum_bounds_every_pixel_below() {
+        let n = 256;
+        let opaque = CubeMap::from_fn(n, |_, x, y| u8::from((x * 7 + y * 3) % 11 != 0));
+        let depth = CubeMap::from_fn(n, |f, x, y| {
+            2.0 + ((x * 31 + y * 17 + f.index() as u32 * 5) % 97) as f32 * 0.25
+        });
+        let q = WindowQuery::new(&opaque, &opaque, &depth);
+        for (k, face) in Face::ALL.into_iter().enumerate() {
+            let (x0, y0) = (3 + 37 * k as u32, 11 + 23 * k as u32);
+            for (w, h) in [(1, 1), (5, 9), (40, 3), (120, 200)] {
+                let r = PixelRect {
+                    face,
+                    x0,
+                    y0,
+                    x1: (x0 + w).min(n),
+                    y1: (y0 + h).min(n),
+                };
+                let mut brute = f64::INFINITY;
+                for y in r.y0..r.y1 {
+                    for x in r.x0..r.x1 {
+                        if *opaque.get(face, x, y) != 0 {
+                            let c = tracks::cubemap::pixel_dir(face, x, y, n).dot(face.forward());
+                            brute = brute.min(*depth.get(face, x, y) as f64 * c);
+                        }
+                    }
+                }
+                let z = q.min_planar_depth(&r, face);
+                assert!(z <= brute && z > 0.0, "{face:?} {r:?}: {z} > {brute}");
+            }
+        }
     }
 
     #[test]
