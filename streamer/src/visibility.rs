@@ -24,6 +24,7 @@
 //! and use the totals as the live visible-pixel counts of Goss & Yuasa.
 
 use glam::DVec3;
+use tracks::cubemap::subpixel_dir;
 use tracks::manifest::{Manifest, TrackEntry};
 use tracks::{FaceCoord, PerspectiveCamera, TileGrid};
 
@@ -88,6 +89,9 @@ struct ViewpointIndex {
     depth: Vec<(f64, f64)>,
     /// Largest finite tile depth.
     far: f64,
+    /// Per tile position: unit direction to the tile's centre, its angular radius (radians,
+    /// centre to the farthest corner) and its nearest depth (`None` for an unusable tile).
+    cones: Vec<Option<(DVec3, f64, f64)>>,
 }
 
 /// Steps of the depth-range march along each ray.
@@ -115,6 +119,7 @@ impl SceneIndex {
                     })
                     .collect();
                 let mut depth = Vec::with_capacity(vp.tiles.len());
+                let mut cones = Vec::with_capacity(vp.tiles.len());
                 let mut far: f64 = 0.0;
                 for (i, tile) in vp.tiles.iter().enumerate() {
                     depth.push((tile.depth_min, tile.depth_max));
@@ -127,6 +132,7 @@ impl SceneIndex {
                         && tile.depth_max >= tile.depth_min
                         && tile.tile.tx < grid.tiles_per_side()
                         && tile.tile.ty < grid.tiles_per_side();
+                    cones.push(usable.then(|| tile_cone(grid, tile.tile, tile.depth_min)));
                     if let (true, Some(layer)) = (usable, layers.get_mut(tile.slab as usize)) {
                         layer.tiles[grid.tile_index(tile.tile)] = Some(i);
                         far = far.max(tile.depth_max);
@@ -137,10 +143,41 @@ impl SceneIndex {
                     layers,
                     depth,
                     far,
+                    cones,
                 }
             })
             .collect();
         Some(SceneIndex { grid, viewpoints })
+    }
+
+    /// Whether tile `tile` of viewpoint `viewpoint` can fall inside `camera`'s view frustum —
+    /// the frustum culling that precedes the ACH budget sharing (PTM §6.1). Conservative: the
+    /// frustum is bounded by the cone through its corners, the tile by the cone through its
+    /// corners seen from the viewpoint, widened by the largest parallax between viewpoint and
+    /// camera at the tile's nearest depth. Unknown or unusable tiles are never in view.
+    pub fn tile_in_frustum(
+        &self,
+        camera: &PerspectiveCamera,
+        viewpoint: usize,
+        tile: usize,
+    ) -> bool {
+        let Some(vp) = self.viewpoints.get(viewpoint) else {
+            return false;
+        };
+        let Some(&Some((dir, radius, near))) = vp.cones.get(tile) else {
+            return false;
+        };
+        let half = (camera.fov_deg.to_radians() * 0.5).tan();
+        let aspect = camera.height.max(1) as f64 / camera.width.max(1) as f64;
+        let frustum = (half * (1.0 + aspect * aspect).sqrt()).atan();
+        let offset = (camera.position - vp.position).length();
+        let parallax = if offset >= near {
+            std::f64::consts::PI
+        } else {
+            (offset / near).asin()
+        };
+        let angle = dir.dot(camera.forward()).clamp(-1.0, 1.0).acos();
+        angle <= frustum + radius + parallax + 1e-9
     }
 
     fn lookup(&self, vp: &ViewpointIndex, slab: usize, dir: DVec3) -> Option<usize> {
@@ -261,6 +298,23 @@ impl SceneIndex {
     }
 }
 
+/// Centre direction, angular radius and nearest depth of a tile seen from its viewpoint.
+fn tile_cone(grid: TileGrid, t: tracks::TileId, depth_min: f64) -> (DVec3, f64, f64) {
+    let (x0, y0, x1, y1) = grid.pixel_rect(t);
+    let n = grid.face_size;
+    let centre = subpixel_dir(t.face, 0.5 * (x0 + x1) as f64, 0.5 * (y0 + y1) as f64, n);
+    let radius = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
+        .iter()
+        .map(|&(x, y)| {
+            subpixel_dir(t.face, x as f64, y as f64, n)
+                .dot(centre)
+                .clamp(-1.0, 1.0)
+                .acos()
+        })
+        .fold(0.0, f64::max);
+    (centre, radius, depth_min)
+}
+
 /// Blend weights of the two viewpoints bounding the segment that holds arc length `s`
 /// (`vp_s` sorted): `[(i, 1 − f), (i + 1, f)]`, or the single viewpoint of a one-point track.
 pub fn blend_weights(vp_s: &[f64], s: f64) -> Vec<(usize, f64)> {
@@ -336,6 +390,38 @@ mod tests {
                 assert_eq!(c.finest_needed(), level, "width {width}: {c:?}");
             }
         }
+    }
+
+    #[test]
+    fn frustum_keeps_every_visible_tile_and_drops_those_behind() {
+        let (index, m) = corridor("frustum");
+        let mut cam = cam_at(&m, 1, 320);
+        // Between viewpoints 1 and 2: parallax must not lose a tile that is seen.
+        cam.position = m.tracks[0].viewpoints[1]
+            .position
+            .lerp(m.tracks[0].viewpoints[2].position, 0.4);
+        for yaw in [0.0, 90.0, 200.0, 300.0] {
+            cam.yaw_deg = yaw;
+            let counts = index.count(&cam, &[(1, 0.6), (2, 0.4)], 64, 32);
+            for c in &counts {
+                if let Surface::Tile { viewpoint, tile } = c.surface {
+                    assert!(
+                        index.tile_in_frustum(&cam, viewpoint, tile),
+                        "yaw {yaw}: {c:?}"
+                    );
+                }
+            }
+            let tiles = m.tracks[0].viewpoints[1].tiles.len();
+            let inside = (0..tiles)
+                .filter(|&t| index.tile_in_frustum(&cam, 1, t))
+                .count();
+            assert!(
+                inside > 0 && inside < tiles,
+                "yaw {yaw}: {inside} of {tiles}"
+            );
+        }
+        assert!(!index.tile_in_frustum(&cam, 99, 0));
+        assert!(!index.tile_in_frustum(&cam, 1, usize::MAX));
     }
 
     #[test]

@@ -214,7 +214,11 @@ pub struct PlanInput<'a> {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PartRequest {
     pub item: usize,
+    /// First part to download.
     pub part: usize,
+    /// Consecutive parts to download in one request (≥ 1): PTM level groups of one object,
+    /// as many towards the target as the link estimate delivers within `δt_max`.
+    pub parts: usize,
     /// Larger is sooner (see the module docs for the four bands).
     pub priority: f64,
 }
@@ -262,6 +266,26 @@ pub fn allocate(
         out.push((item, k));
     }
     out
+}
+
+/// How many parts from `have` towards `target` one request takes: the mesh alone, or PTM
+/// level groups (consecutive in one object) while the run still arrives within `dt_max`;
+/// always at least one.
+fn run_len(info: &ItemInfo, have: usize, target: usize, link: &LinkEstimate, dt_max: f64) -> usize {
+    if have < info.first_level_part {
+        return 1;
+    }
+    let mut n = 1;
+    let mut bytes = info.part_bytes[have];
+    while have + n < target.min(info.parts()) {
+        let more = bytes + info.part_bytes[have + n];
+        if link.time_for(more) > dt_max {
+            break;
+        }
+        bytes = more;
+        n += 1;
+    }
+    n
 }
 
 /// Decide residency and downloads for one frame (see the module docs).
@@ -319,6 +343,7 @@ pub fn plan(inp: &PlanInput) -> Plan {
                 out.requests.push(PartRequest {
                     item: i,
                     part: have,
+                    parts: run_len(info, have, target, inp.link, inp.dt_max_s),
                     priority: if essential { 3.0 } else { 1.0 } + weight[i].min(1.0) * 0.999,
                 });
             }
@@ -348,6 +373,7 @@ pub fn plan(inp: &PlanInput) -> Plan {
                     out.requests.push(PartRequest {
                         item: i,
                         part: have,
+                        parts: run_len(info, have, target, inp.link, inp.dt_max_s),
                         priority: if essential { 0.5 } else { 0.0 } + w.min(1.0) * 0.499,
                     });
                 }
@@ -501,6 +527,36 @@ mod tests {
                 proptest::prop_assert!(k <= cands[i].2.min(5));
             }
         }
+    }
+
+    #[test]
+    fn one_request_carries_as_many_levels_as_arrive_within_dt_max() {
+        let t = tile();
+        let fast = LinkEstimate::new(1e9, 0.05);
+        // The mesh goes alone; then every level group up to the target in one run.
+        assert_eq!(run_len(&t, 0, 5, &fast, 0.5), 1);
+        assert_eq!(run_len(&t, 1, 5, &fast, 0.5), 4);
+        assert_eq!(run_len(&t, 1, 3, &fast, 0.5), 2);
+        assert_eq!(run_len(&t, 4, 5, &fast, 0.5), 1);
+        // 10 kbit/s, 50 ms: 20+60 B = 64 ms + 50 ms fits 0.15 s, adding 240 B does not.
+        let slow = LinkEstimate::new(1e4, 0.05);
+        assert_eq!(run_len(&t, 1, 5, &slow, 0.15), 2);
+        // Too slow for even one group: still one (the caller decides whether to send it).
+        assert_eq!(run_len(&t, 1, 5, &slow, 0.0), 1);
+        let items = vec![t];
+        let p = plan(&PlanInput {
+            items: &items,
+            have: &[1],
+            downloading: &[false],
+            ach: &[(0, 1.0)],
+            live: &[],
+            prefetch: &[],
+            mode: PriorityMode::Ach,
+            memory_bytes: 1 << 20,
+            dt_max_s: 0.5,
+            link: &fast,
+        });
+        assert_eq!((p.requests[0].part, p.requests[0].parts), (1, 4));
     }
 
     #[test]

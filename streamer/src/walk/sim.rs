@@ -8,7 +8,7 @@ use tracks::PerspectiveCamera;
 use super::{look_at, FrameRecord, RunReport, Scene, Strategy, VirtualLink, WalkConfig, WalkError};
 use crate::client::{
     next_segment, plan, segment_at, Cache, ClientStats, Connection, FetchKey, ItemInfo, ItemTable,
-    LinkEstimate, LiveCount, MotionTracker, Part, PlanInput,
+    LinkEstimate, LiveCount, MotionTracker, Part, PlanInput, PriorityMode,
 };
 use crate::visibility::{blend_weights, Surface, SurfaceCount};
 
@@ -40,6 +40,9 @@ struct Sim<'a> {
     over_budget: bool,
     /// Live counts of the latest frame (used again between frames).
     live: Vec<LiveCount>,
+    /// The current segment's ACH list after frustum culling at the latest frame's camera
+    /// (PTM §6.1: only tiles that can be in view share the budget).
+    view_ach: Vec<(usize, f64)>,
     s: f64,
 }
 
@@ -119,7 +122,14 @@ impl Sim<'_> {
                 let have = self.have();
                 let table = &self.scene.table;
                 let seg = segment_at(&table.vp_s, self.s).unwrap_or(0);
-                let ach: &[(usize, f64)] = table.segment_ach.get(seg).map_or(&[], |v| v.as_slice());
+                let ach: &[(usize, f64)] = match mode {
+                    // Combined: the whole segment's ACH broadens (coarsest levels for a turn
+                    // of the head); live counts pick what is in view.
+                    PriorityMode::Combined { .. } => {
+                        table.segment_ach.get(seg).map_or(&[], |v| v.as_slice())
+                    }
+                    _ => &self.view_ach,
+                };
                 let next = if prefetch {
                     next_segment(
                         &self.motion,
@@ -160,19 +170,33 @@ impl Sim<'_> {
                     }
                 }
                 for r in p.requests.iter().take(free) {
-                    issue.push((r.item, vec![table.items[r.item].parts[r.part].clone()]));
+                    let parts = &table.items[r.item].parts;
+                    let end = (r.part + r.parts.max(1)).min(parts.len());
+                    issue.push((r.item, parts[r.part..end].to_vec()));
                 }
             }
         }
         for (item, parts) in issue {
             let mut keys = Vec::new();
             let mut size = 0;
-            for part in &parts {
-                let data = conn.fetch_checked(&part.key, &part.hash, None).await?;
-                size += data.len() as u64;
-                keys.push((part.key.clone(), data));
+            if let Some(run) = as_run(&parts) {
+                // Consecutive level groups of one object: one ranged request.
+                let data = conn
+                    .fetch_checked_run(&parts[0].key.object, &run, None)
+                    .await?;
+                for (part, d) in parts.iter().zip(data) {
+                    size += d.len() as u64;
+                    keys.push((part.key.clone(), d));
+                }
+                self.requests += 1;
+            } else {
+                for part in &parts {
+                    let data = conn.fetch_checked(&part.key, &part.hash, None).await?;
+                    size += data.len() as u64;
+                    keys.push((part.key.clone(), data));
+                }
+                self.requests += parts.len() as u64;
             }
-            self.requests += parts.len() as u64;
             self.bytes += size;
             self.downloading[item] = true;
             self.in_flight.push(InFlight {
@@ -185,6 +209,28 @@ impl Sim<'_> {
         }
         Ok(())
     }
+}
+
+/// `(offset, len, hash)` of each part when there are several and they are consecutive byte
+/// ranges of one object (so one request can carry them all).
+fn as_run(parts: &[Part]) -> Option<Vec<(u64, u64, &str)>> {
+    if parts.len() < 2 {
+        return None;
+    }
+    let mut out = Vec::with_capacity(parts.len());
+    for p in parts {
+        let (off, len) = p.key.range?;
+        if p.key.object != parts[0].key.object {
+            return None;
+        }
+        if let Some(&(o, l, _)) = out.last() {
+            if o + l != off {
+                return None;
+            }
+        }
+        out.push((off, len, p.hash.as_str()));
+    }
+    Some(out)
 }
 
 /// Run one (strategy, bandwidth) walk.
@@ -217,6 +263,7 @@ pub(crate) async fn run_one(
         max_resident: 0,
         over_budget: false,
         live: Vec::new(),
+        view_ach: Vec::new(),
         s: 0.0,
     };
     let failures_before = stats.checksum_failures.load(Ordering::Relaxed);
@@ -275,6 +322,15 @@ pub(crate) async fn run_one(
             .segment_ach
             .get(seg)
             .map_or(&[], |v| v.as_slice());
+        sim.view_ach = ach
+            .iter()
+            .copied()
+            .filter(|&(i, _)| {
+                let it = &scene.table.items[i];
+                it.tile
+                    .is_none_or(|tile| scene.index.tile_in_frustum(&cam, it.viewpoint, tile))
+            })
+            .collect();
         let (quality, needed, complete) =
             frame_metrics(&scene.table, &sim.items, &have, ach, &counts);
         if complete && first_frame.is_none() {
