@@ -58,20 +58,69 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     })?;
     prerender::store::ensure_writable_dir(&args.out)?;
     let mut renderer = Renderer::new(Gpu::new()?);
-    let configs = default_configs();
-    let positions = eval_positions(&walk, args.segments, args.between);
-    let bar = indicatif::ProgressBar::new((positions.len() * configs.len()) as u64);
-    let rows = evaluate(
-        &mut renderer,
-        &walk,
-        &truth,
-        &configs,
-        &positions,
-        size,
-        args.fov,
-        |_| bar.inc(1),
-    )?;
+    // Renderer budgets on the walkthrough as given; for the synthetic street also other
+    // databases: one slab, a coarser mesh, twice the sample spacing.
+    let mut runs: Vec<(
+        String,
+        viewer::source::Walkthrough,
+        Vec<viewer::headless::EvalConfig>,
+    )> = Vec::new();
+    if args.db == "synth:street" {
+        use viewer::synth::Scene;
+        let one = [tracks::SlabRange {
+            near: 0.0,
+            far: f64::INFINITY,
+        }];
+        let step4 = viewer::MeshParams {
+            step: 4,
+            ..Default::default()
+        };
+        let base = viewer::MeshParams::default();
+        let slabs3 = Scene::street_slabs();
+        let full = |name: &str| {
+            vec![viewer::headless::EvalConfig {
+                name: name.to_string(),
+                budget: viewer::DrawBudget::default(),
+            }]
+        };
+        runs.push((
+            "db slabs=1".into(),
+            viewer::headless::synth_street_spaced(64, &one, base, 1.5)?,
+            full("db slabs=1"),
+        ));
+        runs.push((
+            "db step=4".into(),
+            viewer::headless::synth_street_spaced(64, &slabs3, step4, 1.5)?,
+            full("db step=4"),
+        ));
+        runs.push((
+            "db spacing=2.25".into(),
+            viewer::headless::synth_street_spaced(64, &slabs3, base, 2.25)?,
+            full("db spacing=2.25"),
+        ));
+    }
+    runs.insert(0, (args.db.clone(), walk, default_configs()));
+    let total: usize = runs
+        .iter()
+        .map(|(_, w, c)| eval_positions(w, args.segments, args.between).len() * c.len())
+        .sum();
+    let bar = indicatif::ProgressBar::new(total as u64);
+    let mut rows = Vec::new();
+    for (_, w, configs) in &runs {
+        let positions = eval_positions(w, args.segments, args.between);
+        rows.extend(evaluate(
+            &mut renderer,
+            w,
+            &truth,
+            configs,
+            &positions,
+            size,
+            args.fov,
+            |_| bar.inc(1),
+        )?);
+    }
     bar.finish_and_clear();
+    let walk = &runs[0].1;
     let summary = summarize(&rows);
     let json = EvalJson {
         db: &args.db,

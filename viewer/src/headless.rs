@@ -57,14 +57,26 @@ impl Truth {
     }
 }
 
-/// The synthetic street walkthrough: 4 samples 1.5 m apart along x at eye height.
+/// The synthetic street walkthrough: samples 1.5 m apart over 4.5 m along x at eye height.
 pub fn synth_street(
     face_size: u32,
     slabs: &[SlabRange],
     params: MeshParams,
 ) -> Result<Walkthrough, HeadlessError> {
+    synth_street_spaced(face_size, slabs, params, 1.5)
+}
+
+/// The synthetic street with samples `spacing_m` apart.
+pub fn synth_street_spaced(
+    face_size: u32,
+    slabs: &[SlabRange],
+    params: MeshParams,
+    spacing_m: f64,
+) -> Result<Walkthrough, HeadlessError> {
     let set = TrackSet::parse(
-        "[[track]]\nname = \"main\"\npoints = [[0, 1.7, 0], [4.5, 1.7, 0]]\nspacing = 1.5\n",
+        &format!(
+            "[[track]]\nname = \"main\"\npoints = [[0, 1.7, 0], [4.5, 1.7, 0]]\nspacing = {spacing_m}\n"
+        ),
         "synth:street",
     )
     .map_err(|e| HeadlessError::Parameter(e.to_string()))?;
@@ -161,8 +173,8 @@ pub struct EvalConfig {
     pub budget: DrawBudget,
 }
 
-/// The default configurations: everything, first slab only, no blending, half-resolution
-/// textures.
+/// The default renderer configurations: everything, first slab only, the nearer view only,
+/// half-resolution textures.
 pub fn default_configs() -> Vec<EvalConfig> {
     let c = |name: &str, budget| EvalConfig {
         name: name.into(),
@@ -171,21 +183,21 @@ pub fn default_configs() -> Vec<EvalConfig> {
     vec![
         c("full", DrawBudget::default()),
         c(
-            "slabs=1",
+            "draw 1 slab",
             DrawBudget {
                 max_slabs: 1,
                 ..Default::default()
             },
         ),
         c(
-            "no-blend",
+            "draw 1 view",
             DrawBudget {
                 blend: false,
                 ..Default::default()
             },
         ),
         c(
-            "lod+1",
+            "textures +1 level",
             DrawBudget {
                 lod_bias: 1.0,
                 ..Default::default()
