@@ -36,7 +36,7 @@ pub struct Args {
     /// time, but each frame costs a visibility pass, so faster walks finish sooner).
     #[arg(long, default_value_t = 4.0)]
     pub walk_speed: f64,
-    /// Never open the viewer window; render a headless flythrough instead.
+    /// Never open the viewer window (the headless flythrough is rendered either way).
     #[arg(long)]
     pub no_window: bool,
     /// Only rebuild the report from what is already in OUT.
@@ -248,12 +248,11 @@ fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
     ]
 }
 
-/// The stages that use the database: from `source`, the database or, while no `build`
-/// exists, the prerender directory (the viewer reads either).
-fn use_stages(args: &Args, layout: &Layout, source: &Path, headless: bool) -> Vec<Stage> {
+/// The stages that use the database. The flythrough always runs (the report shows its
+/// frames); with a display the viewer window comes after the report.
+fn use_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
     let db = layout.db();
-    let needs: &'static str = if source == db { "build" } else { "slabs" };
-    let mut stages = vec![
+    vec![
         Stage {
             name: "walk",
             argv: vec![
@@ -277,7 +276,7 @@ fn use_stages(args: &Args, layout: &Layout, source: &Path, headless: bool) -> Ve
             name: "eval",
             argv: vec![
                 "eval".into(),
-                path_arg(source),
+                path_arg(&db),
                 "--out".into(),
                 path_arg(&layout.eval()),
                 "--size".into(),
@@ -286,15 +285,13 @@ fn use_stages(args: &Args, layout: &Layout, source: &Path, headless: bool) -> Ve
                 "2".into(),
             ],
             outputs: vec![layout.eval().join("eval.json")],
-            requires: vec![needs],
+            requires: vec!["build"],
         },
-    ];
-    if headless {
-        stages.push(Stage {
+        Stage {
             name: "flythrough",
             argv: vec![
                 "flythrough".into(),
-                path_arg(source),
+                path_arg(&db),
                 "-o".into(),
                 path_arg(&layout.frames()),
                 "--frames".into(),
@@ -303,10 +300,9 @@ fn use_stages(args: &Args, layout: &Layout, source: &Path, headless: bool) -> Ve
                 "320x180".into(),
             ],
             outputs: vec![layout.frames().join("flythrough.json")],
-            requires: vec![needs],
-        });
-    }
-    stages
+            requires: vec!["build"],
+        },
+    ]
 }
 
 /// Mesa prints "XDG_RUNTIME_DIR is invalid or not set" for every GPU stage when the variable
@@ -366,22 +362,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let window = !args.no_window && display_available() && has_command("view");
     let start = Instant::now();
     let first = build_stages(&args, &layout);
-    let steps = first.len() + use_stages(&args, &layout, &layout.db(), !window).len();
+    let steps = first.len() + use_stages(&args, &layout).len();
     for (i, stage) in first.iter().enumerate() {
         run_stage(&layout, &mut log, stage, i + 1, steps);
     }
-    let built = log
-        .stage("build")
-        .is_some_and(|s| s.status == StageStatus::Done);
-    let source = if built {
-        layout.db()
-    } else {
-        layout.prerender()
-    };
-    for (i, stage) in use_stages(&args, &layout, &source, !window)
-        .iter()
-        .enumerate()
-    {
+    for (i, stage) in use_stages(&args, &layout).iter().enumerate() {
         run_stage(&layout, &mut log, stage, first.len() + i + 1, steps);
     }
     let written = report::write_report(&layout, &log).context("writing the report")?;
@@ -396,6 +381,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     println!("  prerendered panoramas: {}", layout.prerender().display());
     println!("  database:              {}", layout.db().display());
+    println!("  flythrough frames:     {}", layout.frames().display());
     if !window {
         let why = if args.no_window {
             "--no-window"
@@ -404,10 +390,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         } else {
             "this build has no `view` command"
         };
-        println!(
-            "  flythrough frames:     {} (headless: {why})",
-            layout.frames().display()
-        );
+        println!("  no viewer window ({why}): the flythrough frames above were rendered headless");
     }
     println!("  report:                {}", written.html.display());
     println!("                         {}", written.markdown.display());
