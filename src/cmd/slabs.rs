@@ -95,7 +95,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 );
             }
         }
-        boundaries::manual(slabs.clone(), &lowres, max_spacing, pre.face_size, &params)
+        // Layers rendered from the automatic choice keep its numbers in the report.
+        let auto = boundaries::choose(&lowres, max_spacing, pre.face_size, &params);
+        if &auto.slabs == slabs {
+            auto
+        } else {
+            boundaries::manual(slabs.clone(), &lowres, max_spacing, pre.face_size, &params)
+        }
     } else if args.slabs == "auto" {
         boundaries::choose(&lowres, max_spacing, pre.face_size, &params)
     } else {
