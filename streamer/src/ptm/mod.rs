@@ -50,7 +50,7 @@
 //! // Feed only the first two chunks: a coarser image is already available.
 //! let first_two = &enc.bytes[..enc.groups[1].offset as usize + enc.groups[1].len as usize];
 //! assert_eq!(dec.push(first_two).unwrap(), Status::NeedMore);
-//! assert_eq!(dec.finest().unwrap().width(), 3);
+//! assert_eq!(dec.finest().unwrap().width(), 2); // 5×3 → 3×2 → 2×1 → 1×1
 //! assert_eq!(dec.push(&enc.bytes[first_two.len()..]).unwrap(), Status::Done);
 //! assert_eq!(dec.finest().unwrap(), &img);
 //! ```
