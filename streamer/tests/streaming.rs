@@ -353,6 +353,55 @@ async fn corrupted_responses_are_fetched_again_and_never_returned() {
 }
 
 #[tokio::test]
+async fn level_runs_in_one_request_are_checked_part_by_part() {
+    let (dir, m) = temp_db("run", &synth::SynthParams::default());
+    let p = m.tracks[0].viewpoints[0]
+        .tiles
+        .iter()
+        .find_map(|t| t.ptm.as_ref().filter(|p| p.levels.len() >= 2))
+        .unwrap()
+        .clone();
+    let run: Vec<(u64, u64, &str)> = p
+        .levels
+        .iter()
+        .map(|l| (l.offset, l.len, l.hash.as_str()))
+        .collect();
+    // Every second response corrupted: the run still arrives right, level by level.
+    let srv = start(
+        &dir,
+        ServerConfig {
+            corrupt_every: Some(2),
+            ..ServerConfig::default()
+        },
+        "127.0.0.1:0",
+    )
+    .await;
+    let stats = Arc::new(ClientStats::default());
+    let mut c = Connection::new(srv.url(), RetryPolicy::default(), stats.clone());
+    for _ in 0..4 {
+        let parts = c
+            .fetch_checked_run(&p.object.hash, &run, None)
+            .await
+            .unwrap();
+        assert_eq!(parts.len(), run.len());
+        for (d, &(_, len, hash)) in parts.iter().zip(&run) {
+            assert_eq!(d.len() as u64, len);
+            assert_eq!(blake3::hash(d).to_hex().as_str(), hash);
+        }
+    }
+    assert!(stats.checksum_failures.load(Ordering::Relaxed) >= 1);
+    // Ranges with a gap are refused before anything is sent.
+    let gap = [run[0], (run[1].0 + 1, run[1].1, run[1].2)];
+    let err = c
+        .fetch_checked_run(&p.object.hash, &gap, None)
+        .await
+        .unwrap_err();
+    assert!(matches!(err, ClientError::Transfer { .. }), "{err}");
+    srv.stop().await;
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test]
 async fn client_recovers_when_the_server_is_killed_and_restarted() {
     let (dir, m) = temp_db("restart", &synth::SynthParams::default());
     let reqs = level_requests(&m, 40);

@@ -5,6 +5,12 @@
 //! depth mesh (if any), then the PTM level groups from coarsest to finest. Holding the first
 //! `k` parts costs `S(k)` bytes of texture memory ([`ItemInfo::mem`]).
 //!
+//! The caller frustum-culls the ACH list first (PTM §6.1: only what can be in view shares the
+//! budget; [`crate::visibility::SceneIndex::tile_in_frustum`]), so `M` is not spread over the
+//! tiles behind the camera. One request may carry several consecutive level groups of an
+//! item ([`PartRequest::parts`]): as many as the link estimate delivers within `δt_max`, so a
+//! tile does not pay one round trip per level.
+//!
 //! [`plan`] shares the memory budget `M` among the candidate items in descending order of
 //! their weight (the segment's ACH, the live pixel count, or a blend): each item in turn gets
 //! `weight / (remaining weight) · (remaining budget)`, takes the finest level whose `S` fits
