@@ -144,9 +144,9 @@ fn remove_if_exists(path: &std::path::Path) -> Result<(), StoreError> {
     match std::fs::remove_file(path) {
         Ok(()) => Ok(()),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
-        Err(source) => Err(StoreError::Io {
+        Err(error) => Err(StoreError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         }),
     }
 }

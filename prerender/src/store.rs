@@ -31,17 +31,19 @@ use tracks::{CubeMap, Face, SlabRange};
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum StoreError {
-    #[error("{path}: {source}")]
-    Io { path: PathBuf, source: io::Error },
+    /// The message already includes the I/O error, so it is deliberately not a `#[source]`
+    /// (an error chain printed with `{:#}` would repeat it).
+    #[error("{path}: {error}")]
+    Io { path: PathBuf, error: io::Error },
     #[error("{path}: {message}")]
     Format { path: PathBuf, message: String },
 }
 
 impl StoreError {
-    fn io(path: &Path, source: io::Error) -> Self {
+    fn io(path: &Path, error: io::Error) -> Self {
         StoreError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         }
     }
     fn format(path: &Path, message: impl Into<String>) -> Self {
