@@ -497,4 +497,3 @@ fn prediction_compresses_textured_tiles_well() {
     let z = encode(&img, &EncodeOptions::default()).unwrap().bytes.len();
     assert!(z * 2 < raw, "zstd {z} vs raw {raw}");
 }
-
