@@ -56,6 +56,12 @@ pub fn escape_html(s: &str) -> String {
     out
 }
 
+/// A cell that holds a number (possibly with a unit sign), right-aligned in tables.
+fn is_numeric(cell: &str) -> bool {
+    let t = cell.trim().trim_end_matches('%');
+    matches!(t, "∞" | "–") || (!t.is_empty() && t.parse::<f64>().is_ok())
+}
+
 /// Escape a table cell for Markdown (pipes and line breaks would break the row).
 fn escape_md_cell(s: &str) -> String {
     s.replace('|', "\\|").replace('\n', " ")
@@ -83,8 +89,8 @@ padding:0 1rem;color:#1d232a;line-height:1.45;background:#fbfbfa}\
 h1{font-size:1.7rem;margin-bottom:.2rem}h2{margin-top:2.4rem;border-bottom:1px solid #d8dce0;\
 padding-bottom:.25rem}nav a{margin-right:.8rem}\
 table{border-collapse:collapse;margin:.8rem 0;font-size:.9rem;font-variant-numeric:tabular-nums}\
-th,td{border:1px solid #ccd2d8;padding:.25rem .55rem;text-align:right}\
-th{background:#eef1f4}td:first-child,th:first-child{text-align:left}\
+th,td{border:1px solid #ccd2d8;padding:.25rem .55rem;text-align:left}\
+th{background:#eef1f4}td.n{text-align:right}\
 caption{caption-side:top;text-align:left;font-weight:600;padding:.3rem 0}\
 code,pre{font-family:ui-monospace,'DejaVu Sans Mono',monospace;font-size:.85rem}\
 p.cmd{background:#eef3f8;border-left:3px solid #5b84b1;padding:.3rem .6rem;overflow-x:auto;\
@@ -155,7 +161,8 @@ pub fn to_html(title: &str, blocks: &[Block]) -> String {
                 for row in &t.rows {
                     h += "<tr>";
                     for c in row {
-                        let _ = write!(h, "<td>{}</td>", escape_html(c));
+                        let class = if is_numeric(c) { " class=\"n\"" } else { "" };
+                        let _ = write!(h, "<td{class}>{}</td>", escape_html(c));
                     }
                     h += "</tr>\n";
                 }
@@ -260,6 +267,7 @@ mod tests {
         assert!(h.contains("<h2 id=\"culling\">Culling &lt;α&gt;</h2>"));
         assert!(h.contains("<table id=\"t1\">"));
         assert!(h.contains("<td>&lt;2&gt;</td>"));
+        assert!(h.contains("<td class=\"n\">1</td>"));
         assert!(h.contains("src=\"view%201.png\""));
         assert!(h.contains("alt=\"a &quot;view&quot;\""));
         assert!(h.contains("class=\"checker\""));

@@ -199,8 +199,8 @@ fn overview(c: &mut Ctx) {
     c.push(Block::Para(format!(
         "The `{}` scene along its `{}` track, pre-rendered as cube maps of {}² pixels per face, \
          split into depth slabs, culled, encoded as progressive texture maps, streamed and \
-         viewed. Each number below is followed by the command that reproduces it; the stage \
-         outputs live in {}.",
+         viewed. Each section starts with the command that reproduces its numbers and \
+         pictures; the stage outputs live in {}.",
         c.log.scene,
         c.log.track,
         c.log.face_size,
