@@ -239,6 +239,6 @@ fn boundary_of(c: &CriterionReport, r: &SlabRange) -> Option<Candidate> {
     }
     c.candidates
         .iter()
-        .find(|x| x.accepted && x.depth_m == r.near)
+        .find(|x| x.accepted && (x.depth_m - r.near).abs() <= 1e-9 * r.near)
         .cloned()
 }

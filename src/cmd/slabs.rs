@@ -97,8 +97,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         // Layers rendered from the automatic choice keep its numbers in the report.
         let auto = boundaries::choose(&lowres, max_spacing, pre.face_size, &params);
-        if &auto.slabs == slabs {
-            auto
+        if same_ranges(&auto.slabs, slabs) {
+            SlabChoice {
+                slabs: slabs.clone(),
+                ..auto
+            }
         } else {
             boundaries::manual(slabs.clone(), &lowres, max_spacing, pre.face_size, &params)
         }
@@ -202,6 +205,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     eprintln!("wrote {}", root.join("slabs.json").display());
     Ok(())
+}
+
+/// Equal up to JSON round-off (ranges read back from `layers.json`).
+fn same_ranges(a: &[SlabRange], b: &[SlabRange]) -> bool {
+    let close = |x: f64, y: f64| x == y || (x - y).abs() <= 1e-9 * x.abs().max(y.abs());
+    a.len() == b.len()
+        && a.iter()
+            .zip(b)
+            .all(|(p, q)| close(p.near, q.near) && close(p.far, q.far))
 }
 
 fn labels(s: &[SlabRange]) -> String {
