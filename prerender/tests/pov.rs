@@ -399,7 +399,7 @@ fn missing_povray_and_unwritable_output_are_clear() {
     let msg = e.to_string();
     assert!(matches!(e, PovError::PovrayMissing { .. }), "{msg}");
     assert!(
-        msg.contains("/nonexistent/bin/povray") && msg.contains("Install POV-Ray"),
+        msg.contains("/nonexistent/bin/povray") && msg.contains("install POV-Ray"),
         "{msg}"
     );
 

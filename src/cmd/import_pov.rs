@@ -117,8 +117,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let viewpoints = track.viewpoints();
 
     let dir = PrerenderDir::new(&args.out);
-    store::ensure_writable_dir(&args.out)
-        .with_context(|| format!("output directory {}", args.out.display()))?;
+    store::ensure_writable_dir(&args.out).context("cannot use the output directory")?;
     let mut opts = PovOptions::new(args.face_size, args.out.join("pov-work"));
     opts.lowres_face_size = args.lowres_face_size;
     opts.up = args.up;

@@ -51,11 +51,12 @@ use crate::store::StoreError;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum PovError {
-    #[error("POV-Ray scene {path}: {source}")]
+    #[error("cannot read the POV-Ray scene {path}")]
     Scene { path: PathBuf, source: io::Error },
     #[error(
-        "POV-Ray is not available: cannot run `{binary}`: {source}. Install POV-Ray 3.7 \
-         (Debian: apt-get install povray povray-includes) or give the binary's path"
+        "POV-Ray is not available: cannot run `{binary}` (install POV-Ray 3.7, on Debian \
+         `apt-get install povray povray-includes`, or give the binary's path: \
+         `railview import-pov --povray PATH`)"
     )]
     PovrayMissing { binary: PathBuf, source: io::Error },
     #[error("POV-Ray failed on {render} ({status}):\n{message}\n(full log: {log})")]
@@ -80,7 +81,7 @@ pub enum PovError {
     },
     #[error("POV-Ray output {path}: {message}")]
     Output { path: PathBuf, message: String },
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Io { path: PathBuf, source: io::Error },
     #[error("option `{name}`: {message}")]
     Parameter { name: &'static str, message: String },
