@@ -124,11 +124,14 @@ pub fn cull_viewpoint(
         let keep: Vec<bool> = if !any_occluder {
             vec![true; layer.tiles.len()]
         } else {
-            let opacity = match params.variant {
-                Variant::Conservative => hole_punched(&map, params.discontinuity, radius),
-                Variant::Paper => map.opaque.clone(),
+            let q = match params.variant {
+                Variant::Conservative => WindowQuery::new(
+                    &hole_punched(&map, params.discontinuity, radius),
+                    &map.opaque,
+                    &map.depth,
+                ),
+                Variant::Paper => WindowQuery::opacity_only(&map.opaque),
             };
-            let q = WindowQuery::new(&opacity, &map.opaque, &map.depth);
             let ctx = TileCtx {
                 grid,
                 q: &q,

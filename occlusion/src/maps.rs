@@ -204,23 +204,42 @@ pub struct WindowQuery {
     planar_min: Vec<Vec<f32>>,
 }
 
+fn summed_area(opacity: &CubeMap<u8>) -> Vec<u32> {
+    let n = opacity.face_size();
+    let w = n as usize + 1;
+    let mut sat = vec![0u32; 6 * w * w];
+    sat.par_chunks_mut(w * w).enumerate().for_each(|(fi, s)| {
+        let face = opacity.face(Face::ALL[fi]);
+        for y in 0..n as usize {
+            let mut row = 0u32;
+            for x in 0..n as usize {
+                row += face[y * n as usize + x] as u32;
+                s[(y + 1) * w + x + 1] = s[y * w + x + 1] + row;
+            }
+        }
+    });
+    sat
+}
+
 impl WindowQuery {
+    /// Opacity queries only (the paper's variant never asks for depths): every depth bound
+    /// is `-inf`.
+    pub fn opacity_only(opacity: &CubeMap<u8>) -> Self {
+        let n = opacity.face_size();
+        WindowQuery {
+            n,
+            sat: summed_area(opacity),
+            block: n.max(1),
+            blocks: 1,
+            planar_min: vec![vec![f32::NEG_INFINITY; 36]],
+        }
+    }
+
     /// Build from the 0/1 opacity the mean is taken over (`opacity`, possibly hole-punched),
     /// and the occluders (`opaque`, `depth`) the nearest depth is taken over.
     pub fn new(opacity: &CubeMap<u8>, opaque: &CubeMap<u8>, depth: &CubeMap<f32>) -> Self {
         let n = opacity.face_size();
-        let w = n as usize + 1;
-        let mut sat = vec![0u32; 6 * w * w];
-        sat.par_chunks_mut(w * w).enumerate().for_each(|(fi, s)| {
-            let face = opacity.face(Face::ALL[fi]);
-            for y in 0..n as usize {
-                let mut row = 0u32;
-                for x in 0..n as usize {
-                    row += face[y * n as usize + x] as u32;
-                    s[(y + 1) * w + x + 1] = s[y * w + x + 1] + row;
-                }
-            }
-        });
+        let sat = summed_area(opacity);
         let block = block_size(n);
         let blocks = n.div_ceil(block);
         let bb = blocks as usize * blocks as usize;
