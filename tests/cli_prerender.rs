@@ -91,6 +91,17 @@ fn castle_short_track_with_slabs_resume_and_report() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(report(&out)["extra"]["rendered_this_run"], 0);
     assert_eq!(report(&out)["extra"]["skipped_this_run"], 3);
+    // A rerun without --slabs keeps the slab layers in the report.
+    let without: Vec<&str> = args
+        .iter()
+        .copied()
+        .filter(|a| *a != "--slabs" && *a != "0-10,10-inf")
+        .collect();
+    let o = railview(&without);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = report(&out);
+    assert_eq!(r["slabs"].as_array().map(Vec::len), Some(2), "{r}");
+    assert_eq!(r["extra"]["samples_with_layers"], 3);
     std::fs::remove_dir_all(&work).ok();
 }
 

@@ -122,16 +122,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(Shard::parse)
         .transpose()
         .map_err(anyhow::Error::msg)?;
-    let slabs: Vec<SlabRange> = match &args.slabs {
-        Some(s) => SlabRange::parse_list(s).map_err(|e| anyhow::anyhow!("--slabs: {e}"))?,
-        None => Vec::new(),
-    };
+    let explicit_slabs: Option<Vec<SlabRange>> = args
+        .slabs
+        .as_deref()
+        .map(|s| SlabRange::parse_list(s).map_err(|e| anyhow::anyhow!("--slabs: {e}")))
+        .transpose()?;
     let (scene, scene_tracks) = load_scene(&args.scene)?;
     let track = pick_track(&args.track, scene_tracks.as_ref())?;
     store::ensure_writable_dir(&args.out)
         .map_err(store_error)
         .context("output directory")?;
     let dir = PrerenderDir::new(&args.out);
+    // Without --slabs, a rerun keeps the slab layers an earlier run (or `railview slabs`)
+    // rendered at this face size, so the report never forgets them.
+    let slabs: Vec<SlabRange> = match explicit_slabs {
+        Some(s) => s,
+        None => dir
+            .read_report()
+            .ok()
+            .filter(|r| r.face_size == args.face_size)
+            .map(|r| r.slabs)
+            .unwrap_or_default(),
+    };
     let one = TrackSet {
         tracks: vec![track.clone()],
     };
