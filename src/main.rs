@@ -25,10 +25,10 @@ enum Command {
     Demo(cmd::demo::Args),
     /// Render cube-map colour, depth (and optionally slab layers) at the reference viewpoints of a track.
     Prerender(cmd::prerender::Args),
-    /// Choose slab boundaries, render missing slab layers, tile and mesh them, report.
-    Slabs(cmd::slabs::Args),
     /// Render a POV-Ray scene along a track into the same layout (colour, depth, slab layers).
     ImportPov(cmd::import_pov::Args),
+    /// Choose slab boundaries, render missing slab layers, tile and mesh them, report.
+    Slabs(cmd::slabs::Args),
     /// Cull slab tiles no viewpoint of the track can see (extended projections, α); --oracle measures.
     Cull(cmd::cull::Args),
     /// Serve a database over HTTP (ranges, ETags, optional shaping and added latency).
@@ -76,8 +76,8 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Prerender(a) => cmd::prerender::run(a),
-        Command::Slabs(a) => cmd::slabs::run(a),
         Command::ImportPov(a) => cmd::import_pov::run(a),
+        Command::Slabs(a) => cmd::slabs::run(a),
         Command::Cull(a) => cmd::cull::run(a),
         Command::Serve(a) => cmd::serve::run(a),
         Command::Walk(a) => cmd::walk::run(a),
