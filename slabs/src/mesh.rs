@@ -99,11 +99,6 @@ pub(crate) struct Field {
     px_per_inv_m: f64,
 }
 
-fn norm_d(x: f64, y: f64, n: u32) -> f64 {
-    let (u, v) = uv_from_pixel_f(x, y, n);
-    (1.0 + u * u + v * v).sqrt()
-}
-
 impl Field {
     pub(crate) fn new(
         depth: &CubeMap<f32>,
@@ -128,28 +123,36 @@ impl Field {
         // transparent or off the face), for second differences across the lattice edges.
         let (pw, ph) = (w + 2, h + 2);
         let mut pq = vec![f64::NAN; pw * ph];
-        let mut pr = vec![f64::INFINITY; pw * ph];
-        let mut pdn = vec![1.0; pw * ph];
+        // |F + uR + vU|² = 1 + u² + v², with u by column and v by row of the padded lattice.
+        let u2: Vec<f64> = (0..pw)
+            .map(|pi| {
+                let (u, _) = uv_from_pixel_f(x0 as f64 + pi as f64 - 0.5, 0.0, n);
+                u * u
+            })
+            .collect();
+        let v2: Vec<f64> = (0..ph)
+            .map(|pj| {
+                let (_, v) = uv_from_pixel_f(0.0, y0 as f64 + pj as f64 - 0.5, n);
+                v * v
+            })
+            .collect();
         let fd = depth.face(face);
         let fm = mask.face(face);
+        let nn = n as usize;
+        // Padded columns that lie on the face.
+        let pi_lo = if x0 == 0 { 1 } else { 0 };
+        let pi_hi = pw.min(nn + 1 - x0 as usize);
         for pj in 0..ph {
             let y = y0 as i64 + pj as i64 - 1;
             if y < 0 || y >= n as i64 {
                 continue;
             }
-            for pi in 0..pw {
-                let x = x0 as i64 + pi as i64 - 1;
-                if x < 0 || x >= n as i64 {
-                    continue;
-                }
-                let k = pj * pw + pi;
-                let dn = norm_d(x as f64 + 0.5, y as f64 + 0.5, n);
-                pdn[k] = dn;
-                let src = y as usize * n as usize + x as usize;
+            let row = y as usize * nn + x0 as usize;
+            for pi in pi_lo..pi_hi {
+                let src = row + pi - 1;
                 let d = fd[src] as f64;
                 if fm[src] && d.is_finite() && d > 0.0 {
-                    pq[k] = dn / d;
-                    pr[k] = d;
+                    pq[pj * pw + pi] = (1.0 + u2[pi] + v2[pj]).sqrt() / d;
                 }
             }
         }
@@ -189,15 +192,16 @@ impl Field {
             for i in 0..w {
                 let k = j * w + i;
                 let pk = (j + 1) * pw + i + 1;
-                f.dnorm[k] = pdn[pk];
+                let dn = (1.0 + u2[i + 1] + v2[j + 1]).sqrt();
+                f.dnorm[k] = dn;
                 let qa = pq[pk];
                 if qa.is_nan() {
                     continue;
                 }
                 f.valid[k] = true;
                 f.q[k] = qa;
-                f.r[k] = pr[pk];
-                let s = px_per_inv_m / pdn[pk];
+                f.r[k] = fd[(y0 as usize + j) * nn + x0 as usize + i] as f64;
+                let s = px_per_inv_m / dn;
                 if i + 1 < w && !pq[pk + 1].is_nan() {
                     f.disc_right[k] = resid(pq[pk - 1], qa, pq[pk + 1], pq[pk + 2]) * s > thr;
                 }
@@ -279,6 +283,10 @@ impl Field {
 
 /// Pixels with centres inside triangle `t` (local lattice coordinates, edges inclusive),
 /// with the barycentric weights of each.
+///
+/// The edge functions are evaluated without division (their sign is tested against the
+/// tolerance scaled by the doubled area) and advanced by their constant steps along a row;
+/// lattice triangles have integer corners, so the steps are exact.
 fn raster(t: [(f64, f64); 3], w: usize, h: usize, mut visit: impl FnMut(usize, usize, [f64; 3])) {
     let [a, b, c] = t;
     let area = (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0);
@@ -287,21 +295,63 @@ fn raster(t: [(f64, f64); 3], w: usize, h: usize, mut visit: impl FnMut(usize, u
     }
     let xmin = a.0.min(b.0).min(c.0).ceil().max(0.0) as usize;
     let ymin = a.1.min(b.1).min(c.1).ceil().max(0.0) as usize;
-    let xmax = (a.0.max(b.0).max(c.0).floor() as usize).min(w - 1);
-    let ymax = (a.1.max(b.1).max(c.1).floor() as usize).min(h - 1);
-    let eps = 1e-9;
+    let xmax_f = a.0.max(b.0).max(c.0).floor();
+    let ymax_f = a.1.max(b.1).max(c.1).floor();
+    if xmax_f < 0.0 || ymax_f < 0.0 {
+        return;
+    }
+    let xmax = (xmax_f as usize).min(w - 1);
+    let ymax = (ymax_f as usize).min(h - 1);
+    if xmin > xmax || ymin > ymax {
+        return;
+    }
+    // Orient so that inside means non-negative edge functions.
+    let sgn = area.signum();
+    let inv = 1.0 / area;
+    let tol = -1e-9 * area.abs();
+    // n0(p) = (b − p) × (c − p), n1(p) = (c − p) × (a − p); steps per unit x and y.
+    let n0 = |px: f64, py: f64| (b.0 - px) * (c.1 - py) - (b.1 - py) * (c.0 - px);
+    let n1 = |px: f64, py: f64| (c.0 - px) * (a.1 - py) - (c.1 - py) * (a.0 - px);
+    let (d0x, d1x) = (b.1 - c.1, c.1 - a.1);
     for j in ymin..=ymax {
+        let py = j as f64;
+        let mut e0 = n0(xmin as f64, py);
+        let mut e1 = n1(xmin as f64, py);
         for i in xmin..=xmax {
-            let p = (i as f64, j as f64);
-            let w0 = ((b.0 - p.0) * (c.1 - p.1) - (b.1 - p.1) * (c.0 - p.0)) / area;
-            let w1 = ((c.0 - p.0) * (a.1 - p.1) - (c.1 - p.1) * (a.0 - p.0)) / area;
-            let w2 = 1.0 - w0 - w1;
-            if w0 >= -eps && w1 >= -eps && w2 >= -eps {
-                visit(i, j, [w0, w1, w2]);
+            let e2 = area - e0 - e1;
+            if e0 * sgn >= tol && e1 * sgn >= tol && e2 * sgn >= tol {
+                let w0 = e0 * inv;
+                let w1 = e1 * inv;
+                visit(i, j, [w0, w1, 1.0 - w0 - w1]);
             }
+            e0 += d0x;
+            e1 += d1x;
         }
     }
 }
+
+/// A fast hasher for small integer keys (lattice indices of a tile): multiply–rotate mixing.
+#[derive(Default)]
+struct LatticeHasher(u64);
+
+impl std::hash::Hasher for LatticeHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(b as u64);
+        }
+    }
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+    fn write_usize(&mut self, v: usize) {
+        self.write_u64(v as u64);
+    }
+}
+
+type LatticeHash = std::hash::BuildHasherDefault<LatticeHasher>;
 
 /// Builder that deduplicates lattice vertices.
 struct MeshOut<'f> {
@@ -419,7 +469,7 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
     let mut keep: Vec<[(usize, usize); 3]> = Vec::new();
     // Final verdicts (kept or dropped) by vertex triple: a triangle that survives an
     // insertion pass unchanged covers the same pixels, so it need not be rasterised again.
-    let mut settled: std::collections::HashMap<[usize; 3], bool> = Default::default();
+    let mut settled: std::collections::HashMap<[usize; 3], bool, LatticeHash> = Default::default();
     loop {
         pending.retain(|&(i, j)| !is_vertex[f.idx(i, j)]);
         pending.sort_unstable();
@@ -436,7 +486,7 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
         keep.clear();
         for face in tri.inner_faces() {
             let pos = face.positions();
-            let c: [(usize, usize); 3] = pos.map(|p| (p.x.round() as usize, p.y.round() as usize));
+            let c: [(usize, usize); 3] = pos.map(|p| ((p.x + 0.5) as usize, (p.y + 0.5) as usize));
             let ks = c.map(|(i, j)| f.idx(i, j));
             let mut key = ks;
             key.sort_unstable();
@@ -508,7 +558,7 @@ pub(crate) fn mesh_stats(f: &Field, mesh: &TileMesh) -> MeshStats {
         let v = [0, 1, 2].map(|m| mesh.vertices[t[m] as usize]);
         let local = v.map(|[x, y, _]| (x as f64 - 0.5 - f.x0 as f64, y as f64 - 0.5 - f.y0 as f64));
         let qv = [0, 1, 2].map(|m| {
-            let (i, j) = (local[m].0.round() as usize, local[m].1.round() as usize);
+            let (i, j) = ((local[m].0 + 0.5) as usize, (local[m].1 + 0.5) as usize);
             f.dnorm[f.idx(i.min(f.w - 1), j.min(f.h - 1))] / v[m][2] as f64
         });
         raster(local, f.w, f.h, |i, j, b| {

@@ -140,62 +140,75 @@ pub fn tile_layer(
     let ids: Vec<TileId> = grid.tiles().collect();
     let tiles: Vec<SlabTile> = ids
         .par_iter()
-        .filter_map(|&t| {
-            let (x0, y0, x1, y1) = grid.pixel_rect(t);
-            let mut lo = f32::INFINITY;
-            let mut hi = 0.0f32;
-            let mut count = 0u32;
-            let w = x1 - x0;
-            let mut bits = vec![0u8; ((w * (y1 - y0)) as usize).div_ceil(8)];
-            for y in y0..y1 {
-                for x in x0..x1 {
-                    if *layer.mask.get(t.face, x, y) {
-                        let d = *layer.depth.get(t.face, x, y);
-                        lo = lo.min(d);
-                        hi = hi.max(d);
-                        count += 1;
-                        let i = ((y - y0) * w + (x - x0)) as usize;
-                        bits[i / 8] |= 1 << (i % 8);
-                    }
-                }
-            }
-            if count == 0 {
-                return None;
-            }
-            let m = mesh_tile(
-                layer.depth,
-                layer.mask,
-                grid,
-                t,
-                &params.mesh,
-                if params.measure_both {
-                    None
-                } else {
-                    Some(params.keep)
-                },
-            );
-            Some(SlabTile {
-                viewpoint,
-                slab,
-                tile: t,
-                depth_min: lo,
-                depth_max: hi,
-                opaque_pixels: count,
-                pixels: w * (y1 - y0),
-                mask: bits,
-                mesh: match params.keep {
-                    MeshKind::Grid => m.grid,
-                    MeshKind::Adaptive => m.adaptive,
-                },
-                grid_stats: m.grid_stats,
-                adaptive_stats: m.adaptive_stats,
-            })
-        })
+        .filter_map(|&t| tile_one(viewpoint, slab, layer, grid, t, params))
         .collect();
     Ok(LayerTiles {
         slab,
         tiles_before: grid.tile_count(),
         tiles,
+    })
+}
+
+/// One tile of one slab layer: `None` when it holds no opaque pixel.
+fn tile_one(
+    viewpoint: usize,
+    slab: usize,
+    layer: LayerInput,
+    grid: TileGrid,
+    t: TileId,
+    params: &TileParams,
+) -> Option<SlabTile> {
+    let (x0, y0, x1, y1) = grid.pixel_rect(t);
+    let mut lo = f32::INFINITY;
+    let mut hi = 0.0f32;
+    let mut count = 0u32;
+    let w = x1 - x0;
+    let mut bits = vec![0u8; ((w * (y1 - y0)) as usize).div_ceil(8)];
+    let n = grid.face_size as usize;
+    let (fm, fd) = (layer.mask.face(t.face), layer.depth.face(t.face));
+    let mut i = 0usize;
+    for y in y0 as usize..y1 as usize {
+        let row = y * n + x0 as usize..y * n + x1 as usize;
+        for (&m, &d) in fm[row.clone()].iter().zip(&fd[row]) {
+            if m {
+                lo = lo.min(d);
+                hi = hi.max(d);
+                count += 1;
+                bits[i / 8] |= 1 << (i % 8);
+            }
+            i += 1;
+        }
+    }
+    if count == 0 {
+        return None;
+    }
+    let m = mesh_tile(
+        layer.depth,
+        layer.mask,
+        grid,
+        t,
+        &params.mesh,
+        if params.measure_both {
+            None
+        } else {
+            Some(params.keep)
+        },
+    );
+    Some(SlabTile {
+        viewpoint,
+        slab,
+        tile: t,
+        depth_min: lo,
+        depth_max: hi,
+        opaque_pixels: count,
+        pixels: w * (y1 - y0),
+        mask: bits,
+        mesh: match params.keep {
+            MeshKind::Grid => m.grid,
+            MeshKind::Adaptive => m.adaptive,
+        },
+        grid_stats: m.grid_stats,
+        adaptive_stats: m.adaptive_stats,
     })
 }
 
@@ -222,11 +235,35 @@ pub fn tile_sample(
             params.tile_size
         ))
     })?;
-    let layers = layers
-        .iter()
-        .enumerate()
-        .map(|(k, l)| tile_layer(viewpoint, k, *l, params))
-        .collect::<Result<Vec<_>, _>>()?;
+    for (k, l) in layers.iter().enumerate() {
+        if l.mask.face_size() != n {
+            return Err(SlabsError::Parameter(format!(
+                "slab {k}: mask face size {} differs from depth face size {n}",
+                l.mask.face_size()
+            )));
+        }
+    }
+    // One parallel loop over the tiles of all slabs, so that the cores stay busy across
+    // slab boundaries; the collected order is slab-major, tile-index order within a slab.
+    let jobs: Vec<(usize, TileId)> = (0..layers.len())
+        .flat_map(|k| grid.tiles().map(move |t| (k, t)))
+        .collect();
+    let done: Vec<SlabTile> = jobs
+        .par_iter()
+        .filter_map(|&(k, t)| tile_one(viewpoint, k, layers[k], grid, t, params))
+        .collect();
+    let mut out: Vec<LayerTiles> = (0..layers.len())
+        .map(|slab| LayerTiles {
+            slab,
+            tiles_before: grid.tile_count(),
+            tiles: Vec::new(),
+        })
+        .collect();
+    for tile in done {
+        let slab = tile.slab;
+        out[slab].tiles.push(tile);
+    }
+    let layers = out;
     Ok(SampleTiles {
         viewpoint,
         grid,
