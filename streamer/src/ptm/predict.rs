@@ -145,7 +145,93 @@ pub(crate) fn decode_level(
     }
 }
 
-/// [`decode_level`] for `C` channels, row by row (the channel loops unroll).
+/// A pixel's `C` samples.
+type Px<const C: usize> = [u8; C];
+
+#[inline(always)]
+fn px<const C: usize>(s: &[u8]) -> Px<C> {
+    let mut p = [0u8; C];
+    p.copy_from_slice(&s[..C]);
+    p
+}
+
+/// MED of whole pixels, channel by channel.
+#[inline(always)]
+fn med_px<const C: usize>(w: Px<C>, n: Px<C>, nw: Px<C>) -> Px<C> {
+    let mut p = [0u8; C];
+    for k in 0..C {
+        p[k] = med(w[k] as i32, n[k] as i32, nw[k] as i32) as u8;
+    }
+    p
+}
+
+#[inline(always)]
+fn add_px<const C: usize>(a: Px<C>, b: &[u8]) -> Px<C> {
+    let mut p = [0u8; C];
+    for k in 0..C {
+        p[k] = a[k].wrapping_add(b[k]);
+    }
+    p
+}
+
+/// Eq. 3 for one rebuilt pixel: `cnt` pixels in the block, `others` the sum of the rest,
+/// `pred` its prediction, `parent` and `coded` its parent's samples and coded residuals.
+/// On damage, the channel and the offending value.
+#[inline(always)]
+fn rebuild_px<const C: usize>(
+    others: [i32; C],
+    cnt: i32,
+    pred: Px<C>,
+    parent: &[u8],
+    coded: &[u8],
+) -> Result<Px<C>, (u8, i32)> {
+    let mut out = [0u8; C];
+    let mut ok = true;
+    for k in 0..C {
+        let pv = parent[k];
+        let r = (coded[k].wrapping_add(residual_guess(others[k], pred[k], cnt, pv)) & 3) as i32;
+        let v = cnt * pv as i32 + r - others[k];
+        ok &= coded[k] <= 3 && r < cnt && (0..=255).contains(&v);
+        out[k] = v as u8;
+    }
+    if ok {
+        Ok(out)
+    } else {
+        Err(rebuild_error(others, cnt, pred, parent, coded))
+    }
+}
+
+/// The first damaged channel of a rebuilt pixel and its value, as reported in
+/// [`PtmError::BadResidual`].
+#[cold]
+#[inline(never)]
+fn rebuild_error<const C: usize>(
+    others: [i32; C],
+    cnt: i32,
+    pred: Px<C>,
+    parent: &[u8],
+    coded: &[u8],
+) -> (u8, i32) {
+    for k in 0..C {
+        let pv = parent[k];
+        let r = (coded[k].wrapping_add(residual_guess(others[k], pred[k], cnt, pv)) & 3) as i32;
+        let v = cnt * pv as i32 + r - others[k];
+        if coded[k] > 3 {
+            return (k as u8, coded[k] as i32);
+        }
+        if r >= cnt {
+            return (k as u8, r);
+        }
+        if !(0..=255).contains(&v) {
+            return (k as u8, v);
+        }
+    }
+    unreachable!("called only on a damaged pixel")
+}
+
+/// [`decode_level`] for `C` channels, row by row (the channel loops unroll). The first row
+/// takes a general per-pixel path; the others use two specialised loops: rows without rebuilt
+/// pixels (even rows except the last) and rows of alternating stored and rebuilt pixels.
 fn decode_level_c<const C: usize>(
     plain: &[u8],
     parent: &Image,
@@ -156,77 +242,136 @@ fn decode_level_c<const C: usize>(
     let (wu, hu) = (w as usize, h as usize);
     let pw = parent.width as usize;
     let np = pw * parent.height as usize;
-    let (res_plane, planes) = plain.split_at(np * C);
+    let (res_plane, mut src) = plain.split_at(np * C);
     let row = wu * C;
     let mut data = vec![0u8; row * hu];
-    let mut src = planes.chunks_exact(C);
-    let mut first = [0u8; C];
-    first.copy_from_slice(&parent.data[..C]);
-    for y in 0..hu {
-        let (above, rest) = data.split_at_mut(y * row);
-        let cur = &mut rest[..row];
-        let prev: &[u8] = if y > 0 { &above[(y - 1) * row..] } else { &[] };
-        let last_of_block_row = y & 1 == 1 || y + 1 == hu;
+    let bad = |x: usize, y: usize, (channel, value): (u8, i32)| PtmError::BadResidual {
+        level,
+        x: x as u32,
+        y: y as u32,
+        channel,
+        value,
+    };
+    // Row 0: every case of the general rule.
+    {
+        let cur = &mut data[..row];
+        let last_of_block_row = hu == 1;
         for x in 0..wu {
-            let mut p = [0u8; C];
-            if y > 0 && x > 0 {
-                for k in 0..C {
-                    let (a, b, c) = (cur[(x - 1) * C + k], prev[x * C + k], prev[(x - 1) * C + k]);
-                    p[k] = med(a as i32, b as i32, c as i32) as u8;
-                }
-            } else if x > 0 {
-                p.copy_from_slice(&cur[(x - 1) * C..x * C]);
-            } else if y > 0 {
-                p.copy_from_slice(&prev[..C]);
+            let p: Px<C> = if x > 0 {
+                px(&cur[(x - 1) * C..])
             } else {
-                p = first;
-            }
+                px(&parent.data[..C])
+            };
             let rebuilt = last_of_block_row && (x & 1 == 1 || x + 1 == wu);
             if !rebuilt {
-                let s = src.next().expect("length checked against the header");
-                for k in 0..C {
-                    cur[x * C + k] = s[k].wrapping_add(p[k]);
-                }
+                let (s, rest) = src.split_at(C);
+                src = rest;
+                cur[x * C..(x + 1) * C].copy_from_slice(&add_px(p, s));
                 continue;
             }
-            // Eq. 3: the last pixel of the block from its parent, residual and the others.
             let x0 = x & !1;
-            let two_cols = x0 + 1 < wu;
-            let two_rows = (y & !1) + 1 < hu;
-            let m = (y >> 1) * pw + (x >> 1);
-            let cnt = 1 + two_rows as i32 + two_cols as i32 + (two_rows && two_cols) as i32;
-            for k in 0..C {
-                let others = match cnt {
-                    4 => {
-                        prev[x0 * C + k] as i32
-                            + prev[(x0 + 1) * C + k] as i32
-                            + cur[x0 * C + k] as i32
-                    }
-                    2 if two_cols => cur[x0 * C + k] as i32,
-                    2 => prev[x0 * C + k] as i32,
-                    _ => 0,
-                };
-                let pv = parent.data[m * C + k];
-                let coded = res_plane[m * C + k];
-                let r = (coded.wrapping_add(residual_guess(others, p[k], cnt, pv)) & 3) as i32;
-                let v = cnt * pv as i32 + r - others;
-                if coded > 3 || r >= cnt || !(0..=255).contains(&v) {
-                    return Err(PtmError::BadResidual {
-                        level,
-                        x: x as u32,
-                        y: y as u32,
-                        channel: k as u8,
-                        value: if coded > 3 {
-                            coded as i32
-                        } else if r >= cnt {
-                            r
-                        } else {
-                            v
-                        },
-                    });
-                }
-                cur[x * C + k] = v as u8;
+            let (cnt, others) = if x0 + 1 < wu {
+                (2, px::<C>(&cur[x0 * C..]).map(i32::from))
+            } else {
+                (1, [0; C])
+            };
+            let m = x >> 1;
+            let v = rebuild_px(
+                others,
+                cnt,
+                p,
+                &parent.data[m * C..(m + 1) * C],
+                &res_plane[m * C..(m + 1) * C],
+            )
+            .map_err(|e| bad(x, 0, e))?;
+            cur[x * C..(x + 1) * C].copy_from_slice(&v);
+        }
+    }
+    for y in 1..hu {
+        let (above, rest) = data.split_at_mut(y * row);
+        let cur = &mut rest[..row];
+        let prev = &above[(y - 1) * row..];
+        let rebuild_row = y & 1 == 1 || y + 1 == hu;
+        if !rebuild_row {
+            let (s, rest) = src.split_at(row);
+            src = rest;
+            let mut left = add_px::<C>(px(prev), s);
+            cur[..C].copy_from_slice(&left);
+            for ((out, s), (n, nw)) in cur[C..]
+                .chunks_exact_mut(C)
+                .zip(s[C..].chunks_exact(C))
+                .zip(prev[C..].chunks_exact(C).zip(prev.chunks_exact(C)))
+            {
+                left = add_px(med_px(left, px(n), px(nw)), s);
+                out.copy_from_slice(&left);
             }
+            continue;
+        }
+        // Alternating row: stored pixel 2i, rebuilt pixel 2i + 1 (a full 2×2 block when y is
+        // odd, a 2×1 block on an odd last row), and a lone rebuilt pixel on an odd right edge.
+        let two_rows = y & 1 == 1;
+        let cnt = if two_rows { 4 } else { 2 };
+        let pairs = wu / 2;
+        let (s, rest) = src.split_at(pairs * C);
+        src = rest;
+        let prow = (y >> 1) * pw * C;
+        let parents = &parent.data[prow..prow + pw * C];
+        let coded_row = &res_plane[prow..prow + pw * C];
+        let mut left: Px<C> = px(prev);
+        for (i, s) in s.chunks_exact(C).enumerate() {
+            let x0 = 2 * i;
+            let n0: Px<C> = px(&prev[x0 * C..]);
+            let n1: Px<C> = px(&prev[(x0 + 1) * C..]);
+            let p0 = if i == 0 {
+                n0
+            } else {
+                med_px(left, n0, px(&prev[(x0 - 1) * C..]))
+            };
+            let a = add_px(p0, s);
+            let p1 = med_px(a, n1, n0);
+            let mut others = [0i32; C];
+            for k in 0..C {
+                others[k] = a[k] as i32
+                    + if two_rows {
+                        n0[k] as i32 + n1[k] as i32
+                    } else {
+                        0
+                    };
+            }
+            let b = rebuild_px(
+                others,
+                cnt,
+                p1,
+                &parents[i * C..(i + 1) * C],
+                &coded_row[i * C..(i + 1) * C],
+            )
+            .map_err(|e| bad(x0 + 1, y, e))?;
+            cur[x0 * C..(x0 + 1) * C].copy_from_slice(&a);
+            cur[(x0 + 1) * C..(x0 + 2) * C].copy_from_slice(&b);
+            left = b;
+        }
+        if wu & 1 == 1 {
+            let x = wu - 1;
+            let n: Px<C> = px(&prev[x * C..]);
+            let p = if x == 0 {
+                n
+            } else {
+                med_px(left, n, px(&prev[(x - 1) * C..]))
+            };
+            let (cnt, others) = if two_rows {
+                (2, n.map(i32::from))
+            } else {
+                (1, [0; C])
+            };
+            let v = rebuild_px(
+                others,
+                cnt,
+                p,
+                &parents[pairs * C..(pairs + 1) * C],
+                &coded_row[pairs * C..(pairs + 1) * C],
+            )
+            .map_err(|e| bad(x, y, e))?;
+            cur[x * C..(x + 1) * C].copy_from_slice(&v);
         }
     }
     Ok(data)
