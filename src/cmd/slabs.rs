@@ -1,5 +1,7 @@
 //! `railview slabs DIR`: choose slab boundaries, render missing slab layers (built-in
-//! scenes), tile and mesh every layer, write tiles files and the report.
+//! scenes with the built-in tracer, POV-Ray imports with POV-Ray, re-created from what
+//! `import-pov` recorded in `prerender.json`), tile and mesh every layer, write tiles files
+//! and the report.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -236,13 +238,15 @@ fn render_layers(
     slabs: &[SlabRange],
     missing: &[usize],
 ) -> anyhow::Result<()> {
+    if pre.renderer == "povray" {
+        return render_layers_pov(dir, pre, slabs, missing);
+    }
     if pre.renderer != "builtin" {
         bail!(
-            "samples {:?} have no slab layers {} and renderer `{}` cannot be driven from `railview slabs` yet: render them with that renderer's command (e.g. `railview import-pov --slabs {}`)",
+            "samples {:?} have no slab layers {} and renderer `{}` cannot be driven from `railview slabs` (only `builtin` and `povray` can): render them with that renderer's own command",
             missing,
             labels(slabs),
-            pre.renderer,
-            labels(slabs)
+            pre.renderer
         );
     }
     let scene = match prerender::scenes::builtin(&pre.scene) {
@@ -283,6 +287,109 @@ fn render_layers(
     bar.finish_and_clear();
     let mut pre = pre.clone();
     pre.slabs = slabs.to_vec();
+    store::write_json(&dir.report_json(), &pre)?;
+    Ok(())
+}
+
+/// The POV-Ray import that wrote `pre`, re-created from `prerender.json` (scene path, up axis,
+/// face sizes, anti-aliasing, gamma, binary, threads and timeout as `import-pov` recorded them).
+fn pov_import_from_report(
+    dir: &PrerenderDir,
+    pre: &PrerenderReport,
+) -> anyhow::Result<prerender::pov::PovImport> {
+    use prerender::pov::{PovImport, PovOptions, UpAxis};
+    let report = dir.report_json();
+    let field = |name: &str| {
+        let v = &pre.extra[name];
+        if v.is_null() {
+            None
+        } else {
+            Some(v)
+        }
+    };
+    let up: UpAxis = match field("up").map(|v| v.as_str()) {
+        None => UpAxis::Y,
+        Some(Some(s)) => s
+            .parse()
+            .map_err(|e| anyhow::anyhow!("{}: extra.up `{s}`: {e}", report.display()))?,
+        Some(None) => bail!("{}: extra.up is not a string", report.display()),
+    };
+    let mut opts = PovOptions::new(pre.face_size, dir.root().join("pov-work"));
+    opts.lowres_face_size = pre.lowres_face_size;
+    opts.up = up;
+    opts.antialias = field("antialias")
+        .and_then(|v| v.as_bool())
+        .unwrap_or(false);
+    if let Some(p) = field("povray").and_then(|v| v.as_str()) {
+        opts.povray = PathBuf::from(p);
+    }
+    if let Some(t) = field("threads").and_then(|v| v.as_u64()) {
+        opts.threads = (t as usize).max(1);
+    }
+    if let Some(t) = field("timeout_secs").and_then(|v| v.as_f64()) {
+        if !(t.is_finite() && t > 0.0) {
+            bail!(
+                "{}: extra.timeout_secs {t} is not a positive number",
+                report.display()
+            );
+        }
+        opts.timeout = Some(std::time::Duration::from_secs_f64(t));
+    }
+    opts.file_gamma = field("gamma")
+        .or_else(|| field("file_gamma"))
+        .and_then(|v| v.as_f64());
+    PovImport::new(&pre.scene, opts).with_context(|| {
+        format!(
+            "re-creating the POV-Ray import of `{}` recorded in {}",
+            pre.scene,
+            report.display()
+        )
+    })
+}
+
+/// Render slab layers of `missing` samples of a POV-Ray import with POV-Ray.
+fn render_layers_pov(
+    dir: &PrerenderDir,
+    pre: &PrerenderReport,
+    slabs: &[SlabRange],
+    missing: &[usize],
+) -> anyhow::Result<()> {
+    let mut import = pov_import_from_report(dir, pre)?;
+    import.set_progress(|r| {
+        eprintln!(
+            "sample {:>4} {:<18} {:>8.2} s  (parse {:.2} s, trace {:.2} s)",
+            r.sample, r.pass, r.stats.wall_seconds, r.stats.parse_seconds, r.stats.trace_seconds
+        )
+    });
+    for &i in missing {
+        let vp = pre
+            .viewpoints
+            .iter()
+            .find(|v| v.index == i)
+            .with_context(|| format!("viewpoint {i} is not in prerender.json"))?;
+        if !import.base_done(dir, vp) {
+            bail!(
+                "sample {i}: its base pass is missing or was rendered with other face sizes; run `railview import-pov` on {} first",
+                dir.root().display()
+            );
+        }
+        eprintln!("sample {i}: POV-Ray slab layers {}", labels(slabs));
+        import
+            .render_slabs(vp, slabs, dir)
+            .with_context(|| format!("sample {i}: rendering slab layers with POV-Ray"))?;
+    }
+    import.remove_mesh_includes()?;
+    let total = import.total_stats();
+    let mut pre = pre.clone();
+    pre.slabs = slabs.to_vec();
+    if let Some(extra) = pre.extra.as_object_mut() {
+        extra.insert("slab_renders".into(), import.records().len().into());
+        extra.insert("slab_povray_wall_seconds".into(), total.wall_seconds.into());
+        extra.insert(
+            "slab_render_log".into(),
+            serde_json::to_value(import.records())?,
+        );
+    }
     store::write_json(&dir.report_json(), &pre)?;
     Ok(())
 }
