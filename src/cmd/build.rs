@@ -1,5 +1,9 @@
 //! `railview build --scene NAME --track NAME --face-size N --out DB`: the whole pipeline —
 //! prerender → slabs → cull → encode (PTM + meshes) → ACH → manifest — with one report.
+//! `railview build --pov SCENE.pov --track TRACK.toml [--up y|z] …` runs the same pipeline on
+//! a POV-Ray scene: `import-pov` renders the base passes, `slabs` chooses the boundaries from
+//! the low-resolution depth and renders the layers with POV-Ray; culling, encoding and ACH
+//! work from the rendered depth alone (no scene geometry needed).
 //!
 //! Stage outputs live in a work directory (`--work`, default `DB.work/`): the prerender
 //! directory (`prerender/`, which `slabs` and `cull` also write into) and one encoded
@@ -29,12 +33,34 @@ use tracks::{CubeMap, TileGrid, TrackSet};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Built-in scene name or scene TOML path.
+    /// Built-in scene name or scene TOML path (rendered by the built-in tracer).
+    #[arg(long, required_unless_present = "pov", conflicts_with = "pov")]
+    pub scene: Option<String>,
+    /// A POV-Ray 3.7 scene (`.pov`), imported with `railview import-pov` (needs `--track FILE`).
     #[arg(long)]
-    pub scene: String,
-    /// Track of the scene.
+    pub pov: Option<PathBuf>,
+    /// Track of the scene, or a track TOML file (with `--pov`: the track file, whose first
+    /// track is used unless `--track-name` says otherwise).
     #[arg(long, default_value = "main")]
     pub track: String,
+    /// With `--pov`: which track of the track file.
+    #[arg(long, requires = "pov")]
+    pub track_name: Option<String>,
+    /// With `--pov`: the scene's up axis, `y` or `z`.
+    #[arg(long, requires = "pov")]
+    pub up: Option<String>,
+    /// With `--pov`: anti-aliased colour (2×2 supersampling).
+    #[arg(long, requires = "pov")]
+    pub aa: bool,
+    /// With `--pov`: the POV-Ray binary.
+    #[arg(long, requires = "pov")]
+    pub povray: Option<PathBuf>,
+    /// With `--pov`: kill and fail a single POV-Ray render that runs longer than this.
+    #[arg(long, requires = "pov")]
+    pub timeout_secs: Option<f64>,
+    /// Face size of the low-resolution depth pass (default: the prerender stage's).
+    #[arg(long)]
+    pub lowres_face_size: Option<u32>,
     /// Cube-map face size of the reference panoramas, pixels.
     #[arg(long, default_value_t = 128)]
     pub face_size: u32,
@@ -136,8 +162,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     });
     let pre_root = work.join("prerender");
     let dir = PrerenderDir::new(&pre_root);
+    let scene_name = match (&args.scene, &args.pov) {
+        (Some(s), _) => s.clone(),
+        (None, Some(p)) => p.display().to_string(),
+        (None, None) => bail!("give --scene NAME or --pov SCENE.pov"),
+    };
     let mut report = BuildReport {
-        scene: args.scene.clone(),
+        scene: scene_name,
         track: args.track.clone(),
         face_size: args.face_size,
         ..BuildReport::default()
@@ -147,17 +178,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // 1–3: the other stages, each resuming on its own.
     let t = Instant::now();
     stage(1, "prerender");
-    run_sub(&[
-        "prerender".into(),
-        "--scene".into(),
-        args.scene.clone(),
-        "--track".into(),
-        args.track.clone(),
-        "--face-size".into(),
-        args.face_size.to_string(),
-        "--out".into(),
-        p(&pre_root),
-    ])?;
+    run_sub(&prerender_argv(&args, &pre_root)?)?;
     report
         .seconds
         .push(("prerender".into(), t.elapsed().as_secs_f64()));
@@ -203,6 +224,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let t = Instant::now();
     stage(4, "encode (PTM + meshes)");
     let mut pre: PrerenderReport = dir.read_report().context("reading the prerender report")?;
+    report.track = pre.track.clone();
     if pre.slabs.is_empty() {
         // A resumed prerender rewrites its report without the slabs; the layers know them.
         if let Some(m) = pre
@@ -401,6 +423,62 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         work.join("build.md").display()
     );
     Ok(())
+}
+
+/// The first stage's command line: `prerender` for built-in and TOML scenes, `import-pov`
+/// (base pass only; the slabs stage renders the layers it chooses) for POV-Ray scenes.
+fn prerender_argv(args: &Args, pre_root: &Path) -> anyhow::Result<Vec<String>> {
+    let p = |x: &Path| x.display().to_string();
+    let mut argv: Vec<String> = match (&args.scene, &args.pov) {
+        (Some(scene), _) => vec![
+            "prerender".into(),
+            "--scene".into(),
+            scene.clone(),
+            "--track".into(),
+            args.track.clone(),
+        ],
+        (None, Some(pov)) => {
+            if !Path::new(&args.track).is_file() {
+                bail!(
+                    "--pov needs --track TRACK.toml (a track file); `{}` is not a file",
+                    args.track
+                );
+            }
+            let mut v = vec![
+                "import-pov".into(),
+                p(pov),
+                "--track".into(),
+                args.track.clone(),
+            ];
+            if let Some(name) = &args.track_name {
+                v.extend(["--track-name".into(), name.clone()]);
+            }
+            if let Some(up) = &args.up {
+                v.extend(["--up".into(), up.clone()]);
+            }
+            if args.aa {
+                v.push("--aa".into());
+            }
+            if let Some(b) = &args.povray {
+                v.extend(["--povray".into(), p(b)]);
+            }
+            if let Some(t) = args.timeout_secs {
+                v.extend(["--timeout-secs".into(), t.to_string()]);
+            }
+            v
+        }
+        (None, None) => bail!("give --scene NAME or --pov SCENE.pov"),
+    };
+    argv.extend([
+        "--face-size".into(),
+        args.face_size.to_string(),
+        "--out".into(),
+        p(pre_root),
+    ]);
+    if let Some(n) = args.lowres_face_size {
+        argv.extend(["--lowres-face-size".into(), n.to_string()]);
+    }
+    Ok(argv)
 }
 
 /// Kept/culled decisions of the conservative run with this α, by viewpoint and slab.
@@ -620,8 +698,15 @@ mod tests {
         std::fs::remove_dir_all(&out).ok();
         std::fs::remove_dir_all(&work).ok();
         let args = || Args {
-            scene: "castle".into(),
+            scene: Some("castle".into()),
+            pov: None,
             track: "main".into(),
+            track_name: None,
+            up: None,
+            aa: false,
+            povray: None,
+            timeout_secs: None,
+            lowres_face_size: None,
             face_size: 32,
             out: out.clone(),
             work: Some(work.clone()),

@@ -1,0 +1,152 @@
+//! `railview build --pov` end to end on the analytic POV-Ray scene: base pass, automatic
+//! slabs rendered by POV-Ray, cull, encode, ACH, then `railview verify` on the database.
+//! Faces of 16 px and a low-resolution pass of 8 px keep it fast.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn railview(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_railview"))
+        .args(args)
+        .output()
+        .expect("run railview")
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "railview-cli-build-pov-{name}-{}",
+        std::process::id()
+    ));
+    std::fs::remove_dir_all(&d).ok();
+    d
+}
+
+fn text(o: &Output) -> String {
+    format!(
+        "stdout:\n{}\nstderr:\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    let t = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&t).expect("JSON")
+}
+
+fn repo(rel: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(rel)
+        .display()
+        .to_string()
+}
+
+#[test]
+fn build_pov_analytic_end_to_end_and_verify() {
+    let work = tmp("analytic");
+    let db = work.join("db");
+    let stages = work.join("stages");
+    let (scene, track) = (
+        repo("scenes/pov/analytic.pov"),
+        repo("scenes/pov/analytic.toml"),
+    );
+    let args = [
+        "build",
+        "--pov",
+        &scene,
+        "--track",
+        &track,
+        "--up",
+        "y",
+        "--face-size",
+        "16",
+        "--lowres-face-size",
+        "8",
+        "--ach-samples",
+        "2",
+        "--ach-camera-size",
+        "16",
+        "--zstd-level",
+        "3",
+        "--out",
+        db.to_str().unwrap(),
+        "--work",
+        stages.to_str().unwrap(),
+    ];
+    let o = railview(&args);
+    assert!(o.status.success(), "{}", text(&o));
+
+    // The slab layers were chosen automatically and rendered by POV-Ray.
+    let pre_dir = stages.join("prerender");
+    let pre = json(&pre_dir.join("prerender.json"));
+    assert_eq!(pre["renderer"], "povray");
+    let slabs = pre["slabs"].as_array().expect("slabs in prerender.json");
+    assert!(!slabs.is_empty(), "no slabs recorded: {pre}");
+    assert!(pre["extra"]["slab_renders"].as_u64().unwrap() >= 2 * slabs.len() as u64);
+    let samples = pre["samples"].as_u64().unwrap() as usize;
+    assert_eq!(samples, 2);
+    for i in 0..samples {
+        let layers = json(&pre_dir.join(format!("samples/{i:04}/layers.json")));
+        assert_eq!(layers["slabs"].as_array().unwrap().len(), slabs.len());
+        for k in 0..slabs.len() {
+            for f in ["color.png", "depth.exr"] {
+                let p = pre_dir.join(format!("samples/{i:04}/slab_{k}/{f}"));
+                assert!(p.is_file(), "{} missing", p.display());
+            }
+        }
+    }
+    // The last slab reaches infinity (written as null), so the sky belongs to a layer.
+    assert!(slabs.last().unwrap()["far"].is_null(), "{pre}");
+
+    // Culling ran without scene geometry; the database has a track with segments.
+    let build = json(&stages.join("build.json"));
+    assert!(
+        build["culling"]
+            .as_str()
+            .unwrap()
+            .starts_with("conservative"),
+        "{build}"
+    );
+    let manifest = json(&db.join("manifest.json"));
+    let track = &manifest["tracks"][0];
+    assert_eq!(track["viewpoints"].as_array().unwrap().len(), 2);
+    assert_eq!(track["segments"].as_array().unwrap().len(), 1);
+    assert!(track["viewpoints"][0]["tiles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|t| t["kept"] == true));
+
+    let v = railview(&["verify", db.to_str().unwrap()]);
+    assert!(v.status.success(), "{}", text(&v));
+    assert!(String::from_utf8_lossy(&v.stdout).contains("intact"));
+
+    // A second build resumes every stage: nothing rendered or written again, same manifest.
+    let first = std::fs::read(db.join("manifest.json")).unwrap();
+    let again = railview(&args);
+    assert!(again.status.success(), "{}", text(&again));
+    assert!(
+        !String::from_utf8_lossy(&again.stderr).contains("slab0-depth"),
+        "{}",
+        text(&again)
+    );
+    assert_eq!(json(&stages.join("build.json"))["objects_written"], 0);
+    assert!(std::fs::read(db.join("manifest.json")).unwrap() == first);
+    std::fs::remove_dir_all(&work).ok();
+}
+
+#[test]
+fn build_scene_and_pov_conflict() {
+    let o = railview(&[
+        "build",
+        "--scene",
+        "castle",
+        "--pov",
+        &repo("scenes/pov/analytic.pov"),
+        "--out",
+        "/nonexistent/db",
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("cannot be used with"), "{err}");
+}
