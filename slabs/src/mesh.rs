@@ -459,7 +459,8 @@ fn unit_cell(f: &Field, out: &mut MeshOut, i: usize, j: usize) {
 /// pixel of every triangle whose error exceeds `max_error_px`, that covers a transparent
 /// pixel or another continuous surface, or whose corners are not one continuous surface.
 /// Every lattice point can be inserted, so refinement ends; triangles whose corners are not
-/// one surface and that cover no further pixel are dropped.
+/// one surface and that cover no further pixel are dropped, and so are triangles with only
+/// transparent corners over only transparent pixels (transparent areas are not subdivided).
 pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
     let f = field;
     let (w, h) = (f.w, f.h);
@@ -500,6 +501,9 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
                 && f.comp[ks[0]] == f.comp[ks[1]]
                 && f.comp[ks[1]] == f.comp[ks[2]];
             let comp = f.comp[ks[0]];
+            // A triangle with no opaque corner only needs refining to reach opaque pixels
+            // inside it; over transparent pixels alone it is dropped, not subdivided.
+            let no_opaque_corner = ks.iter().all(|&k| !f.valid[k]);
             let qs = ks.map(|k| f.q[k]);
             // Worst offending pixel: (badness class, error), larger is worse.
             let mut worst: Option<((usize, usize), u8, f64)> = None;
@@ -513,7 +517,9 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
                 if is_vertex[k] {
                     return;
                 }
-                let (class, err) = if !surface {
+                let (class, err) = if !surface && no_opaque_corner && !f.valid[k] {
+                    return;
+                } else if !surface {
                     // Prefer opaque pixels near the centre, to cover what can be covered.
                     let d = (i as f64 - centre.0).powi(2) + (j as f64 - centre.1).powi(2);
                     (if f.valid[k] { 2 } else { 1 }, -d)
