@@ -313,11 +313,31 @@ fn raster(t: [(f64, f64); 3], w: usize, h: usize, mut visit: impl FnMut(usize, u
     let n0 = |px: f64, py: f64| (b.0 - px) * (c.1 - py) - (b.1 - py) * (c.0 - px);
     let n1 = |px: f64, py: f64| (c.0 - px) * (a.1 - py) - (c.1 - py) * (a.0 - px);
     let (d0x, d1x) = (b.1 - c.1, c.1 - a.1);
+    let d2x = -d0x - d1x;
     for j in ymin..=ymax {
         let py = j as f64;
-        let mut e0 = n0(xmin as f64, py);
-        let mut e1 = n1(xmin as f64, py);
-        for i in xmin..=xmax {
+        let x = xmin as f64;
+        let (s0, s1) = (n0(x, py), n1(x, py));
+        // The row's span from the three (oriented) edge functions, widened by one pixel on
+        // each side against round-off; every pixel in it is still tested exactly below.
+        let (mut lo, mut hi) = (0.0f64, (xmax - xmin) as f64);
+        for (e, d) in [(s0, d0x), (s1, d1x), (area - s0 - s1, d2x)] {
+            let (e, d) = (e * sgn, d * sgn);
+            if d > 0.0 {
+                lo = lo.max(((tol - e) / d).floor() - 1.0);
+            } else if d < 0.0 {
+                hi = hi.min(((tol - e) / d).ceil() + 1.0);
+            } else if e < tol {
+                hi = -1.0;
+            }
+        }
+        if hi < lo {
+            continue;
+        }
+        let (lo, hi) = (lo as usize, hi as usize);
+        let mut e0 = s0 + d0x * lo as f64;
+        let mut e1 = s1 + d1x * lo as f64;
+        for i in xmin + lo..=xmin + hi {
             let e2 = area - e0 - e1;
             if e0 * sgn >= tol && e1 * sgn >= tol && e2 * sgn >= tol {
                 let w0 = e0 * inv;
