@@ -36,6 +36,8 @@ pub struct Decoder {
     /// Decoded levels, lowest stored level first.
     levels: Vec<Image>,
     zstd: Option<zstd::bulk::Decompressor<'static>>,
+    /// Decompressed group payload, reused from group to group.
+    scratch: Vec<u8>,
 }
 
 impl std::fmt::Debug for Decoder {
@@ -89,6 +91,7 @@ impl Decoder {
             header: None,
             levels: Vec::new(),
             zstd: None,
+            scratch: Vec::new(),
         }
     }
 
@@ -306,16 +309,18 @@ impl Decoder {
                     );
                 }
                 let z = self.zstd.as_mut().expect("just created");
-                let out = z
-                    .decompress(payload, expected)
+                // The capacity bounds what a hostile frame can make zstd write.
+                self.scratch.clear();
+                self.scratch.reserve(expected);
+                let n = z
+                    .decompress_to_buffer(payload, &mut self.scratch)
                     .map_err(|e| zerr(format!("zstd: {e}")))?;
-                if out.len() != expected {
+                if n != expected {
                     return Err(zerr(format!(
-                        "decompressed to {} bytes, expected {expected}",
-                        out.len()
+                        "decompressed to {n} bytes, expected {expected}"
                     )));
                 }
-                Cow::Owned(out)
+                Cow::Borrowed(&self.scratch[..])
             }
         };
         if g == 0 {

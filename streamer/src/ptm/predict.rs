@@ -158,9 +158,16 @@ fn px<const C: usize>(s: &[u8]) -> Px<C> {
 /// MED of whole pixels, channel by channel.
 #[inline(always)]
 fn med_px<const C: usize>(w: Px<C>, n: Px<C>, nw: Px<C>) -> Px<C> {
+    // The same function on bytes with saturating arithmetic (so it maps to byte-wise vector
+    // instructions): `a + b − c` saturated to 0..=255 is `b + (a − c)⁺ − (c − a)⁺` with
+    // saturation, and saturating changes nothing once clamped to `[min(a, b), max(a, b)]`.
     let mut p = [0u8; C];
     for k in 0..C {
-        p[k] = med(w[k] as i32, n[k] as i32, nw[k] as i32) as u8;
+        let (a, b, c) = (w[k], n[k], nw[k]);
+        let grad = b
+            .saturating_add(a.saturating_sub(c))
+            .saturating_sub(c.saturating_sub(a));
+        p[k] = grad.min(a.max(b)).max(a.min(b));
     }
     p
 }
@@ -295,14 +302,17 @@ fn decode_level_c<const C: usize>(
         if !rebuild_row {
             let (s, rest) = src.split_at(row);
             src = rest;
-            let mut left = add_px::<C>(px(prev), s);
+            let mut nw: Px<C> = px(prev);
+            let mut left = add_px::<C>(nw, s);
             cur[..C].copy_from_slice(&left);
-            for ((out, s), (n, nw)) in cur[C..]
+            for ((out, s), n) in cur[C..]
                 .chunks_exact_mut(C)
                 .zip(s[C..].chunks_exact(C))
-                .zip(prev[C..].chunks_exact(C).zip(prev.chunks_exact(C)))
+                .zip(prev[C..].chunks_exact(C))
             {
-                left = add_px(med_px(left, px(n), px(nw)), s);
+                let n: Px<C> = px(n);
+                left = add_px(med_px(left, n, nw), s);
+                nw = n;
                 out.copy_from_slice(&left);
             }
             continue;
