@@ -93,10 +93,11 @@ fn pass_group(pass: &str) -> &'static str {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let start = Instant::now();
-    let slabs = match &args.slabs {
-        Some(s) => SlabRange::parse_list(s).map_err(|e| anyhow::anyhow!("--slabs: {e}"))?,
-        None => Vec::new(),
-    };
+    let explicit_slabs = args
+        .slabs
+        .as_deref()
+        .map(|s| SlabRange::parse_list(s).map_err(|e| anyhow::anyhow!("--slabs: {e}")))
+        .transpose()?;
     let shard = args.shard.as_deref().map(parse_shard).transpose()?;
     let track_text = std::fs::read_to_string(&args.track)
         .with_context(|| format!("cannot read track file {}", args.track.display()))?;
@@ -118,6 +119,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     let dir = PrerenderDir::new(&args.out);
     store::ensure_writable_dir(&args.out).context("cannot use the output directory")?;
+    // Without --slabs, a rerun keeps the slab layers an earlier run (or `railview slabs`)
+    // rendered at this face size, so the report never forgets them.
+    let slabs: Vec<SlabRange> = match explicit_slabs {
+        Some(s) => s,
+        None => dir
+            .read_report()
+            .ok()
+            .filter(|r| r.face_size == args.face_size)
+            .map(|r| r.slabs)
+            .unwrap_or_default(),
+    };
     let mut opts = PovOptions::new(args.face_size, args.out.join("pov-work"));
     opts.lowres_face_size = args.lowres_face_size;
     opts.up = args.up;
