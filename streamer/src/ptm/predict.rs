@@ -302,18 +302,23 @@ fn decode_level_c<const C: usize>(
         if !rebuild_row {
             let (s, rest) = src.split_at(row);
             src = rest;
-            let mut nw: Px<C> = px(prev);
-            let mut left = add_px::<C>(nw, s);
-            cur[..C].copy_from_slice(&left);
+            // The serial chain through the left pixel stays in 16-bit lanes (native min/max).
+            let mut nw: [i16; C] = px::<C>(prev).map(i16::from);
+            let mut left: [i16; C] = add_px::<C>(px(prev), s).map(i16::from);
+            cur[..C].copy_from_slice(&left.map(|v| v as u8));
             for ((out, s), n) in cur[C..]
                 .chunks_exact_mut(C)
                 .zip(s[C..].chunks_exact(C))
                 .zip(prev[C..].chunks_exact(C))
             {
-                let n: Px<C> = px(n);
-                left = add_px(med_px(left, n, nw), s);
+                let n: [i16; C] = px::<C>(n).map(i16::from);
+                for k in 0..C {
+                    let (a, b, c) = (left[k], n[k], nw[k]);
+                    let p = (a + b - c).max(a.min(b)).min(a.max(b));
+                    left[k] = (p + s[k] as i16) & 0xff;
+                    out[k] = left[k] as u8;
+                }
                 nw = n;
-                out.copy_from_slice(&left);
             }
             continue;
         }
