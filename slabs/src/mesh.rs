@@ -93,7 +93,8 @@ pub(crate) struct Field {
     /// Discontinuity between `(i, j)` and `(i + 1, j)` / `(i, j + 1)`.
     disc_right: Vec<bool>,
     disc_down: Vec<bool>,
-    /// Connected component over continuous edges; `u32::MAX` for transparent pixels.
+    /// Connected component over continuous edges; `u32::MAX` for transparent pixels (and for
+    /// all pixels of a field built without components).
     comp: Vec<u32>,
     /// Parallax pixels per unit of `1/r`: `B / θ_pixel`.
     px_per_inv_m: f64,
@@ -106,6 +107,18 @@ impl Field {
         grid: TileGrid,
         tile: TileId,
         params: &MeshParams,
+    ) -> Field {
+        Field::build(depth, mask, grid, tile, params, true)
+    }
+
+    /// The field; connected components (only the adaptive mesh needs them) when `components`.
+    fn build(
+        depth: &CubeMap<f32>,
+        mask: &CubeMap<bool>,
+        grid: TileGrid,
+        tile: TileId,
+        params: &MeshParams,
+        components: bool,
     ) -> Field {
         let n = grid.face_size;
         let (x0, y0, x1, y1) = grid.pixel_rect(tile);
@@ -210,7 +223,9 @@ impl Field {
                 }
             }
         }
-        f.label_components();
+        if components {
+            f.label_components();
+        }
         f
     }
 
@@ -223,26 +238,25 @@ impl Field {
                 continue;
             }
             self.comp[start] = next;
-            stack.push(start);
-            while let Some(k) = stack.pop() {
-                let (i, j) = (k % w, k / w);
-                let mut visit = |m: usize, open: bool| {
+            stack.push((start, start % w, start / w));
+            while let Some((k, i, j)) = stack.pop() {
+                let mut visit = |m: usize, mi: usize, mj: usize, open: bool| {
                     if open && self.valid[m] && self.comp[m] == u32::MAX {
                         self.comp[m] = next;
-                        stack.push(m);
+                        stack.push((m, mi, mj));
                     }
                 };
                 if i + 1 < w {
-                    visit(k + 1, !self.disc_right[k]);
+                    visit(k + 1, i + 1, j, !self.disc_right[k]);
                 }
                 if i > 0 {
-                    visit(k - 1, !self.disc_right[k - 1]);
+                    visit(k - 1, i - 1, j, !self.disc_right[k - 1]);
                 }
                 if j + 1 < h {
-                    visit(k + w, !self.disc_down[k]);
+                    visit(k + w, i, j + 1, !self.disc_down[k]);
                 }
                 if j > 0 {
-                    visit(k - w, !self.disc_down[k - w]);
+                    visit(k - w, i, j - 1, !self.disc_down[k - w]);
                 }
             }
             next += 1;
@@ -674,7 +688,14 @@ pub fn mesh_tile(
     only: Option<crate::tiles::MeshKind>,
 ) -> TileMeshes {
     use crate::tiles::MeshKind;
-    let f = Field::new(depth, mask, grid, tile, params);
+    let f = Field::build(
+        depth,
+        mask,
+        grid,
+        tile,
+        params,
+        only != Some(MeshKind::Grid),
+    );
     let mut out = TileMeshes {
         grid: TileMesh::default(),
         grid_stats: MeshStats::default(),
