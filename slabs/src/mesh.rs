@@ -101,6 +101,7 @@ pub(crate) struct Field {
 }
 
 impl Field {
+    #[cfg(test)]
     pub(crate) fn new(
         depth: &CubeMap<f32>,
         mask: &CubeMap<bool>,
