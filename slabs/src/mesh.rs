@@ -335,15 +335,16 @@ fn raster(t: [(f64, f64); 3], w: usize, h: usize, mut visit: impl FnMut(usize, u
         let (s0, s1) = (n0(x, py), n1(x, py));
         // The row's span from the three (oriented) edge functions, widened by one pixel on
         // each side against round-off; every pixel in it is still tested exactly below.
-        let (mut lo, mut hi) = (0.0f64, (xmax - xmin) as f64);
+        // (Truncation instead of floor/ceil, so two pixels of margin; casts saturate.)
+        let (mut lo, mut hi) = (0i64, (xmax - xmin) as i64);
         for (e, d) in [(s0, d0x), (s1, d1x), (area - s0 - s1, d2x)] {
             let (e, d) = (e * sgn, d * sgn);
             if d > 0.0 {
-                lo = lo.max(((tol - e) / d).floor() - 1.0);
+                lo = lo.max(((tol - e) / d) as i64 - 2);
             } else if d < 0.0 {
-                hi = hi.min(((tol - e) / d).ceil() + 1.0);
+                hi = hi.min(((tol - e) / d) as i64 + 2);
             } else if e < tol {
-                hi = -1.0;
+                hi = -1;
             }
         }
         if hi < lo {
