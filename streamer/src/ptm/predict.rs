@@ -332,39 +332,36 @@ fn decode_level_c<const C: usize>(
         let prow = (y >> 1) * pw * C;
         let parents = &parent.data[prow..prow + pw * C];
         let coded_row = &res_plane[prow..prow + pw * C];
-        let mut left: Px<C> = px(prev);
-        for (i, s) in s.chunks_exact(C).enumerate() {
-            let x0 = 2 * i;
-            let n0: Px<C> = px(&prev[x0 * C..]);
-            let n1: Px<C> = px(&prev[(x0 + 1) * C..]);
-            let p0 = if i == 0 {
-                n0
-            } else {
-                med_px(left, n0, px(&prev[(x0 - 1) * C..]))
-            };
-            let a = add_px(p0, s);
-            let p1 = med_px(a, n1, n0);
+        // Up-left and left of the first stored pixel set so that its MED is its upper
+        // neighbour, as on any first column.
+        let mut nw: [i16; C] = px::<C>(prev).map(i16::from);
+        let mut left: [i16; C] = nw;
+        let rows = cur
+            .chunks_exact_mut(2 * C)
+            .zip(prev.chunks_exact(2 * C))
+            .zip(s.chunks_exact(C))
+            .zip(parents.chunks_exact(C).zip(coded_row.chunks_exact(C)));
+        for (i, (((out, up), s), (par, coded))) in rows.enumerate() {
+            let n0: [i16; C] = px::<C>(up).map(i16::from);
+            let n1: [i16; C] = px::<C>(&up[C..]).map(i16::from);
+            let mut a = [0i16; C];
+            let mut p1 = [0u8; C];
             let mut others = [0i32; C];
             for k in 0..C {
-                others[k] = a[k] as i32
-                    + if two_rows {
-                        n0[k] as i32 + n1[k] as i32
-                    } else {
-                        0
-                    };
+                let (l, n, d) = (left[k], n0[k], nw[k]);
+                let p0 = (l + n - d).max(l.min(n)).min(l.max(n));
+                a[k] = (p0 + s[k] as i16) & 0xff;
+                let (l, n, d) = (a[k], n1[k], n0[k]);
+                p1[k] = (l + n - d).max(l.min(n)).min(l.max(n)) as u8;
+                others[k] = a[k] as i32 + if two_rows { (n0[k] + n1[k]) as i32 } else { 0 };
             }
-            let b = rebuild_px(
-                others,
-                cnt,
-                p1,
-                &parents[i * C..(i + 1) * C],
-                &coded_row[i * C..(i + 1) * C],
-            )
-            .map_err(|e| bad(x0 + 1, y, e))?;
-            cur[x0 * C..(x0 + 1) * C].copy_from_slice(&a);
-            cur[(x0 + 1) * C..(x0 + 2) * C].copy_from_slice(&b);
-            left = b;
+            let b = rebuild_px(others, cnt, p1, par, coded).map_err(|e| bad(2 * i + 1, y, e))?;
+            out[..C].copy_from_slice(&a.map(|v| v as u8));
+            out[C..].copy_from_slice(&b);
+            left = b.map(i16::from);
+            nw = n1;
         }
+        let left: Px<C> = left.map(|v| v as u8);
         if wu & 1 == 1 {
             let x = wu - 1;
             let n: Px<C> = px(&prev[x * C..]);
