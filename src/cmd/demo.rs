@@ -455,7 +455,7 @@ fn view_window(layout: &Layout, log: &mut RunLog) -> anyhow::Result<()> {
     );
     let view = |source: String| Stage {
         name: "view",
-        argv: vec!["view".into(), source],
+        argv: vec!["view".into(), source, "--play".into()],
         outputs: vec![],
         requires: vec!["build"],
     };

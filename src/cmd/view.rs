@@ -17,6 +17,9 @@ pub struct Args {
     /// With --frames: save a screenshot of the window (PNG) just before closing.
     #[arg(long)]
     pub screenshot: Option<std::path::PathBuf>,
+    /// Start walking along the track at once (as the demo does).
+    #[arg(long)]
+    pub play: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -27,6 +30,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
         .with_context(|| format!("opening {}", args.db))?;
-    viewer::app::run(walk, args.frames, args.screenshot)
+    viewer::app::run(walk, args.frames, args.screenshot, args.play)
         .map_err(|e| anyhow::anyhow!("viewer window: {e}"))
 }

@@ -294,6 +294,7 @@ pub fn run(
     walk: Walkthrough,
     quit_after: Option<u64>,
     screenshot: Option<std::path::PathBuf>,
+    play: bool,
 ) -> Result<(), eframe::Error> {
     let options = eframe::NativeOptions {
         renderer: eframe::Renderer::Wgpu,
@@ -307,6 +308,7 @@ pub fn run(
             let mut app = ViewerApp::new(cc, walk);
             app.quit_after = quit_after;
             app.screenshot = screenshot;
+            app.playing = play;
             Ok(Box::new(app))
         }),
     )
