@@ -403,7 +403,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("Open the viewer later:");
     println!("  railview view {}", layout.db().display());
     println!(
-        "  railview serve {} --addr 127.0.0.1:8080   # then: railview view http://127.0.0.1:8080",
+        "  railview serve {} --addr 127.0.0.1:8080   # then: railview walk http://127.0.0.1:8080 --out walk",
         layout.db().display()
     );
 

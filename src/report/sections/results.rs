@@ -287,7 +287,7 @@ pub(super) fn later(c: &mut Ctx) {
     let root = c.layout.root();
     c.push(Block::Code(format!(
         "railview view {db}                      # the viewer window on the database\n\
-         railview serve {db} --addr 127.0.0.1:8080  # or serve it, then: railview view http://127.0.0.1:8080\n\
+         railview serve {db} --addr 127.0.0.1:8080  # or serve it, then: railview walk http://127.0.0.1:8080 --out walk\n\
          railview flythrough {db} -o {frames}\n\
          railview demo --out {root}                # reuses everything built so far",
         db = db.display(),
