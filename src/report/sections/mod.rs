@@ -69,6 +69,26 @@ impl Ctx<'_> {
             _ => format!("no `{file}` was found in {}", self.layout.root().display()),
         }
     }
+    /// A stage's JSON report, or `None` with a note saying why it is missing or unreadable.
+    fn stage_report(
+        &mut self,
+        path: Option<PathBuf>,
+        stage: &str,
+        file: &str,
+    ) -> Option<(PathBuf, Value)> {
+        let Some(path) = path.filter(|p| p.is_file()) else {
+            let why = self.why_missing(stage, file);
+            self.missing(why);
+            return None;
+        };
+        match read_json(&path) {
+            Ok(v) => Some((path, v)),
+            Err(e) => {
+                self.missing(e);
+                None
+            }
+        }
+    }
     fn path_arg(&self, p: PathBuf) -> String {
         p.display().to_string()
     }

@@ -3,7 +3,7 @@
 
 use serde_json::Value;
 
-use super::{fmt_int, fmt_num, num, pngs_in, read_json, spread, Ctx};
+use super::{fmt_int, fmt_num, num, pngs_in, spread, Ctx};
 use crate::report::doc::{Block, Figure, Table};
 use crate::report::StageStatus;
 
@@ -21,18 +21,9 @@ pub(super) fn streaming(c: &mut Ctx) {
             dir.display()
         ),
     );
-    let path = dir.join("walk.json");
-    if !path.is_file() {
-        let why = c.why_missing("walk", "walk/walk.json");
-        c.missing(why);
+    let Some((_, report)) = c.stage_report(Some(dir.join("walk.json")), "walk", "walk/walk.json")
+    else {
         return;
-    }
-    let report = match read_json(&path) {
-        Ok(v) => v,
-        Err(e) => {
-            c.missing(e);
-            return;
-        }
     };
     c.push(Block::Command(cmd));
     c.push(Block::Para(format!(
@@ -111,18 +102,9 @@ pub(super) fn evaluation(c: &mut Ctx) {
             dir.display()
         ),
     );
-    let path = dir.join("eval.json");
-    if !path.is_file() {
-        let why = c.why_missing("eval", "eval/eval.json");
-        c.missing(why);
+    let Some((_, report)) = c.stage_report(Some(dir.join("eval.json")), "eval", "eval/eval.json")
+    else {
         return;
-    }
-    let report = match read_json(&path) {
-        Ok(v) => v,
-        Err(e) => {
-            c.missing(e);
-            return;
-        }
     };
     c.push(Block::Command(cmd));
     c.push(Block::Para(

@@ -23,18 +23,11 @@ pub(super) fn viewpoints(c: &mut Ctx) -> Option<Value> {
             c.path_arg(work.clone())
         ),
     );
-    let Some(path) = c.layout.find("prerender.json") else {
-        let why = c.why_missing("prerender", "prerender.json");
-        c.missing(why);
-        return None;
-    };
-    let report = match read_json(&path) {
-        Ok(v) => v,
-        Err(e) => {
-            c.missing(e);
-            return None;
-        }
-    };
+    let (path, report) = c.stage_report(
+        c.layout.find("prerender.json"),
+        "prerender",
+        "prerender.json",
+    )?;
     c.push(Block::Command(cmd));
     c.push(Block::Table(Table {
         id: "prerender".into(),
@@ -90,18 +83,7 @@ pub(super) fn histogram(c: &mut Ctx) -> Option<Value> {
         "slabs",
         format!("railview slabs {}", c.path_arg(c.layout.prerender())),
     );
-    let Some(path) = c.layout.find("slabs.json") else {
-        let why = c.why_missing("slabs", "slabs.json");
-        c.missing(why);
-        return None;
-    };
-    let report = match read_json(&path) {
-        Ok(v) => v,
-        Err(e) => {
-            c.missing(e);
-            return None;
-        }
-    };
+    let (path, report) = c.stage_report(c.layout.find("slabs.json"), "slabs", "slabs.json")?;
     c.push(Block::Command(cmd));
     if let Some(hist) = path
         .parent()

@@ -19,18 +19,7 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
             c.path_arg(c.layout.prerender())
         ),
     );
-    let Some(path) = c.layout.find("cull.json") else {
-        let why = c.why_missing("cull", "cull.json");
-        c.missing(why);
-        return None;
-    };
-    let report = match read_json(&path) {
-        Ok(v) => v,
-        Err(e) => {
-            c.missing(e);
-            return None;
-        }
-    };
+    let (path, report) = c.stage_report(c.layout.find("cull.json"), "cull", "cull.json")?;
     c.push(Block::Command(cmd));
     c.push(Block::Para(
         "Tiles and sizes summed over every reference viewpoint, per slab; size is raw RGBA8 \
