@@ -12,12 +12,14 @@
 //! - [`predict`]: [`MotionTracker`] — speed, stillness and the next segment from recent
 //!   positions.
 //! - [`items`]: [`ItemTable`] — a manifest flattened into streamable items and parts.
+//! - [`live`]: [`LiveSession`] — all of the above on the wall clock for an interactive viewer.
 
 pub mod budget;
 pub mod cache;
 pub mod fetcher;
 pub mod http;
 pub mod items;
+pub mod live;
 pub mod predict;
 
 pub use budget::{
@@ -27,4 +29,5 @@ pub use cache::{Cache, CacheError};
 pub use fetcher::{FetchOutcome, FetchRequest, Fetcher, FetcherConfig};
 pub use http::{ClientError, ClientStats, Connection, FetchKey, RetryPolicy, ServerUrl};
 pub use items::{ItemTable, Part};
+pub use live::{Arrival, LiveConfig, LiveError, LiveSession, LiveStats};
 pub use predict::{next_segment, segment_at, MotionTracker};

@@ -1,0 +1,605 @@
+//! A real-time streaming session for an interactive viewer.
+//!
+//! [`LiveSession`] composes the client parts on the wall clock: it connects to a server,
+//! fetches the manifest and flattens one track into an [`ItemTable`]; a tokio runtime on its
+//! own thread runs the [`Fetcher`] (prioritised, cancellable, checked downloads over
+//! reconnecting connections). Each frame the caller hands the position along the track, the
+//! camera and — when it has them — live visible-pixel counts from the GPU
+//! ([`LiveSession::update`]). The session then
+//!
+//! 1. takes the finished downloads: their times feed the running [`LinkEstimate`], their
+//!    checked bytes go into the [`Cache`] (which never exceeds its byte budget; an insert that
+//!    does not fit is dropped and asked for again later);
+//! 2. runs [`plan`] in the selected [`PriorityMode`] (ACH of the current segment culled to the
+//!    view frustum, live counts, or both) with the motion-predicted next segment as prefetch;
+//!    live counts not supplied by the caller come from the CPU reference of the visibility
+//!    pass ([`SceneIndex::count`]), and the caller's counts replace them for the tiles it drew;
+//! 3. pins what the plan keeps resident and the coarsest levels of the current segment (its
+//!    ACH tiles and the backgrounds of its two viewpoints), submits the plan's downloads and
+//!    cancels queued or running ones the plan no longer wants;
+//! 4. returns the parts that arrived since the last call ([`Arrival`]: checked bytes only).
+//!
+//! When the server goes away, the connections retry with back-off; failed downloads are
+//! counted, new requests pause briefly, and what is cached stays available.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+use tracks::manifest::Manifest;
+use tracks::PerspectiveCamera;
+
+use super::budget::{
+    plan, BudgetParams, ItemInfo, LinkEstimate, LiveCount, PlanInput, PriorityMode,
+};
+use super::cache::Cache;
+use super::fetcher::{FetchRequest, Fetcher, FetcherConfig};
+use super::http::{ClientError, Connection, FetchKey, ServerUrl};
+use super::items::ItemTable;
+use super::predict::{next_segment, segment_at, MotionTracker};
+use crate::visibility::{blend_weights, SceneIndex, Surface};
+
+/// Settings of a session.
+#[derive(Clone, Debug)]
+pub struct LiveConfig {
+    /// Byte budget of the cache (downloaded bytes held).
+    pub cache_bytes: u64,
+    /// Memory/time budgets of the plan (PTM §6.2).
+    pub budget: BudgetParams,
+    pub mode: PriorityMode,
+    /// Request the predicted next segment's tiles at lower priority.
+    pub prefetch: bool,
+    /// How far ahead (seconds) motion is predicted for prefetch.
+    pub prefetch_horizon_s: f64,
+    pub fetcher: FetcherConfig,
+    /// Link guess used until downloads have been timed.
+    pub prior_bps: f64,
+    pub prior_latency_s: f64,
+    /// Rays of the CPU visibility pass (live counts the caller does not supply).
+    pub samples: (u32, u32),
+    /// After a failed download, new requests wait this long.
+    pub error_pause: Duration,
+}
+
+impl LiveConfig {
+    /// Defaults for a cache of `cache_bytes`: the plan may keep half of it resident while
+    /// moving and all of it when still (the paper's M and M_static).
+    pub fn with_cache(cache_bytes: u64) -> LiveConfig {
+        let cache_bytes = cache_bytes.max(1);
+        LiveConfig {
+            cache_bytes,
+            budget: BudgetParams {
+                memory_bytes: cache_bytes / 2,
+                memory_static_bytes: cache_bytes,
+                ..BudgetParams::default()
+            },
+            mode: PriorityMode::Combined { ach_weight: 0.5 },
+            prefetch: true,
+            prefetch_horizon_s: 2.0,
+            fetcher: FetcherConfig::default(),
+            prior_bps: 10e6,
+            prior_latency_s: 0.02,
+            samples: (32, 18),
+            error_pause: Duration::from_millis(500),
+        }
+    }
+}
+
+/// Why a session could not start.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum LiveError {
+    #[error("starting the streaming runtime: {0}")]
+    Runtime(std::io::Error),
+    #[error(transparent)]
+    Client(#[from] ClientError),
+    #[error("track `{0}` not in the manifest (available: {1})")]
+    NoTrack(String, String),
+}
+
+/// One part of an item that arrived (checked against the manifest's hash).
+#[derive(Clone, Debug)]
+pub struct Arrival {
+    pub item: usize,
+    /// Part index within the item (mesh first when it has one, then PTM groups coarse→fine).
+    pub part: usize,
+    pub data: Bytes,
+}
+
+/// Figures for a UI.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LiveStats {
+    /// Seconds since the session started.
+    pub t_s: f64,
+    /// Bytes per second received over the last two seconds.
+    pub bytes_per_s: f64,
+    /// Downloads running (at most the fetcher's worker count).
+    pub in_flight: usize,
+    /// Downloads queued behind them.
+    pub queued: usize,
+    pub cache_used: u64,
+    pub cache_budget: u64,
+    /// Largest cache use seen.
+    pub cache_peak: u64,
+    /// Bytes pinned (resident parts and the current segment's coarsest levels).
+    pub pinned_bytes: u64,
+    /// Progressive downloading quality: mean over the current segment's ACH tiles of the
+    /// fraction of level groups held (the walk simulator's measure).
+    pub quality: f64,
+    /// Fraction of the current segment's items showable (mesh and coarsest level held).
+    pub coarse_fraction: f64,
+    /// Bytes received in total.
+    pub bytes: u64,
+    pub requests: u64,
+    pub failed_requests: u64,
+    pub checksum_failures: u64,
+    pub reconnects: u64,
+    /// Link estimate `(bits/s, latency s)`.
+    pub link: (f64, f64),
+    /// Latest download error, cleared by the next success.
+    pub last_error: Option<String>,
+}
+
+/// A streaming session (see the module docs).
+pub struct LiveSession {
+    // Dropped before the runtime: its workers are aborted on it.
+    fetcher: Fetcher,
+    _runtime: tokio::runtime::Runtime,
+    manifest: Manifest,
+    track: usize,
+    table: ItemTable,
+    infos: Vec<ItemInfo>,
+    index: Option<SceneIndex>,
+    config: LiveConfig,
+    cache: Cache,
+    link: LinkEstimate,
+    motion: MotionTracker,
+    /// Every (item, part) that uses a key (content-addressed keys may be shared).
+    users: HashMap<FetchKey, Vec<(usize, usize)>>,
+    /// Keys submitted and not finished.
+    requested: HashSet<FetchKey>,
+    pinned: Vec<FetchKey>,
+    start: Instant,
+    paused_until: Option<Instant>,
+    recent: VecDeque<(Instant, u64)>,
+    stats: LiveStats,
+}
+
+impl LiveSession {
+    /// Connect to `url` (`http://host:port[/prefix]`), read the manifest and pick `track` (by
+    /// name; the first when `None`).
+    pub fn connect(
+        url: &str,
+        track: Option<&str>,
+        config: LiveConfig,
+    ) -> Result<LiveSession, LiveError> {
+        let url = ServerUrl::parse(url)?;
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .thread_name("railview-stream")
+            .enable_all()
+            .build()
+            .map_err(LiveError::Runtime)?;
+        let mut conn = Connection::new(
+            url.clone(),
+            config.fetcher.retry.clone(),
+            std::sync::Arc::new(Default::default()),
+        );
+        let manifest = runtime.block_on(conn.manifest())?;
+        let names = || {
+            manifest
+                .tracks
+                .iter()
+                .map(|t| t.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let track = match track {
+            Some(name) => manifest
+                .tracks
+                .iter()
+                .position(|t| t.name == name)
+                .ok_or_else(|| LiveError::NoTrack(name.to_string(), names()))?,
+            None if manifest.tracks.is_empty() => {
+                return Err(LiveError::NoTrack("(any)".into(), names()))
+            }
+            None => 0,
+        };
+        let table = ItemTable::new(&manifest, track)?;
+        let infos = table.infos();
+        let index = SceneIndex::new(&manifest, track);
+        let mut users: HashMap<FetchKey, Vec<(usize, usize)>> = HashMap::new();
+        for (i, it) in table.items.iter().enumerate() {
+            for (p, part) in it.parts.iter().enumerate() {
+                users.entry(part.key.clone()).or_default().push((i, p));
+            }
+        }
+        let fetcher = {
+            let _guard = runtime.enter();
+            Fetcher::new(url, config.fetcher.clone())
+        };
+        let cache = Cache::new(config.cache_bytes);
+        let link = LinkEstimate::new(config.prior_bps, config.prior_latency_s);
+        let stats = LiveStats {
+            cache_budget: config.cache_bytes,
+            ..Default::default()
+        };
+        Ok(LiveSession {
+            fetcher,
+            _runtime: runtime,
+            manifest,
+            track,
+            table,
+            infos,
+            index,
+            config,
+            cache,
+            link,
+            motion: MotionTracker::new(),
+            users,
+            requested: HashSet::new(),
+            pinned: Vec::new(),
+            start: Instant::now(),
+            paused_until: None,
+            recent: VecDeque::new(),
+            stats,
+        })
+    }
+
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// Position of the session's track in the manifest.
+    pub fn track(&self) -> usize {
+        self.track
+    }
+
+    pub fn table(&self) -> &ItemTable {
+        &self.table
+    }
+
+    pub fn cache(&self) -> &Cache {
+        &self.cache
+    }
+
+    pub fn config(&self) -> &LiveConfig {
+        &self.config
+    }
+
+    pub fn stats(&self) -> &LiveStats {
+        &self.stats
+    }
+
+    pub fn set_mode(&mut self, mode: PriorityMode) {
+        self.config.mode = mode;
+    }
+
+    pub fn set_prefetch(&mut self, on: bool) {
+        self.config.prefetch = on;
+    }
+
+    /// Cached bytes of one part, if held.
+    pub fn part_bytes(&self, item: usize, part: usize) -> Option<&Bytes> {
+        let key = &self.table.items.get(item)?.parts.get(part)?.key;
+        self.cache.get(key)
+    }
+
+    /// Parts held per item (the prefix present in the cache).
+    pub fn have(&self) -> Vec<usize> {
+        self.table
+            .items
+            .iter()
+            .map(|it| {
+                it.parts
+                    .iter()
+                    .take_while(|p| self.cache.contains(&p.key))
+                    .count()
+            })
+            .collect()
+    }
+
+    /// One frame: take finished downloads, plan, request, cancel; returns what arrived.
+    /// `live` are visible-pixel counts measured by the caller (e.g. the GPU feedback pass);
+    /// they replace the CPU estimate for the items they name.
+    pub fn update(
+        &mut self,
+        s: f64,
+        camera: &PerspectiveCamera,
+        live: Option<&[LiveCount]>,
+    ) -> Vec<Arrival> {
+        let now = Instant::now();
+        let t = now.duration_since(self.start).as_secs_f64();
+        let s = if s.is_finite() { s } else { 0.0 };
+        self.motion.observe(t, s);
+        self.cache.set_position(s);
+        let arrivals = self.take_finished(now);
+
+        let have = self.have();
+        let mut downloading = vec![false; self.table.items.len()];
+        for k in &self.requested {
+            for &(i, _) in self.users.get(k).map_or(&[][..], |v| v.as_slice()) {
+                downloading[i] = true;
+            }
+        }
+        let seg = segment_at(&self.table.vp_s, s).unwrap_or(0);
+        let seg_ach: Vec<(usize, f64)> =
+            self.table.segment_ach.get(seg).cloned().unwrap_or_default();
+        let backgrounds = self.segment_backgrounds(s);
+        let mode = self.config.mode;
+        let mut ach: Vec<(usize, f64)> = match (mode, &self.index) {
+            (PriorityMode::Combined { .. }, _) | (_, None) => seg_ach.clone(),
+            (_, Some(index)) => seg_ach
+                .iter()
+                .copied()
+                .filter(|&(i, _)| {
+                    let it = &self.table.items[i];
+                    it.tile
+                        .is_none_or(|tile| index.tile_in_frustum(camera, it.viewpoint, tile))
+                })
+                .collect(),
+        };
+        // Backgrounds are not in the ACH lists; they fill everything no tile covers, so they
+        // rank with the strongest tile.
+        let top = ach.iter().map(|a| a.1).fold(0.0f64, f64::max);
+        let top = if top > 0.0 { top } else { 1.0 };
+        ach.extend(backgrounds.iter().map(|&b| (b, top)));
+        let counts = if matches!(mode, PriorityMode::Ach) {
+            Vec::new()
+        } else {
+            self.live_counts(s, camera, live)
+        };
+        let next = if self.config.prefetch {
+            next_segment(
+                &self.motion,
+                &self.table.vp_s,
+                s,
+                self.config.prefetch_horizon_s,
+            )
+        } else {
+            None
+        };
+        let prefetch: &[(usize, f64)] = next
+            .and_then(|k| self.table.segment_ach.get(k))
+            .map_or(&[], |v| v.as_slice());
+        let (memory, dt_max) = self.config.budget.current(self.motion.still_s());
+        let p = plan(&PlanInput {
+            items: &self.infos,
+            have: &have,
+            downloading: &downloading,
+            ach: &ach,
+            live: &counts,
+            prefetch,
+            mode,
+            memory_bytes: memory,
+            dt_max_s: dt_max,
+            link: &self.link,
+        });
+
+        // Pins: what the plan keeps resident, and the current segment's coarsest levels.
+        for k in self.pinned.drain(..) {
+            self.cache.release(&k);
+        }
+        let mut pin: Vec<(usize, usize)> = p.targets.iter().map(|&(i, _, r)| (i, r)).collect();
+        pin.extend(
+            seg_ach
+                .iter()
+                .map(|a| a.0)
+                .chain(backgrounds.iter().copied())
+                .map(|i| (i, self.infos[i].min_parts())),
+        );
+        for (i, n) in pin {
+            for part in &self.table.items[i].parts[..n.min(have[i])] {
+                if self.cache.acquire(&part.key) {
+                    self.pinned.push(part.key.clone());
+                }
+            }
+        }
+        self.stats.pinned_bytes = {
+            let uniq: HashSet<&FetchKey> = self.pinned.iter().collect();
+            uniq.iter()
+                .filter_map(|k| self.cache.get(k))
+                .map(|b| b.len() as u64)
+                .sum()
+        };
+
+        // Requests the plan still wants: running/queued parts of items below their target,
+        // plus the new ones.
+        let mut keep: HashSet<FetchKey> = HashSet::new();
+        for &(i, target, _) in &p.targets {
+            for part in self.table.items[i].parts.iter().take(target).skip(have[i]) {
+                if self.requested.contains(&part.key) {
+                    keep.insert(part.key.clone());
+                }
+            }
+        }
+        let paused = self.paused_until.is_some_and(|u| now < u);
+        if !paused {
+            for r in &p.requests {
+                let parts = &self.table.items[r.item].parts;
+                let end = (r.part + r.parts.max(1)).min(parts.len());
+                for (j, part) in parts[r.part..end].iter().enumerate() {
+                    keep.insert(part.key.clone());
+                    if self.cache.contains(&part.key) || self.requested.contains(&part.key) {
+                        continue;
+                    }
+                    self.requested.insert(part.key.clone());
+                    self.fetcher.submit(FetchRequest {
+                        key: part.key.clone(),
+                        expected_hash: part.hash.clone(),
+                        // Parts of one run in order.
+                        priority: r.priority - j as f64 * 1e-6,
+                    });
+                }
+            }
+        } else {
+            // Nothing new while the server is failing; keep what is queued for the plan.
+            for r in &p.requests {
+                let parts = &self.table.items[r.item].parts;
+                let end = (r.part + r.parts.max(1)).min(parts.len());
+                for part in &parts[r.part..end] {
+                    if self.requested.contains(&part.key) {
+                        keep.insert(part.key.clone());
+                    }
+                }
+            }
+        }
+        if self.requested.iter().any(|k| !keep.contains(k)) {
+            self.fetcher.retain(|k| keep.contains(k));
+            self.requested.retain(|k| keep.contains(k));
+        }
+        self.update_stats(now, t, &have, &seg_ach, &backgrounds);
+        arrivals
+    }
+
+    /// The backgrounds of the two viewpoints around `s`.
+    fn segment_backgrounds(&self, s: f64) -> Vec<usize> {
+        blend_weights(&self.table.vp_s, s)
+            .iter()
+            .filter_map(|&(vi, _)| self.table.background_item(vi))
+            .collect()
+    }
+
+    /// CPU visibility counts at `camera`, with the caller's counts replacing them per item.
+    fn live_counts(
+        &self,
+        s: f64,
+        camera: &PerspectiveCamera,
+        live: Option<&[LiveCount]>,
+    ) -> Vec<LiveCount> {
+        let mut by_item: HashMap<usize, LiveCount> = HashMap::new();
+        if let Some(index) = &self.index {
+            let weights = blend_weights(&self.table.vp_s, s);
+            let (sx, sy) = self.config.samples;
+            for c in index.count(camera, &weights, sx, sy) {
+                let item = match c.surface {
+                    Surface::Tile { viewpoint, tile } => self.table.tile_item(viewpoint, tile),
+                    Surface::Background { viewpoint } => self.table.background_item(viewpoint),
+                };
+                if let Some(item) = item {
+                    by_item.insert(
+                        item,
+                        LiveCount {
+                            item,
+                            pixels: c.pixels(),
+                            needed_level: c.finest_needed(),
+                        },
+                    );
+                }
+            }
+        }
+        for c in live.unwrap_or(&[]) {
+            if c.item < self.table.items.len() && c.pixels.is_finite() {
+                by_item.insert(c.item, *c);
+            }
+        }
+        let mut out: Vec<LiveCount> = by_item.into_values().filter(|c| c.pixels > 0.0).collect();
+        out.sort_by_key(|c| c.item);
+        out
+    }
+
+    /// Finished downloads: link estimate, cache, arrivals.
+    fn take_finished(&mut self, now: Instant) -> Vec<Arrival> {
+        let mut out = Vec::new();
+        while let Some(done) = self.fetcher.try_next() {
+            self.requested.remove(&done.key);
+            match done.result {
+                Ok(data) => {
+                    let len = data.len() as u64;
+                    self.link.observe(len, done.elapsed_s);
+                    self.stats.bytes += len;
+                    self.stats.requests += 1;
+                    self.stats.last_error = None;
+                    self.recent.push_back((now, len));
+                    let users = self.users.get(&done.key).cloned().unwrap_or_default();
+                    let fresh = !self.cache.contains(&done.key);
+                    let mut stored = !fresh;
+                    for &(item, _) in &users {
+                        let s_item = self.table.items[item].s;
+                        stored |= self
+                            .cache
+                            .insert(done.key.clone(), data.clone(), s_item)
+                            .is_ok();
+                    }
+                    if fresh && stored {
+                        out.extend(users.iter().map(|&(item, part)| Arrival {
+                            item,
+                            part,
+                            data: data.clone(),
+                        }));
+                    }
+                }
+                Err(ClientError::Cancelled) => {}
+                Err(e) => {
+                    self.stats.failed_requests += 1;
+                    self.stats.last_error = Some(e.to_string());
+                    self.paused_until = Some(now + self.config.error_pause);
+                }
+            }
+        }
+        self.stats.cache_peak = self.stats.cache_peak.max(self.cache.used());
+        out
+    }
+
+    fn update_stats(
+        &mut self,
+        now: Instant,
+        t: f64,
+        have: &[usize],
+        seg_ach: &[(usize, f64)],
+        backgrounds: &[usize],
+    ) {
+        let window = Duration::from_secs(2);
+        while self
+            .recent
+            .front()
+            .is_some_and(|(when, _)| now.duration_since(*when) > window)
+        {
+            self.recent.pop_front();
+        }
+        let span = t.min(window.as_secs_f64()).max(0.25);
+        let pending = self.fetcher.pending();
+        let workers = self.config.fetcher.max_in_flight.max(1);
+        let fs = self.fetcher.stats();
+        let quality = if seg_ach.is_empty() {
+            0.0
+        } else {
+            seg_ach
+                .iter()
+                .map(|&(i, _)| {
+                    let info = &self.infos[i];
+                    let groups = info.levels.len().max(1) as f64;
+                    have[i].saturating_sub(info.first_level_part) as f64 / groups
+                })
+                .sum::<f64>()
+                / seg_ach.len() as f64
+        };
+        let showable: Vec<bool> = seg_ach
+            .iter()
+            .map(|a| a.0)
+            .chain(backgrounds.iter().copied())
+            .map(|i| have[i] >= self.infos[i].min_parts())
+            .collect();
+        let coarse = if showable.is_empty() {
+            1.0
+        } else {
+            showable.iter().filter(|&&b| b).count() as f64 / showable.len() as f64
+        };
+        self.stats = LiveStats {
+            t_s: t,
+            bytes_per_s: self.recent.iter().map(|r| r.1).sum::<u64>() as f64 / span,
+            in_flight: pending.min(workers),
+            queued: pending.saturating_sub(workers),
+            cache_used: self.cache.used(),
+            cache_budget: self.cache.budget(),
+            cache_peak: self.stats.cache_peak.max(self.cache.used()),
+            quality,
+            coarse_fraction: coarse,
+            checksum_failures: fs.checksum_failures.load(Ordering::Relaxed),
+            reconnects: fs.reconnects.load(Ordering::Relaxed),
+            link: self.link.get(),
+            ..std::mem::take(&mut self.stats)
+        };
+    }
+}
