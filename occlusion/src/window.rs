@@ -182,6 +182,11 @@ impl PixelRect {
 /// `face` never reaches the opposite face).
 pub fn face_pieces(face: Face, window: UvRect, face_size: u32) -> Vec<PixelRect> {
     let mut out = Vec::with_capacity(5);
+    // A window strictly inside the face's square meets no other face: one piece, no clipping.
+    if window.u0 > -1.0 && window.u1 < 1.0 && window.v0 > -1.0 && window.v1 < 1.0 {
+        out.extend(pixel_cover(face, window, face_size));
+        return out;
+    }
     let corners = window.corners();
     for target in Face::ALL {
         if target.forward() == -face.forward() {
