@@ -5,6 +5,7 @@
 use std::borrow::Cow;
 
 use super::encode::Method;
+use super::layout::{is_identity, merge, mode_allowed};
 use super::pyramid::{is_rebuilt, level_dims, max_levels, stored_count};
 use super::{Header, Image, Limits, PtmError, FIXED_HEADER_LEN, FORMAT_VERSION, MAGIC};
 
@@ -38,6 +39,8 @@ pub struct Decoder {
     zstd: Option<zstd::bulk::Decompressor<'static>>,
     /// Decompressed group payload, reused from group to group.
     scratch: Vec<u8>,
+    /// The payload back in interleaved order (when its mode rearranged it), reused.
+    merged: Vec<u8>,
 }
 
 impl std::fmt::Debug for Decoder {
@@ -92,6 +95,7 @@ impl Decoder {
             levels: Vec::new(),
             zstd: None,
             scratch: Vec::new(),
+            merged: Vec::new(),
         }
     }
 
@@ -278,10 +282,10 @@ impl Decoder {
                 Method::Raw if len != plain => {
                     return Err(err("raw groups hold exactly their level"));
                 }
-                Method::Zstd if len > plain + plain / 128 + 1024 => {
+                Method::Zstd if len > plain + plain / 128 + 1025 => {
                     return Err(err("larger than zstd can make the level"));
                 }
-                Method::Zstd if len == 0 => return Err(err("empty")),
+                Method::Zstd if len < 2 => return Err(err("no mode byte and zstd frame")),
                 _ => {}
             }
         }
@@ -308,19 +312,40 @@ impl Decoder {
                             .map_err(|e| zerr(format!("zstd context: {e}")))?,
                     );
                 }
+                let (&mode, frame) = payload.split_first().expect("length checked");
+                let c = c as usize;
+                if (g == 0 && mode != 0) || !mode_allowed(mode, c) {
+                    return Err(PtmError::UnknownGroupMode {
+                        group: g,
+                        level,
+                        mode,
+                    });
+                }
                 let z = self.zstd.as_mut().expect("just created");
                 // The capacity bounds what a hostile frame can make zstd write.
                 self.scratch.clear();
                 self.scratch.reserve(expected);
                 let n = z
-                    .decompress_to_buffer(payload, &mut self.scratch)
+                    .decompress_to_buffer(frame, &mut self.scratch)
                     .map_err(|e| zerr(format!("zstd: {e}")))?;
                 if n != expected {
                     return Err(zerr(format!(
                         "decompressed to {n} bytes, expected {expected}"
                     )));
                 }
-                Cow::Borrowed(&self.scratch[..])
+                if g == 0 || is_identity(mode, c) {
+                    Cow::Borrowed(&self.scratch[..])
+                } else {
+                    let (pw, ph) = level_dims(h.width, h.height, level + 1);
+                    merge(
+                        &self.scratch,
+                        pw as usize * ph as usize,
+                        c,
+                        mode,
+                        &mut self.merged,
+                    );
+                    Cow::Borrowed(&self.merged[..])
+                }
             }
         };
         if g == 0 {

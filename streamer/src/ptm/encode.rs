@@ -1,5 +1,6 @@
 //! PTM encoder: pyramid → header, lowest level, one group per level coarse to fine.
 
+use super::layout::{mode_allowed, split, MODE_DECORRELATE};
 use super::pyramid::{is_rebuilt, max_levels, stored_count, MipChain};
 use super::{Image, PtmError, FIXED_HEADER_LEN, FORMAT_VERSION, MAGIC};
 
@@ -8,7 +9,8 @@ use super::{Image, PtmError, FIXED_HEADER_LEN, FORMAT_VERSION, MAGIC};
 pub enum Method {
     /// The paper's layout byte for byte: packed residuals, then the partial level.
     Raw = 0,
-    /// Residuals and differences from the upsampled parent level, one zstd frame per group.
+    /// Prediction from the level's own neighbours and the parent (`predict.rs`), samples laid
+    /// out per group mode (`layout.rs`), a mode byte and one zstd frame per group.
     Zstd = 1,
 }
 
@@ -63,21 +65,31 @@ pub struct Encoded {
 
 /// Encodes `image` as a PTM.
 pub fn encode(image: &Image, opts: &EncodeOptions) -> Result<Encoded, PtmError> {
+    encode_with_modes(image, opts, None)
+}
+
+/// [`encode`], with every zstd group above the lowest in `mode` when it is given and applies
+/// to the channel count (tests cover each mode this way).
+pub(crate) fn encode_with_modes(
+    image: &Image,
+    opts: &EncodeOptions,
+    mode: Option<u8>,
+) -> Result<Encoded, PtmError> {
     let level_count = opts
         .levels
         .unwrap_or_else(|| max_levels(image.width, image.height));
     let chain = MipChain::build(image, level_count)?;
     let lowest = chain.levels.last().expect("at least one level");
     let mut payloads = Vec::with_capacity(level_count as usize);
-    payloads.push(code(lowest_plain(lowest, opts.method), opts)?);
+    payloads.push(code(lowest_plain(lowest, opts.method), 0, opts)?);
     for n in (0..level_count as usize - 1).rev() {
-        let plain = group_plain(
-            &chain.levels[n],
-            &chain.levels[n + 1],
-            &chain.residuals[n],
-            opts.method,
-        );
-        payloads.push(code(plain, opts)?);
+        let (level, parent) = (&chain.levels[n], &chain.levels[n + 1]);
+        let plain = group_plain(level, parent, &chain.residuals[n], opts.method);
+        let payload = match opts.method {
+            Method::Raw => plain,
+            Method::Zstd => zstd_group(&plain, parent, opts, mode)?,
+        };
+        payloads.push(payload);
     }
     let mut bytes = Vec::with_capacity(
         FIXED_HEADER_LEN + 4 * payloads.len() + payloads.iter().map(Vec::len).sum::<usize>(),
@@ -111,12 +123,53 @@ pub fn encode(image: &Image, opts: &EncodeOptions) -> Result<Encoded, PtmError> 
     Ok(Encoded { bytes, groups })
 }
 
-fn code(plain: Vec<u8>, opts: &EncodeOptions) -> Result<Vec<u8>, PtmError> {
+/// A group payload from its plain bytes: raw as is; zstd as the mode byte and one frame.
+fn code(plain: Vec<u8>, mode: u8, opts: &EncodeOptions) -> Result<Vec<u8>, PtmError> {
     match opts.method {
         Method::Raw => Ok(plain),
-        Method::Zstd => zstd::bulk::compress(&plain, opts.zstd_level)
-            .map_err(|e| PtmError::InvalidImage(format!("zstd: {e}"))),
+        Method::Zstd => {
+            let mut out = vec![mode];
+            out.extend_from_slice(&compress(&plain, opts.zstd_level)?);
+            Ok(out)
+        }
     }
+}
+
+fn compress(plain: &[u8], level: i32) -> Result<Vec<u8>, PtmError> {
+    zstd::bulk::compress(plain, level).map_err(|e| PtmError::InvalidImage(format!("zstd: {e}")))
+}
+
+/// A zstd group in the layout of the mode that compresses it best. Modes are compared at a
+/// fast zstd level (at most 3; on the castle tiles this picks the same mode as comparing at
+/// level 19 for all but a few small groups), then the winner is compressed at the asked level.
+fn zstd_group(
+    plain: &[u8],
+    parent: &Image,
+    opts: &EncodeOptions,
+    forced: Option<u8>,
+) -> Result<Vec<u8>, PtmError> {
+    let c = parent.channels as usize;
+    let np = parent.width as usize * parent.height as usize;
+    let forced = forced.filter(|&m| mode_allowed(m, c)).map(|m| [m]);
+    let modes: &[u8] = match &forced {
+        Some(m) => m,
+        None if mode_allowed(MODE_DECORRELATE, c) => &[0, MODE_DECORRELATE],
+        None => &[0],
+    };
+    let mut best: Option<(usize, u8, Vec<u8>)> = None;
+    for &mode in modes {
+        let coded = split(plain, np, c, mode);
+        let size = if modes.len() > 1 {
+            compress(&coded, opts.zstd_level.min(3))?.len()
+        } else {
+            0
+        };
+        if best.as_ref().is_none_or(|b| size < b.0) {
+            best = Some((size, mode, coded));
+        }
+    }
+    let (_, mode, coded) = best.expect("at least one mode");
+    code(coded, mode, opts)
 }
 
 /// The lowest level before compression.

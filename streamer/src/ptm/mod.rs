@@ -21,7 +21,7 @@
 //! ## File layout (little endian)
 //! ```text
 //! 0   4  magic "RPTM"
-//! 4   1  format version (1)
+//! 4   1  format version (2)
 //! 5   1  method: 0 = raw (the paper's layout, no compression), 1 = parent prediction + zstd
 //! 6   1  channels (1 grey, 2 grey+alpha, 3 RGB, 4 RGBA)
 //! 7   1  level count L (1 ..= 1 + ⌈log2 max(w, h)⌉)
@@ -36,11 +36,13 @@
 //! Group 0 as a *stream chunk* includes the header, so fetching chunk 0 gives everything
 //! needed to ask for any other chunk by byte range ([`Encoded::groups`], [`Header::chunk_range`]).
 //!
-//! With method 1 each group's payload is one zstd frame of: one byte per residual, coded
-//! relative to the residual the neighbours predict, then every stored sample's difference
-//! (mod 256) from its prediction, samples interleaved (see `predict.rs`). The lowest level is
-//! coded as differences from the previous value in each channel plane. A group decodes once
-//! its parent level is known.
+//! With method 1 each group's payload is a mode byte and one zstd frame of: one byte per
+//! residual, coded relative to the residual the neighbours predict, then every stored
+//! sample's difference (mod 256) from its prediction (see `predict.rs`), the colour channels
+//! interleaved and the alpha channel in planes of its own, red and blue optionally relative
+//! to green (the mode byte, chosen per group by the encoder; see `layout.rs`). The lowest
+//! level is coded as differences from the previous value in each channel plane (mode 0). A
+//! group decodes once its parent level is known.
 //!
 //! ```
 //! use streamer::ptm::{encode, Decoder, EncodeOptions, Image, Limits, Status};
@@ -57,6 +59,7 @@
 
 mod decode;
 mod encode;
+mod layout;
 mod predict;
 mod pyramid;
 
@@ -66,8 +69,10 @@ pub use pyramid::{level_dims, max_levels, MipChain};
 
 /// File magic.
 pub const MAGIC: [u8; 4] = *b"RPTM";
-/// Format version written and read by this module.
-pub const FORMAT_VERSION: u8 = 1;
+/// Format version written and read by this module (2: group mode byte, colour
+/// decorrelation and a separate alpha plane in zstd groups; files of version 1 are refused
+/// with [`PtmError::UnsupportedVersion`]).
+pub const FORMAT_VERSION: u8 = 2;
 /// Size of the fixed part of the header; the offset table follows.
 pub const FIXED_HEADER_LEN: usize = 16;
 
@@ -194,7 +199,7 @@ pub enum PtmError {
     InvalidImage(String),
     #[error("not a PTM file (bad magic {0:02x?})")]
     BadMagic([u8; 4]),
-    #[error("unsupported PTM format version {0}")]
+    #[error("unsupported PTM format version {0} (this decoder reads version {FORMAT_VERSION}; re-encode the file)")]
     UnsupportedVersion(u8),
     #[error("unknown PTM method {0}")]
     UnknownMethod(u8),
@@ -226,6 +231,10 @@ pub enum PtmError {
         level: u32,
         message: String,
     },
+    /// A zstd group's mode byte has bits this decoder does not know or that do not fit the
+    /// channel count (see the group layout).
+    #[error("PTM group {group} (level {level}): unknown or inapplicable group mode {mode:#04x}")]
+    UnknownGroupMode { group: usize, level: u32, mode: u8 },
     /// A residual larger than its block allows, or a rebuilt pixel outside 0..=255.
     #[error(
         "PTM level {level}: inconsistent residual at pixel ({x}, {y}) channel {channel} (value {value})"

@@ -59,6 +59,14 @@ proptest! {
         roundtrip(&img, &o);
     }
 
+    /// Every group mode, forced, round-trips (the encoder alone may never pick some of them
+    /// on random content).
+    #[test]
+    fn every_group_mode_round_trips(img in image_strategy(80), mode in 0u8..=1) {
+        let enc = super::encode::encode_with_modes(&img, &opts(Method::Zstd), Some(mode)).unwrap();
+        prop_assert_eq!(decode(&enc.bytes, Limits::default()).unwrap(), img);
+    }
+
     #[test]
     fn fewer_levels_round_trip(img in image_strategy(40), keep in 1u8..8) {
         let levels = keep.min(max_levels(img.width(), img.height()));
@@ -158,7 +166,10 @@ fn long_fuzz() {
     );
     runner
         .run(&strat, |(img, raw, flips, cut, junk)| {
-            let enc = encode(&img, &opts(if raw { Method::Raw } else { Method::Zstd })).unwrap();
+            // Zstd groups in the mode the encoder picks, or decorrelated wherever it applies.
+            let o = opts(if raw { Method::Raw } else { Method::Zstd });
+            let mode = (cut % 7 == 0).then_some(1);
+            let enc = super::encode::encode_with_modes(&img, &o, mode).unwrap();
             let mut bytes = enc.bytes.clone();
             for (at, x) in flips {
                 let at = at % bytes.len();
@@ -496,4 +507,72 @@ fn prediction_compresses_textured_tiles_well() {
     let raw = encode(&img, &opts(Method::Raw)).unwrap().bytes.len();
     let z = encode(&img, &EncodeOptions::default()).unwrap().bytes.len();
     assert!(z * 2 < raw, "zstd {z} vs raw {raw}");
+}
+
+#[test]
+fn version_1_files_are_refused_with_a_typed_error() {
+    let img = textured(6, 5, 4, 1);
+    let mut bytes = encode(&img, &EncodeOptions::default()).unwrap().bytes;
+    bytes[4] = 1;
+    assert_eq!(
+        decode(&bytes, Limits::default()),
+        Err(PtmError::UnsupportedVersion(1))
+    );
+}
+
+/// Byte offset of chunk `g`'s first payload byte (its mode byte for zstd groups).
+fn group_start(enc: &Encoded, g: usize) -> usize {
+    let h = {
+        let mut d = Decoder::new(Limits::default());
+        d.push(&enc.bytes[..FIXED_HEADER_LEN]).unwrap();
+        d.push(&enc.bytes[FIXED_HEADER_LEN..enc.groups[0].len as usize])
+            .unwrap();
+        d.header().unwrap().clone()
+    };
+    if g == 0 {
+        h.len()
+    } else {
+        enc.groups[g].offset as usize
+    }
+}
+
+#[test]
+fn group_modes_are_checked() {
+    // Colour errors shared by the three channels: the encoder decorrelates the finest group.
+    let img = Image::from_fn(64, 64, 3, |x, y, k| {
+        let noise = (x.wrapping_mul(2_654_435_761) ^ y.wrapping_mul(40_503)) >> 27;
+        (x + y + noise + 20 * k as u32) as u8
+    });
+    let enc = encode(&img, &EncodeOptions::default()).unwrap();
+    let last = enc.groups.len() - 1;
+    assert_eq!(
+        enc.bytes[group_start(&enc, last)],
+        1,
+        "finest group decorrelated"
+    );
+    assert_eq!(
+        enc.bytes[group_start(&enc, 0)],
+        0,
+        "lowest level has mode 0"
+    );
+    for (g, bad) in [(last, 0x80u8), (last, 2), (0, 1)] {
+        let mut bytes = enc.bytes.clone();
+        bytes[group_start(&enc, g)] = bad;
+        assert!(
+            matches!(
+                decode(&bytes, Limits::default()),
+                Err(PtmError::UnknownGroupMode { group, mode, .. }) if group == g && mode == bad
+            ),
+            "group {g} mode {bad}"
+        );
+    }
+    // Decorrelation needs three colour channels.
+    let grey = textured(8, 8, 2, 3);
+    let enc = encode(&grey, &EncodeOptions::default()).unwrap();
+    let mut bytes = enc.bytes.clone();
+    bytes[group_start(&enc, 1)] = 1;
+    assert!(matches!(
+        decode(&bytes, Limits::default()),
+        Err(PtmError::UnknownGroupMode { group: 1, .. })
+    ));
 }
