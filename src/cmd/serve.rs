@@ -25,6 +25,9 @@ pub struct Args {
     /// Fault injection: corrupt one byte of every Nth object response.
     #[arg(long)]
     pub corrupt_every: Option<u64>,
+    /// Do not serve `/bundle` (behave like a static file host; clients fetch object by object).
+    #[arg(long)]
+    pub no_bundles: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -41,6 +44,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .map_err(anyhow::Error::msg)
             .context("--latency")?,
         corrupt_every: args.corrupt_every,
+        bundles: !args.no_bundles,
         ..ServerConfig::default()
     };
     let db = ServedDb::open(&args.db)?;

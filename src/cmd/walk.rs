@@ -31,12 +31,13 @@ pub struct Args {
     /// Simulated latency per request.
     #[arg(long, default_value = "50ms")]
     pub latency: String,
-    /// Texture memory budget M while moving, MiB.
-    #[arg(long, default_value_t = 4.0)]
-    pub memory_mb: f64,
-    /// Texture memory budget once static, MiB.
-    #[arg(long, default_value_t = 16.0)]
-    pub memory_static_mb: f64,
+    /// Texture memory budget M while moving, MiB [default: the paper's 4 MiB, raised to the
+    /// largest segment's tiles at full resolution].
+    #[arg(long)]
+    pub memory_mb: Option<f64>,
+    /// Texture memory budget once static, MiB [default: 16 MiB, raised to twice that M].
+    #[arg(long)]
+    pub memory_static_mb: Option<f64>,
     /// Longest acceptable download of one level while moving, seconds (δt_max).
     #[arg(long, default_value_t = 0.5)]
     pub dt_max: f64,
@@ -90,6 +91,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.speed.is_finite() && args.speed > 0.0,
         "--speed must be positive"
     );
+    let paper = BudgetParams::default();
     let config = WalkConfig {
         speed_mps: args.speed,
         latency_s: parse_duration(&args.latency)
@@ -98,12 +100,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .as_secs_f64(),
         pause_s: args.pause.max(0.0),
         budget: BudgetParams {
-            memory_bytes: mib(args.memory_mb, "memory-mb")?,
+            memory_bytes: args
+                .memory_mb
+                .map_or(Ok(paper.memory_bytes), |m| mib(m, "memory-mb"))?,
             dt_max_s: args.dt_max,
-            memory_static_bytes: mib(args.memory_static_mb, "memory-static-mb")?,
+            memory_static_bytes: args
+                .memory_static_mb
+                .map_or(Ok(paper.memory_static_bytes), |m| {
+                    mib(m, "memory-static-mb")
+                })?,
             dt_static_s: args.dt_static,
             t_static_s: args.t_static,
         },
+        // Given budgets are taken as they are; defaults grow with the database.
+        scale_budget: args.memory_mb.is_none() && args.memory_static_mb.is_none(),
         cache_bytes: mib(args.cache_mb, "cache-mb")?,
         max_in_flight: args.in_flight.max(1),
         ..WalkConfig::default()

@@ -161,23 +161,40 @@ impl SceneIndex {
         viewpoint: usize,
         tile: usize,
     ) -> bool {
+        self.tile_in_cone(
+            camera.position,
+            camera.forward(),
+            frustum_half_angle(camera),
+            viewpoint,
+            tile,
+        )
+    }
+
+    /// Whether tile `tile` of viewpoint `viewpoint` can be seen from `position` within
+    /// `half_angle` radians of `forward` (unit) — [`Self::tile_in_frustum`] with a cone of any
+    /// width, e.g. a frustum widened by the turn a walker may make before arriving (prefetch).
+    pub fn tile_in_cone(
+        &self,
+        position: DVec3,
+        forward: DVec3,
+        half_angle: f64,
+        viewpoint: usize,
+        tile: usize,
+    ) -> bool {
         let Some(vp) = self.viewpoints.get(viewpoint) else {
             return false;
         };
         let Some(&Some((dir, radius, near))) = vp.cones.get(tile) else {
             return false;
         };
-        let half = (camera.fov_deg.to_radians() * 0.5).tan();
-        let aspect = camera.height.max(1) as f64 / camera.width.max(1) as f64;
-        let frustum = (half * (1.0 + aspect * aspect).sqrt()).atan();
-        let offset = (camera.position - vp.position).length();
+        let offset = (position - vp.position).length();
         let parallax = if offset >= near {
             std::f64::consts::PI
         } else {
             (offset / near).asin()
         };
-        let angle = dir.dot(camera.forward()).clamp(-1.0, 1.0).acos();
-        angle <= frustum + radius + parallax + 1e-9
+        let angle = dir.dot(forward).clamp(-1.0, 1.0).acos();
+        angle <= half_angle + radius + parallax + 1e-9
     }
 
     fn lookup(&self, vp: &ViewpointIndex, slab: usize, dir: DVec3) -> Option<usize> {
@@ -296,6 +313,13 @@ impl SceneIndex {
         out.sort_by_key(|a| a.surface);
         out
     }
+}
+
+/// Half-angle (radians) of the cone through the corners of `camera`'s view frustum.
+pub fn frustum_half_angle(camera: &PerspectiveCamera) -> f64 {
+    let half = (camera.fov_deg.to_radians() * 0.5).tan();
+    let aspect = camera.height.max(1) as f64 / camera.width.max(1) as f64;
+    (half * (1.0 + aspect * aspect).sqrt()).atan()
 }
 
 /// Centre direction, angular radius and nearest depth of a tile seen from its viewpoint.

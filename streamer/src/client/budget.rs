@@ -7,9 +7,11 @@
 //!
 //! The caller frustum-culls the ACH list first (PTM §6.1: only what can be in view shares the
 //! budget; [`crate::visibility::SceneIndex::tile_in_frustum`]), so `M` is not spread over the
-//! tiles behind the camera. One request may carry several consecutive level groups of an
-//! item ([`PartRequest::parts`]): as many as the link estimate delivers within `δt_max`, so a
-//! tile does not pay one round trip per level.
+//! tiles behind the camera. One request carries an item's mesh together with its coarsest
+//! level and then as many further level groups as the link estimate delivers within `δt_max`
+//! ([`PartRequest::parts`]), so a tile does not pay one round trip per part; the caller may
+//! bundle the requests of many items into one HTTP request
+//! ([`crate::client::Connection::fetch_checked_bundle`]).
 //!
 //! [`plan`] shares the memory budget `M` among the candidate items in descending order of
 //! their weight (the segment's ACH, the live pixel count, or a blend): each item in turn gets
@@ -166,6 +168,32 @@ impl Default for BudgetParams {
 }
 
 impl BudgetParams {
+    /// These budgets raised to fit the database (the paper's values by default): `M` is at least the texture memory of
+    /// the largest segment's ACH list with every tile at full resolution (all parts), and
+    /// `M_static` at least twice that. A segment's ACH list is every tile some viewpoint on
+    /// the segment can see, so however the head turns within a segment the budget never
+    /// forces what is in view to a coarser level than the database holds (the needed level of
+    /// the walk's screen is level 0 on these faces), while it stays a segment's worth — far
+    /// below the database (castle face 192: 2.9 MiB of 36 segments' 105 MiB). Fixed paper
+    /// values do not scale: tiles grow with the square of the face size.
+    pub fn scaled_to(self, items: &[ItemInfo], segment_ach: &[Vec<(usize, f64)>]) -> BudgetParams {
+        let largest = segment_ach
+            .iter()
+            .map(|seg| {
+                seg.iter()
+                    .filter_map(|&(i, _)| items.get(i))
+                    .map(|it| it.mem(it.parts()))
+                    .sum::<u64>()
+            })
+            .max()
+            .unwrap_or(0);
+        BudgetParams {
+            memory_bytes: self.memory_bytes.max(largest),
+            memory_static_bytes: self.memory_static_bytes.max(largest.saturating_mul(2)),
+            ..self
+        }
+    }
+
     /// `(M, δt_max)` for a viewpoint that has been still for `still_s` seconds.
     pub fn current(&self, still_s: f64) -> (u64, f64) {
         if still_s >= self.t_static_s {
@@ -274,16 +302,18 @@ pub fn allocate(
     out
 }
 
-/// How many parts from `have` towards `target` one request takes: the mesh alone, or PTM
-/// level groups (consecutive in one object) while the run still arrives within `dt_max`;
-/// always at least one.
+/// How many parts from `have` towards `target` one request takes: at least everything needed
+/// to show the item (its mesh and coarsest level, in one request — one round trip, not two),
+/// then further PTM level groups while the run still arrives within `dt_max`; always at
+/// least one.
 fn run_len(info: &ItemInfo, have: usize, target: usize, link: &LinkEstimate, dt_max: f64) -> usize {
-    if have < info.first_level_part {
+    let end = target.min(info.parts());
+    if have >= end {
         return 1;
     }
-    let mut n = 1;
-    let mut bytes = info.part_bytes[have];
-    while have + n < target.min(info.parts()) {
+    let mut n = info.min_parts().saturating_sub(have).clamp(1, end - have);
+    let mut bytes: u64 = info.part_bytes[have..have + n].iter().sum();
+    while have + n < end {
         let more = bytes + info.part_bytes[have + n];
         if link.time_for(more) > dt_max {
             break;
@@ -539,16 +569,19 @@ mod tests {
     fn one_request_carries_as_many_levels_as_arrive_within_dt_max() {
         let t = tile();
         let fast = LinkEstimate::new(1e9, 0.05);
-        // The mesh goes alone; then every level group up to the target in one run.
-        assert_eq!(run_len(&t, 0, 5, &fast, 0.5), 1);
+        // The mesh travels with the levels: everything up to the target in one run.
+        assert_eq!(run_len(&t, 0, 5, &fast, 0.5), 5);
+        assert_eq!(run_len(&t, 0, 2, &fast, 0.5), 2);
         assert_eq!(run_len(&t, 1, 5, &fast, 0.5), 4);
         assert_eq!(run_len(&t, 1, 3, &fast, 0.5), 2);
         assert_eq!(run_len(&t, 4, 5, &fast, 0.5), 1);
         // 10 kbit/s, 50 ms: 20+60 B = 64 ms + 50 ms fits 0.15 s, adding 240 B does not.
         let slow = LinkEstimate::new(1e4, 0.05);
         assert_eq!(run_len(&t, 1, 5, &slow, 0.15), 2);
-        // Too slow for even one group: still one (the caller decides whether to send it).
+        // Too slow for even one group: still one (the caller decides whether to send it),
+        // and never less than mesh + coarsest level for an item not yet shown.
         assert_eq!(run_len(&t, 1, 5, &slow, 0.0), 1);
+        assert_eq!(run_len(&t, 0, 5, &slow, 0.0), 2);
         let items = vec![t];
         let p = plan(&PlanInput {
             items: &items,
@@ -575,6 +608,27 @@ mod tests {
         assert!((bps - 2e6).abs() < 1e3, "{bps}");
         assert!((lat - 0.05).abs() < 1e-6, "{lat}");
         assert!((e.time_for(2e6 as u64 / 8) - 1.05).abs() < 1e-3);
+    }
+
+    #[test]
+    fn scaled_budgets_hold_the_largest_segment_at_full_resolution() {
+        let items = vec![tile(); 4];
+        let full = tile().mem(5);
+        // Small database: the paper's values stand.
+        let b =
+            BudgetParams::default().scaled_to(&items, &[vec![(0, 1.0), (1, 1.0)], vec![(2, 1.0)]]);
+        assert_eq!(b, BudgetParams::default());
+        // A database whose segments outgrow 4 MiB: M follows the largest segment.
+        let big = ItemInfo {
+            part_mem: tile().part_mem.iter().map(|m| m * 4096).collect(),
+            ..tile()
+        };
+        let items = vec![big.clone(), big.clone(), big];
+        let segs = vec![vec![(0, 1.0)], vec![(1, 0.5), (2, 0.5), (9, 1.0)]];
+        let b = BudgetParams::default().scaled_to(&items, &segs);
+        assert_eq!(b.memory_bytes, 2 * full * 4096);
+        assert_eq!(b.memory_static_bytes, (16 << 20).max(4 * full * 4096));
+        assert_eq!(b.dt_max_s, 0.5);
     }
 
     #[test]

@@ -150,12 +150,22 @@ pub struct ClientStats {
     pub reconnects: AtomicU64,
 }
 
+/// One piece of a bundle: what to fetch, its exact length and the hash it must have.
+#[derive(Clone, Copy, Debug)]
+pub struct BundlePiece<'a> {
+    pub key: &'a FetchKey,
+    pub len: u64,
+    pub hash: &'a str,
+}
+
 /// One keep-alive connection, reopened on demand.
 pub struct Connection {
     url: ServerUrl,
     sender: Option<SendRequest<Empty<Bytes>>>,
     policy: RetryPolicy,
     stats: Arc<ClientStats>,
+    /// The server answered `/bundle` with 404/405/501 (a static host): fetch piece by piece.
+    no_bundles: bool,
 }
 
 impl Connection {
@@ -165,7 +175,18 @@ impl Connection {
             sender: None,
             policy,
             stats,
+            no_bundles: false,
         }
+    }
+
+    /// The counters this connection adds to.
+    pub fn stats(&self) -> &Arc<ClientStats> {
+        &self.stats
+    }
+
+    /// Whether this server serves `/bundle` (as far as this connection has seen).
+    pub fn bundles_supported(&self) -> bool {
+        !self.no_bundles
     }
 
     async fn connect(&mut self) -> Result<&mut SendRequest<Empty<Bytes>>, ClientError> {
@@ -405,10 +426,138 @@ impl Connection {
         Err(ClientError::Checksum { path, attempts })
     }
 
+    /// Download many pieces (whole objects or ranges, of any objects) in one `/bundle`
+    /// request and check each against its own hash; consecutive ranges of one object travel
+    /// as one entry. A mismatch anywhere (or a body of the wrong length) re-downloads the
+    /// bundle, up to `checksum_attempts` times; nothing that failed its check is returned.
+    /// A server without `/bundle` (a static host: 404, 405 or 501) is remembered, and the
+    /// pieces are then fetched one object (or consecutive range run) at a time.
+    pub async fn fetch_checked_bundle(
+        &mut self,
+        pieces: &[BundlePiece<'_>],
+        cancel: Option<&AtomicBool>,
+    ) -> Result<Vec<Bytes>, ClientError> {
+        if pieces.is_empty() {
+            return Ok(Vec::new());
+        }
+        for p in pieces {
+            if object_rel_path(&p.key.object).is_none() {
+                return Err(ClientError::BadObject(p.key.object.clone()));
+            }
+            if p.key.range.is_some_and(|(_, len)| len != p.len) {
+                return Err(ClientError::Transfer {
+                    path: "/bundle".into(),
+                    message: format!("{}: range length differs from {}", p.key.object, p.len),
+                });
+            }
+        }
+        if !self.no_bundles {
+            match self.bundle_once_checked(pieces, cancel).await {
+                Err(ClientError::Status { status, .. }) if matches!(status, 404 | 405 | 501) => {
+                    tracing::info!("server has no /bundle ({status}); fetching object by object");
+                    self.no_bundles = true;
+                }
+                other => return other,
+            }
+        }
+        let mut out = Vec::with_capacity(pieces.len());
+        let mut i = 0;
+        while i < pieces.len() {
+            // The longest run of consecutive ranges of one object from `i`.
+            let mut j = i + 1;
+            while j < pieces.len() && consecutive(&pieces[j - 1], &pieces[j]) {
+                j += 1;
+            }
+            if j - i > 1 {
+                let run: Vec<(u64, u64, &str)> = pieces[i..j]
+                    .iter()
+                    .map(|p| {
+                        let (off, len) = p.key.range.unwrap_or((0, p.len));
+                        (off, len, p.hash)
+                    })
+                    .collect();
+                out.extend(
+                    self.fetch_checked_run(&pieces[i].key.object, &run, cancel)
+                        .await?,
+                );
+            } else {
+                out.push(
+                    self.fetch_checked(pieces[i].key, pieces[i].hash, cancel)
+                        .await?,
+                );
+            }
+            i = j;
+        }
+        Ok(out)
+    }
+
+    async fn bundle_once_checked(
+        &mut self,
+        pieces: &[BundlePiece<'_>],
+        cancel: Option<&AtomicBool>,
+    ) -> Result<Vec<Bytes>, ClientError> {
+        // Entries: consecutive ranges of one object merged.
+        let mut entries: Vec<crate::server::BundleEntry> = Vec::new();
+        for (k, p) in pieces.iter().enumerate() {
+            if k > 0 && consecutive(&pieces[k - 1], p) {
+                if let Some(Some((_, len))) = entries.last_mut().map(|e| e.range.as_mut()) {
+                    *len += p.len;
+                    continue;
+                }
+            }
+            entries.push(crate::server::BundleEntry {
+                object: p.key.object.clone(),
+                range: p.key.range,
+            });
+        }
+        let path = format!("/bundle?{}", crate::server::bundle_query(&entries));
+        let total: u64 = pieces.iter().map(|p| p.len).sum();
+        let attempts = self.policy.checksum_attempts.max(1);
+        'attempt: for _ in 0..attempts {
+            let data = self.get(&path, None, cancel).await?;
+            if data.len() as u64 != total {
+                self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
+                tracing::warn!(
+                    "/bundle: {} bytes, expected {total}; fetching again",
+                    data.len()
+                );
+                continue;
+            }
+            let mut out = Vec::with_capacity(pieces.len());
+            let mut at = 0usize;
+            for p in pieces {
+                let piece = data.slice(at..at + p.len as usize);
+                at += p.len as usize;
+                if blake3::hash(&piece).to_hex().as_str() != p.hash {
+                    self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
+                    tracing::warn!(
+                        "/bundle: checksum mismatch in {}, fetching again",
+                        p.key.object
+                    );
+                    continue 'attempt;
+                }
+                out.push(piece);
+            }
+            return Ok(out);
+        }
+        Err(ClientError::Checksum {
+            path: "/bundle".into(),
+            attempts,
+        })
+    }
+
     /// Download and parse `manifest.json`.
     pub async fn manifest(&mut self) -> Result<Manifest, ClientError> {
         let raw = self.get("/manifest.json", None, None).await?;
         serde_json::from_slice(&raw).map_err(|e| ClientError::Manifest(e.to_string()))
+    }
+}
+
+/// Whether `b` is the byte range right after `a` in the same object.
+fn consecutive(a: &BundlePiece, b: &BundlePiece) -> bool {
+    match (a.key.range, b.key.range) {
+        (Some((ao, al)), Some((bo, _))) => a.key.object == b.key.object && ao + al == bo,
+        _ => false,
     }
 }
 

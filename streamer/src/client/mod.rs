@@ -27,7 +27,9 @@ pub use budget::{
 };
 pub use cache::{Cache, CacheError};
 pub use fetcher::{FetchOutcome, FetchRequest, Fetcher, FetcherConfig};
-pub use http::{ClientError, ClientStats, Connection, FetchKey, RetryPolicy, ServerUrl};
+pub use http::{
+    BundlePiece, ClientError, ClientStats, Connection, FetchKey, RetryPolicy, ServerUrl,
+};
 pub use items::{ItemTable, Part};
 pub use live::{Arrival, LiveConfig, LiveError, LiveSession, LiveStats};
 pub use predict::{next_segment, segment_at, MotionTracker};

@@ -5,12 +5,16 @@
 //! connection runs in its own task (one connection's error never stops the server), and the
 //! shutdown future starts a graceful drain. Responses carry `ETag` = content hash and
 //! `Cache-Control: immutable`, so any static server can stand in for this one; this one adds
-//! per-connection bandwidth shaping and added latency for simulation.
+//! per-connection bandwidth shaping and added latency for simulation. `/bundle?p=…`
+//! (see [`parse_bundle_query`]) serves many objects or ranges in one response (one round trip for a batch of
+//! small tiles); it is an optimisation only — a static host answers 404 and clients fall back
+//! to one request per object.
 //!
 //! Paths are never taken from the request: an object request names a hash, the hash is
 //! validated ([`tracks::manifest::object_rel_path`]) and must be one the manifest lists, and
 //! only then is `DB/objects/HH/HASH` opened.
 
+mod bundle;
 mod range;
 mod shape;
 
@@ -35,6 +39,7 @@ use tokio::sync::{watch, Semaphore};
 use tokio::task::JoinSet;
 use tracks::manifest::{object_rel_path, Manifest};
 
+pub use bundle::{bundle_query, parse_bundle_query, BundleEntry, BundleError};
 pub use range::{parse_range, RangeError};
 pub use shape::{parse_duration, parse_rate, Shaped};
 
@@ -47,8 +52,12 @@ pub struct ServerConfig {
     pub header_timeout: Duration,
     /// Largest request head (headers) accepted, bytes.
     pub max_header_bytes: usize,
-    /// Largest response body (one range or one whole object), bytes.
+    /// Largest response body (one range, one whole object or one bundle), bytes.
     pub max_range_bytes: u64,
+    /// Entries one `/bundle` request may name at most.
+    pub max_bundle_entries: usize,
+    /// Serve `/bundle` (off: behave like a static file host, 404).
+    pub bundles: bool,
     /// Per-connection write rate, bits per second (`None` = unlimited).
     pub throttle_bps: Option<u64>,
     /// Added before each response.
@@ -66,6 +75,8 @@ impl Default for ServerConfig {
             header_timeout: Duration::from_secs(5),
             max_header_bytes: 16 * 1024,
             max_range_bytes: 64 << 20,
+            max_bundle_entries: 256,
+            bundles: true,
             throttle_bps: None,
             latency: Duration::ZERO,
             corrupt_every: None,
@@ -326,10 +337,15 @@ async fn route(s: &Shared, req: &Request<Incoming>) -> Resp {
             Ok(r) => r,
             Err(r) => r,
         }
+    } else if path == "/bundle" && s.config.bundles {
+        match bundle(s, req).await {
+            Ok(r) => r,
+            Err(r) => r,
+        }
     } else {
         reply(
             StatusCode::NOT_FOUND,
-            "unknown path; served: /manifest.json, /objects/HH/HASH",
+            "unknown path; served: /manifest.json, /objects/HH/HASH, /bundle?p=…",
         )
     };
     if head_only {
@@ -428,6 +444,93 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
             r.headers_mut().insert(header::CONTENT_RANGE, v);
         }
     }
+    Ok(r)
+}
+
+/// `/bundle?p=…`: the named objects and ranges concatenated (see [`bundle`]'s module docs).
+async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
+    let query = req.uri().query().unwrap_or_default();
+    let entries = parse_bundle_query(query, s.config.max_bundle_entries)
+        .map_err(|e| reply(StatusCode::BAD_REQUEST, e.to_string()))?;
+    let etag = format!("\"b3-{}\"", blake3::hash(query.as_bytes()).to_hex());
+    if req
+        .headers()
+        .get(header::IF_NONE_MATCH)
+        .is_some_and(|v| v.as_bytes() == etag.as_bytes() || v.as_bytes() == b"*")
+    {
+        let mut r = reply(StatusCode::NOT_MODIFIED, "");
+        *r.body_mut() = Full::new(Bytes::new());
+        add_object_headers(&mut r, &etag);
+        return Ok(r);
+    }
+    let mut body = Vec::new();
+    for (i, e) in entries.iter().enumerate() {
+        if !s.db.objects.contains(&e.object) {
+            return Err(reply(
+                StatusCode::NOT_FOUND,
+                format!(
+                    "bundle entry {i}: object {} is not in this database",
+                    e.object
+                ),
+            ));
+        }
+        let Some(rel) = object_rel_path(&e.object) else {
+            return Err(reply(
+                StatusCode::BAD_REQUEST,
+                format!("bundle entry {i}: bad hash"),
+            ));
+        };
+        let path = s.db.root.join(rel);
+        let not_there = |err: std::io::Error| {
+            tracing::warn!("{}: {err}", path.display());
+            reply(
+                StatusCode::NOT_FOUND,
+                format!(
+                    "bundle entry {i}: object {} is listed but not readable",
+                    e.object
+                ),
+            )
+        };
+        let mut file = tokio::fs::File::open(&path).await.map_err(not_there)?;
+        let size = file.metadata().await.map_err(not_there)?.len();
+        let (offset, len) = e.range.unwrap_or((0, size));
+        if offset.checked_add(len).is_none_or(|end| end > size) {
+            return Err(reply(
+                StatusCode::RANGE_NOT_SATISFIABLE,
+                format!(
+                    "bundle entry {i}: range {offset}+{len} is outside the object of {size} bytes"
+                ),
+            ));
+        }
+        if body.len() as u64 + len > s.config.max_range_bytes {
+            return Err(reply(
+                StatusCode::RANGE_NOT_SATISFIABLE,
+                format!(
+                    "bundle is larger than the limit of {} bytes; ask for fewer entries",
+                    s.config.max_range_bytes
+                ),
+            ));
+        }
+        let start = body.len();
+        body.resize(start + len as usize, 0);
+        file.seek(SeekFrom::Start(offset))
+            .await
+            .map_err(not_there)?;
+        file.read_exact(&mut body[start..])
+            .await
+            .map_err(not_there)?;
+    }
+    if let Some(n) = s.config.corrupt_every.filter(|&n| n > 0) {
+        let k = s.stats.requests.load(Ordering::Relaxed);
+        if k.is_multiple_of(n) && !body.is_empty() {
+            let i = (k as usize * 7919) % body.len();
+            body[i] ^= 0x5a;
+            s.stats.corrupted.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+    let mut r = Response::new(Full::new(Bytes::from(body)));
+    add_object_headers(&mut r, &etag);
+    r.headers_mut().remove(header::ACCEPT_RANGES);
     Ok(r)
 }
 

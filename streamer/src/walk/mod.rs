@@ -95,7 +95,10 @@ pub struct WalkConfig {
     pub frame_dt_s: f64,
     /// Standing still at the end of the track (the static budgets apply).
     pub pause_s: f64,
+    /// Memory/time budgets (the paper's values by default).
     pub budget: BudgetParams,
+    /// Raise `M` and `M_static` to fit the database ([`BudgetParams::scaled_to`]).
+    pub scale_budget: bool,
     pub cache_bytes: u64,
     pub max_in_flight: usize,
     pub screen_width: u32,
@@ -105,6 +108,10 @@ pub struct WalkConfig {
     pub samples_x: u32,
     pub samples_y: u32,
     pub prefetch_horizon_s: f64,
+    /// Prefetch widens the view frustum by this turn of the head (degrees, each side).
+    pub prefetch_turn_deg: f64,
+    /// Pieces (meshes, PTM level groups) one bundled request carries at most.
+    pub bundle_entries: usize,
     pub track: usize,
 }
 
@@ -116,6 +123,7 @@ impl Default for WalkConfig {
             frame_dt_s: 0.05,
             pause_s: 3.0,
             budget: BudgetParams::default(),
+            scale_budget: true,
             cache_bytes: 64 << 20,
             max_in_flight: 6,
             screen_width: 1280,
@@ -124,6 +132,8 @@ impl Default for WalkConfig {
             samples_x: 64,
             samples_y: 36,
             prefetch_horizon_s: 3.0,
+            prefetch_turn_deg: 30.0,
+            bundle_entries: 64,
             track: 0,
         }
     }
@@ -144,6 +154,13 @@ impl VirtualLink {
             latency_s,
             free_at: 0.0,
         }
+    }
+
+    /// Arrival time of `bytes` requested at `t` over `requests` sequential requests on one
+    /// connection (a bundle is one; a static host answers its pieces one request each, each
+    /// paying the latency again).
+    pub fn schedule_requests(&mut self, t: f64, bytes: u64, requests: u64) -> f64 {
+        self.schedule(t, bytes) + self.latency_s * requests.saturating_sub(1) as f64
     }
 
     /// Arrival time of `bytes` requested at `t`.
@@ -199,6 +216,8 @@ pub struct RunReport {
     pub max_resident_bytes: u64,
     /// Whether the resident set always fit the memory budget in force (`M` or `M_static`).
     pub resident_within_budget: bool,
+    /// `M` of the run (configured, or scaled to the database).
+    pub memory_budget_bytes: u64,
     #[serde(skip)]
     pub frames: Vec<FrameRecord>,
 }

@@ -7,14 +7,16 @@ use tracks::PerspectiveCamera;
 
 use super::{look_at, FrameRecord, RunReport, Scene, Strategy, VirtualLink, WalkConfig, WalkError};
 use crate::client::{
-    next_segment, plan, segment_at, Cache, ClientStats, Connection, FetchKey, ItemInfo, ItemTable,
-    LinkEstimate, LiveCount, MotionTracker, Part, PlanInput, PriorityMode,
+    next_segment, plan, segment_at, BudgetParams, BundlePiece, Cache, ClientStats, Connection,
+    FetchKey, ItemInfo, ItemTable, LinkEstimate, LiveCount, MotionTracker, Part, PlanInput,
+    PriorityMode,
 };
-use crate::visibility::{blend_weights, Surface, SurfaceCount};
+use crate::visibility::{blend_weights, frustum_half_angle, Surface, SurfaceCount};
 
 struct InFlight {
-    item: usize,
-    keys: Vec<(FetchKey, Bytes)>,
+    items: Vec<usize>,
+    /// Checked pieces with the arc length of the item each belongs to.
+    keys: Vec<(FetchKey, Bytes, f64)>,
     issued: f64,
     arrives: f64,
     bytes: u64,
@@ -43,6 +45,10 @@ struct Sim<'a> {
     /// The current segment's ACH list after frustum culling at the latest frame's camera
     /// (PTM §6.1: only tiles that can be in view share the budget).
     view_ach: Vec<(usize, f64)>,
+    /// The latest frame's camera (prefetch looks the same way from further on).
+    cam: Option<PerspectiveCamera>,
+    /// Budgets in force (the configured ones, or scaled to the database).
+    budget: BudgetParams,
     s: f64,
 }
 
@@ -58,10 +64,11 @@ impl Sim<'_> {
             .partition(|f| f.arrives <= t + 1e-9);
         self.in_flight = pending;
         for f in arrived {
-            self.downloading[f.item] = false;
+            for &i in &f.items {
+                self.downloading[i] = false;
+            }
             self.estimate.observe(f.bytes, f.arrives - f.issued);
-            let s_item = self.scene.table.items[f.item].s;
-            for (key, data) in f.keys {
+            for (key, data, s_item) in f.keys {
                 // Refused when the budget is full of data in use: dropped, asked again later.
                 let _ = self.cache.insert(key, data, s_item);
             }
@@ -93,7 +100,45 @@ impl Sim<'_> {
             .collect()
     }
 
-    /// Decide and issue downloads at time `t` (fetching the bytes for real).
+    /// The next segment's ACH list cut to what can be in view on arrival: seen from the
+    /// predicted position, looking the way the camera looks now, within the frustum widened
+    /// by the turn the walker may make meanwhile (`prefetch_turn_deg`).
+    fn prefetch_list(&self, next: usize) -> Vec<(usize, f64)> {
+        let table = self.table();
+        let Some(list) = table.segment_ach.get(next) else {
+            return Vec::new();
+        };
+        let Some(cam) = &self.cam else {
+            return list.clone();
+        };
+        let track = &self.scene.track;
+        let lo = table.vp_s.get(next).copied().unwrap_or(0.0);
+        let hi = table.vp_s.get(next + 1).copied().unwrap_or(lo);
+        let s_pred = self
+            .motion
+            .predict(self.cfg.prefetch_horizon_s)
+            .unwrap_or(self.s)
+            .clamp(lo.min(hi), hi.max(lo));
+        let position = track.position_at(s_pred);
+        let half = (frustum_half_angle(cam) + self.cfg.prefetch_turn_deg.max(0.0).to_radians())
+            .min(std::f64::consts::PI);
+        list.iter()
+            .copied()
+            .filter(|&(i, _)| {
+                let it = &table.items[i];
+                it.tile.is_none_or(|tile| {
+                    self.scene
+                        .index
+                        .tile_in_cone(position, cam.forward(), half, it.viewpoint, tile)
+                })
+            })
+            .collect()
+    }
+
+    /// Decide and issue downloads at time `t` (fetching the bytes for real). Each free
+    /// request slot takes one bundle: the next requests in priority order, up to
+    /// `bundle_entries` pieces and about one latency's worth of bytes — so a bundle costs one
+    /// round trip plus a short transfer, and high priorities still arrive first.
     async fn issue(&mut self, conn: &mut Connection, t: f64) -> Result<(), WalkError> {
         let free = self
             .cfg
@@ -104,18 +149,21 @@ impl Sim<'_> {
             return Ok(());
         }
         let n = self.items.len();
-        let mut issue: Vec<(usize, Vec<Part>)> = Vec::new();
+        // Wanted downloads in priority order: (item, parts).
+        let mut wanted: Vec<(usize, Vec<Part>)> = Vec::new();
+        let max_pieces = self.cfg.bundle_entries.max(1);
         match self.strategy {
             Strategy::Naive => {
-                while issue.len() < free && self.naive_next < n {
-                    let it = &self.scene.table.items[self.naive_next];
+                let mut i = self.naive_next;
+                while i < n && wanted.len() < free * max_pieces {
+                    let it = &self.scene.table.items[i];
                     let mut v = Vec::new();
                     if it.info.first_level_part == 1 {
                         v.push(it.parts[0].clone());
                     }
                     v.push(it.whole.clone());
-                    issue.push((self.naive_next, v));
-                    self.naive_next += 1;
+                    wanted.push((i, v));
+                    i += 1;
                 }
             }
             Strategy::Budget { mode, prefetch } => {
@@ -140,17 +188,15 @@ impl Sim<'_> {
                 } else {
                     None
                 };
-                let pre: &[(usize, f64)] = next
-                    .and_then(|k| table.segment_ach.get(k))
-                    .map_or(&[], |v| v.as_slice());
-                let (memory, dt_max) = self.cfg.budget.current(self.motion.still_s());
+                let pre = next.map_or_else(Vec::new, |k| self.prefetch_list(k));
+                let (memory, dt_max) = self.budget.current(self.motion.still_s());
                 let p = plan(&PlanInput {
                     items: &self.items,
                     have: &have,
                     downloading: &self.downloading,
                     ach,
                     live: &self.live,
-                    prefetch: pre,
+                    prefetch: &pre,
                     mode,
                     memory_bytes: memory,
                     dt_max_s: dt_max,
@@ -169,41 +215,80 @@ impl Sim<'_> {
                         }
                     }
                 }
-                for r in p.requests.iter().take(free) {
+                for r in &p.requests {
                     let parts = &table.items[r.item].parts;
                     let end = (r.part + r.parts.max(1)).min(parts.len());
-                    issue.push((r.item, parts[r.part..end].to_vec()));
+                    wanted.push((r.item, parts[r.part..end].to_vec()));
                 }
             }
         }
-        for (item, parts) in issue {
-            let mut keys = Vec::new();
-            let mut size = 0;
-            if let Some(run) = as_run(&parts) {
-                // Consecutive level groups of one object: one ranged request.
-                let data = conn
-                    .fetch_checked_run(&parts[0].key.object, &run, None)
-                    .await?;
-                for (part, d) in parts.iter().zip(data) {
-                    size += d.len() as u64;
-                    keys.push((part.key.clone(), d));
+        // Bytes one bundle may carry: about one latency's worth of the estimated link (at
+        // least 16 KiB), so its transfer costs no more than its round trip.
+        let (bps, latency) = self.estimate.get();
+        let byte_cap = ((bps / 8.0 * latency.max(0.05)) as u64).max(16 << 10);
+        let mut bundles: Vec<Vec<(usize, Vec<Part>)>> = Vec::new();
+        let mut wanted = wanted.into_iter().peekable();
+        while bundles.len() < free {
+            let mut b: Vec<(usize, Vec<Part>)> = Vec::new();
+            let (mut pieces, mut bytes) = (0usize, 0u64);
+            while let Some((_, parts)) = wanted.peek() {
+                let p_bytes: u64 = parts.iter().map(|p| p.bytes).sum();
+                let fits = pieces + parts.len() <= max_pieces && bytes + p_bytes <= byte_cap;
+                if !b.is_empty() && !fits {
+                    break;
                 }
-                self.requests += 1;
+                pieces += parts.len();
+                bytes += p_bytes;
+                b.extend(wanted.next());
+            }
+            if b.is_empty() {
+                break;
+            }
+            bundles.push(b);
+        }
+        for b in bundles {
+            if self.strategy == Strategy::Naive {
+                self.naive_next = b.last().map_or(self.naive_next, |x| x.0 + 1);
+            }
+            let flat: Vec<&Part> = b.iter().flat_map(|(_, parts)| parts.iter()).collect();
+            let pieces: Vec<BundlePiece> = flat
+                .iter()
+                .map(|p| BundlePiece {
+                    key: &p.key,
+                    len: p.bytes,
+                    hash: &p.hash,
+                })
+                .collect();
+            let data = conn.fetch_checked_bundle(&pieces, None).await?;
+            // One request per bundle; a static host answers one object (or range run) per
+            // request (re-fetches after a checksum failure are not counted: they cost real
+            // time, not virtual time, so a corrupting server changes no frame).
+            let requests = if conn.bundles_supported() {
+                1
             } else {
-                for part in &parts {
-                    let data = conn.fetch_checked(&part.key, &part.hash, None).await?;
-                    size += data.len() as u64;
-                    keys.push((part.key.clone(), data));
+                request_runs(&flat)
+            };
+            self.requests += requests;
+            let size: u64 = data.iter().map(|d| d.len() as u64).sum();
+            let mut data = data.into_iter();
+            let mut items = Vec::with_capacity(b.len());
+            let mut keys = Vec::with_capacity(flat.len());
+            for (item, parts) in &b {
+                self.downloading[*item] = true;
+                items.push(*item);
+                let s_item = self.scene.table.items[*item].s;
+                for part in parts {
+                    if let Some(d) = data.next() {
+                        keys.push((part.key.clone(), d, s_item));
+                    }
                 }
-                self.requests += parts.len() as u64;
             }
             self.bytes += size;
-            self.downloading[item] = true;
             self.in_flight.push(InFlight {
-                item,
+                items,
                 keys,
                 issued: t,
-                arrives: self.link.schedule(t, size),
+                arrives: self.link.schedule_requests(t, size, requests),
                 bytes: size,
             });
         }
@@ -211,26 +296,23 @@ impl Sim<'_> {
     }
 }
 
-/// `(offset, len, hash)` of each part when there are several and they are consecutive byte
-/// ranges of one object (so one request can carry them all).
-fn as_run(parts: &[Part]) -> Option<Vec<(u64, u64, &str)>> {
-    if parts.len() < 2 {
-        return None;
-    }
-    let mut out = Vec::with_capacity(parts.len());
-    for p in parts {
-        let (off, len) = p.key.range?;
-        if p.key.object != parts[0].key.object {
-            return None;
+/// Requests needed for `parts` one object at a time: consecutive ranges of one object
+/// travel together.
+fn request_runs(parts: &[&Part]) -> u64 {
+    let mut n = 0;
+    for (i, p) in parts.iter().enumerate() {
+        let joins = i > 0
+            && match (parts[i - 1].key.range, p.key.range) {
+                (Some((o, l)), Some((o2, _))) => {
+                    parts[i - 1].key.object == p.key.object && o + l == o2
+                }
+                _ => false,
+            };
+        if !joins {
+            n += 1;
         }
-        if let Some(&(o, l, _)) = out.last() {
-            if o + l != off {
-                return None;
-            }
-        }
-        out.push((off, len, p.hash.as_str()));
     }
-    Some(out)
+    n
 }
 
 /// Run one (strategy, bandwidth) walk.
@@ -264,6 +346,13 @@ pub(crate) async fn run_one(
         over_budget: false,
         live: Vec::new(),
         view_ach: Vec::new(),
+        cam: None,
+        budget: if cfg.scale_budget {
+            cfg.budget
+                .scaled_to(&scene.table.infos(), &scene.table.segment_ach)
+        } else {
+            cfg.budget
+        },
         s: 0.0,
     };
     let failures_before = stats.checksum_failures.load(Ordering::Relaxed);
@@ -301,6 +390,7 @@ pub(crate) async fn run_one(
             width: cfg.screen_width,
             height: cfg.screen_height,
         };
+        sim.cam = Some(cam);
         let weights = blend_weights(&scene.table.vp_s, s);
         let counts = scene
             .index
@@ -383,6 +473,7 @@ pub(crate) async fn run_one(
         max_cache_bytes: max_cache,
         max_resident_bytes: sim.max_resident,
         resident_within_budget: !sim.over_budget,
+        memory_budget_bytes: sim.budget.memory_bytes,
         frames,
     })
 }
