@@ -10,10 +10,11 @@
 
 use std::hint::black_box;
 use std::io::Cursor;
+use std::time::Instant;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use prerender::render::{render_cube, RenderOptions};
-use streamer::ptm::{decode, encode, EncodeOptions, Image, Limits, Method};
+use streamer::ptm::{decode, decode_up_to, encode, EncodeOptions, Image, Limits, Method};
 use tracks::Face;
 
 const N: u32 = 256;
@@ -125,6 +126,8 @@ fn bench(c: &mut Criterion) {
         sum_mips as f64 / sum_ptm as f64
     );
 
+    decode_ratio(&tiles[..6], &opts);
+
     let mut g = c.benchmark_group("ptm-256-rgba");
     g.throughput(Throughput::Bytes((N * N * 4) as u64));
     let (name, img) = &tiles[Face::PosX.index()];
@@ -146,6 +149,53 @@ fn bench(c: &mut Criterion) {
         b.iter(|| decode(black_box(&raw), Limits::default()).unwrap())
     });
     g.finish();
+}
+
+/// Decode time of PTM against PNG over the castle tiles, robust to the load of a shared
+/// machine: the two decoders alternate tile by tile, and each keeps its fastest of `ROUNDS`
+/// passes (load only ever adds time). Also the time to decode only the coarser levels (what a
+/// client asking for level 1 or 2 pays).
+fn decode_ratio(tiles: &[(String, Image)], opts: &EncodeOptions) {
+    const ROUNDS: usize = 60;
+    let encoded: Vec<Vec<u8>> = tiles
+        .iter()
+        .map(|(_, img)| encode(img, opts).unwrap().bytes)
+        .collect();
+    let pngs: Vec<Vec<u8>> = tiles.iter().map(|(_, img)| png_bytes(img)).collect();
+    let time = |f: &mut dyn FnMut()| {
+        let t = Instant::now();
+        f();
+        t.elapsed().as_secs_f64()
+    };
+    let mut best = [[f64::INFINITY; 4]; 6];
+    for _ in 0..ROUNDS {
+        for (i, (ptm, png)) in encoded.iter().zip(&pngs).enumerate() {
+            let b = &mut best[i];
+            b[0] = b[0].min(time(&mut || {
+                black_box(decode(black_box(ptm), Limits::default()).unwrap());
+            }));
+            b[1] = b[1].min(time(&mut || {
+                black_box(
+                    image::load_from_memory_with_format(black_box(png), image::ImageFormat::Png)
+                        .unwrap(),
+                );
+            }));
+            for (slot, level) in [(2, 1), (3, 2)] {
+                b[slot] = b[slot].min(time(&mut || {
+                    black_box(decode_up_to(black_box(ptm), level, Limits::default()).unwrap());
+                }));
+            }
+        }
+    }
+    let sum = |k: usize| best.iter().map(|b| b[k]).sum::<f64>() * 1e3;
+    let (ptm, png, l1, l2) = (sum(0), sum(1), sum(2), sum(3));
+    println!(
+        "decode, 6 castle tiles, fastest of {ROUNDS} (ms): ptm {ptm:.3}, png {png:.3}, \
+         ptm/png {:.2}x the time; up to level 1 {l1:.3} ({:.2}x png), level 2 {l2:.3} ({:.2}x png)\n",
+        ptm / png,
+        l1 / png,
+        l2 / png
+    );
 }
 
 criterion_group!(benches, bench);

@@ -67,6 +67,33 @@ pub fn decode(bytes: &[u8], limits: Limits) -> Result<Image, PtmError> {
     }
 }
 
+/// Decodes a PTM file, or a prefix of one, down to level `level` (0 = full resolution) and no
+/// further: only the groups up to that level are read and decoded; the bytes after them may
+/// be absent. A level coarser than the lowest stored one gives the lowest stored level.
+pub fn decode_up_to(bytes: &[u8], level: u32, limits: Limits) -> Result<Image, PtmError> {
+    let mut dec = Decoder::new(limits);
+    let fixed = bytes.len().min(FIXED_HEADER_LEN);
+    dec.push(&bytes[..fixed])?;
+    let table_end = dec
+        .fixed
+        .map_or(FIXED_HEADER_LEN, |f| FIXED_HEADER_LEN + 4 * f.2 as usize);
+    dec.push(&bytes[fixed..bytes.len().min(table_end)])?;
+    let Some(h) = dec.header().cloned() else {
+        return Err(PtmError::Truncated {
+            have: bytes.len() as u64,
+            needed: table_end as u64,
+        });
+    };
+    let groups = (h.levels as u32).saturating_sub(level).max(1) as usize;
+    let end = h.chunk_range(groups - 1).expect("group exists").end;
+    let have = bytes.len() as u64;
+    if have < end {
+        return Err(PtmError::Truncated { have, needed: end });
+    }
+    dec.push(&bytes[table_end..end as usize])?;
+    Ok(dec.into_finest().expect("groups decoded"))
+}
+
 /// Length of a group payload before compression.
 fn plain_len(h: &Header, g: usize) -> u64 {
     let c = h.channels as u64;

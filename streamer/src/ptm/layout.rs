@@ -85,7 +85,7 @@ pub(crate) fn merge(coded: &[u8], np: usize, c: usize, mode: u8, out: &mut Vec<u
     }
 }
 
-/// [`merge`] for `C` channels of which `CC` are colour.
+/// [`merge`] for `C` channels of which `CC` are colour: the residual codes, then the errors.
 fn merge_c<const C: usize, const CC: usize, const DECORRELATE: bool>(
     coded: &[u8],
     np: usize,
@@ -93,19 +93,41 @@ fn merge_c<const C: usize, const CC: usize, const DECORRELATE: bool>(
 ) {
     let n = coded.len() / C; // np + stored samples per channel
     let (colour, alpha) = coded.split_at(n * CC);
-    for (px, src) in out.chunks_exact_mut(C).zip(colour.chunks_exact(CC)) {
-        px[..CC].copy_from_slice(src);
-    }
-    if DECORRELATE {
-        for px in out[np * C..].chunks_exact_mut(C) {
-            let g = px[1];
-            px[0] = px[0].wrapping_add(g);
-            px[2] = px[2].wrapping_add(g);
+    let (colour_res, colour_err) = colour.split_at(np * CC);
+    let (alpha_res, alpha_err) = alpha.split_at(if CC < C { np } else { 0 });
+    let (out_res, out_err) = out.split_at_mut(np * C);
+    merge_part::<C, CC, false>(colour_res, alpha_res, out_res);
+    merge_part::<C, CC, DECORRELATE>(colour_err, alpha_err, out_err);
+}
+
+/// Interleaves `CC` colour samples and (when `CC < C`) one alpha sample per pixel, adding
+/// green back to red and blue when `DECORRELATE`. One pass, pixels as fixed-size arrays.
+#[inline(always)]
+fn merge_part<const C: usize, const CC: usize, const DECORRELATE: bool>(
+    colour: &[u8],
+    alpha: &[u8],
+    out: &mut [u8],
+) {
+    let pixel = |s: &[u8], a: u8| {
+        let mut p = [a; C];
+        p[..CC].copy_from_slice(s);
+        if DECORRELATE {
+            p[0] = p[0].wrapping_add(p[1]);
+            p[2] = p[2].wrapping_add(p[1]);
         }
-    }
+        p
+    };
     if CC < C {
-        for (px, a) in out.chunks_exact_mut(C).zip(alpha) {
-            px[CC] = *a;
+        for ((px, s), &a) in out
+            .chunks_exact_mut(C)
+            .zip(colour.chunks_exact(CC))
+            .zip(alpha)
+        {
+            px.copy_from_slice(&pixel(s, a));
+        }
+    } else {
+        for (px, s) in out.chunks_exact_mut(C).zip(colour.chunks_exact(CC)) {
+            px.copy_from_slice(&pixel(s, 0));
         }
     }
 }

@@ -63,7 +63,7 @@ mod layout;
 mod predict;
 mod pyramid;
 
-pub use decode::{decode, Decoder, Status};
+pub use decode::{decode, decode_up_to, Decoder, Status};
 pub use encode::{encode, EncodeOptions, Encoded, GroupSpan, Method};
 pub use pyramid::{level_dims, max_levels, MipChain};
 

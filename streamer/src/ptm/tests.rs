@@ -576,3 +576,36 @@ fn group_modes_are_checked() {
         Err(PtmError::UnknownGroupMode { group: 1, .. })
     ));
 }
+
+#[test]
+fn decode_up_to_reads_only_the_groups_it_needs() {
+    for (w, h, c) in [(37, 21, 4), (8, 8, 3), (1, 1, 1), (5, 1, 2)] {
+        let img = textured(w, h, c, w ^ h);
+        let levels = max_levels(w, h);
+        let chain = MipChain::build(&img, levels).unwrap();
+        let enc = encode(&img, &EncodeOptions::default()).unwrap();
+        for (g, span) in enc.groups.iter().enumerate() {
+            // Only the chunks up to this level are present.
+            let prefix = &enc.bytes[..(span.offset + span.len) as usize];
+            let got = decode_up_to(prefix, span.level, Limits::default()).unwrap();
+            assert_eq!(
+                got, chain.levels[span.level as usize],
+                "{w}×{h}×{c} group {g}"
+            );
+            assert!(matches!(
+                decode_up_to(&prefix[..prefix.len() - 1], span.level, Limits::default()),
+                Err(PtmError::Truncated { .. })
+            ));
+        }
+        let lowest = decode_up_to(&enc.bytes, levels as u32 + 5, Limits::default()).unwrap();
+        assert_eq!(lowest, chain.levels[levels as usize - 1]);
+    }
+    assert!(matches!(
+        decode_up_to(b"RPT", 0, Limits::default()),
+        Err(PtmError::Truncated { .. })
+    ));
+    assert!(matches!(
+        decode_up_to(b"JUNKJUNKJUNKJUNK", 0, Limits::default()),
+        Err(PtmError::BadMagic(_))
+    ));
+}
