@@ -33,6 +33,7 @@ pub mod plan;
 pub mod plot;
 pub mod refview;
 pub mod source;
+pub mod stream;
 pub mod synth;
 pub mod texture;
 

@@ -132,9 +132,14 @@ fn decode_ptm(
     let img = dec
         .finest()
         .ok_or_else(|| format_err(what, "no level decoded"))?;
+    let rgba = image_rgba(img);
+    Ok((rgba, img.width(), img.height(), level))
+}
+
+/// A decoded PTM level as RGBA8 (grey, grey+alpha and RGB expanded).
+pub fn image_rgba(img: &streamer::ptm::Image) -> Vec<u8> {
     let c = img.channels() as usize;
-    let rgba: Vec<u8> = img
-        .data()
+    img.data()
         .chunks_exact(c.max(1))
         .flat_map(|p| match c {
             1 => [p[0], p[0], p[0], 255],
@@ -142,8 +147,89 @@ fn decode_ptm(
             3 => [p[0], p[1], p[2], 255],
             _ => [p[0], p[1], p[2], p[3]],
         })
+        .collect()
+}
+
+/// Paste a tile's PTM level `level` (`w × h` RGBA) into its rectangle of a level-0 layer,
+/// each texel standing in for `2^level` × `2^level` pixels (nearest). `what` names the tile.
+pub fn paste_tile(
+    layer: &mut CubeMap<[u8; 4]>,
+    grid: TileGrid,
+    tile: tracks::TileId,
+    (rgba, w, h, level): (&[u8], u32, u32, u32),
+    what: &str,
+) -> Result<(), SourceError> {
+    let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+    let scale = 1u32 << level.min(16);
+    if w == 0
+        || h == 0
+        || w * scale < x1 - x0
+        || h * scale < y1 - y0
+        || rgba.len() < (w * h * 4) as usize
+    {
+        return Err(format_err(
+            what,
+            format!(
+                "PTM level {level} is {w}x{h}, tile is {}x{}",
+                x1 - x0,
+                y1 - y0
+            ),
+        ));
+    }
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let (sx, sy) = (((x - x0) / scale).min(w - 1), ((y - y0) / scale).min(h - 1));
+            let i = ((sy * w + sx) * 4) as usize;
+            *layer.get_mut(tile.face, x, y) = [rgba[i], rgba[i + 1], rgba[i + 2], rgba[i + 3]];
+        }
+    }
+    Ok(())
+}
+
+/// A background cube map (face size `n`) from a decoded level of its `n × 6n` PTM; coarser
+/// levels are widened (nearest; the coarsest levels may not keep the 1:6 shape).
+pub fn background_map(
+    (rgba, w, h): (&[u8], u32, u32),
+    n: u32,
+    what: &str,
+) -> Result<CubeMap<[u8; 4]>, SourceError> {
+    if w == 0 || h == 0 || w > n || h > 6 * n || rgba.len() < (w as usize * h as usize * 4) {
+        return Err(format_err(
+            what,
+            format!("{w}x{h} is not a level of a {n}x{} cube map", 6 * n),
+        ));
+    }
+    let (n64, w64, h64) = (n as u64, w as u64, h as u64);
+    let px: Vec<[u8; 4]> = (0..6 * n64)
+        .flat_map(|y| (0..n64).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let (sx, sy) = (x * w64 / n64, y * h64 / (6 * n64));
+            let i = ((sy * w64 + sx) * 4) as usize;
+            [rgba[i], rgba[i + 1], rgba[i + 2], rgba[i + 3]]
+        })
         .collect();
-    Ok((rgba, img.width(), img.height(), level))
+    CubeMap::from_vec(n, px).ok_or_else(|| format_err(what, "background size"))
+}
+
+/// A tile's depth mesh from its stored bytes.
+pub fn tile_mesh_from_bytes(bytes: &[u8], what: &str) -> Result<TileMesh, SourceError> {
+    let mesh = decode_mesh(bytes).map_err(|e| format_err(what, e))?;
+    Ok(TileMesh {
+        vertices: mesh
+            .vertices
+            .iter()
+            .map(|v| MeshVertex {
+                pos_in_face: [v[0], v[1]],
+                depth_m: v[2],
+            })
+            .collect(),
+        indices: mesh.indices,
+    })
+}
+
+/// The track of a manifest entry.
+pub fn manifest_track(entry: &TrackEntry) -> Result<Track, SourceError> {
+    parse_track(&entry.track_toml, &entry.name, "manifest.json track_toml")
 }
 
 /// Views from a database: tile PTMs pasted into per-slab cube-map layers, meshes decoded.
@@ -154,7 +240,7 @@ pub fn from_database(
 ) -> Result<Walkthrough, SourceError> {
     let m = db.manifest();
     let entry = pick_track(&m.tracks, track)?;
-    let track = parse_track(&entry.track_toml, &entry.name, "manifest.json track_toml")?;
+    let track = manifest_track(entry)?;
     let n = m.face_size;
     let grid = TileGrid::new(n, m.tile_size)
         .ok_or_else(|| format_err("manifest.json tile_size", m.tile_size))?;
@@ -172,11 +258,7 @@ pub fn from_database(
                         format!("{w}x{h}, expected {n}x{}", 6 * n),
                     ));
                 }
-                let px: Vec<[u8; 4]> = rgba
-                    .chunks_exact(4)
-                    .map(|p| [p[0], p[1], p[2], p[3]])
-                    .collect();
-                CubeMap::from_vec(n, px).ok_or_else(|| format_err(&what, "background size"))?
+                background_map((&rgba, w, h), n, &what)?
             }
             None => CubeMap::filled(n, [0, 0, 0, 0]),
         };
@@ -193,40 +275,8 @@ pub fn from_database(
             })?;
             bytes += ptm.object.size + mesh_ref.size;
             let (rgba, w, h, level) = decode_ptm(db, ptm, opts.level_groups, &key)?;
-            let (x0, y0, x1, y1) = grid.pixel_rect(t.tile);
-            let scale = 1u32 << level.min(16);
-            if w * scale < x1 - x0 || h * scale < y1 - y0 {
-                return Err(format_err(
-                    &key,
-                    format!(
-                        "PTM level {level} is {w}x{h}, tile is {}x{}",
-                        x1 - x0,
-                        y1 - y0
-                    ),
-                ));
-            }
-            // Missing finer levels: the coarse level stands in (nearest), and the tile's min
-            // level keeps the renderer from sampling finer than what arrived.
-            for y in y0..y1 {
-                for x in x0..x1 {
-                    let (sx, sy) = (((x - x0) / scale).min(w - 1), ((y - y0) / scale).min(h - 1));
-                    let i = ((sy * w + sx) * 4) as usize;
-                    *layer.get_mut(t.tile.face, x, y) =
-                        [rgba[i], rgba[i + 1], rgba[i + 2], rgba[i + 3]];
-                }
-            }
-            let mesh = decode_mesh(&db.read_object(mesh_ref)?).map_err(|e| format_err(&key, e))?;
-            let mesh = TileMesh {
-                vertices: mesh
-                    .vertices
-                    .iter()
-                    .map(|v| MeshVertex {
-                        pos_in_face: [v[0], v[1]],
-                        depth_m: v[2],
-                    })
-                    .collect(),
-                indices: mesh.indices,
-            };
+            paste_tile(layer, grid, t.tile, (&rgba, w, h, level), &key)?;
+            let mesh = tile_mesh_from_bytes(&db.read_object(mesh_ref)?, &key)?;
             let mut vt = ViewTile::new(t.tile, t.slab, mesh, n);
             vt.finest_level = level;
             tiles.push(vt);

@@ -12,8 +12,8 @@
 //!    does not fit is dropped and asked for again later);
 //! 2. runs [`plan`] in the selected [`PriorityMode`] (ACH of the current segment culled to the
 //!    view frustum, live counts, or both) with the motion-predicted next segment as prefetch;
-//!    live counts not supplied by the caller come from the CPU reference of the visibility
-//!    pass ([`SceneIndex::count`]), and the caller's counts replace them for the tiles it drew;
+//!    live counts come from the CPU reference of the visibility pass ([`SceneIndex::count`])
+//!    merged with the caller's (per item the larger count and the finer needed level);
 //! 3. pins what the plan keeps resident and the coarsest levels of the current segment (its
 //!    ACH tiles and the backgrounds of its two viewpoints), submits the plan's downloads and
 //!    cancels queued or running ones the plan no longer wants;
@@ -129,6 +129,9 @@ pub struct LiveStats {
     pub quality: f64,
     /// Fraction of the current segment's items showable (mesh and coarsest level held).
     pub coarse_fraction: f64,
+    /// Fraction of the visible pixels (live counts) whose tile or background is showable;
+    /// 1 = every visible tile at some level.
+    pub visible_fraction: f64,
     /// Bytes received in total.
     pub bytes: u64,
     pub requests: u64,
@@ -150,6 +153,9 @@ pub struct LiveSession {
     track: usize,
     table: ItemTable,
     infos: Vec<ItemInfo>,
+    /// `infos` cut to the level cap (what [`plan`] sees).
+    plan_infos: Vec<ItemInfo>,
+    level_cap: Option<usize>,
     index: Option<SceneIndex>,
     config: LiveConfig,
     cache: Cache,
@@ -231,7 +237,9 @@ impl LiveSession {
             manifest,
             track,
             table,
+            plan_infos: infos.clone(),
             infos,
+            level_cap: None,
             index,
             config,
             cache,
@@ -280,6 +288,33 @@ impl LiveSession {
         self.config.prefetch = on;
     }
 
+    /// Download at most the first `groups` PTM level groups of every item (`None`: all), e.g.
+    /// a preview that holds only the coarsest levels; running downloads beyond the cap are
+    /// cancelled at the next update.
+    pub fn set_level_cap(&mut self, groups: Option<usize>) {
+        self.level_cap = groups.map(|g| g.max(1));
+        self.plan_infos = self
+            .infos
+            .iter()
+            .map(|info| match self.level_cap {
+                Some(g) => {
+                    let parts = (info.first_level_part + g).min(info.parts());
+                    ItemInfo {
+                        part_bytes: info.part_bytes[..parts].to_vec(),
+                        part_mem: info.part_mem[..parts].to_vec(),
+                        first_level_part: info.first_level_part,
+                        levels: info.levels[..parts - info.first_level_part.min(parts)].to_vec(),
+                    }
+                }
+                None => info.clone(),
+            })
+            .collect();
+    }
+
+    pub fn level_cap(&self) -> Option<usize> {
+        self.level_cap
+    }
+
     /// Cached bytes of one part, if held.
     pub fn part_bytes(&self, item: usize, part: usize) -> Option<&Bytes> {
         let key = &self.table.items.get(item)?.parts.get(part)?.key;
@@ -302,7 +337,7 @@ impl LiveSession {
 
     /// One frame: take finished downloads, plan, request, cancel; returns what arrived.
     /// `live` are visible-pixel counts measured by the caller (e.g. the GPU feedback pass);
-    /// they replace the CPU estimate for the items they name.
+    /// they are merged with the CPU estimate (larger count, finer level per item).
     pub fn update(
         &mut self,
         s: f64,
@@ -345,10 +380,12 @@ impl LiveSession {
         let top = ach.iter().map(|a| a.1).fold(0.0f64, f64::max);
         let top = if top > 0.0 { top } else { 1.0 };
         ach.extend(backgrounds.iter().map(|&b| (b, top)));
+        let all_counts = self.live_counts(s, camera, live);
+        self.stats.visible_fraction = visible_fraction(&all_counts, &have, &self.infos);
         let counts = if matches!(mode, PriorityMode::Ach) {
             Vec::new()
         } else {
-            self.live_counts(s, camera, live)
+            all_counts
         };
         let next = if self.config.prefetch {
             next_segment(
@@ -365,7 +402,7 @@ impl LiveSession {
             .map_or(&[], |v| v.as_slice());
         let (memory, dt_max) = self.config.budget.current(self.motion.still_s());
         let p = plan(&PlanInput {
-            items: &self.infos,
+            items: &self.plan_infos,
             have: &have,
             downloading: &downloading,
             ach: &ach,
@@ -489,10 +526,21 @@ impl LiveSession {
                 }
             }
         }
+        // The caller's counts (measured on the GPU) and the CPU estimate are merged by the
+        // larger count and the finer need: a tile the caller drew from a coarse level may
+        // show fewer pixels than it will (a coarse opacity mask), one the CPU march missed
+        // may show more.
         for c in live.unwrap_or(&[]) {
-            if c.item < self.table.items.len() && c.pixels.is_finite() {
-                by_item.insert(c.item, *c);
+            if c.item >= self.table.items.len() || !c.pixels.is_finite() {
+                continue;
             }
+            by_item
+                .entry(c.item)
+                .and_modify(|e| {
+                    e.pixels = e.pixels.max(c.pixels);
+                    e.needed_level = e.needed_level.min(c.needed_level);
+                })
+                .or_insert(*c);
         }
         let mut out: Vec<LiveCount> = by_item.into_values().filter(|c| c.pixels > 0.0).collect();
         out.sort_by_key(|c| c.item);
@@ -602,4 +650,18 @@ impl LiveSession {
             ..std::mem::take(&mut self.stats)
         };
     }
+}
+
+/// Fraction of the counted pixels whose item holds at least its coarsest level.
+fn visible_fraction(counts: &[LiveCount], have: &[usize], infos: &[ItemInfo]) -> f64 {
+    let total: f64 = counts.iter().map(|c| c.pixels).sum();
+    if total <= 0.0 {
+        return 1.0;
+    }
+    let shown: f64 = counts
+        .iter()
+        .filter(|c| have.get(c.item).copied().unwrap_or(0) >= infos[c.item].min_parts())
+        .map(|c| c.pixels)
+        .sum();
+    shown / total
 }

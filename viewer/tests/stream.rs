@@ -1,0 +1,364 @@
+//! The streamed walkthrough against a real server on loopback, rendered on the GPU (lavapipe
+//! on machines without one; `RAILVIEW_SKIP_GPU_TESTS=1` switches it off): with only the
+//! coarsest levels present every tile is drawn (no black where tiles exist, the same image as
+//! the database opened with one level group), and the image gets sharper as the remaining
+//! levels arrive, ending equal to the fully loaded database.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use streamer::client::LiveConfig;
+use streamer::db::mesh::{encode_mesh, MeshData};
+use streamer::db::DbWriter;
+use streamer::ptm::{encode, EncodeOptions, Image};
+use streamer::server::{self, ServedDb, ServerConfig, ServerStats};
+use tracks::manifest::{
+    AchEntry, Manifest, SegmentEntry, TileEntry, TrackEntry, ViewpointEntry, MANIFEST_VERSION,
+};
+use tracks::{PerspectiveCamera, TileGrid};
+use viewer::gpu::{Frame, Gpu, Renderer};
+use viewer::headless::{synth_street, yaw_along};
+use viewer::source::{open, LoadOptions, Walkthrough};
+use viewer::stream::StreamedWalkthrough;
+use viewer::synth::Scene;
+use viewer::{plan_frame, DrawBudget, MeshParams};
+
+const FACE: u32 = 32;
+
+fn renderer() -> Option<Renderer> {
+    if std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1") {
+        eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
+        return None;
+    }
+    let gpu = Gpu::new().expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)");
+    Some(Renderer::new(gpu))
+}
+
+/// Write the synthetic street as a database: every tile a PTM (RGBA, all levels) and a mesh,
+/// a background per viewpoint, each segment's ACH list holding the tiles of its two ends.
+fn write_db(walk: &Walkthrough, dir: &Path) {
+    let _ = std::fs::remove_dir_all(dir);
+    let mut w = DbWriter::create(dir).unwrap();
+    let opts = EncodeOptions {
+        zstd_level: 3,
+        ..Default::default()
+    };
+    let tile_size = walk.views[0].tile_size;
+    let grid = TileGrid::new(FACE, tile_size).unwrap();
+    let mut viewpoints = Vec::new();
+    for v in &walk.views {
+        let mut tiles = Vec::new();
+        for t in &v.tiles {
+            let layer = &v.layers[t.slab as usize + 1].levels[0];
+            let (x0, y0, x1, y1) = grid.pixel_rect(t.tile);
+            let mut px = Vec::new();
+            let mut opaque = 0;
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let p = layer.get(t.tile.face, x, y);
+                    opaque += u32::from(p[3] > 0);
+                    px.extend_from_slice(p);
+                }
+            }
+            let img = Image::new(x1 - x0, y1 - y0, 4, px).unwrap();
+            let ptm = w.put_ptm(&encode(&img, &opts).unwrap(), 4).unwrap();
+            let mesh = MeshData {
+                vertices: t
+                    .mesh
+                    .vertices
+                    .iter()
+                    .map(|m| [m.pos_in_face[0], m.pos_in_face[1], m.depth_m])
+                    .collect(),
+                indices: t.mesh.indices.clone(),
+            };
+            let depths = t.mesh.vertices.iter().map(|m| m.depth_m as f64);
+            let depth_min = depths.clone().fold(f64::INFINITY, f64::min);
+            let depth_max = depths.fold(0.0, f64::max);
+            tiles.push(TileEntry {
+                tile: t.tile,
+                slab: t.slab,
+                depth_min,
+                depth_max,
+                opaque_pixels: opaque.max(1),
+                kept: true,
+                ptm: Some(ptm),
+                mesh: Some(w.put(&encode_mesh(&mesh).unwrap()).unwrap()),
+            });
+        }
+        let bg: Vec<u8> = v.layers[0].levels[0]
+            .as_slice()
+            .iter()
+            .flatten()
+            .copied()
+            .collect();
+        let bg = Image::new(FACE, 6 * FACE, 4, bg).unwrap();
+        let background = Some(w.put_ptm(&encode(&bg, &opts).unwrap(), 4).unwrap());
+        viewpoints.push(ViewpointEntry {
+            index: v.index,
+            s: v.s,
+            position: v.position,
+            background,
+            tiles,
+        });
+    }
+    let segments = (0..viewpoints.len() - 1)
+        .map(|i| {
+            let ends = [&viewpoints[i], &viewpoints[i + 1]];
+            let total: f64 = ends
+                .iter()
+                .flat_map(|v| v.tiles.iter().map(|t| t.opaque_pixels as f64))
+                .sum();
+            let mut ach: Vec<AchEntry> = ends
+                .iter()
+                .flat_map(|v| {
+                    v.tiles.iter().map(move |t| AchEntry {
+                        viewpoint: v.index,
+                        slab: t.slab,
+                        tile: t.tile,
+                        ach: t.opaque_pixels as f64 / total,
+                    })
+                })
+                .collect();
+            ach.sort_by(|a, b| b.ach.total_cmp(&a.ach));
+            SegmentEntry {
+                from: i,
+                to: i + 1,
+                ach,
+            }
+        })
+        .collect();
+    let m = Manifest {
+        version: MANIFEST_VERSION,
+        scene: walk.scene.clone(),
+        face_size: FACE,
+        tile_size,
+        slabs: walk.slabs.clone(),
+        cull_alpha: None,
+        cull_variant: None,
+        tracks: vec![TrackEntry {
+            name: "main".into(),
+            track_toml:
+                "[[track]]\nname = \"main\"\npoints = [[0, 1.7, 0], [4.5, 1.7, 0]]\nspacing = 1.5\n"
+                    .into(),
+            length: walk.track.length(),
+            viewpoints,
+            segments,
+        }],
+    };
+    w.finish(&m).unwrap();
+}
+
+/// The server on its own runtime thread; stops when the returned sender is dropped.
+fn serve(
+    dir: &Path,
+) -> (
+    String,
+    tokio::sync::oneshot::Sender<()>,
+    std::thread::JoinHandle<()>,
+) {
+    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let dir = dir.to_path_buf();
+    let thread = std::thread::spawn(move || {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(async move {
+            let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+            addr_tx.send(listener.local_addr().unwrap()).unwrap();
+            let db = ServedDb::open(&dir).unwrap();
+            let config = ServerConfig::default();
+            server::run(
+                listener,
+                db,
+                config,
+                Arc::new(ServerStats::default()),
+                async {
+                    let _ = stop_rx.await;
+                },
+            )
+            .await
+            .unwrap();
+        });
+    });
+    (
+        format!("http://{}", addr_rx.recv().unwrap()),
+        stop_tx,
+        thread,
+    )
+}
+
+fn camera(walk: &Walkthrough, s: f64, yaw_offset: f64) -> PerspectiveCamera {
+    PerspectiveCamera {
+        position: walk.position_at(s),
+        yaw_deg: yaw_along(walk, s) + yaw_offset,
+        pitch_deg: 0.0,
+        fov_deg: 90.0,
+        width: 160,
+        height: 90,
+    }
+}
+
+fn render(r: &mut Renderer, walk: &Walkthrough, cam: &PerspectiveCamera, s: f64) -> Frame {
+    let budget = DrawBudget {
+        max_slabs: walk.slabs.len(),
+        ..Default::default()
+    };
+    let plan = plan_frame(&walk.views, cam, s, budget).unwrap();
+    r.render(&plan, &walk.views).unwrap()
+}
+
+fn mean_abs_diff(a: &Frame, b: &Frame) -> f64 {
+    let n = a.rgba.len().max(1) as f64;
+    a.rgba
+        .iter()
+        .zip(&b.rgba)
+        .map(|(x, y)| (*x as f64 - *y as f64).abs())
+        .sum::<f64>()
+        / n
+}
+
+/// Mean squared difference between horizontal neighbours (detail).
+fn detail(f: &Frame) -> f64 {
+    let w = f.width as usize;
+    let mut sum = 0.0;
+    let mut n = 0.0;
+    for row in f.rgba.chunks(4 * w) {
+        for x in 1..w {
+            for c in 0..3 {
+                let d = row[4 * x + c] as f64 - row[4 * (x - 1) + c] as f64;
+                sum += d * d;
+            }
+            n += 3.0;
+        }
+    }
+    sum / n
+}
+
+/// Step at `s` until nothing is left to download for the current view, or the timeout;
+/// each step draws the frame and hands the GPU's visible-pixel counts to the session, as the
+/// app does.
+fn settle(st: &mut StreamedWalkthrough, r: &mut Renderer, s: f64, cam: &PerspectiveCamera) {
+    let start = Instant::now();
+    let mut idle = 0;
+    let mut live = None;
+    while start.elapsed() < Duration::from_secs(30) {
+        let rep = st.step(s, cam, live.as_deref());
+        for v in &rep.changed_views {
+            r.invalidate_view(*v);
+        }
+        let budget = DrawBudget {
+            max_slabs: st.walk.slabs.len(),
+            ..Default::default()
+        };
+        let plan = plan_frame(&st.walk.views, cam, s, budget).unwrap();
+        r.draw(&plan, &st.walk.views).unwrap();
+        let counts = r.feedback(&plan, &st.walk.views).unwrap();
+        live = Some(st.live_counts(&plan, &counts));
+        let stats = st.session().stats();
+        idle = if rep.arrivals == 0 && stats.in_flight + stats.queued == 0 {
+            idle + 1
+        } else {
+            0
+        };
+        if idle >= 20 && st.segment_showable() {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    panic!("streaming did not settle: {:?}", st.session().stats());
+}
+
+#[test]
+fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
+    let Some(mut r) = renderer() else {
+        return;
+    };
+    let street = synth_street(FACE, &Scene::street_slabs(), MeshParams::default()).unwrap();
+    let dir: PathBuf =
+        std::env::temp_dir().join(format!("railview-viewer-stream-{}", std::process::id()));
+    write_db(&street, &dir);
+    let mut coarse_ref = open(
+        &dir,
+        None,
+        LoadOptions {
+            level_groups: Some(1),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let full_ref = open(&dir, None, LoadOptions::default()).unwrap();
+    let (url, stop, thread) = serve(&dir);
+
+    let mut st =
+        StreamedWalkthrough::connect(&url, None, LiveConfig::with_cache(64 << 20)).unwrap();
+    assert!(
+        st.walk.views.iter().all(|v| v.tiles.is_empty()),
+        "starts empty"
+    );
+    st.session_mut().set_level_cap(Some(1));
+    let s = 0.75;
+    for yaw in [0.0, 70.0] {
+        let cam = camera(&st.walk, s, yaw);
+        settle(&mut st, &mut r, s, &cam);
+        let coarse = render(&mut r, &st.walk, &cam, s);
+        r.forget_views();
+        // The backgrounds are capped at their coarsest level too; the directory reader
+        // decodes them whole, so the reference takes the streamed ones.
+        for (v, sv) in coarse_ref.views.iter_mut().zip(&st.walk.views) {
+            v.layers[0] = sv.layers[0].clone();
+        }
+        let reference = render(&mut r, &coarse_ref, &cam, s);
+        r.forget_views();
+        let full = render(&mut r, &full_ref, &cam, s);
+        r.forget_views();
+        // Every tile of the segment is drawn from its coarsest level: the same image as the
+        // database opened with one level group, and no more holes than the full database
+        // (nothing black where a tile exists).
+        assert!(
+            mean_abs_diff(&coarse, &reference) < 0.5,
+            "yaw {yaw}: {}",
+            mean_abs_diff(&coarse, &reference)
+        );
+        assert!(
+            coarse.hole_fraction() <= full.hole_fraction() + 1e-3,
+            "yaw {yaw}: holes {} vs {}",
+            coarse.hole_fraction(),
+            full.hole_fraction()
+        );
+        let shown = st.item_levels().iter().filter(|l| l.is_some()).count();
+        assert!(shown > 0);
+    }
+
+    // All levels: sharper, and finally the fully loaded image.
+    let cam = camera(&st.walk, s, 0.0);
+    let coarse = render(&mut r, &st.walk, &cam, s);
+    st.session_mut().set_level_cap(None);
+    settle(&mut st, &mut r, s, &cam);
+    let sharp = render(&mut r, &st.walk, &cam, s);
+    r.forget_views();
+    let full = render(&mut r, &full_ref, &cam, s);
+    r.forget_views();
+    assert!(
+        detail(&sharp) > detail(&coarse) * 1.2,
+        "detail {} vs {}",
+        detail(&sharp),
+        detail(&coarse)
+    );
+    assert!(
+        mean_abs_diff(&sharp, &full) < 0.5,
+        "{}",
+        mean_abs_diff(&sharp, &full)
+    );
+    assert!(mean_abs_diff(&coarse, &full) > mean_abs_diff(&sharp, &full));
+    // Nothing new: no view needs re-uploading.
+    let rep = st.step(s, &cam, None);
+    assert!(rep.changed_views.is_empty() && rep.arrivals == 0, "{rep:?}");
+
+    drop(st);
+    drop(stop);
+    thread.join().unwrap();
+    let _ = std::fs::remove_dir_all(dir);
+}
