@@ -403,7 +403,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("Open the viewer later:");
     println!("  railview view {}", layout.db().display());
     println!(
-        "  railview serve {} --addr 127.0.0.1:8080   # then: railview walk http://127.0.0.1:8080 --out walk",
+        "  railview serve {} --addr 127.0.0.1:8080   # then: railview view http://127.0.0.1:8080 (or walk … --out walk)",
         layout.db().display()
     );
 
@@ -459,8 +459,9 @@ fn view_window(layout: &Layout, log: &mut RunLog) -> anyhow::Result<()> {
         outputs: vec![],
         requires: vec!["build"],
     };
+    // The window streams from the server just started, as a remote viewer would.
     if run_stage(layout, log, &view(url), 1, 2) != StageStatus::Done {
-        // A viewer that cannot stream yet still opens the database directly.
+        // Streaming failed (see the log): the database directory still opens directly.
         println!("opening the viewer on the database directory instead");
         run_stage(layout, log, &view(path_arg(&layout.db())), 2, 2);
     }

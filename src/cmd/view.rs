@@ -1,13 +1,18 @@
-//! `railview view`: the interactive viewer window.
+//! `railview view SOURCE`: the interactive viewer window, on a directory (decoded up front) or
+//! on `railview serve`'s URL (streamed while shown).
 
 use anyhow::Context;
+use streamer::client::LiveConfig;
+use viewer::app::{Source, Strategy, WindowOptions};
 use viewer::headless::open;
 use viewer::source::LoadOptions;
+use viewer::stream::StreamedWalkthrough;
 
 /// Arguments of `railview view`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// Database or prerender directory, or `synth:street`.
+    /// Database or prerender directory, `synth:street`, or a server URL
+    /// (`http://127.0.0.1:8080`, as `railview serve` prints).
     pub db: String,
     #[arg(long)]
     pub track: Option<String>,
@@ -20,16 +25,53 @@ pub struct Args {
     /// Start walking along the track at once (as the demo does).
     #[arg(long)]
     pub play: bool,
+    /// Streaming: where download priorities come from — `ach` (the segment's average
+    /// coverage hints), `visibility` (visible pixels per tile, from the GPU), or `both`.
+    #[arg(long, default_value = "both")]
+    pub strategy: String,
+    /// Streaming: do not prefetch the next segment.
+    #[arg(long)]
+    pub no_prefetch: bool,
+    /// Streaming: cache budget for downloaded bytes, MiB.
+    #[arg(long, default_value_t = 64.0)]
+    pub memory_mib: f64,
+    /// Streaming: downloads in flight at most.
+    #[arg(long, default_value_t = 4)]
+    pub requests: usize,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let started = std::time::Instant::now();
+    let strategy = Strategy::parse(&args.strategy).with_context(|| {
+        format!(
+            "--strategy `{}`: expected ach, visibility or both",
+            args.strategy
+        )
+    })?;
     anyhow::ensure!(
-        !(args.db.starts_with("http://") || args.db.starts_with("https://")),
-        "{}: streaming from `railview serve` is not wired into the viewer yet; open the database directory",
-        args.db
+        args.memory_mib.is_finite() && args.memory_mib > 0.0,
+        "--memory-mib {}: must be a positive number",
+        args.memory_mib
     );
-    let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
-        .with_context(|| format!("opening {}", args.db))?;
-    viewer::app::run(walk, args.frames, args.screenshot, args.play)
-        .map_err(|e| anyhow::anyhow!("viewer window: {e}"))
+    anyhow::ensure!(args.requests > 0, "--requests must be at least 1");
+    let source = if args.db.starts_with("http://") || args.db.starts_with("https://") {
+        let mut config = LiveConfig::with_cache((args.memory_mib * 1048576.0) as u64);
+        config.mode = strategy.mode();
+        config.prefetch = !args.no_prefetch;
+        config.fetcher.max_in_flight = args.requests;
+        let stream = StreamedWalkthrough::connect(&args.db, args.track.as_deref(), config)
+            .with_context(|| format!("connecting to {}", args.db))?;
+        Source::Stream(Box::new(stream))
+    } else {
+        let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
+            .with_context(|| format!("opening {}", args.db))?;
+        Source::Local(walk)
+    };
+    let opts = WindowOptions {
+        quit_after: args.frames,
+        screenshot: args.screenshot,
+        play: args.play,
+        started,
+    };
+    viewer::app::run(source, opts).map_err(|e| anyhow::anyhow!("viewer window: {e}"))
 }

@@ -2,9 +2,16 @@
 //! the track (W/S or arrow keys, slider, play with a speed), look around by dragging the view,
 //! FOV; panels for frame time (plotted over time), GPU memory and the frame-time budget's
 //! current choice (texture level, slabs, second view).
+//!
+//! A [`Source::Stream`] walkthrough is filled from `railview serve` while it is shown (see
+//! [`crate::stream`]): each frame steps the streaming session, re-uploads only the views that
+//! changed, and every few frames hands the GPU's visible-pixel counts back as live counts.
+//! Extra panels: bandwidth, requests in flight, cache used against its budget, downloading
+//! quality over time, the priority strategy, a level cap, and a highlight on tiles that
+//! arrived in the last second.
 
 use std::collections::VecDeque;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use eframe::egui;
 use egui_plot::{Line, Plot, PlotPoints};
@@ -14,12 +21,98 @@ use crate::gpu::{Gpu, Renderer};
 use crate::headless::yaw_along;
 use crate::plan::{adjust_budget, plan_frame, DrawBudget};
 use crate::source::Walkthrough;
+use crate::stream::StreamedWalkthrough;
+use streamer::client::{LiveCount, PriorityMode};
 
 const HISTORY: usize = 300;
+/// Frames between two GPU feedback read-backs while streaming.
+const FEEDBACK_EVERY: u64 = 5;
+/// How long a newly loaded tile stays highlighted.
+const HIGHLIGHT: Duration = Duration::from_secs(1);
+
+/// Where the app's reference views come from.
+pub enum Source {
+    /// Decoded up front (a directory or `synth:street`).
+    Local(Walkthrough),
+    /// Filled from a server while shown.
+    Stream(Box<StreamedWalkthrough>),
+}
+
+impl Source {
+    pub fn walk(&self) -> &Walkthrough {
+        match self {
+            Source::Local(w) => w,
+            Source::Stream(s) => &s.walk,
+        }
+    }
+}
+
+/// The download priority strategies offered in the UI.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Strategy {
+    Ach,
+    Visibility,
+    Both,
+}
+
+impl Strategy {
+    pub const ALL: [Strategy; 3] = [Strategy::Ach, Strategy::Visibility, Strategy::Both];
+
+    /// `ach`, `visibility` or `both` (`ach+visibility` too).
+    pub fn parse(text: &str) -> Option<Strategy> {
+        match text {
+            "ach" => Some(Strategy::Ach),
+            "visibility" => Some(Strategy::Visibility),
+            "both" | "ach+visibility" => Some(Strategy::Both),
+            _ => None,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Strategy::Ach => "ach",
+            Strategy::Visibility => "visibility",
+            Strategy::Both => "both",
+        }
+    }
+
+    pub fn mode(self) -> PriorityMode {
+        match self {
+            Strategy::Ach => PriorityMode::Ach,
+            Strategy::Visibility => PriorityMode::Visibility,
+            Strategy::Both => PriorityMode::Combined { ach_weight: 0.5 },
+        }
+    }
+}
+
+/// Streaming figures over time, for the plots.
+#[derive(Clone, Copy, Debug)]
+struct StreamSample {
+    t_s: f64,
+    bytes_per_s: f64,
+    quality: f64,
+    visible: f64,
+}
+
+/// Streaming state of the app.
+struct StreamUi {
+    strategy: Strategy,
+    prefetch: bool,
+    level_cap: usize,
+    highlight: bool,
+    live: Option<Vec<LiveCount>>,
+    history: VecDeque<StreamSample>,
+    /// Seconds from start to the first frame with every visible tile at some level.
+    first_complete_s: Option<f64>,
+}
 
 /// The app state.
 pub struct ViewerApp {
-    walk: Walkthrough,
+    source: Source,
+    stream: StreamUi,
+    /// Size of the view drawn last (the camera for the next streaming step).
+    view_px: [u32; 2],
+    started: Instant,
     renderer: Option<Renderer>,
     texture: Option<(egui::TextureId, [u32; 2])>,
     s: f64,
@@ -43,7 +136,7 @@ pub struct ViewerApp {
 
 impl ViewerApp {
     /// Build from eframe's creation context; the renderer shares eframe's wgpu device.
-    pub fn new(cc: &eframe::CreationContext<'_>, walk: Walkthrough) -> ViewerApp {
+    pub fn new(cc: &eframe::CreationContext<'_>, source: Source) -> ViewerApp {
         let (renderer, error) = match &cc.wgpu_render_state {
             Some(rs) => (
                 Some(Renderer::new(Gpu {
@@ -55,9 +148,32 @@ impl ViewerApp {
             ),
             None => (None, Some("eframe started without wgpu".to_string())),
         };
-        let slabs = walk.views.first().map_or(1, |v| v.slab_count());
+        let slabs = source.walk().views.first().map_or(1, |v| v.slab_count());
+        let strategy = match &source {
+            Source::Stream(st) => match st.session().config().mode {
+                PriorityMode::Ach => Strategy::Ach,
+                PriorityMode::Visibility => Strategy::Visibility,
+                PriorityMode::Combined { .. } => Strategy::Both,
+            },
+            Source::Local(_) => Strategy::Both,
+        };
+        let prefetch = match &source {
+            Source::Stream(st) => st.session().config().prefetch,
+            Source::Local(_) => true,
+        };
         ViewerApp {
-            walk,
+            source,
+            stream: StreamUi {
+                strategy,
+                prefetch,
+                level_cap: 0,
+                highlight: true,
+                live: None,
+                history: VecDeque::new(),
+                first_complete_s: None,
+            },
+            view_px: [640, 360],
+            started: Instant::now(),
             renderer,
             texture: None,
             s: 0.0,
@@ -90,27 +206,37 @@ impl ViewerApp {
 
     /// Draw the current view into the renderer's target and show it as an egui texture.
     fn draw_view(&mut self, ui: &mut egui::Ui, frame: &eframe::Frame, size: egui::Vec2) {
-        let (Some(r), Some(rs)) = (&mut self.renderer, frame.wgpu_render_state()) else {
-            return;
-        };
         let ppp = ui.ctx().pixels_per_point();
         let w = ((size.x * ppp) as u32).max(1);
         let h = ((size.y * ppp) as u32).max(1);
-        let camera = PerspectiveCamera {
-            position: self.walk.position_at(self.s),
-            yaw_deg: yaw_along(&self.walk, self.s) + self.yaw_offset_deg,
-            pitch_deg: self.pitch_deg,
-            fov_deg: self.fov_deg,
-            width: w,
-            height: h,
+        self.view_px = [w, h];
+        let camera = self.camera(w, h);
+        let (Some(r), Some(rs)) = (&mut self.renderer, frame.wgpu_render_state()) else {
+            return;
         };
         let t0 = Instant::now();
-        let result = plan_frame(&self.walk.views, &camera, self.s, self.budget)
+        let walk = self.source.walk();
+        let feedback =
+            matches!(self.source, Source::Stream(_)) && self.frames.is_multiple_of(FEEDBACK_EVERY);
+        let result = plan_frame(&walk.views, &camera, self.s, self.budget)
             .map_err(|e| e.to_string())
-            .and_then(|plan| r.draw(&plan, &self.walk.views).map_err(|e| e.to_string()));
-        if let Err(e) = result {
-            self.error = Some(e);
-            return;
+            .and_then(|plan| {
+                r.draw(&plan, &walk.views).map_err(|e| e.to_string())?;
+                Ok(plan)
+            });
+        let plan = match result {
+            Ok(p) => p,
+            Err(e) => {
+                self.error = Some(e);
+                return;
+            }
+        };
+        if let (true, Source::Stream(st)) = (feedback, &self.source) {
+            // The GPU's visible-pixel counts of this frame, for the next streaming step.
+            match r.feedback(&plan, &st.walk.views) {
+                Ok(counts) => self.stream.live = Some(st.live_counts(&plan, &counts)),
+                Err(e) => self.error = Some(format!("feedback: {e}")),
+            }
         }
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         Self::push(&mut self.frame_ms, ms);
@@ -153,20 +279,226 @@ impl ViewerApp {
             egui::Image::from_texture(egui::load::SizedTexture::new(id, size))
                 .sense(egui::Sense::drag()),
         );
+        if self.stream.highlight {
+            self.highlight_recent(ui, &camera, response.rect);
+        }
         let d = response.drag_delta();
         self.yaw_offset_deg -= d.x as f64 * self.fov_deg / size.x.max(1.0) as f64;
         self.pitch_deg = (self.pitch_deg + d.y as f64 * self.fov_deg / size.x.max(1.0) as f64)
             .clamp(-90.0, 90.0);
     }
 
+    /// The camera at the current position and view direction for a `w × h` image.
+    fn camera(&self, w: u32, h: u32) -> PerspectiveCamera {
+        let walk = self.source.walk();
+        PerspectiveCamera {
+            position: walk.position_at(self.s),
+            yaw_deg: yaw_along(walk, self.s) + self.yaw_offset_deg,
+            pitch_deg: self.pitch_deg,
+            fov_deg: self.fov_deg,
+            width: w,
+            height: h,
+        }
+    }
+
+    /// Outline tiles whose latest level arrived within [`HIGHLIGHT`], fading with age: each
+    /// tile's bounding sphere projected into the view.
+    fn highlight_recent(&self, ui: &egui::Ui, camera: &PerspectiveCamera, rect: egui::Rect) {
+        let Source::Stream(st) = &self.source else {
+            return;
+        };
+        let (right, up, fwd) = camera.basis();
+        let t = (camera.fov_deg.to_radians() * 0.5).tan();
+        let (w, h) = (rect.width() as f64, rect.height() as f64);
+        let painter = ui.painter_at(rect);
+        for rt in st.recent_tiles(HIGHLIGHT) {
+            let Some(view) = st.walk.views.get(rt.view) else {
+                continue;
+            };
+            let Some(tile) = view.tiles.get(rt.tile) else {
+                continue;
+            };
+            let p = view.position + tile.bound_center - camera.position;
+            let z = p.dot(fwd);
+            if z <= 1e-3 {
+                continue;
+            }
+            let x = p.dot(right) / (z * t);
+            let y = p.dot(up) / (z * t * h / w);
+            let r = (tile.bound_radius / (z * t) * w * 0.5).clamp(3.0, w);
+            let centre = egui::pos2(
+                rect.left() + ((x + 1.0) * 0.5 * w) as f32,
+                rect.top() + ((1.0 - y) * 0.5 * h) as f32,
+            );
+            let fade = (1.0 - rt.age_s / HIGHLIGHT.as_secs_f64()).clamp(0.0, 1.0);
+            let colour = egui::Color32::from_rgba_unmultiplied(255, 220, 0, (fade * 220.0) as u8);
+            painter.rect_stroke(
+                egui::Rect::from_center_size(centre, egui::vec2(r as f32, r as f32) * 1.4),
+                2.0,
+                egui::Stroke::new(2.0, colour),
+                egui::StrokeKind::Middle,
+            );
+        }
+    }
+
+    /// One streaming step before the frame is drawn: downloads planned for the camera of the
+    /// last frame, new levels folded in, changed views re-uploaded.
+    fn step_stream(&mut self) {
+        let [w, h] = self.view_px;
+        let camera = self.camera(w, h);
+        let s = self.s;
+        let live = self.stream.live.take();
+        let started = self.started;
+        let Source::Stream(st) = &mut self.source else {
+            return;
+        };
+        let report = st.step(s, &camera, live.as_deref());
+        if let Some(r) = &mut self.renderer {
+            for v in &report.changed_views {
+                r.invalidate_view(*v);
+            }
+        }
+        let stats = st.session().stats().clone();
+        if self.stream.first_complete_s.is_none() && stats.visible_fraction >= 1.0 {
+            let secs = started.elapsed().as_secs_f64();
+            self.stream.first_complete_s = Some(secs);
+            println!(
+                "railview view: every visible tile shown after {secs:.2} s ({} bytes fetched, cache {} of {} bytes)",
+                stats.bytes, stats.cache_used, stats.cache_budget
+            );
+        }
+        if self.stream.history.len() == HISTORY {
+            self.stream.history.pop_front();
+        }
+        self.stream.history.push_back(StreamSample {
+            t_s: stats.t_s,
+            bytes_per_s: stats.bytes_per_s,
+            quality: stats.quality,
+            visible: stats.visible_fraction,
+        });
+        if let Some(e) = st.errors.last() {
+            self.error = Some(e.clone());
+        }
+    }
+
+    /// The streaming panel: strategy, level cap, and the figures over time.
+    fn stream_ui(&mut self, ui: &mut egui::Ui) {
+        let Source::Stream(st) = &mut self.source else {
+            return;
+        };
+        ui.separator();
+        ui.strong("streaming");
+        let before = (
+            self.stream.strategy,
+            self.stream.prefetch,
+            self.stream.level_cap,
+        );
+        egui::ComboBox::from_label("priority")
+            .selected_text(self.stream.strategy.name())
+            .show_ui(ui, |ui| {
+                for s in Strategy::ALL {
+                    ui.selectable_value(&mut self.stream.strategy, s, s.name());
+                }
+            });
+        ui.checkbox(&mut self.stream.prefetch, "prefetch the next segment");
+        let levels = st
+            .session()
+            .table()
+            .items
+            .iter()
+            .map(|i| i.info.levels.len())
+            .max()
+            .unwrap_or(1);
+        ui.add(
+            egui::Slider::new(&mut self.stream.level_cap, 0..=levels)
+                .text("level groups (0 = all)"),
+        );
+        ui.checkbox(
+            &mut self.stream.highlight,
+            "highlight tiles loaded in the last second",
+        );
+        if before
+            != (
+                self.stream.strategy,
+                self.stream.prefetch,
+                self.stream.level_cap,
+            )
+        {
+            let session = st.session_mut();
+            session.set_mode(self.stream.strategy.mode());
+            session.set_prefetch(self.stream.prefetch);
+            session.set_level_cap((self.stream.level_cap > 0).then_some(self.stream.level_cap));
+        }
+        let stats = st.session().stats();
+        let m = st.session().manifest();
+        ui.label(match (m.cull_alpha, &m.cull_variant) {
+            (Some(a), Some(v)) => {
+                format!("culled with α = {a} ({v}); culled tiles are not in the database")
+            }
+            (Some(a), None) => format!("culled with α = {a}; culled tiles are not in the database"),
+            _ => "no occlusion culling recorded".to_string(),
+        });
+        ui.label(format!(
+            "{:.1} kB/s · {} in flight, {} queued · link {:.2} Mbit/s, {:.0} ms",
+            stats.bytes_per_s / 1e3,
+            stats.in_flight,
+            stats.queued,
+            stats.link.0 / 1e6,
+            stats.link.1 * 1e3
+        ));
+        let used = stats.cache_used as f64 / stats.cache_budget.max(1) as f64;
+        ui.add(egui::ProgressBar::new(used as f32).text(format!(
+            "cache {:.1} / {:.1} MiB (peak {:.1}, pinned {:.1})",
+            stats.cache_used as f64 / 1048576.0,
+            stats.cache_budget as f64 / 1048576.0,
+            stats.cache_peak as f64 / 1048576.0,
+            stats.pinned_bytes as f64 / 1048576.0
+        )));
+        ui.label(format!(
+            "quality {:.2} · visible shown {:.0} % · segment shown {:.0} % · {:.1} MiB fetched",
+            stats.quality,
+            stats.visible_fraction * 100.0,
+            stats.coarse_fraction * 100.0,
+            stats.bytes as f64 / 1048576.0
+        ));
+        if let Some(t) = self.stream.first_complete_s {
+            ui.label(format!("every visible tile shown after {t:.2} s"));
+        }
+        if stats.failed_requests > 0 || stats.checksum_failures > 0 {
+            ui.label(format!(
+                "{} failed downloads, {} checksum mismatches (re-fetched)",
+                stats.failed_requests, stats.checksum_failures
+            ));
+        }
+        if let Some(e) = &stats.last_error {
+            ui.colored_label(egui::Color32::YELLOW, format!("server: {e}"));
+        }
+        let hist = &self.stream.history;
+        let series = |f: fn(&StreamSample) -> f64| -> PlotPoints<'_> {
+            hist.iter().map(|h| [h.t_s, f(h)]).collect()
+        };
+        Plot::new("bandwidth").height(90.0).show(ui, |p| {
+            p.line(Line::new("kB/s", series(|h| h.bytes_per_s / 1e3)));
+        });
+        Plot::new("quality")
+            .height(90.0)
+            .include_y(0.0)
+            .include_y(1.0)
+            .show(ui, |p| {
+                p.line(Line::new("downloading quality", series(|h| h.quality)));
+                p.line(Line::new("visible shown", series(|h| h.visible)));
+            });
+    }
+
     fn controls_ui(&mut self, ui: &mut egui::Ui) {
-        let len = self.walk.track.length();
-        ui.heading(&self.walk.scene);
+        let walk = self.source.walk();
+        let len = walk.track.length();
+        ui.heading(&walk.scene);
         ui.label(format!(
             "track {} · {:.1} m · {} views",
-            self.walk.track.name,
+            walk.track.name,
             len,
-            self.walk.views.len()
+            walk.views.len()
         ));
         ui.add(egui::Slider::new(&mut self.s, 0.0..=len.max(1e-6)).text("position m"));
         ui.horizontal(|ui| {
@@ -184,7 +516,13 @@ impl ViewerApp {
         ui.separator();
         ui.checkbox(&mut self.auto_budget, "frame-time budget");
         ui.add(egui::Slider::new(&mut self.target_fps, 5.0..=120.0).text("target fps"));
-        let slabs = self.walk.views.first().map_or(1, |v| v.slab_count()).max(1);
+        let slabs = self
+            .source
+            .walk()
+            .views
+            .first()
+            .map_or(1, |v| v.slab_count())
+            .max(1);
         ui.add_enabled(
             !self.auto_budget,
             egui::Slider::new(&mut self.budget.max_slabs, 1..=slabs).text("slabs"),
@@ -210,7 +548,7 @@ impl ViewerApp {
             ui.label(format!(
                 "GPU memory for views: {:.1} MiB · database {:.1} MiB",
                 r.uploaded_bytes() as f64 / 1048576.0,
-                self.walk.bytes as f64 / 1048576.0
+                self.source.walk().bytes as f64 / 1048576.0
             ));
             ui.label(format!("adapter: {}", r.gpu.info.name));
         }
@@ -234,7 +572,7 @@ impl eframe::App for ViewerApp {
         let now = Instant::now();
         let dt = now.duration_since(self.last).as_secs_f64().min(0.25);
         self.last = now;
-        let len = self.walk.track.length();
+        let len = self.source.walk().track.length();
         let (fwd, back) = ui.ctx().input(|i| {
             (
                 i.key_down(egui::Key::W) || i.key_down(egui::Key::ArrowUp),
@@ -252,13 +590,24 @@ impl eframe::App for ViewerApp {
         if self.auto_budget {
             let recent: Vec<f64> = self.frame_ms.iter().rev().take(10).copied().collect();
             if self.frames.is_multiple_of(10) {
-                let slabs = self.walk.views.first().map_or(1, |v| v.slab_count());
+                let slabs = self
+                    .source
+                    .walk()
+                    .views
+                    .first()
+                    .map_or(1, |v| v.slab_count());
                 self.budget = adjust_budget(self.budget, &recent, 1000.0 / self.target_fps, slabs);
             }
         }
+        self.step_stream();
         egui::Panel::left("controls")
             .resizable(true)
-            .show(ui, |ui| self.controls_ui(ui));
+            .show(ui, |ui| {
+                egui::ScrollArea::vertical().show(ui, |ui| {
+                    self.controls_ui(ui);
+                    self.stream_ui(ui);
+                });
+            });
         egui::CentralPanel::default().show(ui, |ui| {
             let size = ui.available_size();
             self.draw_view(ui, frame, size);
@@ -282,6 +631,21 @@ impl eframe::App for ViewerApp {
                     });
             }
         }
+        if self.quit_after.is_some_and(|n| self.frames == n) {
+            if let Source::Stream(st) = &self.source {
+                let stats = st.session().stats();
+                println!(
+                    "railview view: {} frames in {:.2} s, {} bytes fetched in {} requests, cache peak {} of {} bytes, visible shown {:.0} %",
+                    self.frames,
+                    self.started.elapsed().as_secs_f64(),
+                    stats.bytes,
+                    stats.requests,
+                    stats.cache_peak,
+                    stats.cache_budget,
+                    stats.visible_fraction * 100.0
+                );
+            }
+        }
         if self.quit_after.is_some_and(|n| self.frames >= n) {
             ui.ctx().send_viewport_cmd(egui::ViewportCommand::Close);
         }
@@ -289,13 +653,32 @@ impl eframe::App for ViewerApp {
     }
 }
 
-/// Open a window on `walk` (needs a display: X11, e.g. Xvfb).
-pub fn run(
-    walk: Walkthrough,
-    quit_after: Option<u64>,
-    screenshot: Option<std::path::PathBuf>,
-    play: bool,
-) -> Result<(), eframe::Error> {
+/// How the window runs.
+#[derive(Clone, Debug)]
+pub struct WindowOptions {
+    /// Close after this many frames (smoke tests, screenshots).
+    pub quit_after: Option<u64>,
+    /// With `quit_after`: save a screenshot of the window here a few frames before closing.
+    pub screenshot: Option<std::path::PathBuf>,
+    /// Start walking along the track at once.
+    pub play: bool,
+    /// When the command started (streaming times are reported from here).
+    pub started: Instant,
+}
+
+impl Default for WindowOptions {
+    fn default() -> Self {
+        WindowOptions {
+            quit_after: None,
+            screenshot: None,
+            play: false,
+            started: Instant::now(),
+        }
+    }
+}
+
+/// Open a window on `source` (needs a display: X11, e.g. Xvfb).
+pub fn run(source: Source, opts: WindowOptions) -> Result<(), eframe::Error> {
     let options = eframe::NativeOptions {
         renderer: eframe::Renderer::Wgpu,
         viewport: egui::ViewportBuilder::default().with_inner_size([1100.0, 650.0]),
@@ -305,10 +688,11 @@ pub fn run(
         "railview",
         options,
         Box::new(move |cc| {
-            let mut app = ViewerApp::new(cc, walk);
-            app.quit_after = quit_after;
-            app.screenshot = screenshot;
-            app.playing = play;
+            let mut app = ViewerApp::new(cc, source);
+            app.quit_after = opts.quit_after;
+            app.screenshot = opts.screenshot;
+            app.playing = opts.play;
+            app.started = opts.started;
             Ok(Box::new(app))
         }),
     )
