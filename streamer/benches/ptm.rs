@@ -167,7 +167,24 @@ fn decode_ratio(tiles: &[(String, Image)], opts: &EncodeOptions) {
         f();
         t.elapsed().as_secs_f64()
     };
-    let mut best = [[f64::INFINITY; 4]; 6];
+    // The zstd frames of every group (after the header and each group's mode byte).
+    let frames: Vec<Vec<&[u8]>> = tiles
+        .iter()
+        .zip(&encoded)
+        .map(|((_, img), bytes)| {
+            let enc = encode(img, opts).unwrap();
+            let header = 16 + 4 * enc.groups.len();
+            enc.groups
+                .iter()
+                .enumerate()
+                .map(|(g, span)| {
+                    let start = if g == 0 { header } else { span.offset as usize };
+                    &bytes[start + 1..(span.offset + span.len) as usize]
+                })
+                .collect()
+        })
+        .collect();
+    let mut best = [[f64::INFINITY; 5]; 6];
     for _ in 0..ROUNDS {
         for (i, (ptm, png)) in encoded.iter().zip(&pngs).enumerate() {
             let b = &mut best[i];
@@ -180,6 +197,12 @@ fn decode_ratio(tiles: &[(String, Image)], opts: &EncodeOptions) {
                         .unwrap(),
                 );
             }));
+            let mut z = zstd::bulk::Decompressor::new().unwrap();
+            b[4] = b[4].min(time(&mut || {
+                for f in &frames[i] {
+                    black_box(z.decompress(black_box(f), 1 << 20).unwrap());
+                }
+            }));
             for (slot, level) in [(2, 1), (3, 2)] {
                 b[slot] = b[slot].min(time(&mut || {
                     black_box(decode_up_to(black_box(ptm), level, Limits::default()).unwrap());
@@ -187,14 +210,24 @@ fn decode_ratio(tiles: &[(String, Image)], opts: &EncodeOptions) {
             }
         }
     }
+    for ((name, _), b) in tiles.iter().zip(&best) {
+        println!(
+            "  {name:<10} decode ms: ptm {:.3}, png {:.3}, zstd alone {:.3}",
+            b[0] * 1e3,
+            b[1] * 1e3,
+            b[4] * 1e3
+        );
+    }
     let sum = |k: usize| best.iter().map(|b| b[k]).sum::<f64>() * 1e3;
-    let (ptm, png, l1, l2) = (sum(0), sum(1), sum(2), sum(3));
+    let (ptm, png, l1, l2, zs) = (sum(0), sum(1), sum(2), sum(3), sum(4));
     println!(
         "decode, 6 castle tiles, fastest of {ROUNDS} (ms): ptm {ptm:.3}, png {png:.3}, \
-         ptm/png {:.2}x the time; up to level 1 {l1:.3} ({:.2}x png), level 2 {l2:.3} ({:.2}x png)\n",
+         ptm/png {:.2}x the time; up to level 1 {l1:.3} ({:.2}x png), level 2 {l2:.3} ({:.2}x png); \
+         zstd alone {zs:.3} ({:.2}x png)\n",
         ptm / png,
         l1 / png,
-        l2 / png
+        l2 / png,
+        zs / png
     );
 }
 
