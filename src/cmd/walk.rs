@@ -53,6 +53,13 @@ pub struct Args {
     /// Requests in flight at most.
     #[arg(long, default_value_t = 6)]
     pub in_flight: usize,
+    /// Prefetch: widen the view by this turn of the head, degrees each side.
+    #[arg(long, default_value_t = 30.0)]
+    pub prefetch_turn: f64,
+    /// Prefetch the next segment once the predicted motion reaches it within this many
+    /// seconds.
+    #[arg(long, default_value_t = 3.0)]
+    pub prefetch_horizon: f64,
     /// Seconds standing still at the end of the track.
     #[arg(long, default_value_t = 3.0)]
     pub pause: f64,
@@ -116,6 +123,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         scale_budget: args.memory_mb.is_none() && args.memory_static_mb.is_none(),
         cache_bytes: mib(args.cache_mb, "cache-mb")?,
         max_in_flight: args.in_flight.max(1),
+        prefetch_turn_deg: args.prefetch_turn.clamp(0.0, 90.0),
+        prefetch_horizon_s: args.prefetch_horizon.clamp(0.0, 60.0),
         ..WalkConfig::default()
     };
     let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;

@@ -8,8 +8,8 @@
 //! The caller frustum-culls the ACH list first (PTM §6.1: only what can be in view shares the
 //! budget; [`crate::visibility::SceneIndex::tile_in_frustum`]), so `M` is not spread over the
 //! tiles behind the camera. One request carries an item's mesh together with its coarsest
-//! level and then as many further level groups as the link estimate delivers within `δt_max`
-//! ([`PartRequest::parts`]), so a tile does not pay one round trip per part; the caller may
+//! level; a later one as many further level groups as the link estimate delivers within
+//! `δt_max` ([`PartRequest::parts`]), so a tile does not pay one round trip per part; the caller may
 //! bundle the requests of many items into one HTTP request
 //! ([`crate::client::Connection::fetch_checked_bundle`]).
 //!
@@ -302,16 +302,29 @@ pub fn allocate(
     out
 }
 
-/// How many parts from `have` towards `target` one request takes: at least everything needed
-/// to show the item (its mesh and coarsest level, in one request — one round trip, not two),
-/// then further PTM level groups while the run still arrives within `dt_max`; always at
-/// least one.
-fn run_len(info: &ItemInfo, have: usize, target: usize, link: &LinkEstimate, dt_max: f64) -> usize {
+/// How many parts from `have` towards `target` one request takes. With `coarse_first` (the
+/// view has many holes) an item not yet shown gets exactly what it needs to be shown — its
+/// mesh and coarsest level, in one request — so the first complete frame does not wait for
+/// refinements. Otherwise (and for items already shown) the run goes on with further PTM
+/// level groups while it still arrives within `dt_max`, so a tile that comes into view costs
+/// one round trip, not one per part. Always at least one part, and never less than
+/// mesh + coarsest level for an item not yet shown.
+fn run_len(
+    info: &ItemInfo,
+    have: usize,
+    target: usize,
+    link: &LinkEstimate,
+    dt_max: f64,
+    coarse_first: bool,
+) -> usize {
     let end = target.min(info.parts());
     if have >= end {
         return 1;
     }
     let mut n = info.min_parts().saturating_sub(have).clamp(1, end - have);
+    if coarse_first && have < info.min_parts() {
+        return n;
+    }
     let mut bytes: u64 = info.part_bytes[have..have + n].iter().sum();
     while have + n < end {
         let more = bytes + info.part_bytes[have + n];
@@ -365,6 +378,18 @@ pub fn plan(inp: &PlanInput) -> Plan {
         .map(|i| (i, weight[i], cap[i]))
         .collect();
     let targets = allocate(inp.items, &cands, inp.memory_bytes);
+    // Holes: bytes still missing before every candidate can be shown at all. When they take
+    // more than half of δt_max, not-yet-shown items get their coarsest level alone first.
+    let holes: u64 = targets
+        .iter()
+        .map(|&(i, target)| {
+            let info = &inp.items[i];
+            let have = inp.have.get(i).copied().unwrap_or(0).min(info.parts());
+            let min = info.min_parts().min(target);
+            info.part_bytes[have.min(min)..min].iter().sum::<u64>()
+        })
+        .sum();
+    let coarse_first = holes > 0 && inp.link.time_for(holes) > 0.5 * inp.dt_max_s;
     let mut out = Plan::default();
     for &(i, target) in &targets {
         let info = &inp.items[i];
@@ -379,7 +404,7 @@ pub fn plan(inp: &PlanInput) -> Plan {
                 out.requests.push(PartRequest {
                     item: i,
                     part: have,
-                    parts: run_len(info, have, target, inp.link, inp.dt_max_s),
+                    parts: run_len(info, have, target, inp.link, inp.dt_max_s, coarse_first),
                     priority: if essential { 3.0 } else { 1.0 } + weight[i].min(1.0) * 0.999,
                 });
             }
@@ -409,7 +434,7 @@ pub fn plan(inp: &PlanInput) -> Plan {
                     out.requests.push(PartRequest {
                         item: i,
                         part: have,
-                        parts: run_len(info, have, target, inp.link, inp.dt_max_s),
+                        parts: run_len(info, have, target, inp.link, inp.dt_max_s, coarse_first),
                         priority: if essential { 0.5 } else { 0.0 } + w.min(1.0) * 0.499,
                     });
                 }
@@ -569,23 +594,25 @@ mod tests {
     fn one_request_carries_as_many_levels_as_arrive_within_dt_max() {
         let t = tile();
         let fast = LinkEstimate::new(1e9, 0.05);
-        // The mesh travels with the levels: everything up to the target in one run.
-        assert_eq!(run_len(&t, 0, 5, &fast, 0.5), 5);
-        assert_eq!(run_len(&t, 0, 2, &fast, 0.5), 2);
-        assert_eq!(run_len(&t, 1, 5, &fast, 0.5), 4);
-        assert_eq!(run_len(&t, 1, 3, &fast, 0.5), 2);
-        assert_eq!(run_len(&t, 4, 5, &fast, 0.5), 1);
-        // 10 kbit/s, 50 ms: 20+60 B = 64 ms + 50 ms fits 0.15 s, adding 240 B does not.
+        // The mesh travels with the levels: everything up to the target in one run; with
+        // holes in the view, the mesh and the coarsest level alone.
+        assert_eq!(run_len(&t, 0, 5, &fast, 0.5, false), 5);
+        assert_eq!(run_len(&t, 0, 5, &fast, 0.5, true), 2);
+        assert_eq!(run_len(&t, 1, 5, &fast, 0.5, true), 1, "mesh held: the coarsest alone");
+        assert_eq!(run_len(&t, 2, 5, &fast, 0.5, true), 3, "shown: refinements in one run");
+        assert_eq!(run_len(&t, 2, 4, &fast, 0.5, false), 2);
+        assert_eq!(run_len(&t, 4, 5, &fast, 0.5, false), 1);
+        // 10 kbit/s, 50 ms: 60+240 B = 240 ms + 50 ms fits 0.4 s, adding 960 B does not.
         let slow = LinkEstimate::new(1e4, 0.05);
-        assert_eq!(run_len(&t, 1, 5, &slow, 0.15), 2);
+        assert_eq!(run_len(&t, 2, 5, &slow, 0.4, false), 2);
         // Too slow for even one group: still one (the caller decides whether to send it),
         // and never less than mesh + coarsest level for an item not yet shown.
-        assert_eq!(run_len(&t, 1, 5, &slow, 0.0), 1);
-        assert_eq!(run_len(&t, 0, 5, &slow, 0.0), 2);
+        assert_eq!(run_len(&t, 2, 5, &slow, 0.0, false), 1);
+        assert_eq!(run_len(&t, 0, 5, &slow, 0.0, false), 2);
         let items = vec![t];
         let p = plan(&PlanInput {
             items: &items,
-            have: &[1],
+            have: &[2],
             downloading: &[false],
             ach: &[(0, 1.0)],
             live: &[],
@@ -595,7 +622,40 @@ mod tests {
             dt_max_s: 0.5,
             link: &fast,
         });
-        assert_eq!((p.requests[0].part, p.requests[0].parts), (1, 4));
+        assert_eq!((p.requests[0].part, p.requests[0].parts), (2, 3));
+        // One tile coming into view: mesh and every level in one request.
+        let p = plan(&PlanInput {
+            items: &items,
+            have: &[0],
+            downloading: &[false],
+            ach: &[(0, 1.0)],
+            live: &[],
+            prefetch: &[],
+            mode: PriorityMode::Ach,
+            memory_bytes: 1 << 20,
+            dt_max_s: 0.5,
+            link: &fast,
+        });
+        assert_eq!((p.requests[0].part, p.requests[0].parts), (0, 5));
+        // A view full of holes (400 tiles, 48 kB before anything shows: 0.43 s at 1 Mbit/s
+        // > δt_max / 2): every tile gets its mesh and coarsest level alone first.
+        let many = vec![tile(); 400];
+        let ach: Vec<(usize, f64)> = (0..400).map(|i| (i, 1.0)).collect();
+        let link = LinkEstimate::new(1e6, 0.05);
+        let p = plan(&PlanInput {
+            items: &many,
+            have: &[0; 400],
+            downloading: &[false; 400],
+            ach: &ach,
+            live: &[],
+            prefetch: &[],
+            mode: PriorityMode::Ach,
+            memory_bytes: 1 << 30,
+            dt_max_s: 0.5,
+            link: &link,
+        });
+        assert_eq!(p.requests.len(), 400);
+        assert!(p.requests.iter().all(|r| (r.part, r.parts) == (0, 2)));
     }
 
     #[test]

@@ -13,7 +13,15 @@ use crate::client::{
 };
 use crate::visibility::{blend_weights, frustum_half_angle, Surface, SurfaceCount};
 
+/// Items and the parts of each one bundled request carries.
+type Bundle = Vec<(usize, Vec<Part>)>;
+
+/// A prefetch list and what it was computed for: (segment, yaw and pitch in 10° steps).
+type PrefetchMemo = ((usize, i64, i64), Vec<(usize, f64)>);
+
 struct InFlight {
+    /// Carries only prefetched items.
+    prefetch: bool,
     items: Vec<usize>,
     /// Checked pieces with the arc length of the item each belongs to.
     keys: Vec<(FetchKey, Bytes, f64)>,
@@ -45,6 +53,12 @@ struct Sim<'a> {
     /// The current segment's ACH list after frustum culling at the latest frame's camera
     /// (PTM §6.1: only tiles that can be in view share the budget).
     view_ach: Vec<(usize, f64)>,
+    /// The same list within the frustum widened by `prefetch_turn_deg` (the combined mode's
+    /// broadening: coarsest levels ready for a turn of the head).
+    wide_ach: Vec<(usize, f64)>,
+    /// The latest prefetch list and what it was computed for (segment, yaw and pitch in
+    /// 10° steps): recomputed only when those change.
+    prefetch_memo: Option<PrefetchMemo>,
     /// The latest frame's camera (prefetch looks the same way from further on).
     cam: Option<PerspectiveCamera>,
     /// Budgets in force (the configured ones, or scaled to the database).
@@ -100,39 +114,76 @@ impl Sim<'_> {
             .collect()
     }
 
-    /// The next segment's ACH list cut to what can be in view on arrival: seen from the
-    /// predicted position, looking the way the camera looks now, within the frustum widened
-    /// by the turn the walker may make meanwhile (`prefetch_turn_deg`).
-    fn prefetch_list(&self, next: usize) -> Vec<(usize, f64)> {
-        let table = self.table();
-        let Some(list) = table.segment_ach.get(next) else {
+    /// What to prefetch for the next segment `next`: what can be in view on arrival, seen
+    /// from the middle of that segment (where both its viewpoints are blended), looking the
+    /// way the camera looks now, within the frustum widened by the turn the walker may make
+    /// meanwhile (`prefetch_turn_deg` left and right, half of it up and down). With live counts (visibility, combined) it
+    /// is the visibility pass at that predicted camera, weighted by visible pixels; with ACH
+    /// alone it is the segment's ACH list cut to the widened cone. Not the whole ACH list:
+    /// tiles behind the walker cost bytes and are rarely shown.
+    fn prefetch_list(&mut self, next: usize, mode: PriorityMode) -> Vec<(usize, f64)> {
+        let Some(cam) = self.cam else {
             return Vec::new();
         };
-        let Some(cam) = &self.cam else {
-            return list.clone();
-        };
-        let track = &self.scene.track;
+        let memo_key = (
+            next,
+            (cam.yaw_deg / 10.0).round() as i64,
+            (cam.pitch_deg / 10.0).round() as i64,
+        );
+        if let Some((k, list)) = &self.prefetch_memo {
+            if *k == memo_key {
+                return list.clone();
+            }
+        }
+        let scene = self.scene;
+        let table = &scene.table;
         let lo = table.vp_s.get(next).copied().unwrap_or(0.0);
         let hi = table.vp_s.get(next + 1).copied().unwrap_or(lo);
-        let s_pred = self
-            .motion
-            .predict(self.cfg.prefetch_horizon_s)
-            .unwrap_or(self.s)
-            .clamp(lo.min(hi), hi.max(lo));
-        let position = track.position_at(s_pred);
-        let half = (frustum_half_angle(cam) + self.cfg.prefetch_turn_deg.max(0.0).to_radians())
-            .min(std::f64::consts::PI);
-        list.iter()
-            .copied()
-            .filter(|&(i, _)| {
-                let it = &table.items[i];
-                it.tile.is_none_or(|tile| {
-                    self.scene
-                        .index
-                        .tile_in_cone(position, cam.forward(), half, it.viewpoint, tile)
+        let s_mid = 0.5 * (lo + hi);
+        let turn = self.cfg.prefetch_turn_deg.max(0.0);
+        let list: Vec<(usize, f64)> = if matches!(mode, PriorityMode::Ach) {
+            let half = (frustum_half_angle(&cam) + turn.to_radians()).min(std::f64::consts::PI);
+            let position = scene.track.position_at(s_mid);
+            table
+                .segment_ach
+                .get(next)
+                .map_or(&[][..], |v| v.as_slice())
+                .iter()
+                .copied()
+                .filter(|&(i, _)| {
+                    let it = &table.items[i];
+                    it.tile.is_none_or(|tile| {
+                        scene
+                            .index
+                            .tile_in_cone(position, cam.forward(), half, it.viewpoint, tile)
+                    })
                 })
-            })
-            .collect()
+                .collect()
+        } else {
+            // Widened by `turn` left and right and by half of it up and down (a walker turns
+            // the head sideways more than up or down).
+            let tan_v = (cam.fov_deg.to_radians() * 0.5).tan() * cam.height.max(1) as f64
+                / cam.width.max(1) as f64;
+            let v_half = (tan_v.atan() + 0.5 * turn.to_radians()).min(1.3);
+            let fov_deg = (cam.fov_deg + 2.0 * turn).min(150.0);
+            let h_tan = (fov_deg.to_radians() * 0.5).tan();
+            let ahead = PerspectiveCamera {
+                position: scene.track.position_at(s_mid),
+                fov_deg,
+                height: ((cam.width as f64 * v_half.tan() / h_tan).round() as u32).max(1),
+                ..cam
+            };
+            let weights = blend_weights(&table.vp_s, s_mid);
+            scene
+                .index
+                .count(&ahead, &weights, self.cfg.samples_x, self.cfg.samples_y)
+                .iter()
+                .filter_map(|c| Some((surface_item(table, c)?, c.pixels())))
+                .filter(|&(_, px)| px > 0.0)
+                .collect()
+        };
+        self.prefetch_memo = Some((memo_key, list.clone()));
+        list
     }
 
     /// Decide and issue downloads at time `t` (fetching the bytes for real). Each free
@@ -151,6 +202,8 @@ impl Sim<'_> {
         let n = self.items.len();
         // Wanted downloads in priority order: (item, parts).
         let mut wanted: Vec<(usize, Vec<Part>)> = Vec::new();
+        // Entries from here on are prefetches (the plan ranks them after every current one).
+        let mut first_prefetch = usize::MAX;
         let max_pieces = self.cfg.bundle_entries.max(1);
         match self.strategy {
             Strategy::Naive => {
@@ -169,15 +222,6 @@ impl Sim<'_> {
             Strategy::Budget { mode, prefetch } => {
                 let have = self.have();
                 let table = &self.scene.table;
-                let seg = segment_at(&table.vp_s, self.s).unwrap_or(0);
-                let ach: &[(usize, f64)] = match mode {
-                    // Combined: the whole segment's ACH broadens (coarsest levels for a turn
-                    // of the head); live counts pick what is in view.
-                    PriorityMode::Combined { .. } => {
-                        table.segment_ach.get(seg).map_or(&[], |v| v.as_slice())
-                    }
-                    _ => &self.view_ach,
-                };
                 let next = if prefetch {
                     next_segment(
                         &self.motion,
@@ -188,7 +232,18 @@ impl Sim<'_> {
                 } else {
                     None
                 };
-                let pre = next.map_or_else(Vec::new, |k| self.prefetch_list(k));
+                let pre = match next {
+                    None => Vec::new(),
+                    Some(k) => self.prefetch_list(k, mode),
+                };
+                let table = &self.scene.table;
+                let ach: &[(usize, f64)] = match mode {
+                    // Combined: the segment's ACH within the widened frustum broadens
+                    // (coarsest levels for a turn of the head); live counts pick what is in
+                    // view.
+                    PriorityMode::Combined { .. } => &self.wide_ach,
+                    _ => &self.view_ach,
+                };
                 let (memory, dt_max) = self.budget.current(self.motion.still_s());
                 let p = plan(&PlanInput {
                     items: &self.items,
@@ -216,6 +271,9 @@ impl Sim<'_> {
                     }
                 }
                 for r in &p.requests {
+                    if r.priority < 1.0 && first_prefetch == usize::MAX {
+                        first_prefetch = wanted.len();
+                    }
                     let parts = &table.items[r.item].parts;
                     let end = (r.part + r.parts.max(1)).min(parts.len());
                     wanted.push((r.item, parts[r.part..end].to_vec()));
@@ -226,10 +284,19 @@ impl Sim<'_> {
         // least 16 KiB), so its transfer costs no more than its round trip.
         let (bps, latency) = self.estimate.get();
         let byte_cap = ((bps / 8.0 * latency.max(0.05)) as u64).max(16 << 10);
-        let mut bundles: Vec<Vec<(usize, Vec<Part>)>> = Vec::new();
+        // Prefetch-only bundles hold at most a third of the slots, so what the current view
+        // needs next never queues behind a link full of prefetch.
+        let prefetch_slots = (self.cfg.max_in_flight / 3).max(1);
+        let mut prefetch_busy = self.in_flight.iter().filter(|f| f.prefetch).count();
+        let mut bundles: Vec<(bool, Bundle)> = Vec::new();
+        let mut taken = 0usize;
         let mut wanted = wanted.into_iter().peekable();
         while bundles.len() < free {
-            let mut b: Vec<(usize, Vec<Part>)> = Vec::new();
+            let only_prefetch = taken >= first_prefetch;
+            if only_prefetch && prefetch_busy >= prefetch_slots {
+                break;
+            }
+            let mut b: Bundle = Vec::new();
             let (mut pieces, mut bytes) = (0usize, 0u64);
             while let Some((_, parts)) = wanted.peek() {
                 let p_bytes: u64 = parts.iter().map(|p| p.bytes).sum();
@@ -239,14 +306,16 @@ impl Sim<'_> {
                 }
                 pieces += parts.len();
                 bytes += p_bytes;
+                taken += 1;
                 b.extend(wanted.next());
             }
             if b.is_empty() {
                 break;
             }
-            bundles.push(b);
+            prefetch_busy += usize::from(only_prefetch);
+            bundles.push((only_prefetch, b));
         }
-        for b in bundles {
+        for (only_prefetch, b) in bundles {
             if self.strategy == Strategy::Naive {
                 self.naive_next = b.last().map_or(self.naive_next, |x| x.0 + 1);
             }
@@ -285,6 +354,7 @@ impl Sim<'_> {
             }
             self.bytes += size;
             self.in_flight.push(InFlight {
+                prefetch: only_prefetch,
                 items,
                 keys,
                 issued: t,
@@ -346,6 +416,8 @@ pub(crate) async fn run_one(
         over_budget: false,
         live: Vec::new(),
         view_ach: Vec::new(),
+        wide_ach: Vec::new(),
+        prefetch_memo: None,
         cam: None,
         budget: if cfg.scale_budget {
             cfg.budget
@@ -412,15 +484,18 @@ pub(crate) async fn run_one(
             .segment_ach
             .get(seg)
             .map_or(&[], |v| v.as_slice());
-        sim.view_ach = ach
-            .iter()
-            .copied()
-            .filter(|&(i, _)| {
-                let it = &scene.table.items[i];
-                it.tile
-                    .is_none_or(|tile| scene.index.tile_in_frustum(&cam, it.viewpoint, tile))
+        let half = frustum_half_angle(&cam);
+        let wide = (half + cfg.prefetch_turn_deg.max(0.0).to_radians()).min(std::f64::consts::PI);
+        let in_cone = |i: usize, h: f64| {
+            let it = &scene.table.items[i];
+            it.tile.is_none_or(|tile| {
+                scene
+                    .index
+                    .tile_in_cone(cam.position, cam.forward(), h, it.viewpoint, tile)
             })
-            .collect();
+        };
+        sim.view_ach = ach.iter().copied().filter(|&(i, _)| in_cone(i, half)).collect();
+        sim.wide_ach = ach.iter().copied().filter(|&(i, _)| in_cone(i, wide)).collect();
         let (quality, needed, complete) =
             frame_metrics(&scene.table, &sim.items, &have, ach, &counts);
         if complete && first_frame.is_none() {
