@@ -304,22 +304,19 @@ fn decode_level_c<const C: usize>(
         if !rebuild_row {
             let (s, rest) = src.split_at(row);
             src = rest;
-            // The serial chain through the left pixel stays in 16-bit lanes (native min/max).
-            let mut nw: [i16; C] = px::<C>(prev).map(i16::from);
-            let mut left: [i16; C] = add_px::<C>(px(prev), s).map(i16::from);
-            cur[..C].copy_from_slice(&left.map(|v| v as u8));
+            // The serial chain through the left pixel: the channels in the lanes of a vector.
+            let mask = i16x8::splat(0xff);
+            let mut nw = lanes::<C>(prev);
+            let mut left = (nw + lanes::<C>(s)) & mask;
+            store_lanes::<C>(left, cur);
             for ((out, s), n) in cur[C..]
                 .chunks_exact_mut(C)
                 .zip(s[C..].chunks_exact(C))
                 .zip(prev[C..].chunks_exact(C))
             {
-                let n: [i16; C] = px::<C>(n).map(i16::from);
-                for k in 0..C {
-                    let (a, b, c) = (left[k], n[k], nw[k]);
-                    let p = (a + b - c).max(a.min(b)).min(a.max(b));
-                    left[k] = (p + s[k] as i16) & 0xff;
-                    out[k] = left[k] as u8;
-                }
+                let n = lanes::<C>(n);
+                left = (med_lanes(left, n, nw) + lanes::<C>(s)) & mask;
+                store_lanes::<C>(left, out);
                 nw = n;
             }
             continue;
