@@ -31,6 +31,20 @@ pub struct Args {
     pub json: Option<std::path::PathBuf>,
 }
 
+/// One timed configuration: median wall-clock and CPU milliseconds per frame.
+#[derive(serde::Serialize)]
+struct Variant {
+    name: String,
+    wall_ms: f64,
+    /// CPU time of all threads of this process (llvmpipe renders on its own threads), so a
+    /// loaded machine inflates it much less than the wall clock; `None` without
+    /// `/proc/self/task`.
+    cpu_ms: Option<f64>,
+    /// `wall_ms` and `cpu_ms` over the plain panorama's.
+    wall_ratio: f64,
+    cpu_ratio: Option<f64>,
+}
+
 #[derive(serde::Serialize)]
 struct BenchResult {
     adapter: String,
@@ -39,18 +53,37 @@ struct BenchResult {
     views: usize,
     slabs: usize,
     triangles: usize,
-    full_ms: f64,
-    /// One reference view, all slabs.
-    one_view_ms: f64,
-    /// Two views, first slab only.
-    one_slab_ms: f64,
-    plain_ms: f64,
-    ratio: f64,
+    /// Load average (1 min) before and after the run.
+    load_before: Option<f64>,
+    load_after: Option<f64>,
+    variants: Vec<Variant>,
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
+}
+
+/// Nanoseconds on CPU of all threads of this process (Linux `schedstat`).
+fn cpu_ns() -> Option<u64> {
+    let mut total = 0u64;
+    for entry in std::fs::read_dir("/proc/self/task").ok()? {
+        let path = entry.ok()?.path().join("schedstat");
+        // A thread may exit between listing and reading; it then adds nothing.
+        if let Ok(text) = std::fs::read_to_string(path) {
+            total += text.split_whitespace().next()?.parse::<u64>().ok()?;
+        }
+    }
+    Some(total)
+}
+
+fn load_average() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -94,41 +127,62 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )];
     let pano_plan = plan_frame(&pano, &camera, s, DrawBudget::default())?;
     let mut r = Renderer::new(Gpu::new()?);
-    let one_view = DrawBudget {
-        blend: false,
-        ..Default::default()
-    };
-    let one_slab = DrawBudget {
-        max_slabs: 1,
-        ..Default::default()
-    };
-    let variants = [DrawBudget::default(), one_view, one_slab];
+    // (name, budget, tile ids written)
+    let variants: Vec<(&str, DrawBudget, bool)> = vec![
+        (
+            "full (2 views x all slabs, tile ids)",
+            DrawBudget::default(),
+            true,
+        ),
+        ("full without tile ids", DrawBudget::default(), false),
+        (
+            "1 view, all slabs",
+            DrawBudget {
+                blend: false,
+                ..Default::default()
+            },
+            true,
+        ),
+        (
+            "2 views, 1 slab",
+            DrawBudget {
+                max_slabs: 1,
+                ..Default::default()
+            },
+            true,
+        ),
+    ];
     for _ in 0..3 {
         r.draw(&plan, &walk.views)?;
         r.draw_panorama(&pano_plan, &pano)?;
     }
-    let (mut full, mut plain) = (Vec::new(), Vec::new());
-    let mut others: Vec<Vec<f64>> = vec![Vec::new(); variants.len() - 1];
+    let load_before = load_average();
+    let mut wall: Vec<Vec<f64>> = vec![Vec::new(); variants.len() + 1];
+    let mut cpu: Vec<Vec<f64>> = vec![Vec::new(); variants.len() + 1];
     for _ in 0..args.frames {
-        for (k, budget) in variants.iter().enumerate() {
-            let t = Instant::now();
-            let plan = plan_frame(&walk.views, &camera, s, *budget)?;
+        for (k, (_, budget, ids)) in variants.iter().enumerate() {
+            let (t, c) = (Instant::now(), cpu_ns());
+            let mut plan = plan_frame(&walk.views, &camera, s, *budget)?;
+            plan.tile_ids = *ids;
             r.draw(&plan, &walk.views)?;
-            let ms = t.elapsed().as_secs_f64() * 1e3;
-            if k == 0 {
-                full.push(ms);
-            } else {
-                others[k - 1].push(ms);
+            wall[k + 1].push(t.elapsed().as_secs_f64() * 1e3);
+            if let (Some(a), Some(b)) = (c, cpu_ns()) {
+                cpu[k + 1].push(b.saturating_sub(a) as f64 / 1e6);
             }
         }
-        let t = Instant::now();
+        let (t, c) = (Instant::now(), cpu_ns());
         let p = plan_frame(&pano, &camera, s, DrawBudget::default())?;
         r.draw_panorama(&p, &pano)?;
-        plain.push(t.elapsed().as_secs_f64() * 1e3);
+        wall[0].push(t.elapsed().as_secs_f64() * 1e3);
+        if let (Some(a), Some(b)) = (c, cpu_ns()) {
+            cpu[0].push(b.saturating_sub(a) as f64 / 1e6);
+        }
     }
-    let one_view_ms = median(others[0].clone());
-    let one_slab_ms = median(others[1].clone());
-    let (full_ms, plain_ms) = (median(full), median(plain));
+    let names: Vec<&str> = std::iter::once("plain single cube map")
+        .chain(variants.iter().map(|v| v.0))
+        .collect();
+    let med = |v: &Vec<f64>| (!v.is_empty()).then(|| median(v.clone()));
+    let (plain_wall, plain_cpu) = (median(wall[0].clone()), med(&cpu[0]));
     let res = BenchResult {
         adapter: format!("{} ({:?})", r.gpu.info.name, r.gpu.info.backend),
         width: w,
@@ -140,12 +194,33 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .iter()
             .map(|p| walk.views[p.view].triangle_count())
             .sum(),
-        full_ms,
-        one_view_ms,
-        one_slab_ms,
-        plain_ms,
-        ratio: full_ms / plain_ms,
+        load_before,
+        load_after: load_average(),
+        variants: names
+            .iter()
+            .zip(wall.iter().zip(&cpu))
+            .map(|(name, (wv, cv))| {
+                let (wall_ms, cpu_ms) = (median(wv.clone()), med(cv));
+                Variant {
+                    name: name.to_string(),
+                    wall_ms,
+                    cpu_ms,
+                    wall_ratio: wall_ms / plain_wall,
+                    cpu_ratio: cpu_ms.zip(plain_cpu).map(|(a, b)| a / b),
+                }
+            })
+            .collect(),
     };
+    for v in &res.variants {
+        eprintln!(
+            "{:<40} {:>8.1} ms wall ({:>4.2}x)  {:>8.1} ms cpu ({:>4.2}x)",
+            v.name,
+            v.wall_ms,
+            v.wall_ratio,
+            v.cpu_ms.unwrap_or(f64::NAN),
+            v.cpu_ratio.unwrap_or(f64::NAN)
+        );
+    }
     println!("{}", serde_json::to_string_pretty(&res)?);
     if let Some(path) = &args.json {
         prerender::store::write_json(path, &res)?;

@@ -3,15 +3,20 @@
 //!
 //! Per reference view it keeps a [`GpuView`]: one 2D-array texture (layer 0 background,
 //! layer `k + 1` slab `k`, faces stacked `N × 6N`, full mip chain), one vertex and index buffer
-//! with every tile mesh, and a small storage buffer of per-tile face/layer/min-level. A frame
-//! is one render pass per view (tile runs front slab first with a reversed-Z depth test and
-//! the opacity mask, then the background where no tile drew) into an `Rgba16Float` target, then a full-screen blend pass.
+//! with every tile mesh, and a small storage buffer of per-tile face/layer/min-level/highlight/
+//! slab (rewritten only when it changes). A frame is one render pass per view (tile runs front
+//! slab first with a reversed-Z depth test and the opacity mask) into an `Rgba16Float` target
+//! (alpha = distance, 0 where no tile drew) and, when the plan asks for feedback or overlays,
+//! an `R32Uint` tile-id target; then one full-screen composite pass (`composite.wgsl`) that
+//! samples each view's background where its tiles left the pixel empty, blends the two views
+//! and draws the debug overlays ([`crate::plan::Overlays`]). The heat-map overlay counts the
+//! visible pixels per tile with the feedback compute pass inside the same frame.
 
 use std::collections::HashMap;
 
 use wgpu::util::DeviceExt;
 
-use crate::plan::{FramePlan, ViewUniforms};
+use crate::plan::{FramePlan, Overlays, ViewUniforms};
 use crate::refview::RefView;
 
 const VIEW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
@@ -98,8 +103,30 @@ struct GpuVertex {
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct BlendUniforms {
+struct CompositeUniforms {
+    /// w0, w1, number of views, log2(1 + pixels) (heat-map scale).
     weights: [f32; 4],
+    /// Overlay bits, unused.
+    flags: [u32; 4],
+}
+
+/// Shader source: the shared cube-map helpers followed by `main`.
+fn shader_source(main: &str) -> String {
+    [include_str!("cube.wgsl"), main].concat()
+}
+
+fn tex(v: &wgpu::TextureView) -> wgpu::BindingResource<'_> {
+    wgpu::BindingResource::TextureView(v)
+}
+
+/// One tile's entry of the tile-info storage buffer (`tile_info` in `render.wgsl`).
+fn tile_info(face_layer: u32, min_level: u32, tile: &crate::refview::ViewTile) -> [u32; 4] {
+    let highlight = if tile.highlight.is_finite() {
+        tile.highlight.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    [face_layer, min_level, highlight.to_bits(), tile.slab]
 }
 
 /// GPU copy of one reference view.
@@ -108,6 +135,10 @@ pub struct GpuView {
     vertices: wgpu::Buffer,
     indices: wgpu::Buffer,
     tile_info: wgpu::Buffer,
+    /// What `tile_info` holds now (rewritten only when a level or highlight changes).
+    info: Vec<[u32; 4]>,
+    /// Visible pixels per tile (feedback and the heat-map overlay).
+    counts: wgpu::Buffer,
     uniforms: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     /// First index of every tile, plus the end.
@@ -134,16 +165,38 @@ struct Targets {
 pub struct Renderer {
     pub gpu: Gpu,
     view_bgl: wgpu::BindGroupLayout,
-    blend_bgl: wgpu::BindGroupLayout,
+    composite_bgl: wgpu::BindGroupLayout,
+    /// Background (sky) where no tile drew, with and without the tile-id target.
+    background_ids: wgpu::RenderPipeline,
     background: wgpu::RenderPipeline,
+    /// Tile meshes writing colour and tile ids.
+    mesh_ids: wgpu::RenderPipeline,
+    /// Tile meshes writing colour only.
     mesh: wgpu::RenderPipeline,
     panorama: wgpu::RenderPipeline,
-    blend: wgpu::RenderPipeline,
+    composite: wgpu::RenderPipeline,
+    composite_overlays: wgpu::RenderPipeline,
     feedback: wgpu::ComputePipeline,
     sampler: wgpu::Sampler,
-    blend_uniforms: wgpu::Buffer,
+    composite_uniforms: wgpu::Buffer,
     views: HashMap<usize, GpuView>,
     targets: Option<Targets>,
+    /// Whether the last frame wrote the tile-id targets (slot 0, slot 1).
+    ids_valid: [bool; 2],
+    /// Composite bind groups by the reference-view indices of slots 0 and 1 (made once:
+    /// binding many textures anew every frame is slow on some drivers).
+    composite_groups: HashMap<(usize, usize), wgpu::BindGroup>,
+}
+
+fn storage_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    bgl_entry(
+        binding,
+        wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only: true },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+    )
 }
 
 fn bgl_entry(binding: u32, ty: wgpu::BindingType) -> wgpu::BindGroupLayoutEntry {
@@ -179,6 +232,19 @@ fn texture_entry(binding: u32, dim: wgpu::TextureViewDimension) -> wgpu::BindGro
     }
 }
 
+fn uint_texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::FRAGMENT,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Uint,
+            view_dimension: wgpu::TextureViewDimension::D2,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
 impl Renderer {
     pub fn new(gpu: Gpu) -> Renderer {
         let device = &gpu.device;
@@ -193,42 +259,39 @@ impl Renderer {
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                     count: None,
                 },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 3,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Storage { read_only: true },
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
+                storage_entry(3),
             ],
         });
-        let blend_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("blend"),
+        let composite_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("composite"),
             entries: &[
                 uniform_entry(0),
                 texture_entry(1, wgpu::TextureViewDimension::D2),
                 texture_entry(2, wgpu::TextureViewDimension::D2),
+                uint_texture_entry(3),
+                uint_texture_entry(4),
+                storage_entry(5),
+                storage_entry(6),
+                storage_entry(7),
+                storage_entry(8),
             ],
         });
         let render = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("render.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("render.wgsl").into()),
+            source: wgpu::ShaderSource::Wgsl(shader_source(include_str!("render.wgsl")).into()),
         });
-        let blend_src = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("blend.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("blend.wgsl").into()),
+        let composite_src = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("composite.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(shader_source(include_str!("composite.wgsl")).into()),
         });
         let view_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("view"),
             bind_group_layouts: &[Some(&view_bgl)],
             immediate_size: 0,
         });
-        let blend_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("blend"),
-            bind_group_layouts: &[Some(&blend_bgl)],
+        let composite_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("composite"),
+            bind_group_layouts: &[Some(&composite_bgl)],
             immediate_size: 0,
         });
         let depth = |compare, write| {
@@ -247,7 +310,8 @@ impl Renderer {
                 write_mask: wgpu::ColorWrites::ALL,
             })
         };
-        let pass_targets = [target(VIEW_FORMAT), target(ID_FORMAT)];
+        let id_targets = [target(VIEW_FORMAT), target(ID_FORMAT)];
+        let color_targets = [target(VIEW_FORMAT)];
         let output_target = [target(OUTPUT_FORMAT)];
         let vertex_attrs = wgpu::vertex_attr_array![0 => Float32x2, 1 => Float32, 2 => Uint32];
         let mk = |label: &str,
@@ -283,6 +347,23 @@ impl Renderer {
                 cache: None,
             })
         };
+        let mesh_buffers = [Some(wgpu::VertexBufferLayout {
+            array_stride: std::mem::size_of::<GpuVertex>() as u64,
+            step_mode: wgpu::VertexStepMode::Vertex,
+            attributes: &vertex_attrs,
+        })];
+        // Drawn after the meshes at depth 0 (the reversed-Z far plane, the clear value): only
+        // pixels no mesh covered pass, and the rasteriser skips the shader on covered blocks.
+        let background_ids = mk(
+            "background+ids",
+            &render,
+            &view_layout,
+            "vs_full",
+            "fs_background_ids",
+            &[],
+            &id_targets,
+            depth(wgpu::CompareFunction::GreaterEqual, false),
+        );
         let background = mk(
             "background",
             &render,
@@ -290,10 +371,18 @@ impl Renderer {
             "vs_full",
             "fs_background",
             &[],
-            &pass_targets,
-            // Drawn after the meshes at depth 0 (the reversed-Z far plane, the clear
-            // value): only pixels no mesh covered pass, so the sky costs only where it shows.
+            &color_targets,
             depth(wgpu::CompareFunction::GreaterEqual, false),
+        );
+        let mesh_ids = mk(
+            "mesh+ids",
+            &render,
+            &view_layout,
+            "vs_mesh",
+            "fs_mesh_ids",
+            &mesh_buffers,
+            &id_targets,
+            depth(wgpu::CompareFunction::Greater, true),
         );
         let mesh = mk(
             "mesh",
@@ -301,12 +390,8 @@ impl Renderer {
             &view_layout,
             "vs_mesh",
             "fs_mesh",
-            &[Some(wgpu::VertexBufferLayout {
-                array_stride: std::mem::size_of::<GpuVertex>() as u64,
-                step_mode: wgpu::VertexStepMode::Vertex,
-                attributes: &vertex_attrs,
-            })],
-            &pass_targets,
+            &mesh_buffers,
+            &color_targets,
             depth(wgpu::CompareFunction::Greater, true),
         );
         let panorama = mk(
@@ -319,12 +404,22 @@ impl Renderer {
             &output_target,
             None,
         );
-        let blend = mk(
-            "blend",
-            &blend_src,
-            &blend_layout,
+        let composite = mk(
+            "composite",
+            &composite_src,
+            &composite_layout,
             "vs_full",
-            "fs_blend",
+            "fs_composite",
+            &[],
+            &output_target,
+            None,
+        );
+        let composite_overlays = mk(
+            "composite+overlays",
+            &composite_src,
+            &composite_layout,
+            "vs_full",
+            "fs_composite_overlays",
             &[],
             &output_target,
             None,
@@ -348,36 +443,43 @@ impl Renderer {
             mipmap_filter: wgpu::MipmapFilterMode::Nearest,
             ..Default::default()
         });
-        let blend_uniforms = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("blend"),
-            size: std::mem::size_of::<BlendUniforms>() as u64,
+        let composite_uniforms = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("composite"),
+            size: std::mem::size_of::<CompositeUniforms>() as u64,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         Renderer {
             gpu,
             view_bgl,
-            blend_bgl,
-            background,
+            composite_bgl,
+            mesh_ids,
             mesh,
             panorama,
-            blend,
+            composite,
+            composite_overlays,
+            background_ids,
+            background,
             feedback,
             sampler,
-            blend_uniforms,
+            composite_uniforms,
             views: HashMap::new(),
             targets: None,
+            ids_valid: [false; 2],
+            composite_groups: HashMap::new(),
         }
     }
 
     /// Drop every uploaded view (call when the set of views changes identity).
     pub fn forget_views(&mut self) {
         self.views.clear();
+        self.composite_groups.clear();
     }
 
     /// Drop one uploaded view (e.g. after new tiles or levels arrived for it).
     pub fn invalidate_view(&mut self, index: usize) {
         self.views.remove(&index);
+        self.composite_groups.clear();
     }
 
     /// Bytes held by uploaded views.
@@ -474,8 +576,16 @@ impl Renderer {
         bytes += (verts.len() * std::mem::size_of::<GpuVertex>() + idx.len() * 4) as u64;
         let tile_info = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("tile info"),
-            size: (8 * face_layer.len().max(1)) as u64,
+            size: (16 * face_layer.len().max(1)) as u64,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let counts = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("tile counts"),
+            size: (4 * face_layer.len().max(1)) as u64,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
@@ -484,7 +594,7 @@ impl Renderer {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let tex_view = texture.create_view(&wgpu::TextureViewDescriptor {
+        let layers_view = texture.create_view(&wgpu::TextureViewDescriptor {
             dimension: Some(wgpu::TextureViewDimension::D2Array),
             ..Default::default()
         });
@@ -498,7 +608,7 @@ impl Renderer {
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,
-                    resource: wgpu::BindingResource::TextureView(&tex_view),
+                    resource: wgpu::BindingResource::TextureView(&layers_view),
                 },
                 wgpu::BindGroupEntry {
                     binding: 2,
@@ -515,6 +625,8 @@ impl Renderer {
             vertices,
             indices,
             tile_info,
+            info: Vec::new(),
+            counts,
             uniforms,
             bind_group,
             index_start,
@@ -535,6 +647,7 @@ impl Renderer {
         if stale {
             let g = self.upload(view);
             self.views.insert(view.index, g);
+            self.composite_groups.clear();
         }
     }
 
@@ -587,8 +700,9 @@ impl Renderer {
                 | wgpu::TextureUsages::COPY_SRC
                 | wgpu::TextureUsages::TEXTURE_BINDING,
         );
-        let id_usage =
-            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
+        let id_usage = wgpu::TextureUsages::RENDER_ATTACHMENT
+            | wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::COPY_SRC;
         let id_views = [
             tex("ids 0", ID_FORMAT, id_usage).create_view(&Default::default()),
             tex("ids 1", ID_FORMAT, id_usage).create_view(&Default::default()),
@@ -597,6 +711,7 @@ impl Renderer {
             views[0].create_view(&Default::default()),
             views[1].create_view(&Default::default()),
         ];
+        self.composite_groups.clear();
         self.targets = Some(Targets {
             width,
             height,
@@ -622,14 +737,20 @@ impl Renderer {
             self.ensure_view(v);
         }
         self.ensure_targets(plan.width, plan.height)?;
+        for p in &plan.passes {
+            self.update_tile_info(p, &views[p.view]);
+        }
+        self.prepare_composite(plan, views);
         let mut enc = self
             .gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("frame"),
             });
-        self.encode(&mut enc, plan, views, None);
+        self.encode(&mut enc, plan, views);
         self.gpu.queue.submit([enc.finish()]);
+        let ids = plan.tile_ids || plan.overlays.needs_tile_ids();
+        self.ids_valid = [ids && !plan.passes.is_empty(), ids && plan.passes.len() > 1];
         self.gpu
             .device
             .poll(wgpu::PollType::wait_indefinitely())
@@ -637,58 +758,124 @@ impl Renderer {
         Ok(())
     }
 
-    /// Encode the frame's passes; the blend goes into `output` or the internal target.
-    /// Views and targets must have been prepared ([`Renderer::draw`] does it).
-    fn encode(
-        &self,
-        enc: &mut wgpu::CommandEncoder,
-        plan: &FramePlan,
-        views: &[RefView],
-        output: Option<&wgpu::TextureView>,
-    ) {
+    /// Rewrite a view's per-tile info (face, layer, min level, highlight, slab) when it changed
+    /// since the last frame; most frames write nothing.
+    fn update_tile_info(&mut self, pass: &crate::plan::ViewPass, view: &RefView) {
+        let Some(g) = self.views.get_mut(&view.index) else {
+            return;
+        };
+        let changed = g.info.len() != g.face_layer.len()
+            || g.info
+                .iter()
+                .zip(&g.face_layer)
+                .zip(pass.tile_min_level.iter().zip(&view.tiles))
+                .any(|((i, &fl), (&lvl, t))| *i != tile_info(fl, lvl, t));
+        if !changed {
+            return;
+        }
+        g.info = g
+            .face_layer
+            .iter()
+            .zip(pass.tile_min_level.iter().chain(std::iter::repeat(&0)))
+            .zip(&view.tiles)
+            .map(|((&fl, &lvl), t)| tile_info(fl, lvl, t))
+            .collect();
+        if !g.info.is_empty() {
+            self.gpu
+                .queue
+                .write_buffer(&g.tile_info, 0, bytemuck::cast_slice(&g.info));
+        }
+    }
+
+    /// Make (once) the composite bind group of the views drawn by `plan`.
+    fn prepare_composite(&mut self, plan: &FramePlan, views: &[RefView]) {
         let Some(targets) = &self.targets else {
             return;
         };
+        let slots: Vec<&RefView> = plan
+            .passes
+            .iter()
+            .take(2)
+            .filter_map(|p| views.get(p.view))
+            .collect();
+        let Some(first) = slots.first() else {
+            return;
+        };
+        let key = (first.index, slots.get(1).map_or(usize::MAX, |v| v.index));
+        if self.composite_groups.contains_key(&key) {
+            return;
+        }
+        let Some(g0) = self.views.get(&first.index) else {
+            return;
+        };
+        let g1 = slots
+            .get(1)
+            .and_then(|v| self.views.get(&v.index))
+            .unwrap_or(g0);
+        let resources = [
+            self.composite_uniforms.as_entire_binding(),
+            tex(&targets.view_views[0]),
+            tex(&targets.view_views[1]),
+            tex(&targets.id_views[0]),
+            tex(&targets.id_views[1]),
+            g0.tile_info.as_entire_binding(),
+            g1.tile_info.as_entire_binding(),
+            g0.counts.as_entire_binding(),
+            g1.counts.as_entire_binding(),
+        ];
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = resources
+            .into_iter()
+            .enumerate()
+            .map(|(i, resource)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource,
+            })
+            .collect();
+        let bg = self
+            .gpu
+            .device
+            .create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("composite"),
+                layout: &self.composite_bgl,
+                entries: &entries,
+            });
+        self.composite_groups.insert(key, bg);
+    }
+
+    /// Encode the frame's passes into the internal output target. Views, targets and tile
+    /// info must have been prepared ([`Renderer::draw`] does it).
+    fn encode(&self, enc: &mut wgpu::CommandEncoder, plan: &FramePlan, views: &[RefView]) {
+        let Some(targets) = &self.targets else {
+            return;
+        };
+        let ids = plan.tile_ids || plan.overlays.needs_tile_ids();
+        let mut drawn: Vec<&GpuView> = Vec::new();
         for (slot, pass) in plan.passes.iter().take(2).enumerate() {
             let Some(g) = views.get(pass.view).and_then(|v| self.views.get(&v.index)) else {
                 continue;
             };
+            drawn.push(g);
             self.gpu
                 .queue
                 .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
-            let info: Vec<[u32; 2]> = g
-                .face_layer
-                .iter()
-                .zip(&pass.tile_min_level)
-                .map(|(&fl, &lvl)| [fl, lvl])
-                .collect();
-            if !info.is_empty() {
-                self.gpu
-                    .queue
-                    .write_buffer(&g.tile_info, 0, bytemuck::cast_slice(&info));
-            }
+            let clear = |view| {
+                Some(wgpu::RenderPassColorAttachment {
+                    view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })
+            };
+            let with_ids = [
+                clear(&targets.view_views[slot]),
+                clear(&targets.id_views[slot]),
+            ];
             let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("view"),
-                color_attachments: &[
-                    Some(wgpu::RenderPassColorAttachment {
-                        view: &targets.view_views[slot],
-                        depth_slice: None,
-                        resolve_target: None,
-                        ops: wgpu::Operations {
-                            load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                            store: wgpu::StoreOp::Store,
-                        },
-                    }),
-                    Some(wgpu::RenderPassColorAttachment {
-                        view: &targets.id_views[slot],
-                        depth_slice: None,
-                        resolve_target: None,
-                        ops: wgpu::Operations {
-                            load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                            store: wgpu::StoreOp::Store,
-                        },
-                    }),
-                ],
+                color_attachments: if ids { &with_ids[..] } else { &with_ids[..1] },
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                     view: &targets.depth_view,
                     depth_ops: Some(wgpu::Operations {
@@ -703,7 +890,7 @@ impl Renderer {
             });
             rp.set_bind_group(0, &g.bind_group, &[]);
             if !pass.runs.is_empty() {
-                rp.set_pipeline(&self.mesh);
+                rp.set_pipeline(if ids { &self.mesh_ids } else { &self.mesh });
                 rp.set_vertex_buffer(0, g.vertices.slice(..));
                 rp.set_index_buffer(g.indices.slice(..), wgpu::IndexFormat::Uint32);
                 for run in &pass.runs {
@@ -716,46 +903,47 @@ impl Renderer {
                     }
                 }
             }
-            rp.set_pipeline(&self.background);
+            rp.set_pipeline(if ids {
+                &self.background_ids
+            } else {
+                &self.background
+            });
             rp.draw(0..3, 0..1);
         }
-        let weights = BlendUniforms {
+        if drawn.is_empty() {
+            return;
+        }
+        if plan.overlays.heat {
+            for (slot, g) in drawn.iter().enumerate() {
+                self.encode_counts(enc, &targets.id_views[slot], g);
+            }
+        }
+        let pixels = plan.width as f32 * plan.height as f32;
+        let uniforms = CompositeUniforms {
             weights: [
                 plan.passes.first().map_or(0.0, |p| p.weight as f32),
                 plan.passes.get(1).map_or(0.0, |p| p.weight as f32),
-                plan.passes.len().min(2) as f32,
-                0.0,
+                drawn.len() as f32,
+                (1.0 + pixels).log2(),
             ],
+            flags: [plan.overlays.bits(), 0, 0, 0],
         };
         self.gpu
             .queue
-            .write_buffer(&self.blend_uniforms, 0, bytemuck::bytes_of(&weights));
-        let bg = self
-            .gpu
-            .device
-            .create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("blend"),
-                layout: &self.blend_bgl,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: self.blend_uniforms.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: wgpu::BindingResource::TextureView(&targets.view_views[0]),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: wgpu::BindingResource::TextureView(&targets.view_views[1]),
-                    },
-                ],
-            });
-        let out = output.unwrap_or(&targets.output_view);
+            .write_buffer(&self.composite_uniforms, 0, bytemuck::bytes_of(&uniforms));
+        let index = |slot: usize| {
+            plan.passes
+                .get(slot)
+                .and_then(|p| views.get(p.view))
+                .map_or(usize::MAX, |v| v.index)
+        };
+        let Some(bg) = self.composite_groups.get(&(index(0), index(1))) else {
+            return;
+        };
         let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("blend"),
+            label: Some("composite"),
             color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: out,
+                view: &targets.output_view,
                 depth_slice: None,
                 resolve_target: None,
                 ops: wgpu::Operations {
@@ -768,9 +956,44 @@ impl Renderer {
             occlusion_query_set: None,
             multiview_mask: None,
         });
-        rp.set_pipeline(&self.blend);
-        rp.set_bind_group(0, &bg, &[]);
+        rp.set_pipeline(if plan.overlays == Overlays::default() {
+            &self.composite
+        } else {
+            &self.composite_overlays
+        });
+        rp.set_bind_group(0, bg, &[]);
         rp.draw(0..3, 0..1);
+    }
+
+    /// Encode the feedback count of one view pass: zero the view's counts, then count the
+    /// visible pixels of every tile in its tile-id target.
+    fn encode_counts(&self, enc: &mut wgpu::CommandEncoder, ids: &wgpu::TextureView, g: &GpuView) {
+        enc.clear_buffer(&g.counts, 0, None);
+        let bg = self
+            .gpu
+            .device
+            .create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("feedback"),
+                layout: &self.feedback.get_bind_group_layout(0),
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: wgpu::BindingResource::TextureView(ids),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: g.counts.as_entire_binding(),
+                    },
+                ],
+            });
+        let (w, h) = self
+            .targets
+            .as_ref()
+            .map_or((1, 1), |t| (t.width, t.height));
+        let mut cp = enc.begin_compute_pass(&Default::default());
+        cp.set_pipeline(&self.feedback);
+        cp.set_bind_group(0, &bg, &[]);
+        cp.dispatch_workgroups(w.div_ceil(8), h.div_ceil(8), 1);
     }
 
     /// Draw the plain panorama of `plan.passes[0]`'s view (its background layer as one cube
@@ -901,7 +1124,8 @@ impl Renderer {
     }
 
     /// Visible pixels per tile of every view pass of the last [`Renderer::draw`] (tile-id
-    /// targets counted by a compute pass with atomics); `plan` must be the plan drawn.
+    /// targets counted by a compute pass with atomics); `plan` must be the plan drawn, with
+    /// [`FramePlan::tile_ids`] set.
     pub fn feedback(
         &self,
         plan: &FramePlan,
@@ -911,67 +1135,124 @@ impl Renderer {
             .targets
             .as_ref()
             .ok_or_else(|| GpuError::Readback("nothing drawn yet".into()))?;
-        let device = &self.gpu.device;
         let mut out = Vec::new();
         for (slot, pass) in plan.passes.iter().take(2).enumerate() {
-            let n = views.get(pass.view).map_or(0, |v| v.tiles.len());
-            let size = (4 * n.max(1)) as u64;
-            let counts = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("tile counts"),
-                contents: &vec![0u8; size as usize],
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            });
-            let readback = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("tile counts readback"),
-                size,
-                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-                mapped_at_creation: false,
-            });
-            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("feedback"),
-                layout: &self.feedback.get_bind_group_layout(0),
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: wgpu::BindingResource::TextureView(&t.id_views[slot]),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: counts.as_entire_binding(),
-                    },
-                ],
-            });
-            let mut enc = device.create_command_encoder(&Default::default());
-            {
-                let mut cp = enc.begin_compute_pass(&Default::default());
-                cp.set_pipeline(&self.feedback);
-                cp.set_bind_group(0, &bg, &[]);
-                cp.dispatch_workgroups(t.width.div_ceil(8), t.height.div_ceil(8), 1);
+            if !self.ids_valid[slot] {
+                return Err(GpuError::Readback(
+                    "the last frame drew no tile ids (FramePlan::tile_ids was off)".into(),
+                ));
             }
-            enc.copy_buffer_to_buffer(&counts, 0, &readback, 0, size);
-            self.gpu.queue.submit([enc.finish()]);
-            let slice = readback.slice(..);
-            let (tx, rx) = std::sync::mpsc::channel();
-            slice.map_async(wgpu::MapMode::Read, move |r| {
-                tx.send(r).ok();
-            });
-            device
-                .poll(wgpu::PollType::wait_indefinitely())
-                .map_err(|e| GpuError::Readback(e.to_string()))?;
-            rx.recv()
-                .map_err(|e| GpuError::Readback(e.to_string()))?
-                .map_err(|e| GpuError::Readback(e.to_string()))?;
-            let data = slice
-                .get_mapped_range()
-                .map_err(|e| GpuError::Readback(e.to_string()))?;
-            let mut pixels: Vec<u32> = bytemuck::cast_slice(&data[..]).to_vec();
-            pixels.truncate(n);
+            let Some((v, g)) = views
+                .get(pass.view)
+                .and_then(|v| Some((v, self.views.get(&v.index)?)))
+            else {
+                return Err(GpuError::MissingView(pass.view, views.len()));
+            };
+            let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+            self.encode_counts(&mut enc, &t.id_views[slot], g);
+            let mut pixels: Vec<u32> = self.read_buffer(enc, &g.counts)?;
+            pixels.truncate(v.tiles.len());
             out.push(crate::feedback::ViewCounts {
                 view: pass.view,
                 pixels,
             });
         }
         Ok(out)
+    }
+
+    /// The tile drawn at every pixel (row-major from the top; tile index + 1, 0 = none) by
+    /// view pass `slot` (0 or 1) of the last [`Renderer::draw`], which must have written tile
+    /// ids.
+    pub fn read_tile_ids(&self, slot: usize) -> Result<Vec<u32>, GpuError> {
+        let t = self
+            .targets
+            .as_ref()
+            .ok_or_else(|| GpuError::Readback("nothing drawn yet".into()))?;
+        if !self.ids_valid.get(slot).copied().unwrap_or(false) {
+            return Err(GpuError::Readback(format!(
+                "the last frame wrote no tile ids for view pass {slot}"
+            )));
+        }
+        let texture = t.id_views[slot].texture();
+        let (w, h) = (t.width, t.height);
+        let bpr = (w * 4).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
+            * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let buf = self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("ids readback"),
+            size: (bpr * h) as u64,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        enc.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo {
+                texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buf,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(bpr),
+                    rows_per_image: None,
+                },
+            },
+            wgpu::Extent3d {
+                width: w,
+                height: h,
+                depth_or_array_layers: 1,
+            },
+        );
+        let rows: Vec<u32> = self.map_read(enc, &buf)?;
+        let stride = (bpr / 4) as usize;
+        Ok((0..h as usize)
+            .flat_map(|y| rows[y * stride..y * stride + w as usize].iter().copied())
+            .collect())
+    }
+
+    /// Copy a storage buffer out (after the commands in `enc`) and read it as `u32`s.
+    fn read_buffer(
+        &self,
+        mut enc: wgpu::CommandEncoder,
+        src: &wgpu::Buffer,
+    ) -> Result<Vec<u32>, GpuError> {
+        let size = src.size();
+        let readback = self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        enc.copy_buffer_to_buffer(src, 0, &readback, 0, size);
+        self.map_read(enc, &readback)
+    }
+
+    /// Submit `enc`, wait, and read the mappable buffer `buf` as `u32`s.
+    fn map_read(
+        &self,
+        enc: wgpu::CommandEncoder,
+        buf: &wgpu::Buffer,
+    ) -> Result<Vec<u32>, GpuError> {
+        self.gpu.queue.submit([enc.finish()]);
+        let slice = buf.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            // The receiver outlives the poll below; a send error cannot happen.
+            tx.send(r).ok();
+        });
+        self.gpu
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let data = slice
+            .get_mapped_range()
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        Ok(bytemuck::cast_slice(&data[..]).to_vec())
     }
 
     /// Draw a plan and read it back.

@@ -89,6 +89,39 @@ pub struct ViewPass {
     pub tile_min_level: Vec<u32>,
 }
 
+/// Debug overlays drawn over the final image by the composite pass (`composite.wgsl`). Each
+/// tints a pixel by the tile that drew it in the view with the larger blend weight there.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Overlays {
+    /// Recently loaded tiles: tint towards amber by [`crate::refview::ViewTile::highlight`]
+    /// (0..1; the streaming side sets it when a tile or a finer level arrives and lets it
+    /// fade).
+    pub highlight: bool,
+    /// The feedback heat map: tint by the tile's visible pixels in this frame, blue (few)
+    /// through green and yellow to red (the whole frame), on a log scale.
+    pub heat: bool,
+    /// Tint by slab: red, green, blue, magenta for slabs 0, 1, 2, 3 (then again).
+    pub slab_colors: bool,
+    /// Paint pixels that no view covers (culled or missing tiles that would be needed there)
+    /// opaque magenta instead of leaving them transparent.
+    pub holes: bool,
+}
+
+impl Overlays {
+    /// Bit set of the composite shader (`OVERLAY_*` in `composite.wgsl`).
+    pub fn bits(&self) -> u32 {
+        self.highlight as u32
+            | (self.heat as u32) << 1
+            | (self.slab_colors as u32) << 2
+            | (self.holes as u32) << 3
+    }
+
+    /// Whether the overlays look up the tile of each pixel (the tile-id targets).
+    pub fn needs_tile_ids(&self) -> bool {
+        self.highlight || self.heat || self.slab_colors
+    }
+}
+
 /// Everything drawn in one frame.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FramePlan {
@@ -96,6 +129,12 @@ pub struct FramePlan {
     pub height: u32,
     /// One pass (a single view) or two (the views around the camera).
     pub passes: Vec<ViewPass>,
+    /// Write the tile-id targets the visibility feedback counts
+    /// ([`crate::gpu::Renderer::feedback`]). [`plan_frame`] sets it; a caller that asks for
+    /// feedback only every few frames clears it on the others (one render target less).
+    pub tile_ids: bool,
+    /// Debug overlays (none by default).
+    pub overlays: Overlays,
 }
 
 /// The smooth blend weight of the second view at fraction `t ∈ [0, 1]` of a segment:
@@ -219,6 +258,8 @@ pub fn plan_frame(
         width: camera.width.max(1),
         height: camera.height.max(1),
         passes,
+        tile_ids: true,
+        overlays: Overlays::default(),
     })
 }
 

@@ -71,6 +71,11 @@ pub struct ViewTile {
     /// Bounding sphere of the mesh relative to the reference viewpoint.
     pub bound_center: DVec3,
     pub bound_radius: f64,
+    /// Debug highlight, 0..1 (0 = none): the streaming side sets it to 1 when the tile or a
+    /// finer level of it arrives and lets it decay per frame; with
+    /// [`crate::plan::Overlays::highlight`] on, the renderer tints the tile by it. Read every
+    /// frame, so changing it needs no re-upload.
+    pub highlight: f32,
 }
 
 /// Everything drawn from one reference viewpoint.
@@ -252,6 +257,7 @@ impl ViewTile {
             finest_level: 0,
             bound_center: center,
             bound_radius: radius,
+            highlight: 0.0,
         }
     }
 }
