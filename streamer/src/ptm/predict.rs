@@ -483,3 +483,78 @@ fn pair_row_scalar<const C: usize>(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use proptest::prelude::*;
+
+    use super::*;
+
+    /// Vector and scalar alternating rows agree on arbitrary (mostly damaged) input: the same
+    /// verdict, and the same pixels when intact.
+    fn lanes_match_scalar<const C: usize>(bytes: &[u8], pairs: usize, two_rows: bool) {
+        let take = |at: &mut usize, n: usize| {
+            let v: Vec<u8> = (0..n).map(|i| bytes[(*at + i) % bytes.len()]).collect();
+            *at += n;
+            v
+        };
+        let mut at = 0;
+        let prev = take(&mut at, 2 * pairs * C + C);
+        let s = take(&mut at, pairs * C);
+        let parents = take(&mut at, pairs * C);
+        // Residual codes mostly valid (0..=3), sometimes not.
+        let coded: Vec<u8> = take(&mut at, pairs * C)
+            .into_iter()
+            .map(|c| if c < 250 { c & 3 } else { c })
+            .collect();
+        let mut by_lanes = vec![0u8; 2 * pairs * C];
+        let mut by_scalar = vec![0u8; 2 * pairs * C];
+        let ok = if two_rows {
+            pair_row_lanes::<C, true>(&prev, &s, &parents, &coded, &mut by_lanes)
+        } else {
+            pair_row_lanes::<C, false>(&prev, &s, &parents, &coded, &mut by_lanes)
+        };
+        let scalar = pair_row_scalar::<C>(&prev, &s, &parents, &coded, &mut by_scalar, two_rows);
+        assert_eq!(ok, scalar.is_ok(), "{scalar:?}");
+        if ok {
+            assert_eq!(by_lanes, by_scalar);
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 400, ..ProptestConfig::default() })]
+
+        #[test]
+        fn vector_rows_match_scalar_rows(
+            bytes in proptest::collection::vec(any::<u8>(), 1..200),
+            pairs in 0usize..12,
+            c in 1usize..=4,
+            two_rows in any::<bool>(),
+        ) {
+            match c {
+                1 => lanes_match_scalar::<1>(&bytes, pairs, two_rows),
+                2 => lanes_match_scalar::<2>(&bytes, pairs, two_rows),
+                3 => lanes_match_scalar::<3>(&bytes, pairs, two_rows),
+                _ => lanes_match_scalar::<4>(&bytes, pairs, two_rows),
+            }
+        }
+    }
+
+    /// Intact rows: pixels that agree with a real block (constant images give every
+    /// residual, parent and prediction exactly).
+    #[test]
+    fn vector_rows_rebuild_intact_blocks() {
+        for v in [0u8, 1, 128, 254, 255] {
+            // A constant 2×2 block: parent v, residual 0, guess 0, error 0.
+            let prev = vec![v; 4 * 4 + 4];
+            let s = vec![0u8; 2 * 4];
+            let parents = vec![v; 2 * 4];
+            let coded = vec![0u8; 2 * 4];
+            let mut out = vec![0u8; 4 * 4];
+            assert!(pair_row_lanes::<4, true>(
+                &prev, &s, &parents, &coded, &mut out
+            ));
+            assert_eq!(out, vec![v; 16]);
+        }
+    }
+}
