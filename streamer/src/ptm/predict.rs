@@ -296,37 +296,45 @@ fn decode_level_c<const C: usize>(
             cur[x * C..(x + 1) * C].copy_from_slice(&v);
         }
     }
-    for y in 1..hu {
+    let mut y = 1;
+    while y < hu {
         let (above, rest) = data.split_at_mut(y * row);
-        let cur = &mut rest[..row];
         let prev = &above[(y - 1) * row..];
+        let pairs = wu / 2;
         let rebuild_row = y & 1 == 1 || y + 1 == hu;
         if !rebuild_row {
-            let (s, rest) = src.split_at(row);
-            src = rest;
-            // The serial chain through the left pixel: the channels in the lanes of a vector.
-            let mask = i16x8::splat(0xff);
-            let mut nw = lanes::<C>(prev);
-            let mut left = (nw + lanes::<C>(s)) & mask;
-            store_lanes::<C>(left, cur);
-            for ((out, s), n) in cur[C..]
-                .chunks_exact_mut(C)
-                .zip(s[C..].chunks_exact(C))
-                .zip(prev[C..].chunks_exact(C))
-            {
-                let n = lanes::<C>(n);
-                left = (med_lanes(left, n, nw) + lanes::<C>(s)) & mask;
-                store_lanes::<C>(left, out);
-                nw = n;
+            let (s, rest_src) = src.split_at(row);
+            src = rest_src;
+            let (cur, below) = rest.split_at_mut(row);
+            if y + 1 == hu || pairs == 0 {
+                stored_row::<C>(prev, s, cur);
+                y += 1;
+                continue;
             }
+            // The row below is an alternating row of 2×2 blocks: both rows are rebuilt in one
+            // pass, the lower one trailing by a pair, so their two serial chains overlap.
+            let odd = &mut below[..row];
+            let (s_odd, rest_src) = src.split_at(pairs * C);
+            src = rest_src;
+            let prow = ((y + 1) >> 1) * pw * C;
+            let parents = &parent.data[prow..prow + pw * C];
+            let coded_row = &res_plane[prow..prow + pw * C];
+            if !stored_and_pair_rows::<C>(prev, s, cur, s_odd, parents, coded_row, odd) {
+                // Damaged: the scalar path rebuilds the row again and names the first bad pixel.
+                pair_row_scalar::<C>(cur, s_odd, parents, coded_row, odd, true)
+                    .map_err(|(x, e)| bad(x, y + 1, e))?;
+            }
+            right_edge::<C>(cur, odd, parents, coded_row, true)
+                .map_err(|e| bad(wu - 1, y + 1, e))?;
+            y += 2;
             continue;
         }
         // Alternating row: stored pixel 2i, rebuilt pixel 2i + 1 (a full 2×2 block when y is
         // odd, a 2×1 block on an odd last row), and a lone rebuilt pixel on an odd right edge.
+        let cur = &mut rest[..row];
         let two_rows = y & 1 == 1;
-        let pairs = wu / 2;
-        let (s, rest) = src.split_at(pairs * C);
-        src = rest;
+        let (s, rest_src) = src.split_at(pairs * C);
+        src = rest_src;
         let prow = (y >> 1) * pw * C;
         let parents = &parent.data[prow..prow + pw * C];
         let coded_row = &res_plane[prow..prow + pw * C];
@@ -340,36 +348,206 @@ fn decode_level_c<const C: usize>(
             pair_row_scalar::<C>(prev, s, parents, coded_row, cur, two_rows)
                 .map_err(|(x, e)| bad(x, y, e))?;
         }
-        let left: Px<C> = if pairs > 0 {
-            px(&cur[(2 * pairs - 1) * C..])
-        } else {
-            [0; C]
-        };
-        if wu & 1 == 1 {
-            let x = wu - 1;
-            let n: Px<C> = px(&prev[x * C..]);
-            let p = if x == 0 {
-                n
-            } else {
-                med_px(left, n, px(&prev[(x - 1) * C..]))
-            };
-            let (cnt, others) = if two_rows {
-                (2, n.map(i32::from))
-            } else {
-                (1, [0; C])
-            };
-            let v = rebuild_px(
-                others,
-                cnt,
-                p,
-                &parents[pairs * C..(pairs + 1) * C],
-                &coded_row[pairs * C..(pairs + 1) * C],
-            )
-            .map_err(|e| bad(x, y, e))?;
-            cur[x * C..(x + 1) * C].copy_from_slice(&v);
-        }
+        right_edge::<C>(prev, cur, parents, coded_row, two_rows).map_err(|e| bad(wu - 1, y, e))?;
+        y += 1;
     }
     Ok(data)
+}
+
+/// The lone rebuilt pixel of an alternating row on an odd right edge (nothing to do on an
+/// even width): a 1×2 block below `prev`'s last pixel when `two_rows`, else a 1×1 block.
+fn right_edge<const C: usize>(
+    prev: &[u8],
+    cur: &mut [u8],
+    parents: &[u8],
+    coded_row: &[u8],
+    two_rows: bool,
+) -> Result<(), (u8, i32)> {
+    let wu = cur.len() / C;
+    if wu & 1 == 0 {
+        return Ok(());
+    }
+    let (x, pairs) = (wu - 1, wu / 2);
+    let n: Px<C> = px(&prev[x * C..]);
+    let p = if x == 0 {
+        n
+    } else {
+        med_px(px(&cur[(x - 1) * C..]), n, px(&prev[(x - 1) * C..]))
+    };
+    let (cnt, others) = if two_rows {
+        (2, n.map(i32::from))
+    } else {
+        (1, [0; C])
+    };
+    let v = rebuild_px(
+        others,
+        cnt,
+        p,
+        &parents[pairs * C..(pairs + 1) * C],
+        &coded_row[pairs * C..(pairs + 1) * C],
+    )?;
+    cur[x * C..(x + 1) * C].copy_from_slice(&v);
+    Ok(())
+}
+
+/// A row without rebuilt pixels: MED of every pixel plus its coded error.
+fn stored_row<const C: usize>(prev: &[u8], s: &[u8], cur: &mut [u8]) {
+    // The serial chain through the left pixel: the channels in the lanes of a vector.
+    let mask = i16x8::splat(0xff);
+    let mut nw = lanes::<C>(prev);
+    let mut left = (nw + lanes::<C>(s)) & mask;
+    store_lanes::<C>(left, cur);
+    for ((out, s), n) in cur[C..]
+        .chunks_exact_mut(C)
+        .zip(s[C..].chunks_exact(C))
+        .zip(prev[C..].chunks_exact(C))
+    {
+        let n = lanes::<C>(n);
+        left = (med_lanes(left, n, nw) + lanes::<C>(s)) & mask;
+        store_lanes::<C>(left, out);
+        nw = n;
+    }
+}
+
+/// Constants of [`pair_step`] for blocks of `cnt` pixels.
+#[derive(Clone, Copy)]
+struct PairConsts {
+    cnt: i16x8,
+    top: i16x8,
+    zero: i16x8,
+    three: i16x8,
+    max: i16x8,
+}
+
+impl PairConsts {
+    #[inline(always)]
+    fn new(cnt: i16) -> PairConsts {
+        PairConsts {
+            cnt: i16x8::splat(cnt),
+            top: i16x8::splat(cnt - 1),
+            zero: i16x8::splat(0),
+            three: i16x8::splat(3),
+            max: i16x8::splat(255),
+        }
+    }
+}
+
+/// One (stored, rebuilt) pair of an alternating row, channels in lanes: `left`/`nw` are the
+/// pixel left of the pair and the one above that, `n0`/`n1` the two above the pair, `two_rows`
+/// whether the block includes them. Returns both pixels and the lanes found damaged.
+#[inline(always)]
+#[expect(clippy::too_many_arguments, reason = "a hot helper on vectors")]
+fn pair_step(
+    left: i16x8,
+    nw: i16x8,
+    n0: i16x8,
+    n1: i16x8,
+    s: i16x8,
+    par: i16x8,
+    coded: i16x8,
+    two_rows: bool,
+    k: PairConsts,
+) -> (i16x8, i16x8, i16x8) {
+    let a = (med_lanes(left, n0, nw) + s) & k.max;
+    // Eq. 3 with the residual guessed from the rebuilt pixel's MED (see `rebuild_px`): `t`
+    // is the pixel's value for ε = 0.
+    let p1 = med_lanes(a, n1, n0);
+    let others = if two_rows { a + n0 + n1 } else { a };
+    let t = k.cnt * par - others;
+    let r = (coded + (p1 - t).max(k.zero).min(k.top)) & k.three;
+    let b = t + r;
+    let damaged = b.simd_gt(k.max) | b.simd_lt(k.zero) | r.simd_gt(k.top) | coded.simd_gt(k.three);
+    (a, b, damaged)
+}
+
+/// A stored-only row (`cur`, below `prev`) and the alternating row of 2×2 blocks below it
+/// (`odd`) in one pass: the lower row's pair `i − 1` is rebuilt right after the upper row's
+/// pair `i`, from the upper pixels still in registers, so the two serial chains overlap.
+/// Needs at least one pair. On an odd width the upper row's last pixel is rebuilt here, the
+/// lower one's (a 1×2 block) is left to [`right_edge`]. Returns false on damage (as
+/// [`pair_row_lanes`]).
+fn stored_and_pair_rows<const C: usize>(
+    prev: &[u8],
+    s: &[u8],
+    cur: &mut [u8],
+    s_odd: &[u8],
+    parents: &[u8],
+    coded_row: &[u8],
+    odd: &mut [u8],
+) -> bool {
+    let k = PairConsts::new(4);
+    let mask = k.max;
+    let wu = cur.len() / C;
+    // The upper row's first pair (first column: MED is the pixel above).
+    let mut nw = lanes::<C>(prev);
+    let mut u0 = (nw + lanes::<C>(s)) & mask;
+    let n1 = lanes::<C>(&prev[C..]);
+    let mut u1 = (med_lanes(u0, n1, nw) + lanes::<C>(&s[C..])) & mask;
+    store_lanes::<C>(u0, cur);
+    store_lanes::<C>(u1, &mut cur[C..]);
+    nw = n1;
+    let mut left = u1;
+    // The lower row starts below (u0, u1), its first column predicted from above.
+    let (mut nw_odd, mut left_odd) = (u0, u0);
+    let mut damaged = k.zero;
+    let upper = cur[2 * C..]
+        .chunks_exact_mut(2 * C)
+        .zip(prev[2 * C..].chunks_exact(2 * C))
+        .zip(s[2 * C..].chunks_exact(2 * C));
+    let mut lower = odd
+        .chunks_exact_mut(2 * C)
+        .zip(s_odd.chunks_exact(C))
+        .zip(parents.chunks_exact(C).zip(coded_row.chunks_exact(C)));
+    for ((out, up), su) in upper {
+        let n0 = lanes::<C>(up);
+        let n1 = lanes::<C>(&up[C..]);
+        let a = (med_lanes(left, n0, nw) + lanes::<C>(su)) & mask;
+        let b = (med_lanes(a, n1, n0) + lanes::<C>(&su[C..])) & mask;
+        store_lanes::<C>(a, out);
+        store_lanes::<C>(b, &mut out[C..]);
+        left = b;
+        nw = n1;
+        let ((o, so), (par, coded)) = lower.next().expect("one lower pair per upper pair");
+        let (c, d, bad) = pair_step(
+            left_odd,
+            nw_odd,
+            u0,
+            u1,
+            lanes::<C>(so),
+            lanes::<C>(par),
+            lanes::<C>(coded),
+            true,
+            k,
+        );
+        damaged |= bad;
+        store_lanes::<C>(c, o);
+        store_lanes::<C>(d, &mut o[C..]);
+        (left_odd, nw_odd) = (d, u1);
+        (u0, u1) = (a, b);
+    }
+    // The lower row's last pair, below the upper row's last pair.
+    let ((o, so), (par, coded)) = lower.next().expect("at least one pair");
+    let (c, d, bad) = pair_step(
+        left_odd,
+        nw_odd,
+        u0,
+        u1,
+        lanes::<C>(so),
+        lanes::<C>(par),
+        lanes::<C>(coded),
+        true,
+        k,
+    );
+    damaged |= bad;
+    store_lanes::<C>(c, o);
+    store_lanes::<C>(d, &mut o[C..]);
+    if wu & 1 == 1 {
+        let x = wu - 1;
+        let n = lanes::<C>(&prev[x * C..]);
+        let v = (med_lanes(left, n, nw) + lanes::<C>(&s[x * C..])) & mask;
+        store_lanes::<C>(v, &mut cur[x * C..]);
+    }
+    damaged.to_array() == [0; 8]
 }
 
 /// The first `C` samples of `b` in the low lanes of a vector, the other lanes 0.
@@ -409,32 +587,31 @@ fn pair_row_lanes<const C: usize, const TWO_ROWS: bool>(
     coded_row: &[u8],
     cur: &mut [u8],
 ) -> bool {
-    let cnt = i16x8::splat(if TWO_ROWS { 4 } else { 2 });
-    let top = cnt - i16x8::splat(1);
-    let (zero, three, max) = (i16x8::splat(0), i16x8::splat(3), i16x8::splat(255));
+    let k = PairConsts::new(if TWO_ROWS { 4 } else { 2 });
     // Up-left and left of the first stored pixel set so that its MED is its upper neighbour,
     // as on any first column.
     let mut nw = lanes::<C>(prev);
     let mut left = nw;
-    let mut damaged = zero;
+    let mut damaged = k.zero;
     let rows = cur
         .chunks_exact_mut(2 * C)
         .zip(prev.chunks_exact(2 * C))
         .zip(s.chunks_exact(C))
         .zip(parents.chunks_exact(C).zip(coded_row.chunks_exact(C)));
     for (((out, up), s), (par, coded)) in rows {
-        let n0 = lanes::<C>(up);
         let n1 = lanes::<C>(&up[C..]);
-        let a = (med_lanes(left, n0, nw) + lanes::<C>(s)) & max;
-        // Eq. 3 with the residual guessed from the rebuilt pixel's MED (see `rebuild_px`):
-        // `t` is the pixel's value for ε = 0.
-        let p1 = med_lanes(a, n1, n0);
-        let others = if TWO_ROWS { a + n0 + n1 } else { a };
-        let t = cnt * lanes::<C>(par) - others;
-        let coded = lanes::<C>(coded);
-        let r = (coded + (p1 - t).max(zero).min(top)) & three;
-        let b = t + r;
-        damaged |= b.simd_gt(max) | b.simd_lt(zero) | r.simd_gt(top) | coded.simd_gt(three);
+        let (a, b, bad) = pair_step(
+            left,
+            nw,
+            lanes::<C>(up),
+            n1,
+            lanes::<C>(s),
+            lanes::<C>(par),
+            lanes::<C>(coded),
+            TWO_ROWS,
+            k,
+        );
+        damaged |= bad;
         store_lanes::<C>(a, out);
         store_lanes::<C>(b, &mut out[C..]);
         left = b;
@@ -521,8 +698,54 @@ mod tests {
         }
     }
 
+    /// The fused pass over a stored row and the alternating row below it agrees with the two
+    /// rows rebuilt one after the other.
+    fn fused_matches_separate<const C: usize>(bytes: &[u8], wu: usize) {
+        let row = wu * C;
+        let take = |at: &mut usize, n: usize| {
+            let v: Vec<u8> = (0..n).map(|i| bytes[(*at + i) % bytes.len()]).collect();
+            *at += n;
+            v
+        };
+        let mut at = 0;
+        let pw = wu.div_ceil(2);
+        let prev = take(&mut at, row);
+        let s = take(&mut at, row);
+        let s_odd = take(&mut at, (wu / 2) * C);
+        let parents = take(&mut at, pw * C);
+        let coded: Vec<u8> = take(&mut at, pw * C)
+            .into_iter()
+            .map(|c| if c < 250 { c & 3 } else { c })
+            .collect();
+        let (mut up_f, mut low_f) = (vec![0u8; row], vec![0u8; row]);
+        let fused =
+            stored_and_pair_rows::<C>(&prev, &s, &mut up_f, &s_odd, &parents, &coded, &mut low_f);
+        let (mut up_s, mut low_s) = (vec![0u8; row], vec![0u8; row]);
+        stored_row::<C>(&prev, &s, &mut up_s);
+        let separate = pair_row_scalar::<C>(&up_s, &s_odd, &parents, &coded, &mut low_s, true);
+        assert_eq!(up_f, up_s);
+        assert_eq!(fused, separate.is_ok(), "{separate:?}");
+        if fused {
+            assert_eq!(low_f, low_s);
+        }
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig { cases: 400, ..ProptestConfig::default() })]
+
+        #[test]
+        fn fused_rows_match_separate_rows(
+            bytes in proptest::collection::vec(any::<u8>(), 1..200),
+            wu in 2usize..25,
+            c in 1usize..=4,
+        ) {
+            match c {
+                1 => fused_matches_separate::<1>(&bytes, wu),
+                2 => fused_matches_separate::<2>(&bytes, wu),
+                3 => fused_matches_separate::<3>(&bytes, wu),
+                _ => fused_matches_separate::<4>(&bytes, wu),
+            }
+        }
 
         #[test]
         fn vector_rows_match_scalar_rows(
