@@ -53,6 +53,8 @@ struct BenchResult {
     views: usize,
     slabs: usize,
     triangles: usize,
+    /// Triangles drawn at mesh levels 1, 2 (decimated).
+    coarse_triangles: Vec<usize>,
     /// Load average (1 min) before and after the run.
     load_before: Option<f64>,
     load_after: Option<f64>,
@@ -75,6 +77,22 @@ fn cpu_ns() -> Option<u64> {
         }
     }
     Some(total)
+}
+
+/// Triangles of a view's meshes decimated to mesh level `level`.
+fn coarse_triangles(view: &RefView, level: u32) -> usize {
+    let Some(grid) = tracks::TileGrid::new(view.face_size, view.tile_size) else {
+        return view.triangle_count();
+    };
+    let cell = viewer::refview::mesh_cell(view.tile_size, level);
+    let jump = MeshParams::default().jump;
+    view.tiles
+        .iter()
+        .map(|t| {
+            viewer::refview::decimated_indices(&t.mesh, grid.pixel_rect(t.tile), cell, jump).len()
+                / 3
+        })
+        .sum()
 }
 
 fn load_average() -> Option<f64> {
@@ -136,6 +154,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ),
         ("full without tile ids", DrawBudget::default(), false),
         (
+            "full, meshes decimated (level 1)",
+            DrawBudget {
+                mesh_level: 1,
+                ..Default::default()
+            },
+            true,
+        ),
+        (
+            "full, meshes decimated (level 2)",
+            DrawBudget {
+                mesh_level: 2,
+                ..Default::default()
+            },
+            true,
+        ),
+        (
             "1 view, all slabs",
             DrawBudget {
                 blend: false,
@@ -194,6 +228,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .iter()
             .map(|p| walk.views[p.view].triangle_count())
             .sum(),
+        coarse_triangles: (1..=viewer::refview::MESH_LEVELS)
+            .map(|level| {
+                plan.passes
+                    .iter()
+                    .map(|p| coarse_triangles(&walk.views[p.view], level))
+                    .sum()
+            })
+            .collect(),
         load_before,
         load_after: load_average(),
         variants: names

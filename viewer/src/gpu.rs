@@ -17,7 +17,7 @@ use std::collections::HashMap;
 use wgpu::util::DeviceExt;
 
 use crate::plan::{FramePlan, Overlays, ViewUniforms};
-use crate::refview::RefView;
+use crate::refview::{decimated_indices, mesh_cell, RefView, MESH_LEVELS};
 
 const VIEW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
@@ -143,6 +143,9 @@ pub struct GpuView {
     bind_group: wgpu::BindGroup,
     /// First index of every tile, plus the end.
     index_start: Vec<u32>,
+    /// Decimated meshes (mesh levels 1, 2, …): index buffer into `vertices` and the first
+    /// index of every tile, plus the end.
+    coarse: Vec<(wgpu::Buffer, Vec<u32>)>,
     /// Per tile `face | layer << 8`, uploaded with the frame's min levels.
     face_layer: Vec<u32>,
     /// Bytes uploaded (textures + meshes).
@@ -541,9 +544,26 @@ impl Renderer {
         let mut idx: Vec<u32> = Vec::new();
         let mut index_start = Vec::with_capacity(view.tiles.len() + 1);
         let mut face_layer = Vec::with_capacity(view.tiles.len());
+        // Decimated index lists per coarser mesh level (same vertices).
+        let grid = tracks::TileGrid::new(n, view.tile_size);
+        let mut coarse: Vec<(Vec<u32>, Vec<u32>)> = (0..MESH_LEVELS)
+            .map(|_| (Vec::new(), Vec::with_capacity(view.tiles.len() + 1)))
+            .collect();
+        let jump = crate::refview::MeshParams::default().jump;
         for (ti, tile) in view.tiles.iter().enumerate() {
             index_start.push(idx.len() as u32);
             let base = verts.len() as u32;
+            for (k, (cidx, cstart)) in coarse.iter_mut().enumerate() {
+                cstart.push(cidx.len() as u32);
+                match &grid {
+                    Some(g) => {
+                        let cell = mesh_cell(view.tile_size, k as u32 + 1);
+                        let d = decimated_indices(&tile.mesh, g.pixel_rect(tile.tile), cell, jump);
+                        cidx.extend(d.iter().map(|i| base + i));
+                    }
+                    None => cidx.extend(tile.mesh.indices.iter().map(|i| base + i)),
+                }
+            }
             let face = tile.tile.face.index() as u32;
             verts.extend(tile.mesh.vertices.iter().map(|v| GpuVertex {
                 pos_in_face: v.pos_in_face,
@@ -554,6 +574,20 @@ impl Renderer {
             face_layer.push(face | ((tile.slab + 1) << 8));
         }
         index_start.push(idx.len() as u32);
+        let coarse: Vec<(wgpu::Buffer, Vec<u32>)> = coarse
+            .into_iter()
+            .map(|(mut cidx, mut cstart)| {
+                cstart.push(cidx.len() as u32);
+                cidx.resize(cidx.len().max(4), 0);
+                bytes += cidx.len() as u64 * 4;
+                let buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("coarse tile indices"),
+                    contents: bytemuck::cast_slice(&cidx),
+                    usage: wgpu::BufferUsages::INDEX,
+                });
+                (buf, cstart)
+            })
+            .collect();
         // Buffers are never empty (bindings of size 0 are invalid).
         if verts.is_empty() {
             verts.push(GpuVertex {
@@ -630,6 +664,7 @@ impl Renderer {
             uniforms,
             bind_group,
             index_start,
+            coarse,
             face_layer,
             bytes,
         }
@@ -892,12 +927,17 @@ impl Renderer {
             if !pass.runs.is_empty() {
                 rp.set_pipeline(if ids { &self.mesh_ids } else { &self.mesh });
                 rp.set_vertex_buffer(0, g.vertices.slice(..));
-                rp.set_index_buffer(g.indices.slice(..), wgpu::IndexFormat::Uint32);
+                let (indices, starts) = match (plan.mesh_level as usize).checked_sub(1) {
+                    Some(k) => g
+                        .coarse
+                        .get(k)
+                        .or(g.coarse.last())
+                        .map_or((&g.indices, &g.index_start), |(b, s)| (b, s)),
+                    None => (&g.indices, &g.index_start),
+                };
+                rp.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
                 for run in &pass.runs {
-                    let (a, b) = (
-                        g.index_start[run.first],
-                        g.index_start[run.first + run.count],
-                    );
+                    let (a, b) = (starts[run.first], starts[run.first + run.count]);
                     if b > a {
                         rp.draw_indexed(a..b, 0, 0..1);
                     }

@@ -37,6 +37,10 @@ pub struct DrawBudget {
     pub lod_bias: f32,
     /// Draw the second reference view (blending and hole filling).
     pub blend: bool,
+    /// Mesh density: 0 = the tile meshes as built, `k ≥ 1` = decimated with cells of
+    /// [`crate::refview::mesh_cell`]`(tile, k)` pixels (at most
+    /// [`crate::refview::MESH_LEVELS`]).
+    pub mesh_level: u32,
 }
 
 impl Default for DrawBudget {
@@ -45,6 +49,7 @@ impl Default for DrawBudget {
             max_slabs: usize::MAX,
             lod_bias: 0.0,
             blend: true,
+            mesh_level: 0,
         }
     }
 }
@@ -135,6 +140,8 @@ pub struct FramePlan {
     pub tile_ids: bool,
     /// Debug overlays (none by default).
     pub overlays: Overlays,
+    /// Mesh density ([`DrawBudget::mesh_level`]).
+    pub mesh_level: u32,
 }
 
 /// The smooth blend weight of the second view at fraction `t ∈ [0, 1]` of a segment:
@@ -260,6 +267,7 @@ pub fn plan_frame(
         passes,
         tile_ids: true,
         overlays: Overlays::default(),
+        mesh_level: budget.mesh_level.min(crate::refview::MESH_LEVELS),
     })
 }
 
@@ -337,35 +345,179 @@ fn plan_view(
 
 /// The frame-time budget (Marvie, Perret & Bouatouch §5.4): from the mean of recent frame
 /// times, step the drawing down when it is over `target_ms` (first coarser textures, then
-/// the second view, then slabs beyond the first: dropping slabs opens holes, so it comes last) and back up when it is well under (below 60 %), one
-/// step per call so the choice does not oscillate. `slabs` is the number of slabs the views
-/// have.
+/// coarser meshes, then the second view, then slabs beyond the first: dropping slabs opens
+/// holes, so it comes last) and back up in the reverse order when it is well under (below
+/// 60 %), one step per call. `slabs` is the number of slabs the views have. Stateless; see
+/// [`BudgetController`] for the version that waits for a change to show in the frame times
+/// and remembers which steps were too slow, so it does not oscillate.
 pub fn adjust_budget(b: DrawBudget, recent_ms: &[f64], target_ms: f64, slabs: usize) -> DrawBudget {
     if recent_ms.is_empty() || target_ms.is_nan() || target_ms <= 0.0 {
         return b;
     }
     let mean = recent_ms.iter().sum::<f64>() / recent_ms.len() as f64;
+    if mean > target_ms {
+        step_down(b, slabs)
+    } else if mean < 0.6 * target_ms {
+        step_up(b, slabs)
+    } else {
+        let mut out = b;
+        out.max_slabs = b.max_slabs.min(slabs.max(1)).max(1);
+        out
+    }
+}
+
+/// Most texture levels the budget adds.
+const MAX_LOD_BIAS: f32 = 2.0;
+
+/// One step cheaper (unchanged at the bottom).
+pub fn step_down(b: DrawBudget, slabs: usize) -> DrawBudget {
     let slabs = slabs.max(1);
     let mut out = b;
     out.max_slabs = b.max_slabs.min(slabs).max(1);
-    if mean > target_ms {
-        if out.lod_bias < 2.0 {
-            out.lod_bias += 1.0;
-        } else if out.blend {
-            out.blend = false;
-        } else if out.max_slabs > 1 {
-            out.max_slabs -= 1;
-        }
-    } else if mean < 0.6 * target_ms {
-        if out.max_slabs < slabs {
-            out.max_slabs += 1;
-        } else if !out.blend {
-            out.blend = true;
-        } else if out.lod_bias > 0.0 {
-            out.lod_bias = (out.lod_bias - 1.0).max(0.0);
-        }
+    out.mesh_level = b.mesh_level.min(crate::refview::MESH_LEVELS);
+    if out.lod_bias < MAX_LOD_BIAS {
+        out.lod_bias = (out.lod_bias + 1.0).min(MAX_LOD_BIAS);
+    } else if out.mesh_level < crate::refview::MESH_LEVELS {
+        out.mesh_level += 1;
+    } else if out.blend {
+        out.blend = false;
+    } else if out.max_slabs > 1 {
+        out.max_slabs -= 1;
     }
     out
+}
+
+/// One step better (unchanged at full quality).
+pub fn step_up(b: DrawBudget, slabs: usize) -> DrawBudget {
+    let slabs = slabs.max(1);
+    let mut out = b;
+    out.max_slabs = b.max_slabs.min(slabs).max(1);
+    out.mesh_level = b.mesh_level.min(crate::refview::MESH_LEVELS);
+    if out.max_slabs < slabs {
+        out.max_slabs += 1;
+    } else if !out.blend {
+        out.blend = true;
+    } else if out.mesh_level > 0 {
+        out.mesh_level -= 1;
+    } else if out.lod_bias > 0.0 {
+        out.lod_bias = (out.lod_bias - 1.0).max(0.0);
+    }
+    out
+}
+
+/// Position of a budget on the ladder of [`step_down`] (0 = full quality).
+fn rung(b: DrawBudget, slabs: usize) -> usize {
+    b.lod_bias.clamp(0.0, MAX_LOD_BIAS).ceil() as usize
+        + b.mesh_level.min(crate::refview::MESH_LEVELS) as usize
+        + usize::from(!b.blend)
+        + slabs
+            .max(1)
+            .saturating_sub(b.max_slabs.clamp(1, slabs.max(1)))
+}
+
+/// The frame-time budget with memory (Marvie, Perret & Bouatouch §5.4): feed it every frame
+/// time with [`BudgetController::push`]; it decides on the median of the last `settle`
+/// frames (robust to single slow frames), takes one step of [`step_down`] when that is over
+/// the target or of [`step_up`] when it is under 60 % of it, and after a change waits for
+/// `settle` frames drawn with the new budget before deciding again. It remembers the median
+/// last measured on every step of the ladder, and does not step up to a step that was over
+/// 95 % of the target within the last `memory` frames, so a budget whose better neighbour is
+/// too slow stays put instead of oscillating.
+#[derive(Clone, Debug)]
+pub struct BudgetController {
+    pub target_ms: f64,
+    /// Frames per decision.
+    pub settle: usize,
+    /// Frames a measurement of a ladder step is trusted.
+    pub memory: u64,
+    budget: DrawBudget,
+    slabs: usize,
+    window: Vec<f64>,
+    frame: u64,
+    /// Per rung: (median ms, frame it was measured).
+    measured: Vec<Option<(f64, u64)>>,
+}
+
+impl BudgetController {
+    /// Start at full quality for views with `slabs` slabs.
+    pub fn new(target_ms: f64, slabs: usize) -> BudgetController {
+        BudgetController {
+            target_ms,
+            settle: 8,
+            memory: 600,
+            budget: DrawBudget {
+                max_slabs: slabs.max(1),
+                ..Default::default()
+            },
+            slabs: slabs.max(1),
+            window: Vec::new(),
+            frame: 0,
+            measured: Vec::new(),
+        }
+    }
+
+    /// The current choice.
+    pub fn budget(&self) -> DrawBudget {
+        self.budget
+    }
+
+    /// Set the choice by hand (e.g. a UI slider); measurements start again.
+    pub fn set_budget(&mut self, b: DrawBudget) {
+        self.budget = b;
+        self.window.clear();
+    }
+
+    /// Record one frame time (milliseconds; non-finite or negative values are ignored) and
+    /// return the budget for the next frame.
+    pub fn push(&mut self, frame_ms: f64) -> DrawBudget {
+        if !(frame_ms.is_finite() && frame_ms >= 0.0)
+            || !(self.target_ms.is_finite() && self.target_ms > 0.0)
+        {
+            return self.budget;
+        }
+        self.frame += 1;
+        self.window.push(frame_ms);
+        let settle = self.settle.max(1);
+        if self.window.len() > settle {
+            self.window.remove(0);
+        }
+        if self.window.len() < settle {
+            return self.budget;
+        }
+        let mut sorted = self.window.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted[sorted.len() / 2];
+        let here = rung(self.budget, self.slabs);
+        if self.measured.len() <= here {
+            self.measured.resize(here + 1, None);
+        }
+        self.measured[here] = Some((median, self.frame));
+        let next = if median > self.target_ms {
+            step_down(self.budget, self.slabs)
+        } else if median < 0.6 * self.target_ms {
+            let up = step_up(self.budget, self.slabs);
+            let known_slow = self
+                .measured
+                .get(rung(up, self.slabs))
+                .copied()
+                .flatten()
+                .is_some_and(|(ms, at)| {
+                    ms > 0.95 * self.target_ms && self.frame - at < self.memory
+                });
+            if known_slow {
+                self.budget
+            } else {
+                up
+            }
+        } else {
+            self.budget
+        };
+        if next != self.budget {
+            self.budget = next;
+            self.window.clear();
+        }
+        self.budget
+    }
 }
 
 #[cfg(test)]
@@ -379,15 +531,26 @@ mod tests {
             ..Default::default()
         };
         let mut b = full;
+        // 2 texture levels, 2 mesh levels, the second view, 2 slabs.
         let mut seen = vec![b];
-        for _ in 0..6 {
+        for _ in 0..7 {
             b = adjust_budget(b, &[50.0, 60.0], 33.0, 3);
             seen.push(b);
         }
         assert_eq!(b.lod_bias, 2.0);
+        assert_eq!(b.mesh_level, crate::refview::MESH_LEVELS);
         assert_eq!(b.max_slabs, 1);
         assert!(!b.blend);
-        for _ in 0..6 {
+        // Textures go first, then meshes, then the second view, slabs last.
+        assert_eq!(seen[2].lod_bias, 2.0);
+        assert_eq!(seen[2].mesh_level, 0);
+        assert_eq!(seen[4].mesh_level, 2);
+        assert!(seen[4].blend);
+        assert!(!seen[5].blend);
+        assert_eq!(seen[5].max_slabs, 3);
+        // At the bottom nothing changes.
+        assert_eq!(adjust_budget(b, &[99.0], 33.0, 3), b);
+        for _ in 0..7 {
             b = adjust_budget(b, &[5.0], 33.0, 3);
         }
         assert_eq!(b, full);
@@ -509,5 +672,124 @@ mod tests {
         assert_eq!(frame_lod(&c, 64, 0.0), 0.0);
         assert!((frame_lod(&c, 256, 0.0) - 2.0).abs() < 1e-6);
         assert!((frame_lod(&c, 64, 1.0) - 1.0).abs() < 1e-6);
+    }
+
+    /// A deterministic noisy frame-time model: `cost[rung] · (1 ± noise)`.
+    struct Model {
+        cost: Vec<f64>,
+        noise: f64,
+        state: u64,
+    }
+
+    impl Model {
+        fn frame(&mut self, b: DrawBudget, slabs: usize) -> f64 {
+            self.state = self
+                .state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let u = (self.state >> 11) as f64 / (1u64 << 53) as f64;
+            let c = self.cost[rung(b, slabs).min(self.cost.len() - 1)];
+            c * (1.0 + self.noise * (2.0 * u - 1.0))
+        }
+    }
+
+    #[test]
+    fn controller_converges_to_the_best_budget_under_the_target() {
+        // Rungs: full, +1 level, +2 levels, mesh 1, mesh 2, one view, 2 slabs, 1 slab.
+        let cost = vec![90.0, 75.0, 62.0, 50.0, 41.0, 25.0, 20.0, 15.0];
+        let mut m = Model {
+            cost: cost.clone(),
+            noise: 0.15,
+            state: 7,
+        };
+        let mut c = BudgetController::new(33.0, 3);
+        let mut over = 0;
+        for f in 0..600 {
+            let b = c.budget();
+            let ms = m.frame(b, 3);
+            if f >= 200 && ms > 33.0 * 1.15 {
+                over += 1;
+            }
+            c.push(ms);
+        }
+        // The first step under the target: one view (25 ms), meshes at level 2.
+        let b = c.budget();
+        assert_eq!(rung(b, 3), 5, "{b:?}");
+        assert!(!b.blend && b.mesh_level == 2 && b.max_slabs == 3);
+        assert_eq!(over, 0);
+        // Back at full speed (a lighter scene): the controller climbs back up.
+        m.cost = vec![10.0; 8];
+        for _ in 0..2000 {
+            let ms = m.frame(c.budget(), 3);
+            c.push(ms);
+        }
+        assert_eq!(rung(c.budget(), 3), 0, "{:?}", c.budget());
+    }
+
+    #[test]
+    fn controller_does_not_oscillate_on_noisy_input() {
+        // Rung 5 is 18 ms (< 60 % of 33) but rung 4 is 36 ms (> 33): the stateless rule
+        // would flip between them every decision.
+        let cost = vec![80.0, 70.0, 60.0, 50.0, 36.0, 18.0, 14.0, 10.0];
+        let mut m = Model {
+            cost,
+            noise: 0.25,
+            state: 99,
+        };
+        let mut c = BudgetController::new(33.0, 3);
+        let mut changes = 0;
+        let mut prev = c.budget();
+        for f in 0..3000 {
+            let ms = m.frame(c.budget(), 3);
+            let b = c.push(ms);
+            if f >= 300 && b != prev {
+                changes += 1;
+            }
+            prev = b;
+        }
+        // Only a retry of the slower step after the memory runs out (each costs two
+        // changes): at most 2 per 600 frames, against one per 8 frames without memory.
+        assert!(changes <= 2 * (2700 / 600 + 1), "{changes} changes");
+        assert_eq!(rung(c.budget(), 3), 5);
+        // The stateless rule on the same input does flip.
+        let mut b = DrawBudget {
+            max_slabs: 3,
+            ..Default::default()
+        };
+        let mut flips = 0;
+        let mut recent = Vec::new();
+        for f in 0..3000 {
+            recent.push(m.frame(b, 3));
+            if recent.len() == 8 {
+                let nb = adjust_budget(b, &recent, 33.0, 3);
+                if f >= 300 && nb != b {
+                    flips += 1;
+                }
+                if nb != b {
+                    recent.clear();
+                } else {
+                    recent.remove(0);
+                }
+                b = nb;
+            }
+        }
+        assert!(flips > 5 * changes.max(1), "{flips} vs {changes}");
+    }
+
+    #[test]
+    fn controller_ignores_bad_times_and_rung_counts_each_step() {
+        let mut c = BudgetController::new(33.0, 3);
+        let full = c.budget();
+        for _ in 0..50 {
+            c.push(f64::NAN);
+            c.push(-1.0);
+        }
+        assert_eq!(c.budget(), full);
+        let mut b = full;
+        for k in 0..7 {
+            assert_eq!(rung(b, 3), k);
+            b = step_down(b, 3);
+        }
+        assert_eq!(step_down(b, 3), b);
     }
 }

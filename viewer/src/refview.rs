@@ -415,6 +415,106 @@ pub fn tile_mesh(
     (!mesh.indices.is_empty()).then_some(mesh)
 }
 
+/// Coarser meshes for the frame-time budget: how many extra levels the renderer builds
+/// ([`decimated_indices`] with cells of `tile_size >> (MESH_LEVELS - level)` pixels).
+pub const MESH_LEVELS: u32 = 2;
+
+/// Decimation cell (pixels) of mesh level `level ≥ 1` for tiles `tile_size` wide: half a
+/// tile, then a whole tile.
+pub fn mesh_cell(tile_size: u32, level: u32) -> u32 {
+    (tile_size >> MESH_LEVELS.saturating_sub(level)).max(1)
+}
+
+/// A coarser triangulation of `mesh` by vertex clustering, as indices into the *same*
+/// vertices (so a renderer keeps one vertex buffer and adds an index buffer per level).
+///
+/// The tile `rect = (x0, y0, x1, y1)` (face pixels) is cut into square cells `cell` pixels
+/// wide; the vertices of one cell that lie on one surface (same depth bucket, buckets a factor
+/// `1 + jump` apart) merge into the one nearest the cell centre, and triangles that lose a
+/// corner vanish. Tile corners are kept; vertices on a tile edge merge only along that edge
+/// (cells aligned to the edge, which is symmetric when the tile size is a multiple of `cell`),
+/// so two tiles that share their edge vertices still share them and no crack opens between
+/// tiles. Every kept vertex is an original one, so the reference viewpoint still sees the
+/// exact depths there.
+pub fn decimated_indices(
+    mesh: &TileMesh,
+    rect: (u32, u32, u32, u32),
+    cell: u32,
+    jump: f64,
+) -> Vec<u32> {
+    let (x0, y0, x1, y1) = (rect.0 as f32, rect.1 as f32, rect.2 as f32, rect.3 as f32);
+    let c = cell.max(1) as f32;
+    let log_step = (1.0 + jump.max(1e-6)).ln();
+    // Cluster key: kind (0 interior, 1..=4 edges, 5 own), two cell coordinates, depth bucket.
+    let key_of = |i: usize, v: &MeshVertex| -> (u8, i64, i64, i64) {
+        let [x, y] = v.pos_in_face;
+        let d = v.depth_m;
+        if !(d.is_finite() && d > 0.0) {
+            return (5, i as i64, 0, 0);
+        }
+        let bucket = ((d as f64).ln() / log_step).floor() as i64;
+        let on_x = x <= x0 || x >= x1;
+        let on_y = y <= y0 || y >= y1;
+        let cx = ((x - x0) / c).floor() as i64;
+        let cy = ((y - y0) / c).floor() as i64;
+        match (on_x, on_y) {
+            (true, true) => (5, i as i64, 0, 0),
+            (true, false) => (if x <= x0 { 1 } else { 2 }, cy, 0, bucket),
+            (false, true) => (if y <= y0 { 3 } else { 4 }, cx, 0, bucket),
+            (false, false) => (0, cx, cy, bucket),
+        }
+    };
+    // Distance of a vertex to the centre of its cell (along the edge for edge clusters).
+    let centre_dist = |key: (u8, i64, i64, i64), v: &MeshVertex| -> f32 {
+        let [x, y] = v.pos_in_face;
+        let mid = |k: i64, o: f32| o + (k as f32 + 0.5) * c;
+        match key.0 {
+            0 => (x - mid(key.1, x0)).abs().max((y - mid(key.2, y0)).abs()),
+            1 | 2 => (y - mid(key.1, y0)).abs(),
+            3 | 4 => (x - mid(key.1, x0)).abs(),
+            _ => 0.0,
+        }
+    };
+    let mut best: std::collections::HashMap<(u8, i64, i64, i64), usize> =
+        std::collections::HashMap::new();
+    let keys: Vec<_> = mesh
+        .vertices
+        .iter()
+        .enumerate()
+        .map(|(i, v)| key_of(i, v))
+        .collect();
+    for (i, v) in mesh.vertices.iter().enumerate() {
+        let k = keys[i];
+        let better = |j: usize| {
+            let w = &mesh.vertices[j];
+            let (a, b) = (centre_dist(k, v), centre_dist(k, w));
+            // Ties: the nearer surface, then the position (independent of vertex order).
+            (a, v.depth_m, v.pos_in_face[0], v.pos_in_face[1])
+                .partial_cmp(&(b, w.depth_m, w.pos_in_face[0], w.pos_in_face[1]))
+                .is_some_and(|o| o.is_lt())
+        };
+        match best.get(&k) {
+            Some(&j) if !better(j) => {}
+            _ => {
+                best.insert(k, i);
+            }
+        }
+    }
+    let rep: Vec<u32> = keys.iter().map(|k| best[k] as u32).collect();
+    let mut out = Vec::with_capacity(mesh.indices.len() / 2);
+    for tri in mesh.indices.chunks_exact(3) {
+        let t = [
+            rep[tri[0] as usize],
+            rep[tri[1] as usize],
+            rep[tri[2] as usize],
+        ];
+        if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
+            out.extend(t);
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -504,6 +604,122 @@ mod tests {
         let grid = TileGrid::new(8, 4).unwrap();
         for t in grid.tiles() {
             assert!(tile_mesh(&d, &grid, t, MeshParams::default()).is_none());
+        }
+    }
+
+    #[test]
+    fn decimation_keeps_tile_edges_and_cuts_triangles() {
+        let n = 32;
+        let d = CubeMap::from_fn(n, |f, x, y| {
+            let dir = tracks::cubemap::pixel_dir(f, x, y, n);
+            (4.0 + dir.x) as f32
+        });
+        let grid = TileGrid::new(n, 16).unwrap();
+        let p = MeshParams { step: 2, jump: 0.5 };
+        for t in grid.tiles() {
+            let m = tile_mesh(&d, &grid, t, p).unwrap();
+            let rect = grid.pixel_rect(t);
+            let edge_vertices = |idx: &[u32]| {
+                let mut e: Vec<[u32; 2]> = idx
+                    .iter()
+                    .map(|&i| m.vertices[i as usize].pos_in_face)
+                    .filter(|v| {
+                        v[0] == rect.0 as f32
+                            || v[0] == rect.2 as f32
+                            || v[1] == rect.1 as f32
+                            || v[1] == rect.3 as f32
+                    })
+                    .map(|v| [v[0] as u32, v[1] as u32])
+                    .collect();
+                e.sort();
+                e.dedup();
+                e
+            };
+            let mut prev = m.indices.len();
+            for level in 1..=MESH_LEVELS {
+                let idx = decimated_indices(&m, rect, mesh_cell(16, level), p.jump);
+                assert!(idx.len() < prev, "{t:?} level {level}");
+                assert!(idx.iter().all(|&i| (i as usize) < m.vertices.len()));
+                prev = idx.len();
+                // Corners always stay; a coarser level keeps edge vertices of the finer one
+                // only (never invents any), so neighbours agree.
+                let e = edge_vertices(&idx);
+                for corner in [
+                    [rect.0, rect.1],
+                    [rect.2, rect.1],
+                    [rect.0, rect.3],
+                    [rect.2, rect.3],
+                ] {
+                    assert!(e.contains(&corner), "{t:?} lost corner {corner:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn neighbouring_tiles_keep_the_same_shared_edge_vertices() {
+        let n = 32;
+        let d = CubeMap::filled(n, 6.0f32);
+        let grid = TileGrid::new(n, 16).unwrap();
+        let p = MeshParams { step: 2, jump: 0.1 };
+        let a = TileId {
+            face: Face::PosZ,
+            tx: 0,
+            ty: 0,
+        };
+        let b = TileId {
+            face: Face::PosZ,
+            tx: 1,
+            ty: 0,
+        };
+        let shared = |t: TileId, level: u32| {
+            let m = tile_mesh(&d, &grid, t, p).unwrap();
+            let idx = decimated_indices(&m, grid.pixel_rect(t), mesh_cell(16, level), p.jump);
+            let mut e: Vec<u32> = idx
+                .iter()
+                .map(|&i| m.vertices[i as usize].pos_in_face)
+                .filter(|v| v[0] == 16.0)
+                .map(|v| v[1] as u32)
+                .collect();
+            e.sort();
+            e.dedup();
+            e
+        };
+        for level in 1..=MESH_LEVELS {
+            assert_eq!(shared(a, level), shared(b, level), "level {level}");
+        }
+    }
+
+    #[test]
+    fn decimation_does_not_merge_across_a_depth_jump() {
+        let n = 16;
+        let d = CubeMap::from_fn(
+            n,
+            |f, x, _| {
+                if f == Face::PosZ && x < 8 {
+                    2.0
+                } else {
+                    20.0
+                }
+            },
+        );
+        let grid = TileGrid::new(n, 16).unwrap();
+        let t = TileId {
+            face: Face::PosZ,
+            tx: 0,
+            ty: 0,
+        };
+        let m = tile_mesh(&d, &grid, t, MeshParams { step: 2, jump: 0.1 }).unwrap();
+        let idx = decimated_indices(&m, grid.pixel_rect(t), 16, 0.1);
+        for tri in idx.chunks(3) {
+            let ds: Vec<f32> = tri
+                .iter()
+                .map(|&i| m.vertices[i as usize].depth_m)
+                .collect();
+            let (lo, hi) = ds
+                .iter()
+                .fold((f32::MAX, 0f32), |(a, b), &d| (a.min(d), b.max(d)));
+            assert!(hi <= lo * 1.1, "stretched triangle {ds:?}");
         }
     }
 }
