@@ -54,11 +54,11 @@ pub struct Args {
     #[arg(long, default_value_t = 6)]
     pub in_flight: usize,
     /// Prefetch: widen the view by this turn of the head, degrees each side.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 10.0)]
     pub prefetch_turn: f64,
     /// Prefetch the next segment once the predicted motion reaches it within this many
     /// seconds.
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = 1.0)]
     pub prefetch_horizon: f64,
     /// Seconds standing still at the end of the track.
     #[arg(long, default_value_t = 3.0)]

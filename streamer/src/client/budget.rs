@@ -22,9 +22,10 @@
 //! download for that item is running, it is requested — only when the running link estimate
 //! says it arrives within `δt_max` (coarsest parts are always requested: nothing can be shown
 //! without them). Prefetched items (the next segment's tiles) rank below every current request,
-//! as the city paper's prefetching module asks: priorities are, from first to last, current
-//! coarsest parts (3 + w), current refinements (1 + w), prefetched coarsest parts
-//! (0.5 + w/2), prefetched refinements (w/2), with `w` ∈ [0, 1) the item's normalised weight.
+//! as the city paper's prefetching module asks: priorities are, from first to last, coarsest
+//! parts of items in view (3 + w), coarsest parts of the combined mode's ACH-only items
+//! (2 + w), current refinements (1 + w), prefetched coarsest parts (0.5 + w/2), prefetched
+//! refinements (w/2), with `w` ∈ [0, 1) the item's normalised weight.
 //! So prefetch only uses request slots the current view leaves idle.
 
 /// Download sizes and memory costs of one item's parts.
@@ -377,6 +378,12 @@ pub fn plan(inp: &PlanInput) -> Plan {
         .filter(|&i| is_cand[i])
         .map(|i| (i, weight[i], cap[i]))
         .collect();
+    // In view now: every candidate for the ACH alone; with live counts, those with pixels
+    // (the combined mode's ACH-only tiles get their coarsest level after those in view).
+    let mut in_view = vec![!use_live; n];
+    for c in inp.live.iter().filter(|c| c.item < n && c.pixels > 0.0) {
+        in_view[c.item] = true;
+    }
     let targets = allocate(inp.items, &cands, inp.memory_bytes);
     // Holes: bytes still missing before every candidate can be shown at all. When they take
     // more than half of δt_max, not-yet-shown items get their coarsest level alone first.
@@ -405,7 +412,11 @@ pub fn plan(inp: &PlanInput) -> Plan {
                     item: i,
                     part: have,
                     parts: run_len(info, have, target, inp.link, inp.dt_max_s, coarse_first),
-                    priority: if essential { 3.0 } else { 1.0 } + weight[i].min(1.0) * 0.999,
+                    priority: match (essential, in_view[i]) {
+                        (true, true) => 3.0,
+                        (true, false) => 2.0,
+                        (false, _) => 1.0,
+                    } + weight[i].min(1.0) * 0.999,
                 });
             }
         }
@@ -598,8 +609,16 @@ mod tests {
         // holes in the view, the mesh and the coarsest level alone.
         assert_eq!(run_len(&t, 0, 5, &fast, 0.5, false), 5);
         assert_eq!(run_len(&t, 0, 5, &fast, 0.5, true), 2);
-        assert_eq!(run_len(&t, 1, 5, &fast, 0.5, true), 1, "mesh held: the coarsest alone");
-        assert_eq!(run_len(&t, 2, 5, &fast, 0.5, true), 3, "shown: refinements in one run");
+        assert_eq!(
+            run_len(&t, 1, 5, &fast, 0.5, true),
+            1,
+            "mesh held: the coarsest alone"
+        );
+        assert_eq!(
+            run_len(&t, 2, 5, &fast, 0.5, true),
+            3,
+            "shown: refinements in one run"
+        );
         assert_eq!(run_len(&t, 2, 4, &fast, 0.5, false), 2);
         assert_eq!(run_len(&t, 4, 5, &fast, 0.5, false), 1);
         // 10 kbit/s, 50 ms: 60+240 B = 240 ms + 50 ms fits 0.4 s, adding 960 B does not.
@@ -656,6 +675,33 @@ mod tests {
         });
         assert_eq!(p.requests.len(), 400);
         assert!(p.requests.iter().all(|r| (r.part, r.parts) == (0, 2)));
+    }
+
+    #[test]
+    fn combined_shows_what_is_in_view_before_broadening() {
+        let items = vec![tile(), tile()];
+        let link = LinkEstimate::new(1e9, 0.0);
+        // Tile 0: high ACH, not in view; tile 1: low ACH, a few pixels in view.
+        let live = [LiveCount {
+            item: 1,
+            pixels: 10.0,
+            needed_level: 0,
+        }];
+        let p = plan(&PlanInput {
+            items: &items,
+            have: &[0, 0],
+            downloading: &[false; 2],
+            ach: &[(0, 0.9), (1, 0.1)],
+            live: &live,
+            prefetch: &[],
+            mode: PriorityMode::Combined { ach_weight: 0.5 },
+            memory_bytes: 1 << 20,
+            dt_max_s: 1.0,
+            link: &link,
+        });
+        let order: Vec<usize> = p.requests.iter().map(|r| r.item).collect();
+        assert_eq!(order, vec![1, 0]);
+        assert!(p.requests[0].priority >= 3.0 && p.requests[1].priority < 3.0);
     }
 
     #[test]

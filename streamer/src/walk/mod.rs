@@ -131,8 +131,8 @@ impl Default for WalkConfig {
             fov_deg: 90.0,
             samples_x: 64,
             samples_y: 36,
-            prefetch_horizon_s: 3.0,
-            prefetch_turn_deg: 30.0,
+            prefetch_horizon_s: 1.0,
+            prefetch_turn_deg: 10.0,
             bundle_entries: 64,
             track: 0,
         }

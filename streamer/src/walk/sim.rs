@@ -204,6 +204,8 @@ impl Sim<'_> {
         let mut wanted: Vec<(usize, Vec<Part>)> = Vec::new();
         // Entries from here on are prefetches (the plan ranks them after every current one).
         let mut first_prefetch = usize::MAX;
+        // Whether something in view cannot be shown yet (then nothing is prefetched).
+        let mut holes = false;
         let max_pieces = self.cfg.bundle_entries.max(1);
         match self.strategy {
             Strategy::Naive => {
@@ -221,6 +223,10 @@ impl Sim<'_> {
             }
             Strategy::Budget { mode, prefetch } => {
                 let have = self.have();
+                holes = self
+                    .live
+                    .iter()
+                    .any(|c| have[c.item] < self.items[c.item].min_parts());
                 let table = &self.scene.table;
                 let next = if prefetch {
                     next_segment(
@@ -284,9 +290,13 @@ impl Sim<'_> {
         // least 16 KiB), so its transfer costs no more than its round trip.
         let (bps, latency) = self.estimate.get();
         let byte_cap = ((bps / 8.0 * latency.max(0.05)) as u64).max(16 << 10);
-        // Prefetch-only bundles hold at most a third of the slots, so what the current view
-        // needs next never queues behind a link full of prefetch.
-        let prefetch_slots = (self.cfg.max_in_flight / 3).max(1);
+        // Prefetch-only bundles hold at most a third of the slots, and none while the view has
+        // holes, so what the current view needs never queues behind a link full of prefetch.
+        let prefetch_slots = if holes {
+            0
+        } else {
+            (self.cfg.max_in_flight / 3).max(1)
+        };
         let mut prefetch_busy = self.in_flight.iter().filter(|f| f.prefetch).count();
         let mut bundles: Vec<(bool, Bundle)> = Vec::new();
         let mut taken = 0usize;
@@ -494,8 +504,16 @@ pub(crate) async fn run_one(
                     .tile_in_cone(cam.position, cam.forward(), h, it.viewpoint, tile)
             })
         };
-        sim.view_ach = ach.iter().copied().filter(|&(i, _)| in_cone(i, half)).collect();
-        sim.wide_ach = ach.iter().copied().filter(|&(i, _)| in_cone(i, wide)).collect();
+        sim.view_ach = ach
+            .iter()
+            .copied()
+            .filter(|&(i, _)| in_cone(i, half))
+            .collect();
+        sim.wide_ach = ach
+            .iter()
+            .copied()
+            .filter(|&(i, _)| in_cone(i, wide))
+            .collect();
         let (quality, needed, complete) =
             frame_metrics(&scene.table, &sim.items, &have, ach, &counts);
         if complete && first_frame.is_none() {
