@@ -36,7 +36,7 @@ pub struct Args {
     #[arg(long, default_value_t = 64.0)]
     pub memory_mib: f64,
     /// Streaming: downloads in flight at most.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 6)]
     pub requests: usize,
 }
 

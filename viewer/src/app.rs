@@ -311,7 +311,15 @@ impl ViewerApp {
         let t = (camera.fov_deg.to_radians() * 0.5).tan();
         let (w, h) = (rect.width() as f64, rect.height() as f64);
         let painter = ui.painter_at(rect);
+        // Only the two views drawn around the position.
+        let drawn = crate::plan::blend_pair(
+            &st.walk.views.iter().map(|v| v.s).collect::<Vec<_>>(),
+            self.s,
+        );
         for rt in st.recent_tiles(HIGHLIGHT) {
+            if drawn.is_some_and(|(a, b, _)| rt.view != a && rt.view != b) {
+                continue;
+            }
             let Some(view) = st.walk.views.get(rt.view) else {
                 continue;
             };
@@ -335,7 +343,7 @@ impl ViewerApp {
             painter.rect_stroke(
                 egui::Rect::from_center_size(centre, egui::vec2(r as f32, r as f32) * 1.4),
                 2.0,
-                egui::Stroke::new(2.0, colour),
+                egui::Stroke::new(1.5, colour),
                 egui::StrokeKind::Middle,
             );
         }
@@ -363,8 +371,8 @@ impl ViewerApp {
             let secs = started.elapsed().as_secs_f64();
             self.stream.first_complete_s = Some(secs);
             println!(
-                "railview view: every visible tile shown after {secs:.2} s ({} bytes fetched, cache {} of {} bytes)",
-                stats.bytes, stats.cache_used, stats.cache_budget
+                "railview view: every visible tile shown after {secs:.2} s ({} bytes fetched, cache {} of {} bytes; manifest of {} bytes took {:.2} s of it)",
+                stats.bytes, stats.cache_used, stats.cache_budget, stats.manifest_bytes, stats.manifest_s
             );
         }
         if self.stream.history.len() == HISTORY {

@@ -142,6 +142,9 @@ pub struct LiveStats {
     pub link: (f64, f64),
     /// Latest download error, cleared by the next success.
     pub last_error: Option<String>,
+    /// Size of `manifest.json` and the seconds it took to download and parse.
+    pub manifest_bytes: u64,
+    pub manifest_s: f64,
 }
 
 /// A streaming session (see the module docs).
@@ -187,12 +190,16 @@ impl LiveSession {
             .enable_all()
             .build()
             .map_err(LiveError::Runtime)?;
+        let conn_stats = std::sync::Arc::new(super::http::ClientStats::default());
         let mut conn = Connection::new(
             url.clone(),
             config.fetcher.retry.clone(),
-            std::sync::Arc::new(Default::default()),
+            conn_stats.clone(),
         );
+        let t0 = Instant::now();
         let manifest = runtime.block_on(conn.manifest())?;
+        let manifest_s = t0.elapsed().as_secs_f64();
+        let manifest_bytes = conn_stats.bytes.load(Ordering::Relaxed);
         let names = || {
             manifest
                 .tracks
@@ -229,6 +236,8 @@ impl LiveSession {
         let link = LinkEstimate::new(config.prior_bps, config.prior_latency_s);
         let stats = LiveStats {
             cache_budget: config.cache_bytes,
+            manifest_bytes,
+            manifest_s,
             ..Default::default()
         };
         Ok(LiveSession {
@@ -459,6 +468,11 @@ impl LiveSession {
                 for (j, part) in parts[r.part..end].iter().enumerate() {
                     keep.insert(part.key.clone());
                     if self.cache.contains(&part.key) || self.requested.contains(&part.key) {
+                        continue;
+                    }
+                    // Bytes the cache would refuse (pinned data leaves no room) are not
+                    // downloaded at all.
+                    if self.stats.pinned_bytes + part.bytes > self.cache.budget() {
                         continue;
                     }
                     self.requested.insert(part.key.clone());
