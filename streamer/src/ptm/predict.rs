@@ -16,6 +16,15 @@
 //!
 //! (Measured on rendered castle tiles: predicting stored pixels from the bilinear upsampling
 //! of the parent, alone or corrected by the neighbours' detail, coded 1.5× larger than this.)
+//!
+//! **Decoding.** Every sample waits for its left neighbour (the MED recurrence), so a row is a
+//! serial chain. The decoder keeps it short: the channels of a pixel sit in the lanes of one
+//! `wide::i16x8` vector (a few vector instructions per pixel instead of a few scalar ones per
+//! channel), and a stored-only row and the alternating row below it are rebuilt in one pass,
+//! the lower one trailing by a pair, so the two chains overlap. Damage is collected as a lane
+//! mask; a damaged row is rebuilt again by the scalar path, which names the first bad pixel.
+//! (Measured alternatives that remove the left dependency — predicting the first pixel of
+//! each block from above, or from the parent — cost 2–12 % in size on the castle tiles.)
 
 use wide::i16x8;
 
