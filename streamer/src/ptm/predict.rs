@@ -24,7 +24,7 @@
 //! the lower one trailing by a pair, so the two chains overlap. Damage is collected as a lane
 //! mask; a damaged row is rebuilt again by the scalar path, which names the first bad pixel.
 //! (Measured alternatives that remove the left dependency — predicting the first pixel of
-//! each block from above, or from the parent — cost 2–12 % in size on the castle tiles.)
+//! each block from above, or from the parent — cost 5–12 % in size on the castle tiles.)
 
 use wide::i16x8;
 
