@@ -429,13 +429,15 @@ pub fn mesh_cell(tile_size: u32, level: u32) -> u32 {
 /// vertices (so a renderer keeps one vertex buffer and adds an index buffer per level).
 ///
 /// The tile `rect = (x0, y0, x1, y1)` (face pixels) is cut into square cells `cell` pixels
-/// wide; the vertices of one cell that lie on one surface (same depth bucket, buckets a factor
-/// `1 + jump` apart) merge into the one nearest the cell centre, and triangles that lose a
-/// corner vanish. Tile corners are kept; vertices on a tile edge merge only along that edge
-/// (cells aligned to the edge, which is symmetric when the tile size is a multiple of `cell`),
-/// so two tiles that share their edge vertices still share them and no crack opens between
-/// tiles. Every kept vertex is an original one, so the reference viewpoint still sees the
-/// exact depths there.
+/// wide; the inner vertices of one cell that lie on one surface (same depth bucket, buckets a
+/// factor `1 + jump` apart) merge into the one nearest the cell centre, and triangles that
+/// lose a corner vanish. Vertices on the mesh's border (edges of a single triangle: the tile
+/// outline, the outline of the covered area, depth-jump cells) are kept, so neighbouring
+/// tiles still share their edge vertices (no crack opens) and the covered area keeps its
+/// outline. (Were a tile-edge vertex not on the border, it would merge only along its edge,
+/// in cells aligned to the edge: symmetric when the tile size is a multiple of `cell`.)
+/// Every kept vertex is an original one, so the reference viewpoint still sees the exact
+/// depths there.
 pub fn decimated_indices(
     mesh: &TileMesh,
     rect: (u32, u32, u32, u32),
@@ -475,13 +477,38 @@ pub fn decimated_indices(
             _ => 0.0,
         }
     };
+    // Vertices on the mesh's own border (an edge of one triangle only: the outline of the
+    // covered area, depth-jump cells, the tile edge) stay, so the covered area and the
+    // surfaces' silhouettes keep their shape; only the inside of continuous surfaces thins.
+    let mut edges: std::collections::HashMap<(u32, u32), u32> = std::collections::HashMap::new();
+    for tri in mesh.indices.chunks_exact(3) {
+        for (a, b) in [(tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0])] {
+            *edges.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+        }
+    }
+    let mut border = vec![false; mesh.vertices.len()];
+    for (&(a, b), &n) in &edges {
+        if n == 1 {
+            for v in [a, b] {
+                if let Some(f) = border.get_mut(v as usize) {
+                    *f = true;
+                }
+            }
+        }
+    }
     let mut best: std::collections::HashMap<(u8, i64, i64, i64), usize> =
         std::collections::HashMap::new();
     let keys: Vec<_> = mesh
         .vertices
         .iter()
         .enumerate()
-        .map(|(i, v)| key_of(i, v))
+        .map(|(i, v)| {
+            if border[i] {
+                (5, i as i64, 0, 0)
+            } else {
+                key_of(i, v)
+            }
+        })
         .collect();
     for (i, v) in mesh.vertices.iter().enumerate() {
         let k = keys[i];
