@@ -170,6 +170,30 @@ impl Cell {
         out
     }
 
+    /// The cell's motion as straight pieces `(from, to)` of offsets `X − V`: every straight
+    /// stretch of each path (starting at the viewpoint) cut into `steps` equal pieces. A
+    /// single-sample track's cell is the one degenerate piece `(0, 0)`.
+    pub fn motion_pieces(&self, steps: u32) -> Vec<(DVec3, DVec3)> {
+        let steps = steps.max(1);
+        let mut out = Vec::new();
+        for path in &self.paths {
+            let mut a = DVec3::ZERO;
+            for x in path {
+                let b = *x - self.viewpoint;
+                for j in 0..steps {
+                    let (s0, s1) = (j as f64 / steps as f64, (j + 1) as f64 / steps as f64);
+                    let end = if j + 1 == steps { b } else { a.lerp(b, s1) };
+                    out.push((a.lerp(b, s0), end));
+                }
+                a = b;
+            }
+        }
+        if out.is_empty() {
+            out.push((DVec3::ZERO, DVec3::ZERO));
+        }
+        out
+    }
+
     /// Largest distance from the viewpoint to any point of the cell.
     pub fn radius(&self) -> f64 {
         self.offsets()

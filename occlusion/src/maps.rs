@@ -112,16 +112,187 @@ pub fn neighbour(face: Face, x: u32, y: u32, dx: i32, dy: i32, n: u32) -> (Face,
 /// Opacity with the nearer pixel of every depth discontinuity punched out (treated as a
 /// hole), so that a window counted fully opaque has a continuous occluder surface.
 pub fn hole_punched(map: &OcclusionMap, rule: DiscontinuityRule, cell_radius: f64) -> CubeMap<u8> {
-    let n = map.face_size();
-    let theta_px = std::f64::consts::FRAC_PI_2 / n as f64;
-    let min_parallax = rule.min_parallax_px * theta_px;
-    let depth = &map.depth;
-    let opaque = &map.opaque;
-    // Inverse depth at a pixel, if it is an occluder.
-    let w = |f: Face, x: u32, y: u32| -> Option<f64> {
-        (*opaque.get(f, x, y) != 0).then(|| 1.0 / *depth.get(f, x, y) as f64)
-    };
-    let step = |face: Face, x: u32, y: u32, dx: i32, dy: i32| -> (Face, u32, u32) {
+    HolePunch::new(map, rule, cell_radius).opacity
+}
+
+/// A pixel rectangle `(x0, y0, x1, y1)` of one face, ends excluded.
+pub type PixelBox = (u32, u32, u32, u32);
+
+/// The hole-punched opacity of an [`OcclusionMap`] ([`hole_punched`]), kept up to date as
+/// tiles join the map: [`HolePunch::update`] recomputes only the pixels whose neighbourhood
+/// changed (two pixels around the new tiles, and the faces' border rings when a new tile
+/// reaches one), with the same arithmetic as the full pass.
+#[derive(Clone, Debug)]
+pub struct HolePunch {
+    rule: DiscontinuityRule,
+    cell_radius: f64,
+    /// Inverse depth of every occluder pixel, NaN where there is none.
+    inv: CubeMap<f64>,
+    /// The punched opacity (1: opaque, part of a continuous surface).
+    pub opacity: CubeMap<u8>,
+}
+
+fn inverse_depth(o: u8, d: f32) -> f64 {
+    if o != 0 {
+        1.0 / d as f64
+    } else {
+        f64::NAN
+    }
+}
+
+impl HolePunch {
+    /// Punch the whole map.
+    pub fn new(map: &OcclusionMap, rule: DiscontinuityRule, cell_radius: f64) -> HolePunch {
+        let n = map.face_size();
+        let nn = n as usize * n as usize;
+        let mut inv = vec![0.0f64; 6 * nn];
+        inv.par_chunks_mut(nn).enumerate().for_each(|(fi, out)| {
+            let face = Face::ALL[fi];
+            let (od, dd) = (map.opaque.face(face), map.depth.face(face));
+            for ((w, &o), &d) in out.iter_mut().zip(od).zip(dd) {
+                *w = inverse_depth(o, d);
+            }
+        });
+        let inv = CubeMap::from_vec(n, inv).unwrap_or_else(|| CubeMap::filled(n, f64::NAN));
+        let mut opacity = map.opaque.clone();
+        let ctx = PunchCtx::new(&inv, rule, cell_radius);
+        opacity
+            .as_mut_slice()
+            .par_chunks_mut(nn)
+            .enumerate()
+            .for_each(|(fi, face_px)| {
+                let face = Face::ALL[fi];
+                let fi_inv = inv.face(face);
+                let nu = n as usize;
+                for y in 0..n {
+                    let inner_row = y >= 2 && y + 2 < n;
+                    for x in 0..n {
+                        let i = (y * n + x) as usize;
+                        if face_px[i] == 0 {
+                            continue;
+                        }
+                        if inner_row && x >= 2 && x + 2 < n {
+                            // No neighbour farther by enough to open a gap: no gap (the same
+                            // test as the first one in `gap`, on the farthest neighbour).
+                            let far = fi_inv[i - 1]
+                                .min(fi_inv[i + 1])
+                                .min(fi_inv[i - nu])
+                                .min(fi_inv[i + nu]);
+                            let opens = cell_radius * (fi_inv[i] - far) > ctx.min_parallax;
+                            if !opens {
+                                continue;
+                            }
+                        }
+                        if ctx.gap(face, x, y) {
+                            face_px[i] = 0;
+                        }
+                    }
+                }
+            });
+        HolePunch {
+            rule,
+            cell_radius,
+            inv,
+            opacity,
+        }
+    }
+
+    /// Bring the punched opacity up to date after the pixel rectangles `changed`
+    /// (`(face, (x0, y0, x1, y1))`) of `map` changed.
+    pub fn update(&mut self, map: &OcclusionMap, changed: &[(Face, PixelBox)]) {
+        let n = map.face_size();
+        for &(face, (x0, y0, x1, y1)) in changed {
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let i = map.opaque.index(face, x, y);
+                    self.inv.as_mut_slice()[i] =
+                        inverse_depth(map.opaque.as_slice()[i], map.depth.as_slice()[i]);
+                }
+            }
+        }
+        let grow = |(x0, y0, x1, y1): (u32, u32, u32, u32)| {
+            (
+                x0.saturating_sub(2),
+                y0.saturating_sub(2),
+                (x1 + 2).min(n),
+                (y1 + 2).min(n),
+            )
+        };
+        let rings = changed
+            .iter()
+            .any(|&(_, (x0, y0, x1, y1))| x0 < 2 || y0 < 2 || x1 + 2 > n || y1 + 2 > n);
+        let nn = n as usize * n as usize;
+        let ctx = PunchCtx::new(&self.inv, self.rule, self.cell_radius);
+        let opaque = &map.opaque;
+        self.opacity
+            .as_mut_slice()
+            .par_chunks_mut(nn)
+            .enumerate()
+            .for_each(|(fi, face_px)| {
+                let face = Face::ALL[fi];
+                let od = opaque.face(face);
+                let mut redo = |x: u32, y: u32| {
+                    let i = (y * n + x) as usize;
+                    face_px[i] = u8::from(od[i] != 0 && !ctx.gap(face, x, y));
+                };
+                for &(f, r) in changed {
+                    if f != face {
+                        continue;
+                    }
+                    let (x0, y0, x1, y1) = grow(r);
+                    for y in y0..y1 {
+                        for x in x0..x1 {
+                            redo(x, y);
+                        }
+                    }
+                }
+                if rings {
+                    for y in 0..n {
+                        let edge_row = y < 2 || y + 2 >= n;
+                        for x in 0..n {
+                            if edge_row || x < 2 || x + 2 >= n {
+                                redo(x, y);
+                            }
+                        }
+                    }
+                }
+            });
+    }
+}
+
+/// The punching rule on inverse depths.
+struct PunchCtx<'a> {
+    inv: &'a CubeMap<f64>,
+    n: u32,
+    rule: DiscontinuityRule,
+    cell_radius: f64,
+    min_parallax: f64,
+}
+
+impl PunchCtx<'_> {
+    fn new(inv: &CubeMap<f64>, rule: DiscontinuityRule, cell_radius: f64) -> PunchCtx<'_> {
+        let n = inv.face_size();
+        PunchCtx {
+            inv,
+            n,
+            rule,
+            cell_radius,
+            min_parallax: rule.min_parallax_px * std::f64::consts::FRAC_PI_2 / n as f64,
+        }
+    }
+
+    /// Whether the pair (nearer `wp`, farther `wq`) with the steps `before` and `after` in
+    /// the same direction is a gap.
+    fn is_gap(&self, wp: f64, wq: f64, before: f64, after: f64) -> bool {
+        let s = wp - wq;
+        // Only the nearer pixel of a pair is punched; it must open a gap.
+        s > 0.0
+            && self.cell_radius * s > self.min_parallax
+            && s > self.rule.slope_factor * before.max(after) + 1e-6 * wp
+    }
+
+    fn step(&self, face: Face, x: u32, y: u32, dx: i32, dy: i32) -> (Face, u32, u32) {
+        let n = self.n;
         let inside = (x > 0 || dx >= 0)
             && (y > 0 || dy >= 0)
             && (x + 1 < n || dx <= 0)
@@ -131,78 +302,59 @@ pub fn hole_punched(map: &OcclusionMap, rule: DiscontinuityRule, cell_radius: f6
         } else {
             neighbour(face, x, y, dx, dy, n)
         }
-    };
-    let mut out = opaque.clone();
-    let nn = n as usize * n as usize;
-    out.as_mut_slice()
-        .par_chunks_mut(nn)
-        .enumerate()
-        .for_each(|(fi, face_px)| {
-            let face = Face::ALL[fi];
-            let od = opaque.face(face);
-            let dd = depth.face(face);
-            // Inverse depth of the face's occluders (NaN: none), computed once per pixel with
-            // the same f64 arithmetic as the edge path below.
-            let inv: Vec<f64> = od
-                .iter()
-                .zip(dd)
-                .map(|(&o, &d)| if o != 0 { 1.0 / d as f64 } else { f64::NAN })
-                .collect();
-            let nu = n as usize;
-            let gap = |wp: f64, wq: f64, before: f64, after: f64| {
-                let s = wp - wq;
-                // Only the nearer pixel of a pair is punched; it must open a gap.
-                s > 0.0
-                    && cell_radius * s > min_parallax
-                    && s > rule.slope_factor * before.max(after) + 1e-6 * wp
-            };
-            for y in 0..n {
-                let inner_row = y >= 2 && y + 2 < n;
-                for x in 0..n {
-                    let i = (y * n + x) as usize;
-                    if face_px[i] == 0 {
-                        continue;
-                    }
-                    let wp = inv[i];
-                    if inner_row && x >= 2 && x + 2 < n {
-                        // Fast path: all five pixels on this face.
-                        for st in [-1isize, 1, -(nu as isize), nu as isize] {
-                            let at = |k: isize| inv[(i as isize + k * st) as usize];
-                            let wq = at(1);
-                            if wq.is_nan() || wp - wq <= 0.0 {
-                                continue;
-                            }
-                            let (wb, wa) = (at(-1), at(2));
-                            let before = if wb.is_nan() { 0.0 } else { (wb - wp).abs() };
-                            let after = if wa.is_nan() { 0.0 } else { (wq - wa).abs() };
-                            if gap(wp, wq, before, after) {
-                                face_px[i] = 0;
-                                break;
-                            }
-                        }
-                        continue;
-                    }
-                    for (dx, dy) in [(-1i32, 0i32), (1, 0), (0, -1), (0, 1)] {
-                        let (f2, x2, y2) = step(face, x, y, dx, dy);
-                        let Some(wq) = w(f2, x2, y2) else { continue };
-                        let (fb, xb, yb) = step(face, x, y, -dx, -dy);
-                        let before = w(fb, xb, yb).map_or(0.0, |wb| (wb - wp).abs());
-                        // Past a face edge the direction of travel turns: no "after" step.
-                        let after = if f2 == face {
-                            let (fa, xa, ya) = step(f2, x2, y2, dx, dy);
-                            w(fa, xa, ya).map_or(0.0, |wa| (wq - wa).abs())
-                        } else {
-                            0.0
-                        };
-                        if gap(wp, wq, before, after) {
-                            face_px[i] = 0;
-                            break;
-                        }
-                    }
+    }
+
+    /// Whether the occluder pixel `(x, y)` of `face` is the nearer side of a gap.
+    fn gap(&self, face: Face, x: u32, y: u32) -> bool {
+        let n = self.n;
+        let fi = self.inv.face(face);
+        let nu = n as usize;
+        let i = y as usize * nu + x as usize;
+        let wp = fi[i];
+        if wp.is_nan() {
+            return false;
+        }
+        if x >= 2 && y >= 2 && x + 2 < n && y + 2 < n {
+            // Fast path: all five pixels on this face.
+            for st in [-1isize, 1, -(nu as isize), nu as isize] {
+                let at = |k: isize| fi[(i as isize + k * st) as usize];
+                let wq = at(1);
+                // Most pairs are no gap: same surface, or opening too little.
+                if wq.is_nan()
+                    || wp - wq <= 0.0
+                    || self.cell_radius * (wp - wq) <= self.min_parallax
+                {
+                    continue;
+                }
+                let (wb, wa) = (at(-1), at(2));
+                let before = if wb.is_nan() { 0.0 } else { (wb - wp).abs() };
+                let after = if wa.is_nan() { 0.0 } else { (wq - wa).abs() };
+                if self.is_gap(wp, wq, before, after) {
+                    return true;
                 }
             }
-        });
-    out
+            return false;
+        }
+        let w = |(f, x, y): (Face, u32, u32)| {
+            let v = *self.inv.get(f, x, y);
+            (!v.is_nan()).then_some(v)
+        };
+        for (dx, dy) in [(-1i32, 0i32), (1, 0), (0, -1), (0, 1)] {
+            let q = self.step(face, x, y, dx, dy);
+            let Some(wq) = w(q) else { continue };
+            let before = w(self.step(face, x, y, -dx, -dy)).map_or(0.0, |wb| (wb - wp).abs());
+            // Past a face edge the direction of travel turns: no "after" step.
+            let after = if q.0 == face {
+                w(self.step(q.0, q.1, q.2, dx, dy)).map_or(0.0, |wa| (wq - wa).abs())
+            } else {
+                0.0
+            };
+            if self.is_gap(wp, wq, before, after) {
+                return true;
+            }
+        }
+        false
+    }
 }
 
 /// Per-face summed-area table of opacity and block-minimum occluder depth.
@@ -549,6 +701,47 @@ mod tests {
                 .filter(|(a, b)| a != b);
             assert_eq!(holes.count() > 0, radius >= 1.0, "radius {radius}");
         }
+    }
+
+    #[test]
+    fn updating_the_punched_map_equals_punching_it_again() {
+        let n = 20;
+        let mut state = 777u64;
+        let mut rnd = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 33) as f64 / (1u64 << 31) as f64
+        };
+        let layer_alpha = CubeMap::from_fn(n, |_, _, _| 0u8).map(|_| u8::from(rnd() < 0.9) * 255);
+        let layer_depth = CubeMap::from_fn(n, |_, x, y| 2.0 + 0.05 * (x + y) as f32).map(|&d| {
+            if rnd() < 0.15 {
+                d * 3.0
+            } else {
+                d
+            }
+        });
+        let mut m = OcclusionMap::new(n);
+        let rule = DiscontinuityRule::default();
+        // Start from a few rectangles, then add more, some on face borders.
+        let first = [(Face::PosX, (3, 4, 12, 15)), (Face::NegZ, (0, 0, 20, 6))];
+        let more = [
+            (Face::PosX, (10, 0, 20, 9)),
+            (Face::PosY, (5, 5, 9, 9)),
+            (Face::NegY, (0, 12, 20, 20)),
+            (Face::PosZ, (18, 2, 20, 20)),
+        ];
+        for &(f, r) in &first {
+            m.add_rect(f, r, &layer_alpha, &layer_depth);
+        }
+        let mut p = HolePunch::new(&m, rule, 1.0);
+        for &(f, r) in &more {
+            m.add_rect(f, r, &layer_alpha, &layer_depth);
+        }
+        p.update(&m, &more);
+        let fresh = HolePunch::new(&m, rule, 1.0);
+        assert_eq!(p.opacity.as_slice(), fresh.opacity.as_slice());
+        assert_ne!(fresh.opacity.as_slice(), m.opaque.as_slice(), "some holes");
     }
 
     #[test]

@@ -159,6 +159,47 @@ pub fn extended_window(
     Some(w)
 }
 
+/// Where the rays from every point of one straight piece of the cell's motion (face-frame
+/// offsets `piece.0` to `piece.1`) to every point of an occludee tile (footprint `tile`,
+/// planar depth in `[h_lo, h_hi]`, `h_hi` may be `+inf`) cross the plane at planar depth `h`
+/// (`h ≤ h_lo`): the bounding rectangle of the tile corners' images for both ends of the
+/// piece and both depth extremes. Unlike [`extended_window`] it does not contain the tile
+/// itself. `None` when an end of the piece is not in front of the plane.
+///
+/// The extremes suffice: for a fixed occludee point the crossing moves monotonically along a
+/// line as the viewer moves along a straight piece (a central projection of a line, no pole
+/// while the viewer is in front of the plane), and for a fixed viewer it moves monotonically
+/// with the occludee's depth (`k = (h₂ − h)/(h·(h₂ − bz))` grows with `h₂` when `h > bz`);
+/// so each coordinate is largest and smallest at a combination of extremes.
+pub fn landing_window(
+    tile: UvRect,
+    piece: (DVec3, DVec3),
+    h: f64,
+    h_lo: f64,
+    h_hi: f64,
+) -> Option<UvRect> {
+    let mut w: Option<UvRect> = None;
+    for b in [piece.0, piece.1] {
+        for h2 in [h_lo, h_hi] {
+            for c in tile.corners() {
+                let (u, v) = shifted(c, b, h, h2)?;
+                match &mut w {
+                    Some(r) => r.include(u, v),
+                    None => {
+                        w = Some(UvRect {
+                            u0: u,
+                            u1: u,
+                            v0: v,
+                            v1: v,
+                        })
+                    }
+                }
+            }
+        }
+    }
+    w
+}
+
 /// A pixel rectangle `[x0, x1) × [y0, y1)` on one face.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PixelRect {
