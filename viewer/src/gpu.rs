@@ -23,6 +23,12 @@ const VIEW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Tile-id target of a view pass: tile index + 1, 0 = no tile.
 const ID_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
+/// Fast path (frames without tile ids): the second view is drawn against the first view's
+/// depth scaled by this, so its fragments more than this factor farther than the first
+/// view's surface are skipped. Their blend weight would be below exp(-20 · 0.5) ≈ 5e-5 of
+/// the nearer surface's (`SHARPNESS` in composite.wgsl), so the image does not change;
+/// meshes nearer than `NEAR_M × 1.5` are clipped in the second view.
+const SECOND_VIEW_DEPTH_SCALE: f64 = 1.5;
 /// Format of the final image (sRGB-encoded RGBA8, alpha 0 = hole).
 pub const OUTPUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
 
@@ -172,6 +178,9 @@ pub struct Renderer {
     /// Background (sky) where no tile drew, with and without the tile-id target.
     background_ids: wgpu::RenderPipeline,
     background: wgpu::RenderPipeline,
+    /// Fast path: first view's sky with depth; second view's meshes against it.
+    sky_depth: wgpu::RenderPipeline,
+    mesh_behind: wgpu::RenderPipeline,
     /// Tile meshes writing colour and tile ids.
     mesh_ids: wgpu::RenderPipeline,
     /// Tile meshes writing colour only.
@@ -324,14 +333,18 @@ impl Renderer {
                   fs: &str,
                   buffers: &[Option<wgpu::VertexBufferLayout<'_>>],
                   targets: &[Option<wgpu::ColorTargetState>],
-                  depth_stencil: Option<wgpu::DepthStencilState>| {
+                  depth_stencil: Option<wgpu::DepthStencilState>,
+                  constants: &[(&str, f64)]| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(label),
                 layout: Some(layout),
                 vertex: wgpu::VertexState {
                     module,
                     entry_point: Some(vs),
-                    compilation_options: Default::default(),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants,
+                        ..Default::default()
+                    },
                     buffers,
                 },
                 primitive: wgpu::PrimitiveState {
@@ -366,6 +379,7 @@ impl Renderer {
             &[],
             &id_targets,
             depth(wgpu::CompareFunction::GreaterEqual, false),
+            &[],
         );
         let background = mk(
             "background",
@@ -376,6 +390,7 @@ impl Renderer {
             &[],
             &color_targets,
             depth(wgpu::CompareFunction::GreaterEqual, false),
+            &[],
         );
         let mesh_ids = mk(
             "mesh+ids",
@@ -386,6 +401,31 @@ impl Renderer {
             &mesh_buffers,
             &id_targets,
             depth(wgpu::CompareFunction::Greater, true),
+            &[],
+        );
+        // The fast path without tile ids: the first view's sky writes depth, the second view
+        // is drawn against the first view's depth (see `depth_scale` in render.wgsl).
+        let sky_depth = mk(
+            "background (sky depth)",
+            &render,
+            &view_layout,
+            "vs_sky_depth",
+            "fs_background_sky_depth",
+            &[],
+            &color_targets,
+            depth(wgpu::CompareFunction::GreaterEqual, true),
+            &[],
+        );
+        let mesh_behind = mk(
+            "mesh (against the first view)",
+            &render,
+            &view_layout,
+            "vs_mesh",
+            "fs_mesh",
+            &mesh_buffers,
+            &color_targets,
+            depth(wgpu::CompareFunction::Greater, true),
+            &[("depth_scale", SECOND_VIEW_DEPTH_SCALE)],
         );
         let mesh = mk(
             "mesh",
@@ -396,6 +436,7 @@ impl Renderer {
             &mesh_buffers,
             &color_targets,
             depth(wgpu::CompareFunction::Greater, true),
+            &[],
         );
         let panorama = mk(
             "panorama",
@@ -406,6 +447,7 @@ impl Renderer {
             &[],
             &output_target,
             None,
+            &[],
         );
         let composite = mk(
             "composite",
@@ -416,6 +458,7 @@ impl Renderer {
             &[],
             &output_target,
             None,
+            &[],
         );
         let composite_overlays = mk(
             "composite+overlays",
@@ -426,6 +469,7 @@ impl Renderer {
             &[],
             &output_target,
             None,
+            &[],
         );
         let feedback_src = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("feedback.wgsl"),
@@ -463,6 +507,8 @@ impl Renderer {
             composite_overlays,
             background_ids,
             background,
+            sky_depth,
+            mesh_behind,
             feedback,
             sampler,
             composite_uniforms,
@@ -884,6 +930,9 @@ impl Renderer {
             return;
         };
         let ids = plan.tile_ids || plan.overlays.needs_tile_ids();
+        // Without tile ids the second view is drawn against the first view's depth: it then
+        // skips what the first view hides and its sky where the first view has sky.
+        let shared_depth = !ids && plan.passes.len() > 1;
         let mut drawn: Vec<&GpuView> = Vec::new();
         for (slot, pass) in plan.passes.iter().take(2).enumerate() {
             let Some(g) = views.get(pass.view).and_then(|v| self.views.get(&v.index)) else {
@@ -914,8 +963,16 @@ impl Renderer {
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                     view: &targets.depth_view,
                     depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(0.0),
-                        store: wgpu::StoreOp::Discard,
+                        load: if shared_depth && slot == 1 {
+                            wgpu::LoadOp::Load
+                        } else {
+                            wgpu::LoadOp::Clear(0.0)
+                        },
+                        store: if shared_depth && slot == 0 {
+                            wgpu::StoreOp::Store
+                        } else {
+                            wgpu::StoreOp::Discard
+                        },
                     }),
                     stencil_ops: None,
                 }),
@@ -925,7 +982,13 @@ impl Renderer {
             });
             rp.set_bind_group(0, &g.bind_group, &[]);
             if !pass.runs.is_empty() {
-                rp.set_pipeline(if ids { &self.mesh_ids } else { &self.mesh });
+                rp.set_pipeline(if ids {
+                    &self.mesh_ids
+                } else if shared_depth && slot == 1 {
+                    &self.mesh_behind
+                } else {
+                    &self.mesh
+                });
                 rp.set_vertex_buffer(0, g.vertices.slice(..));
                 let (indices, starts) = match (plan.mesh_level as usize).checked_sub(1) {
                     Some(k) => g
@@ -945,6 +1008,8 @@ impl Renderer {
             }
             rp.set_pipeline(if ids {
                 &self.background_ids
+            } else if shared_depth && slot == 0 {
+                &self.sky_depth
             } else {
                 &self.background
             });

@@ -1,6 +1,15 @@
 // Reference-view pass (slab tile meshes) and the plain panorama; prepended with cube.wgsl.
 // Mirrors crate::cpu; keep the two in step.
 
+// Scale of the reversed-Z depth of the tile meshes: 1, or > 1 for the second view when it is
+// drawn against the first view's depth (a fragment then survives unless it lies more than
+// `depth_scale` times farther than the first view's surface, where the blend would give it
+// a weight below exp(-SHARPNESS (depth_scale - 1))).
+override depth_scale: f32 = 1.0;
+// Reversed-Z depth the first view's sky writes in that mode: behind every mesh (10 km is
+// 1e-6), in front of the clear value 0.
+const SKY_DEPTH: f32 = 1e-20;
+
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var layers: texture_2d_array<f32>;
 @group(0) @binding(2) var samp: sampler;
@@ -39,6 +48,26 @@ fn fs_background(in: FullOut) -> @location(0) vec4<f32> {
     return background_color(in.pos.xy);
 }
 
+// The first view's sky when the second view is drawn against its depth: at SKY_DEPTH, and
+// only where there is sky (a hole leaves depth 0, so the second view fills it).
+@vertex
+fn vs_sky_depth(@builtin(vertex_index) i: u32) -> FullOut {
+    let x = f32((i << 1u) & 2u) * 2.0 - 1.0;
+    let y = f32(i & 2u) * 2.0 - 1.0;
+    var out: FullOut;
+    out.pos = vec4<f32>(x, y, SKY_DEPTH, 1.0);
+    return out;
+}
+
+@fragment
+fn fs_background_sky_depth(in: FullOut) -> @location(0) vec4<f32> {
+    let c = background_color(in.pos.xy);
+    if c.a == 0.0 {
+        discard;
+    }
+    return c;
+}
+
 @fragment
 fn fs_background_ids(in: FullOut) -> PassOut {
     var out: PassOut;
@@ -68,6 +97,7 @@ fn vs_mesh(v: MeshIn) -> MeshOut {
     let d = normalize(face_forward(f) + u * face_right(f) + w * face_up(f)) * v.depth_m;
     var out: MeshOut;
     out.pos = view.clip_from_cam * vec4<f32>(d + view.origin_rel.xyz, 1.0);
+    out.pos.z = out.pos.z * depth_scale;
     out.pos_from_ref = d;
     out.tile = v.packed >> 3u;
     return out;
