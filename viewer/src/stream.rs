@@ -353,7 +353,8 @@ impl StreamedWalkthrough {
 
     /// Live counts for the session from the GPU feedback of `plan` (drawn from
     /// `self.walk.views`): every tile of every counted pass, weighted by the pass's blend
-    /// weight, with the level the pass samples; tiles drawn but hidden count zero. A tile in
+    /// weight, with the level the pass samples; tiles drawn but hidden count zero; the
+    /// pixels no tile covers count for the view's background. A tile in
     /// the frustum that is drawn coarser than needed counts at least one pixel: its coarse
     /// opacity mask (averaged texels under the 0.5 threshold) may hide it entirely, and a
     /// tile that is never counted would never be refined.
@@ -388,6 +389,23 @@ impl StreamedWalkthrough {
                 if hidden && tiles.get(slot).is_some_and(|t| t.finest_level > needed) {
                     add(slot, 1.0);
                 }
+            }
+            // Pixels no tile of this view covers show its background (or a hole).
+            let covered: u64 = c.pixels.iter().map(|&p| p as u64).sum();
+            let open = (plan.width as u64 * plan.height as u64).saturating_sub(covered);
+            let bg = self
+                .session
+                .table()
+                .background_item(c.view)
+                .filter(|_| open > 0);
+            if let Some(item) = bg {
+                let e = by_item.entry(item).or_insert(LiveCount {
+                    item,
+                    pixels: 0.0,
+                    needed_level: needed,
+                });
+                e.pixels += open as f64 * pass.weight.max(0.1);
+                e.needed_level = e.needed_level.min(needed);
             }
         }
         let mut out: Vec<LiveCount> = by_item.into_values().collect();

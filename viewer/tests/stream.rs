@@ -353,6 +353,11 @@ fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
         mean_abs_diff(&sharp, &full)
     );
     assert!(mean_abs_diff(&coarse, &full) > mean_abs_diff(&sharp, &full));
+    // Both backgrounds around the position reached full resolution.
+    for vp in [0, 1] {
+        let item = st.session().table().background_item(vp).unwrap();
+        assert_eq!(st.item_levels()[item], Some(0), "background {vp}");
+    }
     // Nothing new: no view needs re-uploading.
     let rep = st.step(s, &cam, None);
     assert!(rep.changed_views.is_empty() && rep.arrivals == 0, "{rep:?}");

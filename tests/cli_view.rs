@@ -1,0 +1,104 @@
+//! `railview view URL --frames N` under Xvfb: a small castle database built and served by the
+//! binary, the window streams from the server until every visible tile is shown, then closes.
+//! Needs `xvfb-run` and a Vulkan adapter (lavapipe); `RAILVIEW_SKIP_GPU_TESTS=1` switches it
+//! off.
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("railview-cli-view-{name}-{}", std::process::id()));
+    std::fs::remove_dir_all(&d).ok();
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Kills the server when the test ends, however it ends.
+struct Server(Child);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn view_streams_from_a_served_database_and_closes_after_its_frames() {
+    if std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1") {
+        eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
+        return;
+    }
+    let bin = env!("CARGO_BIN_EXE_railview");
+    let work = tmp("castle");
+    let track = work.join("short.toml");
+    std::fs::write(
+        &track,
+        "[[track]]\nname = \"short\"\npoints = [[0, 1.7, 42], [0, 1.7, 36]]\ncount = 3\n",
+    )
+    .unwrap();
+    let db = work.join("db");
+    let o = Command::new(bin)
+        .args(["build", "--scene", "castle", "--track"])
+        .arg(&track)
+        .args(["--face-size", "16", "--zstd-level", "3", "--out"])
+        .arg(&db)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let mut child = Command::new(bin)
+        .arg("serve")
+        .arg(&db)
+        .args(["--addr", "127.0.0.1:0"])
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let server = Server(child);
+    let mut line = String::new();
+    BufReader::new(stderr).read_line(&mut line).unwrap();
+    let url = line
+        .split_whitespace()
+        .find(|w| w.starts_with("http://"))
+        .unwrap_or_else(|| panic!("no URL in `{line}`"))
+        .to_string();
+
+    let runtime = work.join("xdg");
+    std::fs::create_dir_all(&runtime).unwrap();
+    let o = Command::new("xvfb-run")
+        .args([
+            "-a",
+            bin,
+            "view",
+            &url,
+            "--frames",
+            "40",
+            "--memory-mib",
+            "1",
+        ])
+        .env("XDG_RUNTIME_DIR", &runtime)
+        .output()
+        .expect("xvfb-run (apt-get install xvfb)");
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{out}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(out.contains("every visible tile shown after"), "{out}");
+    let summary = out
+        .lines()
+        .find(|l| l.contains("frames in"))
+        .unwrap_or_else(|| panic!("no summary in {out}"));
+    // `… cache peak P of B bytes …`: the budget held.
+    let words: Vec<&str> = summary.split_whitespace().collect();
+    let at = words.iter().position(|w| *w == "peak").unwrap();
+    let peak: u64 = words[at + 1].parse().unwrap();
+    let budget: u64 = words[at + 3].parse().unwrap();
+    assert!(peak > 0 && peak <= budget, "{summary}");
+    drop(server);
+    let _ = std::fs::remove_dir_all(work);
+}
