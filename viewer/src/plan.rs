@@ -470,9 +470,11 @@ impl BudgetController {
     /// Record one frame time (milliseconds; non-finite or negative values are ignored) and
     /// return the budget for the next frame.
     pub fn push(&mut self, frame_ms: f64) -> DrawBudget {
-        if !(frame_ms.is_finite() && frame_ms >= 0.0)
-            || !(self.target_ms.is_finite() && self.target_ms > 0.0)
-        {
+        let usable = frame_ms.is_finite()
+            && frame_ms >= 0.0
+            && self.target_ms.is_finite()
+            && self.target_ms > 0.0;
+        if !usable {
             return self.budget;
         }
         self.frame += 1;
