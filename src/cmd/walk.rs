@@ -60,6 +60,9 @@ pub struct Args {
     /// seconds.
     #[arg(long, default_value_t = 1.0)]
     pub prefetch_horizon: f64,
+    /// Prefetch (with live counts) the tiles covering this fraction of the predicted view.
+    #[arg(long, default_value_t = 0.9)]
+    pub prefetch_coverage: f64,
     /// Seconds standing still at the end of the track.
     #[arg(long, default_value_t = 3.0)]
     pub pause: f64,
@@ -125,6 +128,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_in_flight: args.in_flight.max(1),
         prefetch_turn_deg: args.prefetch_turn.clamp(0.0, 90.0),
         prefetch_horizon_s: args.prefetch_horizon.clamp(0.0, 60.0),
+        prefetch_coverage: args.prefetch_coverage.clamp(0.0, 1.0),
         ..WalkConfig::default()
     };
     let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;

@@ -110,6 +110,9 @@ pub struct WalkConfig {
     pub prefetch_horizon_s: f64,
     /// Prefetch widens the view frustum by this turn of the head (degrees, each side).
     pub prefetch_turn_deg: f64,
+    /// Prefetch with live counts takes the tiles covering this fraction of the predicted
+    /// view's pixels (largest first).
+    pub prefetch_coverage: f64,
     /// Pieces (meshes, PTM level groups) one bundled request carries at most.
     pub bundle_entries: usize,
     pub track: usize,
@@ -133,6 +136,7 @@ impl Default for WalkConfig {
             samples_y: 36,
             prefetch_horizon_s: 1.0,
             prefetch_turn_deg: 10.0,
+            prefetch_coverage: 0.9,
             bundle_entries: 64,
             track: 0,
         }

@@ -174,13 +174,29 @@ impl Sim<'_> {
                 ..cam
             };
             let weights = blend_weights(&table.vp_s, s_mid);
-            scene
+            let mut seen: Vec<(usize, f64)> = scene
                 .index
                 .count(&ahead, &weights, self.cfg.samples_x, self.cfg.samples_y)
                 .iter()
                 .filter_map(|c| Some((surface_item(table, c)?, c.pixels())))
                 .filter(|&(_, px)| px > 0.0)
-                .collect()
+                .collect();
+            // The tiles that cover most of the predicted view (`prefetch_coverage` of its
+            // pixels), largest first: slivers at the edge are rarely worth their bytes ahead
+            // of time, and are fetched anyway if they come into view.
+            seen.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+            let total: f64 = seen.iter().map(|x| x.1).sum();
+            let mut acc = 0.0;
+            let keep = seen
+                .iter()
+                .take_while(|x| {
+                    let before = acc;
+                    acc += x.1;
+                    before < self.cfg.prefetch_coverage * total
+                })
+                .count();
+            seen.truncate(keep);
+            seen
         };
         self.prefetch_memo = Some((memo_key, list.clone()));
         list
@@ -290,8 +306,9 @@ impl Sim<'_> {
         // least 16 KiB), so its transfer costs no more than its round trip.
         let (bps, latency) = self.estimate.get();
         let byte_cap = ((bps / 8.0 * latency.max(0.05)) as u64).max(16 << 10);
-        // Prefetch-only bundles hold at most a third of the slots, and none while the view has
-        // holes, so what the current view needs never queues behind a link full of prefetch.
+        // Prefetch-only bundles hold at most a third of the slots, are small, and none go
+        // while the view has holes, so what the current view needs never queues behind a
+        // link full of prefetch.
         let prefetch_slots = if holes {
             0
         } else {
@@ -310,7 +327,14 @@ impl Sim<'_> {
             let (mut pieces, mut bytes) = (0usize, 0u64);
             while let Some((_, parts)) = wanted.peek() {
                 let p_bytes: u64 = parts.iter().map(|p| p.bytes).sum();
-                let fits = pieces + parts.len() <= max_pieces && bytes + p_bytes <= byte_cap;
+                // Prefetch-only bundles are a quarter of the size: a tile that comes into
+                // view waits behind at most a short one on the link.
+                let cap = if only_prefetch {
+                    byte_cap / 4
+                } else {
+                    byte_cap
+                };
+                let fits = pieces + parts.len() <= max_pieces && bytes + p_bytes <= cap;
                 if !b.is_empty() && !fits {
                     break;
                 }
