@@ -367,7 +367,10 @@ impl TileCtx<'_> {
             v0: py(by1) - dil / n32 as f64,
             v1: py(by0) + dil / n32 as f64,
         };
-        if self.rect_hidden(face, rect, d_lo, d_hi) {
+        // At α = 1 a rectangle that is not covered itself fails for every piece (each path
+        // region contains it): go straight to its quadrants.
+        let covered = self.params.alpha < 1.0 || self.occluded(&self.pieces(face, rect));
+        if covered && self.rect_hidden(face, rect, d_lo, d_hi) {
             return true;
         }
         if levels == 0 || (bx1 - bx0 < 2 && by1 - by0 < 2) {

@@ -32,6 +32,10 @@ pub struct SlabRow {
     pub kept_never_visible: Option<u64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub visible_tiles: Option<u64>,
+    /// With the oracle: tiles never seen from any oracle position (`tiles_before −
+    /// visible_tiles`): the most any method without false culls could cull.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub never_visible: Option<u64>,
 }
 
 fn reduction(before: u64, after: u64) -> f64 {
@@ -48,6 +52,15 @@ impl SlabRow {
     }
     pub fn byte_reduction_percent(&self) -> f64 {
         reduction(self.bytes_before, self.bytes_after)
+    }
+    /// With the oracle: the tile reduction of a perfect zero-false-cull method.
+    pub fn ceiling_percent(&self) -> Option<f64> {
+        self.never_visible.map(|n| {
+            reduction(
+                self.tiles_before,
+                self.tiles_before - n.min(self.tiles_before),
+            )
+        })
     }
 }
 
@@ -98,6 +111,8 @@ impl RunReport {
                     *r.false_cull_pixels.get_or_insert(0) += s.false_cull_pixels;
                     *r.kept_never_visible.get_or_insert(0) += s.kept_never_visible;
                     *r.visible_tiles.get_or_insert(0) += s.visible_tiles;
+                    *r.never_visible.get_or_insert(0) +=
+                        (s.kept + s.culled).saturating_sub(s.visible_tiles);
                 }
             }
         }
@@ -166,6 +181,16 @@ pub fn paper_table(runs: &[&RunReport]) -> String {
                     row.false_culls.unwrap_or(0),
                     row.false_cull_pixels.unwrap_or(0),
                     row.kept_never_visible.unwrap_or(0)
+                );
+            }
+            s.push('\n');
+            s += "|  | Never seen (oracle ceiling) |";
+            for row in &r.slabs {
+                s += &format!(
+                    " {} | {} | {:.1}% |",
+                    row.tiles_before,
+                    row.tiles_before - row.never_visible.unwrap_or(0).min(row.tiles_before),
+                    row.ceiling_percent().unwrap_or(0.0)
                 );
             }
             s.push('\n');
@@ -391,6 +416,25 @@ mod tests {
         assert!(j["slabs"][1].get("false_culls").is_none());
         let md = paper_table(&[&r]);
         assert!(md.contains("| 4 | 2 | 50.0% |"), "{md}");
+        assert!(!md.contains("Never seen"), "no oracle, no ceiling: {md}");
+        // With the oracle: slab 1 has 4 tiles, 1 seen → 3 never seen, a 75 % ceiling.
+        let score = |slab, kept, culled, visible| SlabScore {
+            slab,
+            kept,
+            culled,
+            visible_tiles: visible,
+            ..SlabScore::default()
+        };
+        let mut o = RunReport::new(1.0, Variant::Conservative, 2);
+        for seen in [1, 0] {
+            o.add(&v, Some(&[score(0, 2, 0, 2), score(1, 1, 1, seen)]));
+        }
+        assert_eq!(o.slabs[0].never_visible, Some(0));
+        assert_eq!(o.slabs[1].ceiling_percent(), Some(75.0));
+        let j = serde_json::to_value(&o).unwrap();
+        assert_eq!(j["slabs"][1]["never_visible"], 3);
+        let md = paper_table(&[&o]);
+        assert!(md.contains("| 4 | 1 | 75.0% |"), "{md}");
         let g = TileGrid::new(8, 4).unwrap();
         let png = atlas_png(&g, &[ViewpointDecisions::new(0, &g, &v)], None);
         assert_eq!(&png[1..4], b"PNG");

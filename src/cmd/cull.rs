@@ -4,7 +4,9 @@
 //! Writes (each atomically):
 //! - `DIR/cull.json`: `runs`, one per (α, variant), each with `alpha`, `variant` and per slab
 //!   `tiles_before`, `tiles_after`, `bytes_before`, `bytes_after` (raw RGBA8 tile sizes) and,
-//!   with `--oracle`, `false_culls`, `false_cull_pixels`, `kept_never_visible`.
+//!   with `--oracle`, `false_culls`, `false_cull_pixels`, `kept_never_visible`,
+//!   `visible_tiles` and `never_visible` (tiles no oracle position saw: the ceiling of any
+//!   culling without false culls).
 //! - `DIR/cull.md`: the paper's Tables 1–2 per variant.
 //! - `DIR/cull_tiles.json`: the kept/culled decision of every tile of every run, for the
 //!   database build (format: `occlusion::report::TileDecisions`).

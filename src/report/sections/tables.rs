@@ -113,6 +113,7 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
                 fmt_int(num(s, "false_cull_pixels")),
                 fmt_int(num(s, "kept_never_visible")),
                 fmt_int(num(s, "visible_tiles")),
+                fmt_int(num(s, "never_visible")),
             ]);
         }
     }
@@ -132,6 +133,7 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
                 "false-cull pixels",
                 "kept never visible",
                 "visible tiles",
+                "never visible (ceiling)",
             ]
             .map(String::from)
             .to_vec(),
