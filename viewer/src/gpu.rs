@@ -11,6 +11,13 @@
 //! samples each view's background where its tiles left the pixel empty, blends the two views
 //! and draws the debug overlays ([`crate::plan::Overlays`]). The heat-map overlay counts the
 //! visible pixels per tile with the feedback compute pass inside the same frame.
+//!
+//! Each view pass draws its tile meshes, then its background (sky) at the far plane behind a
+//! depth test, so the sky costs only where no tile drew. Frames without tile ids
+//! ([`FramePlan::tile_ids`] off, no overlays) take a faster path: the first view's sky writes
+//! a tiny depth and the second view is drawn against the first view's depth (scaled by
+//! `SECOND_VIEW_DEPTH_SCALE`), skipping what the blend would weigh at almost nothing.
+//! [`FramePlan::mesh_level`] selects decimated index buffers over the same vertices.
 
 use std::collections::HashMap;
 
