@@ -7,11 +7,11 @@
 //! [`crate::stream`]): each frame steps the streaming session, re-uploads only the views that
 //! changed, and every few frames hands the GPU's visible-pixel counts back as live counts.
 //! Extra panels: bandwidth, requests in flight, cache used against its budget, downloading
-//! quality over time, the priority strategy, a level cap, and a highlight on tiles that
-//! arrived in the last second.
+//! quality over time, the priority strategy, a level cap, and the renderer's highlight of
+//! tiles that arrived in the last second; toggles for the renderer's other overlays.
 
 use std::collections::VecDeque;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use eframe::egui;
 use egui_plot::{Line, Plot, PlotPoints};
@@ -19,7 +19,7 @@ use tracks::PerspectiveCamera;
 
 use crate::gpu::{Gpu, Renderer};
 use crate::headless::yaw_along;
-use crate::plan::{adjust_budget, plan_frame, DrawBudget};
+use crate::plan::{adjust_budget, plan_frame, DrawBudget, Overlays};
 use crate::source::Walkthrough;
 use crate::stream::StreamedWalkthrough;
 use streamer::client::{LiveCount, PriorityMode};
@@ -27,8 +27,6 @@ use streamer::client::{LiveCount, PriorityMode};
 const HISTORY: usize = 300;
 /// Frames between two GPU feedback read-backs while streaming.
 const FEEDBACK_EVERY: u64 = 5;
-/// How long a newly loaded tile stays highlighted.
-const HIGHLIGHT: Duration = Duration::from_secs(1);
 
 /// Where the app's reference views come from.
 pub enum Source {
@@ -109,6 +107,8 @@ struct StreamUi {
 /// The app state.
 pub struct ViewerApp {
     source: Source,
+    /// Debug overlays (heat map, slab colours, holes); the streaming highlight is in `stream`.
+    overlays: Overlays,
     stream: StreamUi,
     /// Size of the view drawn last (the camera for the next streaming step).
     view_px: [u32; 2],
@@ -163,6 +163,7 @@ impl ViewerApp {
         };
         ViewerApp {
             source,
+            overlays: Overlays::default(),
             stream: StreamUi {
                 strategy,
                 prefetch,
@@ -218,9 +219,17 @@ impl ViewerApp {
         let walk = self.source.walk();
         let feedback =
             matches!(self.source, Source::Stream(_)) && self.frames.is_multiple_of(FEEDBACK_EVERY);
+        let streaming = matches!(self.source, Source::Stream(_));
+        let overlays = Overlays {
+            highlight: streaming && self.stream.highlight,
+            ..self.overlays
+        };
         let result = plan_frame(&walk.views, &camera, self.s, self.budget)
             .map_err(|e| e.to_string())
-            .and_then(|plan| {
+            .and_then(|mut plan| {
+                // Tile ids only on the frames whose feedback is read.
+                plan.tile_ids = feedback;
+                plan.overlays = overlays;
                 r.draw(&plan, &walk.views).map_err(|e| e.to_string())?;
                 Ok(plan)
             });
@@ -279,9 +288,6 @@ impl ViewerApp {
             egui::Image::from_texture(egui::load::SizedTexture::new(id, size))
                 .sense(egui::Sense::drag()),
         );
-        if self.stream.highlight {
-            self.highlight_recent(ui, &camera, response.rect);
-        }
         let d = response.drag_delta();
         self.yaw_offset_deg -= d.x as f64 * self.fov_deg / size.x.max(1.0) as f64;
         self.pitch_deg = (self.pitch_deg + d.y as f64 * self.fov_deg / size.x.max(1.0) as f64)
@@ -298,54 +304,6 @@ impl ViewerApp {
             fov_deg: self.fov_deg,
             width: w,
             height: h,
-        }
-    }
-
-    /// Outline tiles whose latest level arrived within [`HIGHLIGHT`], fading with age: each
-    /// tile's bounding sphere projected into the view.
-    fn highlight_recent(&self, ui: &egui::Ui, camera: &PerspectiveCamera, rect: egui::Rect) {
-        let Source::Stream(st) = &self.source else {
-            return;
-        };
-        let (right, up, fwd) = camera.basis();
-        let t = (camera.fov_deg.to_radians() * 0.5).tan();
-        let (w, h) = (rect.width() as f64, rect.height() as f64);
-        let painter = ui.painter_at(rect);
-        // Only the two views drawn around the position.
-        let drawn = crate::plan::blend_pair(
-            &st.walk.views.iter().map(|v| v.s).collect::<Vec<_>>(),
-            self.s,
-        );
-        for rt in st.recent_tiles(HIGHLIGHT) {
-            if drawn.is_some_and(|(a, b, _)| rt.view != a && rt.view != b) {
-                continue;
-            }
-            let Some(view) = st.walk.views.get(rt.view) else {
-                continue;
-            };
-            let Some(tile) = view.tiles.get(rt.tile) else {
-                continue;
-            };
-            let p = view.position + tile.bound_center - camera.position;
-            let z = p.dot(fwd);
-            if z <= 1e-3 {
-                continue;
-            }
-            let x = p.dot(right) / (z * t);
-            let y = p.dot(up) / (z * t * h / w);
-            let r = (tile.bound_radius / (z * t) * w * 0.5).clamp(3.0, w);
-            let centre = egui::pos2(
-                rect.left() + ((x + 1.0) * 0.5 * w) as f32,
-                rect.top() + ((1.0 - y) * 0.5 * h) as f32,
-            );
-            let fade = (1.0 - rt.age_s / HIGHLIGHT.as_secs_f64()).clamp(0.0, 1.0);
-            let colour = egui::Color32::from_rgba_unmultiplied(255, 220, 0, (fade * 220.0) as u8);
-            painter.rect_stroke(
-                egui::Rect::from_center_size(centre, egui::vec2(r as f32, r as f32) * 1.4),
-                2.0,
-                egui::Stroke::new(1.5, colour),
-                egui::StrokeKind::Middle,
-            );
         }
     }
 
@@ -521,6 +479,12 @@ impl ViewerApp {
         ui.add(egui::Slider::new(&mut self.fov_deg, 20.0..=150.0).text("FOV °"));
         ui.add(egui::Slider::new(&mut self.pitch_deg, -90.0..=90.0).text("pitch °"));
         ui.add(egui::Slider::new(&mut self.yaw_offset_deg, -180.0..=180.0).text("yaw °"));
+        ui.separator();
+        ui.horizontal(|ui| {
+            ui.checkbox(&mut self.overlays.slab_colors, "slab colours");
+            ui.checkbox(&mut self.overlays.heat, "feedback heat map");
+            ui.checkbox(&mut self.overlays.holes, "holes");
+        });
         ui.separator();
         ui.checkbox(&mut self.auto_budget, "frame-time budget");
         ui.add(egui::Slider::new(&mut self.target_fps, 5.0..=120.0).text("target fps"));

@@ -11,7 +11,9 @@
 //! [`crate::refview::ViewTile::finest_level`] keeps the renderer from sampling finer than what
 //! arrived). A background is pasted at whatever level has arrived. Only the layers that
 //! changed are rebuilt, and the step reports which views changed so the renderer re-uploads
-//! just those ([`crate::gpu::Renderer::invalidate_view`]).
+//! just those ([`crate::gpu::Renderer::invalidate_view`]). Each tile's
+//! [`crate::refview::ViewTile::highlight`] is 1 when a level of it arrives and fades to 0 over
+//! [`HIGHLIGHT`], for the renderer's highlight overlay.
 //!
 //! Decoded textures stay in the views after the session's cache evicts their bytes: what was
 //! shown stays shown (the cache budget bounds downloaded bytes, not GPU memory).
@@ -33,6 +35,9 @@ use crate::source::{
     Walkthrough,
 };
 use crate::texture::{dilate_masked, Layer};
+
+/// How long a newly loaded tile stays highlighted.
+pub const HIGHLIGHT: Duration = Duration::from_secs(1);
 
 /// Errors connecting a streamed walkthrough.
 #[derive(Debug, thiserror::Error)]
@@ -263,7 +268,24 @@ impl StreamedWalkthrough {
             views.insert(self.walk.views[v].index);
         }
         report.changed_views = views.into_iter().collect();
+        self.fade_highlights(now);
         report
+    }
+
+    /// Set every tile's [`ViewTile::highlight`]: 1 when its latest level arrived, fading to 0
+    /// over [`HIGHLIGHT`] (the renderer tints by it; no re-upload needed).
+    fn fade_highlights(&mut self, now: Instant) {
+        for (v, items) in self.tile_items.iter().enumerate() {
+            for (slot, &item) in items.iter().enumerate() {
+                let h = self.items[item].loaded_at.map_or(0.0, |t| {
+                    (1.0 - now.duration_since(t).as_secs_f64() / HIGHLIGHT.as_secs_f64())
+                        .clamp(0.0, 1.0)
+                });
+                if let Some(tile) = self.walk.views[v].tiles.get_mut(slot) {
+                    tile.highlight = h as f32;
+                }
+            }
+        }
     }
 
     /// Consume the parts of `item` that are next in order; returns the layer that changed.

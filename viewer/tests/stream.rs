@@ -271,6 +271,16 @@ fn settle(st: &mut StreamedWalkthrough, r: &mut Renderer, s: f64, cam: &Perspect
     panic!("streaming did not settle: {:?}", st.session().stats());
 }
 
+/// Tiles highlighted as recently loaded.
+fn lit(st: &StreamedWalkthrough) -> usize {
+    st.walk
+        .views
+        .iter()
+        .flat_map(|v| &v.tiles)
+        .filter(|t| t.highlight > 0.0)
+        .count()
+}
+
 #[test]
 fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
     let Some(mut r) = renderer() else {
@@ -336,6 +346,23 @@ fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
     let cam = camera(&st.walk, s, 0.0);
     let coarse = render(&mut r, &st.walk, &cam, s);
     st.session_mut().set_level_cap(None);
+    // The first finer levels to arrive are highlighted at once.
+    let start = Instant::now();
+    loop {
+        let rep = st.step(s, &cam, None);
+        for v in &rep.changed_views {
+            r.invalidate_view(*v);
+        }
+        if rep.upgraded > 0 {
+            break;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "no finer level arrived"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(lit(&st) > 0);
     settle(&mut st, &mut r, s, &cam);
     let sharp = render(&mut r, &st.walk, &cam, s);
     r.forget_views();
@@ -361,6 +388,10 @@ fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
     // Nothing new: no view needs re-uploading.
     let rep = st.step(s, &cam, None);
     assert!(rep.changed_views.is_empty() && rep.arrivals == 0, "{rep:?}");
+    // The highlight fades within a second.
+    std::thread::sleep(viewer::stream::HIGHLIGHT);
+    st.step(s, &cam, None);
+    assert_eq!(lit(&st), 0);
 
     drop(st);
     drop(stop);
