@@ -1,11 +1,13 @@
 //! CPU reference of the GPU path: executes a [`FramePlan`] with the same math as
-//! `render.wgsl`/`blend.wgsl` (f32 uniforms, projective texturing from the reference
+//! `render.wgsl`/`composite.wgsl` (f32 uniforms, projective texturing from the reference
 //! viewpoint, reversed-Z depth test, opacity mask at 0.5, trilinear sampling with the same
 //! clamping) but without wgpu: near-plane clipping, edge-function rasterisation at pixel
 //! centres and perspective-correct interpolation are done here.
 //!
 //! It is slow and meant for small images: tests compare it with the GPU and state the
 //! tolerance (rasterisation tie rules at shared edges and texture-filter precision differ).
+//! It draws the full tile meshes (`FramePlan::mesh_level` is ignored), each view on its own
+//! as the GPU does for frames with tile ids, and no debug overlays.
 
 use glam::{Mat4, Vec3, Vec4};
 use tracks::Face;
@@ -223,7 +225,7 @@ fn raster(tri: [(Vec4, Vec3); 3], size: (u32, u32), frag: &mut impl FnMut(usize,
 
 /// Distance written for the sky (as `SKY_DISTANCE` in `render.wgsl`).
 pub const SKY_DISTANCE: f32 = 60000.0;
-/// Depth preference of the blend (as `SHARPNESS` in `blend.wgsl`).
+/// Depth preference of the blend (as `SHARPNESS` in `composite.wgsl`).
 pub const SHARPNESS: f32 = 20.0;
 
 /// Blend of view passes exactly as `fs_blend`: alpha of a pass is 0 for a hole, else the
