@@ -223,7 +223,7 @@ fn raster(tri: [(Vec4, Vec3); 3], size: (u32, u32), frag: &mut impl FnMut(usize,
     }
 }
 
-/// Distance written for the sky (as `SKY_DISTANCE` in `render.wgsl`).
+/// Distance written for the sky (as `SKY_DISTANCE` in `cube.wgsl`).
 pub const SKY_DISTANCE: f32 = 60000.0;
 /// Depth preference of the blend (as `SHARPNESS` in `composite.wgsl`).
 pub const SHARPNESS: f32 = 20.0;
