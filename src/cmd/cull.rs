@@ -45,7 +45,9 @@ pub struct Args {
     /// `conservative`, `paper` or `both`.
     #[arg(long, default_value = "both")]
     pub variant: String,
-    /// Also run the exact oracle (built-in or TOML scenes: ray casting through the geometry).
+    /// Also run the exact oracle: built-in or TOML scenes cast rays through the geometry;
+    /// POV-Ray imports render depth with POV-Ray at every oracle position (use a small
+    /// `--oracle-face-size`: each position is one POV-Ray base pass).
     #[arg(long)]
     pub oracle: bool,
     /// Oracle positions per track segment (both ends included).
@@ -86,8 +88,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.oracle && args.oracle_per_segment == 0 {
         bail!("--oracle-per-segment must be at least 1");
     }
-    let geometry = if args.oracle {
-        Some(load_geometry(&pre)?)
+    let mut geometry = if args.oracle {
+        Some(OracleSource::load(&dir, &pre, args.oracle_face_size)?)
     } else {
         None
     };
@@ -138,7 +140,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let cur_vis = geometry
             .as_ref()
             .map(|_| Visibility::new(cur.grid.face_size, cur.layers.len()));
-        if let Some(scene) = &geometry {
+        if let Some(source) = &mut geometry {
             let t = Instant::now();
             let n = oracle_n.unwrap_or(cur.grid.face_size);
             let positions = match &prev {
@@ -147,7 +149,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 None => Vec::new(),
             };
             for x in positions {
-                let depth = occlusion::oracle::depth_from_geometry(scene, x, n);
+                let depth = source.depth_from(x, n)?;
                 if let Some((p, Some(pv))) = &prev {
                     mark_visible(x, &depth, path.position(k - 1), &p.layers, &rule, pv);
                 }
@@ -198,10 +200,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tile_size: grid.tile_size,
         slab_ranges: ranges,
         runs,
-        oracle: geometry.as_ref().map(|_| OracleInfo {
+        oracle: geometry.as_ref().map(|o| OracleInfo {
             per_segment: args.oracle_per_segment,
             face_size: oracle_n.unwrap_or(grid.face_size),
-            source: "geometry".into(),
+            source: o.name().into(),
             seconds: oracle_seconds,
         }),
         load_seconds,
@@ -328,13 +330,94 @@ fn load_viewpoint(dir: &PrerenderDir, index: usize) -> anyhow::Result<Loaded> {
     })
 }
 
+/// Where the oracle's depth maps come from.
+enum OracleSource {
+    /// Ray casting through the exact geometry of a built-in or TOML scene.
+    Geometry(Scene),
+    /// POV-Ray base passes at the oracle positions (a POV-Ray import), written to a scratch
+    /// prerender directory that is removed afterwards.
+    Pov {
+        import: Box<prerender::pov::PovImport>,
+        scratch: PrerenderDir,
+        renders: usize,
+    },
+}
+
+impl OracleSource {
+    fn load(
+        dir: &PrerenderDir,
+        pre: &PrerenderReport,
+        face_size: Option<u32>,
+    ) -> anyhow::Result<OracleSource> {
+        if pre.renderer == "povray" {
+            let scratch = PrerenderDir::new(dir.root().join("cull-oracle"));
+            std::fs::remove_dir_all(scratch.root()).ok();
+            // The import as `import-pov` recorded it, at the oracle's face size.
+            let mut at_size = pre.clone();
+            at_size.face_size = face_size.unwrap_or(pre.face_size);
+            at_size.lowres_face_size = pre.lowres_face_size.min(at_size.face_size);
+            let import = super::slabs::pov_import_from_report(&scratch, &at_size)
+                .context("--oracle: POV-Ray depth renders at the oracle positions")?;
+            return Ok(OracleSource::Pov {
+                import: Box::new(import),
+                scratch,
+                renders: 0,
+            });
+        }
+        Ok(OracleSource::Geometry(load_geometry(pre)?))
+    }
+
+    fn name(&self) -> &'static str {
+        match self {
+            OracleSource::Geometry(_) => "geometry",
+            OracleSource::Pov { .. } => "depth-renders (POV-Ray)",
+        }
+    }
+
+    /// Radial depth seen from `x` at `n` pixels a face side (POV-Ray: the import's size).
+    fn depth_from(&mut self, x: DVec3, n: u32) -> anyhow::Result<tracks::CubeMap<f32>> {
+        match self {
+            OracleSource::Geometry(scene) => {
+                Ok(occlusion::oracle::depth_from_geometry(scene, x, n))
+            }
+            OracleSource::Pov {
+                import,
+                scratch,
+                renders,
+            } => {
+                let vp = tracks::ReferenceViewpoint {
+                    index: *renders,
+                    s: 0.0,
+                    position: x,
+                };
+                *renders += 1;
+                import
+                    .render_base(&vp, scratch)
+                    .with_context(|| format!("--oracle: POV-Ray depth at {x}"))?;
+                let path = scratch.depth_exr(vp.index);
+                let depth = store::read_depth_exr(&path)
+                    .with_context(|| format!("--oracle: reading {}", path.display()))?;
+                std::fs::remove_dir_all(scratch.sample_dir(vp.index)).ok();
+                Ok(depth)
+            }
+        }
+    }
+}
+
+impl Drop for OracleSource {
+    fn drop(&mut self) {
+        if let OracleSource::Pov { scratch, .. } = self {
+            std::fs::remove_dir_all(scratch.root()).ok();
+        }
+    }
+}
+
 /// Exact geometry of a built-in or TOML scene for the oracle.
 fn load_geometry(pre: &PrerenderReport) -> anyhow::Result<Scene> {
     if pre.renderer != "builtin" {
         bail!(
             "--oracle: scene `{}` was rendered by `{}`; the oracle needs exact geometry \
-             (built-in or TOML scenes), or depth renders at the oracle positions, which this \
-             command does not make",
+             (built-in or TOML scenes) or a POV-Ray import (depth rendered by POV-Ray)",
             pre.scene,
             pre.renderer
         );

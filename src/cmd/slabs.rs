@@ -293,7 +293,7 @@ fn render_layers(
 
 /// The POV-Ray import that wrote `pre`, re-created from `prerender.json` (scene path, up axis,
 /// face sizes, anti-aliasing, gamma, binary, threads and timeout as `import-pov` recorded them).
-fn pov_import_from_report(
+pub(crate) fn pov_import_from_report(
     dir: &PrerenderDir,
     pre: &PrerenderReport,
 ) -> anyhow::Result<prerender::pov::PovImport> {
