@@ -333,7 +333,7 @@ fn load_viewpoint(dir: &PrerenderDir, index: usize) -> anyhow::Result<Loaded> {
 /// Where the oracle's depth maps come from.
 enum OracleSource {
     /// Ray casting through the exact geometry of a built-in or TOML scene.
-    Geometry(Scene),
+    Geometry(Box<Scene>),
     /// POV-Ray base passes at the oracle positions (a POV-Ray import), written to a scratch
     /// prerender directory that is removed afterwards.
     Pov {
@@ -364,7 +364,7 @@ impl OracleSource {
                 renders: 0,
             });
         }
-        Ok(OracleSource::Geometry(load_geometry(pre)?))
+        Ok(OracleSource::Geometry(Box::new(load_geometry(pre)?)))
     }
 
     fn name(&self) -> &'static str {
@@ -378,7 +378,7 @@ impl OracleSource {
     fn depth_from(&mut self, x: DVec3, n: u32) -> anyhow::Result<tracks::CubeMap<f32>> {
         match self {
             OracleSource::Geometry(scene) => {
-                Ok(occlusion::oracle::depth_from_geometry(scene, x, n))
+                Ok(occlusion::oracle::depth_from_geometry(scene.as_ref(), x, n))
             }
             OracleSource::Pov {
                 import,
