@@ -300,6 +300,16 @@ mod tests {
         assert_eq!(c1.paths.len(), 2);
         assert!((c1.radius() - 1.0).abs() < 1e-15);
         assert_eq!(Cell::straight(&p[..1], 0).paths.len(), 0);
+        // Motion pieces: every stretch from the viewpoint cut in equal parts, ends exact.
+        let m = c1.motion_pieces(2);
+        assert_eq!(m.len(), 4);
+        assert_eq!(m[0], (DVec3::ZERO, DVec3::new(-0.5, 0.0, 0.0)));
+        assert_eq!(m[1].1, -DVec3::X);
+        assert_eq!(m[3], (DVec3::new(0.0, 0.0, 0.5), DVec3::Z));
+        assert_eq!(
+            Cell::straight(&p[..1], 0).motion_pieces(4),
+            vec![(DVec3::ZERO, DVec3::ZERO)]
+        );
         // Along a bent curve the cell follows the bend.
         let curve = [DVec3::ZERO, DVec3::X, DVec3::new(1.0, 0.0, 1.0)];
         let arc = arc_lengths(&curve);

@@ -352,6 +352,31 @@ mod tests {
     }
 
     #[test]
+    fn landing_window_spans_the_piece_and_the_depth_range() {
+        let tile = UvRect {
+            u0: 0.1,
+            u1: 0.2,
+            v0: -0.1,
+            v1: 0.0,
+        };
+        // No motion: the rays land on the tile itself.
+        let w = landing_window(tile, (DVec3::ZERO, DVec3::ZERO), 4.0, 8.0, 20.0).unwrap();
+        assert!(w.contains(&tile) && tile.contains(&w), "{w:?}");
+        // Sideways along +u from 0.5 to 1 m: shifts b·(1/h − 1/h₂) between the extremes.
+        let piece = (DVec3::new(0.5, 0.0, 0.0), DVec3::new(1.0, 0.0, 0.0));
+        let w = landing_window(tile, piece, 4.0, 8.0, 20.0).unwrap();
+        let (lo, hi) = (0.5 * (0.25 - 0.125), 1.0 * (0.25 - 0.05));
+        assert!(
+            (w.u0 - (0.1 + lo)).abs() < 1e-12 && (w.u1 - (0.2 + hi)).abs() < 1e-12,
+            "{w:?}"
+        );
+        assert!((w.v0 + 0.1).abs() < 1e-12 && w.v1.abs() < 1e-12, "{w:?}");
+        // A piece reaching the plane concludes nothing.
+        let ahead = (DVec3::ZERO, DVec3::new(0.0, 0.0, 4.0));
+        assert!(landing_window(tile, ahead, 4.0, 8.0, 20.0).is_none());
+    }
+
+    #[test]
     fn cell_point_behind_the_occluder_plane_concludes_nothing() {
         assert!(shifted((0.0, 0.0), DVec3::new(0.0, 0.0, 5.0), 5.0, 9.0).is_none());
         assert!(shifted((0.0, 0.0), DVec3::ZERO, 0.0, 9.0).is_none());
