@@ -27,6 +27,13 @@ pub struct OcclusionMap {
     pub depth: CubeMap<f32>,
 }
 
+impl Default for OcclusionMap {
+    /// An empty map of empty faces ([`OcclusionMap::reset`] sizes it).
+    fn default() -> Self {
+        OcclusionMap::new(0)
+    }
+}
+
 impl OcclusionMap {
     /// An empty map (nothing occludes yet).
     pub fn new(face_size: u32) -> Self {
@@ -40,28 +47,74 @@ impl OcclusionMap {
         self.opaque.face_size()
     }
 
+    /// Empty the map again (nothing occludes), keeping its buffers; resized when
+    /// `face_size` differs.
+    pub fn reset(&mut self, face_size: u32) {
+        if self.face_size() != face_size {
+            *self = OcclusionMap::new(face_size);
+            return;
+        }
+        self.opaque.as_mut_slice().fill(0);
+        self.depth.as_mut_slice().fill(f32::INFINITY);
+    }
+
     /// Add the opaque pixels of rectangle `(x0, y0, x1, y1)` of `face` from a slab layer.
     pub fn add_rect(
         &mut self,
         face: Face,
-        rect: (u32, u32, u32, u32),
+        rect: PixelBox,
         layer_alpha: &CubeMap<u8>,
         layer_depth: &CubeMap<f32>,
     ) {
-        let (x0, y0, x1, y1) = rect;
         let n = self.face_size() as usize;
         let base = face.index() * n * n;
-        let (la, ld) = (layer_alpha.as_slice(), layer_depth.as_slice());
         let (mo, md) = (self.opaque.as_mut_slice(), self.depth.as_mut_slice());
-        for y in y0 as usize..y1 as usize {
-            let r = base + y * n + x0 as usize..base + y * n + x1 as usize;
-            let dst = mo[r.clone()].iter_mut().zip(&mut md[r.clone()]);
-            for ((o, od), (&a, &d)) in dst.zip(la[r.clone()].iter().zip(&ld[r])) {
-                if a >= 128 {
-                    *o = 1;
-                    if d < *od {
-                        *od = d;
-                    }
+        add_rect_in_face(
+            &mut mo[base..base + n * n],
+            &mut md[base..base + n * n],
+            n,
+            rect,
+            layer_alpha.face(face),
+            layer_depth.face(face),
+        );
+    }
+
+    /// [`OcclusionMap::add_rect`] for every rectangle of `rects`, the faces in parallel (the
+    /// result does not depend on the order: opacity is set, depth takes the minimum).
+    pub fn add_rects(
+        &mut self,
+        rects: &[(Face, PixelBox)],
+        layer_alpha: &CubeMap<u8>,
+        layer_depth: &CubeMap<f32>,
+    ) {
+        let n = self.face_size() as usize;
+        let nn = n * n;
+        self.opaque
+            .as_mut_slice()
+            .par_chunks_mut(nn)
+            .zip(self.depth.as_mut_slice().par_chunks_mut(nn))
+            .enumerate()
+            .for_each(|(fi, (mo, md))| {
+                let face = Face::ALL[fi];
+                let (la, ld) = (layer_alpha.face(face), layer_depth.face(face));
+                for &(_, r) in rects.iter().filter(|(f, _)| *f == face) {
+                    add_rect_in_face(mo, md, n, r, la, ld);
+                }
+            });
+    }
+}
+
+/// The opaque pixels (alpha ≥ 128) of rectangle `r` of one face's layer into one face's map.
+fn add_rect_in_face(mo: &mut [u8], md: &mut [f32], n: usize, r: PixelBox, la: &[u8], ld: &[f32]) {
+    let (x0, y0, x1, y1) = r;
+    for y in y0 as usize..y1 as usize {
+        let row = y * n + x0 as usize..y * n + x1 as usize;
+        let dst = mo[row.clone()].iter_mut().zip(&mut md[row.clone()]);
+        for ((o, od), (&a, &d)) in dst.zip(la[row.clone()].iter().zip(&ld[row])) {
+            if a >= 128 {
+                *o = 1;
+                if d < *od {
+                    *od = d;
                 }
             }
         }
@@ -144,19 +197,46 @@ impl HolePunch {
     /// Punch the whole map.
     pub fn new(map: &OcclusionMap, rule: DiscontinuityRule, cell_radius: f64) -> HolePunch {
         let n = map.face_size();
+        let mut p = HolePunch {
+            rule,
+            cell_radius,
+            inv: CubeMap::filled(n, f64::NAN),
+            opacity: map.opaque.clone(),
+        };
+        p.rebuild(map, rule, cell_radius);
+        p
+    }
+
+    /// Punch the whole map again, as [`HolePunch::new`] would, reusing this one's buffers.
+    pub fn rebuild(&mut self, map: &OcclusionMap, rule: DiscontinuityRule, cell_radius: f64) {
+        let n = map.face_size();
         let nn = n as usize * n as usize;
-        let mut inv = vec![0.0f64; 6 * nn];
-        inv.par_chunks_mut(nn).enumerate().for_each(|(fi, out)| {
-            let face = Face::ALL[fi];
-            let (od, dd) = (map.opaque.face(face), map.depth.face(face));
-            for ((w, &o), &d) in out.iter_mut().zip(od).zip(dd) {
-                *w = inverse_depth(o, d);
-            }
-        });
-        let inv = CubeMap::from_vec(n, inv).unwrap_or_else(|| CubeMap::filled(n, f64::NAN));
-        let mut opacity = map.opaque.clone();
-        let ctx = PunchCtx::new(&inv, rule, cell_radius);
-        opacity
+        self.rule = rule;
+        self.cell_radius = cell_radius;
+        if self.inv.face_size() != n {
+            self.inv = CubeMap::filled(n, f64::NAN);
+        }
+        self.inv
+            .as_mut_slice()
+            .par_chunks_mut(nn)
+            .enumerate()
+            .for_each(|(fi, out)| {
+                let face = Face::ALL[fi];
+                let (od, dd) = (map.opaque.face(face), map.depth.face(face));
+                for ((w, &o), &d) in out.iter_mut().zip(od).zip(dd) {
+                    *w = inverse_depth(o, d);
+                }
+            });
+        if self.opacity.face_size() == n {
+            self.opacity
+                .as_mut_slice()
+                .copy_from_slice(map.opaque.as_slice());
+        } else {
+            self.opacity = map.opaque.clone();
+        }
+        let inv = &self.inv;
+        let ctx = PunchCtx::new(inv, rule, cell_radius);
+        self.opacity
             .as_mut_slice()
             .par_chunks_mut(nn)
             .enumerate()
@@ -189,27 +269,30 @@ impl HolePunch {
                     }
                 }
             });
-        HolePunch {
-            rule,
-            cell_radius,
-            inv,
-            opacity,
-        }
     }
 
     /// Bring the punched opacity up to date after the pixel rectangles `changed`
     /// (`(face, (x0, y0, x1, y1))`) of `map` changed.
     pub fn update(&mut self, map: &OcclusionMap, changed: &[(Face, PixelBox)]) {
         let n = map.face_size();
-        for &(face, (x0, y0, x1, y1)) in changed {
-            for y in y0..y1 {
-                for x in x0..x1 {
-                    let i = map.opaque.index(face, x, y);
-                    self.inv.as_mut_slice()[i] =
-                        inverse_depth(map.opaque.as_slice()[i], map.depth.as_slice()[i]);
+        let nu = n as usize;
+        self.inv
+            .as_mut_slice()
+            .par_chunks_mut(nu * nu)
+            .enumerate()
+            .for_each(|(fi, inv)| {
+                let face = Face::ALL[fi];
+                let (od, dd) = (map.opaque.face(face), map.depth.face(face));
+                for &(_, (x0, y0, x1, y1)) in changed.iter().filter(|(f, _)| *f == face) {
+                    for y in y0 as usize..y1 as usize {
+                        let row = y * nu + x0 as usize..y * nu + x1 as usize;
+                        let src = od[row.clone()].iter().zip(&dd[row.clone()]);
+                        for (w, (&o, &d)) in inv[row].iter_mut().zip(src) {
+                            *w = inverse_depth(o, d);
+                        }
+                    }
                 }
-            }
-        }
+            });
         let grow = |(x0, y0, x1, y1): (u32, u32, u32, u32)| {
             (
                 x0.saturating_sub(2),
@@ -248,11 +331,11 @@ impl HolePunch {
                 }
                 if rings {
                     for y in 0..n {
-                        let edge_row = y < 2 || y + 2 >= n;
-                        for x in 0..n {
-                            if edge_row || x < 2 || x + 2 >= n {
-                                redo(x, y);
-                            }
+                        if y < 2 || y + 2 >= n {
+                            (0..n).for_each(|x| redo(x, y));
+                        } else {
+                            // n ≥ 5 here: the two first and two last pixels.
+                            (0..2).chain(n - 2..n).for_each(|x| redo(x, y));
                         }
                     }
                 }
@@ -370,12 +453,20 @@ pub struct WindowQuery {
     planar_min: Vec<Vec<f32>>,
 }
 
-fn summed_area(opacity: &CubeMap<u8>) -> Vec<u32> {
+/// Per face `(n + 1)²` prefix sums of `opacity`, written into `sat` (reused when it has the
+/// right size: every entry is overwritten).
+fn summed_area(opacity: &CubeMap<u8>, mut sat: Vec<u32>) -> Vec<u32> {
     let n = opacity.face_size();
     let w = n as usize + 1;
-    let mut sat = vec![0u32; 6 * w * w];
+    if sat.len() != 6 * w * w {
+        sat = vec![0u32; 6 * w * w];
+    }
     sat.par_chunks_mut(w * w).enumerate().for_each(|(fi, s)| {
         let face = opacity.face(Face::ALL[fi]);
+        s[..w].fill(0);
+        for row in s.chunks_exact_mut(w) {
+            row[0] = 0;
+        }
         for (y, src) in face.chunks_exact(n as usize).enumerate() {
             let (above, below) = s.split_at_mut((y + 1) * w);
             let prev = &above[y * w..];
@@ -394,10 +485,20 @@ impl WindowQuery {
     /// Opacity queries only (the paper's variant never asks for depths): every depth bound
     /// is `-inf`.
     pub fn opacity_only(opacity: &CubeMap<u8>) -> Self {
+        Self::opacity_only_reusing(opacity, Vec::new())
+    }
+
+    /// [`WindowQuery::opacity_only`] into this query's buffers.
+    pub fn rebuild_opacity_only(&mut self, opacity: &CubeMap<u8>) {
+        let sat = std::mem::take(&mut self.sat);
+        *self = Self::opacity_only_reusing(opacity, sat);
+    }
+
+    fn opacity_only_reusing(opacity: &CubeMap<u8>, sat: Vec<u32>) -> Self {
         let n = opacity.face_size();
         WindowQuery {
             n,
-            sat: summed_area(opacity),
+            sat: summed_area(opacity, sat),
             block: n.max(1),
             blocks: 1,
             planar_min: vec![vec![f32::NEG_INFINITY; 36]],
@@ -407,8 +508,23 @@ impl WindowQuery {
     /// Build from the 0/1 opacity the mean is taken over (`opacity`, possibly hole-punched),
     /// and the occluders (`opaque`, `depth`) the nearest depth is taken over.
     pub fn new(opacity: &CubeMap<u8>, opaque: &CubeMap<u8>, depth: &CubeMap<f32>) -> Self {
+        Self::new_reusing(opacity, opaque, depth, Vec::new())
+    }
+
+    /// [`WindowQuery::new`] into this query's buffers (the summed-area tables, the largest).
+    pub fn rebuild(&mut self, opacity: &CubeMap<u8>, opaque: &CubeMap<u8>, depth: &CubeMap<f32>) {
+        let sat = std::mem::take(&mut self.sat);
+        *self = Self::new_reusing(opacity, opaque, depth, sat);
+    }
+
+    fn new_reusing(
+        opacity: &CubeMap<u8>,
+        opaque: &CubeMap<u8>,
+        depth: &CubeMap<f32>,
+        sat: Vec<u32>,
+    ) -> Self {
         let n = opacity.face_size();
-        let sat = summed_area(opacity);
+        let sat = summed_area(opacity, sat);
         let block = block_size(n);
         let blocks = n.div_ceil(block);
         let bb = blocks as usize * blocks as usize;
@@ -742,6 +858,84 @@ mod tests {
         let fresh = HolePunch::new(&m, rule, 1.0);
         assert_eq!(p.opacity.as_slice(), fresh.opacity.as_slice());
         assert_ne!(fresh.opacity.as_slice(), m.opaque.as_slice(), "some holes");
+    }
+
+    /// A map of random opaque pixels with smooth depth and occasional jumps.
+    fn random_map(n: u32, seed: u64) -> OcclusionMap {
+        let mut state = seed;
+        let mut rnd = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 33) as f64 / (1u64 << 31) as f64
+        };
+        let mut m = OcclusionMap::new(n);
+        for i in 0..m.opaque.as_slice().len() {
+            m.opaque.as_mut_slice()[i] = u8::from(rnd() < 0.8);
+            let base = 2.0 + (i % 13) as f32 * 0.05;
+            m.depth.as_mut_slice()[i] = if rnd() < 0.1 { base * 5.0 } else { base };
+        }
+        m
+    }
+
+    #[test]
+    fn add_rects_equals_adding_one_by_one() {
+        let n = 24;
+        let src = random_map(n, 99);
+        let alpha = src.opaque.map(|&o| o * 200);
+        let rects = [
+            (Face::PosX, (0, 0, 8, 8)),
+            (Face::NegZ, (4, 10, 24, 24)),
+            (Face::PosX, (6, 6, 20, 12)),
+            (Face::PosY, (0, 16, 8, 24)),
+        ];
+        let mut one = random_map(n, 5);
+        let mut all = one.clone();
+        for &(f, r) in &rects {
+            one.add_rect(f, r, &alpha, &src.depth);
+        }
+        all.add_rects(&rects, &alpha, &src.depth);
+        assert_eq!(one.opaque.as_slice(), all.opaque.as_slice());
+        assert_eq!(one.depth.as_slice(), all.depth.as_slice());
+        // Reset empties it, whatever it held.
+        all.reset(n);
+        assert_eq!(
+            all.opaque.as_slice(),
+            OcclusionMap::new(n).opaque.as_slice()
+        );
+        assert!(all.depth.as_slice().iter().all(|d| *d == f32::INFINITY));
+    }
+
+    #[test]
+    fn rebuilding_in_used_buffers_equals_building_afresh() {
+        let n = 20;
+        let rule = DiscontinuityRule::default();
+        let (a, b) = (random_map(n, 1), random_map(n, 2));
+        // Punch: buffers that held another map (and another radius) give the same result.
+        let mut p = HolePunch::new(&a, rule, 0.3);
+        p.rebuild(&b, rule, 1.0);
+        let fresh = HolePunch::new(&b, rule, 1.0);
+        assert_eq!(p.opacity.as_slice(), fresh.opacity.as_slice());
+        assert_ne!(fresh.opacity.as_slice(), b.opaque.as_slice(), "some holes");
+        // A buffer of another face size is replaced.
+        let mut small = HolePunch::new(&random_map(8, 3), rule, 1.0);
+        small.rebuild(&b, rule, 1.0);
+        assert_eq!(small.opacity.as_slice(), fresh.opacity.as_slice());
+        // Queries: every table equal to a fresh build.
+        let same = |x: &WindowQuery, y: &WindowQuery| {
+            assert_eq!((x.n, x.block, x.blocks), (y.n, y.block, y.blocks));
+            assert_eq!(x.sat, y.sat);
+            assert_eq!(x.planar_min, y.planar_min);
+        };
+        let mut q = WindowQuery::new(&a.opaque, &a.opaque, &a.depth);
+        q.rebuild(&fresh.opacity, &b.opaque, &b.depth);
+        same(&q, &WindowQuery::new(&fresh.opacity, &b.opaque, &b.depth));
+        q.rebuild_opacity_only(&a.opaque);
+        same(&q, &WindowQuery::opacity_only(&a.opaque));
+        let m8 = random_map(8, 3);
+        let mut q8 = WindowQuery::new(&m8.opaque, &m8.opaque, &m8.depth);
+        q8.rebuild(&b.opaque, &b.opaque, &b.depth);
+        same(&q8, &WindowQuery::new(&b.opaque, &b.opaque, &b.depth));
     }
 
     #[test]
