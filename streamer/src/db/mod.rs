@@ -10,6 +10,9 @@
 //! DB/manifest.json          the Manifest, written last, atomically
 //! DB/manifest.json.blake3   lowercase hex BLAKE3 of manifest.json (so a flipped byte in the
 //!                           manifest is caught too), written right after it
+//! DB/manifest.json.gz       gzip of manifest.json's exact bytes, written after it: what a
+//!                           server sends a client that accepts gzip (nginx `gzip_static`
+//!                           serves the same file); optional (older databases lack it)
 //! DB/objects/HH/HASH        payloads named by their BLAKE3; HH = the hash's first two digits
 //! ```
 //!
@@ -35,6 +38,8 @@ pub use verify::{verify, Problem, Report};
 pub const MANIFEST_FILE: &str = "manifest.json";
 /// Name of the manifest's checksum file.
 pub const MANIFEST_HASH_FILE: &str = "manifest.json.blake3";
+/// Name of the gzip-compressed copy of the manifest.
+pub const MANIFEST_GZ_FILE: &str = "manifest.json.gz";
 
 /// Errors of the database layer; each names the file at fault.
 #[derive(Debug, thiserror::Error)]
@@ -146,18 +151,61 @@ impl DbWriter {
         Ok(ptm_ref(object, enc, channels))
     }
 
-    /// Writes the manifest (atomically) and its checksum file: the database is complete.
+    /// Writes the manifest (compact JSON, atomically), its checksum file and its gzip copy:
+    /// the database is complete.
     pub fn finish(&self, manifest: &Manifest) -> Result<(), DbError> {
         let path = self.root.join(MANIFEST_FILE);
-        let mut json = serde_json::to_vec_pretty(manifest)
-            .map_err(|e| DbError::format(&path, e.to_string()))?;
+        let mut json =
+            serde_json::to_vec(manifest).map_err(|e| DbError::format(&path, e.to_string()))?;
         json.push(b'\n');
         write_atomic(&path, &json)?;
         write_atomic(
             &self.root.join(MANIFEST_HASH_FILE),
             format!("{}\n", hash_hex(&json)).as_bytes(),
+        )?;
+        let gz_path = self.root.join(MANIFEST_GZ_FILE);
+        write_atomic(
+            &gz_path,
+            &gzip(&json).map_err(|e| DbError::io(&gz_path, e))?,
         )
     }
+}
+
+/// `bytes` gzip-compressed at the best level (written once, served many times).
+pub fn gzip(bytes: &[u8]) -> io::Result<Vec<u8>> {
+    let mut enc = flate2::write::GzEncoder::new(
+        Vec::with_capacity(bytes.len() / 3),
+        flate2::Compression::best(),
+    );
+    enc.write_all(bytes)?;
+    enc.finish()
+}
+
+/// Why [`gunzip_limited`] failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum GunzipError {
+    /// Not gzip, truncated, or a bad CRC/length trailer.
+    #[error("not valid gzip: {0}")]
+    Invalid(io::Error),
+    /// The decompressed data would be longer than the limit.
+    #[error("decompresses to more than {limit} bytes")]
+    TooLarge { limit: u64 },
+}
+
+/// Decompresses a whole gzip stream (every member) holding at most `limit` bytes: a body
+/// that would expand further stops at `limit + 1` bytes with [`GunzipError::TooLarge`], so
+/// hostile input cannot exhaust memory. The trailer's CRC-32 and length are checked.
+pub fn gunzip_limited(gz: &[u8], limit: u64) -> Result<Vec<u8>, GunzipError> {
+    let dec = flate2::read::MultiGzDecoder::new(gz);
+    let mut out = Vec::with_capacity(gz.len().saturating_mul(4).min(limit as usize));
+    dec.take(limit.saturating_add(1))
+        .read_to_end(&mut out)
+        .map_err(GunzipError::Invalid)?;
+    if out.len() as u64 > limit {
+        return Err(GunzipError::TooLarge { limit });
+    }
+    Ok(out)
 }
 
 /// The manifest entry of an encoded PTM stored as `object`.

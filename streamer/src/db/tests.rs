@@ -169,10 +169,17 @@ fn a_flipped_byte_in_any_file_is_caught_and_named() {
     let dir = tmpdir("flip");
     build(&dir);
     let files = all_files(&dir);
-    assert_eq!(files.len(), 12);
+    assert_eq!(files.len(), 13);
+    assert!(files.contains(&dir.join(MANIFEST_GZ_FILE)));
     for f in &files {
         let orig = fs::read(f).unwrap();
-        for at in [0, orig.len() / 2, orig.len() - 1] {
+        // Every byte of the small files (the gzip copy's header included), three of the rest.
+        let ats: Vec<usize> = if orig.len() <= 128 {
+            (0..orig.len()).collect()
+        } else {
+            vec![0, 5, 9, orig.len() / 2, orig.len() - 1]
+        };
+        for at in ats {
             let mut bad = orig.clone();
             bad[at] ^= 0x10;
             fs::write(f, &bad).unwrap();
@@ -226,4 +233,64 @@ fn missing_truncated_and_stray_files() {
     assert!(r.problems.iter().any(|x| x.path == dir.join(MANIFEST_FILE)));
     assert!(Database::open(&dir).is_err());
     fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn manifest_is_compact_and_its_gzip_copy_matches() {
+    let dir = tmpdir("gz");
+    let (m, _) = build(&dir);
+    let json = fs::read(dir.join(MANIFEST_FILE)).unwrap();
+    assert!(
+        !json[..json.len() - 1].contains(&b'\n'),
+        "manifest is not compact"
+    );
+    assert_eq!(
+        fs::read_to_string(dir.join(MANIFEST_HASH_FILE)).unwrap(),
+        format!("{}\n", hash_hex(&json))
+    );
+    let gz = fs::read(dir.join(MANIFEST_GZ_FILE)).unwrap();
+    assert!(gz.len() < json.len());
+    assert_eq!(gunzip_limited(&gz, json.len() as u64).unwrap(), json);
+    assert_eq!(read_manifest(&dir).unwrap(), m);
+    // An older database without the copy is intact; verify says it is absent.
+    fs::remove_file(dir.join(MANIFEST_GZ_FILE)).unwrap();
+    let r = verify(&dir).unwrap();
+    assert!(r.is_intact(), "{r:?}");
+    assert!(
+        r.notes
+            .iter()
+            .any(|n| n.path == dir.join(MANIFEST_GZ_FILE) && n.what.contains("absent")),
+        "{:?}",
+        r.notes
+    );
+    // A copy of another manifest (stale) is damage, named on the .gz.
+    let mut other = json.clone();
+    other[1] = b' ';
+    fs::write(dir.join(MANIFEST_GZ_FILE), gzip(&other).unwrap()).unwrap();
+    let r = verify(&dir).unwrap();
+    assert_eq!(r.problems.len(), 1, "{r:?}");
+    assert_eq!(r.problems[0].path, dir.join(MANIFEST_GZ_FILE));
+    assert!(r.problems[0].what.contains("first at byte 1"), "{r:?}");
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn gunzip_is_bounded_and_rejects_garbage() {
+    let zeros = vec![0u8; 1 << 20];
+    let gz = gzip(&zeros).unwrap();
+    assert!(gz.len() < 4096);
+    assert_eq!(gunzip_limited(&gz, 1 << 20).unwrap().len(), 1 << 20);
+    assert!(matches!(
+        gunzip_limited(&gz, (1 << 20) - 1),
+        Err(GunzipError::TooLarge { limit }) if limit == (1 << 20) - 1
+    ));
+    assert!(matches!(
+        gunzip_limited(b"{\"not\":\"gzip\"}", 1 << 20),
+        Err(GunzipError::Invalid(_))
+    ));
+    assert!(matches!(
+        gunzip_limited(&gz[..gz.len() - 4], 1 << 20),
+        Err(GunzipError::Invalid(_))
+    ));
+    assert_eq!(gunzip_limited(&gzip(b"").unwrap(), 0).unwrap(), b"");
 }

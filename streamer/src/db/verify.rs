@@ -6,7 +6,10 @@ use std::path::{Path, PathBuf};
 
 use tracks::manifest::{object_rel_path, Manifest, ObjectRef, PtmRef};
 
-use super::{hash_hex, parse_manifest, DbError, MANIFEST_FILE, MANIFEST_HASH_FILE};
+use super::{
+    gunzip_limited, gzip, hash_hex, parse_manifest, DbError, MANIFEST_FILE, MANIFEST_GZ_FILE,
+    MANIFEST_HASH_FILE,
+};
 use crate::ptm;
 
 /// One thing wrong with a database.
@@ -39,7 +42,8 @@ impl Report {
     }
 }
 
-/// Checks the manifest, its checksum, every object's size and hash (referenced or not), and
+/// Checks the manifest, its checksum, its gzip copy (when present: it must decompress to
+/// exactly manifest.json's bytes), every object's size and hash (referenced or not), and
 /// every PTM level range's hash. `Err` only when `dir` itself cannot be read.
 pub fn verify(dir: &Path) -> Result<Report, DbError> {
     let mut report = Report::default();
@@ -48,7 +52,9 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
 
     let manifest_path = dir.join(MANIFEST_FILE);
     let hash_path = dir.join(MANIFEST_HASH_FILE);
-    let manifest = match fs::read(&manifest_path) {
+    let manifest_bytes = fs::read(&manifest_path);
+    check_manifest_gz(dir, manifest_bytes.as_deref().ok(), &mut report);
+    let manifest = match manifest_bytes {
         Err(e) => {
             report
                 .problems
@@ -216,6 +222,56 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
         }
     }
     Ok(report)
+}
+
+/// `manifest.json.gz` must decompress to exactly `manifest` (the bytes of manifest.json, when
+/// readable); a missing one is only a note (databases written before it existed).
+fn check_manifest_gz(dir: &Path, manifest: Option<&[u8]>, report: &mut Report) {
+    let path = dir.join(MANIFEST_GZ_FILE);
+    let gz = match fs::read(&path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            report.notes.push(Problem {
+                path,
+                what: "absent (a database written before it existed): servers send \
+                       manifest.json uncompressed"
+                    .into(),
+            });
+            return;
+        }
+        Err(e) => {
+            report.problems.push(Problem {
+                path,
+                what: e.to_string(),
+            });
+            return;
+        }
+        Ok(gz) => gz,
+    };
+    // One byte more than manifest.json is enough to tell "longer"; without it, 1 GiB.
+    let limit = manifest.map_or(1 << 30, |m| m.len() as u64 + 1);
+    // The gzip header's time, flags and OS bytes are outside its CRC: compare them with what
+    // the writer puts there, so a flipped byte in them is caught too.
+    let header = gzip(b"").unwrap_or_default();
+    let what = match (gunzip_limited(&gz, limit), manifest) {
+        (Err(e), _) => format!("{e}: the file is damaged"),
+        (Ok(_), _) if gz.len() < 10 || gz[..10] != header[..header.len().min(10)] => format!(
+            "gzip header {:02x?} differs from the writer's {:02x?}: the file is damaged",
+            &gz[..gz.len().min(10)],
+            &header[..header.len().min(10)]
+        ),
+        (Ok(plain), Some(m)) if plain != m => format!(
+            "decompresses to {} bytes that differ from manifest.json ({} bytes){}: the file is damaged or stale",
+            plain.len(),
+            m.len(),
+            plain
+                .iter()
+                .zip(m)
+                .position(|(a, b)| a != b)
+                .map_or(String::new(), |i| format!(", first at byte {i}"))
+        ),
+        (Ok(_), _) => return,
+    };
+    report.problems.push(Problem { path, what });
 }
 
 /// Checks each level range of a PTM object and that the PTM header agrees with the manifest.

@@ -211,10 +211,11 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
         }],
     };
     manifest.tracks[0].segments = synthetic_ach(&manifest, &track);
-    let json = serde_json::to_vec_pretty(&manifest).map_err(io::Error::other)?;
-    let tmp = root.join("manifest.json.tmp");
-    std::fs::write(&tmp, json)?;
-    std::fs::rename(tmp, root.join("manifest.json"))?;
+    // The database writer's manifest files (compact JSON, checksum, gzip copy), so a
+    // synthetic database streams like a built one.
+    crate::db::DbWriter::create(root)
+        .and_then(|w| w.finish(&manifest))
+        .map_err(io::Error::other)?;
     Ok(manifest)
 }
 
