@@ -10,6 +10,11 @@
 //! small tiles); it is an optimisation only — a static host answers 404 and clients fall back
 //! to one request per object.
 //!
+//! `GET /manifest.json` from a client whose `Accept-Encoding` allows gzip is answered with
+//! `manifest.json.gz` (`Content-Encoding: gzip`, its own ETag, `Vary: Accept-Encoding`), as
+//! nginx's `gzip_static on;` does with the same files; `/manifest.json.blake3` is served so a
+//! client can check the decoded manifest.
+//!
 //! Paths are never taken from the request: an object request names a hash, the hash is
 //! validated ([`tracks::manifest::object_rel_path`]) and must be one the manifest lists, and
 //! only then is `DB/objects/HH/HASH` opened.
@@ -116,6 +121,10 @@ pub struct ServedDb {
     root: PathBuf,
     manifest_bytes: Bytes,
     manifest_etag: String,
+    /// `manifest.json.gz` and its ETag, when present and decompressing to `manifest_bytes`.
+    manifest_gz: Option<(Bytes, String)>,
+    /// `manifest.json.blake3`, when present.
+    manifest_hash: Option<Bytes>,
     objects: HashSet<String>,
 }
 
@@ -147,13 +156,76 @@ impl ServedDb {
                 message: format!("object hash `{bad}` is not 64 lowercase hex digits"),
             });
         }
+        let read_optional = |name: &str| -> Result<Option<Vec<u8>>, ServerError> {
+            let path = root.join(name);
+            match std::fs::read(&path) {
+                Ok(b) => Ok(Some(b)),
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+                Err(source) => Err(ServerError::Io { path, source }),
+            }
+        };
+        let manifest_hash = read_optional(crate::db::MANIFEST_HASH_FILE)?.map(Bytes::from);
+        // A gzip copy that does not decode to the manifest's bytes is not served (and said so):
+        // clients then get the identity body, which is always right.
+        let manifest_gz = read_optional(crate::db::MANIFEST_GZ_FILE)?.and_then(|gz| {
+            match crate::db::gunzip_limited(&gz, raw.len() as u64) {
+                Ok(plain) if plain == raw => {
+                    let etag = format!("\"gz-{}\"", blake3::hash(&gz).to_hex());
+                    Some((Bytes::from(gz), etag))
+                }
+                Ok(_) => {
+                    tracing::warn!(
+                        "{}: does not decompress to manifest.json; serving it uncompressed",
+                        root.join(crate::db::MANIFEST_GZ_FILE).display()
+                    );
+                    None
+                }
+                Err(e) => {
+                    tracing::warn!(
+                        "{}: {e}; serving manifest.json uncompressed",
+                        root.join(crate::db::MANIFEST_GZ_FILE).display()
+                    );
+                    None
+                }
+            }
+        });
         Ok(ServedDb {
             root: root.to_path_buf(),
             manifest_etag: format!("\"{}\"", blake3::hash(&raw).to_hex()),
             manifest_bytes: Bytes::from(raw),
+            manifest_gz,
+            manifest_hash,
             objects,
         })
     }
+
+    /// Whether a valid `manifest.json.gz` is served to clients that accept gzip.
+    pub fn serves_gzip_manifest(&self) -> bool {
+        self.manifest_gz.is_some()
+    }
+}
+
+/// Whether an `Accept-Encoding` value allows gzip (`gzip` or `x-gzip` listed without
+/// `q=0`; `*` with a non-zero q and no explicit `gzip;q=0` counts too).
+pub fn accepts_gzip(value: &str) -> bool {
+    let mut star = false;
+    for item in value.split(',') {
+        let mut parts = item.split(';');
+        let name = parts.next().unwrap_or("").trim().to_ascii_lowercase();
+        let q_zero = parts.any(|p| {
+            let p = p.trim();
+            let Some(q) = p.strip_prefix("q=").or_else(|| p.strip_prefix("Q=")) else {
+                return false;
+            };
+            q.trim().parse::<f64>().is_ok_and(|q| q <= 0.0)
+        });
+        match name.as_str() {
+            "gzip" | "x-gzip" => return !q_zero,
+            "*" => star = !q_zero,
+            _ => {}
+        }
+    }
+    star
 }
 
 /// Every object hash a manifest refers to.
@@ -317,21 +389,28 @@ async fn route(s: &Shared, req: &Request<Incoming>) -> Resp {
     if path.contains("..") || path.contains('\\') || path.contains("//") || path.contains('%') {
         return reply(
             StatusCode::BAD_REQUEST,
-            "path must be /manifest.json or /objects/HH/HASH",
+            "path must be /manifest.json, /manifest.json.blake3 or /objects/HH/HASH",
         );
     }
     let mut resp = if path == "/manifest.json" {
-        let mut r = Response::new(Full::new(s.db.manifest_bytes.clone()));
-        let h = r.headers_mut();
-        h.insert(
-            header::CONTENT_TYPE,
-            HeaderValue::from_static("application/json"),
-        );
-        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
-        if let Ok(v) = HeaderValue::from_str(&s.db.manifest_etag) {
-            h.insert(header::ETAG, v);
+        manifest(s, req)
+    } else if path == "/manifest.json.blake3" {
+        match &s.db.manifest_hash {
+            Some(b) => {
+                let mut r = Response::new(Full::new(b.clone()));
+                let h = r.headers_mut();
+                h.insert(
+                    header::CONTENT_TYPE,
+                    HeaderValue::from_static("text/plain; charset=utf-8"),
+                );
+                h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+                r
+            }
+            None => reply(
+                StatusCode::NOT_FOUND,
+                "this database has no manifest.json.blake3",
+            ),
         }
-        r
     } else if let Some(rest) = path.strip_prefix("/objects/") {
         match object(s, rest, req).await {
             Ok(r) => r,
@@ -345,13 +424,47 @@ async fn route(s: &Shared, req: &Request<Incoming>) -> Resp {
     } else {
         reply(
             StatusCode::NOT_FOUND,
-            "unknown path; served: /manifest.json, /objects/HH/HASH, /bundle?p=…",
+            "unknown path; served: /manifest.json, /manifest.json.blake3, /objects/HH/HASH, /bundle?p=…",
         )
     };
     if head_only {
         *resp.body_mut() = Full::new(Bytes::new());
     }
     resp
+}
+
+/// `/manifest.json`: the gzip copy when the client accepts it, else the identity bytes.
+fn manifest(s: &Shared, req: &Request<Incoming>) -> Resp {
+    let gzip_ok = req
+        .headers()
+        .get_all(header::ACCEPT_ENCODING)
+        .iter()
+        .any(|v| v.to_str().is_ok_and(accepts_gzip));
+    let (body, etag, gz) = match &s.db.manifest_gz {
+        Some((gz, etag)) if gzip_ok => (gz.clone(), etag.as_str(), true),
+        _ => (
+            s.db.manifest_bytes.clone(),
+            s.db.manifest_etag.as_str(),
+            false,
+        ),
+    };
+    let mut r = Response::new(Full::new(body));
+    let h = r.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static("application/json"),
+    );
+    h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+    if let Ok(v) = HeaderValue::from_str(etag) {
+        h.insert(header::ETAG, v);
+    }
+    if s.db.manifest_gz.is_some() {
+        h.insert(header::VARY, HeaderValue::from_static("Accept-Encoding"));
+    }
+    if gz {
+        h.insert(header::CONTENT_ENCODING, HeaderValue::from_static("gzip"));
+    }
+    r
 }
 
 async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp, Resp> {
@@ -547,5 +660,36 @@ fn add_object_headers(r: &mut Resp, etag: &str) {
     h.insert(header::ACCEPT_RANGES, HeaderValue::from_static("bytes"));
     if let Ok(v) = HeaderValue::from_str(etag) {
         h.insert(header::ETAG, v);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::accepts_gzip;
+
+    #[test]
+    fn accept_encoding_gzip() {
+        for yes in [
+            "gzip",
+            "gzip, deflate, br",
+            "br;q=1.0, GZIP;q=0.5",
+            "x-gzip",
+            "*",
+            "deflate, *;q=0.1",
+        ] {
+            assert!(accepts_gzip(yes), "{yes}");
+        }
+        for no in [
+            "",
+            "identity",
+            "deflate, br",
+            "gzip;q=0",
+            "gzip; q=0.000",
+            "*;q=0",
+            "gzip;q=0, *",
+            "gzipx",
+        ] {
+            assert!(!accepts_gzip(no), "{no}");
+        }
     }
 }
