@@ -1,6 +1,8 @@
 //! One HTTP/1 connection to a database server, with reconnect and back-off, and checked
 //! downloads: every body is hashed (BLAKE3) and compared with the hash the manifest gives
-//! before anyone sees it.
+//! before anyone sees it. The manifest itself is asked for gzip-compressed
+//! ([`Connection::fetch_manifest`]), decompressed within a size limit and checked against
+//! `manifest.json.blake3`.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -96,6 +98,9 @@ pub enum ClientError {
     },
     #[error("manifest: {0}")]
     Manifest(String),
+    /// A compressed body that would decompress to more than the limit (never held whole).
+    #[error("{path}: decompresses to more than {limit} bytes")]
+    DecodedTooLarge { path: String, limit: u64 },
     #[error("request cancelled")]
     Cancelled,
     #[error("gave up after {attempts} attempts: {last}")]
@@ -156,6 +161,22 @@ pub struct BundlePiece<'a> {
     pub key: &'a FetchKey,
     pub len: u64,
     pub hash: &'a str,
+}
+
+/// A downloaded, checked manifest and what it cost.
+#[derive(Clone, Debug)]
+pub struct ManifestFetch {
+    pub manifest: Manifest,
+    /// Body bytes received for it (the checksum file and every attempt included).
+    pub transferred_bytes: u64,
+    /// Requests it took (the checksum file included).
+    pub requests: u64,
+    /// Length of the decoded `manifest.json`.
+    pub json_bytes: u64,
+    /// Whether the accepted body came gzip-encoded.
+    pub gzip: bool,
+    /// Whether it was checked against `manifest.json.blake3` (`false`: the server has none).
+    pub checked: bool,
 }
 
 /// One keep-alive connection, reopened on demand.
@@ -229,7 +250,8 @@ impl Connection {
         path: &str,
         range: Option<(u64, u64)>,
         cancel: Option<&AtomicBool>,
-    ) -> Result<Bytes, ClientError> {
+        accept_gzip: bool,
+    ) -> Result<(Bytes, bool), ClientError> {
         let max_body = self.policy.max_body;
         let host = self.url.host().to_string();
         let tr = |m: &dyn std::fmt::Display| ClientError::Transfer {
@@ -239,9 +261,12 @@ impl Connection {
         let mut builder = Request::get(path).header(header::HOST, host);
         if let Some((off, len)) = range {
             if len == 0 {
-                return Ok(Bytes::new());
+                return Ok((Bytes::new(), false));
             }
             builder = builder.header(header::RANGE, format!("bytes={}-{}", off, off + len - 1));
+        }
+        if accept_gzip {
+            builder = builder.header(header::ACCEPT_ENCODING, "gzip");
         }
         let req = builder.body(Empty::new()).map_err(|e| tr(&e))?;
         let sender = self.connect().await?;
@@ -254,6 +279,23 @@ impl Connection {
             }
         };
         let status = resp.status();
+        let encoding = resp.headers().get(header::CONTENT_ENCODING).map(|v| {
+            String::from_utf8_lossy(v.as_bytes())
+                .trim()
+                .to_ascii_lowercase()
+        });
+        let gzip = match encoding.as_deref() {
+            None | Some("identity") => false,
+            Some("gzip" | "x-gzip") if accept_gzip => true,
+            Some(other) if status.is_success() => {
+                self.sender = None;
+                return Err(ClientError::Transfer {
+                    path: path.to_string(),
+                    message: format!("unrequested Content-Encoding `{other}`"),
+                });
+            }
+            Some(_) => false,
+        };
         let ok = if range.is_some() {
             status == StatusCode::PARTIAL_CONTENT
         } else {
@@ -307,7 +349,7 @@ impl Connection {
         self.stats
             .bytes
             .fetch_add(out.len() as u64, Ordering::Relaxed);
-        Ok(out.freeze())
+        Ok((out.freeze(), gzip))
     }
 
     /// GET with reconnect and exponential back-off on connection errors and 5xx.
@@ -317,13 +359,24 @@ impl Connection {
         range: Option<(u64, u64)>,
         cancel: Option<&AtomicBool>,
     ) -> Result<Bytes, ClientError> {
+        Ok(self.get_retrying(path, range, cancel, false).await?.0)
+    }
+
+    /// [`Connection::get`], optionally accepting a gzip body: `(body as sent, gzip-encoded)`.
+    async fn get_retrying(
+        &mut self,
+        path: &str,
+        range: Option<(u64, u64)>,
+        cancel: Option<&AtomicBool>,
+        accept_gzip: bool,
+    ) -> Result<(Bytes, bool), ClientError> {
         let full = format!("{}{}", self.url.prefix, path);
         let mut delay = self.policy.backoff_start;
         let attempts = self.policy.attempts.max(1);
         let mut attempt = 0;
         loop {
             attempt += 1;
-            match self.get_once(&full, range, cancel).await {
+            match self.get_once(&full, range, cancel, accept_gzip).await {
                 Ok(b) => return Ok(b),
                 Err(e) if e.is_retryable() && attempt < attempts => {
                     tracing::debug!("{full}: {e}; retrying in {delay:?}");
@@ -546,10 +599,94 @@ impl Connection {
         })
     }
 
-    /// Download and parse `manifest.json`.
+    /// Download, check and parse `manifest.json` ([`Connection::fetch_manifest`]).
     pub async fn manifest(&mut self) -> Result<Manifest, ClientError> {
-        let raw = self.get("/manifest.json", None, None).await?;
-        serde_json::from_slice(&raw).map_err(|e| ClientError::Manifest(e.to_string()))
+        Ok(self.fetch_manifest().await?.manifest)
+    }
+
+    /// Download `manifest.json.blake3`, then `manifest.json` with `Accept-Encoding: gzip`;
+    /// a gzip body is decompressed within [`RetryPolicy::max_body`] (more →
+    /// [`ClientError::DecodedTooLarge`]), and the decoded bytes must hash to the checksum
+    /// file before they are parsed. A body that fails (bad gzip, wrong hash) is fetched again
+    /// (up to `checksum_attempts` times), uncompressed once gzip has failed; nothing that
+    /// failed is returned. A server without the checksum file (404) gives an unchecked
+    /// manifest (`checked: false`), as [`crate::db::read_manifest`] accepts a database
+    /// without one.
+    pub async fn fetch_manifest(&mut self) -> Result<ManifestFetch, ClientError> {
+        const PATH: &str = "/manifest.json";
+        let mut transferred = 0u64;
+        let mut requests = 0u64;
+        let expected = match self.get("/manifest.json.blake3", None, None).await {
+            Ok(text) => {
+                transferred += text.len() as u64;
+                requests += 1;
+                let line = std::str::from_utf8(&text).unwrap_or("").trim();
+                if object_rel_path(line).is_none() {
+                    return Err(ClientError::Manifest(
+                        "manifest.json.blake3 is not a BLAKE3 hex line".into(),
+                    ));
+                }
+                Some(line.to_string())
+            }
+            Err(ClientError::Status { status: 404, .. }) => {
+                requests += 1;
+                tracing::warn!("server has no manifest.json.blake3: the manifest is unchecked");
+                None
+            }
+            Err(e) => return Err(e),
+        };
+        let limit = self.policy.max_body;
+        let attempts = self.policy.checksum_attempts.max(1);
+        let mut gzip_failed = false;
+        for _ in 0..attempts {
+            let (body, gzip) = self.get_retrying(PATH, None, None, !gzip_failed).await?;
+            transferred += body.len() as u64;
+            requests += 1;
+            let json = if gzip {
+                match crate::db::gunzip_limited(&body, limit) {
+                    Ok(j) => j,
+                    Err(crate::db::GunzipError::TooLarge { limit }) => {
+                        return Err(ClientError::DecodedTooLarge {
+                            path: PATH.into(),
+                            limit,
+                        })
+                    }
+                    Err(e) => {
+                        self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
+                        tracing::warn!("{PATH}: {e}; fetching it uncompressed");
+                        gzip_failed = true;
+                        continue;
+                    }
+                }
+            } else {
+                body.to_vec()
+            };
+            if let Some(want) = &expected {
+                let got = blake3::hash(&json).to_hex();
+                if got.as_str() != want {
+                    self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
+                    tracing::warn!(
+                        "{PATH}: hashes to {got}, manifest.json.blake3 says {want}; fetching again"
+                    );
+                    gzip_failed |= gzip;
+                    continue;
+                }
+            }
+            let manifest = serde_json::from_slice(&json)
+                .map_err(|e| ClientError::Manifest(format!("line {}: {e}", e.line())))?;
+            return Ok(ManifestFetch {
+                manifest,
+                transferred_bytes: transferred,
+                requests,
+                json_bytes: json.len() as u64,
+                gzip,
+                checked: expected.is_some(),
+            });
+        }
+        Err(ClientError::Checksum {
+            path: PATH.into(),
+            attempts,
+        })
     }
 }
 

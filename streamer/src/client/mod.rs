@@ -28,7 +28,8 @@ pub use budget::{
 pub use cache::{Cache, CacheError};
 pub use fetcher::{FetchOutcome, FetchRequest, Fetcher, FetcherConfig};
 pub use http::{
-    BundlePiece, ClientError, ClientStats, Connection, FetchKey, RetryPolicy, ServerUrl,
+    BundlePiece, ClientError, ClientStats, Connection, FetchKey, ManifestFetch, RetryPolicy,
+    ServerUrl,
 };
 pub use items::{ItemTable, Part};
 pub use live::{Arrival, LiveConfig, LiveError, LiveSession, LiveStats};
