@@ -10,6 +10,12 @@
 //! current segment's ACH tiles) and the fraction of needed pixels present at their needed
 //! level ([`crate::visibility`]). [`write_outputs`] writes `walk.json`, a CSV, a PNG plot
 //! and a Markdown summary.
+//!
+//! The manifest is charged too: its transferred bytes (gzip when the server offers it, plus
+//! the checksum file) occupy each run's link from t = 0, and the walk starts when it has
+//! arrived (`manifest_s`), as a viewer can ask for nothing before it knows the tiles. Frame
+//! times and `time_to_first_frame_s` count from t = 0, so they include the manifest;
+//! the per-frame means are over the walk itself.
 
 pub mod load;
 mod plot;
@@ -205,8 +211,13 @@ pub struct FrameRecord {
 pub struct RunReport {
     pub strategy: String,
     pub bandwidth_bps: Option<u64>,
-    /// First time every visible pixel had at least its tile's coarsest level (`null` = never).
+    /// First time every visible pixel had at least its tile's coarsest level (`null` = never),
+    /// counted from the request for the manifest.
     pub time_to_first_frame_s: Option<f64>,
+    /// Bytes transferred for the manifest (body bytes of its requests), charged at t = 0.
+    pub manifest_bytes: u64,
+    /// When the manifest had arrived on this run's link: the walk starts then.
+    pub manifest_s: f64,
     pub mean_needed_fraction: f64,
     pub mean_quality: f64,
     pub bytes: u64,
@@ -249,6 +260,13 @@ pub enum WalkError {
     Output { path: String, message: String },
 }
 
+/// What fetching the manifest cost: body bytes and requests.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ManifestCost {
+    pub bytes: u64,
+    pub requests: u64,
+}
+
 pub(crate) struct Scene {
     manifest: Manifest,
     table: ItemTable,
@@ -286,12 +304,16 @@ pub async fn run_walk(
 ) -> Result<WalkReport, WalkError> {
     let stats = std::sync::Arc::new(ClientStats::default());
     let mut conn = Connection::new(url.clone(), RetryPolicy::default(), stats.clone());
-    let manifest = conn.manifest().await?;
-    let scene = load_scene(manifest, config.track)?;
+    let fetched = conn.fetch_manifest().await?;
+    let cost = ManifestCost {
+        bytes: fetched.transferred_bytes,
+        requests: fetched.requests,
+    };
+    let scene = load_scene(fetched.manifest, config.track)?;
     let mut runs = Vec::new();
     for &bw in bandwidths {
         for &strategy in strategies {
-            let r = sim::run_one(&mut conn, &stats, &scene, config, strategy, bw).await?;
+            let r = sim::run_one(&mut conn, &stats, &scene, config, strategy, bw, cost).await?;
             progress(&r);
             runs.push(r);
         }
@@ -353,8 +375,8 @@ pub fn write_outputs(report: &WalkReport, dir: &Path) -> Result<(), WalkError> {
 pub fn summary_markdown(r: &WalkReport) -> String {
     let mut s = format!(
         "# Walk: {} / {} ({:.1} m at {} m/s, latency {} ms)\n\n\
-         | bandwidth | strategy | first frame (s) | needed fraction | quality | bytes | bytes/m | checksum failures |\n\
-         |---|---|---|---|---|---|---|---|\n",
+         | bandwidth | strategy | manifest bytes | manifest (s) | first frame (s) | needed fraction | quality | bytes | bytes/m | checksum failures |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n",
         r.scene,
         r.track,
         r.length_m,
@@ -363,9 +385,11 @@ pub fn summary_markdown(r: &WalkReport) -> String {
     );
     for run in &r.runs {
         s += &format!(
-            "| {} | {} | {} | {:.3} | {:.3} | {} | {:.0} | {} |\n",
+            "| {} | {} | {} | {:.2} | {} | {:.3} | {:.3} | {} | {:.0} | {} |\n",
             run.bandwidth_bps.map_or("unlimited".into(), format_bps),
             run.strategy,
+            run.manifest_bytes,
+            run.manifest_s,
             run.time_to_first_frame_s
                 .map_or("never".into(), |t| format!("{t:.2}")),
             run.mean_needed_fraction,

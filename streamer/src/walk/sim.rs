@@ -5,7 +5,10 @@ use std::sync::atomic::Ordering;
 use bytes::Bytes;
 use tracks::PerspectiveCamera;
 
-use super::{look_at, FrameRecord, RunReport, Scene, Strategy, VirtualLink, WalkConfig, WalkError};
+use super::{
+    look_at, FrameRecord, ManifestCost, RunReport, Scene, Strategy, VirtualLink, WalkConfig,
+    WalkError,
+};
 use crate::client::{
     next_segment, plan, segment_at, BudgetParams, BundlePiece, Cache, ClientStats, Connection,
     FetchKey, ItemInfo, ItemTable, LinkEstimate, LiveCount, MotionTracker, Part, PlanInput,
@@ -427,7 +430,15 @@ pub(crate) async fn run_one(
     cfg: &WalkConfig,
     strategy: Strategy,
     bandwidth: Option<u64>,
+    manifest: ManifestCost,
 ) -> Result<RunReport, WalkError> {
+    // The manifest comes first, alone on the link from t = 0; the walk (and every tile
+    // request) starts when it has arrived, `t0` later.
+    let t0 = VirtualLink::new(bandwidth, cfg.latency_s).schedule_requests(
+        0.0,
+        manifest.bytes,
+        manifest.requests,
+    );
     let items = scene.table.infos();
     let n = items.len();
     let naive = strategy == Strategy::Naive;
@@ -541,12 +552,12 @@ pub(crate) async fn run_one(
         let (quality, needed, complete) =
             frame_metrics(&scene.table, &sim.items, &have, ach, &counts);
         if complete && first_frame.is_none() {
-            first_frame = Some(t);
+            first_frame = Some(t0 + t);
         }
         sim.issue(conn, t).await?;
         max_cache = max_cache.max(sim.cache.used());
         frames.push(FrameRecord {
-            t_s: t,
+            t_s: t0 + t,
             s_m: s,
             quality,
             needed_fraction: needed,
@@ -576,6 +587,8 @@ pub(crate) async fn run_one(
         strategy: strategy.name(),
         bandwidth_bps: bandwidth,
         time_to_first_frame_s: first_frame,
+        manifest_bytes: manifest.bytes,
+        manifest_s: t0,
         mean_needed_fraction: mean(&|f| f.needed_fraction),
         mean_quality: mean(&|f| f.quality),
         bytes: sim.bytes,
