@@ -536,6 +536,7 @@ async fn client_recovers_when_the_server_is_killed_and_restarted() {
         done += 1;
     }
     // Kill the server, queue more work, bring a new server up on the same port later.
+    let connected = f.stats().reconnects.load(Ordering::Relaxed);
     srv.stop().await;
     for r in &reqs[20..] {
         f.submit(r.clone());
@@ -551,7 +552,8 @@ async fn client_recovers_when_the_server_is_killed_and_restarted() {
         let _ = cache.insert(out.key, data, 0.0);
         done += 1;
     }
-    assert!(f.stats().reconnects.load(Ordering::Relaxed) > 4);
+    // New connections to the restarted server (bundled requests need only a few).
+    assert!(f.stats().reconnects.load(Ordering::Relaxed) > connected);
     // The cache holds only checked bytes and stays within its budget.
     assert!(cache.used() <= cache.budget());
     for r in &reqs {

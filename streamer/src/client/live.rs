@@ -7,7 +7,8 @@
 //! camera and — when it has them — live visible-pixel counts from the GPU
 //! ([`LiveSession::update`]). The session then
 //!
-//! 1. takes the finished downloads: their times feed the running [`LinkEstimate`], their
+//! 1. takes the finished downloads: their times (one sample per HTTP request, a bundle's
+//!    parts sharing theirs) feed the running [`LinkEstimate`], their
 //!    checked bytes go into the [`Cache`] (which never exceeds its byte budget; an insert that
 //!    does not fit is dropped and asked for again later);
 //! 2. runs [`plan`] in the selected [`PriorityMode`] (ACH of the current segment culled to the
@@ -15,8 +16,9 @@
 //!    live counts come from the CPU reference of the visibility pass ([`SceneIndex::count`])
 //!    merged with the caller's (per item the larger count and the finer needed level);
 //! 3. pins what the plan keeps resident and the coarsest levels of the current segment (its
-//!    ACH tiles and the backgrounds of its two viewpoints), submits the plan's downloads and
-//!    cancels queued or running ones the plan no longer wants;
+//!    ACH tiles and the backgrounds of its two viewpoints), submits the plan's downloads (all
+//!    at once, with their sizes, so the fetcher bundles them up to what one latency carries at
+//!    the estimated bandwidth) and cancels queued or running ones the plan no longer wants;
 //! 4. returns the parts that arrived since the last call ([`Arrival`]: checked bytes only).
 //!
 //! When the server goes away, the connections retry with back-off; failed downloads are
@@ -114,9 +116,9 @@ pub struct LiveStats {
     pub t_s: f64,
     /// Bytes per second received over the last two seconds.
     pub bytes_per_s: f64,
-    /// Downloads running (at most the fetcher's worker count).
+    /// Parts in requests on the wire (a bundle carries many).
     pub in_flight: usize,
-    /// Downloads queued behind them.
+    /// Parts queued behind them.
     pub queued: usize,
     pub cache_used: u64,
     pub cache_budget: u64,
@@ -134,7 +136,10 @@ pub struct LiveStats {
     pub visible_fraction: f64,
     /// Bytes received in total.
     pub bytes: u64,
+    /// HTTP requests completed (one bundle carries many parts).
     pub requests: u64,
+    /// Parts received (checked).
+    pub parts: u64,
     pub failed_requests: u64,
     pub checksum_failures: u64,
     pub reconnects: u64,
@@ -172,6 +177,8 @@ pub struct LiveSession {
     start: Instant,
     paused_until: Option<Instant>,
     recent: VecDeque<(Instant, u64)>,
+    /// Requests already fed to the link estimate (recent ids).
+    timed: VecDeque<u64>,
     stats: LiveStats,
 }
 
@@ -260,6 +267,7 @@ impl LiveSession {
             start: Instant::now(),
             paused_until: None,
             recent: VecDeque::new(),
+            timed: VecDeque::new(),
             stats,
         })
     }
@@ -462,6 +470,7 @@ impl LiveSession {
         }
         let paused = self.paused_until.is_some_and(|u| now < u);
         if !paused {
+            let mut submit = Vec::new();
             for r in &p.requests {
                 let parts = &self.table.items[r.item].parts;
                 let end = (r.part + r.parts.max(1)).min(parts.len());
@@ -476,14 +485,21 @@ impl LiveSession {
                         continue;
                     }
                     self.requested.insert(part.key.clone());
-                    self.fetcher.submit(FetchRequest {
-                        key: part.key.clone(),
-                        expected_hash: part.hash.clone(),
-                        // Parts of one run in order.
-                        priority: r.priority - j as f64 * 1e-6,
-                    });
+                    submit.push((
+                        FetchRequest {
+                            key: part.key.clone(),
+                            expected_hash: part.hash.clone(),
+                            // Parts of one run in order.
+                            priority: r.priority - j as f64 * 1e-6,
+                        },
+                        // Known sizes let whole objects (meshes) travel in bundles too.
+                        Some(part.bytes),
+                    ));
                 }
             }
+            // All at once, so the workers see the frame's requests together and bundle them.
+            self.fetcher.set_bundle_max_bytes(self.bundle_bytes());
+            self.fetcher.submit_all(submit);
         } else {
             // Nothing new while the server is failing; keep what is queued for the plan.
             for r in &p.requests {
@@ -502,6 +518,19 @@ impl LiveSession {
         }
         self.update_stats(now, t, &have, &seg_ach, &backgrounds);
         arrivals
+    }
+
+    /// Bytes one bundle may carry: what one latency carries at the estimated bandwidth (a
+    /// bundle then costs about two latencies), at least the configured floor, at most 4 MiB.
+    fn bundle_bytes(&self) -> u64 {
+        let (bps, latency) = self.link.get();
+        let bdp = bps / 8.0 * latency;
+        let floor = self.config.fetcher.bundle_max_bytes.max(1);
+        if bdp.is_finite() && bdp > 0.0 {
+            (bdp as u64).clamp(floor, (4 << 20).max(floor))
+        } else {
+            floor
+        }
     }
 
     /// The backgrounds of the two viewpoints around `s`.
@@ -569,9 +598,16 @@ impl LiveSession {
             match done.result {
                 Ok(data) => {
                     let len = data.len() as u64;
-                    self.link.observe(len, done.elapsed_s);
+                    // One sample per HTTP request (a bundle's keys share theirs).
+                    if !self.timed.contains(&done.request.id) {
+                        self.link.observe(done.request.bytes, done.elapsed_s);
+                        if self.timed.len() == 64 {
+                            self.timed.pop_front();
+                        }
+                        self.timed.push_back(done.request.id);
+                    }
                     self.stats.bytes += len;
-                    self.stats.requests += 1;
+                    self.stats.parts += 1;
                     self.stats.last_error = None;
                     self.recent.push_back((now, len));
                     let users = self.users.get(&done.key).cloned().unwrap_or_default();
@@ -622,7 +658,7 @@ impl LiveSession {
         }
         let span = t.min(window.as_secs_f64()).max(0.25);
         let pending = self.fetcher.pending();
-        let workers = self.config.fetcher.max_in_flight.max(1);
+        let running = self.fetcher.running();
         let fs = self.fetcher.stats();
         let quality = if seg_ach.is_empty() {
             0.0
@@ -651,8 +687,8 @@ impl LiveSession {
         self.stats = LiveStats {
             t_s: t,
             bytes_per_s: self.recent.iter().map(|r| r.1).sum::<u64>() as f64 / span,
-            in_flight: pending.min(workers),
-            queued: pending.saturating_sub(workers),
+            in_flight: running,
+            queued: pending.saturating_sub(running),
             cache_used: self.cache.used(),
             cache_budget: self.cache.budget(),
             cache_peak: self.stats.cache_peak.max(self.cache.used()),
@@ -660,6 +696,7 @@ impl LiveSession {
             coarse_fraction: coarse,
             checksum_failures: fs.checksum_failures.load(Ordering::Relaxed),
             reconnects: fs.reconnects.load(Ordering::Relaxed),
+            requests: fs.requests.load(Ordering::Relaxed),
             link: self.link.get(),
             ..std::mem::take(&mut self.stats)
         };
