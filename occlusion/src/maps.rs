@@ -398,7 +398,13 @@ impl PunchCtx<'_> {
             return false;
         }
         if x >= 2 && y >= 2 && x + 2 < n && y + 2 < n {
-            // Fast path: all five pixels on this face.
+            // Fast path: all five pixels on this face. No neighbour farther by enough to open
+            // a gap (the first test below, on the farthest neighbour): no gap.
+            let far = fi[i - 1].min(fi[i + 1]).min(fi[i - nu]).min(fi[i + nu]);
+            let opens = self.cell_radius * (wp - far) > self.min_parallax;
+            if !opens {
+                return false;
+            }
             for st in [-1isize, 1, -(nu as isize), nu as isize] {
                 let at = |k: isize| fi[(i as isize + k * st) as usize];
                 let wq = at(1);
@@ -451,6 +457,41 @@ pub struct WindowQuery {
     /// `planar_min[level]`: per (face, axis) a grid of `side(level)²` minima; level 0 has one
     /// cell per block, each level above halves the side (min of 2 × 2).
     planar_min: Vec<Vec<f32>>,
+    /// Per (face, axis, block) the smallest cosine between the block's directions and the
+    /// axis (depends on the face size only: kept across rebuilds); empty until needed.
+    min_cos: Vec<f64>,
+}
+
+/// Per face, per axis (`Face::ALL` order), per block of `block` pixels: the smallest cosine
+/// between the block's directions and the axis, at a corner (the cosine is monotonic in `u`
+/// and in `v` over a face).
+fn block_min_cos(n: u32, block: u32, blocks: u32) -> Vec<f64> {
+    let bb = blocks as usize * blocks as usize;
+    let mut out = vec![0.0; 36 * bb];
+    out.par_chunks_mut(6 * bb)
+        .enumerate()
+        .for_each(|(fi, out)| {
+            let face = Face::ALL[fi];
+            let nf = n as f64;
+            for by in 0..blocks {
+                for bx in 0..blocks {
+                    let bi = (by * blocks + bx) as usize;
+                    let (x0, x1) = ((bx * block) as f64, ((bx + 1) * block).min(n) as f64);
+                    let (y0, y1) = ((by * block) as f64, ((by + 1) * block).min(n) as f64);
+                    let corners = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)].map(|(x, y)| {
+                        face.dir_from_uv(2.0 * x / nf - 1.0, 1.0 - 2.0 * y / nf)
+                            .normalize()
+                    });
+                    for along in Face::ALL {
+                        out[along.index() * bb + bi] = corners
+                            .iter()
+                            .map(|d| d.dot(along.forward()))
+                            .fold(f64::INFINITY, f64::min);
+                    }
+                }
+            }
+        });
+    out
 }
 
 /// Per face `(n + 1)²` prefix sums of `opacity`, written into `sat` (reused when it has the
@@ -491,7 +532,9 @@ impl WindowQuery {
     /// [`WindowQuery::opacity_only`] into this query's buffers.
     pub fn rebuild_opacity_only(&mut self, opacity: &CubeMap<u8>) {
         let sat = std::mem::take(&mut self.sat);
+        let min_cos = std::mem::take(&mut self.min_cos);
         *self = Self::opacity_only_reusing(opacity, sat);
+        self.min_cos = min_cos;
     }
 
     fn opacity_only_reusing(opacity: &CubeMap<u8>, sat: Vec<u32>) -> Self {
@@ -502,19 +545,26 @@ impl WindowQuery {
             block: n.max(1),
             blocks: 1,
             planar_min: vec![vec![f32::NEG_INFINITY; 36]],
+            min_cos: Vec::new(),
         }
     }
 
     /// Build from the 0/1 opacity the mean is taken over (`opacity`, possibly hole-punched),
     /// and the occluders (`opaque`, `depth`) the nearest depth is taken over.
     pub fn new(opacity: &CubeMap<u8>, opaque: &CubeMap<u8>, depth: &CubeMap<f32>) -> Self {
-        Self::new_reusing(opacity, opaque, depth, Vec::new())
+        Self::new_reusing(opacity, opaque, depth, Vec::new(), Vec::new())
     }
 
     /// [`WindowQuery::new`] into this query's buffers (the summed-area tables, the largest).
     pub fn rebuild(&mut self, opacity: &CubeMap<u8>, opaque: &CubeMap<u8>, depth: &CubeMap<f32>) {
         let sat = std::mem::take(&mut self.sat);
-        *self = Self::new_reusing(opacity, opaque, depth, sat);
+        // The cosines depend on the face size only.
+        let min_cos = if self.n == opacity.face_size() {
+            std::mem::take(&mut self.min_cos)
+        } else {
+            Vec::new()
+        };
+        *self = Self::new_reusing(opacity, opaque, depth, sat, min_cos);
     }
 
     fn new_reusing(
@@ -522,12 +572,18 @@ impl WindowQuery {
         opaque: &CubeMap<u8>,
         depth: &CubeMap<f32>,
         sat: Vec<u32>,
+        min_cos: Vec<f64>,
     ) -> Self {
         let n = opacity.face_size();
         let sat = summed_area(opacity, sat);
         let block = block_size(n);
         let blocks = n.div_ceil(block);
         let bb = blocks as usize * blocks as usize;
+        let min_cos = if min_cos.len() == 36 * bb {
+            min_cos
+        } else {
+            block_min_cos(n, block, blocks)
+        };
         // Per face, the block minimum of radial occluder depth …
         let mut radial_min = vec![f32::INFINITY; 6 * bb];
         radial_min
@@ -556,39 +612,27 @@ impl WindowQuery {
                     }
                 }
             });
-        // … times the smallest cosine between the block and each face axis (at a corner: the
-        // cosine is monotonic in u and in v over a face) bounds the planar depth from below.
+        // … times the smallest cosine between the block and each face axis bounds the planar
+        // depth from below.
         let mut planar_min = vec![f32::INFINITY; 36 * bb];
         planar_min
             .par_chunks_mut(6 * bb)
+            .zip(min_cos.par_chunks(6 * bb))
             .enumerate()
-            .for_each(|(fi, out)| {
-                let face = Face::ALL[fi];
-                let nf = n as f64;
-                for by in 0..blocks {
-                    for bx in 0..blocks {
-                        let bi = (by * blocks + bx) as usize;
-                        let dmin = radial_min[fi * bb + bi] as f64;
-                        if !dmin.is_finite() {
-                            continue;
-                        }
-                        let (x0, x1) = ((bx * block) as f64, ((bx + 1) * block).min(n) as f64);
-                        let (y0, y1) = ((by * block) as f64, ((by + 1) * block).min(n) as f64);
-                        let corners = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)].map(|(x, y)| {
-                            face.dir_from_uv(2.0 * x / nf - 1.0, 1.0 - 2.0 * y / nf)
-                                .normalize()
-                        });
-                        for along in Face::ALL {
-                            let c = corners
-                                .iter()
-                                .map(|d| d.dot(along.forward()))
-                                .fold(f64::INFINITY, f64::min);
-                            out[along.index() * bb + bi] = if c > 0.0 {
-                                (dmin * c) as f32
-                            } else {
-                                f32::NEG_INFINITY
-                            };
-                        }
+            .for_each(|(fi, (out, cos))| {
+                let radial = &radial_min[fi * bb..(fi + 1) * bb];
+                for (bi, &dmin) in radial.iter().enumerate() {
+                    let dmin = dmin as f64;
+                    if !dmin.is_finite() {
+                        continue;
+                    }
+                    for along in 0..6 {
+                        let c = cos[along * bb + bi];
+                        out[along * bb + bi] = if c > 0.0 {
+                            (dmin * c) as f32
+                        } else {
+                            f32::NEG_INFINITY
+                        };
                     }
                 }
             });
@@ -618,6 +662,7 @@ impl WindowQuery {
             block,
             blocks,
             planar_min: levels,
+            min_cos,
         }
     }
 
