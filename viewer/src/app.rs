@@ -6,7 +6,7 @@
 //! A [`Source::Stream`] walkthrough is filled from `railview serve` while it is shown (see
 //! [`crate::stream`]): each frame steps the streaming session, re-uploads only the views that
 //! changed, and every few frames hands the GPU's visible-pixel counts back as live counts.
-//! Extra panels: bandwidth, requests in flight, cache used against its budget, downloading
+//! Extra panels: bandwidth, requests and parts in flight, cache used against its budget, downloading
 //! quality over time, the priority strategy, a level cap, and the renderer's highlight of
 //! tiles that arrived in the last second; toggles for the renderer's other overlays.
 
@@ -405,8 +405,9 @@ impl ViewerApp {
             _ => "no occlusion culling recorded".to_string(),
         });
         ui.label(format!(
-            "{:.1} kB/s · {} in flight, {} queued · link {:.2} Mbit/s, {:.0} ms",
+            "{:.1} kB/s · {} requests made · {} parts in flight, {} queued · link {:.2} Mbit/s, {:.0} ms",
             stats.bytes_per_s / 1e3,
+            stats.requests,
             stats.in_flight,
             stats.queued,
             stats.link.0 / 1e6,
