@@ -110,13 +110,11 @@ fn add_rect_in_face(mo: &mut [u8], md: &mut [f32], n: usize, r: PixelBox, la: &[
     for y in y0 as usize..y1 as usize {
         let row = y * n + x0 as usize..y * n + x1 as usize;
         let dst = mo[row.clone()].iter_mut().zip(&mut md[row.clone()]);
+        // Selects instead of branches, so that the loop vectorises.
         for ((o, od), (&a, &d)) in dst.zip(la[row.clone()].iter().zip(&ld[row])) {
-            if a >= 128 {
-                *o = 1;
-                if d < *od {
-                    *od = d;
-                }
-            }
+            let on = a >= 128;
+            *o = if on { 1 } else { *o };
+            *od = if on && d < *od { d } else { *od };
         }
     }
 }
