@@ -981,6 +981,46 @@ mod tests {
         same(&q8, &WindowQuery::new(&b.opaque, &b.opaque, &b.depth));
     }
 
+    /// Many small updates reaching face edges and corners, each compared with punching the
+    /// whole map again (what crosses an edge must be redone on the neighbouring face).
+    #[test]
+    fn updates_at_face_edges_and_corners_equal_punching_again() {
+        let n = 16;
+        let rule = DiscontinuityRule::default();
+        for seed in [11u64, 12, 13] {
+            let src = random_map(n, seed);
+            let alpha = src.opaque.map(|&o| o * 255);
+            let mut m = OcclusionMap::new(n);
+            // Start from a partial map so later rectangles create and hide gaps.
+            m.add_rects(&[(Face::PosZ, (4, 4, 12, 12))], &alpha, &src.depth);
+            let mut p = HolePunch::new(&m, rule, 1.0);
+            let mut state = seed;
+            let mut rnd = move |k: u32| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((state >> 33) % k as u64) as u32
+            };
+            for _ in 0..12 {
+                let mut batch = Vec::new();
+                for _ in 0..3 {
+                    let face = Face::ALL[rnd(6) as usize];
+                    // Corners, edges and thin strips along them.
+                    let (w, h) = (1 + rnd(5), 1 + rnd(5));
+                    let x0 = [0, n - w, rnd(n - w + 1)][rnd(3) as usize];
+                    let y0 = [0, n - h, rnd(n - h + 1)][rnd(3) as usize];
+                    batch.push((face, (x0, y0, x0 + w, y0 + h)));
+                }
+                m.add_rects(&batch, &alpha, &src.depth);
+                p.update(&m, &batch);
+                let fresh = HolePunch::new(&m, rule, 1.0);
+                assert_eq!(p.opacity.as_slice(), fresh.opacity.as_slice(), "{batch:?}");
+            }
+            let fresh = HolePunch::new(&m, rule, 1.0);
+            assert_ne!(fresh.opacity.as_slice(), m.opaque.as_slice(), "some holes");
+        }
+    }
+
     #[test]
     fn depth_jump_becomes_a_hole_on_the_near_side() {
         let n = 16;
