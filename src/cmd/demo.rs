@@ -263,7 +263,7 @@ fn use_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
                 "--bandwidth".into(),
                 "2mbit,unlimited".into(),
                 "--strategy".into(),
-                "naive,ach+prefetch".into(),
+                "naive,ach+prefetch,visibility+prefetch".into(),
                 "--pause".into(),
                 "1".into(),
                 "--out".into(),
