@@ -159,6 +159,9 @@ pub struct ViewpointCull {
 /// motion in `cell`. Slabs are processed front to back; each tile is tested against the
 /// occlusion map of the tiles kept in earlier slabs, and the kept tiles of a slab join the map
 /// once the whole slab is done.
+///
+/// The per-pixel buffers (about 19 bytes per cube-map pixel: 115 MB at 6 × 1024²) stay with
+/// the calling thread for its next call; the decisions do not depend on them.
 pub fn cull_viewpoint(
     cell: &Cell,
     grid: &TileGrid,
