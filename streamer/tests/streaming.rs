@@ -229,7 +229,8 @@ async fn bundles_are_checked_piece_by_piece_and_fall_back_on_static_hosts() {
     for (q, want) in [
         ("/bundle".to_string(), 400),
         ("/bundle?p=../../secret.txt".to_string(), 400),
-        (format!("/bundle?p={unknown}"), 404),
+        // 422, not 404: a 404 on /bundle means "no bundles here" (a static host) to clients.
+        (format!("/bundle?p={unknown}"), 422),
         (format!("/bundle?p={h}:{}:5", size - 1), 416),
         (format!("/bundle?p={h}:0:99999999999999999"), 416),
         // Over the header limit before the entry limit (unit-tested in server::bundle).

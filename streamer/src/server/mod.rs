@@ -580,7 +580,7 @@ async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
     for (i, e) in entries.iter().enumerate() {
         if !s.db.objects.contains(&e.object) {
             return Err(reply(
-                StatusCode::NOT_FOUND,
+                StatusCode::UNPROCESSABLE_ENTITY,
                 format!(
                     "bundle entry {i}: object {} is not in this database",
                     e.object
@@ -597,7 +597,7 @@ async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
         let not_there = |err: std::io::Error| {
             tracing::warn!("{}: {err}", path.display());
             reply(
-                StatusCode::NOT_FOUND,
+                StatusCode::UNPROCESSABLE_ENTITY,
                 format!(
                     "bundle entry {i}: object {} is listed but not readable",
                     e.object
