@@ -172,13 +172,26 @@ impl StreamedWalkthrough {
                 }
                 None => Kind::Background,
             };
+            // Bound what a bad server can make us decode to what the item should be: a tile
+            // is at most one tile square, a background one cube map (RGBA, all levels: 4/3 of
+            // the base, doubled for headroom).
+            let limits = match &kind {
+                Kind::Tile { .. } => Limits {
+                    max_side: m.tile_size.max(1),
+                    max_decoded_bytes: 8 * u64::from(m.tile_size).pow(2),
+                },
+                Kind::Background => Limits {
+                    max_side: n.saturating_mul(6).max(1),
+                    max_decoded_bytes: 8 * 6 * u64::from(n).pow(2),
+                },
+            };
             items.push(ItemState {
                 view: it.viewpoint,
                 kind,
                 waiting: HashMap::new(),
                 next: 0,
                 first_level_part: it.info.first_level_part,
-                decoder: Decoder::new(Limits::default()),
+                decoder: Decoder::new(limits),
                 mesh: None,
                 level: None,
                 loaded_at: None,
@@ -304,9 +317,6 @@ impl StreamedWalkthrough {
             }
             it.next += 1;
         }
-        // Parts before `next` never come back as new; drop stale ones.
-        let next = it.next;
-        it.waiting.retain(|&p, _| p > next);
         let level = it.decoder.finest_level();
         if level == before || level.is_none() {
             return Ok(None);

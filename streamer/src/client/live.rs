@@ -481,7 +481,7 @@ impl LiveSession {
                     }
                     // Bytes the cache would refuse (pinned data leaves no room) are not
                     // downloaded at all.
-                    if self.stats.pinned_bytes + part.bytes > self.cache.budget() {
+                    if self.stats.pinned_bytes.saturating_add(part.bytes) > self.cache.budget() {
                         continue;
                     }
                     self.requested.insert(part.key.clone());
