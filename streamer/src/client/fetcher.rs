@@ -133,6 +133,13 @@ impl Shared {
         };
         let keys: Vec<FetchKey> = if bundles {
             let mut order: Vec<&Queued> = q.waiting.values().collect();
+            // At most `bundle_entries` are taken: select those, then sort only them (the
+            // queue can hold thousands of keys and every worker takes this lock).
+            let k = self.bundle_entries;
+            if k < order.len() {
+                order.select_nth_unstable_by(k, by_priority);
+                order.truncate(k);
+            }
             order.sort_by(by_priority);
             let mut keys = Vec::new();
             let mut bytes = 0u64;
