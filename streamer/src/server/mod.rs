@@ -540,14 +540,7 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
         .await
         .map_err(not_there)?;
     file.read_exact(&mut data).await.map_err(not_there)?;
-    if let Some(n) = s.config.corrupt_every.filter(|&n| n > 0) {
-        let k = s.stats.requests.load(Ordering::Relaxed);
-        if k.is_multiple_of(n) && !data.is_empty() {
-            let i = (k as usize * 7919) % data.len();
-            data[i] ^= 0x5a;
-            s.stats.corrupted.fetch_add(1, Ordering::Relaxed);
-        }
-    }
+    maybe_corrupt(s, &mut data);
     let mut r = Response::new(Full::new(Bytes::from(data)));
     add_object_headers(&mut r, &etag);
     if range.is_some() {
@@ -633,18 +626,23 @@ async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
             .await
             .map_err(not_there)?;
     }
-    if let Some(n) = s.config.corrupt_every.filter(|&n| n > 0) {
-        let k = s.stats.requests.load(Ordering::Relaxed);
-        if k.is_multiple_of(n) && !body.is_empty() {
-            let i = (k as usize * 7919) % body.len();
-            body[i] ^= 0x5a;
-            s.stats.corrupted.fetch_add(1, Ordering::Relaxed);
-        }
-    }
+    maybe_corrupt(s, &mut body);
     let mut r = Response::new(Full::new(Bytes::from(body)));
     add_object_headers(&mut r, &etag);
     r.headers_mut().remove(header::ACCEPT_RANGES);
     Ok(r)
+}
+
+/// Fault injection (`ServerConfig::corrupt_every`): flip one byte of every n-th response body.
+fn maybe_corrupt(s: &Shared, data: &mut [u8]) {
+    if let Some(n) = s.config.corrupt_every.filter(|&n| n > 0) {
+        let k = s.stats.requests.load(Ordering::Relaxed);
+        if k.is_multiple_of(n) && !data.is_empty() {
+            let i = (k as usize * 7919) % data.len();
+            data[i] ^= 0x5a;
+            s.stats.corrupted.fetch_add(1, Ordering::Relaxed);
+        }
+    }
 }
 
 fn add_object_headers(r: &mut Resp, etag: &str) {
