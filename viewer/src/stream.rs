@@ -112,6 +112,57 @@ pub struct StreamedWalkthrough {
     pub errors: Vec<String>,
 }
 
+/// The state of session item `i` (nothing received yet).
+fn item_state(session: &LiveSession, i: usize) -> Result<ItemState, StreamError> {
+    let m = session.manifest();
+    let entry = &m.tracks[session.track()];
+    let n = m.face_size;
+    let it = &session.table().items[i];
+    let kind = match it.tile {
+        Some(ti) => {
+            let t = &entry.viewpoints[it.viewpoint].tiles[ti];
+            if t.slab as usize >= m.slabs.len() {
+                return Err(StreamError::Manifest(format!(
+                    "{}: slab {} beyond the manifest's {} slabs",
+                    tile_key(entry.viewpoints[it.viewpoint].index, t.slab, t.tile),
+                    t.slab,
+                    m.slabs.len()
+                )));
+            }
+            Kind::Tile {
+                tile: t.tile,
+                slab: t.slab,
+            }
+        }
+        None => Kind::Background,
+    };
+    // Bound what a bad server can make us decode to what the item should be: a tile
+    // is at most one tile square, a background one cube map (RGBA, all levels: 4/3 of
+    // the base, doubled for headroom).
+    let limits = match &kind {
+        Kind::Tile { .. } => Limits {
+            max_side: m.tile_size.max(1),
+            max_decoded_bytes: 8 * u64::from(m.tile_size).pow(2),
+        },
+        Kind::Background => Limits {
+            max_side: n.saturating_mul(6).max(1),
+            max_decoded_bytes: 8 * 6 * u64::from(n).pow(2),
+        },
+    };
+    Ok(ItemState {
+        view: it.viewpoint,
+        kind,
+        waiting: HashMap::new(),
+        next: 0,
+        first_level_part: it.info.first_level_part,
+        decoder: Decoder::new(limits),
+        mesh: None,
+        level: None,
+        loaded_at: None,
+        failed: false,
+    })
+}
+
 impl StreamedWalkthrough {
     /// Connect to `url` and lay out the (still empty) views of `track`.
     pub fn connect(
@@ -151,52 +202,9 @@ impl StreamedWalkthrough {
                 tiles: Vec::new(),
             })
             .collect();
-        let table = session.table();
-        let mut items = Vec::with_capacity(table.items.len());
-        for it in &table.items {
-            let kind = match it.tile {
-                Some(ti) => {
-                    let t = &entry.viewpoints[it.viewpoint].tiles[ti];
-                    if t.slab as usize >= m.slabs.len() {
-                        return Err(StreamError::Manifest(format!(
-                            "{}: slab {} beyond the manifest's {} slabs",
-                            tile_key(entry.viewpoints[it.viewpoint].index, t.slab, t.tile),
-                            t.slab,
-                            m.slabs.len()
-                        )));
-                    }
-                    Kind::Tile {
-                        tile: t.tile,
-                        slab: t.slab,
-                    }
-                }
-                None => Kind::Background,
-            };
-            // Bound what a bad server can make us decode to what the item should be: a tile
-            // is at most one tile square, a background one cube map (RGBA, all levels: 4/3 of
-            // the base, doubled for headroom).
-            let limits = match &kind {
-                Kind::Tile { .. } => Limits {
-                    max_side: m.tile_size.max(1),
-                    max_decoded_bytes: 8 * u64::from(m.tile_size).pow(2),
-                },
-                Kind::Background => Limits {
-                    max_side: n.saturating_mul(6).max(1),
-                    max_decoded_bytes: 8 * 6 * u64::from(n).pow(2),
-                },
-            };
-            items.push(ItemState {
-                view: it.viewpoint,
-                kind,
-                waiting: HashMap::new(),
-                next: 0,
-                first_level_part: it.info.first_level_part,
-                decoder: Decoder::new(limits),
-                mesh: None,
-                level: None,
-                loaded_at: None,
-                failed: false,
-            });
+        let mut items = Vec::with_capacity(session.table().items.len());
+        for i in 0..session.table().items.len() {
+            items.push(item_state(&session, i)?);
         }
         let dense = vec![vec![empty; layer_count]; views.len()];
         let tile_items = vec![Vec::new(); views.len()];
@@ -236,6 +244,27 @@ impl StreamedWalkthrough {
         live: Option<&[LiveCount]>,
     ) -> StepReport {
         let arrived = self.session.update(s, camera, live);
+        // Tiles of viewpoint tables that arrived: new items (appended, never renumbered).
+        for i in self.items.len()..self.session.table().items.len() {
+            match item_state(&self.session, i) {
+                Ok(state) => self.items.push(state),
+                Err(e) => {
+                    self.errors.push(e.to_string());
+                    self.items.push(ItemState {
+                        view: self.session.table().items[i].viewpoint,
+                        kind: Kind::Background,
+                        waiting: HashMap::new(),
+                        next: 0,
+                        first_level_part: 0,
+                        decoder: Decoder::new(Limits::default()),
+                        mesh: None,
+                        level: None,
+                        loaded_at: None,
+                        failed: true,
+                    });
+                }
+            }
+        }
         let now = Instant::now();
         let mut report = StepReport {
             arrivals: arrived.len(),

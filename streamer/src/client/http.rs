@@ -14,7 +14,10 @@ use hyper::client::conn::http1::SendRequest;
 use hyper::{header, Request, StatusCode};
 use hyper_util::rt::TokioIo;
 use tokio::net::TcpStream;
-use tracks::manifest::{object_rel_path, Manifest};
+use tracks::manifest::{object_rel_path, Manifest, ObjectRef};
+
+use crate::db::hash_matches;
+use crate::db::split::{assemble, decode_table, TopManifest, ViewTable};
 
 /// Where a database is served: `http://HOST:PORT[/PREFIX]`.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -163,10 +166,10 @@ pub struct BundlePiece<'a> {
     pub hash: &'a str,
 }
 
-/// A downloaded, checked manifest and what it cost.
+/// A downloaded, checked top manifest and what it cost.
 #[derive(Clone, Debug)]
 pub struct ManifestFetch {
-    pub manifest: Manifest,
+    pub top: TopManifest,
     /// Body bytes received for it (the checksum file and every attempt included).
     pub transferred_bytes: u64,
     /// Requests it took (the checksum file included).
@@ -418,7 +421,7 @@ impl Connection {
                     continue;
                 }
             }
-            if blake3::hash(&data).to_hex().as_str() == expected_hash {
+            if hash_matches(&data, expected_hash) {
                 return Ok(data);
             }
             self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
@@ -467,7 +470,7 @@ impl Connection {
             let mut out = Vec::with_capacity(parts.len());
             for &(off, len, hash) in parts {
                 let piece = data.slice((off - start) as usize..(off - start + len) as usize);
-                if blake3::hash(&piece).to_hex().as_str() != hash {
+                if !hash_matches(&piece, hash) {
                     self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
                     tracing::warn!("{path}: checksum mismatch at offset {off}, fetching again");
                     continue 'attempt;
@@ -581,7 +584,7 @@ impl Connection {
             for p in pieces {
                 let piece = data.slice(at..at + p.len as usize);
                 at += p.len as usize;
-                if blake3::hash(&piece).to_hex().as_str() != p.hash {
+                if !hash_matches(&piece, p.hash) {
                     self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
                     tracing::warn!(
                         "/bundle: checksum mismatch in {}, fetching again",
@@ -599,9 +602,40 @@ impl Connection {
         })
     }
 
-    /// Download, check and parse `manifest.json` ([`Connection::fetch_manifest`]).
+    /// The whole manifest: the top ([`Connection::fetch_manifest`]) and every viewpoint's
+    /// table ([`Connection::fetch_table`]), assembled (for tools that want everything at once;
+    /// a viewer fetches tables as it needs them).
     pub async fn manifest(&mut self) -> Result<Manifest, ClientError> {
-        Ok(self.fetch_manifest().await?.manifest)
+        let top = self.fetch_manifest().await?.top;
+        let mut tables = Vec::with_capacity(top.tracks.len());
+        for t in &top.tracks {
+            let mut row = Vec::with_capacity(t.viewpoints.len());
+            for v in &t.viewpoints {
+                row.push(self.fetch_table(&v.table, v.index).await?);
+            }
+            tables.push(row);
+        }
+        let refs: Vec<Vec<Option<&ViewTable>>> = tables
+            .iter()
+            .map(|row| row.iter().map(Some).collect())
+            .collect();
+        Ok(assemble(&top, &refs))
+    }
+
+    /// Download viewpoint `viewpoint`'s table object, check it against its hash (re-fetched
+    /// on mismatch, never used when wrong) and decode it.
+    pub async fn fetch_table(
+        &mut self,
+        table: &ObjectRef,
+        viewpoint: usize,
+    ) -> Result<ViewTable, ClientError> {
+        let key = FetchKey {
+            object: table.hash.clone(),
+            range: None,
+        };
+        let bytes = self.fetch_checked(&key, &table.hash, None).await?;
+        decode_table(&bytes, viewpoint)
+            .map_err(|e| ClientError::Manifest(format!("viewpoint {viewpoint}: {e}")))
     }
 
     /// Download `manifest.json.blake3`, then `manifest.json` with `Accept-Encoding: gzip`;
@@ -672,10 +706,10 @@ impl Connection {
                     continue;
                 }
             }
-            let manifest = serde_json::from_slice(&json)
-                .map_err(|e| ClientError::Manifest(format!("line {}: {e}", e.line())))?;
+            let top = crate::db::parse_top(std::path::Path::new("manifest.json"), &json)
+                .map_err(|e| ClientError::Manifest(e.to_string()))?;
             return Ok(ManifestFetch {
-                manifest,
+                top,
                 transferred_bytes: transferred,
                 requests,
                 json_bytes: json.len() as u64,

@@ -1,9 +1,11 @@
 //! A track of a manifest flattened into streamable items (tiles and backgrounds), each a list
-//! of checked parts, plus the ACH lists of its segments in item numbers.
+//! of checked parts, plus the ACH lists of its segments in item numbers. The table grows as
+//! viewpoints' tile tables arrive: a tile whose table is missing has no item yet and so
+//! cannot be requested.
 
 use std::collections::HashMap;
 
-use tracks::manifest::{object_rel_path, Manifest, PtmRef};
+use tracks::manifest::{object_rel_path, AchEntry, Manifest, PtmRef, SegmentEntry, TileEntry};
 
 use super::budget::ItemInfo;
 use super::http::{ClientError, FetchKey};
@@ -32,16 +34,214 @@ pub struct Item {
     pub whole: Part,
 }
 
-/// The items of one track.
+/// A segment's `(from, to)` viewpoint positions and its raw ACH list once its table is in.
+type SegmentSlot = ((usize, usize), Option<Vec<AchEntry>>);
+
+/// The items of one track. It grows as viewpoints' tables arrive ([`ItemTable::add_viewpoint`]):
+/// items are only ever appended, so an item number stays valid for the whole session.
 #[derive(Clone, Debug)]
 pub struct ItemTable {
     pub items: Vec<Item>,
     /// Arc length of each viewpoint.
     pub vp_s: Vec<f64>,
-    /// Per segment, `(item, ach)` in the manifest's (descending) order.
+    /// Per segment, `(item, ach)` in the manifest's (descending) order; entries whose tile's
+    /// table has not arrived yet are left out (they come in when it does).
     pub segment_ach: Vec<Vec<(usize, f64)>>,
     by_tile: HashMap<(usize, usize), usize>,
     background: HashMap<usize, usize>,
+    /// Whether each viewpoint's table has been added.
+    loaded: Vec<bool>,
+    /// Per viewpoint (by `ViewpointEntry::index`), its position in the track.
+    index_of: HashMap<usize, usize>,
+    /// `(viewpoint position, slab, tile)` → position in that viewpoint's tiles.
+    key_to_tile: HashMap<(usize, u32, tracks::TileId), usize>,
+    /// Per segment: its `(from, to)` positions and its raw ACH list once known.
+    segments: Vec<SegmentSlot>,
+    track: usize,
+}
+
+impl ItemTable {
+    /// Flatten track `track` of `m`, every viewpoint's tiles included. Tiles that were culled
+    /// or have no PTM are skipped.
+    pub fn new(m: &Manifest, track: usize) -> Result<ItemTable, ClientError> {
+        let mut table = ItemTable::empty(m, track)?;
+        let t = &m.tracks[track];
+        for (vi, vp) in t.viewpoints.iter().enumerate() {
+            let segs: Vec<SegmentEntry> = t
+                .segments
+                .iter()
+                .filter(|s| s.from == vp.index)
+                .cloned()
+                .collect();
+            table.add_viewpoint(vi, &vp.tiles, &segs)?;
+        }
+        Ok(table)
+    }
+
+    /// The items known before any table has arrived: the viewpoints' backgrounds (from the
+    /// top manifest; `m`'s tiles and ACH lists are ignored).
+    pub fn empty(m: &Manifest, track: usize) -> Result<ItemTable, ClientError> {
+        let t = m
+            .tracks
+            .get(track)
+            .ok_or_else(|| ClientError::Manifest(format!("no track {track}")))?;
+        let mut items = Vec::new();
+        let mut background = HashMap::new();
+        for (vi, vp) in t.viewpoints.iter().enumerate() {
+            if let Some(bg) = &vp.background {
+                let field = format!("tracks[{track}].viewpoints[{vi}].background");
+                let (parts, levels, whole) = ptm_parts(bg, &field)?;
+                background.insert(vi, items.len());
+                items.push(make_item(vi, None, vp.s, parts, 0, levels, whole));
+            }
+        }
+        let index_of: HashMap<usize, usize> = t
+            .viewpoints
+            .iter()
+            .enumerate()
+            .map(|(i, v)| (v.index, i))
+            .collect();
+        let segments = t
+            .segments
+            .iter()
+            .map(|seg| {
+                let from = index_of.get(&seg.from).copied().unwrap_or(usize::MAX);
+                let to = index_of.get(&seg.to).copied().unwrap_or(usize::MAX);
+                ((from, to), None)
+            })
+            .collect::<Vec<_>>();
+        Ok(ItemTable {
+            items,
+            vp_s: t.viewpoints.iter().map(|v| v.s).collect(),
+            segment_ach: vec![Vec::new(); segments.len()],
+            by_tile: HashMap::new(),
+            background,
+            loaded: vec![false; t.viewpoints.len()],
+            index_of,
+            key_to_tile: HashMap::new(),
+            segments,
+            track,
+        })
+    }
+
+    /// Whether viewpoint `vp`'s table has been added.
+    pub fn has_viewpoint(&self, vp: usize) -> bool {
+        self.loaded.get(vp).copied().unwrap_or(false)
+    }
+
+    /// Viewpoints whose tables are still missing.
+    pub fn missing_viewpoints(&self) -> Vec<usize> {
+        (0..self.loaded.len())
+            .filter(|&v| !self.loaded[v])
+            .collect()
+    }
+
+    /// Adds viewpoint `vi`'s tiles (its table's `tiles`, positions as in the table) and the
+    /// ACH lists of the segments starting there; the new items are appended. A viewpoint
+    /// already added is left as it is. On error nothing is added.
+    pub fn add_viewpoint(
+        &mut self,
+        vi: usize,
+        tiles: &[TileEntry],
+        segments: &[SegmentEntry],
+    ) -> Result<std::ops::Range<usize>, ClientError> {
+        let start = self.items.len();
+        if vi >= self.loaded.len() {
+            return Err(ClientError::Manifest(format!(
+                "track {}: no viewpoint {vi}",
+                self.track
+            )));
+        }
+        if self.loaded[vi] {
+            return Ok(start..start);
+        }
+        let s = self.vp_s[vi];
+        let mut new_items = Vec::new();
+        for (ti, tile) in tiles.iter().enumerate() {
+            let Some(ptm) = tile.ptm.as_ref().filter(|_| tile.kept) else {
+                continue;
+            };
+            let field = format!("tracks[{}].viewpoints[{vi}].tiles[{ti}]", self.track);
+            let (mut parts, levels, whole) = ptm_parts(ptm, &format!("{field}.ptm"))?;
+            let mut first = 0;
+            if let Some(mesh) = &tile.mesh {
+                check_hash(&mesh.hash, &format!("{field}.mesh.hash"))?;
+                parts.insert(
+                    0,
+                    Part {
+                        key: FetchKey {
+                            object: mesh.hash.clone(),
+                            range: None,
+                        },
+                        hash: mesh.hash.clone(),
+                        bytes: mesh.size,
+                        mem: mesh.size,
+                    },
+                );
+                first = 1;
+            }
+            new_items.push((ti, make_item(vi, Some(ti), s, parts, first, levels, whole)));
+        }
+        for (ti, tile) in tiles.iter().enumerate() {
+            self.key_to_tile.insert((vi, tile.slab, tile.tile), ti);
+        }
+        for (ti, item) in new_items {
+            self.by_tile.insert((vi, ti), self.items.len());
+            self.items.push(item);
+        }
+        self.loaded[vi] = true;
+        let from = self.vp_index(vi);
+        for seg in segments.iter().filter(|sg| Some(sg.from) == from) {
+            let to = self.index_of.get(&seg.to).copied();
+            if let Some(k) = self
+                .segments
+                .iter()
+                .position(|((f, t), _)| *f == vi && Some(*t) == to)
+            {
+                self.segments[k].1 = Some(seg.ach.clone());
+            }
+        }
+        self.resolve_ach();
+        Ok(start..self.items.len())
+    }
+
+    fn vp_index(&self, vi: usize) -> Option<usize> {
+        self.index_of
+            .iter()
+            .find(|(_, &p)| p == vi)
+            .map(|(&index, _)| index)
+    }
+
+    /// Recomputes `segment_ach` from the raw lists and the tiles known so far.
+    fn resolve_ach(&mut self) {
+        for (k, (_, raw)) in self.segments.iter().enumerate() {
+            let Some(raw) = raw else { continue };
+            self.segment_ach[k] = raw
+                .iter()
+                .filter_map(|a| {
+                    let vi = *self.index_of.get(&a.viewpoint)?;
+                    let ti = *self.key_to_tile.get(&(vi, a.slab, a.tile))?;
+                    let item = *self.by_tile.get(&(vi, ti))?;
+                    (a.ach.is_finite() && a.ach > 0.0).then_some((item, a.ach))
+                })
+                .collect();
+        }
+    }
+
+    /// Item of tile `tile` (position in `viewpoints[vp].tiles`).
+    pub fn tile_item(&self, vp: usize, tile: usize) -> Option<usize> {
+        self.by_tile.get(&(vp, tile)).copied()
+    }
+
+    /// Item of a viewpoint's background.
+    pub fn background_item(&self, vp: usize) -> Option<usize> {
+        self.background.get(&vp).copied()
+    }
+
+    /// The size/memory table [`super::plan`] works on.
+    pub fn infos(&self) -> Vec<ItemInfo> {
+        self.items.iter().map(|i| i.info.clone()).collect()
+    }
 }
 
 fn check_hash(h: &str, field: &str) -> Result<(), ClientError> {
@@ -56,7 +256,12 @@ fn ptm_parts(p: &PtmRef, field: &str) -> Result<(Vec<Part>, Vec<u32>, Part), Cli
     let mut levels = Vec::new();
     for (g, l) in p.levels.iter().enumerate() {
         let f = format!("{field}.levels[{g}]");
-        check_hash(&l.hash, &format!("{f}.hash"))?;
+        if !crate::db::valid_range_hash(&l.hash) {
+            return Err(ClientError::Manifest(format!(
+                "{f}.hash: `{}` is not a valid checksum",
+                l.hash
+            )));
+        }
         if l.len == 0
             || l.offset
                 .checked_add(l.len)
@@ -93,102 +298,6 @@ fn ptm_parts(p: &PtmRef, field: &str) -> Result<(Vec<Part>, Vec<u32>, Part), Cli
         mem: parts.iter().map(|x| x.mem).sum(),
     };
     Ok((parts, levels, whole))
-}
-
-impl ItemTable {
-    /// Flatten track `track` of `m`. Tiles that were culled or have no PTM are skipped.
-    pub fn new(m: &Manifest, track: usize) -> Result<ItemTable, ClientError> {
-        let t = m
-            .tracks
-            .get(track)
-            .ok_or_else(|| ClientError::Manifest(format!("no track {track}")))?;
-        let mut items = Vec::new();
-        let mut by_tile = HashMap::new();
-        let mut background = HashMap::new();
-        for (vi, vp) in t.viewpoints.iter().enumerate() {
-            for (ti, tile) in vp.tiles.iter().enumerate() {
-                let Some(ptm) = tile.ptm.as_ref().filter(|_| tile.kept) else {
-                    continue;
-                };
-                let field = format!("tracks[{track}].viewpoints[{vi}].tiles[{ti}]");
-                let (mut parts, levels, whole) = ptm_parts(ptm, &format!("{field}.ptm"))?;
-                let mut first = 0;
-                if let Some(mesh) = &tile.mesh {
-                    check_hash(&mesh.hash, &format!("{field}.mesh.hash"))?;
-                    parts.insert(
-                        0,
-                        Part {
-                            key: FetchKey {
-                                object: mesh.hash.clone(),
-                                range: None,
-                            },
-                            hash: mesh.hash.clone(),
-                            bytes: mesh.size,
-                            mem: mesh.size,
-                        },
-                    );
-                    first = 1;
-                }
-                by_tile.insert((vi, ti), items.len());
-                items.push(make_item(vi, Some(ti), vp.s, parts, first, levels, whole));
-            }
-            if let Some(bg) = &vp.background {
-                let field = format!("tracks[{track}].viewpoints[{vi}].background");
-                let (parts, levels, whole) = ptm_parts(bg, &field)?;
-                background.insert(vi, items.len());
-                items.push(make_item(vi, None, vp.s, parts, 0, levels, whole));
-            }
-        }
-        let index_of: HashMap<usize, usize> = t
-            .viewpoints
-            .iter()
-            .enumerate()
-            .map(|(i, v)| (v.index, i))
-            .collect();
-        let mut key_to_tile: HashMap<(usize, u32, tracks::TileId), usize> = HashMap::new();
-        for (vi, vp) in t.viewpoints.iter().enumerate() {
-            for (ti, tile) in vp.tiles.iter().enumerate() {
-                key_to_tile.insert((vi, tile.slab, tile.tile), ti);
-            }
-        }
-        let segment_ach = t
-            .segments
-            .iter()
-            .map(|seg| {
-                seg.ach
-                    .iter()
-                    .filter_map(|a| {
-                        let vi = *index_of.get(&a.viewpoint)?;
-                        let ti = *key_to_tile.get(&(vi, a.slab, a.tile))?;
-                        let item = *by_tile.get(&(vi, ti))?;
-                        (a.ach.is_finite() && a.ach > 0.0).then_some((item, a.ach))
-                    })
-                    .collect()
-            })
-            .collect();
-        Ok(ItemTable {
-            items,
-            vp_s: t.viewpoints.iter().map(|v| v.s).collect(),
-            segment_ach,
-            by_tile,
-            background,
-        })
-    }
-
-    /// Item of tile `tile` (position in `viewpoints[vp].tiles`).
-    pub fn tile_item(&self, vp: usize, tile: usize) -> Option<usize> {
-        self.by_tile.get(&(vp, tile)).copied()
-    }
-
-    /// Item of a viewpoint's background.
-    pub fn background_item(&self, vp: usize) -> Option<usize> {
-        self.background.get(&vp).copied()
-    }
-
-    /// The size/memory table [`super::plan`] works on.
-    pub fn infos(&self) -> Vec<ItemInfo> {
-        self.items.iter().map(|i| i.info.clone()).collect()
-    }
 }
 
 fn make_item(

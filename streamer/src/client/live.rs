@@ -30,6 +30,8 @@ use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 use tracks::manifest::Manifest;
+
+use crate::db::split::{assemble, decode_table, TopManifest, ViewTable};
 use tracks::PerspectiveCamera;
 
 use super::budget::{
@@ -158,6 +160,11 @@ pub struct LiveSession {
     fetcher: Fetcher,
     _runtime: tokio::runtime::Runtime,
     manifest: Manifest,
+    top: TopManifest,
+    /// Tables that have arrived, per viewpoint of the session's track.
+    tables: Vec<Option<ViewTable>>,
+    /// Table keys requested and not yet arrived → viewpoint.
+    table_keys: HashMap<FetchKey, usize>,
     track: usize,
     table: ItemTable,
     infos: Vec<ItemInfo>,
@@ -204,7 +211,8 @@ impl LiveSession {
             conn_stats.clone(),
         );
         let t0 = Instant::now();
-        let manifest = runtime.block_on(conn.manifest())?;
+        let top = runtime.block_on(conn.fetch_manifest())?.top;
+        let manifest = assemble(&top, &[]);
         let manifest_s = t0.elapsed().as_secs_f64();
         let manifest_bytes = conn_stats.bytes.load(Ordering::Relaxed);
         let names = || {
@@ -226,7 +234,7 @@ impl LiveSession {
             }
             None => 0,
         };
-        let table = ItemTable::new(&manifest, track)?;
+        let table = ItemTable::empty(&manifest, track)?;
         let infos = table.infos();
         let index = SceneIndex::new(&manifest, track);
         let mut users: HashMap<FetchKey, Vec<(usize, usize)>> = HashMap::new();
@@ -235,6 +243,7 @@ impl LiveSession {
                 users.entry(part.key.clone()).or_default().push((i, p));
             }
         }
+        let n_vp = top.tracks[track].viewpoints.len();
         let fetcher = {
             let _guard = runtime.enter();
             Fetcher::new(url, config.fetcher.clone())
@@ -251,6 +260,9 @@ impl LiveSession {
             fetcher,
             _runtime: runtime,
             manifest,
+            top,
+            tables: vec![None; n_vp],
+            table_keys: HashMap::new(),
             track,
             table,
             plan_infos: infos.clone(),
@@ -272,8 +284,103 @@ impl LiveSession {
         })
     }
 
+    /// The manifest as far as the tables go: viewpoints whose table has not arrived have no
+    /// tiles yet (their tiles cannot be requested); it grows as tables arrive.
     pub fn manifest(&self) -> &Manifest {
         &self.manifest
+    }
+
+    /// The top manifest the session started from.
+    pub fn top(&self) -> &TopManifest {
+        &self.top
+    }
+
+    /// Whether viewpoint `vp`'s table has arrived (position in the track).
+    pub fn has_table(&self, vp: usize) -> bool {
+        self.tables.get(vp).is_some_and(|t| t.is_some())
+    }
+
+    /// Tables of the viewpoints around `s` (and, with prefetch, of the predicted next
+    /// segment) at the top priority, every other missing one at the lowest, nearest first;
+    /// returns the table keys to keep.
+    fn request_tables(&mut self, s: f64) -> Vec<(FetchRequest, Option<u64>)> {
+        let vp_s = &self.table.vp_s;
+        let mut urgent: Vec<usize> = blend_weights(vp_s, s).iter().map(|w| w.0).collect();
+        if let Some(seg) = segment_at(vp_s, s) {
+            urgent.extend([seg, seg + 1]);
+        }
+        if self.config.prefetch {
+            if let Some(k) = next_segment(&self.motion, vp_s, s, self.config.prefetch_horizon_s) {
+                urgent.extend([k, k + 1]);
+            }
+        }
+        let t = &self.top.tracks[self.track];
+        let mut out = Vec::new();
+        for (vi, v) in t.viewpoints.iter().enumerate() {
+            if self.tables[vi].is_some() {
+                continue;
+            }
+            let key = FetchKey {
+                object: v.table.hash.clone(),
+                range: None,
+            };
+            let dist = (v.s - s).abs();
+            // Urgent tables before any tile (tile priorities stay far below 1e12); the rest
+            // after every tile, nearest first.
+            let priority = if urgent.contains(&vi) {
+                1e12 - dist
+            } else {
+                -1.0 - dist
+            };
+            self.table_keys.insert(key.clone(), vi);
+            out.push((
+                FetchRequest {
+                    key,
+                    expected_hash: v.table.hash.clone(),
+                    priority,
+                },
+                Some(v.table.size),
+            ));
+        }
+        out
+    }
+
+    /// A checked table arrived: decoded, added to the item table, the manifest and the
+    /// visibility index. A table that does not decode is dropped (asked for again).
+    fn table_arrived(&mut self, vi: usize, data: &Bytes) {
+        let Some(v) = self.top.tracks[self.track].viewpoints.get(vi) else {
+            return;
+        };
+        let vt = match decode_table(data, v.index) {
+            Ok(vt) => vt,
+            Err(e) => {
+                self.stats.failed_requests += 1;
+                self.stats.last_error = Some(format!("table of viewpoint {}: {e}", v.index));
+                return;
+            }
+        };
+        let range = match self.table.add_viewpoint(vi, &vt.tiles, &vt.segments) {
+            Ok(r) => r,
+            Err(e) => {
+                self.stats.failed_requests += 1;
+                self.stats.last_error = Some(e.to_string());
+                return;
+            }
+        };
+        for i in range {
+            let it = &self.table.items[i];
+            self.infos.push(it.info.clone());
+            for (p, part) in it.parts.iter().enumerate() {
+                self.users.entry(part.key.clone()).or_default().push((i, p));
+            }
+        }
+        self.refresh_plan_infos();
+        self.tables[vi] = Some(vt);
+        let row: Vec<Option<&ViewTable>> = self.tables.iter().map(|t| t.as_ref()).collect();
+        let mut rows: Vec<Vec<Option<&ViewTable>>> = vec![Vec::new(); self.top.tracks.len()];
+        rows[self.track] = row;
+        self.manifest = assemble(&self.top, &rows);
+        self.index = SceneIndex::new(&self.manifest, self.track);
     }
 
     /// Position of the session's track in the manifest.
@@ -310,6 +417,10 @@ impl LiveSession {
     /// cancelled at the next update.
     pub fn set_level_cap(&mut self, groups: Option<usize>) {
         self.level_cap = groups.map(|g| g.max(1));
+        self.refresh_plan_infos();
+    }
+
+    fn refresh_plan_infos(&mut self) {
         self.plan_infos = self
             .infos
             .iter()
@@ -469,8 +580,15 @@ impl LiveSession {
             }
         }
         let paused = self.paused_until.is_some_and(|u| now < u);
+        let tables = self.request_tables(s);
+        keep.extend(tables.iter().map(|(r, _)| r.key.clone()));
         if !paused {
-            let mut submit = Vec::new();
+            // Every missing table again: a queued one takes its new priority (a background
+            // table becomes urgent as the walker nears it).
+            for (r, _) in &tables {
+                self.requested.insert(r.key.clone());
+            }
+            let mut submit: Vec<(FetchRequest, Option<u64>)> = tables;
             for r in &p.requests {
                 let parts = &self.table.items[r.item].parts;
                 let end = (r.part + r.parts.max(1)).min(parts.len());
@@ -516,7 +634,7 @@ impl LiveSession {
             self.fetcher.retain(|k| keep.contains(k));
             self.requested.retain(|k| keep.contains(k));
         }
-        self.update_stats(now, t, &have, &seg_ach, &backgrounds);
+        self.update_stats(now, t, s, &have, &seg_ach, &backgrounds);
         arrivals
     }
 
@@ -610,6 +728,10 @@ impl LiveSession {
                     self.stats.parts += 1;
                     self.stats.last_error = None;
                     self.recent.push_back((now, len));
+                    if let Some(vi) = self.table_keys.remove(&done.key) {
+                        self.table_arrived(vi, &data);
+                        continue;
+                    }
                     let users = self.users.get(&done.key).cloned().unwrap_or_default();
                     let fresh = !self.cache.contains(&done.key);
                     let mut stored = !fresh;
@@ -630,6 +752,7 @@ impl LiveSession {
                 }
                 Err(ClientError::Cancelled) => {}
                 Err(e) => {
+                    self.table_keys.remove(&done.key);
                     self.stats.failed_requests += 1;
                     self.stats.last_error = Some(e.to_string());
                     self.paused_until = Some(now + self.config.error_pause);
@@ -644,6 +767,7 @@ impl LiveSession {
         &mut self,
         now: Instant,
         t: f64,
+        s: f64,
         have: &[usize],
         seg_ach: &[(usize, f64)],
         backgrounds: &[usize],
@@ -673,11 +797,18 @@ impl LiveSession {
                 .sum::<f64>()
                 / seg_ach.len() as f64
         };
+        // A viewpoint of the segment whose table has not arrived counts as one item not
+        // showable (its tiles are not even known yet).
+        let tables_missing = blend_weights(&self.table.vp_s, s)
+            .iter()
+            .filter(|w| !self.table.has_viewpoint(w.0))
+            .count();
         let showable: Vec<bool> = seg_ach
             .iter()
             .map(|a| a.0)
             .chain(backgrounds.iter().copied())
             .map(|i| have[i] >= self.infos[i].min_parts())
+            .chain(std::iter::repeat_n(false, tables_missing))
             .collect();
         let coarse = if showable.is_empty() {
             1.0

@@ -22,16 +22,18 @@
 
 pub mod ach;
 pub mod mesh;
+pub mod split;
 mod verify;
 
 use std::fs;
 use std::io::{self, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
-use tracks::manifest::{object_rel_path, LevelRef, Manifest, ObjectRef, PtmRef, MANIFEST_VERSION};
+use tracks::manifest::{object_rel_path, LevelRef, Manifest, ObjectRef, PtmRef};
 
 use crate::ptm;
 
+pub use split::{TopManifest, ViewTable, TOP_VERSION};
 pub use verify::{verify, Problem, Report};
 
 /// Name of the manifest file in a database directory.
@@ -151,12 +153,17 @@ impl DbWriter {
         Ok(ptm_ref(object, enc, channels))
     }
 
-    /// Writes the manifest (compact JSON, atomically), its checksum file and its gzip copy:
-    /// the database is complete.
-    pub fn finish(&self, manifest: &Manifest) -> Result<(), DbError> {
+    /// Splits the manifest ([`split::split`]): stores each viewpoint's table as an object,
+    /// then writes the top manifest (compact JSON, atomically), its checksum file and its
+    /// gzip copy: the database is complete.
+    pub fn finish(&mut self, manifest: &Manifest) -> Result<(), DbError> {
+        let (top, tables) = split::split(manifest);
+        for bytes in tables.iter().flatten() {
+            self.put(bytes)?;
+        }
         let path = self.root.join(MANIFEST_FILE);
         let mut json =
-            serde_json::to_vec(manifest).map_err(|e| DbError::format(&path, e.to_string()))?;
+            serde_json::to_vec(&top).map_err(|e| DbError::format(&path, e.to_string()))?;
         json.push(b'\n');
         write_atomic(&path, &json)?;
         write_atomic(
@@ -208,6 +215,33 @@ pub fn gunzip_limited(gz: &[u8], limit: u64) -> Result<Vec<u8>, GunzipError> {
     Ok(out)
 }
 
+/// Checksum of a byte range inside an object: the first 128 bits (32 hex digits) of its
+/// BLAKE3. The object itself stays named by its full hash; a range only needs to be told
+/// apart from a damaged copy of itself, and half the digits keep the tables small.
+pub fn range_hash(bytes: &[u8]) -> String {
+    let mut h = hash_hex(bytes);
+    h.truncate(32);
+    h
+}
+
+/// Whether `bytes` hash to `expected`: a full (64 hex digits) or range (32 hex digits)
+/// BLAKE3 checksum; anything else never matches.
+pub fn hash_matches(bytes: &[u8], expected: &str) -> bool {
+    let h = blake3::hash(bytes).to_hex();
+    match expected.len() {
+        64 => h.as_str() == expected,
+        32 => &h.as_str()[..32] == expected,
+        _ => false,
+    }
+}
+
+/// Whether `h` is a valid range checksum (32 or 64 lowercase hex digits).
+pub fn valid_range_hash(h: &str) -> bool {
+    matches!(h.len(), 32 | 64)
+        && h.bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+}
+
 /// The manifest entry of an encoded PTM stored as `object`.
 pub fn ptm_ref(object: ObjectRef, enc: &ptm::Encoded, channels: u8) -> PtmRef {
     let levels = enc
@@ -221,7 +255,7 @@ pub fn ptm_ref(object: ObjectRef, enc: &ptm::Encoded, channels: u8) -> PtmRef {
                 height: g.height,
                 offset: g.offset,
                 len: g.len,
-                hash: hash_hex(&enc.bytes[range]),
+                hash: range_hash(&enc.bytes[range]),
             }
         })
         .collect::<Vec<_>>();
@@ -239,17 +273,26 @@ pub fn ptm_ref(object: ObjectRef, enc: &ptm::Encoded, channels: u8) -> PtmRef {
 #[derive(Debug, Clone)]
 pub struct Database {
     root: PathBuf,
+    top: TopManifest,
     manifest: Manifest,
 }
 
 impl Database {
-    /// Reads and checks `DIR/manifest.json` (against its checksum file when present).
+    /// Reads and checks `DIR/manifest.json` (against its checksum file when present) and
+    /// every viewpoint's table (hash, decode).
     pub fn open(dir: &Path) -> Result<Database, DbError> {
-        let manifest = read_manifest(dir)?;
+        let top = read_top(dir)?;
+        let manifest = read_tables(dir, &top)?;
         Ok(Database {
             root: dir.to_path_buf(),
+            top,
             manifest,
         })
+    }
+
+    /// The top manifest as stored (`manifest.json`).
+    pub fn top(&self) -> &TopManifest {
+        &self.top
     }
 
     pub fn root(&self) -> &Path {
@@ -317,8 +360,8 @@ impl Database {
             ))
         })?;
         let bytes = self.read_range(&ptm.object, l.offset, l.len)?;
-        let got = hash_hex(&bytes);
-        if got != l.hash {
+        if !hash_matches(&bytes, &l.hash) {
+            let got = hash_hex(&bytes);
             let path = self.object_path(&ptm.object.hash).unwrap_or_default();
             return Err(DbError::format(
                 &path,
@@ -334,8 +377,45 @@ impl Database {
     }
 }
 
-/// Reads `DIR/manifest.json`, checking its checksum file when present and its version.
+/// Reads the whole manifest: the top ([`read_top`]) and every viewpoint's table, assembled.
 pub fn read_manifest(dir: &Path) -> Result<Manifest, DbError> {
+    read_tables(dir, &read_top(dir)?)
+}
+
+/// Reads every table the top manifest refers to (hash-checked, decoded) and assembles the
+/// full manifest.
+pub fn read_tables(dir: &Path, top: &TopManifest) -> Result<Manifest, DbError> {
+    let db = Database {
+        root: dir.to_path_buf(),
+        top: top.clone(),
+        manifest: split::assemble(top, &[]),
+    };
+    let mut tables = Vec::with_capacity(top.tracks.len());
+    for t in &top.tracks {
+        let mut row = Vec::with_capacity(t.viewpoints.len());
+        for v in &t.viewpoints {
+            let bytes = db.read_object(&v.table)?;
+            let path = db.object_path(&v.table.hash).unwrap_or_default();
+            let table = split::decode_table(&bytes, v.index).map_err(|e| {
+                DbError::format(
+                    &path,
+                    format!("track `{}` viewpoint {}: {e}", t.name, v.index),
+                )
+            })?;
+            row.push(table);
+        }
+        tables.push(row);
+    }
+    let refs: Vec<Vec<Option<&ViewTable>>> = tables
+        .iter()
+        .map(|row| row.iter().map(Some).collect())
+        .collect();
+    Ok(split::assemble(top, &refs))
+}
+
+/// Reads `DIR/manifest.json` (the top manifest), checking its checksum file when present and
+/// its version.
+pub fn read_top(dir: &Path) -> Result<TopManifest, DbError> {
     let path = dir.join(MANIFEST_FILE);
     let bytes = fs::read(&path).map_err(|e| DbError::io(&path, e))?;
     let hash_path = dir.join(MANIFEST_HASH_FILE);
@@ -352,23 +432,36 @@ pub fn read_manifest(dir: &Path) -> Result<Manifest, DbError> {
         Err(e) if e.kind() == io::ErrorKind::NotFound => {}
         Err(e) => return Err(DbError::io(&hash_path, e)),
     }
-    parse_manifest(&path, &bytes)
+    parse_top(&path, &bytes)
 }
 
-/// Parses manifest bytes read from `path` and checks the version.
-pub(crate) fn parse_manifest(path: &Path, bytes: &[u8]) -> Result<Manifest, DbError> {
-    let m: Manifest = serde_json::from_slice(bytes)
+/// Parses top-manifest bytes read from `path` and checks the version; a database of format
+/// 1 (one manifest with every tile) is refused with a request to rebuild it.
+pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
+    #[derive(serde::Deserialize)]
+    struct Version {
+        version: u32,
+    }
+    let v: Version = serde_json::from_slice(bytes)
         .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
-    if m.version != MANIFEST_VERSION {
+    if v.version != TOP_VERSION {
+        let hint = if v.version < TOP_VERSION {
+            " (one manifest with every tile; format 2 keeps each viewpoint's tiles in a table \
+             of its own): rebuild the database with `railview build` (it resumes from its work \
+             directory)"
+        } else {
+            ""
+        };
         return Err(DbError::format(
             path,
             format!(
-                "manifest version {} (this build reads {MANIFEST_VERSION})",
-                m.version
+                "manifest format {}{hint}; this build reads format {TOP_VERSION}",
+                v.version
             ),
         ));
     }
-    Ok(m)
+    serde_json::from_slice(bytes)
+        .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))
 }
 
 #[cfg(test)]

@@ -125,8 +125,8 @@ fn all_files(dir: &Path) -> Vec<PathBuf> {
 fn write_open_read_levels() {
     let dir = tmpdir("rw");
     let (m, w) = build(&dir);
-    // 4 tile PTMs, 2 backgrounds and 4 meshes, all distinct.
-    assert_eq!(w.objects_written, 10);
+    // 4 tile PTMs, 2 backgrounds, 4 meshes and 2 viewpoint tables, all distinct.
+    assert_eq!(w.objects_written, 12);
     let db = Database::open(&dir).unwrap();
     assert_eq!(db.manifest(), &m);
     let tile = &m.tracks[0].viewpoints[1].tiles[0];
@@ -149,16 +149,17 @@ fn write_open_read_levels() {
     assert!(db.object_path("../../etc/passwd").is_none());
     // Rebuilding reuses every object (resume).
     let (_, w2) = build(&dir);
-    assert_eq!((w2.objects_written, w2.objects_reused), (0, 10));
+    assert_eq!((w2.objects_written, w2.objects_reused), (0, 12));
     let r = verify(&dir).unwrap();
     assert!(r.is_intact(), "{r:?}");
     assert_eq!(
         (
             r.objects_referenced,
             r.files_checked,
-            r.level_ranges_checked
+            r.level_ranges_checked,
+            r.tables_checked
         ),
-        (6 + 4, 10, r.level_ranges_checked)
+        (6 + 4 + 2, 12, r.level_ranges_checked, 2)
     );
     assert!(r.level_ranges_checked >= 6 * 5);
     fs::remove_dir_all(&dir).unwrap();
@@ -169,7 +170,7 @@ fn a_flipped_byte_in_any_file_is_caught_and_named() {
     let dir = tmpdir("flip");
     build(&dir);
     let files = all_files(&dir);
-    assert_eq!(files.len(), 13);
+    assert_eq!(files.len(), 15);
     assert!(files.contains(&dir.join(MANIFEST_GZ_FILE)));
     for f in &files {
         let orig = fs::read(f).unwrap();
@@ -293,4 +294,136 @@ fn gunzip_is_bounded_and_rejects_garbage() {
         Err(GunzipError::Invalid(_))
     ));
     assert_eq!(gunzip_limited(&gzip(b"").unwrap(), 0).unwrap(), b"");
+}
+
+#[test]
+fn a_missing_or_damaged_table_is_reported_by_viewpoint() {
+    let dir = tmpdir("tables");
+    build(&dir);
+    let top = read_top(&dir).unwrap();
+    let v1 = &top.tracks[0].viewpoints[1];
+    let path = dir.join(v1.table.rel_path().unwrap());
+    let orig = fs::read(&path).unwrap();
+    // Damaged: the hash names it, by track and viewpoint.
+    let mut bad = orig.clone();
+    let mid = bad.len() / 2;
+    bad[mid] ^= 1;
+    fs::write(&path, &bad).unwrap();
+    let r = verify(&dir).unwrap();
+    let p = r
+        .problems
+        .iter()
+        .find(|p| p.path == path && p.what.contains("table of track `main` viewpoint 1"))
+        .unwrap_or_else(|| panic!("{:?}", r.problems));
+    assert!(p.what.contains("damaged"), "{}", p.what);
+    assert_eq!(r.tables_checked, 1);
+    assert!(Database::open(&dir).is_err());
+    // A right hash over bytes that are not a table (the object store holds what the top
+    // says, but it does not decode): still named.
+    fs::remove_file(&path).unwrap();
+    let r = verify(&dir).unwrap();
+    assert!(
+        r.problems.iter().any(|p| p.path == path
+            && p.what.contains("viewpoint 1")
+            && p.what.contains("missing")),
+        "{:?}",
+        r.problems
+    );
+    fs::write(&path, &orig).unwrap();
+    assert!(verify(&dir).unwrap().is_intact());
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_table_that_does_not_decode_is_reported() {
+    let dir = tmpdir("table-decode");
+    let (m, _) = build(&dir);
+    // Rewrite the top manifest so viewpoint 0's table is a valid object that is no table.
+    let mut w = DbWriter::create(&dir).unwrap();
+    let junk = w.put(&gzip(b"{\"not\":\"a table\"}").unwrap()).unwrap();
+    let (mut top, _) = split::split(&m);
+    top.tracks[0].viewpoints[0].table = junk.clone();
+    let mut json = serde_json::to_vec(&top).unwrap();
+    json.push(b'\n');
+    write_atomic(&dir.join(MANIFEST_FILE), &json).unwrap();
+    write_atomic(
+        &dir.join(MANIFEST_HASH_FILE),
+        format!("{}\n", hash_hex(&json)).as_bytes(),
+    )
+    .unwrap();
+    write_atomic(&dir.join(MANIFEST_GZ_FILE), &gzip(&json).unwrap()).unwrap();
+    let r = verify(&dir).unwrap();
+    let junk_path = dir.join(junk.rel_path().unwrap());
+    assert!(
+        r.problems.iter().any(|p| p.path == junk_path
+            && p.what.contains("viewpoint 0")
+            && p.what.contains("JSON")),
+        "{:?}",
+        r.problems
+    );
+    let err = Database::open(&dir).unwrap_err().to_string();
+    assert!(err.contains("viewpoint 0"), "{err}");
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_format_1_manifest_is_refused_with_a_request_to_rebuild() {
+    let dir = tmpdir("v1");
+    let (m, _) = build(&dir);
+    // The old layout: the whole manifest in one file.
+    let json = serde_json::to_vec(&m).unwrap();
+    write_atomic(&dir.join(MANIFEST_FILE), &json).unwrap();
+    fs::remove_file(dir.join(MANIFEST_HASH_FILE)).unwrap();
+    let err = Database::open(&dir).unwrap_err().to_string();
+    assert!(
+        err.contains("manifest format 1") && err.contains("rebuild"),
+        "{err}"
+    );
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn split_and_assemble_round_trip_and_partial_tables_leave_tiles_out() {
+    let dir = tmpdir("split");
+    let (m, _) = build(&dir);
+    let (top, bytes) = split::split(&m);
+    assert_eq!(top.version, TOP_VERSION);
+    let tables: Vec<ViewTable> = top.tracks[0]
+        .viewpoints
+        .iter()
+        .zip(&bytes[0])
+        .map(|(v, b)| {
+            assert_eq!(hash_hex(b), v.table.hash);
+            split::decode_table(b, v.index).unwrap()
+        })
+        .collect();
+    assert_eq!(
+        split::assemble(&top, &[tables.iter().map(Some).collect()]),
+        m
+    );
+    // Only viewpoint 1's table: viewpoint 0 has no tiles, the segment (in 0's table) no ACH.
+    let part = split::assemble(&top, &[vec![None, Some(&tables[1])]]);
+    assert!(part.tracks[0].viewpoints[0].tiles.is_empty());
+    assert_eq!(
+        part.tracks[0].viewpoints[1].tiles,
+        m.tracks[0].viewpoints[1].tiles
+    );
+    assert!(part.tracks[0].segments[0].ach.is_empty());
+    // A table is never taken for another viewpoint.
+    assert!(split::decode_table(&bytes[0][0], 1).is_err());
+    assert!(split::decode_table(b"garbage", 0).is_err());
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn range_checksums_are_128_bits_and_full_hashes_still_match() {
+    let h = hash_hex(b"abc");
+    assert!(hash_matches(b"abc", &h));
+    assert!(hash_matches(b"abc", &h[..32]));
+    assert_eq!(range_hash(b"abc"), h[..32]);
+    assert!(!hash_matches(b"abd", &h[..32]));
+    assert!(!hash_matches(b"abc", &h[..31]));
+    assert!(!hash_matches(b"abc", ""));
+    assert!(valid_range_hash(&h[..32]) && valid_range_hash(&h));
+    assert!(!valid_range_hash(&h[..40]) && !valid_range_hash(&h.to_uppercase()));
 }

@@ -6,9 +6,10 @@ use std::path::{Path, PathBuf};
 
 use tracks::manifest::{object_rel_path, Manifest, ObjectRef, PtmRef};
 
+use super::split::{assemble, decode_table, TopManifest, ViewTable};
 use super::{
-    gunzip_limited, gzip, hash_hex, parse_manifest, DbError, MANIFEST_FILE, MANIFEST_GZ_FILE,
-    MANIFEST_HASH_FILE,
+    gunzip_limited, gzip, hash_hex, hash_matches, parse_top, DbError, MANIFEST_FILE,
+    MANIFEST_GZ_FILE, MANIFEST_HASH_FILE,
 };
 use crate::ptm;
 
@@ -30,6 +31,8 @@ pub struct Report {
     pub bytes_checked: u64,
     /// PTM level groups whose range hash was checked.
     pub level_ranges_checked: usize,
+    /// Viewpoint tables read, hash-checked and decoded.
+    pub tables_checked: usize,
     /// Damage: the database is intact only when this is empty.
     pub problems: Vec<Problem>,
     /// Harmless findings (leftover temporary files of a killed writer, unreferenced objects).
@@ -87,8 +90,8 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
                     }
                 }
             }
-            match parse_manifest(&manifest_path, &bytes) {
-                Ok(m) => Some(m),
+            match parse_top(&manifest_path, &bytes) {
+                Ok(top) => Some(top),
                 Err(e) => {
                     report
                         .problems
@@ -99,9 +102,53 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
         }
     };
 
+    // Every viewpoint's table: present, hash, decode; a bad one is named by viewpoint.
+    let top: Option<TopManifest> = manifest;
+    let mut table_refs: Vec<ObjectRef> = Vec::new();
+    let mut tables: Vec<Vec<Option<ViewTable>>> = Vec::new();
+    if let Some(top) = &top {
+        for t in &top.tracks {
+            let mut row = Vec::new();
+            for v in &t.viewpoints {
+                table_refs.push(v.table.clone());
+                let (path, got) = check_table(dir, &v.table, v.index);
+                match got {
+                    Ok(table) => {
+                        report.tables_checked += 1;
+                        row.push(Some(table));
+                    }
+                    Err(what) => {
+                        report.problems.push(problem(
+                            path,
+                            format!("table of track `{}` viewpoint {}: {what}", t.name, v.index),
+                        ));
+                        row.push(None);
+                    }
+                }
+            }
+            tables.push(row);
+        }
+    }
+    let manifest: Option<Manifest> = top.as_ref().map(|top| {
+        let refs: Vec<Vec<Option<&ViewTable>>> = tables
+            .iter()
+            .map(|row| row.iter().map(|t| t.as_ref()).collect())
+            .collect();
+        assemble(top, &refs)
+    });
+
     // Every object the manifest references, with the PTM ranges inside it.
     let mut wanted: BTreeMap<String, (u64, Vec<&PtmRef>)> = BTreeMap::new();
     let mut bad_refs = Vec::new();
+    for obj in &table_refs {
+        if object_rel_path(&obj.hash).is_none() {
+            bad_refs.push(format!("invalid table hash {:?}", obj.hash));
+            continue;
+        }
+        wanted
+            .entry(obj.hash.clone())
+            .or_insert((obj.size, Vec::new()));
+    }
     if let Some(m) = &manifest {
         for_each_object(m, &mut |obj, ptm| {
             if object_rel_path(&obj.hash).is_none() {
@@ -294,8 +341,9 @@ fn check_ptm(path: &Path, bytes: &[u8], p: &PtmRef, report: &mut Report) {
             ));
             continue;
         };
-        let got = hash_hex(&bytes[l.offset as usize..end as usize]);
-        if got != l.hash {
+        let range = &bytes[l.offset as usize..end as usize];
+        if !hash_matches(range, &l.hash) {
+            let got = hash_hex(range);
             push(format!(
                 "level group {g} (level {}, bytes {}..{end}): hash is {got}, manifest says {}",
                 l.level, l.offset, l.hash
@@ -327,6 +375,38 @@ fn check_ptm(path: &Path, bytes: &[u8], p: &PtmRef, report: &mut Report) {
         }
     }
     report.level_ranges_checked += p.levels.len();
+}
+
+/// Reads, hash-checks and decodes one table: its path and the table or what is wrong.
+fn check_table(
+    dir: &Path,
+    obj: &ObjectRef,
+    viewpoint: usize,
+) -> (PathBuf, Result<ViewTable, String>) {
+    let Some(rel) = object_rel_path(&obj.hash) else {
+        return (
+            dir.join(MANIFEST_FILE),
+            Err(format!("invalid table hash {:?}", obj.hash)),
+        );
+    };
+    let path = dir.join(rel);
+    let got = match fs::read(&path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            Err("missing (referenced by the manifest)".to_string())
+        }
+        Err(e) => Err(e.to_string()),
+        Ok(bytes) if bytes.len() as u64 != obj.size => Err(format!(
+            "size {} but the manifest says {}",
+            bytes.len(),
+            obj.size
+        )),
+        Ok(bytes) if hash_hex(&bytes) != obj.hash => Err(format!(
+            "content hash is {}: the file is damaged",
+            hash_hex(&bytes)
+        )),
+        Ok(bytes) => decode_table(&bytes, viewpoint).map_err(|e| e.to_string()),
+    };
+    (path, got)
 }
 
 fn for_each_object<'m>(m: &'m Manifest, f: &mut dyn FnMut(&'m ObjectRef, Option<&'m PtmRef>)) {

@@ -133,23 +133,27 @@ impl ServedDb {
     /// checksum file when present); remember every object hash it lists.
     pub fn open(root: &Path) -> Result<ServedDb, ServerError> {
         let path = root.join("manifest.json");
-        let manifest: Manifest =
-            crate::db::read_manifest(root).map_err(|e| ServerError::Manifest {
-                path: path.clone(),
-                message: e.to_string(),
-            })?;
+        let err = |e: crate::db::DbError| ServerError::Manifest {
+            path: path.clone(),
+            message: e.to_string(),
+        };
+        let top = crate::db::read_top(root).map_err(err)?;
+        let manifest: Manifest = crate::db::read_tables(root, &top).map_err(err)?;
         // The bytes served are the bytes checked (re-read: the reader does not return them).
         let raw = std::fs::read(&path).map_err(|source| ServerError::Io {
             path: path.clone(),
             source,
         })?;
-        if serde_json::from_slice::<Manifest>(&raw).ok().as_ref() != Some(&manifest) {
+        if crate::db::parse_top(&path, &raw).ok().as_ref() != Some(&top) {
             return Err(ServerError::Manifest {
                 path,
                 message: "changed while it was being opened".into(),
             });
         }
-        let objects = manifest_objects(&manifest);
+        let mut objects = manifest_objects(&manifest);
+        for t in &top.tracks {
+            objects.extend(t.viewpoints.iter().map(|v| v.table.hash.clone()));
+        }
         if let Some(bad) = objects.iter().find(|h| object_rel_path(h).is_none()) {
             return Err(ServerError::Manifest {
                 path,

@@ -11,10 +11,14 @@
 //! level ([`crate::visibility`]). [`write_outputs`] writes `walk.json`, a CSV, a PNG plot
 //! and a Markdown summary.
 //!
-//! The manifest is charged too: its transferred bytes (gzip when the server offers it, plus
-//! the checksum file) occupy each run's link from t = 0, and the walk starts when it has
-//! arrived (`manifest_s`), as a viewer can ask for nothing before it knows the tiles. Frame
-//! times and `time_to_first_frame_s` count from t = 0, so they include the manifest;
+//! The manifest is charged too: the top manifest's transferred bytes (gzip when the server
+//! offers it, plus the checksum file) occupy each run's link from t = 0, and the walk starts
+//! when it has arrived (`manifest_s`). Viewpoint tables are fetched during the walk like any
+//! response (really over HTTP, checked, their bytes on the link): the current segment's two
+//! (and, with prefetch, the next segment's) before any tile, the others one at a time in the
+//! background, nearest first; a tile whose table has not arrived cannot be requested
+//! (`table_bytes` and `table_requests` per run; `bytes` includes them). Frame times and
+//! `time_to_first_frame_s` count from t = 0, so they include the manifest and the tables;
 //! the per-frame means are over the walk itself.
 
 pub mod load;
@@ -25,7 +29,9 @@ pub mod synth;
 use std::path::Path;
 
 use serde::Serialize;
-use tracks::manifest::Manifest;
+use tracks::manifest::{Manifest, ObjectRef};
+
+use crate::db::split::{assemble, TopManifest, ViewTable};
 use tracks::TrackSet;
 
 use crate::client::{
@@ -218,6 +224,9 @@ pub struct RunReport {
     pub manifest_bytes: u64,
     /// When the manifest had arrived on this run's link: the walk starts then.
     pub manifest_s: f64,
+    /// Bytes of viewpoint tables transferred (also counted in `bytes`), and their requests.
+    pub table_bytes: u64,
+    pub table_requests: u64,
     pub mean_needed_fraction: f64,
     pub mean_quality: f64,
     pub bytes: u64,
@@ -269,13 +278,30 @@ pub struct ManifestCost {
 
 pub(crate) struct Scene {
     manifest: Manifest,
+    /// Every item (what the budgets are scaled to).
     table: ItemTable,
+    /// What a client knows from the top manifest alone (backgrounds).
+    empty: ItemTable,
+    /// Per viewpoint of the track: its table object and its index.
+    tables: Vec<(ObjectRef, usize)>,
+    /// Where the walk's needs come from: the whole database.
     index: SceneIndex,
     track: tracks::Track,
 }
 
-fn load_scene(manifest: Manifest, track: usize) -> Result<Scene, WalkError> {
+fn load_scene(top: &TopManifest, manifest: Manifest, track: usize) -> Result<Scene, WalkError> {
     let table = ItemTable::new(&manifest, track)?;
+    let empty = ItemTable::empty(&manifest, track)?;
+    let tables = top
+        .tracks
+        .get(track)
+        .map(|t| {
+            t.viewpoints
+                .iter()
+                .map(|v| (v.table.clone(), v.index))
+                .collect()
+        })
+        .unwrap_or_default();
     let index = SceneIndex::new(&manifest, track)
         .ok_or_else(|| WalkError::Database("face/tile sizes or track invalid".into()))?;
     let entry = &manifest.tracks[track];
@@ -289,6 +315,8 @@ fn load_scene(manifest: Manifest, track: usize) -> Result<Scene, WalkError> {
     Ok(Scene {
         manifest,
         table,
+        empty,
+        tables,
         index,
         track: t,
     })
@@ -309,7 +337,22 @@ pub async fn run_walk(
         bytes: fetched.transferred_bytes,
         requests: fetched.requests,
     };
-    let scene = load_scene(fetched.manifest, config.track)?;
+    // The whole database, for what each frame needs (the walker's eyes, not its client: the
+    // runs fetch the tables again, on their links, as a viewer would).
+    let mut tables = Vec::new();
+    for t in &fetched.top.tracks {
+        let mut row = Vec::new();
+        for v in &t.viewpoints {
+            row.push(conn.fetch_table(&v.table, v.index).await?);
+        }
+        tables.push(row);
+    }
+    let refs: Vec<Vec<Option<&ViewTable>>> = tables
+        .iter()
+        .map(|row| row.iter().map(Some).collect())
+        .collect();
+    let manifest = assemble(&fetched.top, &refs);
+    let scene = load_scene(&fetched.top, manifest, config.track)?;
     let mut runs = Vec::new();
     for &bw in bandwidths {
         for &strategy in strategies {
@@ -375,8 +418,8 @@ pub fn write_outputs(report: &WalkReport, dir: &Path) -> Result<(), WalkError> {
 pub fn summary_markdown(r: &WalkReport) -> String {
     let mut s = format!(
         "# Walk: {} / {} ({:.1} m at {} m/s, latency {} ms)\n\n\
-         | bandwidth | strategy | manifest bytes | manifest (s) | first frame (s) | needed fraction | quality | bytes | bytes/m | checksum failures |\n\
-         |---|---|---|---|---|---|---|---|---|---|\n",
+         | bandwidth | strategy | manifest bytes | manifest (s) | table bytes | first frame (s) | needed fraction | quality | bytes | bytes/m | checksum failures |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
         r.scene,
         r.track,
         r.length_m,
@@ -385,11 +428,12 @@ pub fn summary_markdown(r: &WalkReport) -> String {
     );
     for run in &r.runs {
         s += &format!(
-            "| {} | {} | {} | {:.2} | {} | {:.3} | {:.3} | {} | {:.0} | {} |\n",
+            "| {} | {} | {} | {:.2} | {} | {} | {:.3} | {:.3} | {} | {:.0} | {} |\n",
             run.bandwidth_bps.map_or("unlimited".into(), format_bps),
             run.strategy,
             run.manifest_bytes,
             run.manifest_s,
+            run.table_bytes,
             run.time_to_first_frame_s
                 .map_or("never".into(), |t| format!("{t:.2}")),
             run.mean_needed_fraction,

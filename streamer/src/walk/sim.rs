@@ -3,6 +3,7 @@
 use std::sync::atomic::Ordering;
 
 use bytes::Bytes;
+use tracks::manifest::ObjectRef;
 use tracks::PerspectiveCamera;
 
 use super::{
@@ -14,6 +15,7 @@ use crate::client::{
     FetchKey, ItemInfo, ItemTable, LinkEstimate, LiveCount, MotionTracker, Part, PlanInput,
     PriorityMode,
 };
+use crate::db::split::{decode_table, ViewTable};
 use crate::visibility::{blend_weights, frustum_half_angle, Surface, SurfaceCount};
 
 /// Items and the parts of each one bundled request carries.
@@ -25,6 +27,10 @@ type PrefetchMemo = ((usize, i64, i64), Vec<(usize, f64)>);
 struct InFlight {
     /// Carries only prefetched items.
     prefetch: bool,
+    /// Viewpoint tables it carries (position in the track, decoded table).
+    tables: Vec<(usize, ViewTable)>,
+    /// A background table request (low priority: one at a time).
+    background_table: bool,
     items: Vec<usize>,
     /// Checked pieces with the arc length of the item each belongs to.
     keys: Vec<(FetchKey, Bytes, f64)>,
@@ -37,6 +43,14 @@ struct Sim<'a> {
     scene: &'a Scene,
     cfg: &'a WalkConfig,
     strategy: Strategy,
+    /// What the client knows: backgrounds from the top manifest, tiles as their viewpoints'
+    /// tables arrive (item numbers are this table's).
+    table: ItemTable,
+    /// Per viewpoint: its table requested (in flight or arrived).
+    table_requested: Vec<bool>,
+    /// Bytes and requests spent on tables.
+    table_bytes: u64,
+    table_requests: u64,
     items: Vec<ItemInfo>,
     cache: Cache,
     link: VirtualLink,
@@ -71,7 +85,7 @@ struct Sim<'a> {
 
 impl Sim<'_> {
     fn table(&self) -> &ItemTable {
-        &self.scene.table
+        &self.table
     }
 
     /// Deliver everything that has arrived by `t`.
@@ -81,6 +95,15 @@ impl Sim<'_> {
             .partition(|f| f.arrives <= t + 1e-9);
         self.in_flight = pending;
         for f in arrived {
+            for (vi, vt) in f.tables {
+                // Checked and decoded when fetched; the positions agree with the scene's.
+                if let Ok(range) = self.table.add_viewpoint(vi, &vt.tiles, &vt.segments) {
+                    for i in range {
+                        self.items.push(self.table.items[i].info.clone());
+                    }
+                    self.downloading.resize(self.items.len(), false);
+                }
+            }
             for &i in &f.items {
                 self.downloading[i] = false;
             }
@@ -139,7 +162,7 @@ impl Sim<'_> {
             }
         }
         let scene = self.scene;
-        let table = &scene.table;
+        let table = &self.table;
         let lo = table.vp_s.get(next).copied().unwrap_or(0.0);
         let hi = table.vp_s.get(next + 1).copied().unwrap_or(lo);
         let s_mid = 0.5 * (lo + hi);
@@ -205,6 +228,132 @@ impl Sim<'_> {
         list
     }
 
+    /// Requests the tables the walker needs now: the current segment's two viewpoints and,
+    /// with prefetch, the next segment's (nearest first, all in one bundled request, before
+    /// any tile). Returns the request slots used.
+    async fn issue_urgent_tables(
+        &mut self,
+        conn: &mut Connection,
+        t: f64,
+        free: usize,
+    ) -> Result<usize, WalkError> {
+        if free == 0 {
+            return Ok(0);
+        }
+        let vp_s = &self.table.vp_s;
+        let mut want: Vec<usize> = Vec::new();
+        if let Some(seg) = segment_at(vp_s, self.s) {
+            want.extend([seg, seg + 1]);
+        } else if !vp_s.is_empty() {
+            want.push(0);
+        }
+        if let Strategy::Budget { prefetch: true, .. } = self.strategy {
+            if let Some(k) = next_segment(&self.motion, vp_s, self.s, self.cfg.prefetch_horizon_s) {
+                want.extend([k, k + 1]);
+            }
+        }
+        want.retain(|&v| v < vp_s.len() && !self.table_requested[v]);
+        want.sort_by(|&a, &b| {
+            (vp_s[a] - self.s)
+                .abs()
+                .total_cmp(&(vp_s[b] - self.s).abs())
+                .then(a.cmp(&b))
+        });
+        want.dedup();
+        if want.is_empty() {
+            return Ok(0);
+        }
+        self.fetch_tables(conn, t, &want, false).await?;
+        Ok(1)
+    }
+
+    /// One background table (the nearest missing viewpoint) when a slot is free and no
+    /// other background table is on its way.
+    async fn issue_background_table(
+        &mut self,
+        conn: &mut Connection,
+        t: f64,
+    ) -> Result<(), WalkError> {
+        if self.in_flight.len() >= self.cfg.max_in_flight.max(1)
+            || self.in_flight.iter().any(|f| f.background_table)
+        {
+            return Ok(());
+        }
+        let vp_s = &self.table.vp_s;
+        let next = (0..vp_s.len())
+            .filter(|&v| !self.table_requested[v])
+            .min_by(|&a, &b| {
+                (vp_s[a] - self.s)
+                    .abs()
+                    .total_cmp(&(vp_s[b] - self.s).abs())
+                    .then(a.cmp(&b))
+            });
+        if let Some(v) = next {
+            self.fetch_tables(conn, t, &[v], true).await?;
+        }
+        Ok(())
+    }
+
+    /// Fetches the tables of viewpoints `vps` in one request (hash-checked, decoded) and puts
+    /// them on the link.
+    async fn fetch_tables(
+        &mut self,
+        conn: &mut Connection,
+        t: f64,
+        vps: &[usize],
+        background: bool,
+    ) -> Result<(), WalkError> {
+        let refs: Vec<&ObjectRef> = vps.iter().map(|&v| &self.scene.tables[v].0).collect();
+        let keys: Vec<FetchKey> = refs
+            .iter()
+            .map(|r| FetchKey {
+                object: r.hash.clone(),
+                range: None,
+            })
+            .collect();
+        let pieces: Vec<BundlePiece> = refs
+            .iter()
+            .zip(&keys)
+            .map(|(r, key)| BundlePiece {
+                key,
+                len: r.size,
+                hash: &r.hash,
+            })
+            .collect();
+        let data = conn.fetch_checked_bundle(&pieces, None).await?;
+        let mut tables = Vec::with_capacity(vps.len());
+        let mut size = 0u64;
+        for ((&v, bytes), r) in vps.iter().zip(&data).zip(&refs) {
+            size += bytes.len() as u64;
+            let index = self.scene.tables[v].1;
+            let vt = decode_table(bytes, index).map_err(|e| {
+                WalkError::Database(format!("table {} of viewpoint {index}: {e}", r.hash))
+            })?;
+            tables.push((v, vt));
+            self.table_requested[v] = true;
+        }
+        let requests = if conn.bundles_supported() {
+            1
+        } else {
+            vps.len() as u64
+        };
+        self.requests += requests;
+        self.table_requests += requests;
+        self.bytes += size;
+        self.table_bytes += size;
+        self.in_flight.push(InFlight {
+            prefetch: false,
+            tables,
+            background_table: background,
+            items: Vec::new(),
+            keys: Vec::new(),
+            issued: t,
+            arrives: self.link.schedule_requests(t, size, requests),
+            bytes: size,
+        });
+        Ok(())
+    }
+
     /// Decide and issue downloads at time `t` (fetching the bytes for real). Each free
     /// request slot takes one bundle: the next requests in priority order, up to
     /// `bundle_entries` pieces and about one latency's worth of bytes — so a bundle costs one
@@ -215,6 +364,7 @@ impl Sim<'_> {
             .max_in_flight
             .max(1)
             .saturating_sub(self.in_flight.len());
+        let free = free - self.issue_urgent_tables(conn, t, free).await?;
         if free == 0 {
             return Ok(());
         }
@@ -230,7 +380,7 @@ impl Sim<'_> {
             Strategy::Naive => {
                 let mut i = self.naive_next;
                 while i < n && wanted.len() < free * max_pieces {
-                    let it = &self.scene.table.items[i];
+                    let it = &self.table.items[i];
                     let mut v = Vec::new();
                     if it.info.first_level_part == 1 {
                         v.push(it.parts[0].clone());
@@ -246,7 +396,7 @@ impl Sim<'_> {
                     .live
                     .iter()
                     .any(|c| have[c.item] < self.items[c.item].min_parts());
-                let table = &self.scene.table;
+                let table = &self.table;
                 let next = if prefetch {
                     next_segment(
                         &self.motion,
@@ -261,7 +411,7 @@ impl Sim<'_> {
                     None => Vec::new(),
                     Some(k) => self.prefetch_list(k, mode),
                 };
-                let table = &self.scene.table;
+                let table = &self.table;
                 let ach: &[(usize, f64)] = match mode {
                     // Combined: the segment's ACH within the widened frustum broadens
                     // (coarsest levels for a turn of the head); live counts pick what is in
@@ -382,7 +532,7 @@ impl Sim<'_> {
             for (item, parts) in &b {
                 self.downloading[*item] = true;
                 items.push(*item);
-                let s_item = self.scene.table.items[*item].s;
+                let s_item = self.table.items[*item].s;
                 for part in parts {
                     if let Some(d) = data.next() {
                         keys.push((part.key.clone(), d, s_item));
@@ -392,12 +542,19 @@ impl Sim<'_> {
             self.bytes += size;
             self.in_flight.push(InFlight {
                 prefetch: only_prefetch,
+                tables: Vec::new(),
+                background_table: false,
                 items,
                 keys,
                 issued: t,
                 arrives: self.link.schedule_requests(t, size, requests),
                 bytes: size,
             });
+        }
+        // The other viewpoints' tables, nearest first, one at a time and only while the view
+        // has no holes: when the walk reaches them they are there.
+        if !holes {
+            self.issue_background_table(conn, t).await?;
         }
         Ok(())
     }
@@ -439,13 +596,18 @@ pub(crate) async fn run_one(
         manifest.bytes,
         manifest.requests,
     );
-    let items = scene.table.infos();
+    let table = scene.empty.clone();
+    let items = table.infos();
     let n = items.len();
     let naive = strategy == Strategy::Naive;
     let mut sim = Sim {
         scene,
         cfg,
         strategy,
+        table,
+        table_requested: vec![false; scene.tables.len()],
+        table_bytes: 0,
+        table_requests: 0,
         items,
         cache: Cache::new(if naive { u64::MAX } else { cfg.cache_bytes }),
         link: VirtualLink::new(bandwidth, cfg.latency_s),
@@ -516,7 +678,7 @@ pub(crate) async fn run_one(
             .iter()
             .filter_map(|c| {
                 Some(LiveCount {
-                    item: surface_item(&scene.table, c)?,
+                    item: surface_item(&sim.table, c)?,
                     pixels: c.pixels(),
                     needed_level: c.finest_needed(),
                 })
@@ -524,15 +686,11 @@ pub(crate) async fn run_one(
             .collect();
         let have = sim.have();
         let seg = segment_at(&scene.table.vp_s, s).unwrap_or(0);
-        let ach: &[(usize, f64)] = scene
-            .table
-            .segment_ach
-            .get(seg)
-            .map_or(&[], |v| v.as_slice());
+        let ach: &[(usize, f64)] = sim.table.segment_ach.get(seg).map_or(&[], |v| v.as_slice());
         let half = frustum_half_angle(&cam);
         let wide = (half + cfg.prefetch_turn_deg.max(0.0).to_radians()).min(std::f64::consts::PI);
         let in_cone = |i: usize, h: f64| {
-            let it = &scene.table.items[i];
+            let it = &sim.table.items[i];
             it.tile.is_none_or(|tile| {
                 scene
                     .index
@@ -550,7 +708,7 @@ pub(crate) async fn run_one(
             .filter(|&(i, _)| in_cone(i, wide))
             .collect();
         let (quality, needed, complete) =
-            frame_metrics(&scene.table, &sim.items, &have, ach, &counts);
+            frame_metrics(&sim.table, &sim.items, &have, ach, &counts);
         if complete && first_frame.is_none() {
             first_frame = Some(t0 + t);
         }
@@ -589,6 +747,8 @@ pub(crate) async fn run_one(
         time_to_first_frame_s: first_frame,
         manifest_bytes: manifest.bytes,
         manifest_s: t0,
+        table_bytes: sim.table_bytes,
+        table_requests: sim.table_requests,
         mean_needed_fraction: mean(&|f| f.needed_fraction),
         mean_quality: mean(&|f| f.quality),
         bytes: sim.bytes,

@@ -214,7 +214,7 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
     // The database writer's manifest files (compact JSON, checksum, gzip copy), so a
     // synthetic database streams like a built one.
     crate::db::DbWriter::create(root)
-        .and_then(|w| w.finish(&manifest))
+        .and_then(|mut w| w.finish(&manifest))
         .map_err(io::Error::other)?;
     Ok(manifest)
 }
