@@ -319,11 +319,12 @@ async fn the_walk_counts_the_manifest() {
     }
     for (runs, body) in [(&runs[0], gz_len), (&runs[1], json_len)] {
         for r in runs {
-            // The body and the checksum file, two requests, before anything else.
+            // The body and the checksum file, two requests side by side (one round trip),
+            // before anything else.
             assert_eq!(r.manifest_bytes, body + 65);
             let want = match r.bandwidth_bps {
-                Some(b) => 2.0 * cfg.latency_s + (body + 65) as f64 * 8.0 / b as f64,
-                None => 2.0 * cfg.latency_s,
+                Some(b) => cfg.latency_s + (body + 65) as f64 * 8.0 / b as f64,
+                None => cfg.latency_s,
             };
             assert!(
                 (r.manifest_s - want).abs() < 1e-9,

@@ -174,6 +174,9 @@ pub struct ManifestFetch {
     pub transferred_bytes: u64,
     /// Requests it took (the checksum file included).
     pub requests: u64,
+    /// Round trips they took: the checksum file travels beside the first manifest request,
+    /// so 1 unless the manifest had to be fetched again.
+    pub round_trips: u64,
     /// Length of the decoded `manifest.json`.
     pub json_bytes: u64,
     /// Whether the accepted body came gzip-encoded.
@@ -638,7 +641,8 @@ impl Connection {
             .map_err(|e| ClientError::Manifest(format!("viewpoint {viewpoint}: {e}")))
     }
 
-    /// Download `manifest.json.blake3`, then `manifest.json` with `Accept-Encoding: gzip`;
+    /// Download `manifest.json.blake3` and, at the same time on a second connection,
+    /// `manifest.json` with `Accept-Encoding: gzip`;
     /// a gzip body is decompressed within [`RetryPolicy::max_body`] (more →
     /// [`ClientError::DecodedTooLarge`]), and the decoded bytes must hash to the checksum
     /// file before they are parsed. A body that fails (bad gzip, wrong hash) is fetched again
@@ -650,7 +654,16 @@ impl Connection {
         const PATH: &str = "/manifest.json";
         let mut transferred = 0u64;
         let mut requests = 0u64;
-        let expected = match self.get("/manifest.json.blake3", None, None).await {
+        // The checksum file on a second connection while the manifest comes on this one: one
+        // round trip for both.
+        let mut side = Connection::new(self.url.clone(), self.policy.clone(), self.stats.clone());
+        let (hash_res, first) = tokio::join!(
+            side.get("/manifest.json.blake3", None, None),
+            self.get_retrying(PATH, None, None, true)
+        );
+        let mut first = Some(first?);
+        let mut round_trips = 1u64;
+        let expected = match hash_res {
             Ok(text) => {
                 transferred += text.len() as u64;
                 requests += 1;
@@ -673,7 +686,13 @@ impl Connection {
         let attempts = self.policy.checksum_attempts.max(1);
         let mut gzip_failed = false;
         for _ in 0..attempts {
-            let (body, gzip) = self.get_retrying(PATH, None, None, !gzip_failed).await?;
+            let (body, gzip) = match first.take() {
+                Some(b) => b,
+                None => {
+                    round_trips += 1;
+                    self.get_retrying(PATH, None, None, !gzip_failed).await?
+                }
+            };
             transferred += body.len() as u64;
             requests += 1;
             let json = if gzip {
@@ -712,6 +731,7 @@ impl Connection {
                 top,
                 transferred_bytes: transferred,
                 requests,
+                round_trips,
                 json_bytes: json.len() as u64,
                 gzip,
                 checked: expected.is_some(),

@@ -274,6 +274,8 @@ pub enum WalkError {
 pub struct ManifestCost {
     pub bytes: u64,
     pub requests: u64,
+    /// Round trips the requests took (the checksum file travels beside the manifest).
+    pub round_trips: u64,
 }
 
 pub(crate) struct Scene {
@@ -336,6 +338,7 @@ pub async fn run_walk(
     let cost = ManifestCost {
         bytes: fetched.transferred_bytes,
         requests: fetched.requests,
+        round_trips: fetched.round_trips,
     };
     // The whole database, for what each frame needs (the walker's eyes, not its client: the
     // runs fetch the tables again, on their links, as a viewer would).

@@ -229,8 +229,8 @@ impl Sim<'_> {
     }
 
     /// Requests the tables the walker needs now: the current segment's two viewpoints and,
-    /// with prefetch, the next segment's (nearest first, all in one bundled request, before
-    /// any tile). Returns the request slots used.
+    /// with prefetch, the next segment's once the view has no holes (nearest first, one
+    /// request each, before any tile). Returns the request slots used.
     async fn issue_urgent_tables(
         &mut self,
         conn: &mut Connection,
@@ -247,8 +247,20 @@ impl Sim<'_> {
         } else if !vp_s.is_empty() {
             want.push(0);
         }
+        // The next segment's tables are prefetched once the view has no holes (the view
+        // first).
+        let have = self.have();
+        let holes = self
+            .live
+            .iter()
+            .any(|c| have[c.item] < self.items[c.item].min_parts())
+            || want
+                .iter()
+                .any(|&v| v < vp_s.len() && !self.table.has_viewpoint(v));
         if let Strategy::Budget { prefetch: true, .. } = self.strategy {
-            if let Some(k) = next_segment(&self.motion, vp_s, self.s, self.cfg.prefetch_horizon_s) {
+            if let Some(k) = next_segment(&self.motion, vp_s, self.s, self.cfg.prefetch_horizon_s)
+                .filter(|_| !holes)
+            {
                 want.extend([k, k + 1]);
             }
         }
@@ -260,11 +272,12 @@ impl Sim<'_> {
                 .then(a.cmp(&b))
         });
         want.dedup();
-        if want.is_empty() {
-            return Ok(0);
+        // One request each, nearest first: the link delivers the nearest table first.
+        want.truncate(free);
+        for &v in &want {
+            self.fetch_tables(conn, t, &[v], false).await?;
         }
-        self.fetch_tables(conn, t, &want, false).await?;
-        Ok(1)
+        Ok(want.len())
     }
 
     /// One background table (the nearest missing viewpoint) when a slot is free and no
@@ -471,9 +484,19 @@ impl Sim<'_> {
         let mut bundles: Vec<(bool, Bundle)> = Vec::new();
         let mut taken = 0usize;
         let mut wanted = wanted.into_iter().peekable();
+        // Bytes on their way: the budget strategies keep about two latencies' worth on the
+        // link (enough to fill it), so a tile that comes into view next waits behind little.
+        let mut queued: u64 = self.in_flight.iter().map(|f| f.bytes).sum();
+        let queue_cap = match self.strategy {
+            Strategy::Naive => u64::MAX,
+            Strategy::Budget { .. } => 2 * byte_cap,
+        };
         while bundles.len() < free {
             let only_prefetch = taken >= first_prefetch;
             if only_prefetch && prefetch_busy >= prefetch_slots {
+                break;
+            }
+            if queued >= queue_cap {
                 break;
             }
             let mut b: Bundle = Vec::new();
@@ -500,6 +523,7 @@ impl Sim<'_> {
                 break;
             }
             prefetch_busy += usize::from(only_prefetch);
+            queued += bytes;
             bundles.push((only_prefetch, b));
         }
         for (only_prefetch, b) in bundles {
@@ -552,8 +576,12 @@ impl Sim<'_> {
             });
         }
         // The other viewpoints' tables, nearest first, one at a time and only while the view
-        // has no holes: when the walk reaches them they are there.
-        if !holes {
+        // has no holes and the tables around the walker are in: when the walk reaches them
+        // they are there, and they never delay a frame.
+        let around = blend_weights(&self.table.vp_s, self.s)
+            .iter()
+            .all(|w| self.table.has_viewpoint(w.0));
+        if !holes && around {
             self.issue_background_table(conn, t).await?;
         }
         Ok(())
@@ -594,7 +622,7 @@ pub(crate) async fn run_one(
     let t0 = VirtualLink::new(bandwidth, cfg.latency_s).schedule_requests(
         0.0,
         manifest.bytes,
-        manifest.requests,
+        manifest.round_trips.max(1),
     );
     let table = scene.empty.clone();
     let items = table.infos();
