@@ -20,11 +20,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         println!(
-            "{}: {} objects referenced, {} files ({} bytes) hashed, {} PTM level ranges checked",
+            "{}: {} objects referenced, {} files ({} bytes) hashed, {} viewpoint tables decoded, {} PTM level ranges checked",
             args.db.display(),
             report.objects_referenced,
             report.files_checked,
             report.bytes_checked,
+            report.tables_checked,
             report.level_ranges_checked
         );
         for n in &report.notes {
@@ -105,6 +106,18 @@ mod tests {
         std::fs::write(&path, &bytes).unwrap();
         let err = format!("{:#}", run(args()).unwrap_err());
         assert!(err.contains(&path.display().to_string()), "{err}");
+        bytes[3] ^= 1;
+        std::fs::write(&path, &bytes).unwrap();
+        run(args()).unwrap();
+        // A missing viewpoint table is named by track and viewpoint.
+        let top = streamer::db::read_top(&dir).unwrap();
+        let table = dir.join(top.tracks[0].viewpoints[0].table.rel_path().unwrap());
+        std::fs::remove_file(&table).unwrap();
+        let err = format!("{:#}", run(args()).unwrap_err());
+        assert!(
+            err.contains("table of track `main` viewpoint 0") && err.contains("missing"),
+            "{err}"
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -225,6 +225,19 @@ fn corrupted_responses_never_reach_the_caller() {
         "{:?}",
         session.stats()
     );
+    // The tables that arrived are exactly the database's (a corrupted one was fetched
+    // again, never used).
+    let db = streamer::db::Database::open(&dir).unwrap();
+    let want = &db.manifest().tracks[0];
+    let got = &session.manifest().tracks[0];
+    assert!(session.has_table(0), "{:?}", session.stats());
+    for (v, vp) in got.viewpoints.iter().enumerate() {
+        if session.has_table(v) {
+            assert_eq!(vp.tiles, want.viewpoints[v].tiles, "viewpoint {v}");
+        } else {
+            assert!(vp.tiles.is_empty());
+        }
+    }
     // Whatever is cached is intact too.
     for (i, it) in session.table().items.iter().enumerate() {
         for (p, part) in it.parts.iter().enumerate() {
@@ -233,6 +246,55 @@ fn corrupted_responses_never_reach_the_caller() {
             }
         }
     }
+    drop(session);
+    srv.stop();
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn tables_arrive_nearest_first_and_the_session_grows_with_them() {
+    let dir = temp_db("tables");
+    let srv = Server::start(&dir, ServerConfig::default(), "127.0.0.1:0");
+    let mut session =
+        LiveSession::connect(&srv.url(), None, LiveConfig::with_cache(64 << 20)).unwrap();
+    // From the top manifest alone: backgrounds, no tile (nothing to request for them yet).
+    assert!(session.table().items.iter().all(|it| it.tile.is_none()));
+    assert!(session.manifest().tracks[0]
+        .viewpoints
+        .iter()
+        .all(|v| v.tiles.is_empty()));
+    let arrivals = run_until(&mut session, 0.5, Duration::from_secs(20), |s| {
+        s.stats().coarse_fraction >= 1.0
+    });
+    assert!(session.has_table(0) && session.has_table(1));
+    assert!(session.table().items.iter().any(|it| it.tile.is_some()));
+    // A tile's parts arrive only once its viewpoint's table is in.
+    for a in &arrivals {
+        let it = &session.table().items[a.item];
+        assert!(it.tile.is_none() || session.has_table(it.viewpoint));
+    }
+    // Item numbers never change as tables come in: remember the first ones.
+    let before: Vec<_> = session
+        .table()
+        .items
+        .iter()
+        .map(|it| (it.viewpoint, it.tile))
+        .collect();
+    let len = session.manifest().tracks[0].length;
+    run_until(&mut session, len, Duration::from_secs(20), |s| {
+        (0..s.top().tracks[0].viewpoints.len()).all(|v| s.has_table(v))
+            && s.stats().coarse_fraction >= 1.0
+    });
+    let after: Vec<_> = session
+        .table()
+        .items
+        .iter()
+        .map(|it| (it.viewpoint, it.tile))
+        .collect();
+    assert_eq!(&after[..before.len()], &before[..]);
+    // With every table in, the session's manifest is the database's.
+    let db = streamer::db::Database::open(&dir).unwrap();
+    assert_eq!(session.manifest(), db.manifest());
     drop(session);
     srv.stop();
     let _ = std::fs::remove_dir_all(dir);

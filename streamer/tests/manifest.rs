@@ -362,3 +362,69 @@ async fn the_walk_counts_the_manifest() {
     assert!(json.get("manifest_bytes").is_some() && json.get("manifest_s").is_some());
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// The first complete frame waits for the top manifest, the tables of the two viewpoints
+/// around the walker and their tiles — never for the whole database's entries.
+#[tokio::test]
+async fn the_first_frame_needs_the_top_two_tables_and_their_tiles_only() {
+    let dir = std::env::temp_dir().join(format!("railview-manifest-first-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let params = synth::SynthParams {
+        length_m: 24.0,
+        ..synth::SynthParams::default()
+    };
+    let m = synth::write_synthetic(&dir, &params).expect("database");
+    let db = streamer::db::Database::open(&dir).unwrap();
+    let top = db.top().clone();
+    let vps = &top.tracks[0].viewpoints;
+    assert!(vps.len() >= 6, "{} viewpoints", vps.len());
+    let all_tables: u64 = vps.iter().map(|v| v.table.size).sum();
+    let two_tables = vps[0].table.size + vps[1].table.size;
+    // Every part of the first two viewpoints' items (all levels) and every background.
+    let table = streamer::client::ItemTable::new(&m, 0).unwrap();
+    let tiles: u64 = table
+        .items
+        .iter()
+        .filter(|it| it.viewpoint < 2 || it.tile.is_none())
+        .flat_map(|it| it.parts.iter().map(|p| p.bytes))
+        .sum();
+    let cfg = WalkConfig {
+        speed_mps: 1.5,
+        pause_s: 0.0,
+        frame_dt_s: 0.05,
+        samples_x: 32,
+        samples_y: 18,
+        ..WalkConfig::default()
+    };
+    let (addr, stop) = start(&dir).await;
+    let report = walk::run_walk(
+        &url(addr),
+        &cfg,
+        &[Strategy::parse("visibility+prefetch").unwrap()],
+        &[Some(2_000_000)],
+        |_| {},
+    )
+    .await
+    .unwrap();
+    let _ = stop.send(());
+    let r = &report.runs[0];
+    let first = r.first_frame_bytes.expect("a complete frame");
+    let first_tables = r.first_frame_table_bytes.unwrap();
+    assert!(
+        first_tables <= two_tables,
+        "{first_tables} bytes of tables before the first frame, the first two are {two_tables}"
+    );
+    assert!(
+        first <= r.manifest_bytes + two_tables + tiles,
+        "{first} > {} + {two_tables} + {tiles}",
+        r.manifest_bytes
+    );
+    assert!(
+        first < r.manifest_bytes + all_tables,
+        "{first} vs {all_tables} of tables"
+    );
+    // Every table is still fetched, on the link, over the walk.
+    assert_eq!(r.table_bytes, all_tables);
+    assert!(r.bytes >= r.table_bytes);
+    let _ = std::fs::remove_dir_all(dir);
+}

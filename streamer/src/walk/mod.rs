@@ -227,6 +227,10 @@ pub struct RunReport {
     /// Bytes of viewpoint tables transferred (also counted in `bytes`), and their requests.
     pub table_bytes: u64,
     pub table_requests: u64,
+    /// Bytes that had arrived (the manifest's included) at the first complete frame, and of
+    /// them viewpoint tables.
+    pub first_frame_bytes: Option<u64>,
+    pub first_frame_table_bytes: Option<u64>,
     pub mean_needed_fraction: f64,
     pub mean_quality: f64,
     pub bytes: u64,

@@ -51,6 +51,9 @@ struct Sim<'a> {
     /// Bytes and requests spent on tables.
     table_bytes: u64,
     table_requests: u64,
+    /// Bytes arrived so far, and of them tables.
+    delivered_bytes: u64,
+    delivered_table_bytes: u64,
     items: Vec<ItemInfo>,
     cache: Cache,
     link: VirtualLink,
@@ -95,6 +98,10 @@ impl Sim<'_> {
             .partition(|f| f.arrives <= t + 1e-9);
         self.in_flight = pending;
         for f in arrived {
+            self.delivered_bytes += f.bytes;
+            if !f.tables.is_empty() {
+                self.delivered_table_bytes += f.bytes;
+            }
             for (vi, vt) in f.tables {
                 // Checked and decoded when fetched; the positions agree with the scene's.
                 if let Ok(range) = self.table.add_viewpoint(vi, &vt.tiles, &vt.segments) {
@@ -636,6 +643,8 @@ pub(crate) async fn run_one(
         table_requested: vec![false; scene.tables.len()],
         table_bytes: 0,
         table_requests: 0,
+        delivered_bytes: 0,
+        delivered_table_bytes: 0,
         items,
         cache: Cache::new(if naive { u64::MAX } else { cfg.cache_bytes }),
         link: VirtualLink::new(bandwidth, cfg.latency_s),
@@ -674,6 +683,7 @@ pub(crate) async fn run_one(
     let mut frames = Vec::new();
     let mut max_cache = 0u64;
     let mut first_frame = None;
+    let mut first_frame_bytes = None;
     let mut k = 0u64;
     loop {
         let t = k as f64 * dt;
@@ -739,6 +749,10 @@ pub(crate) async fn run_one(
             frame_metrics(&sim.table, &sim.items, &have, ach, &counts);
         if complete && first_frame.is_none() {
             first_frame = Some(t0 + t);
+            first_frame_bytes = Some((
+                manifest.bytes + sim.delivered_bytes,
+                sim.delivered_table_bytes,
+            ));
         }
         sim.issue(conn, t).await?;
         max_cache = max_cache.max(sim.cache.used());
@@ -776,6 +790,8 @@ pub(crate) async fn run_one(
         manifest_bytes: manifest.bytes,
         manifest_s: t0,
         table_bytes: sim.table_bytes,
+        first_frame_bytes: first_frame_bytes.map(|b| b.0),
+        first_frame_table_bytes: first_frame_bytes.map(|b| b.1),
         table_requests: sim.table_requests,
         mean_needed_fraction: mean(&|f| f.needed_fraction),
         mean_quality: mean(&|f| f.quality),
