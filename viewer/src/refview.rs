@@ -101,6 +101,9 @@ pub struct MeshParams {
     pub step: u32,
     /// Two neighbouring depths `a < b` belong to different surfaces when `b > a·(1 + jump)`.
     pub jump: f64,
+    /// Error-bounded adaptive meshes (`slabs::mesh`, what `railview build` stores in a
+    /// database) instead of the grid; `step` and `jump` are then unused.
+    pub adaptive: Option<AdaptiveMesh>,
 }
 
 impl Default for MeshParams {
@@ -108,8 +111,65 @@ impl Default for MeshParams {
         MeshParams {
             step: 2,
             jump: 0.08,
+            adaptive: None,
         }
     }
+}
+
+/// Parameters of the adaptive (Delaunay, error-bounded) tile meshes of `slabs::mesh`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AdaptiveMesh {
+    /// Bound on the depth error, parallax pixels at `baseline_m` (databases use 0.5).
+    pub max_error_px: f64,
+    /// The track's largest baseline (sample spacing), metres.
+    pub baseline_m: f64,
+}
+
+impl AdaptiveMesh {
+    /// The bound `railview build` uses (0.5 px of parallax) at sample spacing `baseline_m`.
+    pub fn database(baseline_m: f64) -> AdaptiveMesh {
+        AdaptiveMesh {
+            max_error_px: 0.5,
+            baseline_m,
+        }
+    }
+}
+
+/// The adaptive mesh of one tile of a slab layer (`depth` = +inf outside the slab), as
+/// `slabs::mesh` builds it for databases (vertices on pixel centres, neighbouring tiles of a
+/// face joined without cracks), or `None` when it has no triangle.
+pub fn adaptive_tile_mesh(
+    depth: &CubeMap<f32>,
+    mask: &CubeMap<bool>,
+    grid: &TileGrid,
+    tile: TileId,
+    params: AdaptiveMesh,
+) -> Option<TileMesh> {
+    let p = slabs::mesh::MeshParams {
+        max_error_px: params.max_error_px,
+        baseline_m: params.baseline_m,
+        ..Default::default()
+    };
+    let m = slabs::mesh::mesh_tile(
+        depth,
+        mask,
+        *grid,
+        tile,
+        &p,
+        Some(slabs::tiles::MeshKind::Adaptive),
+    )
+    .adaptive;
+    (!m.indices.is_empty()).then(|| TileMesh {
+        vertices: m
+            .vertices
+            .iter()
+            .map(|v| MeshVertex {
+                pos_in_face: [v[0], v[1]],
+                depth_m: v[2],
+            })
+            .collect(),
+        indices: m.indices,
+    })
 }
 
 /// One dense slab layer: colour (alpha is the binary opacity mask) and radial depth
@@ -172,8 +232,13 @@ impl RefView {
                 [c[0], c[1], c[2], a]
             });
             layers.push(Layer::from_rgba(dilate_masked(&color)));
+            let mask = params.adaptive.map(|_| depth.map(|d| d.is_finite()));
             for tile in grid.tiles() {
-                if let Some(mesh) = tile_mesh(&depth, &grid, tile, params) {
+                let mesh = match (params.adaptive, &mask) {
+                    (Some(a), Some(mask)) => adaptive_tile_mesh(&depth, mask, &grid, tile, a),
+                    _ => tile_mesh(&depth, &grid, tile, params),
+                };
+                if let Some(mesh) = mesh {
                     tiles.push(ViewTile::new(tile, k as u32, mesh, n));
                 }
             }
@@ -555,7 +620,11 @@ mod tests {
         let n = 8;
         let d = sphere_depth(n, 5.0);
         let grid = TileGrid::new(n, 4).unwrap();
-        let p = MeshParams { step: 2, jump: 0.1 };
+        let p = MeshParams {
+            step: 2,
+            jump: 0.1,
+            adaptive: None,
+        };
         for t in grid.tiles() {
             let m = tile_mesh(&d, &grid, t, p).unwrap();
             // 2x2 cells, shared corners: 9 vertices, 8 triangles.
@@ -612,7 +681,17 @@ mod tests {
             tx: 0,
             ty: 0,
         };
-        let m = tile_mesh(&d, &grid, t, MeshParams { step: 2, jump: 0.1 }).unwrap();
+        let m = tile_mesh(
+            &d,
+            &grid,
+            t,
+            MeshParams {
+                step: 2,
+                jump: 0.1,
+                adaptive: None,
+            },
+        )
+        .unwrap();
         for tri in m.indices.chunks(3) {
             let ds: Vec<f32> = tri
                 .iter()
@@ -642,7 +721,11 @@ mod tests {
             (4.0 + dir.x) as f32
         });
         let grid = TileGrid::new(n, 16).unwrap();
-        let p = MeshParams { step: 2, jump: 0.5 };
+        let p = MeshParams {
+            step: 2,
+            jump: 0.5,
+            adaptive: None,
+        };
         for t in grid.tiles() {
             let m = tile_mesh(&d, &grid, t, p).unwrap();
             let rect = grid.pixel_rect(t);
@@ -688,7 +771,11 @@ mod tests {
         let n = 32;
         let d = CubeMap::filled(n, 6.0f32);
         let grid = TileGrid::new(n, 16).unwrap();
-        let p = MeshParams { step: 2, jump: 0.1 };
+        let p = MeshParams {
+            step: 2,
+            jump: 0.1,
+            adaptive: None,
+        };
         let a = TileId {
             face: Face::PosZ,
             tx: 0,
@@ -736,7 +823,17 @@ mod tests {
             tx: 0,
             ty: 0,
         };
-        let m = tile_mesh(&d, &grid, t, MeshParams { step: 2, jump: 0.1 }).unwrap();
+        let m = tile_mesh(
+            &d,
+            &grid,
+            t,
+            MeshParams {
+                step: 2,
+                jump: 0.1,
+                adaptive: None,
+            },
+        )
+        .unwrap();
         let idx = decimated_indices(&m, grid.pixel_rect(t), 16, 0.1);
         for tri in idx.chunks(3) {
             let ds: Vec<f32> = tri
