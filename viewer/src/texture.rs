@@ -104,10 +104,88 @@ impl Layer {
     }
 }
 
-/// Halve a cube map: colour averaged in linear light weighted by alpha, alpha averaged.
-pub fn downsample(map: &CubeMap<[u8; 4]>) -> CubeMap<[u8; 4]> {
-    let n = map.face_size() / 2;
-    CubeMap::from_fn(n, |f, x, y| {
+/// A rectangle of face pixels on one face: `x0..x1 × y0..y1` (ends exclusive).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FaceRect {
+    pub face: Face,
+    pub x0: u32,
+    pub y0: u32,
+    pub x1: u32,
+    pub y1: u32,
+}
+
+impl FaceRect {
+    /// Grown by `d` pixels on every side, clipped to a face `n` pixels wide.
+    pub fn grown(&self, d: u32, n: u32) -> FaceRect {
+        FaceRect {
+            face: self.face,
+            x0: self.x0.saturating_sub(d),
+            y0: self.y0.saturating_sub(d),
+            x1: (self.x1 + d).min(n),
+            y1: (self.y1 + d).min(n),
+        }
+    }
+
+    /// The texels of the level `level` steps coarser that cover it.
+    pub fn coarser(&self, level: u32) -> FaceRect {
+        let s = 1u32 << level;
+        FaceRect {
+            face: self.face,
+            x0: self.x0 / s,
+            y0: self.y0 / s,
+            x1: self.x1.div_ceil(s),
+            y1: self.y1.div_ceil(s),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x0 >= self.x1 || self.y0 >= self.y1
+    }
+}
+
+impl Layer {
+    /// Bring the layer up to date after `dense` (the undilated map the layer was built
+    /// from, [`Layer::from_rgba`]`(`[`dilate_masked`]`(dense))`) changed inside `rect` only,
+    /// e.g. when one tile arrived: the dilation is redone over the rectangle and the two
+    /// texels around it, and each mip level over the texels that cover that. The result is
+    /// identical to rebuilding the whole layer. Returns, per level, the rectangle of texels
+    /// that may have changed (for [`crate::gpu::Renderer::update_layer_region`]).
+    pub fn update_region(&mut self, dense: &CubeMap<[u8; 4]>, rect: FaceRect) -> Vec<FaceRect> {
+        let n = self.face_size();
+        if dense.face_size() != n || rect.is_empty() {
+            return Vec::new();
+        }
+        let out = rect.grown(DILATE_STEPS, n);
+        let window = out.grown(DILATE_STEPS, n);
+        let dilated = dilate_window(dense, window);
+        let ww = (window.x1 - window.x0) as usize;
+        let level0 = &mut self.levels[0];
+        for y in out.y0..out.y1 {
+            for x in out.x0..out.x1 {
+                let i = (y - window.y0) as usize * ww + (x - window.x0) as usize;
+                *level0.get_mut(out.face, x, y) = dilated[i];
+            }
+        }
+        let mut rects = vec![out];
+        for level in 1..self.levels.len() {
+            let r = out.coarser(level as u32);
+            let (finer, coarser) = self.levels.split_at_mut(level);
+            let src = &finer[level - 1];
+            let dst = &mut coarser[0];
+            for y in r.y0..r.y1.min(dst.face_size()) {
+                for x in r.x0..r.x1.min(dst.face_size()) {
+                    *dst.get_mut(r.face, x, y) = downsample_texel(src, r.face, x, y);
+                }
+            }
+            rects.push(r);
+        }
+        rects
+    }
+}
+
+/// Texel `(x, y)` of face `f` of the half-size map of `map` ([`downsample`]).
+fn downsample_texel(map: &CubeMap<[u8; 4]>, f: Face, x: u32, y: u32) -> [u8; 4] {
+    {
         let mut rgb = [0.0f32; 3];
         let mut plain = [0.0f32; 3];
         let mut alpha = 0.0f32;
@@ -132,52 +210,89 @@ pub fn downsample(map: &CubeMap<[u8; 4]>) -> CubeMap<[u8; 4]> {
             linear_to_srgb(col[2]),
             (alpha / 4.0 * 255.0).round() as u8,
         ]
+    }
+}
+
+/// Halve a cube map: colour averaged in linear light weighted by alpha, alpha averaged.
+pub fn downsample(map: &CubeMap<[u8; 4]>) -> CubeMap<[u8; 4]> {
+    CubeMap::from_fn(map.face_size() / 2, |f, x, y| {
+        downsample_texel(map, f, x, y)
     })
 }
+
+/// Passes of [`dilate_masked`] (texels of the band it fills around the mask).
+const DILATE_STEPS: u32 = 2;
 
 /// Give texels with alpha 0 the mean colour of their opaque 8-neighbours (two passes, so a
 /// two-texel band around every mask edge is filled); alpha is left as it is.
 pub fn dilate_masked(map: &CubeMap<[u8; 4]>) -> CubeMap<[u8; 4]> {
-    let n = map.face_size() as i64;
-    let mut cur = map.clone();
-    let mut filled: CubeMap<bool> = map.map(|c| c[3] > 0);
-    for _ in 0..2 {
+    let n = map.face_size();
+    let faces: Vec<Vec<[u8; 4]>> = Face::ALL
+        .iter()
+        .map(|&face| {
+            dilate_window(
+                map,
+                FaceRect {
+                    face,
+                    x0: 0,
+                    y0: 0,
+                    x1: n,
+                    y1: n,
+                },
+            )
+        })
+        .collect();
+    CubeMap::from_fn(n, |f, x, y| faces[f.index()][(y * n + x) as usize])
+}
+
+/// [`dilate_masked`] computed inside `window` only (row-major texels of the window). Texels
+/// of the window's border that are not the face's border see fewer neighbours than in the
+/// whole map, so only texels at least [`DILATE_STEPS`] inside such a border are exact.
+fn dilate_window(map: &CubeMap<[u8; 4]>, window: FaceRect) -> Vec<[u8; 4]> {
+    let (w, h) = (
+        (window.x1 - window.x0) as i64,
+        (window.y1 - window.y0) as i64,
+    );
+    let mut cur: Vec<[u8; 4]> = (window.y0..window.y1)
+        .flat_map(|y| (window.x0..window.x1).map(move |x| (x, y)))
+        .map(|(x, y)| *map.get(window.face, x, y))
+        .collect();
+    let mut filled: Vec<bool> = cur.iter().map(|c| c[3] > 0).collect();
+    for _ in 0..DILATE_STEPS {
         let prev = cur.clone();
         let prev_filled = filled.clone();
-        for f in Face::ALL {
-            for y in 0..n {
-                for x in 0..n {
-                    if *prev_filled.get(f, x as u32, y as u32) {
-                        continue;
-                    }
-                    let mut sum = [0u32; 3];
-                    let mut count = 0;
-                    for dy in -1..=1i64 {
-                        for dx in -1..=1i64 {
-                            let (px, py) = (x + dx, y + dy);
-                            if px < 0 || py < 0 || px >= n || py >= n {
-                                continue;
+        for y in 0..h {
+            for x in 0..w {
+                let i = (y * w + x) as usize;
+                if prev_filled[i] {
+                    continue;
+                }
+                let mut sum = [0u32; 3];
+                let mut count = 0;
+                for dy in -1..=1i64 {
+                    for dx in -1..=1i64 {
+                        let (px, py) = (x + dx, y + dy);
+                        if px < 0 || py < 0 || px >= w || py >= h {
+                            continue;
+                        }
+                        let j = (py * w + px) as usize;
+                        if prev_filled[j] {
+                            for k in 0..3 {
+                                sum[k] += prev[j][k] as u32;
                             }
-                            if *prev_filled.get(f, px as u32, py as u32) {
-                                let c = prev.get(f, px as u32, py as u32);
-                                for k in 0..3 {
-                                    sum[k] += c[k] as u32;
-                                }
-                                count += 1;
-                            }
+                            count += 1;
                         }
                     }
-                    if let Some(mean) = sum
-                        .iter()
-                        .map(|s| s.checked_div(count))
-                        .collect::<Option<Vec<u32>>>()
-                    {
-                        let c = cur.get_mut(f, x as u32, y as u32);
-                        for k in 0..3 {
-                            c[k] = mean[k] as u8;
-                        }
-                        *filled.get_mut(f, x as u32, y as u32) = true;
+                }
+                if let Some(mean) = sum
+                    .iter()
+                    .map(|s| s.checked_div(count))
+                    .collect::<Option<Vec<u32>>>()
+                {
+                    for k in 0..3 {
+                        cur[i][k] = mean[k] as u8;
                     }
+                    filled[i] = true;
                 }
             }
         }
@@ -230,6 +345,49 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(24))]
+        /// Updating the region of a changed rectangle gives the same layer as rebuilding it.
+        #[test]
+        fn region_update_matches_a_rebuild(
+            seed in 0u64..1000,
+            face in 0usize..6,
+            x0 in 0u32..16,
+            y0 in 0u32..16,
+            w in 1u32..8,
+            h in 1u32..8,
+        ) {
+            let n = 16;
+            let bits = |f: Face, x: u32, y: u32, salt: u64| {
+                let v = (f.index() as u64 * 977 + x as u64 * 131 + y as u64 * 31 + seed * 7 + salt)
+                    .wrapping_mul(0x9e37_79b9_7f4a_7c15);
+                (v >> 40) as u8
+            };
+            let before = CubeMap::from_fn(n, |f, x, y| {
+                let a = if bits(f, x, y, 1) > 140 { 255 } else { 0 };
+                [bits(f, x, y, 2), bits(f, x, y, 3), bits(f, x, y, 4), a]
+            });
+            let rect = FaceRect {
+                face: Face::ALL[face],
+                x0,
+                y0,
+                x1: (x0 + w).min(n),
+                y1: (y0 + h).min(n),
+            };
+            let mut after = before.clone();
+            for y in rect.y0..rect.y1 {
+                for x in rect.x0..rect.x1 {
+                    *after.get_mut(rect.face, x, y) = [9, (x * 16) as u8, (y * 16) as u8, 255];
+                }
+            }
+            let mut layer = Layer::from_rgba(dilate_masked(&before));
+            let rects = layer.update_region(&after, rect);
+            let rebuilt = Layer::from_rgba(dilate_masked(&after));
+            proptest::prop_assert_eq!(rects.len(), rebuilt.levels.len());
+            proptest::prop_assert!(layer == rebuilt);
         }
     }
 
