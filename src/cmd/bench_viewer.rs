@@ -20,7 +20,12 @@ pub struct Args {
     /// Face size of the synthetic street.
     #[arg(long, default_value_t = 512)]
     pub face: u32,
-    /// Mesh grid step (pixels) of the synthetic street.
+    /// Meshes of the synthetic street: `adaptive` (error-bounded Delaunay meshes, 0.5 px of
+    /// parallax at the sample spacing, as `railview build` stores in databases) or `grid`
+    /// (a vertex every `--mesh-step` pixels).
+    #[arg(long, default_value = "adaptive")]
+    pub mesh: String,
+    /// Mesh grid step (pixels) of the synthetic street with `--mesh grid`.
     #[arg(long, default_value_t = 4)]
     pub mesh_step: u32,
     /// Timed frames per variant.
@@ -109,6 +114,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     anyhow::ensure!(args.frames >= 1, "--frames must be at least 1");
     let mesh = MeshParams {
         step: args.mesh_step,
+        adaptive: match args.mesh.as_str() {
+            // The street's samples are 1.5 m apart (its largest baseline).
+            "adaptive" => Some(viewer::refview::AdaptiveMesh::database(1.5)),
+            "grid" => None,
+            other => anyhow::bail!("--mesh {other}: expected `adaptive` or `grid`"),
+        },
         ..Default::default()
     };
     let walk = match &args.db {
@@ -145,14 +156,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )];
     let pano_plan = plan_frame(&pano, &camera, s, DrawBudget::default())?;
     let mut r = Renderer::new(Gpu::new()?);
-    // (name, budget, tile ids written)
+    // (name, budget, tile ids written); frames without tile ids and overlays take the fused
+    // path (no view targets, no composite pass).
     let variants: Vec<(&str, DrawBudget, bool)> = vec![
         (
             "full (2 views x all slabs, tile ids)",
             DrawBudget::default(),
             true,
         ),
-        ("full without tile ids", DrawBudget::default(), false),
+        (
+            "full without tile ids (fused)",
+            DrawBudget::default(),
+            false,
+        ),
+        (
+            "full without tile ids, composite pass",
+            DrawBudget::default(),
+            false,
+        ),
         (
             "full, meshes decimated (level 1)",
             DrawBudget {
@@ -185,6 +206,30 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             },
             true,
         ),
+        (
+            "full, second view at half resolution",
+            DrawBudget {
+                half_res_second: true,
+                ..Default::default()
+            },
+            false,
+        ),
+        (
+            "1 view, all slabs, fused",
+            DrawBudget {
+                blend: false,
+                ..Default::default()
+            },
+            false,
+        ),
+        (
+            "2 views, 1 slab, fused",
+            DrawBudget {
+                max_slabs: 1,
+                ..Default::default()
+            },
+            false,
+        ),
     ];
     for _ in 0..3 {
         r.draw(&plan, &walk.views)?;
@@ -198,6 +243,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let (t, c) = (Instant::now(), cpu_ns());
             let mut plan = plan_frame(&walk.views, &camera, s, *budget)?;
             plan.tile_ids = *ids;
+            // The hole overlay needs no tile ids but the composite pass: the path frames
+            // without tile ids took before the fused one (same image where nothing is a hole).
+            plan.overlays.holes = k == 2;
             r.draw(&plan, &walk.views)?;
             wall[k + 1].push(t.elapsed().as_secs_f64() * 1e3);
             if let (Some(a), Some(b)) = (c, cpu_ns()) {

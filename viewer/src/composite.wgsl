@@ -18,8 +18,6 @@
 // tile-visibility feedback, and the streaming highlight of recently loaded tiles; `holes`
 // paints pixels no view covers magenta (opaque).
 
-const SHARPNESS: f32 = 20.0;
-
 const OVERLAY_HIGHLIGHT: u32 = 1u;
 const OVERLAY_HEAT: u32 = 2u;
 const OVERLAY_SLABS: u32 = 4u;

@@ -5,6 +5,10 @@
 // farther than anything (f16 keeps values up to 65504).
 const SKY_DISTANCE: f32 = 60000.0;
 
+// Depth-aware blend of two views (composite.wgsl and the fused second-view pass of
+// render.wgsl): a view's weight is scaled by exp(-SHARPNESS (d / d_min - 1)).
+const SHARPNESS: f32 = 20.0;
+
 struct View {
     clip_from_cam: mat4x4<f32>,
     origin_rel: vec4<f32>,   // ref - camera (xyz), w = face size

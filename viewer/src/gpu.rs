@@ -13,11 +13,24 @@
 //! visible pixels per tile with the feedback compute pass inside the same frame.
 //!
 //! Each view pass draws its tile meshes, then its background (sky) at the far plane behind a
-//! depth test, so the sky costs only where no tile drew. Frames without tile ids
-//! ([`FramePlan::tile_ids`] off, no overlays) take a faster path: the first view's sky writes
-//! a tiny depth and the second view is drawn against the first view's depth (scaled by
-//! `SECOND_VIEW_DEPTH_SCALE`), skipping what the blend would weigh at almost nothing.
+//! depth test, so the sky costs only where no tile drew. That is the path of frames with tile
+//! ids or overlays. Frames without them ([`FramePlan::tile_ids`] off, no overlays: most
+//! frames in the window, and `eval`) are *fused*: two passes straight into the output, no
+//! view targets and no composite pass. The first view writes the output (sRGB, alpha 1) and
+//! its distance (an `R16Float` target); its sky writes a tiny depth. The second view is drawn
+//! against the first view's depth (scaled by `SECOND_VIEW_DEPTH_SCALE`, skipping what the
+//! blend would weigh at almost nothing) with hardware blending: each of its fragments carries
+//! the share β = w_b / (w_a + w_b) the composite would give it there, computed from the first
+//! view's distance; its sky fills the first view's holes only. Same image as the composite
+//! up to 8-bit rounding of the first view's colour.
+//! [`FramePlan::half_res_second`] (a [`crate::DrawBudget`] choice, off by default) draws the
+//! view with the smaller weight first at half width and height into its own target, then the
+//! other view writes every output pixel, blending the half-resolution texel in.
 //! [`FramePlan::mesh_level`] selects decimated index buffers over the same vertices.
+//!
+//! Streaming: [`Renderer::update_layer_region`] writes the texels around one tile that
+//! arrived (from [`crate::texture::Layer::update_region`]) into an uploaded view; when tiles
+//! join a view, the next draw rebuilds its meshes and keeps its texture.
 
 use std::collections::HashMap;
 
@@ -36,6 +49,8 @@ const ID_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 /// the nearer surface's (`SHARPNESS` in composite.wgsl), so the image does not change;
 /// meshes nearer than `NEAR_M × 1.5` are clipped in the second view.
 const SECOND_VIEW_DEPTH_SCALE: f64 = 1.5;
+/// Fused frames: the first view's distance to the camera (0 = hole), read by the second view.
+const DIST_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R16Float;
 /// Format of the final image (sRGB-encoded RGBA8, alpha 0 = hole).
 pub const OUTPUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
 
@@ -163,6 +178,8 @@ pub struct GpuView {
     face_layer: Vec<u32>,
     /// Bytes uploaded (textures + meshes).
     pub bytes: u64,
+    /// Of which meshes and tile buffers.
+    mesh_bytes: u64,
 }
 
 struct Targets {
@@ -171,6 +188,15 @@ struct Targets {
     view_views: [wgpu::TextureView; 2],
     id_views: [wgpu::TextureView; 2],
     depth_view: wgpu::TextureView,
+    /// Fused frames: the first view's distance, and the second view's bind group 1
+    /// (composite uniforms + that distance).
+    dist_view: wgpu::TextureView,
+    second_group: wgpu::BindGroup,
+    /// Half-resolution second view: colour + distance, its depth, and the bind group 1 of
+    /// the first view drawn over it.
+    half_view: wgpu::TextureView,
+    half_depth: wgpu::TextureView,
+    half_group: wgpu::BindGroup,
     output: wgpu::Texture,
     output_view: wgpu::TextureView,
     /// The same texels as plain UNORM (sRGB-encoded bytes), for UIs that expect them.
@@ -182,6 +208,16 @@ pub struct Renderer {
     pub gpu: Gpu,
     view_bgl: wgpu::BindGroupLayout,
     composite_bgl: wgpu::BindGroupLayout,
+    /// Fused frames (no tile ids, no overlays): the first view into the output and its
+    /// distance target, the second view blended into the output (`render.wgsl`).
+    second_bgl: wgpu::BindGroupLayout,
+    first_mesh: wgpu::RenderPipeline,
+    first_sky: wgpu::RenderPipeline,
+    second_mesh: wgpu::RenderPipeline,
+    second_sky: wgpu::RenderPipeline,
+    /// Half-resolution second view: the first view drawn over it, blending it in.
+    mesh_over_half: wgpu::RenderPipeline,
+    background_over_half: wgpu::RenderPipeline,
     /// Background (sky) where no tile drew, with and without the tile-id target.
     background_ids: wgpu::RenderPipeline,
     background: wgpu::RenderPipeline,
@@ -295,6 +331,13 @@ impl Renderer {
                 storage_entry(8),
             ],
         });
+        let second_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("second view"),
+            entries: &[
+                uniform_entry(0),
+                texture_entry(1, wgpu::TextureViewDimension::D2),
+            ],
+        });
         let render = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("render.wgsl"),
             source: wgpu::ShaderSource::Wgsl(shader_source(include_str!("render.wgsl")).into()),
@@ -306,6 +349,11 @@ impl Renderer {
         let view_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("view"),
             bind_group_layouts: &[Some(&view_bgl)],
+            immediate_size: 0,
+        });
+        let second_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("second view"),
+            bind_group_layouts: &[Some(&view_bgl), Some(&second_bgl)],
             immediate_size: 0,
         });
         let composite_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -445,6 +493,92 @@ impl Renderer {
             depth(wgpu::CompareFunction::Greater, true),
             &[],
         );
+        // Fused frames: the first view writes the output (no blending) and its distance.
+        let first_targets = [target(OUTPUT_FORMAT), target(DIST_FORMAT)];
+        let first_mesh = mk(
+            "first view mesh (fused)",
+            &render,
+            &view_layout,
+            "vs_mesh",
+            "fs_mesh_first",
+            &mesh_buffers,
+            &first_targets,
+            depth(wgpu::CompareFunction::Greater, true),
+            &[],
+        );
+        let first_sky = mk(
+            "first view sky (fused)",
+            &render,
+            &view_layout,
+            "vs_sky_depth",
+            "fs_sky_first",
+            &[],
+            &first_targets,
+            depth(wgpu::CompareFunction::GreaterEqual, true),
+            &[],
+        );
+        // The second view blends into the output: colour β·src + (1 − β)·dst with β the
+        // fragment's alpha; alpha max(src, dst) (covered when either view covers).
+        let second_targets = [Some(wgpu::ColorTargetState {
+            format: OUTPUT_FORMAT,
+            blend: Some(wgpu::BlendState {
+                color: wgpu::BlendComponent {
+                    src_factor: wgpu::BlendFactor::SrcAlpha,
+                    dst_factor: wgpu::BlendFactor::OneMinusSrcAlpha,
+                    operation: wgpu::BlendOperation::Add,
+                },
+                alpha: wgpu::BlendComponent {
+                    src_factor: wgpu::BlendFactor::One,
+                    dst_factor: wgpu::BlendFactor::One,
+                    operation: wgpu::BlendOperation::Max,
+                },
+            }),
+            write_mask: wgpu::ColorWrites::ALL,
+        })];
+        let second_mesh = mk(
+            "second view mesh (fused)",
+            &render,
+            &second_layout,
+            "vs_mesh",
+            "fs_mesh_second",
+            &mesh_buffers,
+            &second_targets,
+            depth(wgpu::CompareFunction::Greater, true),
+            &[("depth_scale", SECOND_VIEW_DEPTH_SCALE)],
+        );
+        let second_sky = mk(
+            "second view sky (fused)",
+            &render,
+            &second_layout,
+            "vs_full",
+            "fs_sky_second",
+            &[],
+            &second_targets,
+            depth(wgpu::CompareFunction::GreaterEqual, false),
+            &[],
+        );
+        let mesh_over_half = mk(
+            "mesh over the half-resolution second view",
+            &render,
+            &second_layout,
+            "vs_mesh",
+            "fs_mesh_over_half",
+            &mesh_buffers,
+            &output_target,
+            depth(wgpu::CompareFunction::Greater, true),
+            &[],
+        );
+        let background_over_half = mk(
+            "background over the half-resolution second view",
+            &render,
+            &second_layout,
+            "vs_full",
+            "fs_background_over_half",
+            &[],
+            &output_target,
+            depth(wgpu::CompareFunction::GreaterEqual, false),
+            &[],
+        );
         let panorama = mk(
             "panorama",
             &render,
@@ -507,6 +641,13 @@ impl Renderer {
             gpu,
             view_bgl,
             composite_bgl,
+            second_bgl,
+            first_mesh,
+            first_sky,
+            second_mesh,
+            second_sky,
+            mesh_over_half,
+            background_over_half,
             mesh_ids,
             mesh,
             panorama,
@@ -544,6 +685,12 @@ impl Renderer {
     }
 
     fn upload(&self, view: &RefView) -> GpuView {
+        let (texture, bytes) = self.upload_texture(view);
+        self.upload_meshes(view, texture, bytes)
+    }
+
+    /// The view's texture array with every layer and level written; bytes written.
+    fn upload_texture(&self, view: &RefView) -> (wgpu::Texture, u64) {
         let device = &self.gpu.device;
         let n = view.face_size;
         let layers = view.layers.len().max(1) as u32;
@@ -593,6 +740,14 @@ impl Renderer {
                 );
             }
         }
+        (texture, bytes)
+    }
+
+    /// Everything of a [`GpuView`] but the texture: meshes, tile info, bind group.
+    fn upload_meshes(&self, view: &RefView, texture: wgpu::Texture, tex_bytes: u64) -> GpuView {
+        let mut bytes = tex_bytes;
+        let device = &self.gpu.device;
+        let n = view.face_size;
         let mut verts: Vec<GpuVertex> = Vec::new();
         let mut idx: Vec<u32> = Vec::new();
         let mut index_start = Vec::with_capacity(view.tiles.len() + 1);
@@ -720,23 +875,97 @@ impl Renderer {
             coarse,
             face_layer,
             bytes,
+            mesh_bytes: bytes - tex_bytes,
         }
     }
 
+    /// Whether the uploaded texture of a view has the view's shape (face size, layers, levels).
+    fn texture_fits(g: &GpuView, view: &RefView) -> bool {
+        let size = g.texture.size();
+        size.width == view.face_size
+            && size.depth_or_array_layers == view.layers.len().max(1) as u32
+            && g.texture.mip_level_count()
+                == view.layers.first().map_or(1, |l| l.levels.len()) as u32
+    }
+
     fn ensure_view(&mut self, view: &RefView) {
-        let stale = match self.views.get(&view.index) {
-            Some(g) => {
-                g.face_layer.len() != view.tiles.len()
-                    || g.texture.size().width != view.face_size
-                    || g.texture.size().depth_or_array_layers != view.layers.len().max(1) as u32
+        let state = self.views.get(&view.index).map(|g| {
+            (
+                Self::texture_fits(g, view),
+                g.face_layer.len() == view.tiles.len(),
+            )
+        });
+        match state {
+            Some((true, true)) => return,
+            // Tiles joined (or left): new meshes over the same texture, whose changed
+            // regions the caller wrote with `update_layer_region`.
+            Some((true, false)) => {
+                let Some(old) = self.views.remove(&view.index) else {
+                    return;
+                };
+                let tex_bytes = old.bytes - old.mesh_bytes;
+                let g = self.upload_meshes(view, old.texture, tex_bytes);
+                self.views.insert(view.index, g);
             }
-            None => true,
-        };
-        if stale {
-            let g = self.upload(view);
-            self.views.insert(view.index, g);
-            self.composite_groups.clear();
+            _ => {
+                let g = self.upload(view);
+                self.views.insert(view.index, g);
+            }
         }
+        self.composite_groups.clear();
+    }
+
+    /// Write the texels of `rects` (per mip level, as [`crate::texture::Layer::update_region`]
+    /// returns them) of layer `layer` of an uploaded view from `view.layers[layer]`: what
+    /// changes when one tile arrives, without re-uploading the view. Returns `false` when the
+    /// view is not uploaded with this shape (the next draw then uploads it whole anyway).
+    /// When tiles joined the view, the next draw rebuilds its meshes only.
+    pub fn update_layer_region(
+        &mut self,
+        view: &RefView,
+        layer: usize,
+        rects: &[crate::texture::FaceRect],
+    ) -> bool {
+        let (Some(g), Some(src)) = (self.views.get(&view.index), view.layers.get(layer)) else {
+            return false;
+        };
+        if !Self::texture_fits(g, view) {
+            return false;
+        }
+        for (level, (r, map)) in rects.iter().zip(&src.levels).enumerate() {
+            let m = map.face_size();
+            let (x1, y1) = (r.x1.min(m), r.y1.min(m));
+            if r.x0 >= x1 || r.y0 >= y1 {
+                continue;
+            }
+            let data: Vec<[u8; 4]> = (r.y0..y1)
+                .flat_map(|y| (r.x0..x1).map(move |x| *map.get(r.face, x, y)))
+                .collect();
+            self.gpu.queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &g.texture,
+                    mip_level: level as u32,
+                    origin: wgpu::Origin3d {
+                        x: r.x0,
+                        y: r.face.index() as u32 * m + r.y0,
+                        z: layer as u32,
+                    },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                bytemuck::cast_slice(&data),
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(4 * (x1 - r.x0)),
+                    rows_per_image: Some(y1 - r.y0),
+                },
+                wgpu::Extent3d {
+                    width: x1 - r.x0,
+                    height: y1 - r.y0,
+                    depth_or_array_layers: 1,
+                },
+            );
+        }
+        true
     }
 
     fn ensure_targets(&mut self, width: u32, height: u32) -> Result<(), GpuError> {
@@ -799,10 +1028,59 @@ impl Renderer {
             views[0].create_view(&Default::default()),
             views[1].create_view(&Default::default()),
         ];
+        let dist_view =
+            tex("first view distance", DIST_FORMAT, view_usage).create_view(&Default::default());
+        let group = |view: &wgpu::TextureView| {
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("second view"),
+                layout: &self.second_bgl,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: self.composite_uniforms.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: wgpu::BindingResource::TextureView(view),
+                    },
+                ],
+            })
+        };
+        let second_group = group(&dist_view);
+        let half_tex = |label, format, usage| {
+            device
+                .create_texture(&wgpu::TextureDescriptor {
+                    label: Some(label),
+                    size: wgpu::Extent3d {
+                        width: width.div_ceil(2),
+                        height: height.div_ceil(2),
+                        depth_or_array_layers: 1,
+                    },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format,
+                    usage,
+                    view_formats: &[],
+                })
+                .create_view(&Default::default())
+        };
+        let half_view = half_tex("second view (half resolution)", VIEW_FORMAT, view_usage);
+        let half_depth = half_tex(
+            "depth (half resolution)",
+            DEPTH_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT,
+        );
+        let half_group = group(&half_view);
         self.composite_groups.clear();
         self.targets = Some(Targets {
             width,
             height,
+            dist_view,
+            second_group,
+            half_view,
+            half_depth,
+            half_group,
             depth_view: depth.create_view(&Default::default()),
             output_view: output.create_view(&Default::default()),
             output_view_unorm: output.create_view(&wgpu::TextureViewDescriptor {
@@ -937,6 +1215,10 @@ impl Renderer {
             return;
         };
         let ids = plan.tile_ids || plan.overlays.needs_tile_ids();
+        if !ids && plan.overlays == Overlays::default() {
+            self.encode_fused(enc, targets, plan, views);
+            return;
+        }
         // Without tile ids the second view is drawn against the first view's depth: it then
         // skips what the first view hides and its sky where the first view has sky.
         let shared_depth = !ids && plan.passes.len() > 1;
@@ -996,22 +1278,7 @@ impl Renderer {
                 } else {
                     &self.mesh
                 });
-                rp.set_vertex_buffer(0, g.vertices.slice(..));
-                let (indices, starts) = match (plan.mesh_level as usize).checked_sub(1) {
-                    Some(k) => g
-                        .coarse
-                        .get(k)
-                        .or(g.coarse.last())
-                        .map_or((&g.indices, &g.index_start), |(b, s)| (b, s)),
-                    None => (&g.indices, &g.index_start),
-                };
-                rp.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
-                for run in &pass.runs {
-                    let (a, b) = (starts[run.first], starts[run.first + run.count]);
-                    if b > a {
-                        rp.draw_indexed(a..b, 0, 0..1);
-                    }
-                }
+                self.draw_runs(&mut rp, plan, pass, g);
             }
             rp.set_pipeline(if ids {
                 &self.background_ids
@@ -1075,6 +1342,245 @@ impl Renderer {
         });
         rp.set_bind_group(0, bg, &[]);
         rp.draw(0..3, 0..1);
+    }
+
+    /// Fused frames (no tile ids, no overlays): the first view straight into the output and
+    /// its distance target, then the second view blended into the output against the first
+    /// view's depth (`render.wgsl`); no view targets, no composite pass.
+    fn encode_fused(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        targets: &Targets,
+        plan: &FramePlan,
+        views: &[RefView],
+    ) {
+        let passes: Vec<(&crate::plan::ViewPass, &GpuView)> = plan
+            .passes
+            .iter()
+            .take(2)
+            .filter_map(|p| Some((p, self.views.get(&views.get(p.view)?.index)?)))
+            .collect();
+        let uniforms = CompositeUniforms {
+            weights: [
+                passes.first().map_or(0.0, |p| p.0.weight as f32),
+                passes.get(1).map_or(0.0, |p| p.0.weight as f32),
+                passes.len() as f32,
+                0.0,
+            ],
+            flags: [0; 4],
+        };
+        self.gpu
+            .queue
+            .write_buffer(&self.composite_uniforms, 0, bytemuck::bytes_of(&uniforms));
+        let clear = |view| {
+            Some(wgpu::RenderPassColorAttachment {
+                view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                    store: wgpu::StoreOp::Store,
+                },
+            })
+        };
+        if plan.half_res_second && passes.len() == 2 {
+            self.encode_half(enc, targets, plan, &passes);
+            return;
+        }
+        if passes.is_empty() {
+            // Nothing to draw: a transparent (all-hole) frame.
+            enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("empty frame"),
+                color_attachments: &[clear(&targets.output_view)],
+                depth_stencil_attachment: None,
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            return;
+        }
+        for (slot, (pass, g)) in passes.iter().enumerate() {
+            self.gpu
+                .queue
+                .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
+            let first_targets = [clear(&targets.output_view), clear(&targets.dist_view)];
+            let second_targets = [Some(wgpu::RenderPassColorAttachment {
+                view: &targets.output_view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Load,
+                    store: wgpu::StoreOp::Store,
+                },
+            })];
+            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some(if slot == 0 {
+                    "first view"
+                } else {
+                    "second view"
+                }),
+                color_attachments: if slot == 0 {
+                    &first_targets[..]
+                } else {
+                    &second_targets[..]
+                },
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &targets.depth_view,
+                    depth_ops: Some(wgpu::Operations {
+                        load: if slot == 0 {
+                            wgpu::LoadOp::Clear(0.0)
+                        } else {
+                            wgpu::LoadOp::Load
+                        },
+                        store: if slot == 0 && passes.len() > 1 {
+                            wgpu::StoreOp::Store
+                        } else {
+                            wgpu::StoreOp::Discard
+                        },
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            rp.set_bind_group(0, &g.bind_group, &[]);
+            if slot == 1 {
+                rp.set_bind_group(1, &targets.second_group, &[]);
+            }
+            if !pass.runs.is_empty() {
+                rp.set_pipeline(if slot == 0 {
+                    &self.first_mesh
+                } else {
+                    &self.second_mesh
+                });
+                self.draw_runs(&mut rp, plan, pass, g);
+            }
+            rp.set_pipeline(if slot == 0 {
+                &self.first_sky
+            } else {
+                &self.second_sky
+            });
+            rp.draw(0..3, 0..1);
+        }
+    }
+
+    /// Fused frame with the second view at half resolution ([`FramePlan::half_res_second`]):
+    /// the view with the smaller weight is drawn first at half the width and height into
+    /// its own target (colour + distance), then the other view at full resolution writes
+    /// every output pixel (meshes, then its background where no mesh drew), blending in the
+    /// half-resolution view's nearest texel (`blend_half` in `render.wgsl`).
+    fn encode_half(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        targets: &Targets,
+        plan: &FramePlan,
+        passes: &[(&crate::plan::ViewPass, &GpuView)],
+    ) {
+        let (full, half) = if passes[1].0.weight <= passes[0].0.weight {
+            (passes[0], passes[1])
+        } else {
+            (passes[1], passes[0])
+        };
+        let uniforms = CompositeUniforms {
+            weights: [full.0.weight as f32, half.0.weight as f32, 2.0, 0.0],
+            flags: [0; 4],
+        };
+        let queue = &self.gpu.queue;
+        queue.write_buffer(&self.composite_uniforms, 0, bytemuck::bytes_of(&uniforms));
+        queue.write_buffer(&full.1.uniforms, 0, bytemuck::bytes_of(&full.0.uniforms));
+        // The same camera at half the framebuffer size (pixel rays of the background).
+        let mut u = half.0.uniforms;
+        u.params[1] = plan.width.div_ceil(2) as f32;
+        u.params[2] = plan.height.div_ceil(2) as f32;
+        queue.write_buffer(&half.1.uniforms, 0, bytemuck::bytes_of(&u));
+        let depth = |view, load| {
+            Some(wgpu::RenderPassDepthStencilAttachment {
+                view,
+                depth_ops: Some(wgpu::Operations {
+                    load,
+                    store: wgpu::StoreOp::Discard,
+                }),
+                stencil_ops: None,
+            })
+        };
+        {
+            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("second view (half resolution)"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &targets.half_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: depth(&targets.half_depth, wgpu::LoadOp::Clear(0.0)),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            rp.set_bind_group(0, &half.1.bind_group, &[]);
+            if !half.0.runs.is_empty() {
+                rp.set_pipeline(&self.mesh);
+                self.draw_runs(&mut rp, plan, half.0, half.1);
+            }
+            rp.set_pipeline(&self.background);
+            rp.draw(0..3, 0..1);
+        }
+        // Every output pixel is written (the background pass has no discard): no clear.
+        let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("first view over the second"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: &targets.output_view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Load,
+                    store: wgpu::StoreOp::Store,
+                },
+            })],
+            depth_stencil_attachment: depth(&targets.depth_view, wgpu::LoadOp::Clear(0.0)),
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        rp.set_bind_group(0, &full.1.bind_group, &[]);
+        rp.set_bind_group(1, &targets.half_group, &[]);
+        if !full.0.runs.is_empty() {
+            rp.set_pipeline(&self.mesh_over_half);
+            self.draw_runs(&mut rp, plan, full.0, full.1);
+        }
+        rp.set_pipeline(&self.background_over_half);
+        rp.draw(0..3, 0..1);
+    }
+
+    /// Draw a pass's tile runs (vertex and index buffers of the plan's mesh level); the
+    /// pipeline and bind groups are set.
+    fn draw_runs(
+        &self,
+        rp: &mut wgpu::RenderPass<'_>,
+        plan: &FramePlan,
+        pass: &crate::plan::ViewPass,
+        g: &GpuView,
+    ) {
+        rp.set_vertex_buffer(0, g.vertices.slice(..));
+        let (indices, starts) = match (plan.mesh_level as usize).checked_sub(1) {
+            Some(k) => g
+                .coarse
+                .get(k)
+                .or(g.coarse.last())
+                .map_or((&g.indices, &g.index_start), |(b, s)| (b, s)),
+            None => (&g.indices, &g.index_start),
+        };
+        rp.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
+        for run in &pass.runs {
+            let (a, b) = (starts[run.first], starts[run.first + run.count]);
+            if b > a {
+                rp.draw_indexed(a..b, 0, 0..1);
+            }
+        }
     }
 
     /// Encode the feedback count of one view pass: zero the view's counts, then count the

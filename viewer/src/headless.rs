@@ -11,7 +11,7 @@ use tracks::{PerspectiveCamera, SlabRange, TrackSet};
 
 use crate::gpu::{GpuError, Renderer};
 use crate::metrics::{psnr, split_rgba, ssim};
-use crate::plan::{plan_frame, DrawBudget, PlanError};
+use crate::plan::{plan_frame, DrawBudget, FramePlan, PlanError};
 use crate::refview::MeshParams;
 use crate::source::{self, LoadOptions, SourceError, Walkthrough};
 use crate::synth::{views_along, Scene};
@@ -174,7 +174,7 @@ pub struct EvalConfig {
 }
 
 /// The default renderer configurations: everything, first slab only, the nearer view only,
-/// half-resolution textures.
+/// half-resolution textures, the second view at half resolution.
 pub fn default_configs() -> Vec<EvalConfig> {
     let c = |name: &str, budget| EvalConfig {
         name: name.into(),
@@ -200,6 +200,13 @@ pub fn default_configs() -> Vec<EvalConfig> {
             "textures +1 level",
             DrawBudget {
                 lod_bias: 1.0,
+                ..Default::default()
+            },
+        ),
+        c(
+            "second view half res",
+            DrawBudget {
+                half_res_second: true,
                 ..Default::default()
             },
         ),
@@ -258,13 +265,18 @@ pub fn evaluate(
         };
         let gt = truth.render(&camera);
         for cfg in configs {
-            let plan = plan_frame(&walk.views, &camera, s, cfg.budget)?;
-            renderer.draw(&plan, &walk.views)?;
+            // Frames as the window shows them between feedback frames: no tile ids (the
+            // fused passes of `gpu`).
+            let plan_at = || -> Result<FramePlan, HeadlessError> {
+                let mut plan = plan_frame(&walk.views, &camera, s, cfg.budget)?;
+                plan.tile_ids = false;
+                Ok(plan)
+            };
+            renderer.draw(&plan_at()?, &walk.views)?;
             let reps = 3;
             let t0 = Instant::now();
             for _ in 0..reps {
-                let plan = plan_frame(&walk.views, &camera, s, cfg.budget)?;
-                renderer.draw(&plan, &walk.views)?;
+                renderer.draw(&plan_at()?, &walk.views)?;
             }
             let frame_ms = t0.elapsed().as_secs_f64() * 1e3 / reps as f64;
             let frame = renderer.read_output()?;

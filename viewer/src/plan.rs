@@ -41,6 +41,10 @@ pub struct DrawBudget {
     /// [`crate::refview::mesh_cell`]`(tile, k)` pixels (at most
     /// [`crate::refview::MESH_LEVELS`]).
     pub mesh_level: u32,
+    /// Draw the second view at half the width and height (a quarter of its fragments) and
+    /// blend it in while drawing the first (frames without tile ids and overlays only; see
+    /// [`crate::gpu`]). Off = full quality.
+    pub half_res_second: bool,
 }
 
 impl Default for DrawBudget {
@@ -50,6 +54,7 @@ impl Default for DrawBudget {
             lod_bias: 0.0,
             blend: true,
             mesh_level: 0,
+            half_res_second: false,
         }
     }
 }
@@ -142,6 +147,8 @@ pub struct FramePlan {
     pub overlays: Overlays,
     /// Mesh density ([`DrawBudget::mesh_level`]).
     pub mesh_level: u32,
+    /// [`DrawBudget::half_res_second`].
+    pub half_res_second: bool,
 }
 
 /// The smooth blend weight of the second view at fraction `t ∈ [0, 1]` of a segment:
@@ -268,6 +275,7 @@ pub fn plan_frame(
         tile_ids: true,
         overlays: Overlays::default(),
         mesh_level: budget.mesh_level.min(crate::refview::MESH_LEVELS),
+        half_res_second: budget.half_res_second,
     })
 }
 

@@ -82,10 +82,21 @@ struct MeshIn {
     @location(2) packed: u32,   // tile << 3 | face
 };
 
+// Everything per tile (face, layer, level) is looked up per vertex and passed flat, and the
+// point is passed in the reference face's own basis, so the fragment shader needs neither
+// the tile-info buffer nor the per-face switches (software rasterisers shade every fragment
+// of a SIMD block through both).
 struct MeshOut {
     @builtin(position) pos: vec4<f32>,
-    @location(0) pos_from_ref: vec3<f32>,
+    // Point relative to the camera (its length is the distance).
+    @location(0) cam_rel: vec3<f32>,
     @location(1) @interpolate(flat) tile: u32,
+    // Point relative to the reference viewpoint in its face's basis (right, up, forward):
+    // the face pixel is a projective function of it, exact per fragment.
+    @location(2) ref_rufw: vec3<f32>,
+    // face | layer << 8.
+    @location(3) @interpolate(flat) face_layer: u32,
+    @location(4) @interpolate(flat) lod: f32,
 };
 
 @vertex
@@ -94,24 +105,32 @@ fn vs_mesh(v: MeshIn) -> MeshOut {
     let f = v.packed & 7u;
     let u = 2.0 * v.pos_in_face.x / n - 1.0;
     let w = 1.0 - 2.0 * v.pos_in_face.y / n;
-    let d = normalize(face_forward(f) + u * face_right(f) + w * face_up(f)) * v.depth_m;
+    let scale = v.depth_m / length(vec3<f32>(u, w, 1.0));
+    let d = (face_forward(f) + u * face_right(f) + w * face_up(f)) * scale;
+    let tile = v.packed >> 3u;
+    let info = tile_info[tile];
     var out: MeshOut;
     out.pos = view.clip_from_cam * vec4<f32>(d + view.origin_rel.xyz, 1.0);
     out.pos.z = out.pos.z * depth_scale;
-    out.pos_from_ref = d;
-    out.tile = v.packed >> 3u;
+    out.cam_rel = d + view.origin_rel.xyz;
+    out.tile = tile;
+    out.ref_rufw = vec3<f32>(u, w, 1.0) * scale;
+    out.face_layer = info.x;
+    out.lod = max(view.params.x, f32(info.y));
     return out;
 }
 
 // Projective texturing from the reference viewpoint: exact at the reference sample whatever
 // the mesh depth; the opacity mask cuts the slab. Alpha out = distance to the camera.
 fn mesh_color(in: MeshOut) -> vec4<f32> {
-    let info = tile_info[in.tile];
-    let f = info.x & 7u;
-    let layer = info.x >> 8u;
-    let lod = max(view.params.x, f32(info.y));
+    let f = in.face_layer & 7u;
+    let layer = in.face_layer >> 8u;
+    let lod = in.lod;
     let n = view.origin_rel.w;
-    let pix = pixel_on_face(f, in.pos_from_ref, n);
+    let pix = vec2<f32>(
+        (in.ref_rufw.x / in.ref_rufw.z + 1.0) * 0.5 * n,
+        (1.0 - in.ref_rufw.y / in.ref_rufw.z) * 0.5 * n,
+    );
     var c: vec4<f32>;
     if fract(view.params.x) == 0.0 {
         // A whole frame level (and whole tile levels): one lookup. The condition is uniform,
@@ -128,7 +147,7 @@ fn mesh_color(in: MeshOut) -> vec4<f32> {
     if c.a < select(0.25, 0.5, layer == 1u || lod < 1.0) {
         discard;
     }
-    let dist = clamp(length(in.pos_from_ref + view.origin_rel.xyz), 1e-3, SKY_DISTANCE);
+    let dist = clamp(length(in.cam_rel), 1e-3, SKY_DISTANCE);
     return vec4<f32>(c.rgb, dist);
 }
 
@@ -144,4 +163,115 @@ fn fs_mesh_ids(in: MeshOut) -> PassOut {
     out.color = mesh_color(in);
     out.tile = in.tile + 1u;
     return out;
+}
+
+// Fused frames (no tile ids, no overlays): no view targets and no composite pass. The first
+// view draws straight into the output (sRGB colour, alpha 1) and its distance into a small
+// R16Float target; the second view is then drawn against the first view's depth (scaled by
+// `depth_scale`, as above) with hardware blending, each of its fragments weighted by the
+// share the composite would give it, computed from the first view's distance there:
+// out = β c_b + (1 − β) c_a with β = w_b / (w_a + w_b) (composite.wgsl's `blend_at`).
+
+struct FirstOut {
+    @location(0) color: vec4<f32>,
+    @location(1) dist: f32,
+};
+
+struct Blend {
+    weights: vec4<f32>,  // w0, w1, number of views, unused
+    flags: vec4<u32>,
+};
+@group(1) @binding(0) var<uniform> blend: Blend;
+@group(1) @binding(1) var first_dist: texture_2d<f32>;
+
+@fragment
+fn fs_mesh_first(in: MeshOut) -> FirstOut {
+    let c = mesh_color(in);
+    var out: FirstOut;
+    out.color = vec4<f32>(c.rgb, 1.0);
+    out.dist = c.a;
+    return out;
+}
+
+// The first view's sky at SKY_DEPTH where no mesh drew; holes keep the cleared values (alpha
+// 0, distance 0, depth 0), so the second view fills them (also where its weight is 0, as in
+// the composite).
+@fragment
+fn fs_sky_first(in: FullOut) -> FirstOut {
+    let c = background_color(in.pos.xy);
+    if c.a == 0.0 {
+        discard;
+    }
+    var out: FirstOut;
+    out.color = vec4<f32>(c.rgb, 1.0);
+    out.dist = c.a;
+    return out;
+}
+
+// Share β of the second view at a pixel where the first view's distance is `da` (0 = hole)
+// and the second view's is `db`.
+fn second_share(da: f32, db: f32) -> f32 {
+    let ca = select(0.0, 1.0, da > 0.0);
+    let dmin = select(db, min(da, db), da > 0.0);
+    let na = ca * exp(max(-80.0, -SHARPNESS * (da / dmin - 1.0)));
+    let nb = exp(max(-80.0, -SHARPNESS * (db / dmin - 1.0)));
+    var wa = blend.weights.x * na;
+    var wb = blend.weights.y * nb;
+    if wa + wb <= 0.0 {
+        wa = ca;
+        wb = 1.0;
+    }
+    return wb / (wa + wb);
+}
+
+@fragment
+fn fs_mesh_second(in: MeshOut) -> @location(0) vec4<f32> {
+    let c = mesh_color(in);
+    let da = textureLoad(first_dist, vec2<i32>(in.pos.xy), 0).x;
+    return vec4<f32>(c.rgb, second_share(da, c.a));
+}
+
+// The second view's sky, drawn only where the first view left a hole (depth test): there it
+// is all there is.
+@fragment
+fn fs_sky_second(in: FullOut) -> @location(0) vec4<f32> {
+    let c = background_color(in.pos.xy);
+    return vec4<f32>(c.rgb, select(0.0, 1.0, c.a > 0.0));
+}
+
+// Half-resolution second view (DrawBudget::half_res_second): the second view is drawn first,
+// at half the width and height, into an Rgba16Float target (alpha = distance, 0 = hole) bound
+// as `first_dist`; the first view then draws every pixel (meshes, then its background where
+// no mesh drew, holes included) and blends in the second view's nearest texel as the
+// composite would.
+fn blend_half(pos: vec2<f32>, a: vec4<f32>) -> vec4<f32> {
+    let size = vec2<i32>(textureDimensions(first_dist));
+    let b = textureLoad(first_dist, min(vec2<i32>(pos * 0.5), size - vec2<i32>(1)), 0);
+    let ca = select(0.0, 1.0, a.a > 0.0);
+    let cb = select(0.0, 1.0, b.a > 0.0);
+    if ca + cb == 0.0 {
+        return vec4<f32>(0.0);
+    }
+    var dmin = max(a.a, b.a);
+    if ca > 0.0 { dmin = min(dmin, a.a); }
+    if cb > 0.0 { dmin = min(dmin, b.a); }
+    let na = ca * exp(max(-80.0, -SHARPNESS * (a.a / dmin - 1.0)));
+    let nb = cb * exp(max(-80.0, -SHARPNESS * (b.a / dmin - 1.0)));
+    var wa = blend.weights.x * na;
+    var wb = blend.weights.y * nb;
+    if wa + wb <= 0.0 {
+        wa = ca;
+        wb = cb;
+    }
+    return vec4<f32>((a.rgb * wa + b.rgb * wb) / (wa + wb), 1.0);
+}
+
+@fragment
+fn fs_mesh_over_half(in: MeshOut) -> @location(0) vec4<f32> {
+    return blend_half(in.pos.xy, mesh_color(in));
+}
+
+@fragment
+fn fs_background_over_half(in: FullOut) -> @location(0) vec4<f32> {
+    return blend_half(in.pos.xy, background_color(in.pos.xy));
 }
