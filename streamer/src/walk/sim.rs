@@ -61,7 +61,10 @@ struct Sim<'a> {
     motion: MotionTracker,
     in_flight: Vec<InFlight>,
     downloading: Vec<bool>,
-    naive_next: usize,
+    /// Naive: items not yet requested, in manifest order (by viewpoint, its tiles, then its
+    /// background), rebuilt when tables add items.
+    naive_order: Vec<usize>,
+    naive_requested: Vec<bool>,
     pinned: Vec<FetchKey>,
     bytes: u64,
     requests: u64,
@@ -293,11 +296,11 @@ impl Sim<'_> {
         &mut self,
         conn: &mut Connection,
         t: f64,
-    ) -> Result<(), WalkError> {
+    ) -> Result<bool, WalkError> {
         if self.in_flight.len() >= self.cfg.max_in_flight.max(1)
             || self.in_flight.iter().any(|f| f.background_table)
         {
-            return Ok(());
+            return Ok(false);
         }
         let vp_s = &self.table.vp_s;
         let next = (0..vp_s.len())
@@ -311,7 +314,7 @@ impl Sim<'_> {
         if let Some(v) = next {
             self.fetch_tables(conn, t, &[v], true).await?;
         }
-        Ok(())
+        Ok(next.is_some())
     }
 
     /// Fetches the tables of viewpoints `vps` in one request (hash-checked, decoded) and puts
@@ -384,7 +387,15 @@ impl Sim<'_> {
             .max_in_flight
             .max(1)
             .saturating_sub(self.in_flight.len());
-        let free = free - self.issue_urgent_tables(conn, t, free).await?;
+        let mut free = free - self.issue_urgent_tables(conn, t, free).await?;
+        // Naive streams the database in manifest order: the next viewpoint's table goes
+        // beside the tiles (one at a time), so tiles never run out.
+        if self.strategy == Strategy::Naive
+            && free > 0
+            && self.issue_background_table(conn, t).await?
+        {
+            free -= 1;
+        }
         if free == 0 {
             return Ok(());
         }
@@ -398,8 +409,19 @@ impl Sim<'_> {
         let max_pieces = self.cfg.bundle_entries.max(1);
         match self.strategy {
             Strategy::Naive => {
-                let mut i = self.naive_next;
-                while i < n && wanted.len() < free * max_pieces {
+                if self.naive_requested.len() != n {
+                    self.naive_requested.resize(n, false);
+                    let items = &self.table.items;
+                    let mut order: Vec<usize> =
+                        (0..n).filter(|&i| !self.naive_requested[i]).collect();
+                    order.sort_by_key(|&i| (items[i].viewpoint, items[i].tile.is_none(), i));
+                    order.reverse();
+                    self.naive_order = order;
+                }
+                let mut k = self.naive_order.len();
+                while k > 0 && wanted.len() < free * max_pieces {
+                    k -= 1;
+                    let i = self.naive_order[k];
                     let it = &self.table.items[i];
                     let mut v = Vec::new();
                     if it.info.first_level_part == 1 {
@@ -407,7 +429,6 @@ impl Sim<'_> {
                     }
                     v.push(it.whole.clone());
                     wanted.push((i, v));
-                    i += 1;
                 }
             }
             Strategy::Budget { mode, prefetch } => {
@@ -535,7 +556,11 @@ impl Sim<'_> {
         }
         for (only_prefetch, b) in bundles {
             if self.strategy == Strategy::Naive {
-                self.naive_next = b.last().map_or(self.naive_next, |x| x.0 + 1);
+                for (i, _) in &b {
+                    self.naive_requested[*i] = true;
+                }
+                let done = &self.naive_requested;
+                self.naive_order.retain(|&i| !done[i]);
             }
             let flat: Vec<&Part> = b.iter().flat_map(|(_, parts)| parts.iter()).collect();
             let pieces: Vec<BundlePiece> = flat
@@ -652,7 +677,8 @@ pub(crate) async fn run_one(
         motion: MotionTracker::new(),
         in_flight: Vec::new(),
         downloading: vec![false; n],
-        naive_next: 0,
+        naive_order: Vec::new(),
+        naive_requested: Vec::new(),
         pinned: Vec::new(),
         bytes: 0,
         requests: 0,
