@@ -31,6 +31,14 @@ pub struct Args {
     /// Timed frames per variant.
     #[arg(long, default_value_t = 30)]
     pub frames: usize,
+    /// Throughput: frames per variant submitted back to back with one wait at the end
+    /// (and GPU timestamps where the adapter has them); 0 = skip.
+    #[arg(long, default_value_t = 20)]
+    pub throughput_frames: usize,
+    /// Only the plain panorama, the full frame (with and without tile ids) and the
+    /// half-resolution second view: for large sizes such as `--size 3840x2160`.
+    #[arg(long)]
+    pub core: bool,
     /// Write the results as JSON here.
     #[arg(long)]
     pub json: Option<std::path::PathBuf>,
@@ -48,6 +56,12 @@ struct Variant {
     /// `wall_ms` and `cpu_ms` over the plain panorama's.
     wall_ratio: f64,
     cpu_ratio: Option<f64>,
+    /// Throughput (`--throughput-frames` submitted back to back, one wait): wall ms per
+    /// frame, frames per second, and the median GPU time of one frame (timestamp queries;
+    /// `None` where the adapter has none).
+    throughput_ms: Option<f64>,
+    throughput_fps: Option<f64>,
+    gpu_ms: Option<f64>,
 }
 
 #[derive(serde::Serialize)]
@@ -231,6 +245,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             false,
         ),
     ];
+    let variants: Vec<(&str, DrawBudget, bool)> = if args.core {
+        variants
+            .into_iter()
+            .filter(|v| {
+                v.0.starts_with("full (")
+                    || v.0.starts_with("full without tile ids (fused)")
+                    || v.0.contains("half resolution")
+            })
+            .collect()
+    } else {
+        variants
+    };
+    let composite_variant = variants
+        .iter()
+        .position(|v| v.0 == "full without tile ids, composite pass");
     for _ in 0..3 {
         r.draw(&plan, &walk.views)?;
         r.draw_panorama(&pano_plan, &pano)?;
@@ -245,7 +274,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             plan.tile_ids = *ids;
             // The hole overlay needs no tile ids but the composite pass: the path frames
             // without tile ids took before the fused one (same image where nothing is a hole).
-            plan.overlays.holes = k == 2;
+            plan.overlays.holes = Some(k) == composite_variant;
             r.draw(&plan, &walk.views)?;
             wall[k + 1].push(t.elapsed().as_secs_f64() * 1e3);
             if let (Some(a), Some(b)) = (c, cpu_ns()) {
@@ -258,6 +287,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         wall[0].push(t.elapsed().as_secs_f64() * 1e3);
         if let (Some(a), Some(b)) = (c, cpu_ns()) {
             cpu[0].push(b.saturating_sub(a) as f64 / 1e6);
+        }
+    }
+    // Throughput of each variant and the plain panorama (index 0).
+    let mut through: Vec<Option<viewer::gpu::Throughput>> = vec![None; variants.len() + 1];
+    if args.throughput_frames > 0 {
+        let p = plan_frame(&pano, &camera, s, DrawBudget::default())?;
+        through[0] = Some(r.throughput_panorama(&p, &pano, args.throughput_frames)?);
+        for (k, (_, budget, ids)) in variants.iter().enumerate() {
+            let mut plan = plan_frame(&walk.views, &camera, s, *budget)?;
+            plan.tile_ids = *ids;
+            plan.overlays.holes = Some(k) == composite_variant;
+            through[k + 1] = Some(r.throughput(&plan, &walk.views, args.throughput_frames)?);
         }
     }
     let names: Vec<&str> = std::iter::once("plain single cube map")
@@ -289,7 +330,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         variants: names
             .iter()
             .zip(wall.iter().zip(&cpu))
-            .map(|(name, (wv, cv))| {
+            .zip(&through)
+            .map(|((name, (wv, cv)), t)| {
                 let (wall_ms, cpu_ms) = (median(wv.clone()), med(cv));
                 Variant {
                     name: name.to_string(),
@@ -297,18 +339,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     cpu_ms,
                     wall_ratio: wall_ms / plain_wall,
                     cpu_ratio: cpu_ms.zip(plain_cpu).map(|(a, b)| a / b),
+                    throughput_ms: t.map(|t| t.wall_ms),
+                    throughput_fps: t.map(|t| 1e3 / t.wall_ms),
+                    gpu_ms: t.and_then(|t| t.gpu_ms),
                 }
             })
             .collect(),
     };
+    let plain_gpu = res.variants.first().and_then(|v| v.gpu_ms);
     for v in &res.variants {
         eprintln!(
-            "{:<40} {:>8.1} ms wall ({:>4.2}x)  {:>8.1} ms cpu ({:>4.2}x)",
+            "{:<40} {:>8.1} ms wall ({:>4.2}x)  {:>8.1} ms cpu ({:>4.2}x)  throughput {:>7.2} ms ({:>6.1} fps)  gpu {:>7.3} ms ({:>4.2}x)",
             v.name,
             v.wall_ms,
             v.wall_ratio,
             v.cpu_ms.unwrap_or(f64::NAN),
-            v.cpu_ratio.unwrap_or(f64::NAN)
+            v.cpu_ratio.unwrap_or(f64::NAN),
+            v.throughput_ms.unwrap_or(f64::NAN),
+            v.throughput_fps.unwrap_or(f64::NAN),
+            v.gpu_ms.unwrap_or(f64::NAN),
+            v.gpu_ms.zip(plain_gpu).map_or(f64::NAN, |(a, b)| a / b),
         );
     }
     println!("{}", serde_json::to_string_pretty(&res)?);

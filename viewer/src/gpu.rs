@@ -51,6 +51,9 @@ const ID_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 const SECOND_VIEW_DEPTH_SCALE: f64 = 1.5;
 /// Fused frames: the first view's distance to the camera (0 = hole), read by the second view.
 const DIST_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R16Float;
+/// Features [`Renderer::throughput`] needs for GPU times (requested where available).
+const TIMESTAMPS: wgpu::Features =
+    wgpu::Features::TIMESTAMP_QUERY.union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS);
 /// Format of the final image (sRGB-encoded RGBA8, alpha 0 = hole).
 pub const OUTPUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
 
@@ -86,6 +89,16 @@ impl Frame {
     }
 }
 
+/// [`Renderer::throughput`]: milliseconds per frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Throughput {
+    /// Wall clock per frame, frames submitted back to back with one wait at the end.
+    pub wall_ms: f64,
+    /// Median GPU time of one frame's commands (timestamp queries); `None` where the adapter
+    /// has none.
+    pub gpu_ms: Option<f64>,
+}
+
 /// Device and queue.
 pub struct Gpu {
     pub device: wgpu::Device,
@@ -110,6 +123,8 @@ impl Gpu {
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("railview"),
             required_limits: wgpu::Limits::default().using_resolution(adapter.limits()),
+            // Timestamps around frames for `Renderer::throughput`, where the adapter has them.
+            required_features: adapter.features() & TIMESTAMPS,
             ..Default::default()
         }))
         .map_err(|e| GpuError::Device(e.to_string()))?;
@@ -1094,8 +1109,8 @@ impl Renderer {
         Ok(())
     }
 
-    /// Record and submit the frame into the internal output target; waits for the GPU.
-    pub fn draw(&mut self, plan: &FramePlan, views: &[RefView]) -> Result<(), GpuError> {
+    /// Upload what `plan` needs (views, targets, tile info, composite bind group).
+    fn prepare(&mut self, plan: &FramePlan, views: &[RefView]) -> Result<(), GpuError> {
         for p in &plan.passes {
             let v = views
                 .get(p.view)
@@ -1107,6 +1122,86 @@ impl Renderer {
             self.update_tile_info(p, &views[p.view]);
         }
         self.prepare_composite(plan, views);
+        Ok(())
+    }
+
+    /// Throughput: `frames` frames of `plan` submitted back to back with one wait at the
+    /// end (as a window's frames overlap), and, where the adapter has timestamp queries
+    /// (`TIMESTAMP_QUERY` and `TIMESTAMP_QUERY_INSIDE_ENCODERS`), the GPU time of each
+    /// frame's commands. At most 2000 frames.
+    pub fn throughput(
+        &mut self,
+        plan: &FramePlan,
+        views: &[RefView],
+        frames: usize,
+    ) -> Result<Throughput, GpuError> {
+        self.prepare(plan, views)?;
+        self.timed_frames(frames, |enc| self.encode(enc, plan, views))
+    }
+
+    /// `frames` frames recorded by `encode`, submitted back to back, one wait; timestamps
+    /// around each where the device has them.
+    fn timed_frames(
+        &self,
+        frames: usize,
+        encode: impl Fn(&mut wgpu::CommandEncoder),
+    ) -> Result<Throughput, GpuError> {
+        let frames = frames.clamp(1, 2000);
+        let device = &self.gpu.device;
+        let queries = device.features().contains(TIMESTAMPS).then(|| {
+            device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("frame timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2 * frames as u32,
+            })
+        });
+        let t0 = std::time::Instant::now();
+        for i in 0..frames as u32 {
+            let mut enc = device.create_command_encoder(&Default::default());
+            if let Some(q) = &queries {
+                enc.write_timestamp(q, 2 * i);
+            }
+            encode(&mut enc);
+            if let Some(q) = &queries {
+                enc.write_timestamp(q, 2 * i + 1);
+            }
+            self.gpu.queue.submit([enc.finish()]);
+        }
+        device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let wall_ms = t0.elapsed().as_secs_f64() * 1e3 / frames as f64;
+        let gpu_ms = match &queries {
+            Some(q) => {
+                let size = 16 * frames as u64;
+                let resolved = device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("timestamps"),
+                    size,
+                    usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                    mapped_at_creation: false,
+                });
+                let mut enc = device.create_command_encoder(&Default::default());
+                enc.resolve_query_set(q, 0..2 * frames as u32, &resolved, 0);
+                let words = self.read_buffer(enc, &resolved)?;
+                let period = self.gpu.queue.get_timestamp_period() as f64;
+                let mut ms: Vec<f64> = words
+                    .chunks_exact(4)
+                    .map(|w| {
+                        let t = |lo: u32, hi: u32| (hi as u64) << 32 | lo as u64;
+                        t(w[2], w[3]).saturating_sub(t(w[0], w[1])) as f64 * period / 1e6
+                    })
+                    .collect();
+                ms.sort_by(f64::total_cmp);
+                ms.get(ms.len() / 2).copied()
+            }
+            None => None,
+        };
+        Ok(Throughput { wall_ms, gpu_ms })
+    }
+
+    /// Record and submit the frame into the internal output target; waits for the GPU.
+    pub fn draw(&mut self, plan: &FramePlan, views: &[RefView]) -> Result<(), GpuError> {
+        self.prepare(plan, views)?;
         let mut enc = self
             .gpu
             .device
@@ -1617,24 +1712,55 @@ impl Renderer {
     /// Draw the plain panorama of `plan.passes[0]`'s view (its background layer as one cube
     /// map, no slabs, no blending) into the internal output target; waits for the GPU.
     pub fn draw_panorama(&mut self, plan: &FramePlan, views: &[RefView]) -> Result<(), GpuError> {
-        let pass = plan.passes.first().ok_or(GpuError::MissingView(0, 0))?;
-        let v = views
-            .get(pass.view)
-            .ok_or(GpuError::MissingView(pass.view, views.len()))?;
-        self.ensure_view(v);
-        self.ensure_targets(plan.width, plan.height)?;
-        let (Some(g), Some(targets)) = (self.views.get(&v.index), &self.targets) else {
-            return Err(GpuError::MissingView(pass.view, views.len()));
-        };
-        self.gpu
-            .queue
-            .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
+        self.prepare_panorama(plan, views)?;
         let mut enc = self
             .gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("pano"),
             });
+        self.encode_panorama(&mut enc, plan, views);
+        self.gpu.queue.submit([enc.finish()]);
+        self.gpu
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        Ok(())
+    }
+
+    /// [`Renderer::throughput`] of the plain panorama ([`Renderer::draw_panorama`]).
+    pub fn throughput_panorama(
+        &mut self,
+        plan: &FramePlan,
+        views: &[RefView],
+        frames: usize,
+    ) -> Result<Throughput, GpuError> {
+        self.prepare_panorama(plan, views)?;
+        self.timed_frames(frames, |enc| self.encode_panorama(enc, plan, views))
+    }
+
+    fn prepare_panorama(&mut self, plan: &FramePlan, views: &[RefView]) -> Result<(), GpuError> {
+        let pass = plan.passes.first().ok_or(GpuError::MissingView(0, 0))?;
+        let v = views
+            .get(pass.view)
+            .ok_or(GpuError::MissingView(pass.view, views.len()))?;
+        self.ensure_view(v);
+        self.ensure_targets(plan.width, plan.height)
+    }
+
+    fn encode_panorama(&self, enc: &mut wgpu::CommandEncoder, plan: &FramePlan, views: &[RefView]) {
+        let Some(pass) = plan.passes.first() else {
+            return;
+        };
+        let Some(g) = views.get(pass.view).and_then(|v| self.views.get(&v.index)) else {
+            return;
+        };
+        let Some(targets) = &self.targets else {
+            return;
+        };
+        self.gpu
+            .queue
+            .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
         {
             let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("panorama"),
@@ -1656,12 +1782,6 @@ impl Renderer {
             rp.set_bind_group(0, &g.bind_group, &[]);
             rp.draw(0..3, 0..1);
         }
-        self.gpu.queue.submit([enc.finish()]);
-        self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        Ok(())
     }
 
     /// The internal output target of the last draw (for showing it in a window).
