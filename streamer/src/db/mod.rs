@@ -1,19 +1,24 @@
 //! The walkthrough database: a directory of immutable content-addressed objects plus a
-//! manifest (types in [`tracks::manifest`]).
+//! manifest (types in [`tracks::manifest`]), stored split ([`split`], format 2): a small top
+//! manifest and one tile table per viewpoint, itself an object.
 //!
-//! Main types: [`DbWriter`] (puts objects, writes the manifest last), [`Database`] (opens a
-//! database, reads objects, byte ranges and single PTM level groups with their checksums),
-//! [`verify()`] → [`Report`] (every file's hash and size, every level range's hash), the compact
-//! [`mesh`] format and [`ach`] (average coverage hints per track segment).
+//! Main types: [`DbWriter`] (puts objects, splits the manifest and writes the top last),
+//! [`Database`] (opens a database — the top and every table, assembled into one
+//! [`tracks::manifest::Manifest`] — and reads objects, byte ranges and single PTM level groups
+//! with their checksums), [`verify()`] → [`Report`] (every file's hash and size, every table,
+//! every level range's checksum), [`split::TopManifest`] / [`split::ViewTable`], the compact
+//! [`mesh`] format and [`ach`] (average coverage hints per track segment). PTM level ranges
+//! carry 128-bit checksums ([`range_hash`], [`hash_matches`]); objects keep their full BLAKE3.
 //!
 //! ```text
-//! DB/manifest.json          the Manifest, written last, atomically
+//! DB/manifest.json          the TopManifest (format 2), written last, atomically
 //! DB/manifest.json.blake3   lowercase hex BLAKE3 of manifest.json (so a flipped byte in the
 //!                           manifest is caught too), written right after it
 //! DB/manifest.json.gz       gzip of manifest.json's exact bytes, written after it: what a
 //!                           server sends a client that accepts gzip (nginx `gzip_static`
 //!                           serves the same file); optional (older databases lack it)
 //! DB/objects/HH/HASH        payloads named by their BLAKE3; HH = the hash's first two digits
+//!                           (tiles, meshes, backgrounds, and each viewpoint's table)
 //! ```
 //!
 //! Every file is written to a temporary name in its final directory and renamed into place, so
