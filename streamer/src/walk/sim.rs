@@ -82,6 +82,9 @@ struct Sim<'a> {
     /// The latest prefetch list and what it was computed for (segment, yaw and pitch in
     /// 10° steps): recomputed only when those change.
     prefetch_memo: Option<PrefetchMemo>,
+    /// Per prefetched item, the level the predicted view needs it at (live-count prefetch
+    /// asks for no finer level).
+    prefetch_need: std::collections::HashMap<usize, u32>,
     /// The latest frame's camera (prefetch looks the same way from further on).
     cam: Option<PerspectiveCamera>,
     /// Budgets in force (the configured ones, or scaled to the database).
@@ -210,13 +213,26 @@ impl Sim<'_> {
                 ..cam
             };
             let weights = blend_weights(&table.vp_s, s_mid);
-            let mut seen: Vec<(usize, f64)> = scene
-                .index
-                .count(&ahead, &weights, self.cfg.samples_x, self.cfg.samples_y)
+            let counts =
+                scene
+                    .index
+                    .count(&ahead, &weights, self.cfg.samples_x, self.cfg.samples_y);
+            let mut seen: Vec<(usize, f64)> = counts
                 .iter()
                 .filter_map(|c| Some((surface_item(table, c)?, c.pixels())))
                 .filter(|&(_, px)| px > 0.0)
                 .collect();
+            // The level each tile is needed at in the predicted view: prefetch stops there.
+            let mut need = std::collections::HashMap::new();
+            for c in &counts {
+                if let Some(i) = surface_item(table, c) {
+                    let l = c.finest_needed();
+                    need.entry(i)
+                        .and_modify(|x: &mut u32| *x = (*x).min(l))
+                        .or_insert(l);
+                }
+            }
+            self.prefetch_need = need;
             // The tiles that cover most of the predicted view (`prefetch_coverage` of its
             // pixels), largest first: slivers at the edge are rarely worth their bytes ahead
             // of time, and are fetched anyway if they come into view.
@@ -491,7 +507,15 @@ impl Sim<'_> {
                         first_prefetch = wanted.len();
                     }
                     let parts = &table.items[r.item].parts;
-                    let end = (r.part + r.parts.max(1)).min(parts.len());
+                    let mut end = (r.part + r.parts.max(1)).min(parts.len());
+                    if r.priority < 1.0 {
+                        if let Some(&l) = self.prefetch_need.get(&r.item) {
+                            end = end.min(self.items[r.item].parts_for_level(l));
+                        }
+                    }
+                    if end <= r.part {
+                        continue;
+                    }
                     wanted.push((r.item, parts[r.part..end].to_vec()));
                 }
             }
@@ -688,6 +712,7 @@ pub(crate) async fn run_one(
         view_ach: Vec::new(),
         wide_ach: Vec::new(),
         prefetch_memo: None,
+        prefetch_need: std::collections::HashMap::new(),
         cam: None,
         budget: if cfg.scale_budget {
             cfg.budget
