@@ -361,3 +361,101 @@ pub fn assemble(top: &TopManifest, tables: &[Vec<Option<&ViewTable>>]) -> Manife
         tracks,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use tracks::Face;
+
+    fn hex(n: usize, seed: u64) -> String {
+        (0..n)
+            .map(|i| {
+                let d = (seed
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(i as u64)
+                    >> 7)
+                    % 16;
+                char::from_digit(d as u32, 16).unwrap()
+            })
+            .collect()
+    }
+
+    prop_compose! {
+        fn tile()(face in 0usize..6, tx in 0u32..64, ty in 0u32..64, slab in 0u32..4,
+                  d0 in 0.0f64..1e4, dd in 0.0f64..1e4, opaque in any::<u32>(), kept in any::<bool>(),
+                  seed in any::<u64>(), mesh in any::<bool>(), levels in 0usize..7,
+                  sizes in proptest::collection::vec(1u64..5000, 7)) -> TileEntry {
+            let mut offset = 0;
+            let levels: Vec<LevelRef> = (0..levels).map(|l| {
+                let len = sizes[l];
+                let r = LevelRef { level: (levels - 1 - l) as u32, width: 1 << l, height: 1 << l,
+                    offset, len, hash: hex(if l % 2 == 0 { 32 } else { 64 }, seed ^ l as u64) };
+                offset += len;
+                r
+            }).collect();
+            TileEntry {
+                tile: TileId { face: Face::ALL[face], tx, ty },
+                slab,
+                depth_min: d0,
+                depth_max: d0 + dd,
+                opaque_pixels: opaque,
+                kept,
+                ptm: (!levels.is_empty()).then(|| PtmRef {
+                    object: ObjectRef { hash: hex(64, seed), size: offset },
+                    width: 1 << levels.len(),
+                    height: 1 << levels.len(),
+                    channels: 4,
+                    levels,
+                }),
+                mesh: mesh.then(|| ObjectRef { hash: hex(64, !seed), size: seed % 9000 }),
+            }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+        #[test]
+        fn tables_round_trip_exactly(viewpoint in 0usize..1000,
+                                     tiles in proptest::collection::vec(tile(), 0..20),
+                                     ach in proptest::collection::vec((0usize..1000, 0u32..4, 0.0f64..1.0), 0..20)) {
+            let segments = vec![SegmentEntry {
+                from: viewpoint,
+                to: viewpoint + 1,
+                ach: ach.iter().zip(&tiles).map(|(&(v, slab, a), t)| AchEntry {
+                    viewpoint: v, slab, tile: t.tile, ach: a,
+                }).collect(),
+            }];
+            let table = ViewTable { viewpoint, tiles, segments };
+            let bytes = encode_table(&table);
+            prop_assert_eq!(decode_table(&bytes, viewpoint).unwrap(), table);
+            prop_assert!(decode_table(&bytes, viewpoint + 1).is_err());
+        }
+
+        #[test]
+        fn damaged_table_bytes_are_rejected_or_decode_cleanly(
+            tiles in proptest::collection::vec(tile(), 1..6),
+            at in any::<usize>(), bit in 0u8..8) {
+            let table = ViewTable { viewpoint: 3, tiles, segments: Vec::new() };
+            let mut bytes = encode_table(&table);
+            let i = at % bytes.len();
+            bytes[i] ^= 1 << bit;
+            // gzip's CRC catches a flipped bit in the body; the header's unprotected bytes may
+            // still decode — to the same table. Never a panic.
+            if let Ok(t) = decode_table(&bytes, 3) {
+                prop_assert_eq!(t, table);
+            }
+        }
+    }
+
+    #[test]
+    fn a_huge_table_is_refused_within_the_limit() {
+        let zeros = vec![b' '; (MAX_TABLE_BYTES + 10) as usize];
+        let gz = crate::db::gzip(&zeros).unwrap();
+        assert!(matches!(
+            decode_table(&gz, 0),
+            Err(TableError::Gzip(crate::db::GunzipError::TooLarge { .. }))
+        ));
+    }
+}
