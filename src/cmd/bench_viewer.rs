@@ -152,14 +152,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         walk.views.len() >= 2,
         "the benchmark needs two reference views"
     );
-    let s = 0.5 * (walk.views[0].s + walk.views[1].s);
-    let camera = tracks::PerspectiveCamera {
+    let camera_at = |s: f64| tracks::PerspectiveCamera {
         position: walk.position_at(s),
         yaw_deg: yaw_along(&walk, s),
         pitch_deg: 0.0,
         fov_deg: 90.0,
         width: w,
         height: h,
+    };
+    let s = 0.5 * (walk.views[0].s + walk.views[1].s);
+    let camera = camera_at(s);
+    // Near the first sample (2 % into the segment: second weight 1.2e-3), where the second
+    // view is drawn only where it is nearer than the first or that has a hole or sky.
+    let s_near = walk.views[0].s + 0.02 * (walk.views[1].s - walk.views[0].s);
+    let camera_near = camera_at(s_near);
+    let at = |name: &str| {
+        if name.contains("near a sample") {
+            (&camera_near, s_near)
+        } else {
+            (&camera, s)
+        }
     };
     let plan = plan_frame(&walk.views, &camera, s, DrawBudget::default())?;
     let pano = [RefView::panorama(
@@ -221,6 +233,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             true,
         ),
         (
+            "full, fused, near a sample (t = 0.02)",
+            DrawBudget::default(),
+            false,
+        ),
+        (
             "full, second view at half resolution",
             DrawBudget {
                 half_res_second: true,
@@ -251,6 +268,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .filter(|v| {
                 v.0.starts_with("full (")
                     || v.0.starts_with("full without tile ids (fused)")
+                    || v.0.contains("near a sample")
                     || v.0.contains("half resolution")
             })
             .collect()
@@ -268,9 +286,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut wall: Vec<Vec<f64>> = vec![Vec::new(); variants.len() + 1];
     let mut cpu: Vec<Vec<f64>> = vec![Vec::new(); variants.len() + 1];
     for _ in 0..args.frames {
-        for (k, (_, budget, ids)) in variants.iter().enumerate() {
+        for (k, (name, budget, ids)) in variants.iter().enumerate() {
             let (t, c) = (Instant::now(), cpu_ns());
-            let mut plan = plan_frame(&walk.views, &camera, s, *budget)?;
+            let (camera, s) = at(name);
+            let mut plan = plan_frame(&walk.views, camera, s, *budget)?;
             plan.tile_ids = *ids;
             // The hole overlay needs no tile ids but the composite pass: the path frames
             // without tile ids took before the fused one (same image where nothing is a hole).
@@ -294,8 +313,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.throughput_frames > 0 {
         let p = plan_frame(&pano, &camera, s, DrawBudget::default())?;
         through[0] = Some(r.throughput_panorama(&p, &pano, args.throughput_frames)?);
-        for (k, (_, budget, ids)) in variants.iter().enumerate() {
-            let mut plan = plan_frame(&walk.views, &camera, s, *budget)?;
+        for (k, (name, budget, ids)) in variants.iter().enumerate() {
+            let (camera, s) = at(name);
+            let mut plan = plan_frame(&walk.views, camera, s, *budget)?;
             plan.tile_ids = *ids;
             plan.overlays.holes = Some(k) == composite_variant;
             through[k + 1] = Some(r.throughput(&plan, &walk.views, args.throughput_frames)?);

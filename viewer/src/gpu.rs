@@ -49,6 +49,14 @@ const ID_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 /// the nearer surface's (`SHARPNESS` in composite.wgsl), so the image does not change;
 /// meshes nearer than `NEAR_M × 1.5` are clipped in the second view.
 const SECOND_VIEW_DEPTH_SCALE: f64 = 1.5;
+/// Fused frames: below this weight the second view is drawn only where its surface is
+/// clearly nearer than the first view's (by `NEARER_ONLY`, its depth scaled by
+/// `1 / NEARER_ONLY`) or the first view has sky or a hole: there the depth-aware blend gives
+/// it (almost) everything whatever its weight. Elsewhere its share would be below
+/// w / (1 − w) · exp(SHARPNESS · (NEARER_ONLY − 1)) < 0.01, under 2.5/255 of the colour
+/// difference, so it is skipped (near the reference samples, t < 0.03 of a segment).
+const SECOND_VIEW_MIN_WEIGHT: f64 = 0.003;
+const NEARER_ONLY: f64 = 1.05;
 /// Fused frames: the first view's distance to the camera (0 = hole), read by the second view.
 const DIST_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R16Float;
 /// Features [`Renderer::throughput`] needs for GPU times (requested where available).
@@ -229,6 +237,9 @@ pub struct Renderer {
     first_mesh: wgpu::RenderPipeline,
     first_sky: wgpu::RenderPipeline,
     second_mesh: wgpu::RenderPipeline,
+    /// The second view only where it is clearly nearer than the first view or the first view
+    /// has sky or a hole (weight below `SECOND_VIEW_MIN_WEIGHT`).
+    second_mesh_holes: wgpu::RenderPipeline,
     second_sky: wgpu::RenderPipeline,
     /// Half-resolution second view: the first view drawn over it, blending it in.
     mesh_over_half: wgpu::RenderPipeline,
@@ -561,6 +572,17 @@ impl Renderer {
             depth(wgpu::CompareFunction::Greater, true),
             &[("depth_scale", SECOND_VIEW_DEPTH_SCALE)],
         );
+        let second_mesh_holes = mk(
+            "second view mesh, nearer only (fused)",
+            &render,
+            &second_layout,
+            "vs_mesh",
+            "fs_mesh_second",
+            &mesh_buffers,
+            &second_targets,
+            depth(wgpu::CompareFunction::Greater, true),
+            &[("depth_scale", 1.0 / NEARER_ONLY)],
+        );
         let second_sky = mk(
             "second view sky (fused)",
             &render,
@@ -660,6 +682,7 @@ impl Renderer {
             first_mesh,
             first_sky,
             second_mesh,
+            second_mesh_holes,
             second_sky,
             mesh_over_half,
             background_over_half,
@@ -1546,6 +1569,8 @@ impl Renderer {
             if !pass.runs.is_empty() {
                 rp.set_pipeline(if slot == 0 {
                     &self.first_mesh
+                } else if pass.weight < SECOND_VIEW_MIN_WEIGHT {
+                    &self.second_mesh_holes
                 } else {
                     &self.second_mesh
                 });
