@@ -25,7 +25,9 @@
 //! up to 8-bit rounding of the first view's colour.
 //! [`FramePlan::half_res_second`] (a [`crate::DrawBudget`] choice, off by default) draws the
 //! view with the smaller weight first at half width and height into its own target, then the
-//! other view writes every output pixel, blending the half-resolution texel in.
+//! other view writes every output pixel, blending the half-resolution texel in. Its feedback
+//! frames (tile ids, no overlays) draw the view passes for the ids only and the image as on
+//! the other frames, so the picture does not change every few frames.
 //! [`FramePlan::mesh_level`] selects decimated index buffers over the same vertices.
 //!
 //! Streaming: [`Renderer::update_layer_region`] writes the texels around one tile that
@@ -1333,13 +1335,86 @@ impl Renderer {
             return;
         };
         let ids = plan.tile_ids || plan.overlays.needs_tile_ids();
-        if !ids && plan.overlays == Overlays::default() {
+        if plan.overlays == Overlays::default() && (!ids || plan.half_res_second) {
+            if ids {
+                // A feedback frame with the half-resolution second view: tile ids from the
+                // view passes, the image as on the other frames (no flicker every few
+                // frames).
+                self.encode_view_passes(enc, targets, plan, views, true, false);
+            }
             self.encode_fused(enc, targets, plan, views);
             return;
         }
         // Without tile ids the second view is drawn against the first view's depth: it then
         // skips what the first view hides and its sky where the first view has sky.
         let shared_depth = !ids && plan.passes.len() > 1;
+        let drawn = self.encode_view_passes(enc, targets, plan, views, ids, shared_depth);
+        if drawn.is_empty() {
+            return;
+        }
+        if plan.overlays.heat {
+            for (slot, g) in drawn.iter().enumerate() {
+                self.encode_counts(enc, &targets.id_views[slot], g);
+            }
+        }
+        let pixels = plan.width as f32 * plan.height as f32;
+        let uniforms = CompositeUniforms {
+            weights: [
+                plan.passes.first().map_or(0.0, |p| p.weight as f32),
+                plan.passes.get(1).map_or(0.0, |p| p.weight as f32),
+                drawn.len() as f32,
+                (1.0 + pixels).log2(),
+            ],
+            flags: [plan.overlays.bits(), 0, 0, 0],
+        };
+        self.gpu
+            .queue
+            .write_buffer(&self.composite_uniforms, 0, bytemuck::bytes_of(&uniforms));
+        let index = |slot: usize| {
+            plan.passes
+                .get(slot)
+                .and_then(|p| views.get(p.view))
+                .map_or(usize::MAX, |v| v.index)
+        };
+        let Some(bg) = self.composite_groups.get(&(index(0), index(1))) else {
+            return;
+        };
+        let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("composite"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: &targets.output_view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                    store: wgpu::StoreOp::Store,
+                },
+            })],
+            depth_stencil_attachment: None,
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        rp.set_pipeline(if plan.overlays == Overlays::default() {
+            &self.composite
+        } else {
+            &self.composite_overlays
+        });
+        rp.set_bind_group(0, bg, &[]);
+        rp.draw(0..3, 0..1);
+    }
+
+    /// The view passes of the composite path (tile meshes, then the sky, into the view and,
+    /// with `ids`, tile-id targets); returns the views drawn, slot order.
+    fn encode_view_passes<'a>(
+        &'a self,
+        enc: &mut wgpu::CommandEncoder,
+        targets: &Targets,
+        plan: &FramePlan,
+        views: &[RefView],
+        ids: bool,
+        shared_depth: bool,
+    ) -> Vec<&'a GpuView> {
         let mut drawn: Vec<&GpuView> = Vec::new();
         for (slot, pass) in plan.passes.iter().take(2).enumerate() {
             let Some(g) = views.get(pass.view).and_then(|v| self.views.get(&v.index)) else {
@@ -1407,59 +1482,7 @@ impl Renderer {
             });
             rp.draw(0..3, 0..1);
         }
-        if drawn.is_empty() {
-            return;
-        }
-        if plan.overlays.heat {
-            for (slot, g) in drawn.iter().enumerate() {
-                self.encode_counts(enc, &targets.id_views[slot], g);
-            }
-        }
-        let pixels = plan.width as f32 * plan.height as f32;
-        let uniforms = CompositeUniforms {
-            weights: [
-                plan.passes.first().map_or(0.0, |p| p.weight as f32),
-                plan.passes.get(1).map_or(0.0, |p| p.weight as f32),
-                drawn.len() as f32,
-                (1.0 + pixels).log2(),
-            ],
-            flags: [plan.overlays.bits(), 0, 0, 0],
-        };
-        self.gpu
-            .queue
-            .write_buffer(&self.composite_uniforms, 0, bytemuck::bytes_of(&uniforms));
-        let index = |slot: usize| {
-            plan.passes
-                .get(slot)
-                .and_then(|p| views.get(p.view))
-                .map_or(usize::MAX, |v| v.index)
-        };
-        let Some(bg) = self.composite_groups.get(&(index(0), index(1))) else {
-            return;
-        };
-        let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("composite"),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: &targets.output_view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                    store: wgpu::StoreOp::Store,
-                },
-            })],
-            depth_stencil_attachment: None,
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
-        rp.set_pipeline(if plan.overlays == Overlays::default() {
-            &self.composite
-        } else {
-            &self.composite_overlays
-        });
-        rp.set_bind_group(0, bg, &[]);
-        rp.draw(0..3, 0..1);
+        drawn
     }
 
     /// Fused frames (no tile ids, no overlays): the first view straight into the output and

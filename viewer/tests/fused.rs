@@ -118,6 +118,13 @@ fn half_resolution_second_view_stays_close_and_keeps_samples_exact() {
     eprintln!("half-resolution second view at the midpoint: max |diff| {max}, mean {mean:.3}");
     assert!(mid.hole_fraction() <= full.hole_fraction() + 1e-3);
     assert!(mean < 4.0, "mean {mean}");
+    // Feedback frames (tile ids) show the same image and still count visible tiles.
+    let with_ids = r.render(&plan(&views, 0.75, half, true), &views).unwrap();
+    assert_eq!(with_ids.rgba, mid.rgba);
+    let p = plan(&views, 0.75, half, true);
+    let counts = r.feedback(&p, &views).unwrap();
+    assert_eq!(counts.len(), 2);
+    assert!(counts.iter().all(|c| c.pixels.iter().any(|&n| n > 0)));
 }
 
 #[test]
