@@ -1,0 +1,427 @@
+//! Uploads: a view's texture array and meshes, region updates of one layer, render targets.
+
+use wgpu::util::DeviceExt;
+
+use super::{
+    GpuError, GpuVertex, GpuView, Renderer, Targets, DEPTH_FORMAT, DIST_FORMAT, ID_FORMAT,
+    OUTPUT_FORMAT, VIEW_FORMAT,
+};
+use crate::plan::ViewUniforms;
+use crate::refview::{decimated_indices, mesh_cell, RefView, MESH_LEVELS};
+
+impl Renderer {
+    pub(super) fn upload(&self, view: &RefView) -> GpuView {
+        let (texture, bytes) = self.upload_texture(view);
+        self.upload_meshes(view, texture, bytes)
+    }
+
+    /// The view's texture array with every layer and level written; bytes written.
+    pub(super) fn upload_texture(&self, view: &RefView) -> (wgpu::Texture, u64) {
+        let device = &self.gpu.device;
+        let n = view.face_size;
+        let layers = view.layers.len().max(1) as u32;
+        let mips = view.layers.first().map_or(1, |l| l.levels.len()) as u32;
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("view layers"),
+            size: wgpu::Extent3d {
+                width: n,
+                height: 6 * n,
+                depth_or_array_layers: layers,
+            },
+            mip_level_count: mips,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba8UnormSrgb,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let mut bytes = 0u64;
+        for (li, layer) in view.layers.iter().enumerate() {
+            for (level, map) in layer.levels.iter().enumerate().take(mips as usize) {
+                let m = map.face_size();
+                let data: &[u8] = bytemuck::cast_slice(map.as_slice());
+                bytes += data.len() as u64;
+                self.gpu.queue.write_texture(
+                    wgpu::TexelCopyTextureInfo {
+                        texture: &texture,
+                        mip_level: level as u32,
+                        origin: wgpu::Origin3d {
+                            x: 0,
+                            y: 0,
+                            z: li as u32,
+                        },
+                        aspect: wgpu::TextureAspect::All,
+                    },
+                    data,
+                    wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(4 * m),
+                        rows_per_image: Some(6 * m),
+                    },
+                    wgpu::Extent3d {
+                        width: m,
+                        height: 6 * m,
+                        depth_or_array_layers: 1,
+                    },
+                );
+            }
+        }
+        (texture, bytes)
+    }
+
+    /// Everything of a [`GpuView`] but the texture: meshes, tile info, bind group.
+    pub(super) fn upload_meshes(
+        &self,
+        view: &RefView,
+        texture: wgpu::Texture,
+        tex_bytes: u64,
+    ) -> GpuView {
+        let mut bytes = tex_bytes;
+        let device = &self.gpu.device;
+        let n = view.face_size;
+        let mut verts: Vec<GpuVertex> = Vec::new();
+        let mut idx: Vec<u32> = Vec::new();
+        let mut index_start = Vec::with_capacity(view.tiles.len() + 1);
+        let mut face_layer = Vec::with_capacity(view.tiles.len());
+        // Decimated index lists per coarser mesh level (same vertices).
+        let grid = tracks::TileGrid::new(n, view.tile_size);
+        let mut coarse: Vec<(Vec<u32>, Vec<u32>)> = (0..MESH_LEVELS)
+            .map(|_| (Vec::new(), Vec::with_capacity(view.tiles.len() + 1)))
+            .collect();
+        let jump = crate::refview::MeshParams::default().jump;
+        for (ti, tile) in view.tiles.iter().enumerate() {
+            index_start.push(idx.len() as u32);
+            let base = verts.len() as u32;
+            for (k, (cidx, cstart)) in coarse.iter_mut().enumerate() {
+                cstart.push(cidx.len() as u32);
+                match &grid {
+                    Some(g) => {
+                        let cell = mesh_cell(view.tile_size, k as u32 + 1);
+                        let d = decimated_indices(&tile.mesh, g.pixel_rect(tile.tile), cell, jump);
+                        cidx.extend(d.iter().map(|i| base + i));
+                    }
+                    None => cidx.extend(tile.mesh.indices.iter().map(|i| base + i)),
+                }
+            }
+            let face = tile.tile.face.index() as u32;
+            verts.extend(tile.mesh.vertices.iter().map(|v| GpuVertex {
+                pos_in_face: v.pos_in_face,
+                depth_m: v.depth_m,
+                packed: ((ti as u32) << 3) | face,
+            }));
+            idx.extend(tile.mesh.indices.iter().map(|i| base + i));
+            face_layer.push(face | ((tile.slab + 1) << 8));
+        }
+        index_start.push(idx.len() as u32);
+        let coarse: Vec<(wgpu::Buffer, Vec<u32>)> = coarse
+            .into_iter()
+            .map(|(mut cidx, mut cstart)| {
+                cstart.push(cidx.len() as u32);
+                cidx.resize(cidx.len().max(4), 0);
+                bytes += cidx.len() as u64 * 4;
+                let buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("coarse tile indices"),
+                    contents: bytemuck::cast_slice(&cidx),
+                    usage: wgpu::BufferUsages::INDEX,
+                });
+                (buf, cstart)
+            })
+            .collect();
+        // Buffers are never empty (bindings of size 0 are invalid).
+        if verts.is_empty() {
+            verts.push(GpuVertex {
+                pos_in_face: [0.0; 2],
+                depth_m: 0.0,
+                packed: 0,
+            });
+        }
+        idx.resize(idx.len().max(4), 0);
+        let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("tile vertices"),
+            contents: bytemuck::cast_slice(&verts),
+            usage: wgpu::BufferUsages::VERTEX,
+        });
+        let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("tile indices"),
+            contents: bytemuck::cast_slice(&idx),
+            usage: wgpu::BufferUsages::INDEX,
+        });
+        bytes += (verts.len() * std::mem::size_of::<GpuVertex>() + idx.len() * 4) as u64;
+        let tile_info = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("tile info"),
+            size: (16 * face_layer.len().max(1)) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let counts = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("tile counts"),
+            size: (4 * face_layer.len().max(1)) as u64,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("view uniforms"),
+            size: std::mem::size_of::<ViewUniforms>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let layers_view = texture.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("view"),
+            layout: &self.view_bgl,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: uniforms.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&layers_view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::Sampler(&self.sampler),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: tile_info.as_entire_binding(),
+                },
+            ],
+        });
+        GpuView {
+            texture,
+            vertices,
+            indices,
+            tile_info,
+            info: Vec::new(),
+            counts,
+            uniforms,
+            bind_group,
+            index_start,
+            coarse,
+            face_layer,
+            bytes,
+            mesh_bytes: bytes - tex_bytes,
+        }
+    }
+
+    /// Whether the uploaded texture of a view has the view's shape (face size, layers, levels).
+    pub(super) fn texture_fits(g: &GpuView, view: &RefView) -> bool {
+        let size = g.texture.size();
+        size.width == view.face_size
+            && size.depth_or_array_layers == view.layers.len().max(1) as u32
+            && g.texture.mip_level_count()
+                == view.layers.first().map_or(1, |l| l.levels.len()) as u32
+    }
+
+    pub(super) fn ensure_view(&mut self, view: &RefView) {
+        let state = self.views.get(&view.index).map(|g| {
+            (
+                Self::texture_fits(g, view),
+                g.face_layer.len() == view.tiles.len(),
+            )
+        });
+        match state {
+            Some((true, true)) => return,
+            // Tiles joined (or left): new meshes over the same texture, whose changed
+            // regions the caller wrote with `update_layer_region`.
+            Some((true, false)) => {
+                let Some(old) = self.views.remove(&view.index) else {
+                    return;
+                };
+                let tex_bytes = old.bytes - old.mesh_bytes;
+                let g = self.upload_meshes(view, old.texture, tex_bytes);
+                self.views.insert(view.index, g);
+            }
+            _ => {
+                let g = self.upload(view);
+                self.views.insert(view.index, g);
+            }
+        }
+        self.composite_groups.clear();
+    }
+
+    /// Write the texels of `rects` (per mip level, as [`crate::texture::Layer::update_region`]
+    /// returns them) of layer `layer` of an uploaded view from `view.layers[layer]`: what
+    /// changes when one tile arrives, without re-uploading the view. Returns `false` when the
+    /// view is not uploaded with this shape (the next draw then uploads it whole anyway).
+    /// When tiles joined the view, the next draw rebuilds its meshes only.
+    pub fn update_layer_region(
+        &mut self,
+        view: &RefView,
+        layer: usize,
+        rects: &[crate::texture::FaceRect],
+    ) -> bool {
+        let (Some(g), Some(src)) = (self.views.get(&view.index), view.layers.get(layer)) else {
+            return false;
+        };
+        if !Self::texture_fits(g, view) {
+            return false;
+        }
+        for (level, (r, map)) in rects.iter().zip(&src.levels).enumerate() {
+            let m = map.face_size();
+            let (x1, y1) = (r.x1.min(m), r.y1.min(m));
+            if r.x0 >= x1 || r.y0 >= y1 {
+                continue;
+            }
+            let data: Vec<[u8; 4]> = (r.y0..y1)
+                .flat_map(|y| (r.x0..x1).map(move |x| *map.get(r.face, x, y)))
+                .collect();
+            self.gpu.queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &g.texture,
+                    mip_level: level as u32,
+                    origin: wgpu::Origin3d {
+                        x: r.x0,
+                        y: r.face.index() as u32 * m + r.y0,
+                        z: layer as u32,
+                    },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                bytemuck::cast_slice(&data),
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(4 * (x1 - r.x0)),
+                    rows_per_image: Some(y1 - r.y0),
+                },
+                wgpu::Extent3d {
+                    width: x1 - r.x0,
+                    height: y1 - r.y0,
+                    depth_or_array_layers: 1,
+                },
+            );
+        }
+        true
+    }
+
+    pub(super) fn ensure_targets(&mut self, width: u32, height: u32) -> Result<(), GpuError> {
+        let limit = self.gpu.device.limits().max_texture_dimension_2d;
+        if width > limit || height > limit {
+            return Err(GpuError::TooLarge {
+                width,
+                height,
+                limit,
+            });
+        }
+        if matches!(&self.targets, Some(t) if t.width == width && t.height == height) {
+            return Ok(());
+        }
+        let device = &self.gpu.device;
+        let size = wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        };
+        let tex = |label, format, usage| {
+            let unorm = [wgpu::TextureFormat::Rgba8Unorm];
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size,
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage,
+                view_formats: if format == OUTPUT_FORMAT { &unorm } else { &[] },
+            })
+        };
+        let view_usage =
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
+        let views = [
+            tex("view 0", VIEW_FORMAT, view_usage),
+            tex("view 1", VIEW_FORMAT, view_usage),
+        ];
+        let depth = tex(
+            "depth",
+            DEPTH_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT,
+        );
+        let output = tex(
+            "output",
+            OUTPUT_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::COPY_SRC
+                | wgpu::TextureUsages::TEXTURE_BINDING,
+        );
+        let id_usage = wgpu::TextureUsages::RENDER_ATTACHMENT
+            | wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::COPY_SRC;
+        let id_views = [
+            tex("ids 0", ID_FORMAT, id_usage).create_view(&Default::default()),
+            tex("ids 1", ID_FORMAT, id_usage).create_view(&Default::default()),
+        ];
+        let view_views = [
+            views[0].create_view(&Default::default()),
+            views[1].create_view(&Default::default()),
+        ];
+        let dist_view =
+            tex("first view distance", DIST_FORMAT, view_usage).create_view(&Default::default());
+        let group = |view: &wgpu::TextureView| {
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("second view"),
+                layout: &self.second_bgl,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: self.composite_uniforms.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: wgpu::BindingResource::TextureView(view),
+                    },
+                ],
+            })
+        };
+        let second_group = group(&dist_view);
+        let half_tex = |label, format, usage| {
+            device
+                .create_texture(&wgpu::TextureDescriptor {
+                    label: Some(label),
+                    size: wgpu::Extent3d {
+                        width: width.div_ceil(2),
+                        height: height.div_ceil(2),
+                        depth_or_array_layers: 1,
+                    },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format,
+                    usage,
+                    view_formats: &[],
+                })
+                .create_view(&Default::default())
+        };
+        let half_view = half_tex("second view (half resolution)", VIEW_FORMAT, view_usage);
+        let half_depth = half_tex(
+            "depth (half resolution)",
+            DEPTH_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT,
+        );
+        let half_group = group(&half_view);
+        self.composite_groups.clear();
+        self.targets = Some(Targets {
+            width,
+            height,
+            dist_view,
+            second_group,
+            half_view,
+            half_depth,
+            half_group,
+            depth_view: depth.create_view(&Default::default()),
+            output_view: output.create_view(&Default::default()),
+            output_view_unorm: output.create_view(&wgpu::TextureViewDescriptor {
+                format: Some(wgpu::TextureFormat::Rgba8Unorm),
+                ..Default::default()
+            }),
+            view_views,
+            id_views,
+            output,
+        });
+        Ok(())
+    }
+}
