@@ -97,6 +97,11 @@ struct MeshOut {
     // face | layer << 8.
     @location(3) @interpolate(flat) face_layer: u32,
     @location(4) @interpolate(flat) lod: f32,
+    // The texture level's constants (whole frame levels): half the level's face size,
+    // its row offset of the face (f · size), 1 / size, 1 / (6 · size); and the level and
+    // mask cut.
+    @location(5) @interpolate(flat) tex: vec4<f32>,
+    @location(6) @interpolate(flat) level_cut: vec2<f32>,
 };
 
 @vertex
@@ -117,6 +122,14 @@ fn vs_mesh(v: MeshIn) -> MeshOut {
     out.ref_rufw = vec3<f32>(u, w, 1.0) * scale;
     out.face_layer = info.x;
     out.lod = max(view.params.x, f32(info.y));
+    let level = min(out.lod, view.params.w - 1.0);
+    let nl = max(floor(n / exp2(level)), 1.0);
+    out.tex = vec4<f32>(0.5 * nl, f32(f) * nl, 1.0 / nl, 1.0 / (6.0 * nl));
+    // Masks are cut at 0.5. From level 1 on, deeper slabs cut at 0.25: where two slabs'
+    // filtered masks meet (they sum to about 1) one of them then always draws, so coarse
+    // levels open no crack at slab boundaries; deeper slabs lie behind, so the depth test
+    // hides what they overhang. Level 0 stays exact.
+    out.level_cut = vec2<f32>(level, select(0.25, 0.5, (info.x >> 8u) == 1u || out.lod < 1.0));
     return out;
 }
 
@@ -127,24 +140,22 @@ fn mesh_color(in: MeshOut) -> vec4<f32> {
     let layer = in.face_layer >> 8u;
     let lod = in.lod;
     let n = view.origin_rel.w;
-    let pix = vec2<f32>(
-        (in.ref_rufw.x / in.ref_rufw.z + 1.0) * 0.5 * n,
-        (1.0 - in.ref_rufw.y / in.ref_rufw.z) * 0.5 * n,
-    );
+    let q = in.ref_rufw.xy / in.ref_rufw.z;
     var c: vec4<f32>;
     if fract(view.params.x) == 0.0 {
-        // A whole frame level (and whole tile levels): one lookup. The condition is uniform,
-        // so SIMD rasterisers (llvmpipe runs both sides of per-pixel branches) skip the
-        // two-level path for the whole draw.
-        c = sample_level(layers, samp, n, layer, f, pix, min(lod, view.params.w - 1.0));
+        // A whole frame level (and whole tile levels): one lookup (sample_level with the
+        // level's constants from the vertex shader). The condition is uniform, so SIMD
+        // rasterisers (llvmpipe runs both sides of per-pixel branches) skip the two-level
+        // path for the whole draw.
+        let half = in.tex.x;
+        let p = clamp(vec2<f32>((q.x + 1.0) * half, (1.0 - q.y) * half), vec2<f32>(0.5), vec2<f32>(2.0 * half - 0.5));
+        let uv = vec2<f32>(p.x * in.tex.z, (in.tex.y + p.y) * in.tex.w);
+        c = textureSampleLevel(layers, samp, uv, layer, in.level_cut.x);
     } else {
+        let pix = vec2<f32>((q.x + 1.0) * 0.5 * n, (1.0 - q.y) * 0.5 * n);
         c = sample_face(layers, samp, n, view.params.w, layer, f, pix, lod);
     }
-    // Masks are cut at 0.5. From level 1 on, deeper slabs cut at 0.25: where two slabs'
-    // filtered masks meet (they sum to about 1) one of them then always draws, so coarse
-    // levels open no crack at slab boundaries; deeper slabs lie behind, so the depth test
-    // hides what they overhang. Level 0 stays exact.
-    if c.a < select(0.25, 0.5, layer == 1u || lod < 1.0) {
+    if c.a < in.level_cut.y {
         discard;
     }
     let dist = clamp(length(in.cam_rel), 1e-3, SKY_DISTANCE);
