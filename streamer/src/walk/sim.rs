@@ -290,6 +290,24 @@ impl Sim<'_> {
                 want.extend([k, k + 1]);
             }
         }
+        // Whatever the strategy: the viewpoint after the current segment once the walker
+        // would reach it before its table (two transfers and a round trip, to be safe) could
+        // arrive — at speed there are always holes, and a table asked for on arrival stalls
+        // every segment crossing.
+        if let (Some(seg), Some(v)) = (segment_at(vp_s, self.s), self.motion.velocity()) {
+            let next = seg + 2;
+            if v > 0.0 && next < vp_s.len() && !self.table_requested[next] {
+                let (bps, latency) = self.estimate.get();
+                let bytes = self.scene.tables[next].0.size as f64;
+                let fetch_s = latency + 2.0 * bytes * 8.0 / bps.max(1.0);
+                let reach_s = (vp_s[seg + 1] - self.s).max(0.0) / v;
+                // With holes in the view only in the last quarter second (the link estimate
+                // of the first seconds is too rough to time it closer).
+                if (!holes && reach_s < 2.0 * fetch_s) || reach_s < 0.25 {
+                    want.push(next);
+                }
+            }
+        }
         want.retain(|&v| v < vp_s.len() && !self.table_requested[v]);
         want.sort_by(|&a, &b| {
             (vp_s[a] - self.s)
