@@ -39,6 +39,10 @@ pub struct Args {
     /// half-resolution second view: for large sizes such as `--size 3840x2160`.
     #[arg(long)]
     pub core: bool,
+    /// Also time a tile arrival: rebuilding and re-uploading the whole layer against
+    /// updating the tile's region (`Layer::update_region`, `Renderer::update_layer_region`).
+    #[arg(long)]
+    pub uploads: bool,
     /// Write the results as JSON here.
     #[arg(long)]
     pub json: Option<std::path::PathBuf>,
@@ -78,6 +82,76 @@ struct BenchResult {
     load_before: Option<f64>,
     load_after: Option<f64>,
     variants: Vec<Variant>,
+    /// With `--uploads`: one tile arriving in slab 0 of the first view.
+    uploads: Option<Uploads>,
+}
+
+/// Median milliseconds of one tile arrival, whole layer against the tile's region.
+#[derive(serde::Serialize)]
+struct Uploads {
+    face_size: u32,
+    /// CPU: `Layer::from_rgba(dilate_masked(..))` of the whole layer.
+    layer_rebuild_ms: f64,
+    /// CPU: `Layer::update_region` of the tile.
+    region_update_ms: f64,
+    /// Next frame including the upload: the view re-uploaded whole (`invalidate_view`).
+    frame_after_full_upload_ms: f64,
+    /// Next frame after `update_layer_region` of the tile's texels.
+    frame_after_region_upload_ms: f64,
+}
+
+/// Time one tile arrival in slab 0 of view 0 both ways (median of `reps`).
+fn time_uploads(
+    r: &mut Renderer,
+    views: &mut [RefView],
+    plan: &viewer::FramePlan,
+    reps: usize,
+) -> anyhow::Result<Option<Uploads>> {
+    use viewer::texture::{dilate_masked, FaceRect, Layer};
+    let Some(tile) = views[0].tiles.iter().find(|t| t.slab == 0).map(|t| t.tile) else {
+        return Ok(None);
+    };
+    let grid = tracks::TileGrid::new(views[0].face_size, views[0].tile_size)
+        .context("tile grid of view 0")?;
+    let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+    let rect = FaceRect {
+        face: tile.face,
+        x0,
+        y0,
+        x1,
+        y1,
+    };
+    // Level 0 is the dense map dilated; dilating it again changes nothing.
+    let dense = views[0].layers[1].levels[0].clone();
+    let index = views[0].index;
+    let mut t = [Vec::new(), Vec::new(), Vec::new(), Vec::new()];
+    for _ in 0..reps {
+        let c = Instant::now();
+        views[0].layers[1] = Layer::from_rgba(dilate_masked(&dense));
+        t[0].push(c.elapsed().as_secs_f64() * 1e3);
+        let c = Instant::now();
+        r.invalidate_view(index);
+        r.draw(plan, views)?;
+        t[2].push(c.elapsed().as_secs_f64() * 1e3);
+        let c = Instant::now();
+        let rects = views[0].layers[1].update_region(&dense, rect);
+        t[1].push(c.elapsed().as_secs_f64() * 1e3);
+        let c = Instant::now();
+        anyhow::ensure!(
+            r.update_layer_region(&views[0], 1, &rects),
+            "view 0 not uploaded"
+        );
+        r.draw(plan, views)?;
+        t[3].push(c.elapsed().as_secs_f64() * 1e3);
+    }
+    let [a, b, c, d] = t.map(median);
+    Ok(Some(Uploads {
+        face_size: views[0].face_size,
+        layer_rebuild_ms: a,
+        region_update_ms: b,
+        frame_after_full_upload_ms: c,
+        frame_after_region_upload_ms: d,
+    }))
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -326,7 +400,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .collect();
     let med = |v: &Vec<f64>| (!v.is_empty()).then(|| median(v.clone()));
     let (plain_wall, plain_cpu) = (median(wall[0].clone()), med(&cpu[0]));
+    let uploads = if args.uploads {
+        let mut plan = plan_frame(&walk.views, &camera, s, DrawBudget::default())?;
+        plan.tile_ids = false;
+        let mut views = walk.views.clone();
+        time_uploads(&mut r, &mut views, &plan, 5)?
+    } else {
+        None
+    };
     let res = BenchResult {
+        uploads,
         adapter: format!("{} ({:?})", r.gpu.info.name, r.gpu.info.backend),
         width: w,
         height: h,
@@ -379,6 +462,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             v.throughput_fps.unwrap_or(f64::NAN),
             v.gpu_ms.unwrap_or(f64::NAN),
             v.gpu_ms.zip(plain_gpu).map_or(f64::NAN, |(a, b)| a / b),
+        );
+    }
+    if let Some(u) = &res.uploads {
+        eprintln!(
+            "tile arrival at face {}: layer rebuild {:.1} ms, region update {:.3} ms; next frame with full upload {:.1} ms, with region upload {:.1} ms",
+            u.face_size,
+            u.layer_rebuild_ms,
+            u.region_update_ms,
+            u.frame_after_full_upload_ms,
+            u.frame_after_region_upload_ms
         );
     }
     println!("{}", serde_json::to_string_pretty(&res)?);
