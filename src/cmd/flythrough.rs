@@ -61,7 +61,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             height: h,
         };
         let t0 = Instant::now();
-        let plan = plan_frame(&walk.views, &camera, s, DrawBudget::default())?;
+        let mut plan = plan_frame(&walk.views, &camera, s, DrawBudget::default())?;
+        // As the window shows it between feedback frames (no tile ids: fused passes).
+        plan.tile_ids = false;
         renderer.draw(&plan, &walk.views)?;
         let frame_ms = t0.elapsed().as_secs_f64() * 1e3;
         let frame = renderer.read_output()?;

@@ -62,7 +62,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         blend: !args.no_blend,
         ..Default::default()
     };
-    let plan = plan_frame(&walk.views, &camera, args.at, budget)?;
+    let mut plan = plan_frame(&walk.views, &camera, args.at, budget)?;
+    // The frame as the window shows it between feedback frames (no tile ids: fused passes).
+    plan.tile_ids = false;
     let mut renderer = Renderer::new(Gpu::new()?);
     let frame = renderer.render(&plan, &walk.views)?;
     save_png(&args.output, &frame)?;
