@@ -258,6 +258,7 @@ fn tables_arrive_nearest_first_and_the_session_grows_with_them() {
     let mut session =
         LiveSession::connect(&srv.url(), None, LiveConfig::with_cache(64 << 20)).unwrap();
     // From the top manifest alone: backgrounds, no tile (nothing to request for them yet).
+    assert_eq!(session.tables_loaded().0, 0);
     assert!(session.table().items.iter().all(|it| it.tile.is_none()));
     assert!(session.manifest().tracks[0]
         .viewpoints
@@ -292,6 +293,8 @@ fn tables_arrive_nearest_first_and_the_session_grows_with_them() {
         .map(|it| (it.viewpoint, it.tile))
         .collect();
     assert_eq!(&after[..before.len()], &before[..]);
+    let n = session.top().tracks[0].viewpoints.len();
+    assert_eq!(session.tables_loaded(), (n, n));
     // With every table in, the session's manifest is the database's.
     let db = streamer::db::Database::open(&dir).unwrap();
     assert_eq!(session.manifest(), db.manifest());

@@ -413,6 +413,10 @@ impl ViewerApp {
             stats.link.0 / 1e6,
             stats.link.1 * 1e3
         ));
+        let (tables, viewpoints) = st.session().tables_loaded();
+        ui.label(format!(
+            "viewpoint tables {tables} of {viewpoints} (tiles of the others cannot be asked for yet)"
+        ));
         let used = stats.cache_used as f64 / stats.cache_budget.max(1) as f64;
         ui.add(egui::ProgressBar::new(used as f32).text(format!(
             "cache {:.1} / {:.1} MiB (peak {:.1}, pinned {:.1})",

@@ -295,6 +295,14 @@ impl LiveSession {
         &self.top
     }
 
+    /// `(tables arrived, viewpoints)` of the session's track.
+    pub fn tables_loaded(&self) -> (usize, usize) {
+        (
+            self.tables.iter().filter(|t| t.is_some()).count(),
+            self.tables.len(),
+        )
+    }
+
     /// Whether viewpoint `vp`'s table has arrived (position in the track).
     pub fn has_table(&self, vp: usize) -> bool {
         self.tables.get(vp).is_some_and(|t| t.is_some())
