@@ -3,7 +3,6 @@
 use std::sync::atomic::Ordering;
 
 use bytes::Bytes;
-use tracks::manifest::ObjectRef;
 use tracks::PerspectiveCamera;
 
 use super::{
@@ -15,8 +14,10 @@ use crate::client::{
     FetchKey, ItemInfo, ItemTable, LinkEstimate, LiveCount, MotionTracker, Part, PlanInput,
     PriorityMode,
 };
-use crate::db::split::{decode_table, ViewTable};
+use crate::db::split::ViewTable;
 use crate::visibility::{blend_weights, frustum_half_angle, Surface, SurfaceCount};
+
+mod tables;
 
 /// Items and the parts of each one bundled request carries.
 type Bundle = Vec<(usize, Vec<Part>)>;
@@ -252,163 +253,6 @@ impl Sim<'_> {
         };
         self.prefetch_memo = Some((memo_key, list.clone()));
         list
-    }
-
-    /// Requests the tables the walker needs now: the current segment's two viewpoints and,
-    /// with prefetch, the next segment's once the view has no holes (nearest first, one
-    /// request each, before any tile). Returns the request slots used.
-    async fn issue_urgent_tables(
-        &mut self,
-        conn: &mut Connection,
-        t: f64,
-        free: usize,
-    ) -> Result<usize, WalkError> {
-        if free == 0 {
-            return Ok(0);
-        }
-        let vp_s = &self.table.vp_s;
-        let mut want: Vec<usize> = Vec::new();
-        if let Some(seg) = segment_at(vp_s, self.s) {
-            want.extend([seg, seg + 1]);
-        } else if !vp_s.is_empty() {
-            want.push(0);
-        }
-        // The next segment's tables are prefetched once the view has no holes (the view
-        // first).
-        let have = self.have();
-        let holes = self
-            .live
-            .iter()
-            .any(|c| have[c.item] < self.items[c.item].min_parts())
-            || want
-                .iter()
-                .any(|&v| v < vp_s.len() && !self.table.has_viewpoint(v));
-        if let Strategy::Budget { prefetch: true, .. } = self.strategy {
-            if let Some(k) = next_segment(&self.motion, vp_s, self.s, self.cfg.prefetch_horizon_s)
-                .filter(|_| !holes)
-            {
-                want.extend([k, k + 1]);
-            }
-        }
-        // Whatever the strategy: the viewpoint after the current segment once the walker
-        // would reach it before its table (two transfers and a round trip, to be safe) could
-        // arrive — at speed there are always holes, and a table asked for on arrival stalls
-        // every segment crossing.
-        if let (Some(seg), Some(v)) = (segment_at(vp_s, self.s), self.motion.velocity()) {
-            let next = seg + 2;
-            if v > 0.0 && next < vp_s.len() && !self.table_requested[next] {
-                let (bps, latency) = self.estimate.get();
-                let bytes = self.scene.tables[next].0.size as f64;
-                let fetch_s = latency + 2.0 * bytes * 8.0 / bps.max(1.0);
-                let reach_s = (vp_s[seg + 1] - self.s).max(0.0) / v;
-                // With holes in the view only in the last quarter second (the link estimate
-                // of the first seconds is too rough to time it closer).
-                if (!holes && reach_s < 2.0 * fetch_s) || reach_s < 0.25 {
-                    want.push(next);
-                }
-            }
-        }
-        want.retain(|&v| v < vp_s.len() && !self.table_requested[v]);
-        want.sort_by(|&a, &b| {
-            (vp_s[a] - self.s)
-                .abs()
-                .total_cmp(&(vp_s[b] - self.s).abs())
-                .then(a.cmp(&b))
-        });
-        want.dedup();
-        // One request each, nearest first: the link delivers the nearest table first.
-        want.truncate(free);
-        for &v in &want {
-            self.fetch_tables(conn, t, &[v], false).await?;
-        }
-        Ok(want.len())
-    }
-
-    /// One background table (the nearest missing viewpoint) when a slot is free and no
-    /// other background table is on its way.
-    async fn issue_background_table(
-        &mut self,
-        conn: &mut Connection,
-        t: f64,
-    ) -> Result<bool, WalkError> {
-        if self.in_flight.len() >= self.cfg.max_in_flight.max(1)
-            || self.in_flight.iter().any(|f| f.background_table)
-        {
-            return Ok(false);
-        }
-        let vp_s = &self.table.vp_s;
-        let next = (0..vp_s.len())
-            .filter(|&v| !self.table_requested[v])
-            .min_by(|&a, &b| {
-                (vp_s[a] - self.s)
-                    .abs()
-                    .total_cmp(&(vp_s[b] - self.s).abs())
-                    .then(a.cmp(&b))
-            });
-        if let Some(v) = next {
-            self.fetch_tables(conn, t, &[v], true).await?;
-        }
-        Ok(next.is_some())
-    }
-
-    /// Fetches the tables of viewpoints `vps` in one request (hash-checked, decoded) and puts
-    /// them on the link.
-    async fn fetch_tables(
-        &mut self,
-        conn: &mut Connection,
-        t: f64,
-        vps: &[usize],
-        background: bool,
-    ) -> Result<(), WalkError> {
-        let refs: Vec<&ObjectRef> = vps.iter().map(|&v| &self.scene.tables[v].0).collect();
-        let keys: Vec<FetchKey> = refs
-            .iter()
-            .map(|r| FetchKey {
-                object: r.hash.clone(),
-                range: None,
-            })
-            .collect();
-        let pieces: Vec<BundlePiece> = refs
-            .iter()
-            .zip(&keys)
-            .map(|(r, key)| BundlePiece {
-                key,
-                len: r.size,
-                hash: &r.hash,
-            })
-            .collect();
-        let data = conn.fetch_checked_bundle(&pieces, None).await?;
-        let mut tables = Vec::with_capacity(vps.len());
-        let mut size = 0u64;
-        for ((&v, bytes), r) in vps.iter().zip(&data).zip(&refs) {
-            size += bytes.len() as u64;
-            let index = self.scene.tables[v].1;
-            let vt = decode_table(bytes, index).map_err(|e| {
-                WalkError::Database(format!("table {} of viewpoint {index}: {e}", r.hash))
-            })?;
-            tables.push((v, vt));
-            self.table_requested[v] = true;
-        }
-        let requests = if conn.bundles_supported() {
-            1
-        } else {
-            vps.len() as u64
-        };
-        self.requests += requests;
-        self.table_requests += requests;
-        self.bytes += size;
-        self.table_bytes += size;
-        self.in_flight.push(InFlight {
-            prefetch: false,
-            tables,
-            background_table: background,
-            items: Vec::new(),
-            keys: Vec::new(),
-            issued: t,
-            arrives: self.link.schedule_requests(t, size, requests),
-            bytes: size,
-        });
-        Ok(())
     }
 
     /// Decide and issue downloads at time `t` (fetching the bytes for real). Each free

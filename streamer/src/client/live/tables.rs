@@ -1,0 +1,96 @@
+//! Viewpoint tables in a live session: asked for through the fetcher (the ones around the
+//! walker above every tile, the rest below), decoded and added as they arrive.
+
+use bytes::Bytes;
+
+use super::LiveSession;
+use crate::client::fetcher::FetchRequest;
+use crate::client::http::FetchKey;
+use crate::client::predict::{next_segment, segment_at};
+use crate::db::split::{assemble, decode_table, ViewTable};
+use crate::visibility::{blend_weights, SceneIndex};
+
+impl LiveSession {
+    /// Tables of the viewpoints around `s` (and, with prefetch, of the predicted next
+    /// segment) at the top priority, every other missing one at the lowest, nearest first;
+    /// returns the table keys to keep.
+    pub(super) fn request_tables(&mut self, s: f64) -> Vec<(FetchRequest, Option<u64>)> {
+        let vp_s = &self.table.vp_s;
+        let mut urgent: Vec<usize> = blend_weights(vp_s, s).iter().map(|w| w.0).collect();
+        if let Some(seg) = segment_at(vp_s, s) {
+            urgent.extend([seg, seg + 1]);
+        }
+        if self.config.prefetch {
+            if let Some(k) = next_segment(&self.motion, vp_s, s, self.config.prefetch_horizon_s) {
+                urgent.extend([k, k + 1]);
+            }
+        }
+        let t = &self.top.tracks[self.track];
+        let mut out = Vec::new();
+        for (vi, v) in t.viewpoints.iter().enumerate() {
+            if self.tables[vi].is_some() {
+                continue;
+            }
+            let key = FetchKey {
+                object: v.table.hash.clone(),
+                range: None,
+            };
+            let dist = (v.s - s).abs();
+            // Urgent tables before any tile (tile priorities stay far below 1e12); the rest
+            // after every tile, nearest first.
+            let priority = if urgent.contains(&vi) {
+                1e12 - dist
+            } else {
+                -1.0 - dist
+            };
+            self.table_keys.insert(key.clone(), vi);
+            out.push((
+                FetchRequest {
+                    key,
+                    expected_hash: v.table.hash.clone(),
+                    priority,
+                },
+                Some(v.table.size),
+            ));
+        }
+        out
+    }
+
+    /// A checked table arrived: decoded, added to the item table, the manifest and the
+    /// visibility index. A table that does not decode is dropped (asked for again).
+    pub(super) fn table_arrived(&mut self, vi: usize, data: &Bytes) {
+        let Some(v) = self.top.tracks[self.track].viewpoints.get(vi) else {
+            return;
+        };
+        let vt = match decode_table(data, v.index) {
+            Ok(vt) => vt,
+            Err(e) => {
+                self.stats.failed_requests += 1;
+                self.stats.last_error = Some(format!("table of viewpoint {}: {e}", v.index));
+                return;
+            }
+        };
+        let range = match self.table.add_viewpoint(vi, &vt.tiles, &vt.segments) {
+            Ok(r) => r,
+            Err(e) => {
+                self.stats.failed_requests += 1;
+                self.stats.last_error = Some(e.to_string());
+                return;
+            }
+        };
+        for i in range {
+            let it = &self.table.items[i];
+            self.infos.push(it.info.clone());
+            for (p, part) in it.parts.iter().enumerate() {
+                self.users.entry(part.key.clone()).or_default().push((i, p));
+            }
+        }
+        self.refresh_plan_infos();
+        self.tables[vi] = Some(vt);
+        let row: Vec<Option<&ViewTable>> = self.tables.iter().map(|t| t.as_ref()).collect();
+        let mut rows: Vec<Vec<Option<&ViewTable>>> = vec![Vec::new(); self.top.tracks.len()];
+        rows[self.track] = row;
+        self.manifest = assemble(&self.top, &rows);
+        self.index = SceneIndex::new(&self.manifest, self.track);
+    }
+}
