@@ -1,8 +1,9 @@
-//! streamer: the PTM codec, the walkthrough database and ACH hints (plus, in progress, the
-//! HTTP tile server and client).
+//! streamer: the PTM codec, the walkthrough database and ACH hints, the HTTP tile server and
+//! client, and the walk simulator.
 //!
 //! - [`ptm`]: progressive texture maps — lossless mip levels sent coarse to fine.
-//! - [`db`]: the content-addressed database directory (writer, reader, `verify`), the compact
+//! - [`db`]: the content-addressed database directory (writer, reader, `verify`), the split
+//!   manifest (a small top plus one tile table per viewpoint, [`db::split`]), the compact
 //!   mesh format and ACH (average coverage hints) per track segment.
 //! - [`server`]: the HTTP tile server (`run(listener, db, config, stats, shutdown)`): manifest
 //!   and content-addressed objects with `Range:`, shaping, limits, graceful shutdown.

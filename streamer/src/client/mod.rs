@@ -11,7 +11,9 @@
 //!   plain functions, no I/O.
 //! - [`predict`]: [`MotionTracker`] — speed, stillness and the next segment from recent
 //!   positions.
-//! - [`items`]: [`ItemTable`] — a manifest flattened into streamable items and parts.
+//! - [`items`]: [`ItemTable`] — a manifest flattened into streamable items and parts, grown
+//!   as viewpoints' tables arrive ([`ItemTable::empty`], [`ItemTable::add_viewpoint`]; the
+//!   tables themselves come from [`Connection::fetch_table`] or through the fetcher).
 //! - [`live`]: [`LiveSession`] — all of the above on the wall clock for an interactive viewer.
 
 pub mod budget;
