@@ -256,11 +256,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )];
     let pano_plan = plan_frame(&pano, &camera, s, DrawBudget::default())?;
     let mut r = Renderer::new(Gpu::new()?);
-    // (name, budget, tile ids written); frames without tile ids and overlays take the fused
-    // path (no view targets, no composite pass).
+    // (name, budget, tile ids written); frames without overlays take the fused path (no
+    // view targets, no composite pass), feedback frames (tile ids) add a depth + id pass per
+    // view at a quarter of the width and height (`FramePlan::id_scale`).
     let variants: Vec<(&str, DrawBudget, bool)> = vec![
         (
             "full (2 views x all slabs, tile ids)",
+            DrawBudget::default(),
+            true,
+        ),
+        (
+            "full, tile ids at full resolution",
+            DrawBudget::default(),
+            true,
+        ),
+        (
+            "full, tile ids, composite pass (feedback frames before)",
             DrawBudget::default(),
             true,
         ),
@@ -344,6 +355,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     || v.0.starts_with("full without tile ids (fused)")
                     || v.0.contains("near a sample")
                     || v.0.contains("half resolution")
+                    || v.0.contains("tile ids")
             })
             .collect()
     } else {
@@ -352,6 +364,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let composite_variant = variants
         .iter()
         .position(|v| v.0 == "full without tile ids, composite pass");
+    // The hole overlay needs no tile ids but the composite pass: the path frames without
+    // tile ids took before the fused one (same image where nothing is a hole). The highlight
+    // overlay (no tile highlighted: the same image) takes the composite path with
+    // full-resolution tile ids, as feedback frames did before the id pass.
+    let adjust = |plan: &mut viewer::plan::FramePlan, k: usize, name: &str| {
+        plan.overlays.holes = Some(k) == composite_variant;
+        plan.overlays.highlight = name.contains("feedback frames before");
+        if name.contains("ids at full resolution") {
+            plan.id_scale = 1;
+        }
+    };
     for _ in 0..3 {
         r.draw(&plan, &walk.views)?;
         r.draw_panorama(&pano_plan, &pano)?;
@@ -365,9 +388,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let (camera, s) = at(name);
             let mut plan = plan_frame(&walk.views, camera, s, *budget)?;
             plan.tile_ids = *ids;
-            // The hole overlay needs no tile ids but the composite pass: the path frames
-            // without tile ids took before the fused one (same image where nothing is a hole).
-            plan.overlays.holes = Some(k) == composite_variant;
+            adjust(&mut plan, k, name);
             r.draw(&plan, &walk.views)?;
             wall[k + 1].push(t.elapsed().as_secs_f64() * 1e3);
             if let (Some(a), Some(b)) = (c, cpu_ns()) {
@@ -391,7 +412,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let (camera, s) = at(name);
             let mut plan = plan_frame(&walk.views, camera, s, *budget)?;
             plan.tile_ids = *ids;
-            plan.overlays.holes = Some(k) == composite_variant;
+            adjust(&mut plan, k, name);
             through[k + 1] = Some(r.throughput(&plan, &walk.views, args.throughput_frames)?);
         }
     }

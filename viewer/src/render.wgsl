@@ -176,6 +176,15 @@ fn fs_mesh_ids(in: MeshOut) -> PassOut {
     return out;
 }
 
+// Tile ids only (feedback frames, drawn beside the picture, usually at reduced resolution):
+// depth + id, no colour. The opacity mask still decides (one lookup), so the ids are those of
+// the view pass; the sky writes nothing (the cleared 0 = no tile).
+@fragment
+fn fs_mesh_id_only(in: MeshOut) -> @location(0) u32 {
+    _ = mesh_color(in);
+    return in.tile + 1u;
+}
+
 // Fused frames (no tile ids, no overlays): no view targets and no composite pass. The first
 // view draws straight into the output (sRGB colour, alpha 1) and its distance into a small
 // R16Float target; the second view is then drawn against the first view's depth (scaled by

@@ -82,8 +82,17 @@ fn fused_frames_match_the_composite_at_samples_and_between() {
                 max_slabs: slabs,
                 ..Default::default()
             };
-            let with_ids = r.render(&plan(&views, s, budget, true), &views).unwrap();
+            // The composite path: the highlight overlay with no tile highlighted (the
+            // same image, view targets + full-resolution ids + composite pass).
+            let mut composite = plan(&views, s, budget, true);
+            composite.overlays.highlight = true;
+            let with_ids = r.render(&composite, &views).unwrap();
             let fused = r.render(&plan(&views, s, budget, false), &views).unwrap();
+            let feedback = r.render(&plan(&views, s, budget, true), &views).unwrap();
+            assert_eq!(
+                feedback.rgba, fused.rgba,
+                "feedback frames draw the fused picture"
+            );
             let (max, mean) = diff(&with_ids, &fused);
             eprintln!("s {s} slabs {slabs}: fused vs composite max |diff| {max}, mean {mean:.4}");
             assert_eq!(with_ids.hole_fraction(), fused.hole_fraction(), "s {s}");

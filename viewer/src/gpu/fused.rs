@@ -219,6 +219,53 @@ impl Renderer {
         rp.draw(0..3, 0..1);
     }
 
+    /// Feedback frames without overlays: per view pass, its tile ids alone (depth + R32
+    /// target, `fs_mesh_id_only`) at `1 / id_scale` of the frame's width and height; the
+    /// picture is drawn by [`Renderer::encode_fused`]. The compute count then runs on the
+    /// small target ([`Renderer::feedback`]).
+    pub(super) fn encode_id_passes(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        targets: &Targets,
+        plan: &FramePlan,
+        views: &[RefView],
+    ) {
+        let (ids, depth) = targets.feedback_ids();
+        for (slot, pass) in plan.passes.iter().take(2).enumerate() {
+            let Some(g) = views.get(pass.view).and_then(|v| self.views.get(&v.index)) else {
+                continue;
+            };
+            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("tile ids"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &ids[slot],
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: depth,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(0.0),
+                        store: wgpu::StoreOp::Discard,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            if !pass.runs.is_empty() {
+                rp.set_bind_group(0, &g.bind_group, &[]);
+                rp.set_pipeline(&self.mesh_id_only);
+                self.draw_runs(&mut rp, plan, pass, g);
+            }
+        }
+    }
+
     /// Draw a pass's tile runs (vertex and index buffers of the plan's mesh level); the
     /// pipeline and bind groups are set.
     pub(super) fn draw_runs(

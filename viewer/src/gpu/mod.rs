@@ -4,19 +4,23 @@
 //! Per reference view it keeps a [`GpuView`]: one 2D-array texture (layer 0 background,
 //! layer `k + 1` slab `k`, faces stacked `N × 6N`, full mip chain), one vertex and index buffer
 //! with every tile mesh, and a small storage buffer of per-tile face/layer/min-level/highlight/
-//! slab (rewritten only when it changes). A frame is one render pass per view (tile runs front
-//! slab first with a reversed-Z depth test and the opacity mask) into an `Rgba16Float` target
-//! (alpha = distance, 0 where no tile drew) and, when the plan asks for feedback or overlays,
-//! an `R32Uint` tile-id target; then one full-screen composite pass (`composite.wgsl`) that
+//! slab (rewritten only when it changes). A frame with overlays is one render pass per view
+//! (tile runs front slab first with a reversed-Z depth test and the opacity mask) into an
+//! `Rgba16Float` target (alpha = distance, 0 where no tile drew) and an `R32Uint` tile-id
+//! target; then one full-screen composite pass (`composite.wgsl`) that
 //! samples each view's background where its tiles left the pixel empty, blends the two views
 //! and draws the debug overlays ([`crate::plan::Overlays`]). The heat-map overlay counts the
 //! visible pixels per tile with the feedback compute pass inside the same frame.
 //!
 //! Each view pass draws its tile meshes, then its background (sky) at the far plane behind a
-//! depth test, so the sky costs only where no tile drew. That is the path of frames with tile
-//! ids or overlays. Frames without them ([`FramePlan::tile_ids`] off, no overlays: most
-//! frames in the window, and `eval`) are *fused*: two passes straight into the output, no
-//! view targets and no composite pass. The first view writes the output (sRGB, alpha 1) and
+//! depth test, so the sky costs only where no tile drew. That is the path of frames with
+//! overlays only. Frames without overlays (most frames in the window, feedback frames, and
+//! `eval`) are *fused*: two passes straight into the output, no view targets and no
+//! composite pass. Feedback frames ([`FramePlan::tile_ids`]) draw the same picture and, per
+//! view, a cheap depth + `R32Uint` tile-id pass (`fs_mesh_id_only`: the opacity-mask lookup
+//! and the id, no colour, no sky) at `1 / `[`FramePlan::id_scale`] of the width and height
+//! (a quarter by default); the compute count runs on that small target and
+//! [`Renderer::feedback`] scales its counts by the area factor. The first view writes the output (sRGB, alpha 1) and
 //! its distance (an `R16Float` target); its sky writes a tiny depth. The second view is drawn
 //! against the first view's depth (scaled by `SECOND_VIEW_DEPTH_SCALE`, skipping what the
 //! blend would weigh at almost nothing) with hardware blending: each of its fragments carries
@@ -25,9 +29,7 @@
 //! up to 8-bit rounding of the first view's colour.
 //! [`FramePlan::half_res_second`] (a [`crate::DrawBudget`] choice, off by default) draws the
 //! view with the smaller weight first at half width and height into its own target, then the
-//! other view writes every output pixel, blending the half-resolution texel in. Its feedback
-//! frames (tile ids, no overlays) draw the view passes for the ids only and the image as on
-//! the other frames, so the picture does not change every few frames.
+//! other view writes every output pixel, blending the half-resolution texel in.
 //! [`FramePlan::mesh_level`] selects decimated index buffers over the same vertices.
 //!
 //! Streaming: [`Renderer::update_layer_region`] writes the texels around one tile that
@@ -229,6 +231,29 @@ struct Targets {
     output_view: wgpu::TextureView,
     /// The same texels as plain UNORM (sRGB-encoded bytes), for UIs that expect them.
     output_view_unorm: wgpu::TextureView,
+    /// Reduced-resolution tile ids (feedback frames without overlays): the scale, the id
+    /// targets and their depth (the full-resolution ones when the scale is 1).
+    id_scale: u32,
+    small: Option<([wgpu::TextureView; 2], wgpu::TextureView)>,
+}
+
+impl Targets {
+    /// The id targets of feedback frames without overlays and their depth.
+    fn feedback_ids(&self) -> (&[wgpu::TextureView; 2], &wgpu::TextureView) {
+        match &self.small {
+            Some((ids, depth)) => (ids, depth),
+            None => (&self.id_views, &self.depth_view),
+        }
+    }
+
+    /// The id target of view pass `slot` of the last frame drawn with `scale`.
+    fn ids_of(&self, slot: usize, scale: u32) -> &wgpu::TextureView {
+        if scale > 1 {
+            &self.feedback_ids().0[slot]
+        } else {
+            &self.id_views[slot]
+        }
+    }
 }
 
 /// Executes frame plans.
@@ -257,6 +282,8 @@ pub struct Renderer {
     mesh_behind: wgpu::RenderPipeline,
     /// Tile meshes writing colour and tile ids.
     mesh_ids: wgpu::RenderPipeline,
+    /// Tile meshes writing tile ids only (feedback frames without overlays).
+    mesh_id_only: wgpu::RenderPipeline,
     /// Tile meshes writing colour only.
     mesh: wgpu::RenderPipeline,
     panorama: wgpu::RenderPipeline,
@@ -269,6 +296,8 @@ pub struct Renderer {
     targets: Option<Targets>,
     /// Whether the last frame wrote the tile-id targets (slot 0, slot 1).
     ids_valid: [bool; 2],
+    /// The [`FramePlan::id_scale`] of the last frame's tile ids (1 = full resolution).
+    ids_scale: u32,
     /// Composite bind groups by the reference-view indices of slots 0 and 1 (made once:
     /// binding many textures anew every frame is slow on some drivers).
     composite_groups: HashMap<(usize, usize), wgpu::BindGroup>,
@@ -300,7 +329,7 @@ impl Renderer {
                 .ok_or(GpuError::MissingView(p.view, views.len()))?;
             self.ensure_view(v);
         }
-        self.ensure_targets(plan.width, plan.height)?;
+        self.ensure_targets(plan.width, plan.height, plan.id_scale)?;
         for p in &plan.passes {
             self.update_tile_info(p, &views[p.view]);
         }
@@ -321,6 +350,11 @@ impl Renderer {
         self.gpu.queue.submit([enc.finish()]);
         let ids = plan.tile_ids || plan.overlays.needs_tile_ids();
         self.ids_valid = [ids && !plan.passes.is_empty(), ids && plan.passes.len() > 1];
+        self.ids_scale = if plan.overlays == Overlays::default() {
+            plan.id_scale.max(1)
+        } else {
+            1
+        };
         self.gpu
             .device
             .poll(wgpu::PollType::wait_indefinitely())
@@ -419,14 +453,14 @@ impl Renderer {
             return;
         };
         let ids = plan.tile_ids || plan.overlays.needs_tile_ids();
-        if plan.overlays == Overlays::default() && (!ids || plan.half_res_second) {
-            if ids {
-                // A feedback frame with the half-resolution second view: tile ids from the
-                // view passes, the image as on the other frames (no flicker every few
-                // frames).
-                self.encode_view_passes(enc, targets, plan, views, true, false);
-            }
+        if plan.overlays == Overlays::default() {
+            // The picture as on frames without tile ids (no change every few frames), and
+            // for feedback frames the tile ids in a cheap pass of their own, at
+            // `1 / id_scale` resolution.
             self.encode_fused(enc, targets, plan, views);
+            if ids {
+                self.encode_id_passes(enc, targets, plan, views);
+            }
             return;
         }
         // Without tile ids the second view is drawn against the first view's depth: it then
@@ -590,10 +624,7 @@ impl Renderer {
                     },
                 ],
             });
-        let (w, h) = self
-            .targets
-            .as_ref()
-            .map_or((1, 1), |t| (t.width, t.height));
+        let (w, h) = (ids.texture().width(), ids.texture().height());
         let mut cp = enc.begin_compute_pass(&Default::default());
         cp.set_pipeline(&self.feedback);
         cp.set_bind_group(0, &bg, &[]);
@@ -625,7 +656,7 @@ impl Renderer {
             .get(pass.view)
             .ok_or(GpuError::MissingView(pass.view, views.len()))?;
         self.ensure_view(v);
-        self.ensure_targets(plan.width, plan.height)
+        self.ensure_targets(plan.width, plan.height, plan.id_scale)
     }
 
     fn encode_panorama(&self, enc: &mut wgpu::CommandEncoder, plan: &FramePlan, views: &[RefView]) {

@@ -167,6 +167,19 @@ impl Renderer {
             depth(wgpu::CompareFunction::Greater, true),
             &[],
         );
+        // Feedback frames: tile ids only (depth + R32), usually at reduced resolution.
+        let id_only_targets = [target(ID_FORMAT)];
+        let mesh_id_only = mk(
+            "mesh ids only",
+            &render,
+            &view_layout,
+            "vs_mesh",
+            "fs_mesh_id_only",
+            &mesh_buffers,
+            &id_only_targets,
+            depth(wgpu::CompareFunction::Greater, true),
+            &[],
+        );
         // The fast path without tile ids: the first view's sky writes depth, the second view
         // is drawn against the first view's depth (see `depth_scale` in render.wgsl).
         let sky_depth = mk(
@@ -370,6 +383,7 @@ impl Renderer {
             mesh_over_half,
             background_over_half,
             mesh_ids,
+            mesh_id_only,
             mesh,
             panorama,
             composite,
@@ -384,6 +398,7 @@ impl Renderer {
             views: HashMap::new(),
             targets: None,
             ids_valid: [false; 2],
+            ids_scale: 1,
             composite_groups: HashMap::new(),
         }
     }

@@ -158,7 +158,11 @@ impl Renderer {
 
     /// Visible pixels per tile of every view pass of the last [`Renderer::draw`] (tile-id
     /// targets counted by a compute pass with atomics); `plan` must be the plan drawn, with
-    /// [`FramePlan::tile_ids`] set.
+    /// [`FramePlan::tile_ids`] set. Where the ids were drawn at reduced resolution
+    /// ([`FramePlan::id_scale`] > 1, frames without overlays) each id texel's count is
+    /// scaled by the area factor (frame pixels / id texels, about `id_scale²`), rounded: an
+    /// estimate of the full-resolution count (a tile narrower than `id_scale` pixels may
+    /// count 0).
     pub fn feedback(
         &self,
         plan: &FramePlan,
@@ -182,9 +186,17 @@ impl Renderer {
                 return Err(GpuError::MissingView(pass.view, views.len()));
             };
             let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-            self.encode_counts(&mut enc, &t.id_views[slot], g);
+            let ids = t.ids_of(slot, self.ids_scale);
+            self.encode_counts(&mut enc, ids, g);
             let mut pixels: Vec<u32> = self.read_buffer(enc, &g.counts)?;
             pixels.truncate(v.tiles.len());
+            let (iw, ih) = (ids.texture().width(), ids.texture().height());
+            if (iw, ih) != (t.width, t.height) {
+                let area = (t.width as f64 * t.height as f64) / (iw as f64 * ih as f64);
+                for p in &mut pixels {
+                    *p = (*p as f64 * area).round().min(u32::MAX as f64) as u32;
+                }
+            }
             out.push(crate::feedback::ViewCounts {
                 view: pass.view,
                 pixels,
@@ -195,7 +207,9 @@ impl Renderer {
 
     /// The tile drawn at every pixel (row-major from the top; tile index + 1, 0 = none) by
     /// view pass `slot` (0 or 1) of the last [`Renderer::draw`], which must have written tile
-    /// ids.
+    /// ids. Ids drawn at reduced resolution ([`FramePlan::id_scale`] > 1) are widened to the
+    /// frame's size: pixel (x, y) takes the id of texel (x / id_scale, y / id_scale), which
+    /// was sampled at that texel's centre.
     pub fn read_tile_ids(&self, slot: usize) -> Result<Vec<u32>, GpuError> {
         let t = self
             .targets
@@ -206,8 +220,8 @@ impl Renderer {
                 "the last frame wrote no tile ids for view pass {slot}"
             )));
         }
-        let texture = t.id_views[slot].texture();
-        let (w, h) = (t.width, t.height);
+        let texture = t.ids_of(slot, self.ids_scale).texture();
+        let (w, h) = (texture.width(), texture.height());
         let bpr = (w * 4).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
             * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
         let buf = self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
@@ -240,8 +254,13 @@ impl Renderer {
         );
         let rows: Vec<u32> = self.map_read(enc, &buf)?;
         let stride = (bpr / 4) as usize;
-        Ok((0..h as usize)
-            .flat_map(|y| rows[y * stride..y * stride + w as usize].iter().copied())
+        let s = self.ids_scale.max(1) as usize;
+        let (fw, fh) = (t.width as usize, t.height as usize);
+        Ok((0..fh)
+            .flat_map(|y| {
+                let row = &rows[(y / s) * stride..];
+                (0..fw).map(move |x| row[x / s])
+            })
             .collect())
     }
 

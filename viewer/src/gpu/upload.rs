@@ -299,7 +299,13 @@ impl Renderer {
         true
     }
 
-    pub(super) fn ensure_targets(&mut self, width: u32, height: u32) -> Result<(), GpuError> {
+    pub(super) fn ensure_targets(
+        &mut self,
+        width: u32,
+        height: u32,
+        id_scale: u32,
+    ) -> Result<(), GpuError> {
+        let id_scale = id_scale.max(1);
         let limit = self.gpu.device.limits().max_texture_dimension_2d;
         if width > limit || height > limit {
             return Err(GpuError::TooLarge {
@@ -308,7 +314,8 @@ impl Renderer {
                 limit,
             });
         }
-        if matches!(&self.targets, Some(t) if t.width == width && t.height == height) {
+        if matches!(&self.targets, Some(t) if t.width == width && t.height == height && t.id_scale == id_scale)
+        {
             return Ok(());
         }
         let device = &self.gpu.device;
@@ -403,6 +410,37 @@ impl Renderer {
             wgpu::TextureUsages::RENDER_ATTACHMENT,
         );
         let half_group = group(&half_view);
+        let small = (id_scale > 1).then(|| {
+            let small_tex = |label, format, usage| {
+                device
+                    .create_texture(&wgpu::TextureDescriptor {
+                        label: Some(label),
+                        size: wgpu::Extent3d {
+                            width: width.div_ceil(id_scale),
+                            height: height.div_ceil(id_scale),
+                            depth_or_array_layers: 1,
+                        },
+                        mip_level_count: 1,
+                        sample_count: 1,
+                        dimension: wgpu::TextureDimension::D2,
+                        format,
+                        usage,
+                        view_formats: &[],
+                    })
+                    .create_view(&Default::default())
+            };
+            (
+                [
+                    small_tex("ids 0 (reduced)", ID_FORMAT, id_usage),
+                    small_tex("ids 1 (reduced)", ID_FORMAT, id_usage),
+                ],
+                small_tex(
+                    "depth (reduced ids)",
+                    DEPTH_FORMAT,
+                    wgpu::TextureUsages::RENDER_ATTACHMENT,
+                ),
+            )
+        });
         self.composite_groups.clear();
         self.targets = Some(Targets {
             width,
@@ -421,6 +459,8 @@ impl Renderer {
             view_views,
             id_views,
             output,
+            id_scale,
+            small,
         });
         Ok(())
     }
