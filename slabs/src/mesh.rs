@@ -10,7 +10,10 @@
 //! A tile's mesh covers the lattice of pixel centres from its own first pixel up to the first
 //! pixel of the next tile on the same face, so neighbouring tiles of one face join without
 //! cracks; the outer half pixel at each face edge, and isolated pixels that no triangle can
-//! span, stay uncovered and are counted in [`MeshStats::uncovered_pixels`].
+//! span, stay uncovered and are counted in [`MeshStats::uncovered_pixels`]. (The viewer
+//! closes the outer half pixel of every outline, face edges included, with half-texel
+//! skirts drawn beside the stored mesh and cut by the opacity mask; the stored meshes and
+//! databases are unchanged.)
 //!
 //! Depth error is measured as parallax in pixels at the track's largest baseline `B`:
 //! `B · |1/r − 1/r_mesh| / θ_pixel` with `θ_pixel = (π/2)/N`. Two neighbouring opaque pixels

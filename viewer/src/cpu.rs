@@ -76,10 +76,12 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
         };
         let tile_lod = lod.max(pass.tile_min_level.get(ti).copied().unwrap_or(0) as f32);
         let (fw, r, up) = basis(face);
+        let (skirt_verts, skirt_idx) = crate::refview::skirt(&tile.mesh, view.face_size);
         let verts: Vec<(Vec4, Vec3)> = tile
             .mesh
             .vertices
             .iter()
+            .chain(&skirt_verts)
             .map(|v| {
                 let uu = 2.0 * v.pos_in_face[0] / n - 1.0;
                 let vv = 1.0 - 2.0 * v.pos_in_face[1] / n;
@@ -87,7 +89,14 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
                 (m * (p + origin).extend(1.0), p)
             })
             .collect();
-        for tri in tile.mesh.indices.chunks_exact(3) {
+        let indices: Vec<u32> = tile
+            .mesh
+            .indices
+            .iter()
+            .chain(&skirt_idx)
+            .copied()
+            .collect();
+        for tri in indices.chunks_exact(3) {
             let poly = clip_near([
                 verts[tri[0] as usize],
                 verts[tri[1] as usize],

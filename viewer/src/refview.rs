@@ -15,6 +15,9 @@ use tracks::{CubeMap, TileGrid, TileId};
 
 use crate::texture::{dilate_masked, Layer};
 
+mod skirt;
+pub use skirt::skirt;
+
 /// Errors building a reference view from layers.
 #[derive(Debug, thiserror::Error, PartialEq)]
 #[non_exhaustive]

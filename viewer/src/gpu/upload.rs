@@ -92,6 +92,9 @@ impl Renderer {
         for (ti, tile) in view.tiles.iter().enumerate() {
             index_start.push(idx.len() as u32);
             let base = verts.len() as u32;
+            // Half-texel skirts close the outline of meshes on pixel centres (databases'
+            // adaptive meshes); drawn at every mesh level.
+            let (skirt_verts, skirt_idx) = crate::refview::skirt(&tile.mesh, n);
             for (k, (cidx, cstart)) in coarse.iter_mut().enumerate() {
                 cstart.push(cidx.len() as u32);
                 match &grid {
@@ -102,14 +105,21 @@ impl Renderer {
                     }
                     None => cidx.extend(tile.mesh.indices.iter().map(|i| base + i)),
                 }
+                cidx.extend(skirt_idx.iter().map(|i| base + i));
             }
             let face = tile.tile.face.index() as u32;
-            verts.extend(tile.mesh.vertices.iter().map(|v| GpuVertex {
-                pos_in_face: v.pos_in_face,
-                depth_m: v.depth_m,
-                packed: ((ti as u32) << 3) | face,
-            }));
-            idx.extend(tile.mesh.indices.iter().map(|i| base + i));
+            verts.extend(
+                tile.mesh
+                    .vertices
+                    .iter()
+                    .chain(&skirt_verts)
+                    .map(|v| GpuVertex {
+                        pos_in_face: v.pos_in_face,
+                        depth_m: v.depth_m,
+                        packed: ((ti as u32) << 3) | face,
+                    }),
+            );
+            idx.extend(tile.mesh.indices.iter().chain(&skirt_idx).map(|i| base + i));
             face_layer.push(face | ((tile.slab + 1) << 8));
         }
         index_start.push(idx.len() as u32);

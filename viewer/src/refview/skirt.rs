@@ -1,0 +1,195 @@
+//! Half-texel skirts around meshes whose vertices sit on pixel centres.
+//!
+//! The adaptive meshes of `slabs::mesh` (what databases store) span the lattice of pixel
+//! centres of a tile's slab pixels, so the outer half texel of every outline pixel lies
+//! outside all triangles: along cube-face edges, at slab boundaries (between slab `k`'s last
+//! pixel centre and slab `k + 1`'s first), at depth discontinuities and against the sky. The
+//! sky (or a hole) showed through there as cracks one texel wide. Grid meshes
+//! ([`super::tile_mesh`]) end on pixel corners and let the opacity mask cut the outline
+//! exactly; [`skirt`] gives a centre-lattice mesh the same reach: every boundary edge gets a
+//! strip moved half a texel outwards (per axis, so the strip ends on the texel corners), and
+//! every boundary vertex a corner patch joining its strips, clamped to the face. The mask
+//! (bilinear alpha ≥ the cut inside an opaque texel, see `render.wgsl`) then cuts the outline
+//! as it does for grid meshes. Skirt vertices keep their edge vertex's radial depth: exact at
+//! the reference viewpoint (projective texturing), half a texel of depth off between.
+
+use std::collections::HashMap;
+
+use super::{MeshVertex, TileMesh};
+
+/// Whether `c` lies on a pixel centre (`k + 0.5`).
+fn on_centre(c: f32) -> bool {
+    (c - c.floor() - 0.5).abs() < 1e-4
+}
+
+/// The extra vertices and triangles (indices into `mesh.vertices` followed by the extra
+/// vertices) that close the half-texel gap around `mesh` on a face of `face_size` pixels.
+/// Only boundary edges whose two ends sit on pixel centres get a skirt (grid meshes, whose
+/// vertices sit on corners, get none).
+pub fn skirt(mesh: &TileMesh, face_size: u32) -> (Vec<MeshVertex>, Vec<u32>) {
+    let n = face_size as f32;
+    let verts = &mesh.vertices;
+    // Every edge: how many triangles use it and the opposite vertex of the last one.
+    let mut edges: HashMap<(u32, u32), (u32, u32)> = HashMap::new();
+    for t in mesh.indices.chunks_exact(3) {
+        for k in 0..3 {
+            let (a, b, c) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+            let e = edges.entry((a.min(b), a.max(b))).or_insert((0, c));
+            e.0 += 1;
+            e.1 = c;
+        }
+    }
+    let mut boundary: Vec<(u32, u32, [f32; 2])> = edges
+        .into_iter()
+        .filter(|(_, (count, _))| *count == 1)
+        .filter_map(|((a, b), (_, c))| {
+            let (pa, pb, pc) = (
+                verts.get(a as usize)?.pos_in_face,
+                verts.get(b as usize)?.pos_in_face,
+                verts.get(c as usize)?.pos_in_face,
+            );
+            if !pa.iter().chain(&pb).all(|&x| on_centre(x)) {
+                return None;
+            }
+            let d = [pb[0] - pa[0], pb[1] - pa[1]];
+            let mut normal = [d[1], -d[0]];
+            if normal[0] * (pc[0] - pa[0]) + normal[1] * (pc[1] - pa[1]) > 0.0 {
+                normal = [-normal[0], -normal[1]];
+            }
+            let step = |x: f32| {
+                if x.abs() < 1e-6 {
+                    0.0
+                } else {
+                    0.5 * x.signum()
+                }
+            };
+            Some((a, b, [step(normal[0]), step(normal[1])]))
+        })
+        .collect();
+    // A deterministic order (the map's is not).
+    boundary.sort_by_key(|&(a, b, _)| (a, b));
+    let base = verts.len() as u32;
+    let mut extra: Vec<MeshVertex> = Vec::new();
+    let mut indices: Vec<u32> = Vec::new();
+    let add = |extra: &mut Vec<MeshVertex>, v: u32, o: [f32; 2]| -> u32 {
+        let p = verts[v as usize].pos_in_face;
+        extra.push(MeshVertex {
+            pos_in_face: [(p[0] + o[0]).clamp(0.0, n), (p[1] + o[1]).clamp(0.0, n)],
+            depth_m: verts[v as usize].depth_m,
+        });
+        base + extra.len() as u32 - 1
+    };
+    let mut offsets: HashMap<u32, Vec<[f32; 2]>> = HashMap::new();
+    for &(a, b, o) in &boundary {
+        let (a2, b2) = (add(&mut extra, a, o), add(&mut extra, b, o));
+        indices.extend([a, b, b2, a, b2, a2]);
+        offsets.entry(a).or_default().push(o);
+        offsets.entry(b).or_default().push(o);
+    }
+    let mut corners: Vec<(u32, Vec<[f32; 2]>)> = offsets.into_iter().collect();
+    corners.sort_by_key(|c| c.0);
+    for (v, os) in corners {
+        for i in 0..os.len() {
+            for j in i + 1..os.len() {
+                let (o1, o2) = (os[i], os[j]);
+                if o1 == o2 {
+                    continue;
+                }
+                let sum = |x: f32| {
+                    if x.abs() < 1e-6 {
+                        0.0
+                    } else {
+                        0.5 * x.signum()
+                    }
+                };
+                let oc = [sum(o1[0] + o2[0]), sum(o1[1] + o2[1])];
+                let (p1, pc, p2) = (
+                    add(&mut extra, v, o1),
+                    add(&mut extra, v, oc),
+                    add(&mut extra, v, o2),
+                );
+                indices.extend([v, p1, pc, v, pc, p2]);
+            }
+        }
+    }
+    (extra, indices)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn v(x: f32, y: f32) -> MeshVertex {
+        MeshVertex {
+            pos_in_face: [x, y],
+            depth_m: 2.0,
+        }
+    }
+
+    /// Area covered by the union of triangles, by sampling a fine grid over the face.
+    fn covered(verts: &[MeshVertex], idx: &[u32], x: f32, y: f32) -> bool {
+        idx.chunks_exact(3).any(|t| {
+            let p = [t[0], t[1], t[2]].map(|i| verts[i as usize].pos_in_face);
+            let cross = |a: [f32; 2], b: [f32; 2], c: [f32; 2]| {
+                (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+            };
+            let q = [x, y];
+            let (d0, d1, d2) = (
+                cross(p[0], p[1], q),
+                cross(p[1], p[2], q),
+                cross(p[2], p[0], q),
+            );
+            (d0 >= 0.0 && d1 >= 0.0 && d2 >= 0.0) || (d0 <= 0.0 && d1 <= 0.0 && d2 <= 0.0)
+        })
+    }
+
+    #[test]
+    fn a_centre_lattice_square_reaches_its_pixel_corners() {
+        // Pixels (1..=3, 1..=3): centres 1.5..3.5, two triangles.
+        let mesh = TileMesh {
+            vertices: vec![v(1.5, 1.5), v(3.5, 1.5), v(3.5, 3.5), v(1.5, 3.5)],
+            indices: vec![0, 1, 2, 0, 2, 3],
+        };
+        let (extra, idx) = skirt(&mesh, 8);
+        let all: Vec<MeshVertex> = mesh.vertices.iter().chain(&extra).copied().collect();
+        let tris: Vec<u32> = mesh.indices.iter().chain(&idx).copied().collect();
+        // Every point of pixels 1..=3 (corners 1.0..4.0) is covered, nothing beyond.
+        for k in 0..=60 {
+            for l in 0..=60 {
+                let (x, y) = (0.5 + k as f32 * 0.06, 0.5 + l as f32 * 0.06);
+                let inside = (1.0..=4.0).contains(&x) && (1.0..=4.0).contains(&y);
+                let strictly_outside = !(0.98..=4.02).contains(&x) || !(0.98..=4.02).contains(&y);
+                let c = covered(&all, &tris, x, y);
+                if inside {
+                    assert!(c, "({x}, {y}) not covered");
+                }
+                if strictly_outside {
+                    assert!(!c, "({x}, {y}) covered");
+                }
+            }
+        }
+        assert!(extra.iter().all(|v| v.depth_m == 2.0));
+    }
+
+    #[test]
+    fn skirts_stop_at_the_face_edge() {
+        let mesh = TileMesh {
+            vertices: vec![v(0.5, 0.5), v(7.5, 0.5), v(7.5, 7.5), v(0.5, 7.5)],
+            indices: vec![0, 1, 2, 0, 2, 3],
+        };
+        let (extra, _) = skirt(&mesh, 8);
+        let xs = extra.iter().flat_map(|v| v.pos_in_face);
+        let (lo, hi) = xs.fold((f32::MAX, f32::MIN), |(a, b), x| (a.min(x), b.max(x)));
+        assert_eq!((lo, hi), (0.0, 8.0));
+    }
+
+    #[test]
+    fn corner_lattice_meshes_get_no_skirt() {
+        let mesh = TileMesh {
+            vertices: vec![v(0.0, 0.0), v(4.0, 0.0), v(4.0, 4.0), v(0.0, 4.0)],
+            indices: vec![0, 1, 2, 0, 2, 3],
+        };
+        let (extra, idx) = skirt(&mesh, 8);
+        assert!(extra.is_empty() && idx.is_empty());
+    }
+}
