@@ -320,9 +320,7 @@ impl ViewerApp {
         };
         let report = st.step(s, &camera, live.as_deref());
         if let Some(r) = &mut self.renderer {
-            for v in &report.changed_views {
-                r.invalidate_view(*v);
-            }
+            report.apply(r, &st.walk.views);
         }
         let stats = st.session().stats().clone();
         if self.stream.first_complete_s.is_none() && stats.visible_fraction >= 1.0 {

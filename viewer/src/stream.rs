@@ -34,7 +34,7 @@ use crate::source::{
     background_map, image_rgba, manifest_track, paste_tile, tile_mesh_from_bytes, SourceError,
     Walkthrough,
 };
-use crate::texture::{dilate_masked, Layer};
+use crate::texture::{dilate_masked, FaceRect, Layer};
 
 /// How long a newly loaded tile stays highlighted.
 pub const HIGHLIGHT: Duration = Duration::from_secs(1);
@@ -78,12 +78,40 @@ struct ItemState {
 /// What one [`StreamedWalkthrough::step`] did.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct StepReport {
-    /// `RefView::index` of every view whose content changed (re-upload these).
+    /// `RefView::index` of every view whose content changed as a whole (a background
+    /// arrived): re-upload these.
     pub changed_views: Vec<usize>,
+    /// Tile arrivals: `(RefView::index, layer, texel rectangles per mip level)` as
+    /// [`Layer::update_region`] returned them, for
+    /// [`crate::gpu::Renderer::update_layer_region`]; one entry per tile.
+    pub regions: Vec<(usize, usize, Vec<FaceRect>)>,
     /// Parts that arrived.
     pub arrivals: usize,
     /// Tiles or backgrounds that became visible or sharper.
     pub upgraded: usize,
+}
+
+impl StepReport {
+    /// Bring `renderer`'s copies of `views` up to date: whole re-uploads for
+    /// [`StepReport::changed_views`], region writes for [`StepReport::regions`] (a view that
+    /// is not uploaded in that shape is re-uploaded whole at its next draw instead).
+    pub fn apply(&self, renderer: &mut crate::gpu::Renderer, views: &[crate::RefView]) {
+        for v in &self.changed_views {
+            renderer.invalidate_view(*v);
+        }
+        for (index, layer, rects) in &self.regions {
+            if self.changed_views.contains(index) {
+                continue;
+            }
+            let written = views
+                .iter()
+                .find(|v| v.index == *index)
+                .is_some_and(|v| renderer.update_layer_region(v, *layer, rects));
+            if !written {
+                renderer.invalidate_view(*index);
+            }
+        }
+    }
 }
 
 /// A recently loaded tile, for highlighting.
@@ -288,12 +316,19 @@ impl StreamedWalkthrough {
         {
             self.arrivals.pop_front();
         }
-        // (view, layer) pairs whose dense map changed.
+        // (view, layer) pairs whose dense map changed as a whole, and tile rectangles.
         let mut dirty: BTreeSet<(usize, usize)> = BTreeSet::new();
+        let mut rects: Vec<(usize, usize, FaceRect)> = Vec::new();
         for item in touched {
             match self.consume(item, now) {
-                Ok(Some(layer)) => {
-                    dirty.insert((self.items[item].view, layer));
+                Ok(Some((layer, rect))) => {
+                    let v = self.items[item].view;
+                    match rect {
+                        Some(r) => rects.push((v, layer, r)),
+                        None => {
+                            dirty.insert((v, layer));
+                        }
+                    }
                     report.upgraded += 1;
                 }
                 Ok(None) => {}
@@ -304,10 +339,24 @@ impl StreamedWalkthrough {
             }
         }
         let mut views = BTreeSet::new();
-        for (v, layer) in dirty {
+        for &(v, layer) in &dirty {
             let map = &self.dense[v][layer];
             self.walk.views[v].layers[layer] = Layer::from_rgba(dilate_masked(map));
             views.insert(self.walk.views[v].index);
+        }
+        // A tile redoes the dilation and mip texels around its own rectangle only (the
+        // whole layer is rebuilt above when it changed as a whole in this step anyway).
+        for (v, layer, rect) in rects {
+            if dirty.contains(&(v, layer)) {
+                continue;
+            }
+            let per_level =
+                self.walk.views[v].layers[layer].update_region(&self.dense[v][layer], rect);
+            if !per_level.is_empty() {
+                report
+                    .regions
+                    .push((self.walk.views[v].index, layer, per_level));
+            }
         }
         report.changed_views = views.into_iter().collect();
         self.fade_highlights(now);
@@ -330,8 +379,13 @@ impl StreamedWalkthrough {
         }
     }
 
-    /// Consume the parts of `item` that are next in order; returns the layer that changed.
-    fn consume(&mut self, item: usize, now: Instant) -> Result<Option<usize>, SourceError> {
+    /// Consume the parts of `item` that are next in order; returns the layer that changed
+    /// and, for a tile, the face rectangle that changed (`None`: the whole layer).
+    fn consume(
+        &mut self,
+        item: usize,
+        now: Instant,
+    ) -> Result<Option<(usize, Option<FaceRect>)>, SourceError> {
         let what = self.item_name(item);
         let it = &mut self.items[item];
         let before = it.level;
@@ -364,7 +418,7 @@ impl StreamedWalkthrough {
                 let it = &mut self.items[item];
                 it.level = Some(level);
                 it.loaded_at = Some(now);
-                Ok(Some(0))
+                Ok(Some((0, None)))
             }
             Kind::Tile { tile, slab } => {
                 let Some(mesh) = it.mesh.clone() else {
@@ -393,7 +447,15 @@ impl StreamedWalkthrough {
                         self.tile_items[view].insert(slot, item);
                     }
                 }
-                Ok(Some(layer))
+                let (x0, y0, x1, y1) = self.grid.pixel_rect(tile);
+                let rect = FaceRect {
+                    face: tile.face,
+                    x0,
+                    y0,
+                    x1,
+                    y1,
+                };
+                Ok(Some((layer, Some(rect))))
             }
         }
     }

@@ -84,6 +84,7 @@ fn write_db(walk: &Walkthrough, dir: &Path) {
                 kept: true,
                 ptm: Some(ptm),
                 mesh: Some(w.put(&encode_mesh(&mesh).unwrap()).unwrap()),
+                mesh_range: None,
             });
         }
         let bg: Vec<u8> = v.layers[0].levels[0]
@@ -246,9 +247,7 @@ fn settle(st: &mut StreamedWalkthrough, r: &mut Renderer, s: f64, cam: &Perspect
     let mut live = None;
     while start.elapsed() < Duration::from_secs(30) {
         let rep = st.step(s, cam, live.as_deref());
-        for v in &rep.changed_views {
-            r.invalidate_view(*v);
-        }
+        rep.apply(r, &st.walk.views);
         let budget = DrawBudget {
             max_slabs: st.walk.slabs.len(),
             ..Default::default()
@@ -350,9 +349,7 @@ fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
     let start = Instant::now();
     loop {
         let rep = st.step(s, &cam, None);
-        for v in &rep.changed_views {
-            r.invalidate_view(*v);
-        }
+        rep.apply(&mut r, &st.walk.views);
         if rep.upgraded > 0 {
             break;
         }
