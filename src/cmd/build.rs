@@ -581,6 +581,7 @@ fn encode_sample(
                 kept: !culled,
                 ptm,
                 mesh: mesh_ref,
+                mesh_range: None,
             });
         }
         rgba_nonempty.push(ne);

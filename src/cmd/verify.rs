@@ -89,6 +89,7 @@ mod tests {
                         kept: true,
                         ptm: None,
                         mesh: Some(obj.clone()),
+                        mesh_range: None,
                     }],
                 }],
                 segments: vec![],

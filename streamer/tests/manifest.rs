@@ -111,7 +111,7 @@ async fn the_manifest_travels_gzipped_and_is_checked() {
     let stats = Arc::new(ClientStats::default());
     let mut conn = Connection::new(url(addr), RetryPolicy::default(), stats.clone());
     let got = conn.fetch_manifest().await.unwrap();
-    assert_eq!(got.top, streamer::db::split::split(&m).0);
+    assert_eq!(got.top, streamer::db::split::split(&m).unwrap().0);
     assert!(got.gzip && got.checked);
     assert_eq!(got.requests, 2);
     assert_eq!(got.transferred_bytes, gz.len() as u64 + 65);
@@ -239,7 +239,7 @@ async fn a_damaged_gzip_manifest_is_never_returned() {
         let stats = Arc::new(ClientStats::default());
         let mut conn = Connection::new(url(addr), RetryPolicy::default(), stats.clone());
         let got = conn.fetch_manifest().await.unwrap();
-        assert_eq!(got.top, streamer::db::split::split(&m).0, "{what}");
+        assert_eq!(got.top, streamer::db::split::split(&m).unwrap().0, "{what}");
         assert!(!got.gzip, "{what}: the damaged gzip body was accepted");
         assert_eq!(stats.checksum_failures.load(Ordering::Relaxed), 1, "{what}");
         assert_eq!(
@@ -363,10 +363,11 @@ async fn the_walk_counts_the_manifest() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
-/// The first complete frame waits for the top manifest, the tables of the two viewpoints
-/// around the walker and their tiles — never for the whole database's entries.
+/// The first complete frame waits for the top manifest, the tables of the viewpoints around
+/// the walker (the current segment's, and the next one's once prefetch starts) and their
+/// tiles — never for the whole database's entries.
 #[tokio::test]
-async fn the_first_frame_needs_the_top_two_tables_and_their_tiles_only() {
+async fn the_first_frame_needs_the_nearest_tables_and_their_tiles_only() {
     let dir = std::env::temp_dir().join(format!("railview-manifest-first-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let params = synth::SynthParams {
@@ -379,13 +380,15 @@ async fn the_first_frame_needs_the_top_two_tables_and_their_tiles_only() {
     let vps = &top.tracks[0].viewpoints;
     assert!(vps.len() >= 6, "{} viewpoints", vps.len());
     let all_tables: u64 = vps.iter().map(|v| v.table.size).sum();
-    let two_tables = vps[0].table.size + vps[1].table.size;
-    // Every part of the first two viewpoints' items (all levels) and every background.
+    // The current segment's two tables, and the next segment's once the view has no holes
+    // (prefetch starts when the coarse levels are in, before the frame is complete).
+    let near_tables: u64 = vps[..4].iter().map(|v| v.table.size).sum();
+    // Every part of the first four viewpoints' items (all levels) and every background.
     let table = streamer::client::ItemTable::new(&m, 0).unwrap();
     let tiles: u64 = table
         .items
         .iter()
-        .filter(|it| it.viewpoint < 2 || it.tile.is_none())
+        .filter(|it| it.viewpoint < 4 || it.tile.is_none())
         .flat_map(|it| it.parts.iter().map(|p| p.bytes))
         .sum();
     let cfg = WalkConfig {
@@ -411,17 +414,17 @@ async fn the_first_frame_needs_the_top_two_tables_and_their_tiles_only() {
     let first = r.first_frame_bytes.expect("a complete frame");
     let first_tables = r.first_frame_table_bytes.unwrap();
     assert!(
-        first_tables <= two_tables,
-        "{first_tables} bytes of tables before the first frame, the first two are {two_tables}"
+        first_tables <= near_tables,
+        "{first_tables} bytes of tables before the first frame, the first four are {near_tables}"
     );
     assert!(
-        first <= r.manifest_bytes + two_tables + tiles,
-        "{first} > {} + {two_tables} + {tiles}",
+        first <= r.manifest_bytes + near_tables + tiles,
+        "{first} > {} + {near_tables} + {tiles}",
         r.manifest_bytes
     );
     assert!(
-        first < r.manifest_bytes + all_tables,
-        "{first} vs {all_tables} of tables"
+        first_tables < all_tables,
+        "{first_tables} of {all_tables} bytes of tables before the first frame"
     );
     // Every table is still fetched, on the link, over the walk.
     assert_eq!(r.table_bytes, all_tables);

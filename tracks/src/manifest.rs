@@ -87,8 +87,21 @@ pub struct TileEntry {
     /// False when occlusion culling dropped the tile (its payload is then absent).
     pub kept: bool,
     pub ptm: Option<PtmRef>,
-    /// Depth mesh (compact binary, quantised depth).
+    /// Depth mesh (compact binary, quantised depth) as an object of its own.
     pub mesh: Option<ObjectRef>,
+    /// Depth mesh packed with other payloads: its byte range inside `ptm.object` (the
+    /// viewpoint's pack) and that range's checksum; `mesh` is then `None`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh_range: Option<PackRange>,
+}
+
+/// A byte range inside a pack object, checked by its own (short) checksum.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PackRange {
+    pub offset: u64,
+    pub len: u64,
+    /// Lowercase hex of the range's truncated BLAKE3.
+    pub hash: String,
 }
 
 /// Stable key of a tile in a track: `v{viewpoint}-s{slab}-{face}-{tx}-{ty}`.

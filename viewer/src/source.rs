@@ -266,17 +266,22 @@ pub fn from_database(
             vec![CubeMap::filled(n, [0, 0, 0, 0]); m.slabs.len()];
         let mut tiles = Vec::new();
         for t in vp.tiles.iter().filter(|t| t.kept) {
-            let (Some(ptm), Some(mesh_ref)) = (&t.ptm, &t.mesh) else {
+            let Some(ptm) = &t.ptm else {
                 continue;
+            };
+            let mesh_bytes = match (&t.mesh, &t.mesh_range) {
+                (Some(m), _) => db.read_object(m)?,
+                (None, Some(r)) => db.read_checked_range(&ptm.object, r)?,
+                (None, None) => continue,
             };
             let key = tracks::manifest::tile_key(vp.index, t.slab, t.tile);
             let layer = layers.get_mut(t.slab as usize).ok_or_else(|| {
                 format_err(&key, format!("slab {} beyond the manifest's slabs", t.slab))
             })?;
-            bytes += ptm.object.size + mesh_ref.size;
+            bytes += ptm.levels.iter().map(|l| l.len).sum::<u64>() + mesh_bytes.len() as u64;
             let (rgba, w, h, level) = decode_ptm(db, ptm, opts.level_groups, &key)?;
             paste_tile(layer, grid, t.tile, (&rgba, w, h, level), &key)?;
-            let mesh = tile_mesh_from_bytes(&db.read_object(mesh_ref)?, &key)?;
+            let mesh = tile_mesh_from_bytes(&mesh_bytes, &key)?;
             let mut vt = ViewTile::new(t.tile, t.slab, mesh, n);
             vt.finest_level = level;
             tiles.push(vt);

@@ -30,8 +30,6 @@ pub struct Item {
     pub s: f64,
     pub parts: Vec<Part>,
     pub info: ItemInfo,
-    /// The whole PTM object (for whole-file downloads).
-    pub whole: Part,
 }
 
 /// A segment's `(from, to)` viewpoint positions and its raw ACH list once its table is in.
@@ -90,9 +88,9 @@ impl ItemTable {
         for (vi, vp) in t.viewpoints.iter().enumerate() {
             if let Some(bg) = &vp.background {
                 let field = format!("tracks[{track}].viewpoints[{vi}].background");
-                let (parts, levels, whole) = ptm_parts(bg, &field)?;
+                let (parts, levels) = ptm_parts(bg, &field)?;
                 background.insert(vi, items.len());
-                items.push(make_item(vi, None, vp.s, parts, 0, levels, whole));
+                items.push(make_item(vi, None, vp.s, parts, 0, levels));
             }
         }
         let index_of: HashMap<usize, usize> = t
@@ -162,13 +160,12 @@ impl ItemTable {
                 continue;
             };
             let field = format!("tracks[{}].viewpoints[{vi}].tiles[{ti}]", self.track);
-            let (mut parts, levels, whole) = ptm_parts(ptm, &format!("{field}.ptm"))?;
+            let (mut parts, levels) = ptm_parts(ptm, &format!("{field}.ptm"))?;
             let mut first = 0;
-            if let Some(mesh) = &tile.mesh {
-                check_hash(&mesh.hash, &format!("{field}.mesh.hash"))?;
-                parts.insert(
-                    0,
-                    Part {
+            let mesh = match (&tile.mesh, &tile.mesh_range) {
+                (Some(mesh), _) => {
+                    check_hash(&mesh.hash, &format!("{field}.mesh.hash"))?;
+                    Some(Part {
                         key: FetchKey {
                             object: mesh.hash.clone(),
                             range: None,
@@ -176,11 +173,28 @@ impl ItemTable {
                         hash: mesh.hash.clone(),
                         bytes: mesh.size,
                         mem: mesh.size,
-                    },
-                );
+                    })
+                }
+                (None, Some(r)) => {
+                    let f = format!("{field}.mesh_range");
+                    check_range(&ptm.object, r.offset, r.len, &r.hash, &f)?;
+                    Some(Part {
+                        key: FetchKey {
+                            object: ptm.object.hash.clone(),
+                            range: Some((r.offset, r.len)),
+                        },
+                        hash: r.hash.clone(),
+                        bytes: r.len,
+                        mem: r.len,
+                    })
+                }
+                (None, None) => None,
+            };
+            if let Some(m) = mesh {
+                parts.insert(0, m);
                 first = 1;
             }
-            new_items.push((ti, make_item(vi, Some(ti), s, parts, first, levels, whole)));
+            new_items.push((ti, make_item(vi, Some(ti), s, parts, first, levels)));
         }
         for (ti, tile) in tiles.iter().enumerate() {
             self.key_to_tile.insert((vi, tile.slab, tile.tile), ti);
@@ -250,28 +264,35 @@ fn check_hash(h: &str, field: &str) -> Result<(), ClientError> {
         .ok_or_else(|| ClientError::Manifest(format!("{field}: `{h}` is not a valid hash")))
 }
 
-fn ptm_parts(p: &PtmRef, field: &str) -> Result<(Vec<Part>, Vec<u32>, Part), ClientError> {
+/// A range's checksum and bounds inside `object`.
+fn check_range(
+    object: &tracks::manifest::ObjectRef,
+    offset: u64,
+    len: u64,
+    hash: &str,
+    f: &str,
+) -> Result<(), ClientError> {
+    if !crate::db::valid_range_hash(hash) {
+        return Err(ClientError::Manifest(format!(
+            "{f}.hash: `{hash}` is not a valid checksum"
+        )));
+    }
+    if len == 0 || offset.checked_add(len).is_none_or(|e| e > object.size) {
+        return Err(ClientError::Manifest(format!(
+            "{f}: range {offset}+{len} outside the object of {} bytes",
+            object.size
+        )));
+    }
+    Ok(())
+}
+
+fn ptm_parts(p: &PtmRef, field: &str) -> Result<(Vec<Part>, Vec<u32>), ClientError> {
     check_hash(&p.object.hash, &format!("{field}.object.hash"))?;
     let mut parts = Vec::new();
     let mut levels = Vec::new();
     for (g, l) in p.levels.iter().enumerate() {
         let f = format!("{field}.levels[{g}]");
-        if !crate::db::valid_range_hash(&l.hash) {
-            return Err(ClientError::Manifest(format!(
-                "{f}.hash: `{}` is not a valid checksum",
-                l.hash
-            )));
-        }
-        if l.len == 0
-            || l.offset
-                .checked_add(l.len)
-                .is_none_or(|e| e > p.object.size)
-        {
-            return Err(ClientError::Manifest(format!(
-                "{f}: range {}+{} outside the object of {} bytes",
-                l.offset, l.len, p.object.size
-            )));
-        }
+        check_range(&p.object, l.offset, l.len, &l.hash, &f)?;
         parts.push(Part {
             key: FetchKey {
                 object: p.object.hash.clone(),
@@ -288,16 +309,7 @@ fn ptm_parts(p: &PtmRef, field: &str) -> Result<(Vec<Part>, Vec<u32>, Part), Cli
             "{field}: PTM without levels"
         )));
     }
-    let whole = Part {
-        key: FetchKey {
-            object: p.object.hash.clone(),
-            range: None,
-        },
-        hash: p.object.hash.clone(),
-        bytes: p.object.size,
-        mem: parts.iter().map(|x| x.mem).sum(),
-    };
-    Ok((parts, levels, whole))
+    Ok((parts, levels))
 }
 
 fn make_item(
@@ -307,7 +319,6 @@ fn make_item(
     parts: Vec<Part>,
     first_level_part: usize,
     levels: Vec<u32>,
-    whole: Part,
 ) -> Item {
     let info = ItemInfo {
         part_bytes: parts.iter().map(|p| p.bytes).collect(),
@@ -321,6 +332,5 @@ fn make_item(
         s,
         parts,
         info,
-        whole,
     }
 }

@@ -27,9 +27,12 @@
 
 pub mod ach;
 pub mod mesh;
+pub mod pack;
 pub mod split;
+pub mod table;
 mod verify;
 
+use std::collections::HashMap;
 use std::fs;
 use std::io::{self, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
@@ -158,15 +161,35 @@ impl DbWriter {
         Ok(ptm_ref(object, enc, channels))
     }
 
-    /// Splits the manifest ([`split::split`]): stores each viewpoint's table as an object,
+    /// Packs each viewpoint's tiles ([`pack::pack_tiles`]: their payloads read back from the
+    /// objects [`DbWriter::put`] stored, or from an earlier pack) into one object, splits the
+    /// packed manifest ([`split::split`]) and stores each viewpoint's table as an object,
     /// then writes the top manifest (compact JSON, atomically), its checksum file and its
-    /// gzip copy: the database is complete.
-    pub fn finish(&mut self, manifest: &Manifest) -> Result<(), DbError> {
-        let (top, tables) = split::split(manifest);
+    /// gzip copy: the database is complete. The tiles' own objects stay where they are (a
+    /// resumed build finds them), unreferenced by the manifest. Returns the packed manifest
+    /// as [`Database::open`] reads it back.
+    pub fn finish(&mut self, manifest: &Manifest) -> Result<Manifest, DbError> {
+        let mut packed = manifest.clone();
+        for t in &mut packed.tracks {
+            for v in &mut t.viewpoints {
+                let mut cache: HashMap<String, Vec<u8>> = HashMap::new();
+                let root = self.root.clone();
+                let mut read = |o: &ObjectRef, offset: u64, len: u64| {
+                    read_stored(&root, &mut cache, o, offset, len)
+                };
+                let (bytes, tiles) = pack::pack_tiles(&v.tiles, &mut read)?;
+                if tiles.iter().any(|t| t.ptm.is_some()) {
+                    self.put(&bytes)?;
+                }
+                v.tiles = tiles;
+            }
+        }
+        let path = self.root.join(MANIFEST_FILE);
+        let (top, tables) =
+            split::split(&packed).map_err(|e| DbError::format(&path, e.to_string()))?;
         for bytes in tables.iter().flatten() {
             self.put(bytes)?;
         }
-        let path = self.root.join(MANIFEST_FILE);
         let mut json =
             serde_json::to_vec(&top).map_err(|e| DbError::format(&path, e.to_string()))?;
         json.push(b'\n');
@@ -179,8 +202,46 @@ impl DbWriter {
         write_atomic(
             &gz_path,
             &gzip(&json).map_err(|e| DbError::io(&gz_path, e))?,
-        )
+        )?;
+        // What a reader gets: depths and ACH values as the tables store them.
+        read_tables(&self.root, &top)
     }
+}
+
+/// `len` bytes at `offset` of a stored object; each object is read once (per `cache`) and
+/// checked against its size and full hash.
+fn read_stored(
+    root: &Path,
+    cache: &mut HashMap<String, Vec<u8>>,
+    o: &ObjectRef,
+    offset: u64,
+    len: u64,
+) -> Result<Vec<u8>, DbError> {
+    if !cache.contains_key(&o.hash) {
+        let rel = o
+            .rel_path()
+            .ok_or_else(|| DbError::Request(format!("invalid object hash {:?}", o.hash)))?;
+        let path = root.join(rel);
+        let bytes = fs::read(&path).map_err(|e| DbError::io(&path, e))?;
+        if bytes.len() as u64 != o.size || hash_hex(&bytes) != o.hash {
+            return Err(DbError::format(
+                &path,
+                format!("does not match its name and size {}", o.size),
+            ));
+        }
+        cache.insert(o.hash.clone(), bytes);
+    }
+    let bytes = &cache[&o.hash];
+    offset
+        .checked_add(len)
+        .filter(|&e| e <= bytes.len() as u64)
+        .map(|e| bytes[offset as usize..e as usize].to_vec())
+        .ok_or_else(|| {
+            DbError::Request(format!(
+                "range {offset}+{len} outside object {} of {} bytes",
+                o.hash, o.size
+            ))
+        })
 }
 
 /// `bytes` gzip-compressed at the best level (written once, served many times).
@@ -221,28 +282,37 @@ pub fn gunzip_limited(gz: &[u8], limit: u64) -> Result<Vec<u8>, GunzipError> {
 }
 
 /// Checksum of a byte range inside an object: the first 128 bits (32 hex digits) of its
-/// BLAKE3. The object itself stays named by its full hash; a range only needs to be told
-/// apart from a damaged copy of itself, and half the digits keep the tables small.
+/// BLAKE3 (background PTMs, listed in the top manifest).
 pub fn range_hash(bytes: &[u8]) -> String {
     let mut h = hash_hex(bytes);
     h.truncate(32);
     h
 }
 
-/// Whether `bytes` hash to `expected`: a full (64 hex digits) or range (32 hex digits)
-/// BLAKE3 checksum; anything else never matches.
+/// Checksum of a byte range inside a viewpoint's pack: the first 64 bits (16 hex digits) of
+/// its BLAKE3. The table that lists the range is itself checked by its full hash from the
+/// top manifest, so a range checksum only guards against transit or storage damage — never
+/// an adversary choosing bytes to collide — and 64 bits make an undetected random error a
+/// 1-in-2^64 event.
+pub fn range_hash64(bytes: &[u8]) -> String {
+    let mut h = hash_hex(bytes);
+    h.truncate(16);
+    h
+}
+
+/// Whether `bytes` hash to `expected`: a full (64 hex digits) or truncated range (32 or 16
+/// hex digits) BLAKE3 checksum; anything else never matches.
 pub fn hash_matches(bytes: &[u8], expected: &str) -> bool {
     let h = blake3::hash(bytes).to_hex();
     match expected.len() {
-        64 => h.as_str() == expected,
-        32 => &h.as_str()[..32] == expected,
+        64 | 32 | 16 => &h.as_str()[..expected.len()] == expected,
         _ => false,
     }
 }
 
-/// Whether `h` is a valid range checksum (32 or 64 lowercase hex digits).
+/// Whether `h` is a valid range checksum (16, 32 or 64 lowercase hex digits).
 pub fn valid_range_hash(h: &str) -> bool {
-    matches!(h.len(), 32 | 64)
+    matches!(h.len(), 16 | 32 | 64)
         && h.bytes()
             .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
 }
@@ -354,6 +424,28 @@ impl Database {
         Ok(buf)
     }
 
+    /// A range of a pack, checked against its checksum.
+    pub fn read_checked_range(
+        &self,
+        obj: &ObjectRef,
+        r: &tracks::manifest::PackRange,
+    ) -> Result<Vec<u8>, DbError> {
+        let bytes = self.read_range(obj, r.offset, r.len)?;
+        if !hash_matches(&bytes, &r.hash) {
+            let path = self.object_path(&obj.hash).unwrap_or_default();
+            return Err(DbError::format(
+                &path,
+                format!(
+                    "bytes {}..{}: checksum does not match {}",
+                    r.offset,
+                    r.offset + r.len,
+                    r.hash
+                ),
+            ));
+        }
+        Ok(bytes)
+    }
+
     /// Stream chunk `group` of a PTM (0 = header + lowest level), checked against its hash.
     pub fn read_level(&self, ptm: &PtmRef, group: usize) -> Result<Vec<u8>, DbError> {
         let l = ptm.levels.get(group).ok_or_else(|| {
@@ -451,9 +543,9 @@ pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
         .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
     if v.version != TOP_VERSION {
         let hint = if v.version < TOP_VERSION {
-            " (one manifest with every tile; format 2 keeps each viewpoint's tiles in a table \
-             of its own): rebuild the database with `railview build` (it resumes from its work \
-             directory)"
+            " (format 3 packs each viewpoint's tiles into one object and lists them in a \
+             binary table with 64-bit range checksums): rebuild the database with `railview \
+             build` (it resumes from its work directory)"
         } else {
             ""
         };

@@ -59,6 +59,7 @@ fn build(dir: &Path) -> (Manifest, DbWriter) {
                 kept,
                 ptm,
                 mesh,
+                mesh_range: None,
             });
         }
         let bg = Image::from_fn(8, 48, 4, |x, y, c| (x + y + c as u32 + v as u32) as u8);
@@ -103,8 +104,8 @@ fn build(dir: &Path) -> (Manifest, DbWriter) {
             }],
         }],
     };
-    w.finish(&m).unwrap();
-    (m, w)
+    let packed = w.finish(&m).unwrap();
+    (packed, w)
 }
 
 fn all_files(dir: &Path) -> Vec<PathBuf> {
@@ -125,20 +126,29 @@ fn all_files(dir: &Path) -> Vec<PathBuf> {
 fn write_open_read_levels() {
     let dir = tmpdir("rw");
     let (m, w) = build(&dir);
-    // 4 tile PTMs, 2 backgrounds, 4 meshes and 2 viewpoint tables, all distinct.
-    assert_eq!(w.objects_written, 12);
+    // 4 tile PTMs, 2 backgrounds, 4 meshes, 2 packs and 2 viewpoint tables, all distinct.
+    assert_eq!(w.objects_written, 14);
     let db = Database::open(&dir).unwrap();
     assert_eq!(db.manifest(), &m);
     let tile = &m.tracks[0].viewpoints[1].tiles[0];
     let p = tile.ptm.as_ref().unwrap();
     let whole = db.read_object(&p.object).unwrap();
+    // The tile's ranges lie back to back in the viewpoint's pack, after its mesh.
+    let mesh = tile.mesh_range.as_ref().unwrap();
+    assert_eq!(mesh.offset + mesh.len, p.levels[0].offset);
+    let mesh_bytes = db.read_checked_range(&p.object, mesh).unwrap();
+    assert_eq!(
+        &whole[mesh.offset as usize..p.levels[0].offset as usize],
+        &mesh_bytes[..]
+    );
     let mut stream = Vec::new();
     for g in 0..p.levels.len() {
         stream.extend(db.read_level(p, g).unwrap());
     }
-    assert_eq!(stream, whole);
+    let start = p.levels[0].offset as usize;
+    assert_eq!(&stream[..], &whole[start..start + stream.len()]);
     assert_eq!(
-        crate::ptm::decode(&whole, crate::ptm::Limits::default())
+        crate::ptm::decode(&stream, crate::ptm::Limits::default())
             .unwrap()
             .width(),
         16
@@ -149,7 +159,7 @@ fn write_open_read_levels() {
     assert!(db.object_path("../../etc/passwd").is_none());
     // Rebuilding reuses every object (resume).
     let (_, w2) = build(&dir);
-    assert_eq!((w2.objects_written, w2.objects_reused), (0, 12));
+    assert_eq!((w2.objects_written, w2.objects_reused), (0, 14));
     let r = verify(&dir).unwrap();
     assert!(r.is_intact(), "{r:?}");
     assert_eq!(
@@ -159,9 +169,12 @@ fn write_open_read_levels() {
             r.level_ranges_checked,
             r.tables_checked
         ),
-        (6 + 4 + 2, 12, r.level_ranges_checked, 2)
+        (2 + 2 + 2, 14, r.level_ranges_checked, 2)
     );
-    assert!(r.level_ranges_checked >= 6 * 5);
+    // Backgrounds' 7 groups each, every tile's mesh and at least one PTM range.
+    assert!(r.level_ranges_checked >= 2 * 7 + 4 * 2);
+    // The tiles' own objects (4 PTMs, 4 meshes) stay for a resumed build: notes, not damage.
+    assert_eq!(r.notes.len(), 8, "{:?}", r.notes);
     fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -170,7 +183,7 @@ fn a_flipped_byte_in_any_file_is_caught_and_named() {
     let dir = tmpdir("flip");
     build(&dir);
     let files = all_files(&dir);
-    assert_eq!(files.len(), 15);
+    assert_eq!(files.len(), 17);
     assert!(files.contains(&dir.join(MANIFEST_GZ_FILE)));
     for f in &files {
         let orig = fs::read(f).unwrap();
@@ -203,8 +216,12 @@ fn a_flipped_byte_in_any_file_is_caught_and_named() {
 fn missing_truncated_and_stray_files() {
     let dir = tmpdir("missing");
     let (m, _) = build(&dir);
-    let mesh = m.tracks[0].viewpoints[0].tiles[1].mesh.clone().unwrap();
-    let mesh_path = dir.join(mesh.rel_path().unwrap());
+    let pack = m.tracks[0].viewpoints[1].tiles[0]
+        .ptm
+        .clone()
+        .unwrap()
+        .object;
+    let mesh_path = dir.join(pack.rel_path().unwrap());
     fs::remove_file(&mesh_path).unwrap();
     let r = verify(&dir).unwrap();
     assert_eq!(r.problems.len(), 1, "{r:?}");
@@ -217,7 +234,7 @@ fn missing_truncated_and_stray_files() {
     let r = verify(&dir).unwrap();
     assert_eq!(r.problems.len(), 1);
     assert_eq!(r.notes.len(), 2, "{:?}", r.notes);
-    // Truncating a PTM: its hash, size and level ranges are all reported on that file.
+    // Truncating a pack: its hash, size and ranges are all reported on that file.
     let p = m.tracks[0].viewpoints[0].tiles[0].ptm.clone().unwrap();
     let pp = dir.join(p.object.rel_path().unwrap());
     let bytes = fs::read(&pp).unwrap();
@@ -341,7 +358,7 @@ fn a_table_that_does_not_decode_is_reported() {
     // Rewrite the top manifest so viewpoint 0's table is a valid object that is no table.
     let mut w = DbWriter::create(&dir).unwrap();
     let junk = w.put(&gzip(b"{\"not\":\"a table\"}").unwrap()).unwrap();
-    let (mut top, _) = split::split(&m);
+    let (mut top, _) = split::split(&m).unwrap();
     top.tracks[0].viewpoints[0].table = junk.clone();
     let mut json = serde_json::to_vec(&top).unwrap();
     json.push(b'\n');
@@ -357,7 +374,7 @@ fn a_table_that_does_not_decode_is_reported() {
     assert!(
         r.problems.iter().any(|p| p.path == junk_path
             && p.what.contains("viewpoint 0")
-            && p.what.contains("JSON")),
+            && p.what.contains("RVTB")),
         "{:?}",
         r.problems
     );
@@ -379,6 +396,14 @@ fn a_format_1_manifest_is_refused_with_a_request_to_rebuild() {
         err.contains("manifest format 1") && err.contains("rebuild"),
         "{err}"
     );
+    // Format 2 (JSON tables, a PTM object and a mesh object per tile): refused the same way.
+    let json = br#"{"version":2,"scene":"x"}"#;
+    write_atomic(&dir.join(MANIFEST_FILE), json).unwrap();
+    let err = Database::open(&dir).unwrap_err().to_string();
+    assert!(
+        err.contains("manifest format 2") && err.contains("rebuild"),
+        "{err}"
+    );
     fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -386,7 +411,7 @@ fn a_format_1_manifest_is_refused_with_a_request_to_rebuild() {
 fn split_and_assemble_round_trip_and_partial_tables_leave_tiles_out() {
     let dir = tmpdir("split");
     let (m, _) = build(&dir);
-    let (top, bytes) = split::split(&m);
+    let (top, bytes) = split::split(&m).unwrap();
     assert_eq!(top.version, TOP_VERSION);
     let tables: Vec<ViewTable> = top.tracks[0]
         .viewpoints
@@ -416,8 +441,11 @@ fn split_and_assemble_round_trip_and_partial_tables_leave_tiles_out() {
 }
 
 #[test]
-fn range_checksums_are_128_bits_and_full_hashes_still_match() {
+fn range_checksums_are_64_or_128_bits_and_full_hashes_still_match() {
     let h = hash_hex(b"abc");
+    assert_eq!(range_hash64(b"abc"), h[..16]);
+    assert!(hash_matches(b"abc", &h[..16]) && !hash_matches(b"abd", &h[..16]));
+    assert!(valid_range_hash(&h[..16]) && !valid_range_hash(&h[..15]));
     assert!(hash_matches(b"abc", &h));
     assert!(hash_matches(b"abc", &h[..32]));
     assert_eq!(range_hash(b"abc"), h[..32]);

@@ -4,7 +4,7 @@ use std::collections::BTreeMap;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use tracks::manifest::{object_rel_path, Manifest, ObjectRef, PtmRef};
+use tracks::manifest::{object_rel_path, Manifest, ObjectRef, PackRange, PtmRef};
 
 use super::split::{assemble, decode_table, TopManifest, ViewTable};
 use super::{
@@ -138,7 +138,8 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
     });
 
     // Every object the manifest references, with the PTM ranges inside it.
-    let mut wanted: BTreeMap<String, (u64, Vec<&PtmRef>)> = BTreeMap::new();
+    type Wanted<'a> = (u64, Vec<&'a PtmRef>, Vec<&'a PackRange>);
+    let mut wanted: BTreeMap<String, Wanted> = BTreeMap::new();
     let mut bad_refs = Vec::new();
     for obj in &table_refs {
         if object_rel_path(&obj.hash).is_none() {
@@ -147,17 +148,17 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
         }
         wanted
             .entry(obj.hash.clone())
-            .or_insert((obj.size, Vec::new()));
+            .or_insert((obj.size, Vec::new(), Vec::new()));
     }
     if let Some(m) = &manifest {
-        for_each_object(m, &mut |obj, ptm| {
+        for_each_object(m, &mut |obj, ptm, mesh| {
             if object_rel_path(&obj.hash).is_none() {
                 bad_refs.push(format!("invalid object hash {:?}", obj.hash));
                 return;
             }
             let e = wanted
                 .entry(obj.hash.clone())
-                .or_insert((obj.size, Vec::new()));
+                .or_insert((obj.size, Vec::new(), Vec::new()));
             if e.0 != obj.size {
                 bad_refs.push(format!(
                     "object {} listed with sizes {} and {}",
@@ -166,6 +167,9 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
             }
             if let Some(p) = ptm {
                 e.1.push(p);
+            }
+            if let Some(r) = mesh {
+                e.2.push(r);
             }
         });
     }
@@ -177,6 +181,7 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
     // Every file under objects/.
     let objects = dir.join("objects");
     let mut seen = BTreeMap::new();
+    let mut unreferenced = Vec::new();
     match fs::read_dir(&objects) {
         Err(e) => {
             if !wanted.is_empty() || e.kind() != std::io::ErrorKind::NotFound {
@@ -238,11 +243,8 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
                         ));
                     }
                     match wanted.get(&name) {
-                        None => report.notes.push(problem(
-                            path.clone(),
-                            "not referenced by the manifest".into(),
-                        )),
-                        Some((size, ptms)) => {
+                        None => unreferenced.push(path.clone()),
+                        Some((size, ptms, meshes)) => {
                             if bytes.len() as u64 != *size {
                                 report.problems.push(problem(
                                     path.clone(),
@@ -252,12 +254,33 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
                             for p in ptms {
                                 check_ptm(&path, &bytes, p, &mut report);
                             }
+                            for r in meshes {
+                                check_mesh_range(&path, &bytes, r, &mut report);
+                            }
                         }
                     }
                     seen.insert(name, ());
                 }
             }
         }
+    }
+    // Unreferenced objects are harmless (a build keeps each tile's own objects beside the
+    // packs so that it can resume): listed one by one when few, counted when many.
+    if unreferenced.len() <= 8 {
+        for path in unreferenced {
+            report
+                .notes
+                .push(problem(path, "not referenced by the manifest".into()));
+        }
+    } else {
+        report.notes.push(problem(
+            objects.clone(),
+            format!(
+                "{} objects not referenced by the manifest (tiles' own objects that a \
+                 resumed build reuses, or left from earlier builds)",
+                unreferenced.len()
+            ),
+        ));
     }
     for hash in wanted.keys() {
         if !seen.contains_key(hash) {
@@ -350,19 +373,32 @@ fn check_ptm(path: &Path, bytes: &[u8], p: &PtmRef, report: &mut Report) {
             ));
         }
     }
+    // The PTM's bytes: the whole object, or (in a pack) the span of its ranges.
+    let start = p
+        .levels
+        .first()
+        .map_or(0, |l| l.offset)
+        .min(bytes.len() as u64) as usize;
+    let end = p
+        .levels
+        .last()
+        .map_or(0, |l| l.offset.saturating_add(l.len))
+        .clamp(start as u64, bytes.len() as u64) as usize;
+    let span = &bytes[start..end];
     let mut dec = ptm::Decoder::new(ptm::Limits::default());
     let header_len = p
         .levels
         .first()
         .map_or(0, |l| l.len as usize)
-        .min(bytes.len());
-    match dec.push(&bytes[..header_len]) {
+        .min(span.len());
+    match dec.push(&span[..header_len]) {
         Err(e) => push(format!("PTM header: {e}")),
         Ok(_) => {
             if let Some(h) = dec.header() {
                 if (h.width, h.height, h.channels) != (p.width, p.height, p.channels)
-                    || h.levels as usize != p.levels.len()
-                    || h.file_len() != bytes.len() as u64
+                    || p.levels.iter().any(|l| l.level >= h.levels as u32)
+                    || p.levels.len() > h.levels as usize
+                    || h.file_len() != span.len() as u64
                 {
                     push(format!(
                         "PTM header says {}×{}×{} with {} levels and {} bytes; manifest says {}×{}×{} with {} levels",
@@ -375,6 +411,31 @@ fn check_ptm(path: &Path, bytes: &[u8], p: &PtmRef, report: &mut Report) {
         }
     }
     report.level_ranges_checked += p.levels.len();
+}
+
+/// A mesh's range inside its pack must lie in the file and match its checksum.
+fn check_mesh_range(path: &Path, bytes: &[u8], r: &PackRange, report: &mut Report) {
+    let what = match r
+        .offset
+        .checked_add(r.len)
+        .filter(|&e| e <= bytes.len() as u64)
+    {
+        None => format!("mesh range {}+{} outside the file", r.offset, r.len),
+        Some(end) if !hash_matches(&bytes[r.offset as usize..end as usize], &r.hash) => {
+            format!(
+                "mesh range {}..{end}: checksum does not match {}",
+                r.offset, r.hash
+            )
+        }
+        Some(_) => {
+            report.level_ranges_checked += 1;
+            return;
+        }
+    };
+    report.problems.push(Problem {
+        path: path.to_path_buf(),
+        what,
+    });
 }
 
 /// Reads, hash-checks and decodes one table: its path and the table or what is wrong.
@@ -409,18 +470,22 @@ fn check_table(
     (path, got)
 }
 
-fn for_each_object<'m>(m: &'m Manifest, f: &mut dyn FnMut(&'m ObjectRef, Option<&'m PtmRef>)) {
+#[allow(clippy::type_complexity)]
+fn for_each_object<'m>(
+    m: &'m Manifest,
+    f: &mut dyn FnMut(&'m ObjectRef, Option<&'m PtmRef>, Option<&'m PackRange>),
+) {
     for t in &m.tracks {
         for v in &t.viewpoints {
             if let Some(b) = &v.background {
-                f(&b.object, Some(b));
+                f(&b.object, Some(b), None);
             }
             for tile in &v.tiles {
                 if let Some(p) = &tile.ptm {
-                    f(&p.object, Some(p));
+                    f(&p.object, Some(p), tile.mesh_range.as_ref());
                 }
                 if let Some(mesh) = &tile.mesh {
-                    f(mesh, None);
+                    f(mesh, None, None);
                 }
             }
         }

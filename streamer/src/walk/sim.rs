@@ -137,9 +137,7 @@ impl Sim<'_> {
             .iter()
             .map(|it| {
                 if naive {
-                    let mesh_ok =
-                        it.info.first_level_part == 0 || self.cache.contains(&it.parts[0].key);
-                    if mesh_ok && self.cache.contains(&it.whole.key) {
+                    if it.parts.iter().all(|p| self.cache.contains(&p.key)) {
                         it.parts.len()
                     } else {
                         0
@@ -301,12 +299,9 @@ impl Sim<'_> {
                     k -= 1;
                     let i = self.naive_order[k];
                     let it = &self.table.items[i];
-                    let mut v = Vec::new();
-                    if it.info.first_level_part == 1 {
-                        v.push(it.parts[0].clone());
-                    }
-                    v.push(it.whole.clone());
-                    wanted.push((i, v));
+                    // The whole tile: its mesh and every level range (contiguous in the
+                    // viewpoint's pack, so they travel together).
+                    wanted.push((i, it.parts.clone()));
                 }
             }
             Strategy::Budget { mode, prefetch } => {

@@ -181,6 +181,7 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
                     levels,
                 }),
                 mesh: Some(mesh),
+                mesh_range: None,
             });
         }
         viewpoints.push(ViewpointEntry {
@@ -213,10 +214,10 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
     manifest.tracks[0].segments = synthetic_ach(&manifest, &track);
     // The database writer's manifest files (compact JSON, checksum, gzip copy), so a
     // synthetic database streams like a built one.
+    // The tiles are packed per viewpoint: what comes back is the manifest a reader sees.
     crate::db::DbWriter::create(root)
         .and_then(|mut w| w.finish(&manifest))
-        .map_err(io::Error::other)?;
-    Ok(manifest)
+        .map_err(io::Error::other)
 }
 
 /// ACH per segment: pixels per tile over the six 90° cameras of the rendering box at five
