@@ -3,8 +3,9 @@
 //!
 //! - [`ptm`]: progressive texture maps — lossless mip levels sent coarse to fine.
 //! - [`db`]: the content-addressed database directory (writer, reader, `verify`), the split
-//!   manifest (a small top plus one tile table per viewpoint, [`db::split`]), the compact
-//!   mesh format and ACH (average coverage hints) per track segment.
+//!   manifest (a small top plus one binary tile table per viewpoint, [`db::split`],
+//!   [`db::table`], and one pack of its tiles' payloads, [`db::pack`]), the compact mesh
+//!   format and ACH (average coverage hints) per track segment.
 //! - [`server`]: the HTTP tile server (`run(listener, db, config, stats, shutdown)`): manifest
 //!   and content-addressed objects with `Range:`, shaping, limits, graceful shutdown.
 //! - [`client`]: checked downloads with reconnect ([`client::Connection`]), the prioritised

@@ -3,14 +3,20 @@
 //! A database is a directory of immutable, content-addressed files plus `manifest.json`:
 //!
 //! ```text
-//! DB/manifest.json          Manifest (this module), written last and atomically
-//! DB/objects/HH/HASH        every payload (PTM tile files, meshes, background maps), named by
-//!                           the lowercase hex BLAKE3 hash of its bytes, HH = first two hex digits
+//! DB/manifest.json          the top of the manifest, written last and atomically
+//! DB/objects/HH/HASH        every payload (per viewpoint a tile table and a pack of its tiles'
+//!                           PTMs and meshes, background maps), named by the lowercase hex
+//!                           BLAKE3 hash of its bytes, HH = first two hex digits
 //! ```
 //!
+//! The on-disk form (the split top manifest, binary tables, packs) is the streamer's
+//! (`streamer::db`); [`Manifest`] here is the assembled in-memory form every crate reads: a
+//! tile's PTM names its pack as `object` with level ranges inside it, and its mesh is a
+//! [`PackRange`] of the same pack ([`TileEntry::mesh_range`]).
+//!
 //! Because every payload is named by its hash, any static HTTP server can serve a database
-//! (`GET /manifest.json`, `GET /objects/HH/HASH`, `Range:` for one PTM level group), caches can
-//! keep files forever, and `verify` is a hash check per file.
+//! (`GET /manifest.json`, `GET /objects/HH/HASH`, `Range:` for one tile part), caches can keep
+//! files forever, and `verify` is a hash check per file plus one per range.
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};

@@ -1,24 +1,29 @@
 //! The walkthrough database: a directory of immutable content-addressed objects plus a
-//! manifest (types in [`tracks::manifest`]), stored split ([`split`], format 2): a small top
-//! manifest and one tile table per viewpoint, itself an object.
+//! manifest (types in [`tracks::manifest`]), stored split ([`split`], format 3): a small top
+//! manifest, one binary tile table per viewpoint ([`table`]) and one pack per viewpoint
+//! ([`pack`]) holding its tiles' meshes and PTM level groups; tables and packs are objects.
 //!
-//! Main types: [`DbWriter`] (puts objects, splits the manifest and writes the top last),
-//! [`Database`] (opens a database — the top and every table, assembled into one
-//! [`tracks::manifest::Manifest`] — and reads objects, byte ranges and single PTM level groups
-//! with their checksums), [`verify()`] → [`Report`] (every file's hash and size, every table,
-//! every level range's checksum), [`split::TopManifest`] / [`split::ViewTable`], the compact
-//! [`mesh`] format and [`ach`] (average coverage hints per track segment). PTM level ranges
-//! carry 128-bit checksums ([`range_hash`], [`hash_matches`]); objects keep their full BLAKE3.
+//! Main types: [`DbWriter`] (puts objects; [`DbWriter::finish`] packs each viewpoint's tiles,
+//! splits the manifest and writes the top last), [`Database`] (opens a database — the top and
+//! every table, assembled into one [`tracks::manifest::Manifest`] whose tiles point into their
+//! viewpoint's pack — and reads objects, byte ranges and single PTM level groups with their
+//! checksums), [`verify()`] → [`Report`] (every file's hash and size, every table, every
+//! range's checksum), [`split::TopManifest`] / [`split::ViewTable`], the compact [`mesh`]
+//! format and [`ach`] (average coverage hints per track segment). Ranges inside a pack carry
+//! 64-bit checksums ([`range_hash64`]; background PTMs, listed in the top, 128-bit ones,
+//! [`range_hash`]); objects keep their full BLAKE3.
 //!
 //! ```text
-//! DB/manifest.json          the TopManifest (format 2), written last, atomically
+//! DB/manifest.json          the TopManifest (format 3), written last, atomically
 //! DB/manifest.json.blake3   lowercase hex BLAKE3 of manifest.json (so a flipped byte in the
 //!                           manifest is caught too), written right after it
 //! DB/manifest.json.gz       gzip of manifest.json's exact bytes, written after it: what a
 //!                           server sends a client that accepts gzip (nginx `gzip_static`
 //!                           serves the same file); optional (older databases lack it)
 //! DB/objects/HH/HASH        payloads named by their BLAKE3; HH = the hash's first two digits
-//!                           (tiles, meshes, backgrounds, and each viewpoint's table)
+//!                           (backgrounds, each viewpoint's table and pack, and the tiles' own
+//!                           PTM and mesh objects, which the manifest no longer refers to but
+//!                           a resumed build reuses)
 //! ```
 //!
 //! Every file is written to a temporary name in its final directory and renamed into place, so

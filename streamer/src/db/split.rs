@@ -30,7 +30,7 @@ pub const TOP_VERSION: u32 = 3;
 
 pub use super::table::{decode_table, encode_table, TableError, MAX_TABLE_BYTES};
 
-/// `manifest.json` of format 2.
+/// `manifest.json` of format 3.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TopManifest {
     pub version: u32,
