@@ -46,6 +46,11 @@ pub struct Args {
     /// Write the results as JSON here.
     #[arg(long)]
     pub json: Option<std::path::PathBuf>,
+    /// Also count the full frame's mesh fragments per view pass on the CPU reference
+    /// (`viewer::cpu`, same plan): rasterised, shaded after the depth test in drawing order
+    /// (early depth testing), kept by the opacity mask, pixels covered (overdraw).
+    #[arg(long)]
+    pub fragments: bool,
 }
 
 /// One timed configuration: median wall-clock and CPU milliseconds per frame.
@@ -78,12 +83,28 @@ struct BenchResult {
     triangles: usize,
     /// Triangles drawn at mesh levels 1, 2 (decimated).
     coarse_triangles: Vec<usize>,
+    /// Triangles of the half-texel skirts (`viewer::refview::skirt`), drawn besides
+    /// `triangles` at every mesh level.
+    skirt_triangles: usize,
     /// Load average (1 min) before and after the run.
     load_before: Option<f64>,
     load_after: Option<f64>,
     variants: Vec<Variant>,
     /// With `--uploads`: one tile arriving in slab 0 of the first view.
     uploads: Option<Uploads>,
+    /// With `--fragments`: mesh fragments of the full frame's view passes.
+    fragments: Vec<Fragments>,
+}
+
+/// Mesh fragments of one view pass of the full frame (`viewer::cpu::Fragments`).
+#[derive(serde::Serialize)]
+struct Fragments {
+    view: usize,
+    pixels: u64,
+    rasterised: u64,
+    shaded: u64,
+    kept: u64,
+    covered: u64,
 }
 
 /// Median milliseconds of one tile arrival, whole layer against the tile's region.
@@ -256,6 +277,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )];
     let pano_plan = plan_frame(&pano, &camera, s, DrawBudget::default())?;
     let mut r = Renderer::new(Gpu::new()?);
+    // A second renderer without the half-texel mesh skirts (what they cost).
+    let mut r_bare = Renderer::new(Gpu::new()?);
+    r_bare.set_skirts(false);
     // (name, budget, tile ids written); frames without overlays take the fused path (no
     // view targets, no composite pass), feedback frames (tile ids) add a depth + id pass per
     // view at a quarter of the width and height (`FramePlan::id_scale`).
@@ -282,6 +306,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ),
         (
             "full without tile ids, composite pass",
+            DrawBudget::default(),
+            false,
+        ),
+        (
+            "full, fused, without mesh skirts",
             DrawBudget::default(),
             false,
         ),
@@ -356,6 +385,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     || v.0.contains("near a sample")
                     || v.0.contains("half resolution")
                     || v.0.contains("tile ids")
+                    || v.0.contains("skirts")
             })
             .collect()
     } else {
@@ -377,6 +407,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     for _ in 0..3 {
         r.draw(&plan, &walk.views)?;
+        r_bare.draw(&plan, &walk.views)?;
         r.draw_panorama(&pano_plan, &pano)?;
     }
     let load_before = load_average();
@@ -389,7 +420,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let mut plan = plan_frame(&walk.views, camera, s, *budget)?;
             plan.tile_ids = *ids;
             adjust(&mut plan, k, name);
-            r.draw(&plan, &walk.views)?;
+            if name.contains("without mesh skirts") {
+                r_bare.draw(&plan, &walk.views)?;
+            } else {
+                r.draw(&plan, &walk.views)?;
+            }
             wall[k + 1].push(t.elapsed().as_secs_f64() * 1e3);
             if let (Some(a), Some(b)) = (c, cpu_ns()) {
                 cpu[k + 1].push(b.saturating_sub(a) as f64 / 1e6);
@@ -413,7 +448,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let mut plan = plan_frame(&walk.views, camera, s, *budget)?;
             plan.tile_ids = *ids;
             adjust(&mut plan, k, name);
-            through[k + 1] = Some(r.throughput(&plan, &walk.views, args.throughput_frames)?);
+            let rr = if name.contains("without mesh skirts") {
+                &mut r_bare
+            } else {
+                &mut r
+            };
+            through[k + 1] = Some(rr.throughput(&plan, &walk.views, args.throughput_frames)?);
         }
     }
     let names: Vec<&str> = std::iter::once("plain single cube map")
@@ -429,7 +469,40 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         None
     };
+    let fragments: Vec<Fragments> = if args.fragments {
+        let plan = plan_frame(&walk.views, &camera, s, DrawBudget::default())?;
+        plan.passes
+            .iter()
+            .take(2)
+            .filter_map(|p| {
+                let v = walk.views.get(p.view)?;
+                let f = viewer::cpu::view_pass(p, v, plan.width, plan.height).fragments;
+                Some(Fragments {
+                    view: p.view,
+                    pixels: plan.width as u64 * plan.height as u64,
+                    rasterised: f.rasterised,
+                    shaded: f.shaded,
+                    kept: f.kept,
+                    covered: f.covered,
+                })
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    for f in &fragments {
+        let px = f.pixels.max(1) as f64;
+        eprintln!(
+            "view {} mesh fragments per frame pixel: rasterised {:.2}, shaded (early depth) {:.2}, kept {:.2}; covered {:.2}",
+            f.view,
+            f.rasterised as f64 / px,
+            f.shaded as f64 / px,
+            f.kept as f64 / px,
+            f.covered as f64 / px
+        );
+    }
     let res = BenchResult {
+        fragments,
         uploads,
         adapter: format!("{} ({:?})", r.gpu.info.name, r.gpu.info.backend),
         width: w,
@@ -440,6 +513,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .passes
             .iter()
             .map(|p| walk.views[p.view].triangle_count())
+            .sum(),
+        skirt_triangles: plan
+            .passes
+            .iter()
+            .flat_map(|p| viewer::refview::view_skirts(&walk.views[p.view]))
+            .map(|(_, i)| i.len() / 3)
             .sum(),
         coarse_triangles: (1..=viewer::refview::MESH_LEVELS)
             .map(|level| {
@@ -495,6 +574,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             u.frame_after_region_upload_ms
         );
     }
+    eprintln!(
+        "triangles {} (+ {} of skirts)",
+        res.triangles, res.skirt_triangles
+    );
     println!("{}", serde_json::to_string_pretty(&res)?);
     if let Some(path) = &args.json {
         prerender::store::write_json(path, &res)?;

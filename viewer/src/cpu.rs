@@ -54,6 +54,20 @@ fn pixel_on_face(f: Face, d: Vec3, n: f32) -> (f64, f64) {
 pub struct PassImage {
     pub color: Vec<[f32; 4]>,
     pub tile: Vec<u32>,
+    /// What the pass's tile meshes cost in fragments (overdraw).
+    pub fragments: Fragments,
+}
+
+/// Mesh fragments of one view pass, in the plan's drawing order (front slab first): how
+/// many pixel centres the triangles cover (`rasterised`), how many of those pass the depth
+/// test when drawn (`shaded`: what a rasteriser with early depth testing shades) and how many
+/// of those the opacity mask keeps (`kept`); `covered` = pixels a tile drew at the end.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Fragments {
+    pub rasterised: u64,
+    pub shaded: u64,
+    pub kept: u64,
+    pub covered: u64,
 }
 
 /// Execute one view pass.
@@ -65,9 +79,11 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
     let mut color = vec![[0.0f32; 4]; w * h];
     let mut depth = vec![0.0f32; w * h];
     let mut tile_id = vec![0u32; w * h];
+    let mut fragments = Fragments::default();
     let v3 = |a: [f32; 4]| Vec3::new(a[0], a[1], a[2]);
     let m = Mat4::from_cols_array_2d(&u.clip_from_cam);
     let origin = v3(u.origin_rel);
+    let skirts = crate::refview::view_skirts(view);
     for &ti in &pass.visible {
         let tile = &view.tiles[ti];
         let face = tile.tile.face;
@@ -76,12 +92,12 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
         };
         let tile_lod = lod.max(pass.tile_min_level.get(ti).copied().unwrap_or(0) as f32);
         let (fw, r, up) = basis(face);
-        let (skirt_verts, skirt_idx) = crate::refview::skirt(&tile.mesh, view.face_size);
+        let (skirt_verts, skirt_idx) = &skirts[ti];
         let verts: Vec<(Vec4, Vec3)> = tile
             .mesh
             .vertices
             .iter()
-            .chain(&skirt_verts)
+            .chain(skirt_verts)
             .map(|v| {
                 let uu = 2.0 * v.pos_in_face[0] / n - 1.0;
                 let vv = 1.0 - 2.0 * v.pos_in_face[1] / n;
@@ -89,13 +105,7 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
                 (m * (p + origin).extend(1.0), p)
             })
             .collect();
-        let indices: Vec<u32> = tile
-            .mesh
-            .indices
-            .iter()
-            .chain(&skirt_idx)
-            .copied()
-            .collect();
+        let indices: Vec<u32> = tile.mesh.indices.iter().chain(skirt_idx).copied().collect();
         for tri in indices.chunks_exact(3) {
             let poly = clip_near([
                 verts[tri[0] as usize],
@@ -107,9 +117,11 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
                     [poly[0], poly[k], poly[k + 1]],
                     (width, height),
                     &mut |idx, z, p| {
+                        fragments.rasterised += 1;
                         if z <= depth[idx] {
                             return;
                         }
+                        fragments.shaded += 1;
                         let (px, py) = pixel_on_face(face, p, n);
                         let c = layer.sample(tile_lod, face, px, py);
                         let cut = if tile.slab == 0 || tile_lod < 1.0 {
@@ -118,6 +130,7 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
                             0.25
                         };
                         if c[3] >= cut {
+                            fragments.kept += 1;
                             depth[idx] = z;
                             let dist = (p + origin).length().clamp(1e-3, SKY_DISTANCE);
                             color[idx] = [c[0], c[1], c[2], dist];
@@ -144,9 +157,11 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
             }
         }
     }
+    fragments.covered = tile_id.iter().filter(|&&t| t > 0).count() as u64;
     PassImage {
         color,
         tile: tile_id,
+        fragments,
     }
 }
 

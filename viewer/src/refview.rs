@@ -16,7 +16,7 @@ use tracks::{CubeMap, TileGrid, TileId};
 use crate::texture::{dilate_masked, Layer};
 
 mod skirt;
-pub use skirt::skirt;
+pub use skirt::{skirt, view_skirts};
 
 /// Errors building a reference view from layers.
 #[derive(Debug, thiserror::Error, PartialEq)]

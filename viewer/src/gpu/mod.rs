@@ -298,6 +298,8 @@ pub struct Renderer {
     ids_valid: [bool; 2],
     /// The [`FramePlan::id_scale`] of the last frame's tile ids (1 = full resolution).
     ids_scale: u32,
+    /// Draw half-texel skirts around meshes on pixel centres ([`crate::refview::skirt`]).
+    skirts: bool,
     /// Composite bind groups by the reference-view indices of slots 0 and 1 (made once:
     /// binding many textures anew every frame is slow on some drivers).
     composite_groups: HashMap<(usize, usize), wgpu::BindGroup>,
@@ -314,6 +316,16 @@ impl Renderer {
     pub fn invalidate_view(&mut self, index: usize) {
         self.views.remove(&index);
         self.composite_groups.clear();
+    }
+
+    /// Draw the half-texel skirts that close the outlines of meshes on pixel centres
+    /// ([`crate::refview::skirt`]; on by default, as the CPU reference draws them). Off
+    /// only to measure what they cost; changing it drops the uploaded views.
+    pub fn set_skirts(&mut self, on: bool) {
+        if self.skirts != on {
+            self.skirts = on;
+            self.forget_views();
+        }
     }
 
     /// Bytes held by uploaded views.

@@ -399,6 +399,7 @@ impl Renderer {
             targets: None,
             ids_valid: [false; 2],
             ids_scale: 1,
+            skirts: true,
             composite_groups: HashMap::new(),
         }
     }

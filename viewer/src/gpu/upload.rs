@@ -89,12 +89,19 @@ impl Renderer {
             .map(|_| (Vec::new(), Vec::with_capacity(view.tiles.len() + 1)))
             .collect();
         let jump = crate::refview::MeshParams::default().jump;
+        let skirts = if self.skirts {
+            crate::refview::view_skirts(view)
+        } else {
+            Vec::new()
+        };
         for (ti, tile) in view.tiles.iter().enumerate() {
             index_start.push(idx.len() as u32);
             let base = verts.len() as u32;
             // Half-texel skirts close the outline of meshes on pixel centres (databases'
             // adaptive meshes); drawn at every mesh level.
-            let (skirt_verts, skirt_idx) = crate::refview::skirt(&tile.mesh, n);
+            let (skirt_verts, skirt_idx) = skirts
+                .get(ti)
+                .map_or((&[][..], &[][..]), |(v, i)| (&v[..], &i[..]));
             for (k, (cidx, cstart)) in coarse.iter_mut().enumerate() {
                 cstart.push(cidx.len() as u32);
                 match &grid {
@@ -112,14 +119,14 @@ impl Renderer {
                 tile.mesh
                     .vertices
                     .iter()
-                    .chain(&skirt_verts)
+                    .chain(skirt_verts)
                     .map(|v| GpuVertex {
                         pos_in_face: v.pos_in_face,
                         depth_m: v.depth_m,
                         packed: ((ti as u32) << 3) | face,
                     }),
             );
-            idx.extend(tile.mesh.indices.iter().chain(&skirt_idx).map(|i| base + i));
+            idx.extend(tile.mesh.indices.iter().chain(skirt_idx).map(|i| base + i));
             face_layer.push(face | ((tile.slab + 1) << 8));
         }
         index_start.push(idx.len() as u32);

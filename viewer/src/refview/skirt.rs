@@ -13,22 +13,67 @@
 //! as it does for grid meshes. Skirt vertices keep their edge vertex's radial depth: exact at
 //! the reference viewpoint (projective texturing), half a texel of depth off between.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
-use super::{MeshVertex, TileMesh};
+use tracks::TileGrid;
+
+use super::{MeshVertex, RefView, TileMesh};
 
 /// Whether `c` lies on a pixel centre (`k + 0.5`).
 fn on_centre(c: f32) -> bool {
     (c - c.floor() - 0.5).abs() < 1e-4
 }
 
+/// The skirts of every tile of `view` ([`skirt`]), with the borders shared with a kept
+/// neighbour of the same slab and face.
+pub fn view_skirts(view: &RefView) -> Vec<(Vec<MeshVertex>, Vec<u32>)> {
+    let n = view.face_size;
+    let Some(grid) = TileGrid::new(n, view.tile_size) else {
+        return view
+            .tiles
+            .iter()
+            .map(|t| skirt(&t.mesh, n, (0, 0, n, n), [false; 4]))
+            .collect();
+    };
+    let kept: HashSet<(u32, usize, u32, u32)> = view
+        .tiles
+        .iter()
+        .map(|t| (t.slab, t.tile.face.index(), t.tile.tx, t.tile.ty))
+        .collect();
+    view.tiles
+        .iter()
+        .map(|t| {
+            let (f, tx, ty) = (t.tile.face.index(), t.tile.tx, t.tile.ty);
+            let has = |dx: i64, dy: i64| {
+                let (x, y) = (tx as i64 + dx, ty as i64 + dy);
+                x >= 0 && y >= 0 && kept.contains(&(t.slab, f, x as u32, y as u32))
+            };
+            let shared = [has(-1, 0), has(0, -1), has(1, 0), has(0, 1)];
+            skirt(&t.mesh, n, grid.pixel_rect(t.tile), shared)
+        })
+        .collect()
+}
+
 /// The extra vertices and triangles (indices into `mesh.vertices` followed by the extra
-/// vertices) that close the half-texel gap around `mesh` on a face of `face_size` pixels.
+/// vertices) that close the half-texel gap around `mesh`, the mesh of the tile covering
+/// pixels `rect = (x0, y0, x1, y1)` (end exclusive) of a face of `face_size` pixels.
 /// Only boundary edges whose two ends sit on pixel centres get a skirt (grid meshes, whose
-/// vertices sit on corners, get none).
-pub fn skirt(mesh: &TileMesh, face_size: u32) -> (Vec<MeshVertex>, Vec<u32>) {
+/// vertices sit on corners, get none), and none along a border shared with the next tile
+/// of the face where `shared` (left, top, right, bottom) says that tile is kept (the lines
+/// through the first pixel centres of this tile, `x0 + 0.5`, and of the next, `x1 + 0.5`;
+/// the same in y): the neighbour's mesh meets this one there.
+pub fn skirt(
+    mesh: &TileMesh,
+    face_size: u32,
+    rect: (u32, u32, u32, u32),
+    shared: [bool; 4],
+) -> (Vec<MeshVertex>, Vec<u32>) {
     let n = face_size as f32;
     let verts = &mesh.vertices;
+    let (x0, y0, x1, y1) = rect;
+    let shared = |c: f32, lo: u32, hi: u32, first: usize| {
+        (shared[first] && c == lo as f32 + 0.5) || (shared[first + 2] && c == hi as f32 + 0.5)
+    };
     // Every edge: how many triangles use it and the opposite vertex of the last one.
     let mut edges: HashMap<(u32, u32), (u32, u32)> = HashMap::new();
     for t in mesh.indices.chunks_exact(3) {
@@ -49,6 +94,11 @@ pub fn skirt(mesh: &TileMesh, face_size: u32) -> (Vec<MeshVertex>, Vec<u32>) {
                 verts.get(c as usize)?.pos_in_face,
             );
             if !pa.iter().chain(&pb).all(|&x| on_centre(x)) {
+                return None;
+            }
+            let along_x = pa[1] == pb[1] && shared(pa[1], y0, y1, 1);
+            let along_y = pa[0] == pb[0] && shared(pa[0], x0, x1, 0);
+            if along_x || along_y {
                 return None;
             }
             let d = [pb[0] - pa[0], pb[1] - pa[1]];
@@ -150,7 +200,7 @@ mod tests {
             vertices: vec![v(1.5, 1.5), v(3.5, 1.5), v(3.5, 3.5), v(1.5, 3.5)],
             indices: vec![0, 1, 2, 0, 2, 3],
         };
-        let (extra, idx) = skirt(&mesh, 8);
+        let (extra, idx) = skirt(&mesh, 8, (0, 0, 8, 8), [false; 4]);
         let all: Vec<MeshVertex> = mesh.vertices.iter().chain(&extra).copied().collect();
         let tris: Vec<u32> = mesh.indices.iter().chain(&idx).copied().collect();
         // Every point of pixels 1..=3 (corners 1.0..4.0) is covered, nothing beyond.
@@ -177,10 +227,37 @@ mod tests {
             vertices: vec![v(0.5, 0.5), v(7.5, 0.5), v(7.5, 7.5), v(0.5, 7.5)],
             indices: vec![0, 1, 2, 0, 2, 3],
         };
-        let (extra, _) = skirt(&mesh, 8);
+        let (extra, _) = skirt(&mesh, 8, (0, 0, 8, 8), [false; 4]);
         let xs = extra.iter().flat_map(|v| v.pos_in_face);
         let (lo, hi) = xs.fold((f32::MAX, f32::MIN), |(a, b), x| (a.min(x), b.max(x)));
         assert_eq!((lo, hi), (0.0, 8.0));
+    }
+
+    #[test]
+    fn borders_shared_with_the_next_tiles_get_no_skirt() {
+        // Tile (4..8, 4..8) of a 12-pixel face: its mesh spans centres 4.5..8.5 (up to the
+        // next tiles' first pixels); all four neighbours are kept.
+        let mesh = TileMesh {
+            vertices: vec![v(4.5, 4.5), v(8.5, 4.5), v(8.5, 8.5), v(4.5, 8.5)],
+            indices: vec![0, 1, 2, 0, 2, 3],
+        };
+        let (extra, idx) = skirt(&mesh, 12, (4, 4, 8, 8), [true; 4]);
+        assert!(extra.is_empty() && idx.is_empty());
+        // The last tile of the face (8..12): its right border is the face edge.
+        let mesh = TileMesh {
+            vertices: vec![v(8.5, 4.5), v(11.5, 4.5), v(11.5, 8.5), v(8.5, 8.5)],
+            indices: vec![0, 1, 2, 0, 2, 3],
+        };
+        let (extra, idx) = skirt(&mesh, 12, (8, 4, 12, 8), [true; 4]);
+        assert_eq!(idx.len(), 6);
+        assert!(extra.iter().all(|v| v.pos_in_face[0] == 12.0));
+        // Without kept neighbours every border gets a skirt.
+        let mesh = TileMesh {
+            vertices: vec![v(4.5, 4.5), v(8.5, 4.5), v(8.5, 8.5), v(4.5, 8.5)],
+            indices: vec![0, 1, 2, 0, 2, 3],
+        };
+        let (_, idx) = skirt(&mesh, 12, (4, 4, 8, 8), [false; 4]);
+        assert_eq!(idx.len(), 4 * 6 + 4 * 6);
     }
 
     #[test]
@@ -189,7 +266,7 @@ mod tests {
             vertices: vec![v(0.0, 0.0), v(4.0, 0.0), v(4.0, 4.0), v(0.0, 4.0)],
             indices: vec![0, 1, 2, 0, 2, 3],
         };
-        let (extra, idx) = skirt(&mesh, 8);
+        let (extra, idx) = skirt(&mesh, 8, (0, 0, 8, 8), [false; 4]);
         assert!(extra.is_empty() && idx.is_empty());
     }
 }
