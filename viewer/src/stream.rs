@@ -15,14 +15,25 @@
 //! [`crate::refview::ViewTile::highlight`] is 1 when a level of it arrives and fades to 0 over
 //! [`HIGHLIGHT`], for the renderer's highlight overlay.
 //!
-//! Decoded textures stay in the views after the session's cache evicts their bytes: what was
-//! shown stays shown (the cache budget bounds downloaded bytes, not GPU memory).
+//! Decoded memory is bounded too (the session's cache bounds downloaded bytes only). A view
+//! is laid out lazily: until its first background or tile level is consumed its layers are
+//! 1×1-face transparent placeholders and it holds no dense maps, so it draws as nothing yet.
+//! When the decoded state of all views ([`StreamedWalkthrough::decoded_bytes`]: layers with
+//! mips, dense maps, decoders, meshes) exceeds
+//! [`StreamedWalkthrough::decoded_budget_bytes`], the views farthest along the track from the
+//! position are dropped back to placeholders (never the two around the position nor those
+//! of the predicted next segment) and their items start over; the step reports them in
+//! [`StepReport::changed_views`] so the renderer forgets their GPU copies too. When the
+//! walker comes back, the views are consumed again from the session's cache, and what left
+//! the cache is downloaded again (the session asks for what its cache lacks).
 
 use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
-use streamer::client::{LiveConfig, LiveCount, LiveError, LiveSession};
+use streamer::client::{
+    next_segment, segment_at, LiveConfig, LiveCount, LiveError, LiveSession, MotionTracker,
+};
 use streamer::ptm::{Decoder, Limits};
 use tracks::manifest::tile_key;
 use tracks::{CubeMap, PerspectiveCamera, TileGrid, TileId};
@@ -67,6 +78,8 @@ struct ItemState {
     /// Parts consumed (a prefix).
     next: usize,
     first_level_part: usize,
+    /// What the decoder may allocate (a fresh decoder after eviction takes the same).
+    limits: Limits,
     decoder: Decoder,
     mesh: Option<crate::refview::TileMesh>,
     /// Finest level shown.
@@ -89,6 +102,11 @@ pub struct StepReport {
     pub arrivals: usize,
     /// Tiles or backgrounds that became visible or sharper.
     pub upgraded: usize,
+    /// `RefView::index` of the views whose decoded state was dropped to stay within
+    /// [`StreamedWalkthrough::decoded_budget_bytes`] (also in `changed_views`).
+    pub evicted: Vec<usize>,
+    /// [`StreamedWalkthrough::decoded_bytes`] after the step.
+    pub decoded_bytes: u64,
 }
 
 impl StepReport {
@@ -130,10 +148,26 @@ pub struct StreamedWalkthrough {
     session: LiveSession,
     grid: TileGrid,
     items: Vec<ItemState>,
-    /// Per view: level-0 RGBA of every layer (background, then one per slab).
+    /// Per view: level-0 RGBA of every layer (background, then one per slab); empty while
+    /// the view is not laid out (placeholder layers).
     dense: Vec<Vec<CubeMap<[u8; 4]>>>,
     /// Per view: the item of each entry of `walk.views[v].tiles`.
     tile_items: Vec<Vec<usize>>,
+    /// Per view: every item of that viewpoint.
+    view_items: Vec<Vec<usize>>,
+    /// Layers per view (background + slabs).
+    layer_count: usize,
+    /// Decoded bytes above which the farthest views are dropped (see the module docs).
+    /// Defaults to [`StreamedWalkthrough::full_view_bytes`] × 4: the two views drawn, the
+    /// predicted next one and one more.
+    pub decoded_budget_bytes: u64,
+    /// Motion along the track, predicted as the session does for its prefetch.
+    motion: MotionTracker,
+    start: Instant,
+    /// Views protected from eviction at the previous step.
+    protected: BTreeSet<usize>,
+    /// Views laid out since the last report.
+    fresh: BTreeSet<usize>,
     /// Arrival times of parts over the last seconds (for the UI).
     arrivals: VecDeque<(Instant, usize)>,
     /// Problems with received data (bytes that passed their checksum but do not decode).
@@ -183,6 +217,7 @@ fn item_state(session: &LiveSession, i: usize) -> Result<ItemState, StreamError>
         waiting: HashMap::new(),
         next: 0,
         first_level_part: it.info.first_level_part,
+        limits,
         decoder: Decoder::new(limits),
         mesh: None,
         level: None,
@@ -215,8 +250,6 @@ impl StreamedWalkthrough {
             ))
         })?;
         let layer_count = m.slabs.len() + 1;
-        let empty = CubeMap::filled(n, [0u8; 4]);
-        let empty_layer = Layer::from_rgba(empty.clone());
         let views: Vec<RefView> = entry
             .viewpoints
             .iter()
@@ -226,16 +259,22 @@ impl StreamedWalkthrough {
                 position: vp.position,
                 face_size: n,
                 tile_size: m.tile_size,
-                layers: vec![empty_layer.clone(); layer_count],
+                layers: placeholder_layers(layer_count),
                 tiles: Vec::new(),
             })
             .collect();
         let mut items = Vec::with_capacity(session.table().items.len());
+        let mut view_items = vec![Vec::new(); views.len()];
         for i in 0..session.table().items.len() {
-            items.push(item_state(&session, i)?);
+            let state = item_state(&session, i)?;
+            if let Some(list) = view_items.get_mut(state.view) {
+                list.push(i);
+            }
+            items.push(state);
         }
-        let dense = vec![vec![empty; layer_count]; views.len()];
+        let dense = vec![Vec::new(); views.len()];
         let tile_items = vec![Vec::new(); views.len()];
+        let decoded_budget_bytes = 4 * full_view_bytes(n, layer_count);
         let walk = Walkthrough {
             scene: m.scene.clone(),
             track,
@@ -250,6 +289,13 @@ impl StreamedWalkthrough {
             items,
             dense,
             tile_items,
+            view_items,
+            layer_count,
+            decoded_budget_bytes,
+            motion: MotionTracker::new(),
+            start: Instant::now(),
+            protected: BTreeSet::new(),
+            fresh: BTreeSet::new(),
             arrivals: VecDeque::new(),
             errors: Vec::new(),
         })
@@ -274,16 +320,21 @@ impl StreamedWalkthrough {
         let arrived = self.session.update(s, camera, live);
         // Tiles of viewpoint tables that arrived: new items (appended, never renumbered).
         for i in self.items.len()..self.session.table().items.len() {
+            let view = self.session.table().items[i].viewpoint;
+            if let Some(list) = self.view_items.get_mut(view) {
+                list.push(i);
+            }
             match item_state(&self.session, i) {
                 Ok(state) => self.items.push(state),
                 Err(e) => {
                     self.errors.push(e.to_string());
                     self.items.push(ItemState {
-                        view: self.session.table().items[i].viewpoint,
+                        view,
                         kind: Kind::Background,
                         waiting: HashMap::new(),
                         next: 0,
                         first_level_part: 0,
+                        limits: Limits::default(),
                         decoder: Decoder::new(Limits::default()),
                         mesh: None,
                         level: None,
@@ -298,14 +349,41 @@ impl StreamedWalkthrough {
             arrivals: arrived.len(),
             ..Default::default()
         };
+        let protected = self.protected_views(s, now);
+        // Views that stopped being drawn before anything of them arrived: the renderer may
+        // hold a placeholder upload of them.
+        let mut views: BTreeSet<usize> = self
+            .protected
+            .difference(&protected)
+            .filter(|&&v| !self.laid_out(v))
+            .filter_map(|&v| self.walk.views.get(v).map(|rv| rv.index))
+            .collect();
         let mut touched = BTreeSet::new();
         for a in arrived {
             self.walk.bytes += a.data.len() as u64;
             self.arrivals.push_back((now, a.data.len()));
-            if let Some(it) = self.items.get_mut(a.item) {
-                if a.part >= it.next && !it.failed {
-                    it.waiting.insert(a.part, a.data);
-                    touched.insert(a.item);
+            let Some(it) = self.items.get_mut(a.item) else {
+                continue;
+            };
+            // Parts of a view that is neither laid out nor needed soon stay in the session's
+            // cache only (consumed from there when the view is needed).
+            let wanted = protected.contains(&it.view)
+                || self.dense.get(it.view).is_some_and(|d| !d.is_empty());
+            if a.part >= it.next && !it.failed && wanted {
+                it.waiting.insert(a.part, a.data);
+                touched.insert(a.item);
+            }
+        }
+        // Items of the views needed now whose next part is in the session's cache (e.g. they
+        // were evicted here, or arrived while their view was not needed).
+        for &v in &protected {
+            for &i in self.view_items.get(v).map_or(&[][..], |l| &l[..]) {
+                let it = &self.items[i];
+                if !it.failed
+                    && (it.waiting.contains_key(&it.next)
+                        || self.session.part_bytes(i, it.next).is_some())
+                {
+                    touched.insert(i);
                 }
             }
         }
@@ -338,7 +416,6 @@ impl StreamedWalkthrough {
                 }
             }
         }
-        let mut views = BTreeSet::new();
         for &(v, layer) in &dirty {
             let map = &self.dense[v][layer];
             self.walk.views[v].layers[layer] = Layer::from_rgba(dilate_masked(map));
@@ -358,9 +435,155 @@ impl StreamedWalkthrough {
                     .push((self.walk.views[v].index, layer, per_level));
             }
         }
+        // Views laid out in this step changed shape: uploaded whole.
+        views.extend(
+            std::mem::take(&mut self.fresh)
+                .into_iter()
+                .map(|v| self.walk.views[v].index),
+        );
+        for v in self.evict_over_budget(s, &protected) {
+            let index = self.walk.views[v].index;
+            report.evicted.push(index);
+            views.insert(index);
+        }
+        report.regions.retain(|r| !report.evicted.contains(&r.0));
+        self.protected = protected;
         report.changed_views = views.into_iter().collect();
+        report.decoded_bytes = self.decoded_bytes();
         self.fade_highlights(now);
         report
+    }
+
+    /// Positions in `walk.views` of the views kept at `s`: the two around it (the ones
+    /// drawn) and those of the segment the session prefetches (the motion predicted as it
+    /// does).
+    fn protected_views(&mut self, s: f64, now: Instant) -> BTreeSet<usize> {
+        let t = now.duration_since(self.start).as_secs_f64();
+        let s = if s.is_finite() { s } else { 0.0 };
+        self.motion.observe(t, s);
+        let vp_s: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
+        let mut out = BTreeSet::new();
+        let Some(cur) = segment_at(&vp_s, s) else {
+            out.extend(0..vp_s.len().min(1));
+            return out;
+        };
+        out.extend([cur, cur + 1]);
+        let config = self.session.config();
+        if config.prefetch {
+            if let Some(next) = next_segment(&self.motion, &vp_s, s, config.prefetch_horizon_s) {
+                out.extend([next, next + 1]);
+            }
+        }
+        out.retain(|&v| v < vp_s.len());
+        out
+    }
+
+    /// Whether view `v` (position in `walk.views`) has its full-size layers and dense maps.
+    fn laid_out(&self, v: usize) -> bool {
+        self.dense.get(v).is_some_and(|d| !d.is_empty())
+    }
+
+    /// Give view `v` its full-size (transparent) layers and dense maps, when it has none.
+    fn lay_out(&mut self, v: usize) {
+        if self.laid_out(v) {
+            return;
+        }
+        let n = self.walk.views[v].face_size;
+        self.dense[v] = vec![CubeMap::filled(n, [0u8; 4]); self.layer_count];
+        self.walk.views[v].layers = vec![empty_layer(n); self.layer_count];
+        self.fresh.insert(v);
+    }
+
+    /// Drop the decoded state of the views farthest along the track from `s` (never those
+    /// in `protected`) until the total is within the budget; returns the views dropped.
+    fn evict_over_budget(&mut self, s: f64, protected: &BTreeSet<usize>) -> Vec<usize> {
+        let per_view: Vec<u64> = (0..self.walk.views.len())
+            .map(|v| self.view_decoded_bytes(v))
+            .collect();
+        let mut total: u64 = per_view.iter().sum();
+        let mut out = Vec::new();
+        if total <= self.decoded_budget_bytes {
+            return out;
+        }
+        let mut order: Vec<usize> = (0..per_view.len())
+            .filter(|v| !protected.contains(v) && per_view[*v] > 0)
+            .collect();
+        let dist = |v: usize| (self.walk.views[v].s - s).abs();
+        order.sort_by(|&a, &b| dist(b).total_cmp(&dist(a)).then(b.cmp(&a)));
+        for v in order {
+            if total <= self.decoded_budget_bytes {
+                break;
+            }
+            self.evict(v);
+            total = total.saturating_sub(per_view[v]);
+            out.push(v);
+        }
+        out
+    }
+
+    /// Back to nothing decoded for view `v`: placeholder layers, no tiles, its items start
+    /// over (their parts are consumed again from the session's cache or downloaded again).
+    fn evict(&mut self, v: usize) {
+        let view = &mut self.walk.views[v];
+        view.layers = placeholder_layers(self.layer_count);
+        view.tiles = Vec::new();
+        self.tile_items[v] = Vec::new();
+        self.dense[v] = Vec::new();
+        self.fresh.remove(&v);
+        for &i in &self.view_items[v] {
+            let it = &mut self.items[i];
+            it.waiting = HashMap::new();
+            it.next = 0;
+            it.decoder = Decoder::new(it.limits);
+            it.mesh = None;
+            it.level = None;
+            it.loaded_at = None;
+        }
+    }
+
+    /// Decoded bytes held for view `v`: its layers (all mip levels) and dense maps when laid
+    /// out, its tiles' meshes, and its items' decoders, meshes and parts waiting.
+    pub fn view_decoded_bytes(&self, v: usize) -> u64 {
+        let Some(view) = self.walk.views.get(v) else {
+            return 0;
+        };
+        let maps = if self.laid_out(v) {
+            let layers: u64 = view
+                .layers
+                .iter()
+                .flat_map(|l| &l.levels)
+                .map(map_bytes)
+                .sum();
+            layers + self.dense[v].iter().map(map_bytes).sum::<u64>()
+        } else {
+            0
+        };
+        let tiles: u64 = view.tiles.iter().map(|t| mesh_bytes(&t.mesh)).sum();
+        let items: u64 = self.view_items[v]
+            .iter()
+            .map(|&i| item_bytes(&self.items[i]))
+            .sum();
+        maps + tiles + items
+    }
+
+    /// Decoded bytes held over all views (see [`StreamedWalkthrough::view_decoded_bytes`]).
+    pub fn decoded_bytes(&self) -> u64 {
+        (0..self.walk.views.len())
+            .map(|v| self.view_decoded_bytes(v))
+            .sum()
+    }
+
+    /// Bytes of one laid-out view's layers (with mips) and dense maps: what a view costs
+    /// once anything of it arrived (decoders and meshes come on top).
+    pub fn full_view_bytes(&self) -> u64 {
+        full_view_bytes(self.grid.face_size, self.layer_count)
+    }
+
+    /// Positions in `walk.views` of the views laid out (holding decoded layers).
+    pub fn laid_out_views(&self) -> Vec<usize> {
+        (0..self.walk.views.len())
+            .filter(|&v| self.laid_out(v))
+            .collect()
     }
 
     /// Set every tile's [`ViewTile::highlight`]: 1 when its latest level arrived, fading to 0
@@ -387,9 +610,16 @@ impl StreamedWalkthrough {
         now: Instant,
     ) -> Result<Option<(usize, Option<FaceRect>)>, SourceError> {
         let what = self.item_name(item);
+        let session = &self.session;
         let it = &mut self.items[item];
         let before = it.level;
-        while let Some(data) = it.waiting.remove(&it.next) {
+        // Parts in order: received in this step, or held by the session's cache (consumed
+        // again after an eviction).
+        while let Some(data) = it
+            .waiting
+            .remove(&it.next)
+            .or_else(|| session.part_bytes(item, it.next).cloned())
+        {
             if it.next < it.first_level_part {
                 it.mesh = Some(tile_mesh_from_bytes(&data, &what)?);
             } else {
@@ -411,10 +641,17 @@ impl StreamedWalkthrough {
         let rgba = image_rgba(img);
         let (w, h) = (img.width(), img.height());
         let view = it.view;
+        // The full level decoded: nothing more will come for this item, its decoder's
+        // levels are no longer needed.
+        if level == 0 {
+            it.decoder = Decoder::new(it.limits);
+        }
         match it.kind {
             Kind::Background => {
                 let n = self.walk.views[view].face_size;
-                self.dense[view][0] = background_map((&rgba, w, h), n, &what)?;
+                let map = background_map((&rgba, w, h), n, &what)?;
+                self.lay_out(view);
+                self.dense[view][0] = map;
                 let it = &mut self.items[item];
                 it.level = Some(level);
                 it.loaded_at = Some(now);
@@ -425,6 +662,7 @@ impl StreamedWalkthrough {
                     return Ok(None);
                 };
                 let layer = slab as usize + 1;
+                self.lay_out(view);
                 paste_tile(
                     &mut self.dense[view][layer],
                     self.grid,
@@ -576,5 +814,91 @@ impl StreamedWalkthrough {
             .filter(|(t, _)| now.duration_since(*t) <= window)
             .map(|a| a.1 as u64)
             .sum()
+    }
+}
+
+/// Transparent layers with 1×1 faces for a view not laid out: they draw as nothing (no
+/// tiles reference them) at a few bytes each.
+fn placeholder_layers(count: usize) -> Vec<Layer> {
+    vec![Layer::from_rgba(CubeMap::filled(1, [0u8; 4])); count]
+}
+
+/// A transparent layer of face size `n` with its mip chain, as [`Layer::from_rgba`] of a
+/// transparent map builds it, without the downsampling passes.
+fn empty_layer(n: u32) -> Layer {
+    let mut levels = vec![CubeMap::filled(n, [0u8; 4])];
+    let mut m = n;
+    while m >= 2 && m.is_multiple_of(2) {
+        m /= 2;
+        levels.push(CubeMap::filled(m, [0u8; 4]));
+    }
+    Layer { levels }
+}
+
+/// Bytes of one laid-out view of face size `n` with `layers` layers: each layer's mip chain
+/// and its dense level-0 map.
+fn full_view_bytes(n: u32, layers: usize) -> u64 {
+    // 6 faces × 4 bytes per texel, halving as `Layer::from_rgba` does.
+    let face = |m: u32| 24 * u64::from(m).pow(2);
+    let mut layer = face(n);
+    let mut m = n;
+    while m >= 2 && m.is_multiple_of(2) {
+        m /= 2;
+        layer += face(m);
+    }
+    let dense = face(n);
+    layers as u64 * (layer + dense)
+}
+
+fn map_bytes(m: &CubeMap<[u8; 4]>) -> u64 {
+    std::mem::size_of_val(m.as_slice()) as u64
+}
+
+fn mesh_bytes(m: &crate::refview::TileMesh) -> u64 {
+    (std::mem::size_of_val(&m.vertices[..]) + std::mem::size_of_val(&m.indices[..])) as u64
+}
+
+/// Decoded bytes an item holds: its decoder's levels, its mesh and the parts waiting.
+fn item_bytes(it: &ItemState) -> u64 {
+    let levels = it.decoder.header().map_or(0, |h| u32::from(h.levels));
+    let decoded: usize = (0..levels)
+        .filter_map(|l| it.decoder.level(l))
+        .map(|img| img.data().len())
+        .sum();
+    let waiting: usize = it.waiting.values().map(|b| b.len()).sum();
+    (decoded + waiting) as u64 + it.mesh.as_ref().map_or(0, mesh_bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn empty_layers_match_the_mip_chain_of_a_transparent_map() {
+        for n in [1, 2, 6, 16, 24] {
+            let built = Layer::from_rgba(CubeMap::filled(n, [0u8; 4]));
+            assert_eq!(empty_layer(n), built, "face {n}");
+            let bytes: u64 =
+                built.levels.iter().map(map_bytes).sum::<u64>() + map_bytes(&built.levels[0]);
+            assert_eq!(full_view_bytes(n, 3), 3 * bytes, "face {n}");
+        }
+    }
+
+    #[test]
+    fn placeholder_layers_are_tiny_and_transparent() {
+        let layers = placeholder_layers(3);
+        assert_eq!(layers.len(), 3);
+        for l in &layers {
+            assert_eq!(l.levels.len(), 1);
+            assert_eq!(l.face_size(), 1);
+            assert!(l.levels[0].as_slice().iter().all(|p| *p == [0u8; 4]));
+        }
+    }
+
+    #[test]
+    fn a_face_1024_view_with_two_slabs() {
+        // Layer with mips 33.5 MB, dense map 25.2 MB, three layers.
+        let b = full_view_bytes(1024, 3);
+        assert_eq!(b, 3 * (33_554_424 + 25_165_824));
     }
 }

@@ -395,3 +395,150 @@ fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
     thread.join().unwrap();
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// Bytes of the files under `dir` (the database's objects).
+fn dir_bytes(dir: &Path) -> u64 {
+    let mut total = 0;
+    for e in std::fs::read_dir(dir).unwrap().flatten() {
+        let meta = e.metadata().unwrap();
+        total += if meta.is_dir() {
+            dir_bytes(&e.path())
+        } else {
+            meta.len()
+        };
+    }
+    total
+}
+
+/// Walk the street from its first segment to its last and back with a decoded budget of one
+/// byte (only the views around the position and those of the predicted next segment may
+/// hold anything) and a session cache of `cache_bytes`; after each step the decoded memory
+/// stays within the budget plus those views, and back at the start the image is the one
+/// shown before the first views were evicted, and the fully loaded database's.
+fn there_and_back(cache_bytes: impl Fn(&Path) -> u64, tag: &str) -> (bool, f64) {
+    let Some(mut r) = renderer() else {
+        return (true, 0.0);
+    };
+    let street = synth_street(FACE, &Scene::street_slabs(), MeshParams::default()).unwrap();
+    let dir: PathBuf = std::env::temp_dir().join(format!(
+        "railview-viewer-stream-{tag}-{}",
+        std::process::id()
+    ));
+    write_db(&street, &dir);
+    let full_ref = open(&dir, None, LoadOptions::default()).unwrap();
+    let (url, stop, thread) = serve(&dir);
+    let mut st =
+        StreamedWalkthrough::connect(&url, None, LiveConfig::with_cache(cache_bytes(&dir)))
+            .unwrap();
+    assert!(
+        st.laid_out_views().is_empty(),
+        "nothing laid out before data"
+    );
+    assert_eq!(st.decoded_bytes(), 0);
+    assert_eq!(st.decoded_budget_bytes, 4 * st.full_view_bytes());
+    st.decoded_budget_bytes = 1;
+    let arcs: Vec<f64> = st.walk.views.iter().map(|v| v.s).collect();
+    let near = |s: f64| -> Vec<usize> {
+        // The views of the segment at `s` and of the segments on either side.
+        let k = arcs.iter().rposition(|&a| a <= s).unwrap_or(0);
+        (k.saturating_sub(1)..(k + 3).min(arcs.len())).collect()
+    };
+
+    let s0 = 0.75;
+    let cam0 = camera(&st.walk, s0, 0.0);
+    // Views with nothing yet draw as nothing (placeholder layers, no tiles).
+    let empty = render(&mut r, &st.walk, &cam0, s0);
+    assert_eq!(empty.hole_fraction(), 1.0);
+    settle(&mut st, &mut r, s0, &cam0);
+    let before = render(&mut r, &st.walk, &cam0, s0);
+    let bg0 = st.session().table().background_item(0).unwrap();
+    assert!(st.item_levels()[bg0].is_some());
+    let table = st.session().table();
+    let held0: Vec<(usize, usize)> = (0..table.items.len())
+        .filter(|&i| table.items[i].viewpoint == 0)
+        .flat_map(|i| (0..table.items[i].parts.len()).map(move |p| (i, p)))
+        .filter(|&(i, p)| st.session().part_bytes(i, p).is_some())
+        .collect();
+    assert!(!held0.is_empty());
+
+    let mut evicted = Vec::new();
+    let end = *arcs.last().unwrap() - 0.3;
+    let mut path: Vec<f64> = (0..=40)
+        .map(|i| s0 + (end - s0) * i as f64 / 40.0)
+        .collect();
+    path.extend((0..=40).rev().map(|i| s0 + (end - s0) * i as f64 / 40.0));
+    let mut far_cache_dropped = false;
+    for (i, &s) in path.iter().enumerate() {
+        let cam = camera(&st.walk, s, 0.0);
+        if i == 40 {
+            // At the far end: let everything arrive, then look at what the first view holds.
+            settle(&mut st, &mut r, s, &cam);
+            assert!(!st.laid_out_views().contains(&0), "view 0 left behind");
+            assert_eq!(st.item_levels()[bg0], None, "view 0's background dropped");
+            assert_eq!(st.view_decoded_bytes(0), 0);
+            // Whether some of the first view's parts shown at the start left the cache.
+            far_cache_dropped = held0
+                .iter()
+                .any(|&(i, p)| st.session().part_bytes(i, p).is_none());
+        }
+        let rep = st.step(s, &cam, None);
+        rep.apply(&mut r, &st.walk.views);
+        for e in &rep.evicted {
+            assert!(rep.changed_views.contains(e), "{rep:?}");
+        }
+        evicted.extend(rep.evicted.iter().copied());
+        let near = near(s);
+        for v in st.laid_out_views() {
+            assert!(
+                near.contains(&v),
+                "at {s}: view {v} laid out, near {near:?}"
+            );
+        }
+        let allowed: u64 = near.iter().map(|&v| st.view_decoded_bytes(v)).sum();
+        assert_eq!(rep.decoded_bytes, st.decoded_bytes());
+        assert!(
+            rep.decoded_bytes <= st.decoded_budget_bytes + allowed,
+            "at {s}: {} decoded, {allowed} in the views near",
+            rep.decoded_bytes
+        );
+        let plan = plan_frame(&st.walk.views, &cam, s, DrawBudget::default()).unwrap();
+        r.draw(&plan, &st.walk.views).unwrap();
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(evicted.contains(&0) && evicted.contains(&1), "{evicted:?}");
+
+    settle(&mut st, &mut r, s0, &cam0);
+    let after = render(&mut r, &st.walk, &cam0, s0);
+    r.forget_views();
+    let full = render(&mut r, &full_ref, &cam0, s0);
+    let again = mean_abs_diff(&after, &before);
+    assert!(again < 0.5, "back at the start: {again}");
+    let d = mean_abs_diff(&after, &full);
+    assert!(d < 0.5, "against the database: {d}");
+    drop(st);
+    drop(stop);
+    thread.join().unwrap();
+    let _ = std::fs::remove_dir_all(dir);
+    (far_cache_dropped, again)
+}
+
+#[test]
+fn evicted_views_come_back_from_the_session_cache() {
+    let (dropped, diff) = there_and_back(|_| 64 << 20, "evict-cached");
+    assert!(!dropped, "a 64 MiB cache keeps the whole street");
+    eprintln!("back from the cache: mean |diff| {diff}");
+}
+
+#[test]
+fn evicted_views_whose_bytes_left_the_cache_are_downloaded_again() {
+    // A cache of about half the database: the first views' bytes leave it at the far end.
+    let (dropped, diff) = there_and_back(|dir| dir_bytes(dir) * 11 / 20, "evict-refetch");
+    if renderer_enabled() {
+        assert!(dropped, "parts of the first view left the cache");
+    }
+    eprintln!("downloaded again: mean |diff| {diff}");
+}
+
+fn renderer_enabled() -> bool {
+    !std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1")
+}
