@@ -424,6 +424,12 @@ impl ViewerApp {
             stats.pinned_bytes as f64 / 1048576.0
         )));
         ui.label(format!(
+            "decoded views {:.1} / {:.1} MiB ({} laid out)",
+            st.decoded_bytes() as f64 / 1048576.0,
+            st.decoded_budget_bytes as f64 / 1048576.0,
+            st.laid_out_views().len()
+        ));
+        ui.label(format!(
             "quality {:.2} · visible shown {:.0} % · segment shown {:.0} % · {:.1} MiB fetched",
             stats.quality,
             stats.visible_fraction * 100.0,
