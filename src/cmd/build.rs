@@ -7,9 +7,10 @@
 //!
 //! Stage outputs live in a work directory (`--work`, default `DB.work/`): the prerender
 //! directory (`prerender/`, which `slabs` and `cull` also write into) and one encoded
-//! viewpoint record per sample (`encode/NNNN.json`). Every stage resumes from what is there,
-//! so a killed build continues where it stopped; objects already in the database are not
-//! rewritten. The report goes to `WORK/build.json` and `WORK/build.md` (not into the database,
+//! viewpoint record per sample (`encode/NNNN.json`) with the tiles' own PTM and mesh objects
+//! (`encode/objects/`; each viewpoint's pack in the database is made from them, so the
+//! database holds only what its manifest refers to). Every stage resumes from what is there,
+//! so a killed build continues where it stopped; objects already stored are not rewritten. The report goes to `WORK/build.json` and `WORK/build.md` (not into the database,
 //! whose every file `verify` checks).
 
 use std::path::{Path, PathBuf};
@@ -241,7 +242,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             dir.report_json().display()
         );
     }
-    let mut writer = DbWriter::create(&args.out)?;
+    // The tiles' own PTM and mesh objects, which the viewpoints' packs replace, stay in the
+    // work directory: the database holds only what its manifest refers to.
+    let staged_objects = work.join("encode");
+    let mut writer = DbWriter::create(&args.out)?.with_stage(&staged_objects);
     let opts = EncodeOptions {
         zstd_level: args.zstd_level,
         ..EncodeOptions::default()
@@ -265,9 +269,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let b = bar(pre.viewpoints.len() as u64, "encoding");
     for vp in &pre.viewpoints {
         let path = enc_dir.join(format!("{:04}.json", vp.index));
-        let cached: Option<EncodedSample> = store::read_json(&path)
-            .ok()
-            .filter(|c: &EncodedSample| c.key == key && all_present(&args.out, &c.entry));
+        let cached: Option<EncodedSample> =
+            store::read_json(&path).ok().filter(|c: &EncodedSample| {
+                c.key == key && all_present(&args.out, writer.stage_root(), &c.entry)
+            });
         let sample = match cached {
             Some(c) => c,
             None => {
@@ -505,16 +510,19 @@ fn is_culled(d: Option<&TileDecisions>, viewpoint: usize, slab: usize, index: u3
         .is_some_and(|s| s.culled.contains(&index))
 }
 
-fn all_present(db: &Path, v: &ViewpointEntry) -> bool {
-    let ok = |o: &tracks::manifest::ObjectRef| {
+/// Whether a sample's objects are all stored: the background in the database, the tiles'
+/// own PTM and mesh objects in the stage (from which the packs are made).
+fn all_present(db: &Path, stage: &Path, v: &ViewpointEntry) -> bool {
+    let ok = |root: &Path, o: &tracks::manifest::ObjectRef| {
         o.rel_path()
-            .and_then(|r| std::fs::metadata(db.join(r)).ok())
+            .and_then(|r| std::fs::metadata(root.join(r)).ok())
             .is_some_and(|m| m.len() == o.size)
     };
-    v.background.as_ref().is_none_or(|p| ok(&p.object))
-        && v.tiles
-            .iter()
-            .all(|t| t.ptm.as_ref().is_none_or(|p| ok(&p.object)) && t.mesh.as_ref().is_none_or(ok))
+    v.background.as_ref().is_none_or(|p| ok(db, &p.object))
+        && v.tiles.iter().all(|t| {
+            t.ptm.as_ref().is_none_or(|p| ok(stage, &p.object))
+                && t.mesh.as_ref().is_none_or(|m| ok(stage, m))
+        })
 }
 
 fn crop<T: Copy>(map: &CubeMap<T>, grid: &TileGrid, t: tracks::TileId) -> Vec<T> {
@@ -558,7 +566,7 @@ fn encode_sample(
                 let px = crop(&color, &grid, rec.tile);
                 let img = Image::new(x1 - x0, y1 - y0, 4, px.into_iter().flatten().collect())?;
                 let enc = ptm::encode(&img, opts)?;
-                let ptm = writer.put_ptm(&enc, 4)?;
+                let ptm = writer.put_ptm_staged(&enc, 4)?;
                 let data = MeshData {
                     vertices: mesh.vertices.clone(),
                     indices: mesh.indices.clone(),
@@ -566,7 +574,7 @@ fn encode_sample(
                 let mesh_ref = if data.indices.is_empty() {
                     None
                 } else {
-                    Some(writer.put(&encode_mesh(&data).with_context(|| {
+                    Some(writer.put_staged(&encode_mesh(&data).with_context(|| {
                         format!("sample {i} slab {k} tile {:?}: mesh", rec.tile)
                     })?)?)
                 };
@@ -717,7 +725,10 @@ mod tests {
             ach_camera_size: 16,
         };
         run(args()).unwrap();
-        assert!(streamer::db::verify(&out).unwrap().is_intact());
+        let v = streamer::db::verify(&out).unwrap();
+        assert!(v.is_intact());
+        // The tiles' own objects stay in the work directory: nothing unreferenced.
+        assert!(v.notes.is_empty(), "{:?}", v.notes);
         let db = streamer::db::Database::open(&out).unwrap();
         let m = db.manifest();
         let track = &m.tracks[0];

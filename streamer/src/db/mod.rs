@@ -21,9 +21,9 @@
 //!                           server sends a client that accepts gzip (nginx `gzip_static`
 //!                           serves the same file); optional (older databases lack it)
 //! DB/objects/HH/HASH        payloads named by their BLAKE3; HH = the hash's first two digits
-//!                           (backgrounds, each viewpoint's table and pack, and the tiles' own
-//!                           PTM and mesh objects, which the manifest no longer refers to but
-//!                           a resumed build reuses)
+//!                           (backgrounds, each viewpoint's table and pack; a writer without
+//!                           a stage, [`DbWriter::with_stage`], also leaves the tiles' own PTM
+//!                           and mesh objects here, which the manifest no longer refers to)
 //! ```
 //!
 //! Every file is written to a temporary name in its final directory and renamed into place, so
@@ -115,6 +115,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DbError> {
 #[derive(Debug)]
 pub struct DbWriter {
     root: PathBuf,
+    /// Where [`DbWriter::put_staged`] keeps the tiles' own objects, which the packs replace
+    /// ([`DbWriter::with_stage`]); `None`: in the database beside everything else.
+    stage: Option<PathBuf>,
     /// Objects written by this writer, and their bytes.
     pub objects_written: u64,
     pub bytes_written: u64,
@@ -130,22 +133,49 @@ impl DbWriter {
         fs::create_dir_all(&objects).map_err(|e| DbError::io(&objects, e))?;
         Ok(DbWriter {
             root: root.to_path_buf(),
+            stage: None,
             objects_written: 0,
             bytes_written: 0,
             objects_reused: 0,
         })
     }
 
+    /// Keep the objects stored with [`DbWriter::put_staged`] (each tile's PTM and mesh, which
+    /// [`DbWriter::finish`] copies into its viewpoint's pack) under `stage/objects/` instead
+    /// of the database, so the database holds only what its manifest refers to while a
+    /// resumed build still finds them.
+    pub fn with_stage(mut self, stage: &Path) -> DbWriter {
+        self.stage = Some(stage.to_path_buf());
+        self
+    }
+
     pub fn root(&self) -> &Path {
         &self.root
+    }
+
+    /// The directory holding staged objects: the stage when set, else the database.
+    pub fn stage_root(&self) -> &Path {
+        self.stage.as_deref().unwrap_or(&self.root)
     }
 
     /// Stores `bytes` as an object named by its hash; reuses an existing object of that name
     /// and size.
     pub fn put(&mut self, bytes: &[u8]) -> Result<ObjectRef, DbError> {
+        let root = self.root.clone();
+        self.put_in(&root, bytes)
+    }
+
+    /// [`DbWriter::put`] for an object that only [`DbWriter::finish`] reads (it goes into a
+    /// pack): kept in the stage when one is set.
+    pub fn put_staged(&mut self, bytes: &[u8]) -> Result<ObjectRef, DbError> {
+        let root = self.stage_root().to_path_buf();
+        self.put_in(&root, bytes)
+    }
+
+    fn put_in(&mut self, root: &Path, bytes: &[u8]) -> Result<ObjectRef, DbError> {
         let hash = hash_hex(bytes);
         let rel = object_rel_path(&hash).expect("blake3 hex is a valid object name");
-        let path = self.root.join(rel);
+        let path = root.join(rel);
         let obj = ObjectRef {
             hash,
             size: bytes.len() as u64,
@@ -166,21 +196,29 @@ impl DbWriter {
         Ok(ptm_ref(object, enc, channels))
     }
 
+    /// [`DbWriter::put_ptm`] for a tile's PTM, which goes into a pack
+    /// ([`DbWriter::put_staged`]).
+    pub fn put_ptm_staged(&mut self, enc: &ptm::Encoded, channels: u8) -> Result<PtmRef, DbError> {
+        let object = self.put_staged(&enc.bytes)?;
+        Ok(ptm_ref(object, enc, channels))
+    }
+
     /// Packs each viewpoint's tiles ([`pack::pack_tiles`]: their payloads read back from the
     /// objects [`DbWriter::put`] stored, or from an earlier pack) into one object, splits the
     /// packed manifest ([`split::split`]) and stores each viewpoint's table as an object,
     /// then writes the top manifest (compact JSON, atomically), its checksum file and its
     /// gzip copy: the database is complete. The tiles' own objects stay where they are (a
-    /// resumed build finds them), unreferenced by the manifest. Returns the packed manifest
+    /// resumed build finds them): in the stage when one is set ([`DbWriter::with_stage`]),
+    /// else in the database, unreferenced by the manifest. Returns the packed manifest
     /// as [`Database::open`] reads it back.
     pub fn finish(&mut self, manifest: &Manifest) -> Result<Manifest, DbError> {
         let mut packed = manifest.clone();
         for t in &mut packed.tracks {
             for v in &mut t.viewpoints {
                 let mut cache: HashMap<String, Vec<u8>> = HashMap::new();
-                let root = self.root.clone();
+                let roots = [self.stage_root().to_path_buf(), self.root.clone()];
                 let mut read = |o: &ObjectRef, offset: u64, len: u64| {
-                    read_stored(&root, &mut cache, o, offset, len)
+                    read_stored(&roots, &mut cache, o, offset, len)
                 };
                 let (bytes, tiles) = pack::pack_tiles(&v.tiles, &mut read)?;
                 if tiles.iter().any(|t| t.ptm.is_some()) {
@@ -216,7 +254,7 @@ impl DbWriter {
 /// `len` bytes at `offset` of a stored object; each object is read once (per `cache`) and
 /// checked against its size and full hash.
 fn read_stored(
-    root: &Path,
+    roots: &[PathBuf],
     cache: &mut HashMap<String, Vec<u8>>,
     o: &ObjectRef,
     offset: u64,
@@ -226,7 +264,12 @@ fn read_stored(
         let rel = o
             .rel_path()
             .ok_or_else(|| DbError::Request(format!("invalid object hash {:?}", o.hash)))?;
-        let path = root.join(rel);
+        // The first root that has it (the stage, then the database).
+        let path = roots
+            .iter()
+            .map(|r| r.join(&rel))
+            .find(|p| p.is_file())
+            .unwrap_or_else(|| roots.last().map_or(PathBuf::from(&rel), |r| r.join(&rel)));
         let bytes = fs::read(&path).map_err(|e| DbError::io(&path, e))?;
         if bytes.len() as u64 != o.size || hash_hex(&bytes) != o.hash {
             return Err(DbError::format(

@@ -264,8 +264,9 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
             }
         }
     }
-    // Unreferenced objects are harmless (a build keeps each tile's own objects beside the
-    // packs so that it can resume): listed one by one when few, counted when many.
+    // Unreferenced objects are harmless (a writer without a stage keeps each tile's own
+    // objects beside the packs; older builds left them): listed one by one when few, counted
+    // when many.
     if unreferenced.len() <= 8 {
         for path in unreferenced {
             report
@@ -276,8 +277,8 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
         report.notes.push(problem(
             objects.clone(),
             format!(
-                "{} objects not referenced by the manifest (tiles' own objects that a \
-                 resumed build reuses, or left from earlier builds)",
+                "{} objects not referenced by the manifest (tiles' own objects of a \
+                 writer without a stage, or left from earlier builds)",
                 unreferenced.len()
             ),
         ));
