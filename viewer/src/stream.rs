@@ -658,9 +658,10 @@ impl StreamedWalkthrough {
                 Ok(Some((0, None)))
             }
             Kind::Tile { tile, slab } => {
-                let Some(mesh) = it.mesh.clone() else {
+                let joined = self.tile_items[view].iter().position(|&i| i == item);
+                if joined.is_none() && it.mesh.is_none() {
                     return Ok(None);
-                };
+                }
                 let layer = slab as usize + 1;
                 self.lay_out(view);
                 paste_tile(
@@ -674,9 +675,11 @@ impl StreamedWalkthrough {
                 it.level = Some(level);
                 it.loaded_at = Some(now);
                 let v = &mut self.walk.views[view];
-                match self.tile_items[view].iter().position(|&i| i == item) {
+                match joined {
                     Some(slot) => v.tiles[slot].finest_level = level,
                     None => {
+                        // The view's tile holds the mesh from now on.
+                        let mesh = it.mesh.take().unwrap_or_default();
                         let mut vt = ViewTile::new(tile, slab, mesh, v.face_size);
                         vt.finest_level = level;
                         let key = |t: &ViewTile| (t.slab, self.grid.tile_index(t.tile));

@@ -468,6 +468,7 @@ fn there_and_back(cache_bytes: impl Fn(&Path) -> u64, tag: &str) -> (bool, f64) 
         .collect();
     path.extend((0..=40).rev().map(|i| s0 + (end - s0) * i as f64 / 40.0));
     let mut far_cache_dropped = false;
+    let (mut peak, mut gpu_peak) = (0, 0);
     for (i, &s) in path.iter().enumerate() {
         let cam = camera(&st.walk, s, 0.0);
         if i == 40 {
@@ -487,6 +488,8 @@ fn there_and_back(cache_bytes: impl Fn(&Path) -> u64, tag: &str) -> (bool, f64) 
             assert!(rep.changed_views.contains(e), "{rep:?}");
         }
         evicted.extend(rep.evicted.iter().copied());
+        peak = peak.max(rep.decoded_bytes);
+        gpu_peak = gpu_peak.max(r.uploaded_bytes());
         let near = near(s);
         for v in st.laid_out_views() {
             assert!(
@@ -506,6 +509,11 @@ fn there_and_back(cache_bytes: impl Fn(&Path) -> u64, tag: &str) -> (bool, f64) 
         std::thread::sleep(Duration::from_millis(5));
     }
     assert!(evicted.contains(&0) && evicted.contains(&1), "{evicted:?}");
+    eprintln!(
+        "{tag}: {} views, one laid out {} B; decoded peak {peak} B, GPU views peak {gpu_peak} B",
+        arcs.len(),
+        st.full_view_bytes()
+    );
 
     settle(&mut st, &mut r, s0, &cam0);
     let after = render(&mut r, &st.walk, &cam0, s0);
