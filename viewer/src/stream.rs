@@ -32,7 +32,7 @@ use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 use streamer::client::{
-    next_segment, segment_at, LiveConfig, LiveCount, LiveError, LiveSession, MotionTracker,
+    next_segment, LiveConfig, LiveCount, LiveError, LiveSession, MotionTracker,
 };
 use streamer::ptm::{Decoder, Limits};
 use tracks::manifest::tile_key;
@@ -455,19 +455,18 @@ impl StreamedWalkthrough {
     }
 
     /// Positions in `walk.views` of the views kept at `s`: the two around it (the ones
-    /// drawn) and those of the segment the session prefetches (the motion predicted as it
-    /// does).
+    /// [`crate::plan_frame`] draws) and those of the segment the session prefetches (the
+    /// motion predicted as it does).
     fn protected_views(&mut self, s: f64, now: Instant) -> BTreeSet<usize> {
         let t = now.duration_since(self.start).as_secs_f64();
         let s = if s.is_finite() { s } else { 0.0 };
         self.motion.observe(t, s);
         let vp_s: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
         let mut out = BTreeSet::new();
-        let Some(cur) = segment_at(&vp_s, s) else {
-            out.extend(0..vp_s.len().min(1));
-            return out;
-        };
-        out.extend([cur, cur + 1]);
+        // The pair `plan_frame` draws.
+        if let Some((a, b, _)) = crate::plan::blend_pair(&vp_s, s) {
+            out.extend([a, b]);
+        }
         let config = self.session.config();
         if config.prefetch {
             if let Some(next) = next_segment(&self.motion, &vp_s, s, config.prefetch_horizon_s) {
