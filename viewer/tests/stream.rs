@@ -449,6 +449,8 @@ fn there_and_back(cache_bytes: impl Fn(&Path) -> u64, tag: &str) -> (bool, f64) 
     // Views with nothing yet draw as nothing (placeholder layers, no tiles).
     let empty = render(&mut r, &st.walk, &cam0, s0);
     assert_eq!(empty.hole_fraction(), 1.0);
+    // …and hold no full-size texture on the GPU: 1×1 faces per layer, no meshes.
+    assert!(r.uploaded_bytes() < 1024, "{} bytes", r.uploaded_bytes());
     settle(&mut st, &mut r, s0, &cam0);
     let before = render(&mut r, &st.walk, &cam0, s0);
     let bg0 = st.session().table().background_item(0).unwrap();

@@ -15,10 +15,10 @@ impl Renderer {
         self.upload_meshes(view, texture, bytes)
     }
 
-    /// The view's texture array with every layer and level written; bytes written.
+    /// The view's texture array with every layer and level written; its bytes in GPU memory.
     pub(super) fn upload_texture(&self, view: &RefView) -> (wgpu::Texture, u64) {
         let device = &self.gpu.device;
-        let n = view.face_size;
+        let n = texture_face_size(view);
         let layers = view.layers.len().max(1) as u32;
         let mips = view.layers.first().map_or(1, |l| l.levels.len()) as u32;
         let texture = device.create_texture(&wgpu::TextureDescriptor {
@@ -35,12 +35,13 @@ impl Renderer {
             usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
             view_formats: &[],
         });
-        let mut bytes = 0u64;
+        let bytes: u64 = (0..mips)
+            .map(|l| 24 * u64::from((n >> l).max(1)).pow(2) * u64::from(layers))
+            .sum();
         for (li, layer) in view.layers.iter().enumerate() {
             for (level, map) in layer.levels.iter().enumerate().take(mips as usize) {
                 let m = map.face_size();
                 let data: &[u8] = bytemuck::cast_slice(map.as_slice());
-                bytes += data.len() as u64;
                 self.gpu.queue.write_texture(
                     wgpu::TexelCopyTextureInfo {
                         texture: &texture,
@@ -230,7 +231,7 @@ impl Renderer {
     /// Whether the uploaded texture of a view has the view's shape (face size, layers, levels).
     pub(super) fn texture_fits(g: &GpuView, view: &RefView) -> bool {
         let size = g.texture.size();
-        size.width == view.face_size
+        size.width == texture_face_size(view)
             && size.depth_or_array_layers == view.layers.len().max(1) as u32
             && g.texture.mip_level_count()
                 == view.layers.first().map_or(1, |l| l.levels.len()) as u32
@@ -481,4 +482,12 @@ impl Renderer {
         });
         Ok(())
     }
+}
+
+/// Face size of a view's texture: its layers' (a streamed view not laid out yet has 1×1
+/// placeholder layers, which need no full-size texture), else the view's.
+fn texture_face_size(view: &RefView) -> u32 {
+    view.layers
+        .first()
+        .map_or(view.face_size, |l| l.face_size())
 }
