@@ -91,6 +91,9 @@ struct Sim<'a> {
     /// Budgets in force (the configured ones, or scaled to the database).
     budget: BudgetParams,
     s: f64,
+    /// Per (checksum, length) of a part, the key it is fetched and cached under
+    /// ([`Sim::share_identical_parts`]).
+    shared: std::collections::HashMap<(String, u64), FetchKey>,
 }
 
 impl Sim<'_> {
@@ -112,6 +115,7 @@ impl Sim<'_> {
             for (vi, vt) in f.tables {
                 // Checked and decoded when fetched; the positions agree with the scene's.
                 if let Ok(range) = self.table.add_viewpoint(vi, &vt.tiles, &vt.segments) {
+                    self.share_identical_parts(range.clone());
                     for i in range {
                         self.items.push(self.table.items[i].info.clone());
                     }
@@ -326,6 +330,12 @@ impl Sim<'_> {
                     Some(k) => self.prefetch_list(k, mode),
                 };
                 let table = &self.table;
+                // Parts on their way (shared keys: another tile's request may carry them).
+                let mut on_way: std::collections::HashSet<&FetchKey> = self
+                    .in_flight
+                    .iter()
+                    .flat_map(|f| f.keys.iter().map(|k| &k.0))
+                    .collect();
                 let ach: &[(usize, f64)] = match mode {
                     // Combined: the segment's ACH within the widened frustum broadens
                     // (coarsest levels for a turn of the head); live counts pick what is in
@@ -370,10 +380,14 @@ impl Sim<'_> {
                             end = end.min(self.items[r.item].parts_for_level(l));
                         }
                     }
-                    if end <= r.part {
-                        continue;
+                    let todo: Vec<Part> = parts[r.part..end.max(r.part)]
+                        .iter()
+                        .filter(|p| on_way.insert(&p.key))
+                        .cloned()
+                        .collect();
+                    if !todo.is_empty() {
+                        wanted.push((r.item, todo));
                     }
-                    wanted.push((r.item, parts[r.part..end].to_vec()));
                 }
             }
         }
@@ -578,7 +592,9 @@ pub(crate) async fn run_one(
             cfg.budget
         },
         s: 0.0,
+        shared: std::collections::HashMap::new(),
     };
+    sim.share_identical_parts(0..sim.table.items.len());
     let failures_before = stats.checksum_failures.load(Ordering::Relaxed);
     let length = scene.track.length();
     let walk_s = if cfg.speed_mps > 0.0 {
