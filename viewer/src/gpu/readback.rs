@@ -97,53 +97,9 @@ impl Renderer {
             .as_ref()
             .ok_or_else(|| GpuError::Readback("nothing drawn yet".into()))?;
         let (w, h) = (t.width, t.height);
-        let bpr = (w * 4).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
-            * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-        let device = &self.gpu.device;
-        let buf = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: (bpr * h) as u64,
-            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-            mapped_at_creation: false,
-        });
-        let mut enc = device.create_command_encoder(&Default::default());
-        enc.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo {
-                texture: &t.output,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
-            wgpu::TexelCopyBufferInfo {
-                buffer: &buf,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(bpr),
-                    rows_per_image: None,
-                },
-            },
-            wgpu::Extent3d {
-                width: w,
-                height: h,
-                depth_or_array_layers: 1,
-            },
-        );
-        self.gpu.queue.submit([enc.finish()]);
-        let slice = buf.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            // The receiver outlives the poll below; a send error cannot happen.
-            tx.send(r).ok();
-        });
-        device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        rx.recv()
-            .map_err(|e| GpuError::Readback(e.to_string()))?
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let data = slice
-            .get_mapped_range()
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let (enc, buf, bpr) = self.copy_for_readback(&t.output, "readback");
+        let words = self.map_read(enc, &buf)?;
+        let data: &[u8] = bytemuck::cast_slice(&words);
         let mut rgba = Vec::with_capacity((w * h * 4) as usize);
         for row in 0..h as usize {
             let start = row * bpr as usize;
@@ -221,37 +177,7 @@ impl Renderer {
             )));
         }
         let texture = t.ids_of(slot, self.ids_scale).texture();
-        let (w, h) = (texture.width(), texture.height());
-        let bpr = (w * 4).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
-            * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-        let buf = self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("ids readback"),
-            size: (bpr * h) as u64,
-            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-            mapped_at_creation: false,
-        });
-        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        enc.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo {
-                texture,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
-            wgpu::TexelCopyBufferInfo {
-                buffer: &buf,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(bpr),
-                    rows_per_image: None,
-                },
-            },
-            wgpu::Extent3d {
-                width: w,
-                height: h,
-                depth_or_array_layers: 1,
-            },
-        );
+        let (enc, buf, bpr) = self.copy_for_readback(texture, "ids readback");
         let rows: Vec<u32> = self.map_read(enc, &buf)?;
         let stride = (bpr / 4) as usize;
         let s = self.ids_scale.max(1) as usize;
@@ -279,6 +205,47 @@ impl Renderer {
         });
         enc.copy_buffer_to_buffer(src, 0, &readback, 0, size);
         self.map_read(enc, &readback)
+    }
+
+    /// An encoder that copies mip 0 of `texture` (4 bytes per texel) into a new mappable
+    /// buffer with rows padded to the copy alignment; the encoder, the buffer, bytes per row.
+    fn copy_for_readback(
+        &self,
+        texture: &wgpu::Texture,
+        label: &str,
+    ) -> (wgpu::CommandEncoder, wgpu::Buffer, u32) {
+        let (w, h) = (texture.width(), texture.height());
+        let bpr = (w * 4).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
+            * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let buf = self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: (bpr * h) as u64,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        enc.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo {
+                texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buf,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(bpr),
+                    rows_per_image: None,
+                },
+            },
+            wgpu::Extent3d {
+                width: w,
+                height: h,
+                depth_or_array_layers: 1,
+            },
+        );
+        (enc, buf, bpr)
     }
 
     /// Submit `enc`, wait, and read the mappable buffer `buf` as `u32`s.
