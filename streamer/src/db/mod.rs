@@ -1,5 +1,5 @@
 //! The walkthrough database: a directory of immutable content-addressed objects plus a
-//! manifest (types in [`tracks::manifest`]), stored split ([`split`], format 3): a small top
+//! manifest (types in [`tracks::manifest`]), stored split ([`split`], format 4): a small top
 //! manifest, one binary tile table per viewpoint ([`table`]) and one pack per viewpoint
 //! ([`pack`]) holding its tiles' meshes and PTM level groups; tables and packs are objects.
 //!
@@ -10,11 +10,11 @@
 //! checksums), [`verify()`] → [`Report`] (every file's hash and size, every table, every
 //! range's checksum), [`split::TopManifest`] / [`split::ViewTable`], the compact [`mesh`]
 //! format and [`ach`] (average coverage hints per track segment). Ranges inside a pack carry
-//! 64-bit checksums ([`range_hash64`]; background PTMs, listed in the top, 128-bit ones,
+//! 32-bit checksums ([`range_hash32`]; background PTMs, listed in the top, 128-bit ones,
 //! [`range_hash`]); objects keep their full BLAKE3.
 //!
 //! ```text
-//! DB/manifest.json          the TopManifest (format 3), written last, atomically
+//! DB/manifest.json          the TopManifest (format 4), written last, atomically
 //! DB/manifest.json.blake3   lowercase hex BLAKE3 of manifest.json (so a flipped byte in the
 //!                           manifest is caught too), written right after it
 //! DB/manifest.json.gz       gzip of manifest.json's exact bytes, written after it: what a
@@ -337,30 +337,41 @@ pub fn range_hash(bytes: &[u8]) -> String {
     h
 }
 
-/// Checksum of a byte range inside a viewpoint's pack: the first 64 bits (16 hex digits) of
+/// Checksum of a byte range inside a viewpoint's pack: the first 32 bits (8 hex digits) of
 /// its BLAKE3. The table that lists the range is itself checked by its full hash from the
 /// top manifest, so a range checksum only guards against transit or storage damage — never
-/// an adversary choosing bytes to collide — and 64 bits make an undetected random error a
-/// 1-in-2^64 event.
+/// an adversary choosing bytes to collide (the server that could choose them also serves the
+/// manifest) — and 32 bits make an undetected random error a 1-in-4·10⁹ event, the strength
+/// of the CRC-32 that gzip, PNG and Ethernet rely on. Wider checksums cost the client in
+/// every table: one per range of every tile, whether the tile is ever fetched or not (they
+/// were 40 % of castle 128's tables at 64 bits).
+pub fn range_hash32(bytes: &[u8]) -> String {
+    let mut h = hash_hex(bytes);
+    h.truncate(8);
+    h
+}
+
+/// The first 64 bits (16 hex digits) of a range's BLAKE3: the checksums of format-3 tables
+/// (format-4 tables still read them).
 pub fn range_hash64(bytes: &[u8]) -> String {
     let mut h = hash_hex(bytes);
     h.truncate(16);
     h
 }
 
-/// Whether `bytes` hash to `expected`: a full (64 hex digits) or truncated range (32 or 16
-/// hex digits) BLAKE3 checksum; anything else never matches.
+/// Whether `bytes` hash to `expected`: a full (64 hex digits) or truncated range (32, 16 or
+/// 8 hex digits) BLAKE3 checksum; anything else never matches.
 pub fn hash_matches(bytes: &[u8], expected: &str) -> bool {
     let h = blake3::hash(bytes).to_hex();
     match expected.len() {
-        64 | 32 | 16 => &h.as_str()[..expected.len()] == expected,
+        64 | 32 | 16 | 8 => &h.as_str()[..expected.len()] == expected,
         _ => false,
     }
 }
 
-/// Whether `h` is a valid range checksum (16, 32 or 64 lowercase hex digits).
+/// Whether `h` is a valid range checksum (8, 16, 32 or 64 lowercase hex digits).
 pub fn valid_range_hash(h: &str) -> bool {
-    matches!(h.len(), 16 | 32 | 64)
+    matches!(h.len(), 8 | 16 | 32 | 64)
         && h.bytes()
             .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
 }
@@ -591,8 +602,8 @@ pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
         .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
     if v.version != TOP_VERSION {
         let hint = if v.version < TOP_VERSION {
-            " (format 3 packs each viewpoint's tiles into one object and lists them in a \
-             binary table with 64-bit range checksums): rebuild the database with `railview \
+            " (format 4 packs each viewpoint's tiles into one object and lists them in a \
+             column-wise binary table with 32-bit range checksums): rebuild the database with `railview \
              build` (it resumes from its work directory)"
         } else {
             ""

@@ -1,6 +1,6 @@
 //! Packs: one object per viewpoint holding the payloads of its tiles — each tile's mesh, then
 //! its PTM level groups, tile after tile in table order — so that the viewpoint's table names
-//! one object once and describes every payload by a length and a 64-bit checksum
+//! one object once and describes every payload by a length and a 32-bit checksum
 //! ([`super::table`]). A static host serves a tile's part as a byte range of the pack.
 //!
 //! [`pack_tiles`] builds a pack from tiles whose payloads are stored anywhere (objects of
@@ -11,7 +11,7 @@
 
 use tracks::manifest::{LevelRef, ObjectRef, PackRange, PtmRef, TileEntry};
 
-use super::{hash_hex, hash_matches, range_hash64, DbError};
+use super::{hash_hex, hash_matches, range_hash32, DbError};
 
 /// Consecutive level groups are merged into one range while it stays within this many bytes
 /// (the coarse levels of a tile: a few bytes each, far below one round trip's worth). On
@@ -24,7 +24,7 @@ pub const MERGE_UP_TO: u64 = 160;
 pub type ReadFn<'a> = dyn FnMut(&ObjectRef, u64, u64) -> Result<Vec<u8>, DbError> + 'a;
 
 /// The pack of `tiles` (in their order) and the tiles rewritten to point into it: every PTM
-/// names the pack as its object, level groups merged ([`MERGE_UP_TO`]) with 64-bit
+/// names the pack as its object, level groups merged ([`MERGE_UP_TO`]) with 32-bit
 /// checksums, meshes become [`TileEntry::mesh_range`]. A tile without a PTM keeps no payload
 /// (no client can draw a mesh without its colour). Source ranges that carry a checksum are
 /// checked against it.
@@ -51,7 +51,7 @@ pub fn pack_tiles(
             e.mesh_range = Some(PackRange {
                 offset: pack.len() as u64,
                 len: b.len() as u64,
-                hash: range_hash64(&b),
+                hash: range_hash32(&b),
             });
             pack.extend_from_slice(&b);
         }
@@ -75,7 +75,7 @@ pub fn pack_tiles(
             }
         }
         for l in &mut levels {
-            l.hash = range_hash64(&pack[l.offset as usize..(l.offset + l.len) as usize]);
+            l.hash = range_hash32(&pack[l.offset as usize..(l.offset + l.len) as usize]);
         }
         e.ptm = Some(PtmRef {
             levels,
@@ -138,7 +138,7 @@ mod tests {
             height: 32 >> level,
             offset,
             len,
-            hash: range_hash64(&bytes[offset as usize..(offset + len) as usize]),
+            hash: range_hash32(&bytes[offset as usize..(offset + len) as usize]),
         }
     }
 
@@ -213,7 +213,7 @@ mod tests {
             size: 100,
         };
         let mut l = level(0, 0, 100, &bytes);
-        l.hash = range_hash64(b"other");
+        l.hash = range_hash32(b"other");
         let t = tile(
             0,
             Some(PtmRef {

@@ -1,4 +1,4 @@
-//! The split manifest (format 3): a small top-level [`TopManifest`] plus one content-addressed
+//! The split manifest (format 4): a small top-level [`TopManifest`] plus one content-addressed
 //! tile table per viewpoint ([`ViewTable`]), so a client needs the top and the tables of the
 //! viewpoints around it before its first frame, not the whole database's entries.
 //!
@@ -6,7 +6,7 @@
 //! manifest.json      TopManifest: scene, slabs, tracks, viewpoints (position, background,
 //!                    and a reference — hash and size — to the viewpoint's table)
 //! objects/HH/HASH    a viewpoint's table: compact binary ([`super::table`]: tiles, their
-//!                    ranges in the viewpoint's pack with 64-bit checksums, the ACH lists of
+//!                    ranges in the viewpoint's pack with 32-bit checksums, the ACH lists of
 //!                    the segments starting at the viewpoint); an object like the others
 //!                    (fetched, hash-checked and cached the same way)
 //! objects/HH/HASH    a viewpoint's pack ([`super::pack`]): its tiles' meshes and PTM level
@@ -25,12 +25,12 @@ use tracks::manifest::{
 use tracks::SlabRange;
 
 /// Version of the split manifest written by this crate (3: binary tables, one pack object
-/// per viewpoint, 64-bit range checksums).
-pub const TOP_VERSION: u32 = 3;
+/// per viewpoint, 64-bit range checksums; 4: column-wise tables, 32-bit range checksums).
+pub const TOP_VERSION: u32 = 4;
 
 pub use super::table::{decode_table, encode_table, TableError, MAX_TABLE_BYTES};
 
-/// `manifest.json` of format 3.
+/// `manifest.json` of format 4.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TopManifest {
     pub version: u32,

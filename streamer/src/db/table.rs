@@ -1,28 +1,40 @@
-//! The binary viewpoint table (format 3): what a client needs to know about one viewpoint's
+//! The binary viewpoint table (format 4): what a client needs to know about one viewpoint's
 //! tiles, in a few bytes per tile.
 //!
 //! ```text
-//! "RVTB" u8 version=3 u8 coding (0 plain, 1 gzip of the body)    header, never compressed
+//! "RVTB" u8 version=4 u8 coding (0 plain, 1 gzip of the body)    header, never compressed
 //! body:
 //!   varint viewpoint
 //!   u8 has_pack [32 B pack BLAKE3, varint pack size]             the pack, named once
-//!   varint tiles, per tile:
-//!     u8 face, varint tx, varint ty, varint slab,
-//!     f32 depth_min (rounded down), f32 depth_max (rounded up),
-//!     varint opaque_pixels, u8 flags (1 kept, 2 PTM, 4 mesh)
-//!     mesh:  varint len, 8 B checksum
-//!     PTM:   varint width, varint height, u8 channels, varint ranges,
-//!            per range: varint level, varint width, varint height, varint len, 8 B checksum
+//!   u8 checksum bytes (4 or 8), varint grid side n,
+//!   u8 depth coding (0 f32, 1 f16), u8 position coding (0 ascending gaps, 1 explicit)
+//!   varint tiles, then one column after another (each over all tiles):
+//!     positions   gaps: varint (index − previous index − 1), index = ((slab·6 + face)·n + ty)·n + tx
+//!                 explicit: u8 face, varint tx, varint ty, varint slab
+//!     flags       u8 (1 kept, 2 PTM, 4 mesh, 8 PTM levels in the usual shape)
+//!     opaque      varint opaque pixels
+//!     depths      depth_min rounded down, depth_max rounded up (f16 or f32)
+//!     PTM shapes  per PTM tile: varint width, varint height, u8 channels, varint ranges,
+//!                 unless flag 8: per range varint level, varint width, varint height
+//!     lengths     per tile: varint mesh length, varint length of each PTM range
+//!     checksums   per tile: mesh, then each PTM range
 //!   varint segments, per segment: varint to, varint entries,
-//!     per entry: varint viewpoint, varint slab, u8 face, varint tx, varint ty, f32 ach
+//!     then per entry varint (index · 4 + whose: 0 this viewpoint, 1 `to`, 2 another, whose
+//!     number follows as a varint), then per entry f32 ach
 //! ```
 //!
-//! Integers are LEB128 varints, floats little-endian. Offsets are not stored: a viewpoint's
-//! pack holds its tiles' payloads in table order (each tile's mesh, then its PTM ranges), so
-//! every offset is the sum of the lengths before it, and the lengths must add up to the
-//! pack's size. Checksums are the first 64 bits of the range's BLAKE3
-//! ([`super::range_hash64`]). The body is gzipped only when that makes it smaller. Decoding
-//! never panics: bad bytes give a [`TableError`] naming the field.
+//! Integers are LEB128 varints, floats little-endian. Columns rather than records: gzip finds
+//! the repeats of a column (flags, shapes, depths of neighbouring tiles) where interleaved
+//! fields hide them (castle 128: tables 316.5 kB in format 3 → see BENCHMARKS.md). Offsets
+//! are not stored: a viewpoint's pack holds its tiles' payloads in table order (each tile's
+//! mesh, then its PTM ranges), so every offset is the sum of the lengths before it, and the
+//! lengths must add up to the pack's size. The usual shape of a PTM's ranges (flag 8) is
+//! ranges of consecutive levels ending at level 0, each `level_dims` of the PTM's size, so
+//! neither levels nor sizes are written. Checksums are the first 32 (or 64) bits of the
+//! range's BLAKE3 ([`super::range_hash32`]). Depths are stored as f16 when every finite depth
+//! of the table stays finite and non-negative that way, always rounded outwards. The body is
+//! gzipped only when that makes it smaller. Decoding never panics: bad bytes give a
+//! [`TableError`] naming the field.
 
 use tracks::manifest::{AchEntry, LevelRef, ObjectRef, PackRange, PtmRef, SegmentEntry, TileEntry};
 use tracks::{Face, TileId};
@@ -32,13 +44,14 @@ use super::split::ViewTable;
 /// First bytes of every table.
 pub const MAGIC: &[u8; 4] = b"RVTB";
 /// Table format written and read by this crate.
-pub const TABLE_VERSION: u8 = 3;
+pub const TABLE_VERSION: u8 = 4;
 /// Longest decoded table body accepted (a table of a face-4096 viewpoint is far below it).
 pub const MAX_TABLE_BYTES: u64 = 64 << 20;
 
 const KEPT: u8 = 1;
 const HAS_PTM: u8 = 2;
 const HAS_MESH: u8 = 4;
+const USUAL_SHAPE: u8 = 8;
 
 /// Why a table could not be encoded or decoded.
 #[derive(Debug, thiserror::Error)]
@@ -114,11 +127,116 @@ fn f32_bound(x: f64, up: bool) -> f32 {
     }
 }
 
+/// `x` (≥ 0) as f16 bits rounded outwards (`up`: the smallest f16 not below it); `None` when
+/// a finite `x` has no finite f16 on that side or is negative. Infinities and NaN map to
+/// themselves.
+fn f16_bound(x: f64, up: bool) -> Option<u16> {
+    if x.is_nan() {
+        return Some(half::f16::NAN.to_bits());
+    }
+    if x == f64::INFINITY {
+        return Some(half::f16::INFINITY.to_bits());
+    }
+    if x < 0.0 || x.is_infinite() {
+        return None;
+    }
+    let mut bits = half::f16::from_f64(x).to_bits();
+    let v = half::f16::from_bits(bits).to_f64();
+    if up && v < x {
+        bits += 1;
+    } else if !up && v > x {
+        // v > x ≥ 0, so bits > 0.
+        bits -= 1;
+    }
+    half::f16::from_bits(bits).is_finite().then_some(bits)
+}
+
+/// The linear index of a tile position in a grid of side `n`, `None` on overflow.
+fn tile_index(n: u64, slab: u32, t: TileId) -> Option<u64> {
+    let face = Face::ALL.iter().position(|&f| f == t.face).unwrap_or(0) as u64;
+    (slab as u64)
+        .checked_mul(6)?
+        .checked_add(face)?
+        .checked_mul(n)?
+        .checked_add(t.ty as u64)?
+        .checked_mul(n)?
+        .checked_add(t.tx as u64)
+}
+
+/// Whether a PTM's ranges have the usual shape: consecutive levels ending at level 0, each of
+/// `level_dims` of the PTM's size.
+fn usual_shape(p: &PtmRef) -> bool {
+    let k = p.levels.len();
+    p.levels.iter().enumerate().all(|(i, l)| {
+        l.level as usize == k - 1 - i
+            && crate::ptm::level_dims(p.width, p.height, l.level) == (l.width, l.height)
+    })
+}
+
 /// The bytes of a viewpoint's table. Every tile with a PTM must have its payloads in `pack`
 /// (its `ptm.object`) in table order: mesh range then PTM ranges, from offset 0 up to the
-/// pack's size; a tile without a PTM carries no payload.
+/// pack's size; a tile without a PTM carries no payload. Checksums must all be 8 or all be
+/// 16 hex digits.
 pub fn encode_table(table: &ViewTable, pack: Option<&ObjectRef>) -> Result<Vec<u8>, TableError> {
-    let mut b = Vec::with_capacity(64 + table.tiles.len() * 48);
+    let tiles = &table.tiles;
+    // Checksum width: that of the first one, the same for all.
+    let first_hash = tiles
+        .iter()
+        .find_map(|t| {
+            t.mesh_range.as_ref().map(|m| m.hash.len()).or_else(|| {
+                t.ptm
+                    .as_ref()
+                    .and_then(|p| p.levels.first())
+                    .map(|l| l.hash.len())
+            })
+        })
+        .unwrap_or(8);
+    let hash_bytes = match first_hash {
+        8 => 4,
+        16 => 8,
+        n => {
+            return Err(TableError::Layout(format!(
+                "checksums of {n} hex digits (8 or 16 expected)"
+            )))
+        }
+    };
+    // Grid side: big enough for every position of the tiles and the ACH entries.
+    let n = tiles
+        .iter()
+        .map(|t| t.tile)
+        .chain(
+            table
+                .segments
+                .iter()
+                .flat_map(|s| s.ach.iter().map(|a| a.tile)),
+        )
+        .map(|t| t.tx.max(t.ty) as u64 + 1)
+        .max()
+        .unwrap_or(0);
+    let index = |slab: u32, t: TileId| {
+        tile_index(n, slab, t).ok_or_else(|| {
+            TableError::Layout(format!(
+                "tile {:?} {} {} of slab {slab} cannot be numbered",
+                t.face, t.tx, t.ty
+            ))
+        })
+    };
+    let mut indices = Vec::with_capacity(tiles.len());
+    for t in tiles {
+        indices.push(index(t.slab, t.tile)?);
+    }
+    let ascending = indices.windows(2).all(|w| w[0] < w[1]);
+    let depths16: Option<Vec<(u16, u16)>> = tiles
+        .iter()
+        .map(|t| {
+            Some((
+                f16_bound(t.depth_min, false)?,
+                f16_bound(t.depth_max, true)?,
+            ))
+        })
+        .collect();
+
+    let mut b = Vec::with_capacity(64 + tiles.len() * 24);
     put_varint(&mut b, table.viewpoint as u64);
     match pack {
         Some(p) => {
@@ -128,14 +246,24 @@ pub fn encode_table(table: &ViewTable, pack: Option<&ObjectRef>) -> Result<Vec<u
         }
         None => b.push(0),
     }
-    put_varint(&mut b, table.tiles.len() as u64);
-    let mut cursor = 0u64;
-    for (i, t) in table.tiles.iter().enumerate() {
-        put_tile_id(&mut b, t.tile);
-        put_varint(&mut b, t.slab as u64);
-        b.extend_from_slice(&f32_bound(t.depth_min, false).to_le_bytes());
-        b.extend_from_slice(&f32_bound(t.depth_max, true).to_le_bytes());
-        put_varint(&mut b, t.opaque_pixels as u64);
+    b.push(hash_bytes as u8);
+    put_varint(&mut b, n);
+    b.push(u8::from(depths16.is_some()));
+    b.push(u8::from(!ascending));
+    put_varint(&mut b, tiles.len() as u64);
+    // Positions.
+    let mut prev: Option<u64> = None;
+    for (t, &i) in tiles.iter().zip(&indices) {
+        if ascending {
+            put_varint(&mut b, prev.map_or(i, |p| i - p - 1));
+            prev = Some(i);
+        } else {
+            put_tile_id(&mut b, t.tile);
+            put_varint(&mut b, t.slab as u64);
+        }
+    }
+    // Flags, checking each tile's payloads against the pack.
+    for (i, t) in tiles.iter().enumerate() {
         let Some(ptm) = &t.ptm else {
             if t.mesh.is_some() || t.mesh_range.is_some() {
                 return Err(TableError::Layout(format!(
@@ -163,7 +291,45 @@ pub fn encode_table(table: &ViewTable, pack: Option<&ObjectRef>) -> Result<Vec<u
         if t.mesh_range.is_some() {
             flags |= HAS_MESH;
         }
+        if usual_shape(ptm) {
+            flags |= USUAL_SHAPE;
+        }
         b.push(flags);
+    }
+    for t in tiles {
+        put_varint(&mut b, t.opaque_pixels as u64);
+    }
+    match &depths16 {
+        Some(d) => {
+            for (lo, hi) in d {
+                b.extend_from_slice(&lo.to_le_bytes());
+                b.extend_from_slice(&hi.to_le_bytes());
+            }
+        }
+        None => {
+            for t in tiles {
+                b.extend_from_slice(&f32_bound(t.depth_min, false).to_le_bytes());
+                b.extend_from_slice(&f32_bound(t.depth_max, true).to_le_bytes());
+            }
+        }
+    }
+    // PTM shapes.
+    for ptm in tiles.iter().filter_map(|t| t.ptm.as_ref()) {
+        put_varint(&mut b, ptm.width as u64);
+        put_varint(&mut b, ptm.height as u64);
+        b.push(ptm.channels);
+        put_varint(&mut b, ptm.levels.len() as u64);
+        if !usual_shape(ptm) {
+            for l in &ptm.levels {
+                put_varint(&mut b, l.level as u64);
+                put_varint(&mut b, l.width as u64);
+                put_varint(&mut b, l.height as u64);
+            }
+        }
+    }
+    // Lengths, in pack order.
+    let mut cursor = 0u64;
+    for (i, t) in tiles.iter().enumerate() {
         let mut take = |offset: u64, len: u64, what: &str| {
             if offset != cursor {
                 return Err(TableError::Layout(format!(
@@ -176,19 +342,10 @@ pub fn encode_table(table: &ViewTable, pack: Option<&ObjectRef>) -> Result<Vec<u
         if let Some(m) = &t.mesh_range {
             take(m.offset, m.len, "mesh")?;
             put_varint(&mut b, m.len);
-            put_hash(&mut b, &m.hash, 8, "mesh checksum")?;
         }
-        put_varint(&mut b, ptm.width as u64);
-        put_varint(&mut b, ptm.height as u64);
-        b.push(ptm.channels);
-        put_varint(&mut b, ptm.levels.len() as u64);
-        for l in &ptm.levels {
+        for l in t.ptm.iter().flat_map(|p| &p.levels) {
             take(l.offset, l.len, "PTM range")?;
-            put_varint(&mut b, l.level as u64);
-            put_varint(&mut b, l.width as u64);
-            put_varint(&mut b, l.height as u64);
             put_varint(&mut b, l.len);
-            put_hash(&mut b, &l.hash, 8, "PTM range checksum")?;
         }
     }
     let pack_size = pack.map_or(0, |p| p.size);
@@ -197,14 +354,37 @@ pub fn encode_table(table: &ViewTable, pack: Option<&ObjectRef>) -> Result<Vec<u
             "payloads take {cursor} bytes, the pack has {pack_size}"
         )));
     }
+    // Checksums.
+    for t in tiles {
+        if let Some(m) = &t.mesh_range {
+            put_hash(&mut b, &m.hash, hash_bytes, "mesh checksum")?;
+        }
+        for l in t.ptm.iter().flat_map(|p| &p.levels) {
+            put_hash(&mut b, &l.hash, hash_bytes, "PTM range checksum")?;
+        }
+    }
+    // Segments.
     put_varint(&mut b, table.segments.len() as u64);
     for s in &table.segments {
         put_varint(&mut b, s.to as u64);
         put_varint(&mut b, s.ach.len() as u64);
         for a in &s.ach {
-            put_varint(&mut b, a.viewpoint as u64);
-            put_varint(&mut b, a.slab as u64);
-            put_tile_id(&mut b, a.tile);
+            let i = index(a.slab, a.tile)?;
+            let code = |whose: u64| {
+                i.checked_mul(4)
+                    .map(|v| v + whose)
+                    .ok_or_else(|| TableError::Layout(format!("ACH entry index {i} too large")))
+            };
+            if a.viewpoint == table.viewpoint {
+                put_varint(&mut b, code(0)?);
+            } else if a.viewpoint == s.to {
+                put_varint(&mut b, code(1)?);
+            } else {
+                put_varint(&mut b, code(2)?);
+                put_varint(&mut b, a.viewpoint as u64);
+            }
+        }
+        for a in &s.ach {
             b.extend_from_slice(&(a.ach as f32).to_le_bytes());
         }
     }
@@ -247,6 +427,11 @@ impl<'a> Reader<'a> {
     fn f32(&mut self, what: &'static str) -> Result<f32, TableError> {
         let s = self.take(4, what)?;
         Ok(f32::from_le_bytes([s[0], s[1], s[2], s[3]]))
+    }
+
+    fn f16(&mut self, what: &'static str) -> Result<f64, TableError> {
+        let s = self.take(2, what)?;
+        Ok(half::f16::from_bits(u16::from_le_bytes([s[0], s[1]])).to_f64())
     }
 
     fn varint(&mut self, what: &'static str) -> Result<u64, TableError> {
@@ -360,87 +545,162 @@ pub fn decode_table(bytes: &[u8], want: usize) -> Result<ViewTable, TableError> 
         }),
         f => return Err(r.invalid("pack flag", r.at - 1, format!("{f} (0 or 1)"))),
     };
-    let n = r.count("tile count", 12)?;
-    let mut tiles = Vec::with_capacity(n);
+    let hash_bytes = match r.u8("checksum bytes")? {
+        c @ (4 | 8) => c as usize,
+        c => return Err(r.invalid("checksum bytes", r.at - 1, format!("{c} (4 or 8)"))),
+    };
+    let n = r.varint("grid side")?;
+    let depth16 = match r.u8("depth coding")? {
+        c @ (0 | 1) => c == 1,
+        c => return Err(r.invalid("depth coding", r.at - 1, format!("{c} (0 or 1)"))),
+    };
+    let explicit = match r.u8("position coding")? {
+        c @ (0 | 1) => c == 1,
+        c => return Err(r.invalid("position coding", r.at - 1, format!("{c} (0 or 1)"))),
+    };
+    // Every tile takes at least a position, flags, opaque pixels and two f16 depths.
+    let count = r.count("tile count", 7)?;
+    let position = |r: &Reader, at: usize, index: u64, what: &'static str| {
+        let bad = || r.invalid(what, at, format!("{index} is outside a grid of side {n}"));
+        if n == 0 {
+            return Err(bad());
+        }
+        let tx = u32::try_from(index % n).map_err(|_| bad())?;
+        let ty = u32::try_from((index / n) % n).map_err(|_| bad())?;
+        let fs = index / n / n;
+        let slab = u32::try_from(fs / 6).map_err(|_| bad())?;
+        Ok::<_, TableError>((
+            slab,
+            TileId {
+                face: Face::ALL[(fs % 6) as usize],
+                tx,
+                ty,
+            },
+        ))
+    };
+    let mut tiles: Vec<TileEntry> = Vec::with_capacity(count);
+    let mut next = 0u64;
+    for _ in 0..count {
+        let (slab, tile) = if explicit {
+            let tile = r.tile_id()?;
+            (r.u32("slab")?, tile)
+        } else {
+            let at = r.at;
+            let gap = r.varint("tile position")?;
+            let index = next
+                .checked_add(gap)
+                .ok_or_else(|| r.invalid("tile position", at, "positions overflow"))?;
+            next = index.saturating_add(1);
+            position(&r, at, index, "tile position")?
+        };
+        tiles.push(TileEntry {
+            tile,
+            slab,
+            depth_min: 0.0,
+            depth_max: 0.0,
+            opaque_pixels: 0,
+            kept: false,
+            ptm: None,
+            mesh: None,
+            mesh_range: None,
+        });
+    }
+    let mut flags = Vec::with_capacity(count);
+    for t in &mut tiles {
+        let at = r.at;
+        let f = r.u8("tile flags")?;
+        if f & !(KEPT | HAS_PTM | HAS_MESH | USUAL_SHAPE) != 0
+            || (f & (HAS_MESH | USUAL_SHAPE) != 0 && f & HAS_PTM == 0)
+        {
+            return Err(r.invalid("tile flags", at, format!("{f:#04x}")));
+        }
+        if f & HAS_PTM != 0 && pack.is_none() {
+            return Err(r.invalid(
+                "tile flags",
+                at,
+                "a tile with a PTM in a table without a pack",
+            ));
+        }
+        t.kept = f & KEPT != 0;
+        flags.push(f);
+    }
+    for t in &mut tiles {
+        t.opaque_pixels = r.u32("opaque_pixels")?;
+    }
+    for t in &mut tiles {
+        if depth16 {
+            t.depth_min = r.f16("depth_min")?;
+            t.depth_max = r.f16("depth_max")?;
+        } else {
+            t.depth_min = r.f32("depth_min")? as f64;
+            t.depth_max = r.f32("depth_max")? as f64;
+        }
+    }
+    for (t, &f) in tiles.iter_mut().zip(&flags) {
+        let Some(pack) = pack.as_ref().filter(|_| f & HAS_PTM != 0) else {
+            continue;
+        };
+        let width = r.u32("PTM width")?;
+        let height = r.u32("PTM height")?;
+        let channels = r.u8("PTM channels")?;
+        let at = r.at;
+        let ranges = r.count("PTM range count", 2)?;
+        let mut levels = Vec::with_capacity(ranges);
+        for i in 0..ranges {
+            let (level, w, h) = if f & USUAL_SHAPE != 0 {
+                let level = (ranges - 1 - i) as u32;
+                if level >= 32 {
+                    return Err(r.invalid("PTM range count", at, format!("{ranges} levels")));
+                }
+                let (w, h) = crate::ptm::level_dims(width, height, level);
+                (level, w, h)
+            } else {
+                (
+                    r.u32("PTM level")?,
+                    r.u32("PTM level width")?,
+                    r.u32("PTM level height")?,
+                )
+            };
+            levels.push(LevelRef {
+                level,
+                width: w,
+                height: h,
+                offset: 0,
+                len: 0,
+                hash: String::new(),
+            });
+        }
+        t.ptm = Some(PtmRef {
+            object: pack.clone(),
+            width,
+            height,
+            channels,
+            levels,
+        });
+    }
     let mut cursor = 0u64;
-    let mut place = |r: &Reader, len: u64, what: &'static str| {
+    let mut place = |r: &mut Reader, what: &'static str| {
+        let len = r.varint(what)?;
         let offset = cursor;
         cursor = cursor
             .checked_add(len)
             .ok_or_else(|| r.invalid(what, r.at, "lengths overflow"))?;
-        Ok::<u64, TableError>(offset)
+        Ok::<(u64, u64), TableError>((offset, len))
     };
-    for _ in 0..n {
-        let tile = r.tile_id()?;
-        let slab = r.u32("slab")?;
-        let depth_min = r.f32("depth_min")? as f64;
-        let depth_max = r.f32("depth_max")? as f64;
-        let opaque_pixels = r.u32("opaque_pixels")?;
-        let flags_at = r.at;
-        let flags = r.u8("tile flags")?;
-        if flags & !(KEPT | HAS_PTM | HAS_MESH) != 0
-            || (flags & HAS_MESH != 0 && flags & HAS_PTM == 0)
-        {
-            return Err(r.invalid("tile flags", flags_at, format!("{flags:#04x}")));
-        }
-        let mut mesh_range = None;
-        let mut ptm = None;
-        if flags & HAS_PTM != 0 {
-            let pack = pack.as_ref().ok_or_else(|| {
-                r.invalid(
-                    "tile flags",
-                    flags_at,
-                    "a tile with a PTM in a table without a pack",
-                )
-            })?;
-            if flags & HAS_MESH != 0 {
-                let len = r.varint("mesh length")?;
-                let offset = place(&r, len, "mesh length")?;
-                mesh_range = Some(PackRange {
-                    offset,
-                    len,
-                    hash: r.hex(8, "mesh checksum")?,
-                });
-            }
-            let width = r.u32("PTM width")?;
-            let height = r.u32("PTM height")?;
-            let channels = r.u8("PTM channels")?;
-            let count = r.count("PTM range count", 12)?;
-            let mut levels = Vec::with_capacity(count);
-            for _ in 0..count {
-                let level = r.u32("PTM level")?;
-                let lw = r.u32("PTM level width")?;
-                let lh = r.u32("PTM level height")?;
-                let len = r.varint("PTM range length")?;
-                let offset = place(&r, len, "PTM range length")?;
-                levels.push(LevelRef {
-                    level,
-                    width: lw,
-                    height: lh,
-                    offset,
-                    len,
-                    hash: r.hex(8, "PTM range checksum")?,
-                });
-            }
-            ptm = Some(PtmRef {
-                object: pack.clone(),
-                width,
-                height,
-                channels,
-                levels,
+    for (t, &f) in tiles.iter_mut().zip(&flags) {
+        if f & HAS_MESH != 0 {
+            let (offset, len) = place(&mut r, "mesh length")?;
+            t.mesh_range = Some(PackRange {
+                offset,
+                len,
+                hash: String::new(),
             });
         }
-        tiles.push(TileEntry {
-            tile,
-            slab,
-            depth_min,
-            depth_max,
-            opaque_pixels,
-            kept: flags & KEPT != 0,
-            ptm,
-            mesh: None,
-            mesh_range,
-        });
+        if let Some(p) = &mut t.ptm {
+            for l in &mut p.levels {
+                (l.offset, l.len) = place(&mut r, "PTM range length")?;
+            }
+        }
     }
     let pack_size = pack.as_ref().map_or(0, |p| p.size);
     if cursor != pack_size {
@@ -448,19 +708,42 @@ pub fn decode_table(bytes: &[u8], want: usize) -> Result<ViewTable, TableError> 
             "the tiles' lengths add up to {cursor} bytes, the pack has {pack_size}"
         )));
     }
+    for t in &mut tiles {
+        if let Some(m) = &mut t.mesh_range {
+            m.hash = r.hex(hash_bytes, "mesh checksum")?;
+        }
+        if let Some(p) = &mut t.ptm {
+            for l in &mut p.levels {
+                l.hash = r.hex(hash_bytes, "PTM range checksum")?;
+            }
+        }
+    }
     let ns = r.count("segment count", 2)?;
     let mut segments = Vec::with_capacity(ns);
     for _ in 0..ns {
         let to = r.usize("segment end")?;
-        let ne = r.count("ACH entry count", 9)?;
+        // Each entry takes at least a one-byte code and an f32.
+        let ne = r.count("ACH entry count", 5)?;
         let mut ach = Vec::with_capacity(ne);
         for _ in 0..ne {
+            let at = r.at;
+            let code = r.varint("ACH tile")?;
+            let vp = match code % 4 {
+                0 => viewpoint,
+                1 => to,
+                2 => r.usize("ACH viewpoint")?,
+                w => return Err(r.invalid("ACH tile", at, format!("owner code {w} (0–2)"))),
+            };
+            let (slab, tile) = position(&r, at, code / 4, "ACH tile")?;
             ach.push(AchEntry {
-                viewpoint: r.usize("ACH viewpoint")?,
-                slab: r.u32("ACH slab")?,
-                tile: r.tile_id()?,
-                ach: r.f32("ACH value")? as f64,
+                viewpoint: vp,
+                slab,
+                tile,
+                ach: 0.0,
             });
+        }
+        for a in &mut ach {
+            a.ach = r.f32("ACH value")? as f64;
         }
         segments.push(SegmentEntry {
             from: viewpoint,
@@ -556,11 +839,21 @@ mod tests {
         pack
     }
 
-    /// What a table keeps of a tile: depths as f32 bounds, ACH as f32.
+    /// What a table keeps of a tile: depths as f16 bounds when all fit, else f32; ACH as f32.
     fn as_stored(mut t: ViewTable) -> ViewTable {
+        let f16 = |x: f64, up: bool| f16_bound(x, up).map(|b| half::f16::from_bits(b).to_f64());
+        let all16 = t
+            .tiles
+            .iter()
+            .all(|d| f16(d.depth_min, false).is_some() && f16(d.depth_max, true).is_some());
         for tile in &mut t.tiles {
-            tile.depth_min = f32_bound(tile.depth_min, false) as f64;
-            tile.depth_max = f32_bound(tile.depth_max, true) as f64;
+            if all16 {
+                tile.depth_min = f16(tile.depth_min, false).unwrap();
+                tile.depth_max = f16(tile.depth_max, true).unwrap();
+            } else {
+                tile.depth_min = f32_bound(tile.depth_min, false) as f64;
+                tile.depth_max = f32_bound(tile.depth_max, true) as f64;
+            }
         }
         for s in &mut t.segments {
             for a in &mut s.ach {
@@ -621,6 +914,34 @@ mod tests {
             prop_assert!(other);
         }
 
+        /// Tiles in grid order (as `railview build` writes them) take the gap coding of
+        /// positions; checksums of 32 bits; depths beyond f16 fall back to f32.
+        #[test]
+        fn sorted_tables_round_trip(tiles in proptest::collection::vec(tile(), 0..40),
+                                    far in any::<bool>(), seed in any::<u64>()) {
+            let mut tiles = tiles;
+            tiles.sort_by_key(|t| tile_index(301, t.slab, t.tile));
+            tiles.dedup_by_key(|t| tile_index(301, t.slab, t.tile));
+            for t in &mut tiles {
+                if let Some(m) = &mut t.mesh_range {
+                    m.hash.truncate(8);
+                }
+                for l in t.ptm.iter_mut().flat_map(|p| p.levels.iter_mut()) {
+                    l.hash.truncate(8);
+                }
+                if far {
+                    t.depth_max *= 100.0;
+                }
+            }
+            let (table, pack) = sample(11, tiles, seed);
+            let bytes = encode_table(&table, pack.as_ref()).unwrap();
+            let got = decode_table(&bytes, 11).unwrap();
+            prop_assert_eq!(&got, &as_stored(table.clone()));
+            for (g, t) in got.tiles.iter().zip(&table.tiles) {
+                prop_assert!(g.depth_min <= t.depth_min && g.depth_max >= t.depth_max);
+            }
+        }
+
         #[test]
         fn damaged_or_cut_tables_never_panic(tiles in proptest::collection::vec(tile(), 1..12),
                                              at in any::<usize>(), bit in 0u8..8, cut in any::<usize>()) {
@@ -636,7 +957,7 @@ mod tests {
         #[test]
         fn garbage_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
             let _ = decode_table(&bytes, 0);
-            let mut with_header = b"RVTB\x03\x00".to_vec();
+            let mut with_header = b"RVTB\x04\x00".to_vec();
             with_header.extend_from_slice(&bytes);
             let _ = decode_table(&with_header, 0);
         }
@@ -690,17 +1011,17 @@ mod tests {
             Err(TableError::Version { got: 2 })
         ));
         assert!(matches!(
-            decode_table(b"RVTB\x03\x07xx", 0),
+            decode_table(b"RVTB\x04\x07xx", 0),
             Err(TableError::Coding(7))
         ));
         assert!(matches!(
-            decode_table(b"RVTB\x03\x00", 0),
+            decode_table(b"RVTB\x04\x00", 0),
             Err(TableError::Truncated { .. })
         ));
         // A varint that never ends.
         assert!(matches!(
             decode_table(
-                b"RVTB\x03\x00\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff",
+                b"RVTB\x04\x00\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff",
                 0
             ),
             Err(TableError::Invalid {
@@ -709,7 +1030,7 @@ mod tests {
             })
         ));
         // A tile count far beyond the bytes that follow: refused before any allocation.
-        let mut b = b"RVTB\x03\x00\x00\x00".to_vec();
+        let mut b = b"RVTB\x04\x00\x00\x00\x04\x00\x00\x00".to_vec();
         b.extend_from_slice(&[0xff, 0xff, 0xff, 0xff, 0x0f]);
         assert!(matches!(
             decode_table(&b, 0),
@@ -776,7 +1097,7 @@ mod tests {
     #[test]
     fn a_huge_table_is_refused_within_the_limit() {
         let zeros = vec![0u8; (MAX_TABLE_BYTES + 10) as usize];
-        let mut b = b"RVTB\x03\x01".to_vec();
+        let mut b = b"RVTB\x04\x01".to_vec();
         b.extend_from_slice(&crate::db::gzip(&zeros).unwrap());
         assert!(matches!(
             decode_table(&b, 0),

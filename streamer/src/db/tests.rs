@@ -441,8 +441,11 @@ fn split_and_assemble_round_trip_and_partial_tables_leave_tiles_out() {
 }
 
 #[test]
-fn range_checksums_are_64_or_128_bits_and_full_hashes_still_match() {
+fn range_checksums_are_32_64_or_128_bits_and_full_hashes_still_match() {
     let h = hash_hex(b"abc");
+    assert_eq!(range_hash32(b"abc"), h[..8]);
+    assert!(hash_matches(b"abc", &h[..8]) && !hash_matches(b"abd", &h[..8]));
+    assert!(valid_range_hash(&h[..8]) && !valid_range_hash(&h[..7]) && !valid_range_hash(&h[..4]));
     assert_eq!(range_hash64(b"abc"), h[..16]);
     assert!(hash_matches(b"abc", &h[..16]) && !hash_matches(b"abd", &h[..16]));
     assert!(valid_range_hash(&h[..16]) && !valid_range_hash(&h[..15]));

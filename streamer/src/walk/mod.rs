@@ -227,6 +227,8 @@ pub struct RunReport {
     /// Bytes of viewpoint tables transferred (also counted in `bytes`), and their requests.
     pub table_bytes: u64,
     pub table_requests: u64,
+    /// Bytes of viewpoints' backgrounds transferred (also counted in `bytes`).
+    pub background_bytes: u64,
     /// Bytes that had arrived (the manifest's included) at the first complete frame, and of
     /// them viewpoint tables.
     pub first_frame_bytes: Option<u64>,

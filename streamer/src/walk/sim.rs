@@ -68,6 +68,8 @@ struct Sim<'a> {
     naive_requested: Vec<bool>,
     pinned: Vec<FetchKey>,
     bytes: u64,
+    /// Of `bytes`, the viewpoints' backgrounds.
+    background_bytes: u64,
     requests: u64,
     /// Largest texture memory the plan held resident, and whether it ever exceeded `M`.
     max_resident: u64,
@@ -484,8 +486,12 @@ impl Sim<'_> {
                 self.downloading[*item] = true;
                 items.push(*item);
                 let s_item = self.table.items[*item].s;
+                let background = self.table.items[*item].tile.is_none();
                 for part in parts {
                     if let Some(d) = data.next() {
+                        if background {
+                            self.background_bytes += d.len() as u64;
+                        }
                         keys.push((part.key.clone(), d, s_item));
                     }
                 }
@@ -562,6 +568,7 @@ pub(crate) async fn run_one(
         table,
         table_requested: vec![false; scene.tables.len()],
         table_bytes: 0,
+        background_bytes: 0,
         table_requests: 0,
         delivered_bytes: 0,
         delivered_table_bytes: 0,
@@ -714,6 +721,7 @@ pub(crate) async fn run_one(
         manifest_bytes: manifest.bytes,
         manifest_s: t0,
         table_bytes: sim.table_bytes,
+        background_bytes: sim.background_bytes,
         first_frame_bytes: first_frame_bytes.map(|b| b.0),
         first_frame_table_bytes: first_frame_bytes.map(|b| b.1),
         table_requests: sim.table_requests,
