@@ -28,7 +28,7 @@ use streamer::db::mesh::{encode_mesh, MeshData};
 use streamer::db::DbWriter;
 use streamer::ptm::{self, EncodeOptions, Image};
 use tracks::manifest::{
-    Manifest, SegmentEntry, TileEntry, TrackEntry, ViewpointEntry, MANIFEST_VERSION,
+    BackgroundTile, Manifest, SegmentEntry, TileEntry, TrackEntry, ViewpointEntry, MANIFEST_VERSION,
 };
 use tracks::{CubeMap, TileGrid, TrackSet};
 
@@ -269,10 +269,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let b = bar(pre.viewpoints.len() as u64, "encoding");
     for vp in &pre.viewpoints {
         let path = enc_dir.join(format!("{:04}.json", vp.index));
-        let cached: Option<EncodedSample> =
-            store::read_json(&path).ok().filter(|c: &EncodedSample| {
-                c.key == key && all_present(&args.out, writer.stage_root(), &c.entry)
-            });
+        let cached: Option<EncodedSample> = store::read_json(&path)
+            .ok()
+            .filter(|c: &EncodedSample| c.key == key && all_present(writer.stage_root(), &c.entry));
         let sample = match cached {
             Some(c) => c,
             None => {
@@ -302,8 +301,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         report.sizes.backgrounds_ptm += sample
             .entry
             .background
-            .as_ref()
-            .map_or(0, |p| p.object.size);
+            .iter()
+            .map(|b| b.ptm.object.size)
+            .sum::<u64>();
         viewpoints.push(sample.entry);
         b.inc(1);
     }
@@ -510,15 +510,15 @@ fn is_culled(d: Option<&TileDecisions>, viewpoint: usize, slab: usize, index: u3
         .is_some_and(|s| s.culled.contains(&index))
 }
 
-/// Whether a sample's objects are all stored: the background in the database, the tiles'
-/// own PTM and mesh objects in the stage (from which the packs are made).
-fn all_present(db: &Path, stage: &Path, v: &ViewpointEntry) -> bool {
+/// Whether a sample's objects are all stored: the background tiles' and the tiles' own PTM
+/// and mesh objects in the stage (from which the packs are made).
+fn all_present(stage: &Path, v: &ViewpointEntry) -> bool {
     let ok = |root: &Path, o: &tracks::manifest::ObjectRef| {
         o.rel_path()
             .and_then(|r| std::fs::metadata(root.join(r)).ok())
             .is_some_and(|m| m.len() == o.size)
     };
-    v.background.as_ref().is_none_or(|p| ok(db, &p.object))
+    v.background.iter().all(|b| ok(stage, &b.ptm.object))
         && v.tiles.iter().all(|t| {
             t.ptm.as_ref().is_none_or(|p| ok(stage, &p.object))
                 && t.mesh.as_ref().is_none_or(|m| ok(stage, m))
@@ -596,24 +596,46 @@ fn encode_sample(
         rgba_kept.push(kept_bytes);
         tiles_nonempty.push(layer.tiles.len());
     }
-    // Background: the sky where the panorama's depth is infinite (alpha 255), else clear.
+    // Background: the sky where the panorama's depth is infinite (alpha 255), else clear,
+    // cut into the tiles of the same grid; tiles without sky are left out.
     let color = store::read_rgb_png(&dir.color_png(i))?;
     let depth = store::read_depth_exr(&dir.depth_exr(i))?;
     let n = pre.face_size;
-    let data: Vec<u8> = color
-        .as_slice()
-        .iter()
-        .zip(depth.as_slice())
-        .flat_map(|(c, d)| {
-            if d.is_finite() {
-                [0, 0, 0, 0]
-            } else {
-                [c[0], c[1], c[2], 255]
+    let sky = CubeMap::from_vec(
+        n,
+        color
+            .as_slice()
+            .iter()
+            .zip(depth.as_slice())
+            .map(|(c, d)| {
+                if d.is_finite() {
+                    [0, 0, 0, 0]
+                } else {
+                    [c[0], c[1], c[2], 255]
+                }
+            })
+            .collect(),
+    )
+    .with_context(|| format!("sample {i}: background size"))?;
+    let mut background = Vec::new();
+    for face in tracks::Face::ALL {
+        for ty in 0..grid.tiles_per_side() {
+            for tx in 0..grid.tiles_per_side() {
+                let tile = tracks::TileId { face, tx, ty };
+                let px = crop(&sky, &grid, tile);
+                if px.iter().all(|p| p[3] == 0) {
+                    continue;
+                }
+                let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+                let img = Image::new(x1 - x0, y1 - y0, 4, px.into_iter().flatten().collect())?;
+                let enc = ptm::encode(&img, opts)?;
+                background.push(BackgroundTile {
+                    tile,
+                    ptm: writer.put_ptm_staged(&enc, 4)?,
+                });
             }
-        })
-        .collect();
-    let bg = ptm::encode(&Image::new(n, 6 * n, 4, data)?, opts)?;
-    let background = Some(writer.put_ptm(&bg, 4)?);
+        }
+    }
     Ok(EncodedSample {
         key: key.to_string(),
         entry: ViewpointEntry {

@@ -75,7 +75,7 @@ mod tests {
                     index: 0,
                     s: 0.0,
                     position: Default::default(),
-                    background: None,
+                    background: Vec::new(),
                     tiles: vec![tracks::manifest::TileEntry {
                         tile: tracks::TileId {
                             face: tracks::Face::PosX,

@@ -12,7 +12,8 @@
 //!    viewpoint overlaps the tile's `[depth_min, depth_max]` — so parallax between camera and
 //!    viewpoint is followed and thin depth ranges cannot be stepped over;
 //! 2. the first step with a hit wins (lower slab first within a step); no hit means the
-//!    sample shows the viewpoint's background (or a disocclusion hole);
+//!    sample shows the viewpoint's background tile in the ray's direction (the sky lies at
+//!    infinity), or a disocclusion hole where the viewpoint has no background tile;
 //! 3. the needed level: a screen pixel spans `α_c = 2·tan(fov/2)/width` radians at distance
 //!    `d_c` from the camera, a level-0 texel spans about `α_v = 2/face_size` at distance `d_v`
 //!    from the viewpoint; level `l` is enough while `2^l · α_v · d_v ≤ α_c · d_c`, so the
@@ -35,13 +36,9 @@ pub const MAX_LEVELS: usize = 16;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Surface {
     /// Position of the tile in `viewpoints[viewpoint].tiles`.
-    Tile {
-        viewpoint: usize,
-        tile: usize,
-    },
-    Background {
-        viewpoint: usize,
-    },
+    Tile { viewpoint: usize, tile: usize },
+    /// Position of the tile in `viewpoints[viewpoint].background`.
+    Background { viewpoint: usize, tile: usize },
 }
 
 /// Visible pixels of one surface, by the level they need.
@@ -89,6 +86,8 @@ struct ViewpointIndex {
     depth: Vec<(f64, f64)>,
     /// Largest finite tile depth.
     far: f64,
+    /// Background tile position per `TileGrid::tile_index`.
+    background: Vec<Option<usize>>,
     /// Per tile position: unit direction to the tile's centre, its angular radius (radians,
     /// centre to the farthest corner) and its nearest depth (`None` for an unusable tile).
     cones: Vec<Option<(DVec3, f64, f64)>>,
@@ -138,11 +137,18 @@ impl SceneIndex {
                         far = far.max(tile.depth_max);
                     }
                 }
+                let mut background = vec![None; grid.tile_count()];
+                for (i, b) in vp.background.iter().enumerate() {
+                    if b.tile.tx < grid.tiles_per_side() && b.tile.ty < grid.tiles_per_side() {
+                        background[grid.tile_index(b.tile)] = Some(i);
+                    }
+                }
                 ViewpointIndex {
                     position: vp.position,
                     layers,
                     depth,
                     far,
+                    background,
                     cones,
                 }
             })
@@ -205,11 +211,24 @@ impl SceneIndex {
     }
 
     /// What viewpoint `vi` shows along the ray `origin + t·dir`: the surface and the hit
-    /// point (`None` for the background). See the module docs for the march.
+    /// point (`None` for a background tile, which lies at infinity: the viewpoint sees it in
+    /// the ray's direction). `None` when the ray hits no tile and no background tile lies in
+    /// its direction (a disocclusion hole). See the module docs for the march.
     pub fn trace(&self, vi: usize, origin: DVec3, dir: DVec3) -> Option<(Surface, Option<DVec3>)> {
         let vp = self.viewpoints.get(vi)?;
         let dir = dir.try_normalize()?;
-        let background = Some((Surface::Background { viewpoint: vi }, None));
+        let background = FaceCoord::from_dir(dir).and_then(|fc| {
+            let (x, y) = fc.to_pixel(self.grid.face_size);
+            let t = self.grid.tile_of_pixel(fc.face, x, y);
+            let tile = vp.background[self.grid.tile_index(t)]?;
+            Some((
+                Surface::Background {
+                    viewpoint: vi,
+                    tile,
+                },
+                None,
+            ))
+        });
         if vp.far <= 0.0 {
             return background;
         }
@@ -390,7 +409,22 @@ mod tests {
         let cam = cam_at(&m, 1, 320);
         let counts = index.count(&cam, &[(1, 0.25), (2, 0.75)], 40, 20);
         let total: f64 = counts.iter().map(|c| c.pixels()).sum();
-        assert!((total - 320.0 * 160.0).abs() < 1e-6, "{total}");
+        // Samples that hit no tile and no background tile (holes) are not counted.
+        let mut holes = 0.0;
+        for j in 0..20 {
+            for i in 0..40 {
+                let dir = cam.ray_dir((i as f64 + 0.5) * 8.0, (j as f64 + 0.5) * 8.0);
+                for (vi, w) in [(1, 0.25), (2, 0.75)] {
+                    if index.trace(vi, cam.position, dir).is_none() {
+                        holes += w * 64.0;
+                    }
+                }
+            }
+        }
+        assert!(
+            (total + holes - 320.0 * 160.0).abs() < 1e-6,
+            "{total} + {holes}"
+        );
         // Looking at a wall and the floor: tiles, not background, cover the view.
         let tiles: f64 = counts
             .iter()

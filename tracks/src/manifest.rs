@@ -127,9 +127,19 @@ pub struct ViewpointEntry {
     /// Arc length along the track, metres.
     pub s: f64,
     pub position: DVec3,
-    /// Sky/background layer (no mesh): a PTM of the N × 6N cube map, alpha = 255 where sky.
-    pub background: Option<PtmRef>,
+    /// Sky/background layer (no mesh), tile by tile on the same grid as the slabs' tiles:
+    /// only the tiles with some sky, each an RGBA PTM with alpha = 255 where sky, so a client
+    /// fetches the sky it sees rather than the whole cube.
+    #[serde(default)]
+    pub background: Vec<BackgroundTile>,
     pub tiles: Vec<TileEntry>,
+}
+
+/// One tile of a viewpoint's background.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BackgroundTile {
+    pub tile: TileId,
+    pub ptm: PtmRef,
 }
 
 /// Average coverage hint of one tile for one track segment (PTM §5 adapted to tracks).

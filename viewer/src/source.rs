@@ -186,31 +186,6 @@ pub fn paste_tile(
     Ok(())
 }
 
-/// A background cube map (face size `n`) from a decoded level of its `n × 6n` PTM; coarser
-/// levels are widened (nearest; the coarsest levels may not keep the 1:6 shape).
-pub fn background_map(
-    (rgba, w, h): (&[u8], u32, u32),
-    n: u32,
-    what: &str,
-) -> Result<CubeMap<[u8; 4]>, SourceError> {
-    if w == 0 || h == 0 || w > n || h > 6 * n || rgba.len() < (w as usize * h as usize * 4) {
-        return Err(format_err(
-            what,
-            format!("{w}x{h} is not a level of a {n}x{} cube map", 6 * n),
-        ));
-    }
-    let (n64, w64, h64) = (n as u64, w as u64, h as u64);
-    let px: Vec<[u8; 4]> = (0..6 * n64)
-        .flat_map(|y| (0..n64).map(move |x| (x, y)))
-        .map(|(x, y)| {
-            let (sx, sy) = (x * w64 / n64, y * h64 / (6 * n64));
-            let i = ((sy * w64 + sx) * 4) as usize;
-            [rgba[i], rgba[i + 1], rgba[i + 2], rgba[i + 3]]
-        })
-        .collect();
-    CubeMap::from_vec(n, px).ok_or_else(|| format_err(what, "background size"))
-}
-
 /// A tile's depth mesh from its stored bytes.
 pub fn tile_mesh_from_bytes(bytes: &[u8], what: &str) -> Result<TileMesh, SourceError> {
     let mesh = decode_mesh(bytes).map_err(|e| format_err(what, e))?;
@@ -248,20 +223,13 @@ pub fn from_database(
     let mut views = Vec::with_capacity(entry.viewpoints.len());
     for vp in &entry.viewpoints {
         let what = format!("viewpoint {}", vp.index);
-        let background = match &vp.background {
-            Some(ptm) => {
-                bytes += ptm.object.size;
-                let (rgba, w, h, _) = decode_ptm(db, ptm, None, &format!("{what} background"))?;
-                if (w, h) != (n, 6 * n) {
-                    return Err(format_err(
-                        format!("{what} background"),
-                        format!("{w}x{h}, expected {n}x{}", 6 * n),
-                    ));
-                }
-                background_map((&rgba, w, h), n, &what)?
-            }
-            None => CubeMap::filled(n, [0, 0, 0, 0]),
-        };
+        let mut background = CubeMap::filled(n, [0, 0, 0, 0]);
+        for (bi, bg) in vp.background.iter().enumerate() {
+            let key = format!("{what} background tile {bi}");
+            bytes += bg.ptm.levels.iter().map(|l| l.len).sum::<u64>();
+            let (rgba, w, h, level) = decode_ptm(db, &bg.ptm, opts.level_groups, &key)?;
+            paste_tile(&mut background, grid, bg.tile, (&rgba, w, h, level), &key)?;
+        }
         let mut layers: Vec<CubeMap<[u8; 4]>> =
             vec![CubeMap::filled(n, [0, 0, 0, 0]); m.slabs.len()];
         let mut tiles = Vec::new();

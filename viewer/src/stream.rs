@@ -42,8 +42,7 @@ use crate::feedback::ViewCounts;
 use crate::plan::FramePlan;
 use crate::refview::{RefView, ViewTile};
 use crate::source::{
-    background_map, image_rgba, manifest_track, paste_tile, tile_mesh_from_bytes, SourceError,
-    Walkthrough,
+    image_rgba, manifest_track, paste_tile, tile_mesh_from_bytes, SourceError, Walkthrough,
 };
 use crate::texture::{dilate_masked, FaceRect, Layer};
 
@@ -65,8 +64,15 @@ pub enum StreamError {
 /// What an item is in the views.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Kind {
-    Tile { tile: TileId, slab: u32 },
-    Background,
+    Tile {
+        tile: TileId,
+        slab: u32,
+    },
+    Background {
+        tile: TileId,
+    },
+    /// An item whose entry could not be used (never consumed).
+    Unusable,
 }
 
 struct ItemState {
@@ -178,10 +184,9 @@ pub struct StreamedWalkthrough {
 fn item_state(session: &LiveSession, i: usize) -> Result<ItemState, StreamError> {
     let m = session.manifest();
     let entry = &m.tracks[session.track()];
-    let n = m.face_size;
     let it = &session.table().items[i];
-    let kind = match it.tile {
-        Some(ti) => {
+    let kind = match (it.tile, it.background) {
+        (Some(ti), _) => {
             let t = &entry.viewpoints[it.viewpoint].tiles[ti];
             if t.slab as usize >= m.slabs.len() {
                 return Err(StreamError::Manifest(format!(
@@ -196,20 +201,16 @@ fn item_state(session: &LiveSession, i: usize) -> Result<ItemState, StreamError>
                 slab: t.slab,
             }
         }
-        None => Kind::Background,
+        (None, Some(bi)) => Kind::Background {
+            tile: entry.viewpoints[it.viewpoint].background[bi].tile,
+        },
+        (None, None) => Kind::Unusable,
     };
-    // Bound what a bad server can make us decode to what the item should be: a tile
-    // is at most one tile square, a background one cube map (RGBA, all levels: 4/3 of
-    // the base, doubled for headroom).
-    let limits = match &kind {
-        Kind::Tile { .. } => Limits {
-            max_side: m.tile_size.max(1),
-            max_decoded_bytes: 8 * u64::from(m.tile_size).pow(2),
-        },
-        Kind::Background => Limits {
-            max_side: n.saturating_mul(6).max(1),
-            max_decoded_bytes: 8 * 6 * u64::from(n).pow(2),
-        },
+    // Bound what a bad server can make us decode to what the item should be: at most one
+    // tile square (RGBA, all levels: 4/3 of the base, doubled for headroom).
+    let limits = Limits {
+        max_side: m.tile_size.max(1),
+        max_decoded_bytes: 8 * u64::from(m.tile_size).pow(2),
     };
     Ok(ItemState {
         view: it.viewpoint,
@@ -330,7 +331,7 @@ impl StreamedWalkthrough {
                     self.errors.push(e.to_string());
                     self.items.push(ItemState {
                         view,
-                        kind: Kind::Background,
+                        kind: Kind::Unusable,
                         waiting: HashMap::new(),
                         next: 0,
                         first_level_part: 0,
@@ -646,15 +647,28 @@ impl StreamedWalkthrough {
             it.decoder = Decoder::new(it.limits);
         }
         match it.kind {
-            Kind::Background => {
-                let n = self.walk.views[view].face_size;
-                let map = background_map((&rgba, w, h), n, &what)?;
+            Kind::Unusable => Ok(None),
+            Kind::Background { tile } => {
                 self.lay_out(view);
-                self.dense[view][0] = map;
+                paste_tile(
+                    &mut self.dense[view][0],
+                    self.grid,
+                    tile,
+                    (&rgba, w, h, level),
+                    &what,
+                )?;
                 let it = &mut self.items[item];
                 it.level = Some(level);
                 it.loaded_at = Some(now);
-                Ok(Some((0, None)))
+                let (x0, y0, x1, y1) = self.grid.pixel_rect(tile);
+                let rect = FaceRect {
+                    face: tile.face,
+                    x0,
+                    y0,
+                    x1,
+                    y1,
+                };
+                Ok(Some((0, Some(rect))))
             }
             Kind::Tile { tile, slab } => {
                 let joined = self.tile_items[view].iter().position(|&i| i == item);
@@ -705,7 +719,13 @@ impl StreamedWalkthrough {
         let vp = self.walk.views.get(it.view).map_or(it.view, |v| v.index);
         match it.kind {
             Kind::Tile { tile, slab } => tile_key(vp, slab, tile),
-            Kind::Background => format!("viewpoint {vp} background"),
+            Kind::Background { tile } => format!(
+                "viewpoint {vp} background tile {}-{}-{}",
+                tile.face.short_name(),
+                tile.tx,
+                tile.ty
+            ),
+            Kind::Unusable => format!("viewpoint {vp} item {item}"),
         }
     }
 
@@ -716,8 +736,9 @@ impl StreamedWalkthrough {
 
     /// Live counts for the session from the GPU feedback of `plan` (drawn from
     /// `self.walk.views`): every tile of every counted pass, weighted by the pass's blend
-    /// weight, with the level the pass samples; tiles drawn but hidden count zero; the
-    /// pixels no tile covers count for the view's background. A tile in
+    /// weight, with the level the pass samples; tiles drawn but hidden count zero. The pixels
+    /// no tile covers are not located by the pass: the background tiles they show get their
+    /// counts from the session's CPU estimate (which the session merges with these). A tile in
     /// the frustum that is drawn coarser than needed counts at least one pixel: its coarse
     /// opacity mask (averaged texels under the 0.5 threshold) may hide it entirely, and a
     /// tile that is never counted would never be refined.
@@ -752,23 +773,6 @@ impl StreamedWalkthrough {
                 if hidden && tiles.get(slot).is_some_and(|t| t.finest_level > needed) {
                     add(slot, 1.0);
                 }
-            }
-            // Pixels no tile of this view covers show its background (or a hole).
-            let covered: u64 = c.pixels.iter().map(|&p| p as u64).sum();
-            let open = (plan.width as u64 * plan.height as u64).saturating_sub(covered);
-            let bg = self
-                .session
-                .table()
-                .background_item(c.view)
-                .filter(|_| open > 0);
-            if let Some(item) = bg {
-                let e = by_item.entry(item).or_insert(LiveCount {
-                    item,
-                    pixels: 0.0,
-                    needed_level: needed,
-                });
-                e.pixels += open as f64 * pass.weight.max(0.1);
-                e.needed_level = e.needed_level.min(needed);
             }
         }
         let mut out: Vec<LiveCount> = by_item.into_values().collect();

@@ -606,15 +606,20 @@ impl Connection {
     }
 
     /// The whole manifest: the top ([`Connection::fetch_manifest`]) and every viewpoint's
-    /// table ([`Connection::fetch_table`]), assembled (for tools that want everything at once;
-    /// a viewer fetches tables as it needs them).
+    /// table ([`Connection::fetch_table`]) and ACH object ([`Connection::fetch_ach`]),
+    /// assembled (for tools that want everything at once; a viewer fetches tables as it
+    /// needs them).
     pub async fn manifest(&mut self) -> Result<Manifest, ClientError> {
         let top = self.fetch_manifest().await?.top;
         let mut tables = Vec::with_capacity(top.tracks.len());
         for t in &top.tracks {
             let mut row = Vec::with_capacity(t.viewpoints.len());
             for v in &t.viewpoints {
-                row.push(self.fetch_table(&v.table, v.index).await?);
+                let mut table = self.fetch_table(&v.table, v.index).await?;
+                if let Some(ach) = &v.ach {
+                    table.segments = self.fetch_ach(ach, v.index).await?;
+                }
+                row.push(table);
             }
             tables.push(row);
         }
@@ -638,6 +643,21 @@ impl Connection {
         };
         let bytes = self.fetch_checked(&key, &table.hash, None).await?;
         decode_table(&bytes, viewpoint)
+            .map_err(|e| ClientError::Manifest(format!("viewpoint {viewpoint}: {e}")))
+    }
+
+    /// Fetches a viewpoint's ACH object (hash-checked) and decodes its lists.
+    pub async fn fetch_ach(
+        &mut self,
+        ach: &ObjectRef,
+        viewpoint: usize,
+    ) -> Result<Vec<tracks::manifest::SegmentEntry>, ClientError> {
+        let key = FetchKey {
+            object: ach.hash.clone(),
+            range: None,
+        };
+        let bytes = self.fetch_checked(&key, &ach.hash, None).await?;
+        crate::db::split::decode_ach(&bytes, viewpoint)
             .map_err(|e| ClientError::Manifest(format!("viewpoint {viewpoint}: {e}")))
     }
 

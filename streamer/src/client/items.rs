@@ -1,11 +1,13 @@
-//! A track of a manifest flattened into streamable items (tiles and backgrounds), each a list
-//! of checked parts, plus the ACH lists of its segments in item numbers. The table grows as
-//! viewpoints' tile tables arrive: a tile whose table is missing has no item yet and so
-//! cannot be requested.
+//! A track of a manifest flattened into streamable items (tiles and background tiles), each a
+//! list of checked parts, plus the ACH lists of its segments in item numbers. The table grows
+//! as viewpoints' tables arrive: a tile whose table is missing has no item yet and so cannot
+//! be requested.
 
 use std::collections::HashMap;
 
-use tracks::manifest::{object_rel_path, AchEntry, Manifest, PtmRef, SegmentEntry, TileEntry};
+use tracks::manifest::{
+    object_rel_path, AchEntry, BackgroundTile, Manifest, PtmRef, SegmentEntry, TileEntry,
+};
 
 use super::budget::ItemInfo;
 use super::http::{ClientError, FetchKey};
@@ -19,13 +21,15 @@ pub struct Part {
     pub mem: u64,
 }
 
-/// A tile (or a viewpoint's background) and its parts: mesh first, then PTM groups.
+/// A tile (or a tile of a viewpoint's background) and its parts: mesh first, then PTM groups.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Item {
     /// Position of the viewpoint in the track's `viewpoints`.
     pub viewpoint: usize,
-    /// Position in that viewpoint's `tiles`; `None` for the background.
+    /// Position in that viewpoint's `tiles`; `None` for a background tile.
     pub tile: Option<usize>,
+    /// Position in that viewpoint's `background`; `None` for a tile.
+    pub background: Option<usize>,
     /// Arc length of the viewpoint.
     pub s: f64,
     pub parts: Vec<Part>,
@@ -46,7 +50,8 @@ pub struct ItemTable {
     /// table has not arrived yet are left out (they come in when it does).
     pub segment_ach: Vec<Vec<(usize, f64)>>,
     by_tile: HashMap<(usize, usize), usize>,
-    background: HashMap<usize, usize>,
+    /// `(viewpoint position, background tile position)` → item.
+    by_background: HashMap<(usize, usize), usize>,
     /// Whether each viewpoint's table has been added.
     loaded: Vec<bool>,
     /// Per viewpoint (by `ViewpointEntry::index`), its position in the track.
@@ -71,28 +76,18 @@ impl ItemTable {
                 .filter(|s| s.from == vp.index)
                 .cloned()
                 .collect();
-            table.add_viewpoint(vi, &vp.tiles, &segs)?;
+            table.add_viewpoint(vi, &vp.background, &vp.tiles, &segs)?;
         }
         Ok(table)
     }
 
-    /// The items known before any table has arrived: the viewpoints' backgrounds (from the
-    /// top manifest; `m`'s tiles and ACH lists are ignored).
+    /// No items yet, the track's viewpoints and segments known (`m`'s tiles, backgrounds and
+    /// ACH lists are ignored: they come with the viewpoints' tables).
     pub fn empty(m: &Manifest, track: usize) -> Result<ItemTable, ClientError> {
         let t = m
             .tracks
             .get(track)
             .ok_or_else(|| ClientError::Manifest(format!("no track {track}")))?;
-        let mut items = Vec::new();
-        let mut background = HashMap::new();
-        for (vi, vp) in t.viewpoints.iter().enumerate() {
-            if let Some(bg) = &vp.background {
-                let field = format!("tracks[{track}].viewpoints[{vi}].background");
-                let (parts, levels) = ptm_parts(bg, &field)?;
-                background.insert(vi, items.len());
-                items.push(make_item(vi, None, vp.s, parts, 0, levels));
-            }
-        }
         let index_of: HashMap<usize, usize> = t
             .viewpoints
             .iter()
@@ -109,11 +104,11 @@ impl ItemTable {
             })
             .collect::<Vec<_>>();
         Ok(ItemTable {
-            items,
+            items: Vec::new(),
             vp_s: t.viewpoints.iter().map(|v| v.s).collect(),
             segment_ach: vec![Vec::new(); segments.len()],
             by_tile: HashMap::new(),
-            background,
+            by_background: HashMap::new(),
             loaded: vec![false; t.viewpoints.len()],
             index_of,
             key_to_tile: HashMap::new(),
@@ -134,12 +129,14 @@ impl ItemTable {
             .collect()
     }
 
-    /// Adds viewpoint `vi`'s tiles (its table's `tiles`, positions as in the table) and the
-    /// ACH lists of the segments starting there; the new items are appended. A viewpoint
-    /// already added is left as it is. On error nothing is added.
+    /// Adds viewpoint `vi`'s background tiles and tiles (its table's `background` and
+    /// `tiles`, positions as in the table) and the ACH lists of the segments starting there;
+    /// the new items are appended. A viewpoint already added is left as it is. On error
+    /// nothing is added.
     pub fn add_viewpoint(
         &mut self,
         vi: usize,
+        background: &[BackgroundTile],
         tiles: &[TileEntry],
         segments: &[SegmentEntry],
     ) -> Result<std::ops::Range<usize>, ClientError> {
@@ -154,6 +151,12 @@ impl ItemTable {
             return Ok(start..start);
         }
         let s = self.vp_s[vi];
+        let mut new_background = Vec::with_capacity(background.len());
+        for (bi, bg) in background.iter().enumerate() {
+            let field = format!("tracks[{}].viewpoints[{vi}].background[{bi}]", self.track);
+            let (parts, levels) = ptm_parts(&bg.ptm, &format!("{field}.ptm"))?;
+            new_background.push(make_item(vi, None, Some(bi), s, parts, 0, levels));
+        }
         let mut new_items = Vec::new();
         for (ti, tile) in tiles.iter().enumerate() {
             let Some(ptm) = tile.ptm.as_ref().filter(|_| tile.kept) else {
@@ -194,16 +197,27 @@ impl ItemTable {
                 parts.insert(0, m);
                 first = 1;
             }
-            new_items.push((ti, make_item(vi, Some(ti), s, parts, first, levels)));
+            new_items.push((ti, make_item(vi, Some(ti), None, s, parts, first, levels)));
         }
         for (ti, tile) in tiles.iter().enumerate() {
             self.key_to_tile.insert((vi, tile.slab, tile.tile), ti);
+        }
+        for (bi, item) in new_background.into_iter().enumerate() {
+            self.by_background.insert((vi, bi), self.items.len());
+            self.items.push(item);
         }
         for (ti, item) in new_items {
             self.by_tile.insert((vi, ti), self.items.len());
             self.items.push(item);
         }
         self.loaded[vi] = true;
+        self.add_segments(vi, segments);
+        Ok(start..self.items.len())
+    }
+
+    /// Adds the ACH lists of segments starting at viewpoint `vi` (its ACH object), whether or
+    /// not its table is in; entries whose tile's table has not arrived wait for it.
+    pub fn add_segments(&mut self, vi: usize, segments: &[SegmentEntry]) {
         let from = self.vp_index(vi);
         for seg in segments.iter().filter(|sg| Some(sg.from) == from) {
             let to = self.index_of.get(&seg.to).copied();
@@ -216,7 +230,6 @@ impl ItemTable {
             }
         }
         self.resolve_ach();
-        Ok(start..self.items.len())
     }
 
     fn vp_index(&self, vi: usize) -> Option<usize> {
@@ -247,9 +260,17 @@ impl ItemTable {
         self.by_tile.get(&(vp, tile)).copied()
     }
 
-    /// Item of a viewpoint's background.
-    pub fn background_item(&self, vp: usize) -> Option<usize> {
-        self.background.get(&vp).copied()
+    /// Item of background tile `tile` (position in `viewpoints[vp].background`).
+    pub fn background_item(&self, vp: usize, tile: usize) -> Option<usize> {
+        self.by_background.get(&(vp, tile)).copied()
+    }
+
+    /// Items of viewpoint `vp`'s background tiles known so far.
+    pub fn background_items(&self, vp: usize) -> impl Iterator<Item = usize> + '_ {
+        (0..)
+            .map(move |bi| self.background_item(vp, bi))
+            .take_while(Option::is_some)
+            .flatten()
     }
 
     /// The size/memory table [`super::plan`] works on.
@@ -315,6 +336,7 @@ fn ptm_parts(p: &PtmRef, field: &str) -> Result<(Vec<Part>, Vec<u32>), ClientErr
 fn make_item(
     viewpoint: usize,
     tile: Option<usize>,
+    background: Option<usize>,
     s: f64,
     parts: Vec<Part>,
     first_level_part: usize,
@@ -329,6 +351,7 @@ fn make_item(
     Item {
         viewpoint,
         tile,
+        background,
         s,
         parts,
         info,

@@ -167,6 +167,10 @@ pub struct LiveSession {
     tables: Vec<Option<ViewTable>>,
     /// Table keys requested and not yet arrived → viewpoint.
     table_keys: HashMap<FetchKey, usize>,
+    /// ACH lists that have arrived (from the viewpoints' ACH objects), per viewpoint.
+    achs: Vec<Option<Vec<tracks::manifest::SegmentEntry>>>,
+    /// ACH object keys requested and not yet arrived → viewpoint.
+    ach_keys: HashMap<FetchKey, usize>,
     track: usize,
     table: ItemTable,
     infos: Vec<ItemInfo>,
@@ -265,6 +269,8 @@ impl LiveSession {
             top,
             tables: vec![None; n_vp],
             table_keys: HashMap::new(),
+            achs: vec![None; n_vp],
+            ach_keys: HashMap::new(),
             track,
             table,
             plan_infos: infos.clone(),
@@ -578,11 +584,11 @@ impl LiveSession {
         }
     }
 
-    /// The backgrounds of the two viewpoints around `s`.
+    /// The background tiles of the two viewpoints around `s`.
     fn segment_backgrounds(&self, s: f64) -> Vec<usize> {
         blend_weights(&self.table.vp_s, s)
             .iter()
-            .filter_map(|&(vi, _)| self.table.background_item(vi))
+            .flat_map(|&(vi, _)| self.table.background_items(vi))
             .collect()
     }
 
@@ -600,7 +606,9 @@ impl LiveSession {
             for c in index.count(camera, &weights, sx, sy) {
                 let item = match c.surface {
                     Surface::Tile { viewpoint, tile } => self.table.tile_item(viewpoint, tile),
-                    Surface::Background { viewpoint } => self.table.background_item(viewpoint),
+                    Surface::Background { viewpoint, tile } => {
+                        self.table.background_item(viewpoint, tile)
+                    }
                 };
                 if let Some(item) = item {
                     by_item.insert(
@@ -659,6 +667,10 @@ impl LiveSession {
                         self.table_arrived(vi, &data);
                         continue;
                     }
+                    if let Some(vi) = self.ach_keys.remove(&done.key) {
+                        self.ach_arrived(vi, &data);
+                        continue;
+                    }
                     let users = self.users.get(&done.key).cloned().unwrap_or_default();
                     let fresh = !self.cache.contains(&done.key);
                     let mut stored = !fresh;
@@ -680,6 +692,7 @@ impl LiveSession {
                 Err(ClientError::Cancelled) => {}
                 Err(e) => {
                     self.table_keys.remove(&done.key);
+                    self.ach_keys.remove(&done.key);
                     self.stats.failed_requests += 1;
                     self.stats.last_error = Some(e.to_string());
                     self.paused_until = Some(now + self.config.error_pause);

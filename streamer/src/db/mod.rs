@@ -203,8 +203,9 @@ impl DbWriter {
         Ok(ptm_ref(object, enc, channels))
     }
 
-    /// Packs each viewpoint's tiles ([`pack::pack_tiles`]: their payloads read back from the
-    /// objects [`DbWriter::put`] stored, or from an earlier pack) into one object, splits the
+    /// Packs each viewpoint's background tiles and tiles ([`pack::pack_viewpoint`]: their
+    /// payloads read back from the objects [`DbWriter::put`] stored, or from an earlier
+    /// pack) into one object, splits the
     /// packed manifest ([`split::split`]) and stores each viewpoint's table as an object,
     /// then writes the top manifest (compact JSON, atomically), its checksum file and its
     /// gzip copy: the database is complete. The tiles' own objects stay where they are (a
@@ -220,18 +221,23 @@ impl DbWriter {
                 let mut read = |o: &ObjectRef, offset: u64, len: u64| {
                     read_stored(&roots, &mut cache, o, offset, len)
                 };
-                let (bytes, tiles) = pack::pack_tiles(&v.tiles, &mut read)?;
-                if tiles.iter().any(|t| t.ptm.is_some()) {
+                let (bytes, background, tiles) =
+                    pack::pack_viewpoint(&v.background, &v.tiles, &mut read)?;
+                if !background.is_empty() || tiles.iter().any(|t| t.ptm.is_some()) {
                     self.put(&bytes)?;
                 }
+                v.background = background;
                 v.tiles = tiles;
             }
         }
         let path = self.root.join(MANIFEST_FILE);
         let (top, tables) =
             split::split(&packed).map_err(|e| DbError::format(&path, e.to_string()))?;
-        for bytes in tables.iter().flatten() {
-            self.put(bytes)?;
+        for v in tables.iter().flatten() {
+            self.put(&v.table)?;
+            if let Some(ach) = &v.ach {
+                self.put(ach)?;
+            }
         }
         let mut json =
             serde_json::to_vec(&top).map_err(|e| DbError::format(&path, e.to_string()))?;
@@ -552,12 +558,22 @@ pub fn read_tables(dir: &Path, top: &TopManifest) -> Result<Manifest, DbError> {
         for v in &t.viewpoints {
             let bytes = db.read_object(&v.table)?;
             let path = db.object_path(&v.table.hash).unwrap_or_default();
-            let table = split::decode_table(&bytes, v.index).map_err(|e| {
+            let mut table = split::decode_table(&bytes, v.index).map_err(|e| {
                 DbError::format(
                     &path,
                     format!("track `{}` viewpoint {}: {e}", t.name, v.index),
                 )
             })?;
+            if let Some(ach) = &v.ach {
+                let bytes = db.read_object(ach)?;
+                let path = db.object_path(&ach.hash).unwrap_or_default();
+                table.segments = split::decode_ach(&bytes, v.index).map_err(|e| {
+                    DbError::format(
+                        &path,
+                        format!("ACH lists of track `{}` viewpoint {}: {e}", t.name, v.index),
+                    )
+                })?;
+            }
             row.push(table);
         }
         tables.push(row);

@@ -1,5 +1,6 @@
-//! Packs: one object per viewpoint holding the payloads of its tiles — each tile's mesh, then
-//! its PTM level groups, tile after tile in table order — so that the viewpoint's table names
+//! Packs: one object per viewpoint holding the payloads of its background tiles and tiles —
+//! each background tile's PTM level groups, then each tile's mesh and PTM level groups, tile
+//! after tile in table order — so that the viewpoint's table names
 //! one object once and describes every payload by a length and a 32-bit checksum
 //! ([`super::table`]). A static host serves a tile's part as a byte range of the pack.
 //!
@@ -9,16 +10,17 @@
 //! as long as the range stays within [`MERGE_UP_TO`] bytes: they always travel together
 //! anyway, and each range costs a checksum in the table and a piece in a request.
 
-use tracks::manifest::{LevelRef, ObjectRef, PackRange, PtmRef, TileEntry};
+use tracks::manifest::{BackgroundTile, LevelRef, ObjectRef, PackRange, PtmRef, TileEntry};
 
 use super::{hash_hex, hash_matches, range_hash32, DbError};
 
 /// Consecutive level groups are merged into one range while it stays within this many bytes
-/// (the coarse levels of a tile: a few bytes each, far below one round trip's worth). On
-/// castle 128 (32 px tiles) 160 bytes take the header and the levels up to 4×4 or 8×8 in one
-/// range: tables 3.8× smaller than format 2's; 256 makes them 4.2× smaller, but the view's
-/// first complete levels then wait for bigger coarse ranges (needed fraction 0.980 → 0.975).
-pub const MERGE_UP_TO: u64 = 160;
+/// (the coarse levels of a tile: far below one round trip's worth at the link speeds the
+/// walk is measured at — 2 ms at 2 Mbit/s against a 50 ms latency). Every range costs every
+/// client a length and a checksum in the table, fetched or not. On castle 128 (32 px tiles,
+/// format-4 tables, 2 Mbit/s walk): 160 bytes → tables 166.9 kB, 256 → 150.7 kB, 512 →
+/// 117.0 kB, with the same first frame (0.67 s) and needed fraction with prefetch (0.986).
+pub const MERGE_UP_TO: u64 = 512;
 
 /// Reads `len` bytes at `offset` of a stored object (checked by the caller's means).
 pub type ReadFn<'a> = dyn FnMut(&ObjectRef, u64, u64) -> Result<Vec<u8>, DbError> + 'a;
@@ -93,6 +95,34 @@ pub fn pack_tiles(
         }
     }
     Ok((pack, out))
+}
+
+/// A viewpoint's pack and its background tiles and tiles pointing into it.
+pub type PackedViewpoint = (Vec<u8>, Vec<BackgroundTile>, Vec<TileEntry>);
+
+/// [`pack_tiles`] for a whole viewpoint: its background tiles' payloads first, then its
+/// tiles'; returns the pack and both lists rewritten to point into it.
+pub fn pack_viewpoint(
+    background: &[BackgroundTile],
+    tiles: &[TileEntry],
+    read: &mut ReadFn<'_>,
+) -> Result<PackedViewpoint, DbError> {
+    let mut all: Vec<TileEntry> = background
+        .iter()
+        .map(super::table::background_entry)
+        .collect();
+    all.extend_from_slice(tiles);
+    let (pack, mut out) = pack_tiles(&all, read)?;
+    let tiles = out.split_off(background.len());
+    let background = background
+        .iter()
+        .zip(out)
+        .map(|(b, e)| BackgroundTile {
+            tile: b.tile,
+            ptm: e.ptm.unwrap_or_else(|| b.ptm.clone()),
+        })
+        .collect();
+    Ok((pack, background, tiles))
 }
 
 /// `bytes` when they match `hash` (an empty hash: nothing to check against).
@@ -184,7 +214,8 @@ mod tests {
         assert_eq!(&pack[..300], &mesh_bytes[..]);
         assert_eq!(&pack[300..2300], &ptm_bytes[..]);
         let p0 = out[0].ptm.as_ref().unwrap();
-        // 40 + 50 + 50 merged (within 160 bytes), then 400 and 1460 alone.
+        // 40 + 50 + 50 merged (140 bytes; with the 400 they would pass 512), then 400 and
+        // 1460 alone.
         assert_eq!(
             p0.levels
                 .iter()

@@ -3,14 +3,15 @@
 //! viewpoints around it before its first frame, not the whole database's entries.
 //!
 //! ```text
-//! manifest.json      TopManifest: scene, slabs, tracks, viewpoints (position, background,
-//!                    and a reference — hash and size — to the viewpoint's table)
-//! objects/HH/HASH    a viewpoint's table: compact binary ([`super::table`]: tiles, their
-//!                    ranges in the viewpoint's pack with 32-bit checksums, the ACH lists of
-//!                    the segments starting at the viewpoint); an object like the others
-//!                    (fetched, hash-checked and cached the same way)
-//! objects/HH/HASH    a viewpoint's pack ([`super::pack`]): its tiles' meshes and PTM level
-//!                    groups back to back, in table order, named once by the table
+//! manifest.json      TopManifest: scene, slabs, tracks, viewpoints (position and a
+//!                    reference — hash and size — to the viewpoint's table)
+//! objects/HH/HASH    a viewpoint's table: compact binary ([`super::table`]: background tiles
+//!                    and tiles, their ranges in the viewpoint's pack with 32-bit checksums,
+//!                    the ACH lists of the segments starting at the viewpoint); an object
+//!                    like the others (fetched, hash-checked and cached the same way)
+//! objects/HH/HASH    a viewpoint's pack ([`super::pack`]): its background tiles' PTM level
+//!                    groups, then its tiles' meshes and PTM level groups, back to back in
+//!                    table order, named once by the table
 //! ```
 //!
 //! [`split`] turns a full [`Manifest`] into the top and the tables' bytes; [`assemble`] puts
@@ -20,7 +21,7 @@
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use tracks::manifest::{
-    Manifest, ObjectRef, PtmRef, SegmentEntry, TileEntry, TrackEntry, ViewpointEntry,
+    BackgroundTile, Manifest, ObjectRef, SegmentEntry, TileEntry, TrackEntry, ViewpointEntry,
 };
 use tracks::SlabRange;
 
@@ -28,7 +29,9 @@ use tracks::SlabRange;
 /// per viewpoint, 64-bit range checksums; 4: column-wise tables, 32-bit range checksums).
 pub const TOP_VERSION: u32 = 4;
 
-pub use super::table::{decode_table, encode_table, TableError, MAX_TABLE_BYTES};
+pub use super::table::{
+    decode_ach, decode_table, encode_ach, encode_table, TableError, MAX_TABLE_BYTES,
+};
 
 /// `manifest.json` of format 4.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -60,9 +63,12 @@ pub struct TopViewpoint {
     pub index: usize,
     pub s: f64,
     pub position: DVec3,
-    pub background: Option<PtmRef>,
-    /// The viewpoint's table (an object: gzip of its compact JSON).
+    /// The viewpoint's table (an object: [`super::table`]).
     pub table: ObjectRef,
+    /// The ACH lists of the segments starting at the viewpoint (an object: [`super::table`]),
+    /// absent when none starts there.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ach: Option<ObjectRef>,
 }
 
 /// A viewpoint's table, decoded.
@@ -70,16 +76,27 @@ pub struct TopViewpoint {
 pub struct ViewTable {
     /// Viewpoint index (`ViewpointEntry::index`).
     pub viewpoint: usize,
+    /// Its background tiles (payloads first in the pack).
+    pub background: Vec<BackgroundTile>,
     pub tiles: Vec<TileEntry>,
-    /// The segments that start at this viewpoint, with their ACH lists.
+    /// The segments that start at this viewpoint, with their ACH lists (from the viewpoint's
+    /// ACH object, not the table; empty until that has been read).
     pub segments: Vec<SegmentEntry>,
 }
 
-/// Per track and viewpoint, the bytes of its table object.
-pub type TableBytes = Vec<Vec<Vec<u8>>>;
+/// The objects of one viewpoint: its table's bytes and its ACH object's (none when no
+/// segment starts there).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewBytes {
+    pub table: Vec<u8>,
+    pub ach: Option<Vec<u8>>,
+}
 
-/// Splits a full manifest: the top manifest and, per track and viewpoint, the table's bytes
-/// (the top refers to each by hash and size; store them as objects).
+/// Per track and viewpoint, the bytes of its objects.
+pub type TableBytes = Vec<Vec<ViewBytes>>;
+
+/// Splits a full manifest: the top manifest and, per track and viewpoint, the bytes of its
+/// table and ACH object (the top refers to each by hash and size; store them as objects).
 pub fn split(m: &Manifest) -> Result<(TopManifest, TableBytes), TableError> {
     let mut all = Vec::new();
     let tracks = m
@@ -92,12 +109,15 @@ pub fn split(m: &Manifest) -> Result<(TopManifest, TableBytes), TableError> {
                 .iter()
                 .map(|v| {
                     let pack = v
-                        .tiles
+                        .background
                         .iter()
-                        .find_map(|t| t.ptm.as_ref())
-                        .map(|p| &p.object);
+                        .map(|b| &b.ptm)
+                        .chain(v.tiles.iter().filter_map(|t| t.ptm.as_ref()))
+                        .map(|p| &p.object)
+                        .next();
                     let table = ViewTable {
                         viewpoint: v.index,
+                        background: v.background.clone(),
                         tiles: v.tiles.clone(),
                         segments: t
                             .segments
@@ -106,21 +126,28 @@ pub fn split(m: &Manifest) -> Result<(TopManifest, TableBytes), TableError> {
                             .cloned()
                             .collect(),
                     };
-                    let b = encode_table(&table, pack).map_err(|e| {
+                    let named = |e: TableError| {
                         TableError::Layout(format!("track `{}` viewpoint {}: {e}", t.name, v.index))
-                    })?;
-                    let obj = ObjectRef {
-                        hash: super::hash_hex(&b),
+                    };
+                    let b = encode_table(&table, pack).map_err(named)?;
+                    let ach = if table.segments.is_empty() {
+                        None
+                    } else {
+                        Some(encode_ach(v.index, &table.segments).map_err(named)?)
+                    };
+                    let obj = |b: &[u8]| ObjectRef {
+                        hash: super::hash_hex(b),
                         size: b.len() as u64,
                     };
-                    bytes.push(b);
-                    Ok(TopViewpoint {
+                    let top = TopViewpoint {
                         index: v.index,
                         s: v.s,
                         position: v.position,
-                        background: v.background.clone(),
-                        table: obj,
-                    })
+                        table: obj(&b),
+                        ach: ach.as_deref().map(obj),
+                    };
+                    bytes.push(ViewBytes { table: b, ach });
+                    Ok(top)
                 })
                 .collect::<Result<Vec<_>, TableError>>()?;
             all.push(bytes);
@@ -164,7 +191,7 @@ pub fn assemble(top: &TopManifest, tables: &[Vec<Option<&ViewTable>>]) -> Manife
                     index: v.index,
                     s: v.s,
                     position: v.position,
-                    background: v.background.clone(),
+                    background: got(vi).map(|tb| tb.background.clone()).unwrap_or_default(),
                     tiles: got(vi).map(|tb| tb.tiles.clone()).unwrap_or_default(),
                 })
                 .collect();

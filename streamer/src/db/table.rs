@@ -1,14 +1,16 @@
 //! The binary viewpoint table (format 4): what a client needs to know about one viewpoint's
-//! tiles, in a few bytes per tile.
+//! tiles, in a few bytes per tile; and the viewpoint's ACH object, the ACH lists of the
+//! segments starting there, which only clients that rank tiles by ACH fetch.
 //!
 //! ```text
 //! "RVTB" u8 version=4 u8 coding (0 plain, 1 gzip of the body)    header, never compressed
 //! body:
 //!   varint viewpoint
 //!   u8 has_pack [32 B pack BLAKE3, varint pack size]             the pack, named once
-//!   u8 checksum bytes (4 or 8), varint grid side n,
-//!   u8 depth coding (0 f32, 1 f16), u8 position coding (0 ascending gaps, 1 explicit)
-//!   varint tiles, then one column after another (each over all tiles):
+//!   u8 checksum bytes (4 or 8), varint grid side n
+//!   the background tiles, then the tiles, each list as:
+//!   u8 depth coding (0 f32, 1 f16), u8 position coding (0 ascending gaps, 1 explicit),
+//!   varint count, then one column after another (each over the whole list):
 //!     positions   gaps: varint (index − previous index − 1), index = ((slab·6 + face)·n + ty)·n + tx
 //!                 explicit: u8 face, varint tx, varint ty, varint slab
 //!     flags       u8 (1 kept, 2 PTM, 4 mesh, 8 PTM levels in the usual shape)
@@ -18,25 +20,32 @@
 //!                 unless flag 8: per range varint level, varint width, varint height
 //!     lengths     per tile: varint mesh length, varint length of each PTM range
 //!     checksums   per tile: mesh, then each PTM range
-//!   varint segments, per segment: varint to, varint entries,
-//!     then per entry varint (index · 4 + whose: 0 this viewpoint, 1 `to`, 2 another, whose
-//!     number follows as a varint), then per entry f32 ach
+//!   (a background tile is a kept PTM without mesh in slab 0 at infinite depth)
+//!
+//! "RVAC" u8 version=1 u8 coding                                   the ACH object
+//! body:
+//!   varint viewpoint, varint grid side n, varint segments, per segment: varint to,
+//!   varint entries, then per entry varint (index · 4 + whose: 0 this viewpoint, 1 `to`,
+//!   2 another, whose number follows as a varint), then per entry f32 ach
 //! ```
 //!
 //! Integers are LEB128 varints, floats little-endian. Columns rather than records: gzip finds
 //! the repeats of a column (flags, shapes, depths of neighbouring tiles) where interleaved
-//! fields hide them (castle 128: tables 316.5 kB in format 3 → see BENCHMARKS.md). Offsets
-//! are not stored: a viewpoint's pack holds its tiles' payloads in table order (each tile's
-//! mesh, then its PTM ranges), so every offset is the sum of the lengths before it, and the
-//! lengths must add up to the pack's size. The usual shape of a PTM's ranges (flag 8) is
-//! ranges of consecutive levels ending at level 0, each `level_dims` of the PTM's size, so
-//! neither levels nor sizes are written. Checksums are the first 32 (or 64) bits of the
-//! range's BLAKE3 ([`super::range_hash32`]). Depths are stored as f16 when every finite depth
-//! of the table stays finite and non-negative that way, always rounded outwards. The body is
-//! gzipped only when that makes it smaller. Decoding never panics: bad bytes give a
-//! [`TableError`] naming the field.
+//! fields hide them. Offsets are not stored: a viewpoint's pack holds its background tiles'
+//! payloads, then its tiles' (each tile's mesh, then its PTM ranges) in table order, so every
+//! offset is the sum of the lengths before it, and the lengths must add up to the pack's
+//! size. The usual shape of a PTM's ranges (flag 8) is ranges of consecutive levels ending at
+//! level 0, each `level_dims` of the PTM's size, so neither levels nor sizes are written.
+//! Checksums are the first 32 (or 64) bits of the range's BLAKE3 ([`super::range_hash32`]).
+//! Depths are stored as f16 when every finite depth of the list stays finite and
+//! non-negative that way, always rounded outwards. The ACH lists live in an object of their
+//! own because a client that ranks tiles by what it sees never reads them (castle 128: a
+//! sixth of the tables' bytes). Bodies are gzipped only when that makes them smaller.
+//! Decoding never panics: bad bytes give a [`TableError`] naming the field.
 
-use tracks::manifest::{AchEntry, LevelRef, ObjectRef, PackRange, PtmRef, SegmentEntry, TileEntry};
+use tracks::manifest::{
+    AchEntry, BackgroundTile, LevelRef, ObjectRef, PackRange, PtmRef, SegmentEntry, TileEntry,
+};
 use tracks::{Face, TileId};
 
 use super::split::ViewTable;
@@ -61,6 +70,8 @@ pub enum TableError {
     Gzip(#[from] super::GunzipError),
     #[error("table: not a viewpoint table (no RVTB header)")]
     Magic,
+    #[error("ACH lists: not an ACH object (no RVAC header)")]
+    AchMagic,
     #[error("table: format {got}, this build reads format {TABLE_VERSION}: rebuild the database with `railview build`")]
     Version { got: u8 },
     #[error("table: unknown body coding {0}")]
@@ -173,15 +184,182 @@ fn usual_shape(p: &PtmRef) -> bool {
     })
 }
 
-/// The bytes of a viewpoint's table. Every tile with a PTM must have its payloads in `pack`
-/// (its `ptm.object`) in table order: mesh range then PTM ranges, from offset 0 up to the
-/// pack's size; a tile without a PTM carries no payload. Checksums must all be 8 or all be
-/// 16 hex digits.
+/// A background tile as tables and packs handle it: a kept tile without mesh, depth or slab.
+pub(super) fn background_entry(b: &BackgroundTile) -> TileEntry {
+    TileEntry {
+        tile: b.tile,
+        slab: 0,
+        depth_min: f64::INFINITY,
+        depth_max: f64::INFINITY,
+        opaque_pixels: 0,
+        kept: true,
+        ptm: Some(b.ptm.clone()),
+        mesh: None,
+        mesh_range: None,
+    }
+}
+
+/// Context of encoding one table.
+struct Enc<'a> {
+    b: Vec<u8>,
+    n: u64,
+    hash_bytes: usize,
+    pack: Option<&'a ObjectRef>,
+    /// Bytes of the pack taken by the payloads written so far.
+    cursor: u64,
+}
+
+impl Enc<'_> {
+    fn index(&self, slab: u32, t: TileId) -> Result<u64, TableError> {
+        tile_index(self.n, slab, t).ok_or_else(|| {
+            TableError::Layout(format!(
+                "tile {:?} {} {} of slab {slab} cannot be numbered",
+                t.face, t.tx, t.ty
+            ))
+        })
+    }
+
+    /// One list of tiles: its codings, its count and its columns (see the module docs).
+    fn tiles(&mut self, tiles: &[TileEntry], what: &str) -> Result<(), TableError> {
+        let mut indices = Vec::with_capacity(tiles.len());
+        for t in tiles {
+            indices.push(self.index(t.slab, t.tile)?);
+        }
+        let ascending = indices.windows(2).all(|w| w[0] < w[1]);
+        let depths16: Option<Vec<(u16, u16)>> = tiles
+            .iter()
+            .map(|t| {
+                Some((
+                    f16_bound(t.depth_min, false)?,
+                    f16_bound(t.depth_max, true)?,
+                ))
+            })
+            .collect();
+        let b = &mut self.b;
+        b.push(u8::from(depths16.is_some()));
+        b.push(u8::from(!ascending));
+        put_varint(b, tiles.len() as u64);
+        // Positions.
+        let mut prev: Option<u64> = None;
+        for (t, &i) in tiles.iter().zip(&indices) {
+            if ascending {
+                put_varint(b, prev.map_or(i, |p| i - p - 1));
+                prev = Some(i);
+            } else {
+                put_tile_id(b, t.tile);
+                put_varint(b, t.slab as u64);
+            }
+        }
+        // Flags, checking each tile's payloads against the pack.
+        for (i, t) in tiles.iter().enumerate() {
+            let Some(ptm) = &t.ptm else {
+                if t.mesh.is_some() || t.mesh_range.is_some() {
+                    return Err(TableError::Layout(format!(
+                        "{what} {i}: a mesh without a PTM has no place in the pack"
+                    )));
+                }
+                b.push(if t.kept { KEPT } else { 0 });
+                continue;
+            };
+            if Some(&ptm.object) != self.pack {
+                return Err(TableError::Layout(format!(
+                    "{what} {i}: PTM in object {}, not in the viewpoint's pack",
+                    ptm.object.hash
+                )));
+            }
+            if t.mesh.is_some() {
+                return Err(TableError::Layout(format!(
+                    "{what} {i}: mesh is an object of its own, not a range of the pack"
+                )));
+            }
+            let mut flags = HAS_PTM;
+            if t.kept {
+                flags |= KEPT;
+            }
+            if t.mesh_range.is_some() {
+                flags |= HAS_MESH;
+            }
+            if usual_shape(ptm) {
+                flags |= USUAL_SHAPE;
+            }
+            b.push(flags);
+        }
+        for t in tiles {
+            put_varint(b, t.opaque_pixels as u64);
+        }
+        match &depths16 {
+            Some(d) => {
+                for (lo, hi) in d {
+                    b.extend_from_slice(&lo.to_le_bytes());
+                    b.extend_from_slice(&hi.to_le_bytes());
+                }
+            }
+            None => {
+                for t in tiles {
+                    b.extend_from_slice(&f32_bound(t.depth_min, false).to_le_bytes());
+                    b.extend_from_slice(&f32_bound(t.depth_max, true).to_le_bytes());
+                }
+            }
+        }
+        // PTM shapes.
+        for ptm in tiles.iter().filter_map(|t| t.ptm.as_ref()) {
+            put_varint(b, ptm.width as u64);
+            put_varint(b, ptm.height as u64);
+            b.push(ptm.channels);
+            put_varint(b, ptm.levels.len() as u64);
+            if !usual_shape(ptm) {
+                for l in &ptm.levels {
+                    put_varint(b, l.level as u64);
+                    put_varint(b, l.width as u64);
+                    put_varint(b, l.height as u64);
+                }
+            }
+        }
+        // Lengths, in pack order.
+        let cursor = &mut self.cursor;
+        for (i, t) in tiles.iter().enumerate() {
+            let mut take = |offset: u64, len: u64, part: &str| {
+                if offset != *cursor {
+                    return Err(TableError::Layout(format!(
+                        "{what} {i}: {part} at offset {offset}, expected {cursor} (payloads in table order)"
+                    )));
+                }
+                *cursor += len;
+                Ok(())
+            };
+            if let Some(m) = &t.mesh_range {
+                take(m.offset, m.len, "mesh")?;
+                put_varint(b, m.len);
+            }
+            for l in t.ptm.iter().flat_map(|p| &p.levels) {
+                take(l.offset, l.len, "PTM range")?;
+                put_varint(b, l.len);
+            }
+        }
+        // Checksums.
+        for t in tiles {
+            if let Some(m) = &t.mesh_range {
+                put_hash(b, &m.hash, self.hash_bytes, "mesh checksum")?;
+            }
+            for l in t.ptm.iter().flat_map(|p| &p.levels) {
+                put_hash(b, &l.hash, self.hash_bytes, "PTM range checksum")?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The bytes of a viewpoint's table. Every background tile and every tile with a PTM must
+/// have its payloads in `pack` (its `ptm.object`) in table order — the background tiles' PTM
+/// ranges, then each tile's mesh range and PTM ranges — from offset 0 up to the pack's size; a
+/// tile without a PTM carries no payload. Checksums must all be 8 or all be 16 hex digits.
 pub fn encode_table(table: &ViewTable, pack: Option<&ObjectRef>) -> Result<Vec<u8>, TableError> {
+    let background: Vec<TileEntry> = table.background.iter().map(background_entry).collect();
     let tiles = &table.tiles;
     // Checksum width: that of the first one, the same for all.
-    let first_hash = tiles
+    let first_hash = background
         .iter()
+        .chain(tiles)
         .find_map(|t| {
             t.mesh_range.as_ref().map(|m| m.hash.len()).or_else(|| {
                 t.ptm
@@ -200,206 +378,42 @@ pub fn encode_table(table: &ViewTable, pack: Option<&ObjectRef>) -> Result<Vec<u
             )))
         }
     };
-    // Grid side: big enough for every position of the tiles and the ACH entries.
-    let n = tiles
+    // Grid side: big enough for every position of the tiles.
+    let n = background
         .iter()
+        .chain(tiles)
         .map(|t| t.tile)
-        .chain(
-            table
-                .segments
-                .iter()
-                .flat_map(|s| s.ach.iter().map(|a| a.tile)),
-        )
         .map(|t| t.tx.max(t.ty) as u64 + 1)
         .max()
         .unwrap_or(0);
-    let index = |slab: u32, t: TileId| {
-        tile_index(n, slab, t).ok_or_else(|| {
-            TableError::Layout(format!(
-                "tile {:?} {} {} of slab {slab} cannot be numbered",
-                t.face, t.tx, t.ty
-            ))
-        })
+    let mut e = Enc {
+        b: Vec::with_capacity(64 + (background.len() + tiles.len()) * 24),
+        n,
+        hash_bytes,
+        pack,
+        cursor: 0,
     };
-    let mut indices = Vec::with_capacity(tiles.len());
-    for t in tiles {
-        indices.push(index(t.slab, t.tile)?);
-    }
-    let ascending = indices.windows(2).all(|w| w[0] < w[1]);
-    let depths16: Option<Vec<(u16, u16)>> = tiles
-        .iter()
-        .map(|t| {
-            Some((
-                f16_bound(t.depth_min, false)?,
-                f16_bound(t.depth_max, true)?,
-            ))
-        })
-        .collect();
-
-    let mut b = Vec::with_capacity(64 + tiles.len() * 24);
-    put_varint(&mut b, table.viewpoint as u64);
+    put_varint(&mut e.b, table.viewpoint as u64);
     match pack {
         Some(p) => {
-            b.push(1);
-            put_hash(&mut b, &p.hash, 32, "pack hash")?;
-            put_varint(&mut b, p.size);
+            e.b.push(1);
+            put_hash(&mut e.b, &p.hash, 32, "pack hash")?;
+            put_varint(&mut e.b, p.size);
         }
-        None => b.push(0),
+        None => e.b.push(0),
     }
-    b.push(hash_bytes as u8);
-    put_varint(&mut b, n);
-    b.push(u8::from(depths16.is_some()));
-    b.push(u8::from(!ascending));
-    put_varint(&mut b, tiles.len() as u64);
-    // Positions.
-    let mut prev: Option<u64> = None;
-    for (t, &i) in tiles.iter().zip(&indices) {
-        if ascending {
-            put_varint(&mut b, prev.map_or(i, |p| i - p - 1));
-            prev = Some(i);
-        } else {
-            put_tile_id(&mut b, t.tile);
-            put_varint(&mut b, t.slab as u64);
-        }
-    }
-    // Flags, checking each tile's payloads against the pack.
-    for (i, t) in tiles.iter().enumerate() {
-        let Some(ptm) = &t.ptm else {
-            if t.mesh.is_some() || t.mesh_range.is_some() {
-                return Err(TableError::Layout(format!(
-                    "tile {i}: a mesh without a PTM has no place in the pack"
-                )));
-            }
-            b.push(if t.kept { KEPT } else { 0 });
-            continue;
-        };
-        if Some(&ptm.object) != pack {
-            return Err(TableError::Layout(format!(
-                "tile {i}: PTM in object {}, not in the viewpoint's pack",
-                ptm.object.hash
-            )));
-        }
-        if t.mesh.is_some() {
-            return Err(TableError::Layout(format!(
-                "tile {i}: mesh is an object of its own, not a range of the pack"
-            )));
-        }
-        let mut flags = HAS_PTM;
-        if t.kept {
-            flags |= KEPT;
-        }
-        if t.mesh_range.is_some() {
-            flags |= HAS_MESH;
-        }
-        if usual_shape(ptm) {
-            flags |= USUAL_SHAPE;
-        }
-        b.push(flags);
-    }
-    for t in tiles {
-        put_varint(&mut b, t.opaque_pixels as u64);
-    }
-    match &depths16 {
-        Some(d) => {
-            for (lo, hi) in d {
-                b.extend_from_slice(&lo.to_le_bytes());
-                b.extend_from_slice(&hi.to_le_bytes());
-            }
-        }
-        None => {
-            for t in tiles {
-                b.extend_from_slice(&f32_bound(t.depth_min, false).to_le_bytes());
-                b.extend_from_slice(&f32_bound(t.depth_max, true).to_le_bytes());
-            }
-        }
-    }
-    // PTM shapes.
-    for ptm in tiles.iter().filter_map(|t| t.ptm.as_ref()) {
-        put_varint(&mut b, ptm.width as u64);
-        put_varint(&mut b, ptm.height as u64);
-        b.push(ptm.channels);
-        put_varint(&mut b, ptm.levels.len() as u64);
-        if !usual_shape(ptm) {
-            for l in &ptm.levels {
-                put_varint(&mut b, l.level as u64);
-                put_varint(&mut b, l.width as u64);
-                put_varint(&mut b, l.height as u64);
-            }
-        }
-    }
-    // Lengths, in pack order.
-    let mut cursor = 0u64;
-    for (i, t) in tiles.iter().enumerate() {
-        let mut take = |offset: u64, len: u64, what: &str| {
-            if offset != cursor {
-                return Err(TableError::Layout(format!(
-                    "tile {i}: {what} at offset {offset}, expected {cursor} (payloads in table order)"
-                )));
-            }
-            cursor += len;
-            Ok(())
-        };
-        if let Some(m) = &t.mesh_range {
-            take(m.offset, m.len, "mesh")?;
-            put_varint(&mut b, m.len);
-        }
-        for l in t.ptm.iter().flat_map(|p| &p.levels) {
-            take(l.offset, l.len, "PTM range")?;
-            put_varint(&mut b, l.len);
-        }
-    }
+    e.b.push(hash_bytes as u8);
+    put_varint(&mut e.b, n);
+    e.tiles(&background, "background tile")?;
+    e.tiles(tiles, "tile")?;
     let pack_size = pack.map_or(0, |p| p.size);
-    if cursor != pack_size {
+    if e.cursor != pack_size {
         return Err(TableError::Layout(format!(
-            "payloads take {cursor} bytes, the pack has {pack_size}"
+            "payloads take {} bytes, the pack has {pack_size}",
+            e.cursor
         )));
     }
-    // Checksums.
-    for t in tiles {
-        if let Some(m) = &t.mesh_range {
-            put_hash(&mut b, &m.hash, hash_bytes, "mesh checksum")?;
-        }
-        for l in t.ptm.iter().flat_map(|p| &p.levels) {
-            put_hash(&mut b, &l.hash, hash_bytes, "PTM range checksum")?;
-        }
-    }
-    // Segments.
-    put_varint(&mut b, table.segments.len() as u64);
-    for s in &table.segments {
-        put_varint(&mut b, s.to as u64);
-        put_varint(&mut b, s.ach.len() as u64);
-        for a in &s.ach {
-            let i = index(a.slab, a.tile)?;
-            let code = |whose: u64| {
-                i.checked_mul(4)
-                    .map(|v| v + whose)
-                    .ok_or_else(|| TableError::Layout(format!("ACH entry index {i} too large")))
-            };
-            if a.viewpoint == table.viewpoint {
-                put_varint(&mut b, code(0)?);
-            } else if a.viewpoint == s.to {
-                put_varint(&mut b, code(1)?);
-            } else {
-                put_varint(&mut b, code(2)?);
-                put_varint(&mut b, a.viewpoint as u64);
-            }
-        }
-        for a in &s.ach {
-            b.extend_from_slice(&(a.ach as f32).to_le_bytes());
-        }
-    }
-    let mut out = Vec::with_capacity(b.len() + 6);
-    out.extend_from_slice(MAGIC);
-    out.push(TABLE_VERSION);
-    let gz = super::gzip(&b).map_err(|e| TableError::Layout(format!("gzip: {e}")))?;
-    if gz.len() < b.len() {
-        out.push(1);
-        out.extend_from_slice(&gz);
-    } else {
-        out.push(0);
-        out.extend_from_slice(&b);
-    }
-    Ok(out)
+    Ok(framed(MAGIC, TABLE_VERSION, e.b))
 }
 
 /// A cursor over a table body.
@@ -505,30 +519,195 @@ impl<'a> Reader<'a> {
     }
 }
 
+/// What decoding one table needs besides its bytes.
+struct Dec {
+    n: u64,
+    hash_bytes: usize,
+    pack: Option<ObjectRef>,
+    cursor: u64,
+}
+
+impl Dec {
+    fn position(
+        &self,
+        r: &Reader,
+        at: usize,
+        index: u64,
+        what: &'static str,
+    ) -> Result<(u32, TileId), TableError> {
+        let n = self.n;
+        let bad = || r.invalid(what, at, format!("{index} is outside a grid of side {n}"));
+        if n == 0 {
+            return Err(bad());
+        }
+        let tx = u32::try_from(index % n).map_err(|_| bad())?;
+        let ty = u32::try_from((index / n) % n).map_err(|_| bad())?;
+        let fs = index / n / n;
+        let slab = u32::try_from(fs / 6).map_err(|_| bad())?;
+        Ok((
+            slab,
+            TileId {
+                face: Face::ALL[(fs % 6) as usize],
+                tx,
+                ty,
+            },
+        ))
+    }
+
+    /// One list of tiles (see [`Enc::tiles`]).
+    fn tiles(&mut self, r: &mut Reader) -> Result<Vec<TileEntry>, TableError> {
+        let depth16 = match r.u8("depth coding")? {
+            c @ (0 | 1) => c == 1,
+            c => return Err(r.invalid("depth coding", r.at - 1, format!("{c} (0 or 1)"))),
+        };
+        let explicit = match r.u8("position coding")? {
+            c @ (0 | 1) => c == 1,
+            c => return Err(r.invalid("position coding", r.at - 1, format!("{c} (0 or 1)"))),
+        };
+        // Every tile takes at least a position, flags, opaque pixels and two f16 depths.
+        let count = r.count("tile count", 7)?;
+        let mut tiles: Vec<TileEntry> = Vec::with_capacity(count);
+        let mut next = 0u64;
+        for _ in 0..count {
+            let (slab, tile) = if explicit {
+                let tile = r.tile_id()?;
+                (r.u32("slab")?, tile)
+            } else {
+                let at = r.at;
+                let gap = r.varint("tile position")?;
+                let index = next
+                    .checked_add(gap)
+                    .ok_or_else(|| r.invalid("tile position", at, "positions overflow"))?;
+                next = index.saturating_add(1);
+                self.position(r, at, index, "tile position")?
+            };
+            tiles.push(TileEntry {
+                tile,
+                slab,
+                depth_min: 0.0,
+                depth_max: 0.0,
+                opaque_pixels: 0,
+                kept: false,
+                ptm: None,
+                mesh: None,
+                mesh_range: None,
+            });
+        }
+        let mut flags = Vec::with_capacity(count);
+        for t in &mut tiles {
+            let at = r.at;
+            let f = r.u8("tile flags")?;
+            if f & !(KEPT | HAS_PTM | HAS_MESH | USUAL_SHAPE) != 0
+                || (f & (HAS_MESH | USUAL_SHAPE) != 0 && f & HAS_PTM == 0)
+            {
+                return Err(r.invalid("tile flags", at, format!("{f:#04x}")));
+            }
+            if f & HAS_PTM != 0 && self.pack.is_none() {
+                return Err(r.invalid(
+                    "tile flags",
+                    at,
+                    "a tile with a PTM in a table without a pack",
+                ));
+            }
+            t.kept = f & KEPT != 0;
+            flags.push(f);
+        }
+        for t in &mut tiles {
+            t.opaque_pixels = r.u32("opaque_pixels")?;
+        }
+        for t in &mut tiles {
+            if depth16 {
+                t.depth_min = r.f16("depth_min")?;
+                t.depth_max = r.f16("depth_max")?;
+            } else {
+                t.depth_min = r.f32("depth_min")? as f64;
+                t.depth_max = r.f32("depth_max")? as f64;
+            }
+        }
+        for (t, &f) in tiles.iter_mut().zip(&flags) {
+            let Some(pack) = self.pack.as_ref().filter(|_| f & HAS_PTM != 0) else {
+                continue;
+            };
+            let width = r.u32("PTM width")?;
+            let height = r.u32("PTM height")?;
+            let channels = r.u8("PTM channels")?;
+            let at = r.at;
+            let ranges = r.count("PTM range count", 2)?;
+            let mut levels = Vec::with_capacity(ranges);
+            for i in 0..ranges {
+                let (level, w, h) = if f & USUAL_SHAPE != 0 {
+                    let level = (ranges - 1 - i) as u32;
+                    if level >= 32 {
+                        return Err(r.invalid("PTM range count", at, format!("{ranges} levels")));
+                    }
+                    let (w, h) = crate::ptm::level_dims(width, height, level);
+                    (level, w, h)
+                } else {
+                    (
+                        r.u32("PTM level")?,
+                        r.u32("PTM level width")?,
+                        r.u32("PTM level height")?,
+                    )
+                };
+                levels.push(LevelRef {
+                    level,
+                    width: w,
+                    height: h,
+                    offset: 0,
+                    len: 0,
+                    hash: String::new(),
+                });
+            }
+            t.ptm = Some(PtmRef {
+                object: pack.clone(),
+                width,
+                height,
+                channels,
+                levels,
+            });
+        }
+        let cursor = &mut self.cursor;
+        let mut place = |r: &mut Reader, what: &'static str| {
+            let len = r.varint(what)?;
+            let offset = *cursor;
+            *cursor = cursor
+                .checked_add(len)
+                .ok_or_else(|| r.invalid(what, r.at, "lengths overflow"))?;
+            Ok::<(u64, u64), TableError>((offset, len))
+        };
+        for (t, &f) in tiles.iter_mut().zip(&flags) {
+            if f & HAS_MESH != 0 {
+                let (offset, len) = place(r, "mesh length")?;
+                t.mesh_range = Some(PackRange {
+                    offset,
+                    len,
+                    hash: String::new(),
+                });
+            }
+            if let Some(p) = &mut t.ptm {
+                for l in &mut p.levels {
+                    (l.offset, l.len) = place(r, "PTM range length")?;
+                }
+            }
+        }
+        for t in &mut tiles {
+            if let Some(m) = &mut t.mesh_range {
+                m.hash = r.hex(self.hash_bytes, "mesh checksum")?;
+            }
+            if let Some(p) = &mut t.ptm {
+                for l in &mut p.levels {
+                    l.hash = r.hex(self.hash_bytes, "PTM range checksum")?;
+                }
+            }
+        }
+        Ok(tiles)
+    }
+}
+
 /// Decodes a table object's bytes (already checked against its hash) for viewpoint `want`.
 pub fn decode_table(bytes: &[u8], want: usize) -> Result<ViewTable, TableError> {
-    if bytes.len() < 6 || &bytes[..4] != MAGIC {
-        return Err(TableError::Magic);
-    }
-    if bytes[4] != TABLE_VERSION {
-        return Err(TableError::Version { got: bytes[4] });
-    }
-    let unzipped;
-    let body = match bytes[5] {
-        0 => {
-            if bytes.len() as u64 - 6 > MAX_TABLE_BYTES {
-                return Err(TableError::Gzip(super::GunzipError::TooLarge {
-                    limit: MAX_TABLE_BYTES,
-                }));
-            }
-            &bytes[6..]
-        }
-        1 => {
-            unzipped = super::gunzip_limited(&bytes[6..], MAX_TABLE_BYTES)?;
-            &unzipped[..]
-        }
-        c => return Err(TableError::Coding(c)),
-    };
+    let mut unzipped = Vec::new();
+    let body = unframe(bytes, MAGIC, TABLE_VERSION, &mut unzipped)?;
     let mut r = Reader { b: body, at: 0 };
     let viewpoint = r.usize("viewpoint")?;
     if viewpoint != want {
@@ -550,174 +729,162 @@ pub fn decode_table(bytes: &[u8], want: usize) -> Result<ViewTable, TableError> 
         c => return Err(r.invalid("checksum bytes", r.at - 1, format!("{c} (4 or 8)"))),
     };
     let n = r.varint("grid side")?;
-    let depth16 = match r.u8("depth coding")? {
-        c @ (0 | 1) => c == 1,
-        c => return Err(r.invalid("depth coding", r.at - 1, format!("{c} (0 or 1)"))),
+    let mut d = Dec {
+        n,
+        hash_bytes,
+        pack,
+        cursor: 0,
     };
-    let explicit = match r.u8("position coding")? {
-        c @ (0 | 1) => c == 1,
-        c => return Err(r.invalid("position coding", r.at - 1, format!("{c} (0 or 1)"))),
-    };
-    // Every tile takes at least a position, flags, opaque pixels and two f16 depths.
-    let count = r.count("tile count", 7)?;
-    let position = |r: &Reader, at: usize, index: u64, what: &'static str| {
-        let bad = || r.invalid(what, at, format!("{index} is outside a grid of side {n}"));
-        if n == 0 {
-            return Err(bad());
-        }
-        let tx = u32::try_from(index % n).map_err(|_| bad())?;
-        let ty = u32::try_from((index / n) % n).map_err(|_| bad())?;
-        let fs = index / n / n;
-        let slab = u32::try_from(fs / 6).map_err(|_| bad())?;
-        Ok::<_, TableError>((
-            slab,
-            TileId {
-                face: Face::ALL[(fs % 6) as usize],
-                tx,
-                ty,
-            },
-        ))
-    };
-    let mut tiles: Vec<TileEntry> = Vec::with_capacity(count);
-    let mut next = 0u64;
-    for _ in 0..count {
-        let (slab, tile) = if explicit {
-            let tile = r.tile_id()?;
-            (r.u32("slab")?, tile)
-        } else {
-            let at = r.at;
-            let gap = r.varint("tile position")?;
-            let index = next
-                .checked_add(gap)
-                .ok_or_else(|| r.invalid("tile position", at, "positions overflow"))?;
-            next = index.saturating_add(1);
-            position(&r, at, index, "tile position")?
-        };
-        tiles.push(TileEntry {
-            tile,
-            slab,
-            depth_min: 0.0,
-            depth_max: 0.0,
-            opaque_pixels: 0,
-            kept: false,
-            ptm: None,
-            mesh: None,
-            mesh_range: None,
-        });
-    }
-    let mut flags = Vec::with_capacity(count);
-    for t in &mut tiles {
-        let at = r.at;
-        let f = r.u8("tile flags")?;
-        if f & !(KEPT | HAS_PTM | HAS_MESH | USUAL_SHAPE) != 0
-            || (f & (HAS_MESH | USUAL_SHAPE) != 0 && f & HAS_PTM == 0)
-        {
-            return Err(r.invalid("tile flags", at, format!("{f:#04x}")));
-        }
-        if f & HAS_PTM != 0 && pack.is_none() {
-            return Err(r.invalid(
-                "tile flags",
-                at,
-                "a tile with a PTM in a table without a pack",
-            ));
-        }
-        t.kept = f & KEPT != 0;
-        flags.push(f);
-    }
-    for t in &mut tiles {
-        t.opaque_pixels = r.u32("opaque_pixels")?;
-    }
-    for t in &mut tiles {
-        if depth16 {
-            t.depth_min = r.f16("depth_min")?;
-            t.depth_max = r.f16("depth_max")?;
-        } else {
-            t.depth_min = r.f32("depth_min")? as f64;
-            t.depth_max = r.f32("depth_max")? as f64;
-        }
-    }
-    for (t, &f) in tiles.iter_mut().zip(&flags) {
-        let Some(pack) = pack.as_ref().filter(|_| f & HAS_PTM != 0) else {
-            continue;
-        };
-        let width = r.u32("PTM width")?;
-        let height = r.u32("PTM height")?;
-        let channels = r.u8("PTM channels")?;
-        let at = r.at;
-        let ranges = r.count("PTM range count", 2)?;
-        let mut levels = Vec::with_capacity(ranges);
-        for i in 0..ranges {
-            let (level, w, h) = if f & USUAL_SHAPE != 0 {
-                let level = (ranges - 1 - i) as u32;
-                if level >= 32 {
-                    return Err(r.invalid("PTM range count", at, format!("{ranges} levels")));
-                }
-                let (w, h) = crate::ptm::level_dims(width, height, level);
-                (level, w, h)
-            } else {
-                (
-                    r.u32("PTM level")?,
-                    r.u32("PTM level width")?,
-                    r.u32("PTM level height")?,
-                )
-            };
-            levels.push(LevelRef {
-                level,
-                width: w,
-                height: h,
-                offset: 0,
-                len: 0,
-                hash: String::new(),
-            });
-        }
-        t.ptm = Some(PtmRef {
-            object: pack.clone(),
-            width,
-            height,
-            channels,
-            levels,
-        });
-    }
-    let mut cursor = 0u64;
-    let mut place = |r: &mut Reader, what: &'static str| {
-        let len = r.varint(what)?;
-        let offset = cursor;
-        cursor = cursor
-            .checked_add(len)
-            .ok_or_else(|| r.invalid(what, r.at, "lengths overflow"))?;
-        Ok::<(u64, u64), TableError>((offset, len))
-    };
-    for (t, &f) in tiles.iter_mut().zip(&flags) {
-        if f & HAS_MESH != 0 {
-            let (offset, len) = place(&mut r, "mesh length")?;
-            t.mesh_range = Some(PackRange {
-                offset,
-                len,
-                hash: String::new(),
-            });
-        }
-        if let Some(p) = &mut t.ptm {
-            for l in &mut p.levels {
-                (l.offset, l.len) = place(&mut r, "PTM range length")?;
+    let at = r.at;
+    let background = d
+        .tiles(&mut r)?
+        .into_iter()
+        .map(|t| match t.ptm {
+            Some(ptm) if t.kept && t.mesh_range.is_none() && t.slab == 0 => {
+                Ok(BackgroundTile { tile: t.tile, ptm })
             }
-        }
-    }
-    let pack_size = pack.as_ref().map_or(0, |p| p.size);
-    if cursor != pack_size {
+            _ => Err(r.invalid(
+                "background tiles",
+                at,
+                "a background tile is a kept PTM without mesh in slab 0",
+            )),
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let tiles = d.tiles(&mut r)?;
+    let pack_size = d.pack.as_ref().map_or(0, |p| p.size);
+    if d.cursor != pack_size {
         return Err(TableError::Layout(format!(
-            "the tiles' lengths add up to {cursor} bytes, the pack has {pack_size}"
+            "the tiles' lengths add up to {} bytes, the pack has {pack_size}",
+            d.cursor
         )));
     }
-    for t in &mut tiles {
-        if let Some(m) = &mut t.mesh_range {
-            m.hash = r.hex(hash_bytes, "mesh checksum")?;
-        }
-        if let Some(p) = &mut t.ptm {
-            for l in &mut p.levels {
-                l.hash = r.hex(hash_bytes, "PTM range checksum")?;
+    if r.at != body.len() {
+        return Err(TableError::Trailing(body.len() - r.at));
+    }
+    Ok(ViewTable {
+        viewpoint,
+        background,
+        tiles,
+        segments: Vec::new(),
+    })
+}
+
+/// First bytes of every ACH object.
+pub const ACH_MAGIC: &[u8; 4] = b"RVAC";
+/// ACH object format written and read by this crate.
+pub const ACH_VERSION: u8 = 1;
+
+/// The bytes of the ACH object of viewpoint `viewpoint`: the ACH lists of the segments that
+/// start there (see the module docs).
+pub fn encode_ach(viewpoint: usize, segments: &[SegmentEntry]) -> Result<Vec<u8>, TableError> {
+    let n = segments
+        .iter()
+        .flat_map(|s| s.ach.iter().map(|a| a.tile))
+        .map(|t| t.tx.max(t.ty) as u64 + 1)
+        .max()
+        .unwrap_or(0);
+    let mut b = Vec::with_capacity(16 + segments.iter().map(|s| s.ach.len() * 6).sum::<usize>());
+    put_varint(&mut b, viewpoint as u64);
+    put_varint(&mut b, n);
+    put_varint(&mut b, segments.len() as u64);
+    for s in segments {
+        put_varint(&mut b, s.to as u64);
+        put_varint(&mut b, s.ach.len() as u64);
+        for a in &s.ach {
+            let i = tile_index(n, a.slab, a.tile)
+                .and_then(|i| i.checked_mul(4))
+                .ok_or_else(|| {
+                    TableError::Layout(format!(
+                        "ACH entry {:?} {} {} of slab {} cannot be numbered",
+                        a.tile.face, a.tile.tx, a.tile.ty, a.slab
+                    ))
+                })?;
+            if a.viewpoint == viewpoint {
+                put_varint(&mut b, i);
+            } else if a.viewpoint == s.to {
+                put_varint(&mut b, i + 1);
+            } else {
+                put_varint(&mut b, i + 2);
+                put_varint(&mut b, a.viewpoint as u64);
             }
         }
+        for a in &s.ach {
+            b.extend_from_slice(&(a.ach as f32).to_le_bytes());
+        }
     }
+    Ok(framed(ACH_MAGIC, ACH_VERSION, b))
+}
+
+/// Header, coding byte and the body, gzipped when that is smaller.
+fn framed(magic: &[u8; 4], version: u8, b: Vec<u8>) -> Vec<u8> {
+    let mut out = Vec::with_capacity(b.len() + 6);
+    out.extend_from_slice(magic);
+    out.push(version);
+    match super::gzip(&b) {
+        Ok(gz) if gz.len() < b.len() => {
+            out.push(1);
+            out.extend_from_slice(&gz);
+        }
+        _ => {
+            out.push(0);
+            out.extend_from_slice(&b);
+        }
+    }
+    out
+}
+
+/// The body of a framed object: checked magic and version, un-gzipped within the limit.
+fn unframe<'a>(
+    bytes: &'a [u8],
+    magic: &[u8; 4],
+    version: u8,
+    unzipped: &'a mut Vec<u8>,
+) -> Result<&'a [u8], TableError> {
+    if bytes.len() < 6 || &bytes[..4] != magic {
+        return Err(if magic == MAGIC {
+            TableError::Magic
+        } else {
+            TableError::AchMagic
+        });
+    }
+    if bytes[4] != version {
+        return Err(TableError::Version { got: bytes[4] });
+    }
+    match bytes[5] {
+        0 => {
+            if bytes.len() as u64 - 6 > MAX_TABLE_BYTES {
+                return Err(TableError::Gzip(super::GunzipError::TooLarge {
+                    limit: MAX_TABLE_BYTES,
+                }));
+            }
+            Ok(&bytes[6..])
+        }
+        1 => {
+            *unzipped = super::gunzip_limited(&bytes[6..], MAX_TABLE_BYTES)?;
+            Ok(&unzipped[..])
+        }
+        c => Err(TableError::Coding(c)),
+    }
+}
+
+/// Decodes an ACH object's bytes (already checked against its hash) for viewpoint `want`.
+pub fn decode_ach(bytes: &[u8], want: usize) -> Result<Vec<SegmentEntry>, TableError> {
+    let mut unzipped = Vec::new();
+    let body = unframe(bytes, ACH_MAGIC, ACH_VERSION, &mut unzipped)?;
+    let mut r = Reader { b: body, at: 0 };
+    let viewpoint = r.usize("viewpoint")?;
+    if viewpoint != want {
+        return Err(TableError::Viewpoint {
+            got: viewpoint,
+            want,
+        });
+    }
+    let d = Dec {
+        n: r.varint("grid side")?,
+        hash_bytes: 4,
+        pack: None,
+        cursor: 0,
+    };
     let ns = r.count("segment count", 2)?;
     let mut segments = Vec::with_capacity(ns);
     for _ in 0..ns {
@@ -734,7 +901,7 @@ pub fn decode_table(bytes: &[u8], want: usize) -> Result<ViewTable, TableError> 
                 2 => r.usize("ACH viewpoint")?,
                 w => return Err(r.invalid("ACH tile", at, format!("owner code {w} (0–2)"))),
             };
-            let (slab, tile) = position(&r, at, code / 4, "ACH tile")?;
+            let (slab, tile) = d.position(&r, at, code / 4, "ACH tile")?;
             ach.push(AchEntry {
                 viewpoint: vp,
                 slab,
@@ -754,11 +921,7 @@ pub fn decode_table(bytes: &[u8], want: usize) -> Result<ViewTable, TableError> 
     if r.at != body.len() {
         return Err(TableError::Trailing(body.len() - r.at));
     }
-    Ok(ViewTable {
-        viewpoint,
-        tiles,
-        segments,
-    })
+    Ok(segments)
 }
 
 #[cfg(test)]
@@ -855,12 +1018,19 @@ mod tests {
                 tile.depth_max = f32_bound(tile.depth_max, true) as f64;
             }
         }
-        for s in &mut t.segments {
+        // The ACH lists travel in an object of their own.
+        t.segments.clear();
+        t
+    }
+
+    /// What an ACH object keeps of the lists: values as f32.
+    fn ach_as_stored(mut segments: Vec<SegmentEntry>) -> Vec<SegmentEntry> {
+        for s in &mut segments {
             for a in &mut s.ach {
                 a.ach = a.ach as f32 as f64;
             }
         }
-        t
+        segments
     }
 
     fn sample(
@@ -868,8 +1038,29 @@ mod tests {
         tiles: Vec<TileEntry>,
         seed: u64,
     ) -> (ViewTable, Option<ObjectRef>) {
-        let mut tiles = tiles;
-        let pack = lay_out(&mut tiles, seed);
+        // Every third tile with a PTM lends it to a background tile too (payloads first).
+        let mut all: Vec<TileEntry> = tiles
+            .iter()
+            .filter(|t| t.ptm.is_some())
+            .step_by(3)
+            .map(|t| {
+                background_entry(&BackgroundTile {
+                    tile: t.tile,
+                    ptm: t.ptm.clone().unwrap(),
+                })
+            })
+            .collect();
+        let nb = all.len();
+        all.extend(tiles);
+        let pack = lay_out(&mut all, seed);
+        let tiles = all.split_off(nb);
+        let background = all
+            .into_iter()
+            .map(|t| BackgroundTile {
+                tile: t.tile,
+                ptm: t.ptm.unwrap(),
+            })
+            .collect();
         let ach = tiles
             .iter()
             .enumerate()
@@ -888,6 +1079,7 @@ mod tests {
         (
             ViewTable {
                 viewpoint,
+                background,
                 tiles,
                 segments,
             },
@@ -912,6 +1104,16 @@ mod tests {
             let other = matches!(decode_table(&bytes, viewpoint + 1),
                                  Err(TableError::Viewpoint { .. }));
             prop_assert!(other);
+            // The ACH object: the same lists (f32 values), never taken for another viewpoint
+            // or for a table.
+            let ach = encode_ach(viewpoint, &table.segments).unwrap();
+            prop_assert_eq!(decode_ach(&ach, viewpoint).unwrap(),
+                            ach_as_stored(table.segments.clone()));
+            let other = matches!(decode_ach(&ach, viewpoint + 1),
+                                 Err(TableError::Viewpoint { .. }));
+            prop_assert!(other);
+            prop_assert!(matches!(decode_table(&ach, viewpoint), Err(TableError::Magic)));
+            prop_assert!(matches!(decode_ach(&bytes, viewpoint), Err(TableError::AchMagic)));
         }
 
         /// Tiles in grid order (as `railview build` writes them) take the gap coding of
@@ -960,6 +1162,22 @@ mod tests {
             let mut with_header = b"RVTB\x04\x00".to_vec();
             with_header.extend_from_slice(&bytes);
             let _ = decode_table(&with_header, 0);
+            let _ = decode_ach(&bytes, 0);
+            let mut with_header = b"RVAC\x01\x00".to_vec();
+            with_header.extend_from_slice(&bytes);
+            let _ = decode_ach(&with_header, 0);
+        }
+
+        #[test]
+        fn damaged_or_cut_ach_objects_never_panic(tiles in proptest::collection::vec(tile(), 1..12),
+                                                  at in any::<usize>(), bit in 0u8..8, cut in any::<usize>()) {
+            let (table, _) = sample(3, tiles, 7);
+            let bytes = encode_ach(3, &table.segments).unwrap();
+            let mut flipped = bytes.clone();
+            let i = at % flipped.len();
+            flipped[i] ^= 1 << bit;
+            let _ = decode_ach(&flipped, 3);
+            let _ = decode_ach(&bytes[..cut % bytes.len()], 3);
         }
     }
 

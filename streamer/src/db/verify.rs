@@ -4,9 +4,9 @@ use std::collections::BTreeMap;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use tracks::manifest::{object_rel_path, Manifest, ObjectRef, PackRange, PtmRef};
+use tracks::manifest::{object_rel_path, Manifest, ObjectRef, PackRange, PtmRef, SegmentEntry};
 
-use super::split::{assemble, decode_table, TopManifest, ViewTable};
+use super::split::{assemble, decode_ach, decode_table, TopManifest, ViewTable};
 use super::{
     gunzip_limited, gzip, hash_hex, hash_matches, parse_top, DbError, MANIFEST_FILE,
     MANIFEST_GZ_FILE, MANIFEST_HASH_FILE,
@@ -111,10 +111,23 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
             let mut row = Vec::new();
             for v in &t.viewpoints {
                 table_refs.push(v.table.clone());
+                table_refs.extend(v.ach.clone());
                 let (path, got) = check_table(dir, &v.table, v.index);
                 match got {
-                    Ok(table) => {
+                    Ok(mut table) => {
                         report.tables_checked += 1;
+                        if let Some(ach) = &v.ach {
+                            match check_ach(dir, ach, v.index) {
+                                (_, Ok(segments)) => table.segments = segments,
+                                (path, Err(what)) => report.problems.push(problem(
+                                    path,
+                                    format!(
+                                        "ACH lists of track `{}` viewpoint {}: {what}",
+                                        t.name, v.index
+                                    ),
+                                )),
+                            }
+                        }
                         row.push(Some(table));
                     }
                     Err(what) => {
@@ -445,10 +458,33 @@ fn check_table(
     obj: &ObjectRef,
     viewpoint: usize,
 ) -> (PathBuf, Result<ViewTable, String>) {
+    check_object(dir, obj, "table", |b| {
+        decode_table(b, viewpoint).map_err(|e| e.to_string())
+    })
+}
+
+/// Reads, hash-checks and decodes a viewpoint's ACH object.
+fn check_ach(
+    dir: &Path,
+    obj: &ObjectRef,
+    viewpoint: usize,
+) -> (PathBuf, Result<Vec<SegmentEntry>, String>) {
+    check_object(dir, obj, "ACH object", |b| {
+        decode_ach(b, viewpoint).map_err(|e| e.to_string())
+    })
+}
+
+/// Reads and hash-checks one object the top manifest names, then decodes it.
+fn check_object<T>(
+    dir: &Path,
+    obj: &ObjectRef,
+    what: &str,
+    decode: impl FnOnce(&[u8]) -> Result<T, String>,
+) -> (PathBuf, Result<T, String>) {
     let Some(rel) = object_rel_path(&obj.hash) else {
         return (
             dir.join(MANIFEST_FILE),
-            Err(format!("invalid table hash {:?}", obj.hash)),
+            Err(format!("invalid {what} hash {:?}", obj.hash)),
         );
     };
     let path = dir.join(rel);
@@ -466,7 +502,7 @@ fn check_table(
             "content hash is {}: the file is damaged",
             hash_hex(&bytes)
         )),
-        Ok(bytes) => decode_table(&bytes, viewpoint).map_err(|e| e.to_string()),
+        Ok(bytes) => decode(&bytes),
     };
     (path, got)
 }
@@ -478,8 +514,8 @@ fn for_each_object<'m>(
 ) {
     for t in &m.tracks {
         for v in &t.viewpoints {
-            if let Some(b) = &v.background {
-                f(&b.object, Some(b), None);
+            for b in &v.background {
+                f(&b.ptm.object, Some(&b.ptm), None);
             }
             for tile in &v.tiles {
                 if let Some(p) = &tile.ptm {

@@ -153,6 +153,11 @@ impl ServedDb {
         let mut objects = manifest_objects(&manifest);
         for t in &top.tracks {
             objects.extend(t.viewpoints.iter().map(|v| v.table.hash.clone()));
+            objects.extend(
+                t.viewpoints
+                    .iter()
+                    .filter_map(|v| v.ach.as_ref().map(|a| a.hash.clone())),
+            );
         }
         if let Some(bad) = objects.iter().find(|h| object_rel_path(h).is_none()) {
             return Err(ServerError::Manifest {
@@ -237,8 +242,8 @@ pub fn manifest_objects(m: &Manifest) -> HashSet<String> {
     let mut out = HashSet::new();
     for t in &m.tracks {
         for vp in &t.viewpoints {
-            if let Some(bg) = &vp.background {
-                out.insert(bg.object.hash.clone());
+            for bg in &vp.background {
+                out.insert(bg.ptm.object.hash.clone());
             }
             for tile in &vp.tiles {
                 if let Some(p) = &tile.ptm {

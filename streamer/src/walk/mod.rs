@@ -50,6 +50,17 @@ pub enum Strategy {
 }
 
 impl Strategy {
+    /// Whether the strategy ranks tiles by the segments' ACH lists (and so fetches them).
+    pub fn uses_ach(&self) -> bool {
+        matches!(
+            self,
+            Strategy::Budget {
+                mode: PriorityMode::Ach | PriorityMode::Combined { .. },
+                ..
+            }
+        )
+    }
+
     /// `naive`, `ach`, `visibility`, `ach+visibility`, each of the last three `+prefetch`.
     pub fn parse(text: &str) -> Result<Strategy, String> {
         let t = text.trim().to_ascii_lowercase();
@@ -290,8 +301,9 @@ pub(crate) struct Scene {
     table: ItemTable,
     /// What a client knows from the top manifest alone (backgrounds).
     empty: ItemTable,
-    /// Per viewpoint of the track: its table object and its index.
-    tables: Vec<(ObjectRef, usize)>,
+    /// Per viewpoint of the track: its table object, its ACH object (if a segment starts
+    /// there) and its index.
+    tables: Vec<(ObjectRef, Option<ObjectRef>, usize)>,
     /// Where the walk's needs come from: the whole database.
     index: SceneIndex,
     track: tracks::Track,
@@ -306,7 +318,7 @@ fn load_scene(top: &TopManifest, manifest: Manifest, track: usize) -> Result<Sce
         .map(|t| {
             t.viewpoints
                 .iter()
-                .map(|v| (v.table.clone(), v.index))
+                .map(|v| (v.table.clone(), v.ach.clone(), v.index))
                 .collect()
         })
         .unwrap_or_default();
@@ -352,7 +364,11 @@ pub async fn run_walk(
     for t in &fetched.top.tracks {
         let mut row = Vec::new();
         for v in &t.viewpoints {
-            row.push(conn.fetch_table(&v.table, v.index).await?);
+            let mut table = conn.fetch_table(&v.table, v.index).await?;
+            if let Some(ach) = &v.ach {
+                table.segments = conn.fetch_ach(ach, v.index).await?;
+            }
+            row.push(table);
         }
         tables.push(row);
     }

@@ -116,7 +116,10 @@ impl Sim<'_> {
             }
             for (vi, vt) in f.tables {
                 // Checked and decoded when fetched; the positions agree with the scene's.
-                if let Ok(range) = self.table.add_viewpoint(vi, &vt.tiles, &vt.segments) {
+                if let Ok(range) =
+                    self.table
+                        .add_viewpoint(vi, &vt.background, &vt.tiles, &vt.segments)
+                {
                     self.share_identical_parts(range.clone());
                     for i in range {
                         self.items.push(self.table.items[i].info.clone());
@@ -676,8 +679,22 @@ pub(crate) async fn run_one(
             .copied()
             .filter(|&(i, _)| in_cone(i, wide))
             .collect();
+        // The paper's quality is measured against the segment's ACH list as the database
+        // has it, whether or not the strategy fetched the lists: the client's item of each
+        // entry's tile (`None` while its table is missing).
+        let truth: Vec<Option<usize>> = scene
+            .table
+            .segment_ach
+            .get(seg)
+            .map_or(&[][..], |v| v.as_slice())
+            .iter()
+            .map(|&(i, _)| {
+                let it = &scene.table.items[i];
+                sim.table.tile_item(it.viewpoint, it.tile?)
+            })
+            .collect();
         let (quality, needed, complete) =
-            frame_metrics(&sim.table, &sim.items, &have, ach, &counts);
+            frame_metrics(&sim.table, &sim.items, &have, &truth, &counts);
         if complete && first_frame.is_none() {
             first_frame = Some(t0 + t);
             first_frame_bytes = Some((
@@ -747,23 +764,25 @@ pub(crate) async fn run_one(
 fn surface_item(table: &ItemTable, c: &SurfaceCount) -> Option<usize> {
     match c.surface {
         Surface::Tile { viewpoint, tile } => table.tile_item(viewpoint, tile),
-        Surface::Background { viewpoint } => table.background_item(viewpoint),
+        Surface::Background { viewpoint, tile } => table.background_item(viewpoint, tile),
     }
 }
 
-/// `(quality, needed fraction, complete)` of one frame.
+/// `(quality, needed fraction, complete)` of one frame; `ach` is the segment's ACH list as
+/// the client's items (`None`: not known to the client, nothing held).
 fn frame_metrics(
     table: &ItemTable,
     items: &[ItemInfo],
     have: &[usize],
-    ach: &[(usize, f64)],
+    ach: &[Option<usize>],
     counts: &[SurfaceCount],
 ) -> (f64, f64, bool) {
     let quality = if ach.is_empty() {
         0.0
     } else {
         ach.iter()
-            .map(|&(i, _)| {
+            .map(|&i| {
+                let Some(i) = i else { return 0.0 };
                 let info = &items[i];
                 let groups = info.levels.len().max(1) as f64;
                 have[i].saturating_sub(info.first_level_part) as f64 / groups
@@ -780,8 +799,11 @@ fn frame_metrics(
             continue;
         }
         let Some(item) = surface_item(table, c) else {
-            // A background the database does not have is never needed.
-            if !matches!(c.surface, Surface::Background { .. }) {
+            // A background tile the database does not have is never needed; anything else,
+            // and whatever a viewpoint whose table has not arrived shows, is missing.
+            let absent = matches!(c.surface,
+                Surface::Background { viewpoint, .. } if table.has_viewpoint(viewpoint));
+            if !absent {
                 total += px;
                 complete = false;
             }

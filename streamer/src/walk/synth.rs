@@ -188,7 +188,7 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
             index: vp.index,
             s: vp.s,
             position: vp.position,
-            background: None,
+            background: Vec::new(),
             tiles,
         });
     }

@@ -4,10 +4,11 @@
 use bytes::Bytes;
 
 use super::LiveSession;
+use crate::client::budget::PriorityMode;
 use crate::client::fetcher::FetchRequest;
 use crate::client::http::FetchKey;
 use crate::client::predict::{next_segment, segment_at};
-use crate::db::split::{assemble, decode_table, ViewTable};
+use crate::db::split::{assemble, decode_ach, decode_table, ViewTable};
 use crate::visibility::{blend_weights, SceneIndex};
 
 impl LiveSession {
@@ -27,7 +28,34 @@ impl LiveSession {
         }
         let t = &self.top.tracks[self.track];
         let mut out = Vec::new();
+        let ach_mode = !matches!(self.config.mode, PriorityMode::Visibility);
         for (vi, v) in t.viewpoints.iter().enumerate() {
+            // The ACH lists beside the table, when the mode ranks tiles by them.
+            let ach = v
+                .ach
+                .as_ref()
+                .filter(|_| ach_mode && self.achs[vi].is_none());
+            if let Some(a) = ach {
+                let dist = (v.s - s).abs();
+                let priority = if urgent.contains(&vi) {
+                    1e12 - dist
+                } else {
+                    -1.0 - dist
+                };
+                let key = FetchKey {
+                    object: a.hash.clone(),
+                    range: None,
+                };
+                self.ach_keys.insert(key.clone(), vi);
+                out.push((
+                    FetchRequest {
+                        key,
+                        expected_hash: a.hash.clone(),
+                        priority,
+                    },
+                    Some(a.size),
+                ));
+            }
             if self.tables[vi].is_some() {
                 continue;
             }
@@ -70,7 +98,12 @@ impl LiveSession {
                 return;
             }
         };
-        let range = match self.table.add_viewpoint(vi, &vt.tiles, &vt.segments) {
+        let mut vt = vt;
+        vt.segments = self.achs[vi].clone().unwrap_or_default();
+        let range = match self
+            .table
+            .add_viewpoint(vi, &vt.background, &vt.tiles, &vt.segments)
+        {
             Ok(r) => r,
             Err(e) => {
                 self.stats.failed_requests += 1;
@@ -87,6 +120,33 @@ impl LiveSession {
         }
         self.refresh_plan_infos();
         self.tables[vi] = Some(vt);
+        self.reassemble();
+    }
+
+    /// A checked ACH object arrived: its lists join the item table (and the table's entry,
+    /// when that is in). One that does not decode is dropped (asked for again).
+    pub(super) fn ach_arrived(&mut self, vi: usize, data: &Bytes) {
+        let Some(v) = self.top.tracks[self.track].viewpoints.get(vi) else {
+            return;
+        };
+        let segments = match decode_ach(data, v.index) {
+            Ok(s) => s,
+            Err(e) => {
+                self.stats.failed_requests += 1;
+                self.stats.last_error = Some(format!("ACH lists of viewpoint {}: {e}", v.index));
+                return;
+            }
+        };
+        self.table.add_segments(vi, &segments);
+        self.achs[vi] = Some(segments.clone());
+        if let Some(t) = &mut self.tables[vi] {
+            t.segments = segments;
+            self.reassemble();
+        }
+    }
+
+    /// The full manifest and the visibility index from the tables that have arrived.
+    fn reassemble(&mut self) {
         let row: Vec<Option<&ViewTable>> = self.tables.iter().map(|t| t.as_ref()).collect();
         let mut rows: Vec<Vec<Option<&ViewTable>>> = vec![Vec::new(); self.top.tracks.len()];
         rows[self.track] = row;

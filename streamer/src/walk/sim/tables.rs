@@ -3,7 +3,7 @@
 
 use super::{InFlight, Sim, Strategy, WalkError};
 use crate::client::{next_segment, segment_at, BundlePiece, Connection, FetchKey};
-use crate::db::split::decode_table;
+use crate::db::split::{decode_ach, decode_table};
 use tracks::manifest::ObjectRef;
 
 impl Sim<'_> {
@@ -51,7 +51,7 @@ impl Sim<'_> {
             let next = seg + 2;
             if v > 0.0 && next < vp_s.len() && !self.table_requested[next] {
                 let (bps, latency) = self.estimate.get();
-                let bytes = self.scene.tables[next].0.size as f64;
+                let bytes = self.table_objects(next).map(|o| o.size).sum::<u64>() as f64;
                 let fetch_s = latency + 2.0 * bytes * 8.0 / bps.max(1.0);
                 let reach_s = (vp_s[seg + 1] - self.s).max(0.0) / v;
                 // With holes in the view only in the last quarter second (the link estimate
@@ -126,8 +126,16 @@ impl Sim<'_> {
         }
     }
 
-    /// Fetches the tables of viewpoints `vps` in one request (hash-checked, decoded) and puts
-    /// them on the link.
+    /// The objects the walk fetches for viewpoint `v`: its table, and its ACH object when the
+    /// strategy ranks tiles by ACH.
+    fn table_objects(&self, v: usize) -> impl Iterator<Item = &ObjectRef> {
+        let (table, ach, _) = &self.scene.tables[v];
+        let ach = ach.as_ref().filter(|_| self.strategy.uses_ach());
+        std::iter::once(table).chain(ach)
+    }
+
+    /// Fetches the tables (and ACH objects, [`Self::table_objects`]) of viewpoints `vps` in
+    /// one request (hash-checked, decoded) and puts them on the link.
     async fn fetch_tables(
         &mut self,
         conn: &mut Connection,
@@ -135,7 +143,11 @@ impl Sim<'_> {
         vps: &[usize],
         background: bool,
     ) -> Result<(), WalkError> {
-        let refs: Vec<&ObjectRef> = vps.iter().map(|&v| &self.scene.tables[v].0).collect();
+        let refs: Vec<ObjectRef> = vps
+            .iter()
+            .flat_map(|&v| self.table_objects(v))
+            .cloned()
+            .collect();
         let keys: Vec<FetchKey> = refs
             .iter()
             .map(|r| FetchKey {
@@ -153,21 +165,33 @@ impl Sim<'_> {
             })
             .collect();
         let data = conn.fetch_checked_bundle(&pieces, None).await?;
+        let size: u64 = data.iter().map(|b| b.len() as u64).sum();
+        let mut data = data.iter().zip(&refs);
         let mut tables = Vec::with_capacity(vps.len());
-        let mut size = 0u64;
-        for ((&v, bytes), r) in vps.iter().zip(&data).zip(&refs) {
-            size += bytes.len() as u64;
-            let index = self.scene.tables[v].1;
-            let vt = decode_table(bytes, index).map_err(|e| {
+        for &v in vps {
+            let index = self.scene.tables[v].2;
+            let with_ach = self.table_objects(v).count() == 2;
+            let Some((bytes, r)) = data.next() else { break };
+            let mut vt = decode_table(bytes, index).map_err(|e| {
                 WalkError::Database(format!("table {} of viewpoint {index}: {e}", r.hash))
             })?;
+            if with_ach {
+                if let Some((bytes, r)) = data.next() {
+                    vt.segments = decode_ach(bytes, index).map_err(|e| {
+                        WalkError::Database(format!(
+                            "ACH object {} of viewpoint {index}: {e}",
+                            r.hash
+                        ))
+                    })?;
+                }
+            }
             tables.push((v, vt));
             self.table_requested[v] = true;
         }
         let requests = if conn.bundles_supported() {
             1
         } else {
-            vps.len() as u64
+            refs.len() as u64
         };
         self.requests += requests;
         self.table_requests += requests;
