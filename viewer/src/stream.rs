@@ -26,6 +26,19 @@
 //! [`StepReport::changed_views`] so the renderer forgets their GPU copies too. When the
 //! walker comes back, the views are consumed again from the session's cache, and what left
 //! the cache is downloaded again (the session asks for what its cache lacks).
+//!
+//! Re-decoding is spread over several steps so that a returning view does not cost one long
+//! frame: parts taken from the session's cache (rather than arrived in this step, which are
+//! few and always consumed at once) count against
+//! [`StreamedWalkthrough::redecode_budget`] decoded bytes per step (the texels of the PTM
+//! levels, as the session's item table counts them; at least one part per step). The parts
+//! are taken first for the pair of views drawn, then the other protected views; within
+//! those, every item's mesh and coarsest level before any item's finer levels (the PTM
+//! decoder gives the coarse levels first, so a view being re-filled draws from whatever
+//! levels it has, coarse everywhere before sharp anywhere), nearest view first. The rest
+//! waits in the cache for the next steps ([`StepReport::backlog`]); nothing is skipped, so
+//! the views end as the one-step path leaves them. A partially re-filled view is reported as
+//! any streamed one is: whole when it is laid out again, by tile regions afterwards.
 
 use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::time::{Duration, Instant};
@@ -48,6 +61,12 @@ use crate::texture::{dilate_masked, FaceRect, Layer};
 
 /// How long a newly loaded tile stays highlighted.
 pub const HIGHLIGHT: Duration = Duration::from_secs(1);
+
+/// Default of [`StreamedWalkthrough::redecode_budget`]: 4 MiB of decoded texels per step,
+/// a few milliseconds of PTM decoding and pasting on one core (a face-1024 view holds tens
+/// of megabytes, so a returning pair of views is re-filled over a few dozen frames, the
+/// coarse levels of all its tiles within the first ones).
+pub const DEFAULT_REDECODE_BUDGET: u64 = 4 << 20;
 
 /// Errors connecting a streamed walkthrough.
 #[derive(Debug, thiserror::Error)]
@@ -113,6 +132,15 @@ pub struct StepReport {
     pub evicted: Vec<usize>,
     /// [`StreamedWalkthrough::decoded_bytes`] after the step.
     pub decoded_bytes: u64,
+    /// Parts consumed from the session's cache in this step (re-decoding after an eviction,
+    /// or parts that arrived while their view was not needed), and their decoded bytes as
+    /// the session's item table counts them; at most
+    /// [`StreamedWalkthrough::redecode_budget`] bytes unless it is a single part.
+    pub redecoded_parts: usize,
+    pub redecoded_bytes: u64,
+    /// Items of the views needed now (or with parts that arrived) whose next parts wait in
+    /// the session's cache for later steps, the per-step budget being spent.
+    pub backlog: usize,
 }
 
 impl StepReport {
@@ -136,6 +164,17 @@ impl StepReport {
             }
         }
     }
+}
+
+/// What [`StreamedWalkthrough::plan_redecode`] allows one step to take from the cache.
+#[derive(Debug, Default)]
+struct RedecodePlan {
+    /// Parts per item.
+    allowed: HashMap<usize, usize>,
+    parts: usize,
+    bytes: u64,
+    /// Items with cached parts left over.
+    backlog: usize,
 }
 
 /// A recently loaded tile, for highlighting.
@@ -167,6 +206,9 @@ pub struct StreamedWalkthrough {
     /// Defaults to [`StreamedWalkthrough::full_view_bytes`] × 4: the two views drawn, the
     /// predicted next one and one more.
     pub decoded_budget_bytes: u64,
+    /// Decoded bytes of parts taken from the session's cache per step (see the module docs
+    /// and [`StreamedWalkthrough::set_redecode_budget`]).
+    redecode_budget: u64,
     /// Motion along the track, predicted as the session does for its prefetch.
     motion: MotionTracker,
     start: Instant,
@@ -293,6 +335,7 @@ impl StreamedWalkthrough {
             view_items,
             layer_count,
             decoded_budget_bytes,
+            redecode_budget: DEFAULT_REDECODE_BUDGET,
             motion: MotionTracker::new(),
             start: Instant::now(),
             protected: BTreeSet::new(),
@@ -398,8 +441,13 @@ impl StreamedWalkthrough {
         // (view, layer) pairs whose dense map changed as a whole, and tile rectangles.
         let mut dirty: BTreeSet<(usize, usize)> = BTreeSet::new();
         let mut rects: Vec<(usize, usize, FaceRect)> = Vec::new();
+        let plan = self.plan_redecode(&touched, &protected, s);
+        report.redecoded_parts = plan.parts;
+        report.redecoded_bytes = plan.bytes;
+        report.backlog = plan.backlog;
         for item in touched {
-            match self.consume(item, now) {
+            let cached = plan.allowed.get(&item).copied().unwrap_or(0);
+            match self.consume(item, cached, now) {
                 Ok(Some((layer, rect))) => {
                     let v = self.items[item].view;
                     match rect {
@@ -455,6 +503,97 @@ impl StreamedWalkthrough {
         report
     }
 
+    /// Decoded bytes of parts consumed from the session's cache per step (default
+    /// [`DEFAULT_REDECODE_BUDGET`]).
+    pub fn redecode_budget(&self) -> u64 {
+        self.redecode_budget
+    }
+
+    /// Consume at most `bytes` decoded bytes of parts from the session's cache per step
+    /// (always at least one part, so a step makes progress whatever the budget); what is
+    /// left is consumed in later steps (see the module docs). `u64::MAX`: everything at once.
+    pub fn set_redecode_budget(&mut self, bytes: u64) {
+        self.redecode_budget = bytes;
+    }
+
+    /// Which parts to take from the session's cache in this step, within
+    /// [`StreamedWalkthrough::redecode_budget`]: among the items about to be consumed, those
+    /// of the pair of views drawn first, then the other protected views, then the rest; within
+    /// those, by how far along its parts an item is (each item's mesh and coarsest level
+    /// before any item's finer levels), then the view nearest to `s`, then item order. Parts
+    /// that arrived in this step (`waiting`) cost nothing and are skipped over.
+    fn plan_redecode(
+        &self,
+        touched: &BTreeSet<usize>,
+        protected: &BTreeSet<usize>,
+        s: f64,
+    ) -> RedecodePlan {
+        let drawn = self.drawn_views(s);
+        let table = &self.session.table().items;
+        // The next part of `item` from `part` on that must come from the cache, if held.
+        let next_cached = |item: usize, mut part: usize| -> Option<usize> {
+            let it = &self.items[item];
+            while it.waiting.contains_key(&part) {
+                part += 1;
+            }
+            self.session.part_bytes(item, part).map(|_| part)
+        };
+        let key = |item: usize, part: usize| {
+            let it = &self.items[item];
+            let rank = if drawn.contains(&it.view) {
+                0u8
+            } else if protected.contains(&it.view) {
+                1
+            } else {
+                2
+            };
+            let d = self
+                .walk
+                .views
+                .get(it.view)
+                .map_or(f64::MAX, |v| (v.s - s).abs());
+            let d = if d.is_finite() { d } else { f64::MAX };
+            let level = part.saturating_sub(it.first_level_part);
+            // Non-negative floats order as their bits do.
+            (rank, level, d.to_bits(), item, part)
+        };
+        let mut queue: BTreeSet<(u8, usize, u64, usize, usize)> = touched
+            .iter()
+            .filter(|&&i| !self.items[i].failed)
+            .filter_map(|&i| next_cached(i, self.items[i].next).map(|p| key(i, p)))
+            .collect();
+        let mut plan = RedecodePlan::default();
+        while let Some(&first) = queue.first() {
+            let (_, _, _, item, part) = first;
+            let cost = table
+                .get(item)
+                .and_then(|t| t.info.part_mem.get(part).copied())
+                .or_else(|| self.session.part_bytes(item, part).map(|b| b.len() as u64))
+                .unwrap_or(0);
+            if plan.parts > 0 && plan.bytes.saturating_add(cost) > self.redecode_budget {
+                break;
+            }
+            queue.pop_first();
+            plan.parts += 1;
+            plan.bytes = plan.bytes.saturating_add(cost);
+            *plan.allowed.entry(item).or_insert(0) += 1;
+            if let Some(p) = next_cached(item, part + 1) {
+                queue.insert(key(item, p));
+            }
+        }
+        plan.backlog = queue.len();
+        plan
+    }
+
+    /// Positions in `walk.views` of the pair [`crate::plan_frame`] draws at `s`.
+    fn drawn_views(&self, s: f64) -> BTreeSet<usize> {
+        let s = if s.is_finite() { s } else { 0.0 };
+        let vp_s: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
+        crate::plan::blend_pair(&vp_s, s)
+            .map(|(a, b, _)| BTreeSet::from([a, b]))
+            .unwrap_or_default()
+    }
+
     /// Positions in `walk.views` of the views kept at `s`: the two around it (the ones
     /// [`crate::plan_frame`] draws) and those of the segment the session prefetches (the
     /// motion predicted as it does).
@@ -463,11 +602,7 @@ impl StreamedWalkthrough {
         let s = if s.is_finite() { s } else { 0.0 };
         self.motion.observe(t, s);
         let vp_s: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
-        let mut out = BTreeSet::new();
-        // The pair `plan_frame` draws.
-        if let Some((a, b, _)) = crate::plan::blend_pair(&vp_s, s) {
-            out.extend([a, b]);
-        }
+        let mut out = self.drawn_views(s);
         let config = self.session.config();
         if config.prefetch {
             if let Some(next) = next_segment(&self.motion, &vp_s, s, config.prefetch_horizon_s) {
@@ -602,11 +737,13 @@ impl StreamedWalkthrough {
         }
     }
 
-    /// Consume the parts of `item` that are next in order; returns the layer that changed
-    /// and, for a tile, the face rectangle that changed (`None`: the whole layer).
+    /// Consume the parts of `item` that are next in order, at most `cached` of them taken
+    /// from the session's cache; returns the layer that changed and, for a tile, the face
+    /// rectangle that changed (`None`: the whole layer).
     fn consume(
         &mut self,
         item: usize,
+        mut cached: usize,
         now: Instant,
     ) -> Result<Option<(usize, Option<FaceRect>)>, SourceError> {
         let what = self.item_name(item);
@@ -614,12 +751,19 @@ impl StreamedWalkthrough {
         let it = &mut self.items[item];
         let before = it.level;
         // Parts in order: received in this step, or held by the session's cache (consumed
-        // again after an eviction).
-        while let Some(data) = it
-            .waiting
-            .remove(&it.next)
-            .or_else(|| session.part_bytes(item, it.next).cloned())
-        {
+        // again after an eviction) while the step's budget allows.
+        loop {
+            let data = match it.waiting.remove(&it.next) {
+                Some(data) => data,
+                None if cached > 0 => match session.part_bytes(item, it.next) {
+                    Some(data) => {
+                        cached -= 1;
+                        data.clone()
+                    }
+                    None => break,
+                },
+                None => break,
+            };
             if it.next < it.first_level_part {
                 it.mesh = Some(tile_mesh_from_bytes(&data, &what)?);
             } else {

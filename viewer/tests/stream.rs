@@ -254,7 +254,8 @@ fn detail(f: &Frame) -> f64 {
     sum / n
 }
 
-/// Step at `s` until nothing is left to download for the current view, or the timeout;
+/// Step at `s` until nothing is left to download or to consume from the session's cache
+/// for the current view, or the timeout;
 /// each step draws the frame and hands the GPU's visible-pixel counts to the session, as the
 /// app does.
 fn settle(st: &mut StreamedWalkthrough, r: &mut Renderer, s: f64, cam: &PerspectiveCamera) {
@@ -273,7 +274,7 @@ fn settle(st: &mut StreamedWalkthrough, r: &mut Renderer, s: f64, cam: &Perspect
         let counts = r.feedback(&plan, &st.walk.views).unwrap();
         live = Some(st.live_counts(&plan, &counts));
         let stats = st.session().stats();
-        idle = if rep.arrivals == 0 && stats.in_flight + stats.queued == 0 {
+        idle = if rep.arrivals == 0 && rep.backlog == 0 && stats.in_flight + stats.queued == 0 {
             idle + 1
         } else {
             0
@@ -437,8 +438,15 @@ fn dir_bytes(dir: &Path) -> u64 {
 /// byte (only the views around the position and those of the predicted next segment may
 /// hold anything) and a session cache of `cache_bytes`; after each step the decoded memory
 /// stays within the budget plus those views, and back at the start the image is the one
-/// shown before the first views were evicted, and the fully loaded database's.
-fn there_and_back(cache_bytes: impl Fn(&Path) -> u64, tag: &str) -> (bool, f64) {
+/// shown before the first views were evicted, and the fully loaded database's. With
+/// `redecode` the parts taken from the session's cache are limited to that many decoded bytes
+/// per step (one part when a single one is larger): a returning view is re-filled over several
+/// steps, and ends with the same levels and image.
+fn there_and_back(
+    cache_bytes: impl Fn(&Path) -> u64,
+    redecode: Option<u64>,
+    tag: &str,
+) -> (bool, f64) {
     let Some(mut r) = renderer() else {
         return (true, 0.0);
     };
@@ -460,6 +468,13 @@ fn there_and_back(cache_bytes: impl Fn(&Path) -> u64, tag: &str) -> (bool, f64) 
     assert_eq!(st.decoded_bytes(), 0);
     assert_eq!(st.decoded_budget_bytes, 4 * st.full_view_bytes());
     st.decoded_budget_bytes = 1;
+    assert_eq!(
+        st.redecode_budget(),
+        viewer::stream::DEFAULT_REDECODE_BUDGET
+    );
+    if let Some(b) = redecode {
+        st.set_redecode_budget(b);
+    }
     let arcs: Vec<f64> = st.walk.views.iter().map(|v| v.s).collect();
     let near = |s: f64| -> Vec<usize> {
         // The views of the segment at `s` and of the segments on either side.
@@ -490,6 +505,11 @@ fn there_and_back(cache_bytes: impl Fn(&Path) -> u64, tag: &str) -> (bool, f64) 
         .filter(|&(i, p)| st.session().part_bytes(i, p).is_some())
         .collect();
     assert!(!held0.is_empty());
+    // Levels shown by the items of the first two views before they are evicted.
+    let levels0: Vec<(usize, Option<u32>)> = (0..table.items.len())
+        .filter(|&i| table.items[i].viewpoint <= 1)
+        .map(|i| (i, st.item_levels()[i]))
+        .collect();
 
     let mut evicted = Vec::new();
     let end = *arcs.last().unwrap() - 0.3;
@@ -499,6 +519,9 @@ fn there_and_back(cache_bytes: impl Fn(&Path) -> u64, tag: &str) -> (bool, f64) 
     path.extend((0..=40).rev().map(|i| s0 + (end - s0) * i as f64 / 40.0));
     let mut far_cache_dropped = false;
     let (mut peak, mut gpu_peak) = (0, 0);
+    // On the way back: steps that took parts from the cache, and those that left some over.
+    let (mut redecoding, mut spread) = (0, 0);
+    let mut slowest = Duration::ZERO;
     for (i, &s) in path.iter().enumerate() {
         let cam = camera(&st.walk, s, 0.0);
         if i == 40 {
@@ -514,8 +537,22 @@ fn there_and_back(cache_bytes: impl Fn(&Path) -> u64, tag: &str) -> (bool, f64) 
                 .iter()
                 .any(|&(i, p)| st.session().part_bytes(i, p).is_none());
         }
+        let t = Instant::now();
         let rep = st.step(s, &cam, None);
+        if i > 40 {
+            slowest = slowest.max(t.elapsed());
+        }
         rep.apply(&mut r, &st.walk.views);
+        assert!(
+            rep.redecoded_parts <= 1 || rep.redecoded_bytes <= st.redecode_budget(),
+            "at {s}: {} parts, {} bytes from the cache",
+            rep.redecoded_parts,
+            rep.redecoded_bytes
+        );
+        if i > 40 && rep.redecoded_parts > 0 {
+            redecoding += 1;
+            spread += usize::from(rep.backlog > 0);
+        }
         for e in &rep.evicted {
             assert!(rep.changed_views.contains(e), "{rep:?}");
         }
@@ -547,7 +584,26 @@ fn there_and_back(cache_bytes: impl Fn(&Path) -> u64, tag: &str) -> (bool, f64) 
         st.full_view_bytes()
     );
 
+    eprintln!(
+        "{tag}: back to the start with parts from the cache in {redecoding} steps, \
+         {spread} leaving some over; slowest step {slowest:?}"
+    );
+    if redecode.is_some() {
+        assert!(
+            redecoding > 1 && spread > 0,
+            "re-decoding in {redecoding} steps, {spread} with parts left over"
+        );
+    }
     settle(&mut st, &mut r, s0, &cam0);
+    // Every part is consumed in the end: no item of the first views shows less than before
+    // (when the cache kept their parts; those downloaded again come as the view needs them).
+    for &(i, l) in levels0.iter().filter(|_| !far_cache_dropped) {
+        let now = st.item_levels()[i];
+        assert!(
+            l.is_none_or(|l| now.is_some_and(|n| n <= l)),
+            "item {i}: level {l:?} before, {now:?} back"
+        );
+    }
     let after = render(&mut r, &st.walk, &cam0, s0);
     r.forget_views();
     let full = render(&mut r, &full_ref, &cam0, s0);
@@ -564,7 +620,7 @@ fn there_and_back(cache_bytes: impl Fn(&Path) -> u64, tag: &str) -> (bool, f64) 
 
 #[test]
 fn evicted_views_come_back_from_the_session_cache() {
-    let (dropped, diff) = there_and_back(|_| 64 << 20, "evict-cached");
+    let (dropped, diff) = there_and_back(|_| 64 << 20, None, "evict-cached");
     assert!(!dropped, "a 64 MiB cache keeps the whole street");
     eprintln!("back from the cache: mean |diff| {diff}");
 }
@@ -572,11 +628,20 @@ fn evicted_views_come_back_from_the_session_cache() {
 #[test]
 fn evicted_views_whose_bytes_left_the_cache_are_downloaded_again() {
     // A cache of about half the database: the first views' bytes leave it at the far end.
-    let (dropped, diff) = there_and_back(|dir| dir_bytes(dir) * 11 / 20, "evict-refetch");
+    let (dropped, diff) = there_and_back(|dir| dir_bytes(dir) * 11 / 20, None, "evict-refetch");
     if renderer_enabled() {
         assert!(dropped, "parts of the first view left the cache");
     }
     eprintln!("downloaded again: mean |diff| {diff}");
+}
+
+#[test]
+fn evicted_views_are_decoded_again_over_several_steps() {
+    // About one tile's full level per step: the views come back tile by tile, coarse levels
+    // first, and end as the one-step path leaves them.
+    let (dropped, diff) = there_and_back(|_| 64 << 20, Some(1024), "evict-spread");
+    assert!(!dropped, "a 64 MiB cache keeps the whole street");
+    eprintln!("decoded again over several steps: mean |diff| {diff}");
 }
 
 fn renderer_enabled() -> bool {
