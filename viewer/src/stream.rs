@@ -29,12 +29,12 @@
 //!
 //! Re-decoding is spread over several steps so that a returning view does not cost one long
 //! frame: parts taken from the session's cache (rather than arrived in this step, which are
-//! few and always consumed at once) count against
-//! [`StreamedWalkthrough::redecode_budget`] decoded bytes per step (the texels of the PTM
-//! levels, as the session's item table counts them; at least one part per step). The parts
-//! are taken first for the pair of views drawn, then the other protected views; within
-//! those, every item's mesh and coarsest level before any item's finer levels (the PTM
-//! decoder gives the coarse levels first, so a view being re-filled draws from whatever
+//! few and always consumed at once) count against [`StreamedWalkthrough::redecode_budget`]
+//! per step (the decoded texels of the PTM levels, as the session's item table counts them,
+//! plus [`REDECODE_PART_BYTES`] per part for its fixed cost; at least one part per step).
+//! The parts are taken first for the pair of views drawn, then the other protected views;
+//! within those, every item's mesh and coarsest level before any item's finer levels (the
+//! PTM decoder gives the coarse levels first, so a view being re-filled draws from whatever
 //! levels it has, coarse everywhere before sharp anywhere), nearest view first. The rest
 //! waits in the cache for the next steps ([`StepReport::backlog`]); nothing is skipped, so
 //! the views end as the one-step path leaves them. A partially re-filled view is reported as
@@ -62,11 +62,18 @@ use crate::texture::{dilate_masked, FaceRect, Layer};
 /// How long a newly loaded tile stays highlighted.
 pub const HIGHLIGHT: Duration = Duration::from_secs(1);
 
-/// Default of [`StreamedWalkthrough::redecode_budget`]: 4 MiB of decoded texels per step,
-/// a few milliseconds of PTM decoding and pasting on one core (a face-1024 view holds tens
-/// of megabytes, so a returning pair of views is re-filled over a few dozen frames, the
-/// coarse levels of all its tiles within the first ones).
-pub const DEFAULT_REDECODE_BUDGET: u64 = 4 << 20;
+/// Default of [`StreamedWalkthrough::redecode_budget`]: 1 MiB per step, counted as
+/// decoded texels plus [`REDECODE_PART_BYTES`] per part. Measured on a loaded 2-core machine
+/// (the `redecode_step_times` measurement in `viewer/tests/stream.rs`), decoding a part,
+/// pasting it and updating its tile's layer region costs about 25 µs for a 16-pixel tile and
+/// some 10–25 ns per decoded byte, so a step spends up to about 10–20 ms on it; a returning
+/// face-1024 view (tens of megabytes) is re-filled over a few dozen frames, the coarse levels
+/// of all its tiles within the first ones.
+pub const DEFAULT_REDECODE_BUDGET: u64 = 1 << 20;
+
+/// What one part counts against [`StreamedWalkthrough::redecode_budget`] besides its decoded
+/// bytes: the fixed cost of decoding, pasting and updating a tile's region, in the same units.
+pub const REDECODE_PART_BYTES: u64 = 4096;
 
 /// Errors connecting a streamed walkthrough.
 #[derive(Debug, thiserror::Error)]
@@ -133,9 +140,10 @@ pub struct StepReport {
     /// [`StreamedWalkthrough::decoded_bytes`] after the step.
     pub decoded_bytes: u64,
     /// Parts consumed from the session's cache in this step (re-decoding after an eviction,
-    /// or parts that arrived while their view was not needed), and their decoded bytes as
-    /// the session's item table counts them; at most
-    /// [`StreamedWalkthrough::redecode_budget`] bytes unless it is a single part.
+    /// or parts that arrived while their view was not needed), and what they count against
+    /// [`StreamedWalkthrough::redecode_budget`] (decoded bytes as the session's item table
+    /// counts them, plus [`REDECODE_PART_BYTES`] each): at most the budget unless it is a
+    /// single part.
     pub redecoded_parts: usize,
     pub redecoded_bytes: u64,
     /// Items of the views needed now (or with parts that arrived) whose next parts wait in
@@ -535,15 +543,16 @@ impl StreamedWalkthrough {
         report
     }
 
-    /// Decoded bytes of parts consumed from the session's cache per step (default
-    /// [`DEFAULT_REDECODE_BUDGET`]).
+    /// Decoded bytes (plus [`REDECODE_PART_BYTES`] per part) of parts consumed from the
+    /// session's cache per step (default [`DEFAULT_REDECODE_BUDGET`]).
     pub fn redecode_budget(&self) -> u64 {
         self.redecode_budget
     }
 
-    /// Consume at most `bytes` decoded bytes of parts from the session's cache per step
-    /// (always at least one part, so a step makes progress whatever the budget); what is
-    /// left is consumed in later steps (see the module docs). `u64::MAX`: everything at once.
+    /// Consume parts from the session's cache worth at most `bytes` per step (decoded bytes
+    /// plus [`REDECODE_PART_BYTES`] each; always at least one part, so a step makes progress
+    /// whatever the budget); what is left is consumed in later steps (see the module docs).
+    /// `u64::MAX`: everything at once.
     pub fn set_redecode_budget(&mut self, bytes: u64) {
         self.redecode_budget = bytes;
     }
@@ -600,6 +609,7 @@ impl StreamedWalkthrough {
                 .and_then(|t| t.info.part_mem.get(part).copied())
                 .or_else(|| self.session.part_bytes(item, part).map(|b| b.len() as u64))
                 .unwrap_or(0)
+                .saturating_add(REDECODE_PART_BYTES)
         };
         let next = |item: usize, part: usize| next_cached(item, part + 1).map(|p| key(item, p));
         schedule(queue, self.redecode_budget, cost, next)

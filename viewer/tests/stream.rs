@@ -46,7 +46,8 @@ fn write_db(walk: &Walkthrough, dir: &Path) {
         ..Default::default()
     };
     let tile_size = walk.views[0].tile_size;
-    let grid = TileGrid::new(FACE, tile_size).unwrap();
+    let face = walk.views[0].face_size;
+    let grid = TileGrid::new(face, tile_size).unwrap();
     let mut viewpoints = Vec::new();
     for v in &walk.views {
         let mut tiles = Vec::new();
@@ -148,7 +149,7 @@ fn write_db(walk: &Walkthrough, dir: &Path) {
     let m = Manifest {
         version: MANIFEST_VERSION,
         scene: walk.scene.clone(),
-        face_size: FACE,
+        face_size: face,
         tile_size,
         slabs: walk.slabs.clone(),
         cull_alpha: None,
@@ -637,11 +638,110 @@ fn evicted_views_whose_bytes_left_the_cache_are_downloaded_again() {
 
 #[test]
 fn evicted_views_are_decoded_again_over_several_steps() {
-    // About one tile's full level per step: the views come back tile by tile, coarse levels
-    // first, and end as the one-step path leaves them.
-    let (dropped, diff) = there_and_back(|_| 64 << 20, Some(1024), "evict-spread");
+    // A few parts per step: the views come back a few tiles at a time, coarse levels first,
+    // and end as the one-step path leaves them.
+    let (dropped, diff) = there_and_back(|_| 64 << 20, Some(16 << 10), "evict-spread");
     assert!(!dropped, "a 64 MiB cache keeps the whole street");
     eprintln!("decoded again over several steps: mean |diff| {diff}");
+}
+
+/// Not a check but a measurement, run by hand:
+/// `RAILVIEW_REDECODE_FACE=1024 cargo test --release -p viewer --test stream
+/// redecode_step_times -- --ignored --nocapture` walks the street out and back at that face
+/// size (default 256) with a decoded budget of one byte, once decoding a returning view in one
+/// step and once with the default per-step budget, and prints the step times on the way back
+/// (`RAILVIEW_REDECODE_BUDGETS=B1,B2,…`: those budgets instead, in decoded bytes per step).
+#[test]
+#[ignore]
+fn redecode_step_times() {
+    let face: u32 = std::env::var("RAILVIEW_REDECODE_FACE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(256);
+    let t = Instant::now();
+    let street = synth_street(face, &Scene::street_slabs(), MeshParams::default()).unwrap();
+    let dir: PathBuf =
+        std::env::temp_dir().join(format!("railview-viewer-redecode-{}", std::process::id()));
+    write_db(&street, &dir);
+    eprintln!("face {face}: database written in {:?}", t.elapsed());
+    let (url, stop, thread) = serve(&dir);
+    // `RAILVIEW_REDECODE_BUDGETS=B1,B2,…` (decoded bytes per step) for other budgets.
+    let budgets: Vec<u64> = std::env::var("RAILVIEW_REDECODE_BUDGETS")
+        .ok()
+        .map(|v| v.split(',').filter_map(|b| b.trim().parse().ok()).collect())
+        .unwrap_or_default();
+    let budgets = if budgets.is_empty() {
+        vec![u64::MAX, viewer::stream::DEFAULT_REDECODE_BUDGET]
+    } else {
+        budgets
+    };
+    for budget in budgets {
+        let mut st =
+            StreamedWalkthrough::connect(&url, None, LiveConfig::with_cache(4 << 30)).unwrap();
+        st.decoded_budget_bytes = 1;
+        st.set_redecode_budget(budget);
+        let arcs: Vec<f64> = st.walk.views.iter().map(|v| v.s).collect();
+        let s0 = 0.75;
+        let end = *arcs.last().unwrap() - 0.3;
+        // Step without drawing until nothing arrives nor waits for 20 steps.
+        let settle = |st: &mut StreamedWalkthrough, s: f64| {
+            let cam = camera(&st.walk, s, 0.0);
+            let mut idle = 0;
+            let start = Instant::now();
+            while idle < 20 && start.elapsed() < Duration::from_secs(300) {
+                let rep = st.step(s, &cam, None);
+                let stats = st.session().stats();
+                let quiet = rep.arrivals == 0 && rep.backlog == 0;
+                idle = if quiet && stats.in_flight + stats.queued == 0 {
+                    idle + 1
+                } else {
+                    0
+                };
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        };
+        settle(&mut st, s0);
+        settle(&mut st, end);
+        let (mut times, mut parts, mut bytes) = (Vec::new(), 0, 0);
+        for i in (0..=40).rev() {
+            let s = s0 + (end - s0) * i as f64 / 40.0;
+            let cam = camera(&st.walk, s, 0.0);
+            let t = Instant::now();
+            let rep = st.step(s, &cam, None);
+            times.push(t.elapsed());
+            parts += rep.redecoded_parts;
+            bytes += rep.redecoded_bytes;
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let cam = camera(&st.walk, s0, 0.0);
+        let mut extra = 0;
+        loop {
+            let t = Instant::now();
+            let rep = st.step(s0, &cam, None);
+            times.push(t.elapsed());
+            parts += rep.redecoded_parts;
+            bytes += rep.redecoded_bytes;
+            if rep.backlog == 0 {
+                break;
+            }
+            extra += 1;
+        }
+        times.sort();
+        let median = times[times.len() / 2];
+        eprintln!(
+            "face {face}, re-decode budget {}: {parts} parts ({bytes} decoded bytes) from the \
+             cache over 41 steps back + {extra} more; step median {median:?}, slowest {:?}",
+            if budget == u64::MAX {
+                "none".to_string()
+            } else {
+                format!("{budget} B")
+            },
+            times.last().unwrap()
+        );
+    }
+    drop(stop);
+    thread.join().unwrap();
+    let _ = std::fs::remove_dir_all(dir);
 }
 
 fn renderer_enabled() -> bool {
