@@ -40,7 +40,8 @@
 //! the views end as the one-step path leaves them. A partially re-filled view is reported as
 //! any streamed one is: whole when it is laid out again, by tile regions afterwards.
 
-use std::collections::{BTreeSet, HashMap, VecDeque};
+use std::cmp::Reverse;
+use std::collections::{BTreeSet, BinaryHeap, HashMap, VecDeque};
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
@@ -63,12 +64,12 @@ use crate::texture::{dilate_masked, FaceRect, Layer};
 pub const HIGHLIGHT: Duration = Duration::from_secs(1);
 
 /// Default of [`StreamedWalkthrough::redecode_budget`]: 1 MiB per step, counted as
-/// decoded texels plus [`REDECODE_PART_BYTES`] per part. Measured on a loaded 2-core machine
-/// (the `redecode_step_times` measurement in `viewer/tests/stream.rs`), decoding a part,
-/// pasting it and updating its tile's layer region costs about 25 µs for a 16-pixel tile and
-/// some 10–25 ns per decoded byte, so a step spends up to about 10–20 ms on it; a returning
-/// face-1024 view (tens of megabytes) is re-filled over a few dozen frames, the coarse levels
-/// of all its tiles within the first ones.
+/// decoded texels plus [`REDECODE_PART_BYTES`] per part. On the synthetic street at face 512
+/// (16-pixel tiles, the `redecode_step_times` measurement in `viewer/tests/stream.rs`, a
+/// loaded 2-core machine) that is about 200 parts and a median of 11 ms per step for choosing,
+/// decoding, pasting and updating tile regions, where decoding a returning view in one step
+/// took up to 630 ms; a returning face-1024 view (tens of megabytes) is re-filled over some
+/// dozens of frames, the coarse levels of all its tiles within the first ones.
 pub const DEFAULT_REDECODE_BUDGET: u64 = 1 << 20;
 
 /// What one part counts against [`StreamedWalkthrough::redecode_budget`] besides its decoded
@@ -194,23 +195,26 @@ type QueueKey = (u8, usize, u64, usize, usize);
 /// their `cost` fits `budget` (the first always does), queueing each item's following part
 /// (`next` of an item and the part just taken).
 fn schedule(
-    mut queue: BTreeSet<QueueKey>,
+    queue: Vec<QueueKey>,
     budget: u64,
     cost: impl Fn(usize, usize) -> u64,
     next: impl Fn(usize, usize) -> Option<QueueKey>,
 ) -> RedecodePlan {
+    // A heap: building it is linear in the items waiting, which may be many while views
+    // are re-filled, and a step takes only the first few.
+    let mut queue: BinaryHeap<Reverse<QueueKey>> = queue.into_iter().map(Reverse).collect();
     let mut plan = RedecodePlan::default();
-    while let Some(&(_, _, _, item, part)) = queue.first() {
+    while let Some(&Reverse((_, _, _, item, part))) = queue.peek() {
         let c = cost(item, part);
         if plan.parts > 0 && plan.bytes.saturating_add(c) > budget {
             break;
         }
-        queue.pop_first();
+        queue.pop();
         plan.parts += 1;
         plan.bytes = plan.bytes.saturating_add(c);
         *plan.allowed.entry(item).or_insert(0) += 1;
         if let Some(k) = next(item, part) {
-            queue.insert(k);
+            queue.push(Reverse(k));
         }
     }
     plan.backlog = queue.len();
@@ -598,7 +602,7 @@ impl StreamedWalkthrough {
             // Non-negative floats order as their bits do.
             (rank, level, d.to_bits(), item, part)
         };
-        let queue: BTreeSet<QueueKey> = touched
+        let queue: Vec<QueueKey> = touched
             .iter()
             .filter(|&&i| !self.items[i].failed)
             .filter_map(|&i| next_cached(i, self.items[i].next).map(|p| key(i, p)))
@@ -1088,8 +1092,7 @@ mod tests {
         let mut next = vec![0; items.len()];
         let mut steps = Vec::new();
         loop {
-            let queue: BTreeSet<QueueKey> =
-                (0..items.len()).filter_map(|i| key(i, next[i])).collect();
+            let queue: Vec<QueueKey> = (0..items.len()).filter_map(|i| key(i, next[i])).collect();
             if queue.is_empty() {
                 return steps;
             }
