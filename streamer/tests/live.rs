@@ -13,6 +13,44 @@ use streamer::walk::synth;
 use tokio::sync::oneshot;
 use tracks::{PerspectiveCamera, TrackSet};
 
+/// Every part the session holds was handed out (as an arrival) for every item that uses it.
+fn assert_every_held_part_handed_out(session: &LiveSession, arrivals: &[Arrival]) {
+    let got: std::collections::HashSet<(usize, usize)> =
+        arrivals.iter().map(|a| (a.item, a.part)).collect();
+    for (i, it) in session.table().items.iter().enumerate() {
+        for p in 0..it.parts.len() {
+            if session.part_bytes(i, p).is_some() {
+                assert!(
+                    got.contains(&(i, p)),
+                    "item {i} part {p} held but never handed out"
+                );
+            }
+        }
+    }
+}
+
+/// The synthetic database with the last viewpoint's tiles replaced by the first's: the same
+/// payloads in two packs, at the two ends of the track.
+fn repeating_db(name: &str) -> PathBuf {
+    let src = temp_db(&format!("{name}-src"));
+    let mut m = streamer::db::Database::open(&src)
+        .unwrap()
+        .manifest()
+        .clone();
+    for t in &mut m.tracks {
+        let last = t.viewpoints.len() - 1;
+        t.viewpoints[last].tiles = t.viewpoints[0].tiles.clone();
+    }
+    let dir = std::env::temp_dir().join(format!("railview-live-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut w = streamer::db::DbWriter::create(&dir)
+        .unwrap()
+        .with_stage(&src);
+    w.finish(&m).unwrap();
+    let _ = std::fs::remove_dir_all(&src);
+    dir
+}
+
 fn temp_db(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("railview-live-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
@@ -282,10 +320,13 @@ fn tables_arrive_nearest_first_and_the_session_grows_with_them() {
         .map(|it| (it.viewpoint, it.tile))
         .collect();
     let len = session.manifest().tracks[0].length;
-    run_until(&mut session, len, Duration::from_secs(20), |s| {
+    let more = run_until(&mut session, len, Duration::from_secs(20), |s| {
         (0..s.top().tracks[0].viewpoints.len()).all(|v| s.has_table(v))
             && s.stats().coarse_fraction >= 1.0
     });
+    // Every part held was handed to every item that uses it.
+    let got: Vec<Arrival> = arrivals.into_iter().chain(more).collect();
+    assert_every_held_part_handed_out(&session, &got);
     let after: Vec<_> = session
         .table()
         .items
@@ -298,6 +339,55 @@ fn tables_arrive_nearest_first_and_the_session_grows_with_them() {
     // With every table in, the session's manifest is the database's.
     let db = streamer::db::Database::open(&dir).unwrap();
     assert_eq!(session.manifest(), db.manifest());
+    drop(session);
+    srv.stop();
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn identical_parts_are_fetched_once_and_handed_to_every_tile() {
+    let dir = repeating_db("repeats");
+    // One request at a time, one key each, 20 ms apart: in order of priority, so the first
+    // viewpoint's tiles (in view) come before the last viewpoint's table (the same tiles;
+    // distant tables rank after every tile).
+    let slow = ServerConfig {
+        latency: Duration::from_millis(20),
+        ..ServerConfig::default()
+    };
+    let srv = Server::start(&dir, slow, "127.0.0.1:0");
+    let mut config = LiveConfig::with_cache(64 << 20);
+    config.fetcher.max_in_flight = 1;
+    config.fetcher.bundle_max_entries = 1;
+    let mut session = LiveSession::connect(&srv.url(), None, config).unwrap();
+    let arrivals = run_until(&mut session, 0.5, Duration::from_secs(20), |s| {
+        s.stats().coarse_fraction >= 1.0
+            && (0..s.top().tracks[0].viewpoints.len()).all(|v| s.has_table(v))
+    });
+    let table = session.table();
+    let last = table.vp_s.len() - 1;
+    let mut users: std::collections::HashMap<&streamer::client::FetchKey, usize> =
+        std::collections::HashMap::new();
+    for it in &table.items {
+        for p in &it.parts {
+            *users.entry(&p.key).or_insert(0) += 1;
+        }
+    }
+    // The last viewpoint's tiles share the first viewpoint's keys, and those of them whose
+    // bytes were held before its table came were handed out all the same.
+    let shared: Vec<usize> = (0..table.items.len())
+        .filter(|&i| {
+            let it = &table.items[i];
+            it.viewpoint == last
+                && it.tile.is_some()
+                && users[&it.parts[0].key] > 1
+                && session.part_bytes(i, 0).is_some()
+        })
+        .collect();
+    assert!(
+        !shared.is_empty(),
+        "no tile of the last viewpoint shares held bytes"
+    );
+    assert_every_held_part_handed_out(&session, &arrivals);
     drop(session);
     srv.stop();
     let _ = std::fs::remove_dir_all(dir);

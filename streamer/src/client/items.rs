@@ -61,6 +61,10 @@ pub struct ItemTable {
     /// Per segment: its `(from, to)` positions and its raw ACH list once known.
     segments: Vec<SegmentSlot>,
     track: usize,
+    /// Whether parts with the same checksum and length share one key
+    /// ([`ItemTable::set_share_parts`]), and the key of each such pair so far.
+    share_parts: bool,
+    shared: HashMap<(String, u64), FetchKey>,
 }
 
 impl ItemTable {
@@ -114,7 +118,21 @@ impl ItemTable {
             key_to_tile: HashMap::new(),
             segments,
             track,
+            share_parts: true,
+            shared: HashMap::new(),
         })
+    }
+
+    /// Whether parts with the same checksum and length share one fetch key — the first one
+    /// added — so identical bytes are fetched and cached once (on by default; it applies to
+    /// viewpoints added afterwards). Each viewpoint's pack holds its own copy of every
+    /// payload, and many are alike from one viewpoint to the next: on castle 128 meshes above
+    /// all (flat or distant surfaces; 69 % of the meshes a walk needs repeat another
+    /// viewpoint's) and some level groups. Bytes fetched under the shared key are checked
+    /// against that part's checksum, which is the other part's too, so nothing unchecked is
+    /// ever shown.
+    pub fn set_share_parts(&mut self, on: bool) {
+        self.share_parts = on;
     }
 
     /// Whether viewpoint `vp`'s table has been added.
@@ -201,6 +219,18 @@ impl ItemTable {
         }
         for (ti, tile) in tiles.iter().enumerate() {
             self.key_to_tile.insert((vi, tile.slab, tile.tile), ti);
+        }
+        if self.share_parts {
+            let items = new_background
+                .iter_mut()
+                .chain(new_items.iter_mut().map(|(_, it)| it));
+            for part in items.flat_map(|it| it.parts.iter_mut()) {
+                let key = self
+                    .shared
+                    .entry((part.hash.clone(), part.bytes))
+                    .or_insert_with(|| part.key.clone());
+                part.key = key.clone();
+            }
         }
         for (bi, item) in new_background.into_iter().enumerate() {
             self.by_background.insert((vi, bi), self.items.len());
@@ -355,5 +385,118 @@ fn make_item(
         s,
         parts,
         info,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tracks::manifest::{
+        LevelRef, ObjectRef, PackRange, TrackEntry, ViewpointEntry, MANIFEST_VERSION,
+    };
+    use tracks::{Face, TileId};
+
+    /// A viewpoint with one tile in its own pack: a 100-byte mesh with checksum `mesh`, then
+    /// one 50-byte level whose checksum is the viewpoint's own.
+    fn viewpoint(index: usize, mesh: &str) -> ViewpointEntry {
+        let object = ObjectRef {
+            hash: format!("{:064x}", index + 1),
+            size: 150,
+        };
+        ViewpointEntry {
+            index,
+            s: 2.0 * index as f64,
+            position: glam::DVec3::new(0.0, 1.7, 2.0 * index as f64),
+            background: Vec::new(),
+            tiles: vec![TileEntry {
+                tile: TileId {
+                    face: Face::ALL[0],
+                    tx: 0,
+                    ty: 0,
+                },
+                slab: 0,
+                depth_min: 1.0,
+                depth_max: 2.0,
+                opaque_pixels: 256,
+                kept: true,
+                ptm: Some(PtmRef {
+                    object,
+                    width: 16,
+                    height: 16,
+                    channels: 4,
+                    levels: vec![LevelRef {
+                        level: 0,
+                        width: 16,
+                        height: 16,
+                        offset: 100,
+                        len: 50,
+                        hash: format!("{:08x}", 1000 + index),
+                    }],
+                }),
+                mesh: None,
+                mesh_range: Some(PackRange {
+                    offset: 0,
+                    len: 100,
+                    hash: mesh.to_string(),
+                }),
+            }],
+        }
+    }
+
+    fn manifest(meshes: [&str; 2]) -> Manifest {
+        Manifest {
+            version: MANIFEST_VERSION,
+            scene: "test".into(),
+            face_size: 16,
+            tile_size: 16,
+            slabs: Vec::new(),
+            cull_alpha: None,
+            cull_variant: None,
+            tracks: vec![TrackEntry {
+                name: "main".into(),
+                track_toml: String::new(),
+                length: 2.0,
+                viewpoints: vec![viewpoint(0, meshes[0]), viewpoint(1, meshes[1])],
+                segments: vec![SegmentEntry {
+                    from: 0,
+                    to: 1,
+                    ach: Vec::new(),
+                }],
+            }],
+        }
+    }
+
+    fn keys(share: bool, meshes: [&str; 2]) -> Vec<Vec<FetchKey>> {
+        let m = manifest(meshes);
+        let mut table = ItemTable::empty(&m, 0).unwrap();
+        table.set_share_parts(share);
+        for (vi, v) in m.tracks[0].viewpoints.iter().enumerate() {
+            table
+                .add_viewpoint(vi, &v.background, &v.tiles, &[])
+                .unwrap();
+        }
+        table
+            .items
+            .iter()
+            .map(|it| it.parts.iter().map(|p| p.key.clone()).collect())
+            .collect()
+    }
+
+    #[test]
+    fn identical_parts_share_the_first_key_and_others_keep_their_own() {
+        let k = keys(true, ["abcdef01", "abcdef01"]);
+        assert_eq!(k.len(), 2);
+        // The same mesh in both packs: both items fetch it from the first viewpoint's pack.
+        assert_eq!(k[0][0], k[1][0]);
+        assert_eq!(k[1][0].object, format!("{:064x}", 1));
+        // Levels with their own checksums stay in their own packs.
+        assert_ne!(k[0][1], k[1][1]);
+        assert_eq!(k[1][1].object, format!("{:064x}", 2));
+        // Different checksums, or sharing switched off: every part its own key.
+        let k = keys(true, ["abcdef01", "abcdef02"]);
+        assert_ne!(k[0][0], k[1][0]);
+        let k = keys(false, ["abcdef01", "abcdef01"]);
+        assert_ne!(k[0][0], k[1][0]);
+        assert_eq!(k[1][0].object, format!("{:064x}", 2));
     }
 }

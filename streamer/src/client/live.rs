@@ -66,6 +66,9 @@ pub struct LiveConfig {
     pub samples: (u32, u32),
     /// After a failed download, new requests wait this long.
     pub error_pause: Duration,
+    /// Parts with the same checksum and length fetched and cached once under one key
+    /// ([`ItemTable::set_share_parts`]).
+    pub share_parts: bool,
 }
 
 impl LiveConfig {
@@ -88,6 +91,7 @@ impl LiveConfig {
             prior_latency_s: 0.02,
             samples: (32, 18),
             error_pause: Duration::from_millis(500),
+            share_parts: true,
         }
     }
 }
@@ -171,6 +175,9 @@ pub struct LiveSession {
     achs: Vec<Option<Vec<tracks::manifest::SegmentEntry>>>,
     /// ACH object keys requested and not yet arrived → viewpoint.
     ach_keys: HashMap<FetchKey, usize>,
+    /// Parts of items added by a table that were already held under their shared key:
+    /// handed out with the next update's arrivals.
+    pending: Vec<Arrival>,
     track: usize,
     table: ItemTable,
     infos: Vec<ItemInfo>,
@@ -240,7 +247,8 @@ impl LiveSession {
             }
             None => 0,
         };
-        let table = ItemTable::empty(&manifest, track)?;
+        let mut table = ItemTable::empty(&manifest, track)?;
+        table.set_share_parts(config.share_parts);
         let infos = table.infos();
         let index = SceneIndex::new(&manifest, track);
         let mut users: HashMap<FetchKey, Vec<(usize, usize)>> = HashMap::new();
@@ -271,6 +279,7 @@ impl LiveSession {
             table_keys: HashMap::new(),
             achs: vec![None; n_vp],
             ach_keys: HashMap::new(),
+            pending: Vec::new(),
             track,
             table,
             plan_infos: infos.clone(),
@@ -410,7 +419,8 @@ impl LiveSession {
         let s = if s.is_finite() { s } else { 0.0 };
         self.motion.observe(t, s);
         self.cache.set_position(s);
-        let arrivals = self.take_finished(now);
+        let mut arrivals = self.take_finished(now);
+        arrivals.append(&mut self.pending);
 
         let have = self.have();
         let mut downloading = vec![false; self.table.items.len()];

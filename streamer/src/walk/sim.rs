@@ -93,9 +93,6 @@ struct Sim<'a> {
     /// Budgets in force (the configured ones, or scaled to the database).
     budget: BudgetParams,
     s: f64,
-    /// Per (checksum, length) of a part, the key it is fetched and cached under
-    /// ([`Sim::share_identical_parts`]).
-    shared: std::collections::HashMap<(String, u64), FetchKey>,
 }
 
 impl Sim<'_> {
@@ -120,7 +117,6 @@ impl Sim<'_> {
                     self.table
                         .add_viewpoint(vi, &vt.background, &vt.tiles, &vt.segments)
                 {
-                    self.share_identical_parts(range.clone());
                     for i in range {
                         self.items.push(self.table.items[i].info.clone());
                     }
@@ -560,7 +556,10 @@ pub(crate) async fn run_one(
         manifest.bytes,
         manifest.round_trips.max(1),
     );
-    let table = scene.empty.clone();
+    let mut table = scene.empty.clone();
+    // Naive streams every tile whole, repeats included; the budget strategies fetch a
+    // payload once however many tiles share it (`ItemTable::set_share_parts`).
+    table.set_share_parts(strategy != Strategy::Naive);
     let items = table.infos();
     let n = items.len();
     let naive = strategy == Strategy::Naive;
@@ -602,9 +601,7 @@ pub(crate) async fn run_one(
             cfg.budget
         },
         s: 0.0,
-        shared: std::collections::HashMap::new(),
     };
-    sim.share_identical_parts(0..sim.table.items.len());
     let failures_before = stats.checksum_failures.load(Ordering::Relaxed);
     let length = scene.track.length();
     let walk_s = if cfg.speed_mps > 0.0 {

@@ -3,6 +3,7 @@
 
 use bytes::Bytes;
 
+use super::Arrival;
 use super::LiveSession;
 use crate::client::budget::PriorityMode;
 use crate::client::fetcher::FetchRequest;
@@ -116,6 +117,16 @@ impl LiveSession {
             self.infos.push(it.info.clone());
             for (p, part) in it.parts.iter().enumerate() {
                 self.users.entry(part.key.clone()).or_default().push((i, p));
+                // A part identical to one already held (its key shared, see
+                // `ItemTable::set_share_parts`) arrives for the new item at once.
+                if let Some(data) = self.cache.get(&part.key).cloned() {
+                    let _ = self.cache.insert(part.key.clone(), data.clone(), it.s);
+                    self.pending.push(Arrival {
+                        item: i,
+                        part: p,
+                        data,
+                    });
+                }
             }
         }
         self.refresh_plan_infos();

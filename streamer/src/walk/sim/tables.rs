@@ -104,28 +104,6 @@ impl Sim<'_> {
         Ok(next.is_some())
     }
 
-    /// Makes parts with the same checksum and length share one key — the first one the walk
-    /// came to — so identical bytes are fetched and cached once (the budget strategies; naive
-    /// streams every tile whole). Each viewpoint's pack holds its own copy of every payload,
-    /// and many are alike from one viewpoint to the next: on castle 128 meshes above all
-    /// (flat or distant surfaces) and some coarse level groups — 15 % of the visibility
-    /// strategy's tile bytes. Bytes cached under the shared key pass the other part's
-    /// checksum by construction, so nothing unchecked is ever shown.
-    pub(super) fn share_identical_parts(&mut self, range: std::ops::Range<usize>) {
-        if self.strategy == Strategy::Naive {
-            return;
-        }
-        for item in &mut self.table.items[range] {
-            for part in &mut item.parts {
-                let key = self
-                    .shared
-                    .entry((part.hash.clone(), part.bytes))
-                    .or_insert_with(|| part.key.clone());
-                part.key = key.clone();
-            }
-        }
-    }
-
     /// The objects the walk fetches for viewpoint `v`: its table, and its ACH object when the
     /// strategy ranks tiles by ACH.
     fn table_objects(&self, v: usize) -> impl Iterator<Item = &ObjectRef> {
