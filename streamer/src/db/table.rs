@@ -707,15 +707,8 @@ impl Dec {
 /// Decodes a table object's bytes (already checked against its hash) for viewpoint `want`.
 pub fn decode_table(bytes: &[u8], want: usize) -> Result<ViewTable, TableError> {
     let mut unzipped = Vec::new();
-    let body = unframe(bytes, MAGIC, TABLE_VERSION, &mut unzipped)?;
-    let mut r = Reader { b: body, at: 0 };
-    let viewpoint = r.usize("viewpoint")?;
-    if viewpoint != want {
-        return Err(TableError::Viewpoint {
-            got: viewpoint,
-            want,
-        });
-    }
+    let mut r = open_body(bytes, MAGIC, TABLE_VERSION, want, &mut unzipped)?;
+    let viewpoint = want;
     let pack = match r.u8("pack flag")? {
         0 => None,
         1 => Some(ObjectRef {
@@ -758,8 +751,8 @@ pub fn decode_table(bytes: &[u8], want: usize) -> Result<ViewTable, TableError> 
             d.cursor
         )));
     }
-    if r.at != body.len() {
-        return Err(TableError::Trailing(body.len() - r.at));
+    if r.at != r.b.len() {
+        return Err(TableError::Trailing(r.b.len() - r.at));
     }
     Ok(ViewTable {
         viewpoint,
@@ -867,10 +860,16 @@ fn unframe<'a>(
     }
 }
 
-/// Decodes an ACH object's bytes (already checked against its hash) for viewpoint `want`.
-pub fn decode_ach(bytes: &[u8], want: usize) -> Result<Vec<SegmentEntry>, TableError> {
-    let mut unzipped = Vec::new();
-    let body = unframe(bytes, ACH_MAGIC, ACH_VERSION, &mut unzipped)?;
+/// A framed object's body ([`unframe`]) read up to just after its viewpoint number, which
+/// must be `want`.
+fn open_body<'a>(
+    bytes: &'a [u8],
+    magic: &[u8; 4],
+    version: u8,
+    want: usize,
+    unzipped: &'a mut Vec<u8>,
+) -> Result<Reader<'a>, TableError> {
+    let body = unframe(bytes, magic, version, unzipped)?;
     let mut r = Reader { b: body, at: 0 };
     let viewpoint = r.usize("viewpoint")?;
     if viewpoint != want {
@@ -879,6 +878,14 @@ pub fn decode_ach(bytes: &[u8], want: usize) -> Result<Vec<SegmentEntry>, TableE
             want,
         });
     }
+    Ok(r)
+}
+
+/// Decodes an ACH object's bytes (already checked against its hash) for viewpoint `want`.
+pub fn decode_ach(bytes: &[u8], want: usize) -> Result<Vec<SegmentEntry>, TableError> {
+    let mut unzipped = Vec::new();
+    let mut r = open_body(bytes, ACH_MAGIC, ACH_VERSION, want, &mut unzipped)?;
+    let viewpoint = want;
     let d = Dec {
         n: r.varint("grid side")?,
         hash_bytes: 4,
@@ -918,8 +925,8 @@ pub fn decode_ach(bytes: &[u8], want: usize) -> Result<Vec<SegmentEntry>, TableE
             ach,
         });
     }
-    if r.at != body.len() {
-        return Err(TableError::Trailing(body.len() - r.at));
+    if r.at != r.b.len() {
+        return Err(TableError::Trailing(r.b.len() - r.at));
     }
     Ok(segments)
 }

@@ -36,13 +36,15 @@ impl LiveSession {
                 .ach
                 .as_ref()
                 .filter(|_| ach_mode && self.achs[vi].is_none());
+            // Urgent tables before any tile (tile priorities stay far below 1e12); the rest
+            // after every tile, nearest first; ACH objects beside their tables.
+            let dist = (v.s - s).abs();
+            let priority = if urgent.contains(&vi) {
+                1e12 - dist
+            } else {
+                -1.0 - dist
+            };
             if let Some(a) = ach {
-                let dist = (v.s - s).abs();
-                let priority = if urgent.contains(&vi) {
-                    1e12 - dist
-                } else {
-                    -1.0 - dist
-                };
                 let key = FetchKey {
                     object: a.hash.clone(),
                     range: None,
@@ -64,14 +66,6 @@ impl LiveSession {
                 object: v.table.hash.clone(),
                 range: None,
             };
-            let dist = (v.s - s).abs();
-            // Urgent tables before any tile (tile priorities stay far below 1e12); the rest
-            // after every tile, nearest first.
-            let priority = if urgent.contains(&vi) {
-                1e12 - dist
-            } else {
-                -1.0 - dist
-            };
             self.table_keys.insert(key.clone(), vi);
             out.push((
                 FetchRequest {
@@ -91,7 +85,7 @@ impl LiveSession {
         let Some(v) = self.top.tracks[self.track].viewpoints.get(vi) else {
             return;
         };
-        let vt = match decode_table(data, v.index) {
+        let mut vt = match decode_table(data, v.index) {
             Ok(vt) => vt,
             Err(e) => {
                 self.stats.failed_requests += 1;
@@ -99,7 +93,6 @@ impl LiveSession {
                 return;
             }
         };
-        let mut vt = vt;
         vt.segments = self.achs[vi].clone().unwrap_or_default();
         let range = match self
             .table
