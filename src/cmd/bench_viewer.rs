@@ -134,14 +134,7 @@ fn time_uploads(
     };
     let grid = tracks::TileGrid::new(views[0].face_size, views[0].tile_size)
         .context("tile grid of view 0")?;
-    let (x0, y0, x1, y1) = grid.pixel_rect(tile);
-    let rect = FaceRect {
-        face: tile.face,
-        x0,
-        y0,
-        x1,
-        y1,
-    };
+    let rect = FaceRect::of_tile(grid, tile);
     // Level 0 is the dense map dilated; dilating it again changes nothing.
     let dense = views[0].layers[1].levels[0].clone();
     let index = views[0].index;

@@ -838,14 +838,7 @@ impl StreamedWalkthrough {
                 let it = &mut self.items[item];
                 it.level = Some(level);
                 it.loaded_at = Some(now);
-                let (x0, y0, x1, y1) = self.grid.pixel_rect(tile);
-                let rect = FaceRect {
-                    face: tile.face,
-                    x0,
-                    y0,
-                    x1,
-                    y1,
-                };
+                let rect = FaceRect::of_tile(self.grid, tile);
                 Ok(Some((0, Some(rect))))
             }
             Kind::Tile { tile, slab } => {
@@ -879,14 +872,7 @@ impl StreamedWalkthrough {
                         self.tile_items[view].insert(slot, item);
                     }
                 }
-                let (x0, y0, x1, y1) = self.grid.pixel_rect(tile);
-                let rect = FaceRect {
-                    face: tile.face,
-                    x0,
-                    y0,
-                    x1,
-                    y1,
-                };
+                let rect = FaceRect::of_tile(self.grid, tile);
                 Ok(Some((layer, Some(rect))))
             }
         }

@@ -5,7 +5,7 @@
 //! mask carry the colour of their nearest opaque neighbours ([`dilate_masked`]) so bilinear
 //! filtering at a mask edge never pulls in black.
 
-use tracks::{CubeMap, Face};
+use tracks::{CubeMap, Face, TileGrid, TileId};
 
 /// One cube-map layer and its mip chain (level 0 first).
 #[derive(Clone, Debug, PartialEq)]
@@ -115,6 +115,18 @@ pub struct FaceRect {
 }
 
 impl FaceRect {
+    /// The face pixels of tile `tile` of `grid`.
+    pub fn of_tile(grid: TileGrid, tile: TileId) -> FaceRect {
+        let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+        FaceRect {
+            face: tile.face,
+            x0,
+            y0,
+            x1,
+            y1,
+        }
+    }
+
     /// Grown by `d` pixels on every side, clipped to a face `n` pixels wide.
     pub fn grown(&self, d: u32, n: u32) -> FaceRect {
         FaceRect {
