@@ -193,6 +193,13 @@ fn a_session_receives_the_current_segment_and_stays_within_its_budget() {
     while s < len {
         s += 0.5;
         run_until(&mut session, s, Duration::from_millis(100), |_| false);
+        // The session's pins, kept from frame to frame by what joins and leaves, are
+        // exactly what the cache holds in use.
+        assert_eq!(
+            session.stats().pinned_bytes,
+            session.cache().pinned_bytes(),
+            "at s = {s}"
+        );
     }
     run_until(&mut session, len, Duration::from_secs(20), |s| {
         s.stats().coarse_fraction >= 1.0

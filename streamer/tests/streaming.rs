@@ -168,7 +168,7 @@ async fn bundles_are_checked_piece_by_piece_and_fall_back_on_static_hosts() {
     let pack = tiles[0].ptm.as_ref().unwrap().object.clone();
     keys.push((
         FetchKey {
-            object: pack.hash.clone(),
+            object: pack.hash.as_str().into(),
             range: None,
         },
         pack.size,
@@ -179,7 +179,7 @@ async fn bundles_are_checked_piece_by_piece_and_fall_back_on_static_hosts() {
         let mesh = t.mesh_range.as_ref().unwrap();
         keys.push((
             FetchKey {
-                object: p.object.hash.clone(),
+                object: p.object.hash.as_str().into(),
                 range: Some((mesh.offset, mesh.len)),
             },
             mesh.len,
@@ -188,7 +188,7 @@ async fn bundles_are_checked_piece_by_piece_and_fall_back_on_static_hosts() {
         for l in &p.levels {
             keys.push((
                 FetchKey {
-                    object: p.object.hash.clone(),
+                    object: p.object.hash.as_str().into(),
                     range: Some((l.offset, l.len)),
                 },
                 l.len,

@@ -7,11 +7,9 @@
 //! city paper's eviction by adjacency depth, on a track); entries in use are never evicted,
 //! and an insert that cannot fit is refused, so the budget is never exceeded.
 
-use std::collections::HashMap;
-
 use bytes::Bytes;
 
-use super::http::FetchKey;
+use super::http::{FetchKey, KeyMap};
 
 #[derive(Debug)]
 struct Entry {
@@ -43,7 +41,7 @@ pub struct Cache {
     budget: u64,
     used: u64,
     position: f64,
-    entries: HashMap<FetchKey, Entry>,
+    entries: KeyMap<Entry>,
     evictions: u64,
 }
 
@@ -53,7 +51,7 @@ impl Cache {
             budget: budget_bytes,
             used: 0,
             position: 0.0,
-            entries: HashMap::new(),
+            entries: KeyMap::default(),
             evictions: 0,
         }
     }
@@ -122,12 +120,7 @@ impl Cache {
         if self.used + need <= self.budget {
             return Ok(());
         }
-        let pinned: u64 = self
-            .entries
-            .values()
-            .filter(|e| e.refs > 0)
-            .map(|e| e.data.len() as u64)
-            .sum();
+        let pinned = self.pinned_bytes();
         if pinned + need > self.budget {
             return Err(CacheError::NoRoom {
                 need,
@@ -157,6 +150,15 @@ impl Cache {
     }
 
     /// One more user of `key` (it will not be evicted while used). `false` if absent.
+    /// Bytes of the entries in use (at least one user).
+    pub fn pinned_bytes(&self) -> u64 {
+        self.entries
+            .values()
+            .filter(|e| e.refs > 0)
+            .map(|e| e.data.len() as u64)
+            .sum()
+    }
+
     pub fn acquire(&mut self, key: &FetchKey) -> bool {
         match self.entries.get_mut(key) {
             Some(e) => {
@@ -193,7 +195,7 @@ mod tests {
 
     fn key(i: u32) -> FetchKey {
         FetchKey {
-            object: format!("{i:064x}"),
+            object: format!("{i:064x}").into(),
             range: None,
         }
     }

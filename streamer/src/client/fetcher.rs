@@ -20,7 +20,6 @@
 //! bundle whose keys are all cancelled is abandoned mid-transfer. Results come back on a
 //! channel in completion order (the keys of one bundle in bundle order).
 
-use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
@@ -30,7 +29,7 @@ use tokio::sync::{mpsc, Notify};
 use tokio::task::JoinHandle;
 
 use super::http::{
-    BundlePiece, ClientError, ClientStats, Connection, FetchKey, RetryPolicy, ServerUrl,
+    BundlePiece, ClientError, ClientStats, Connection, FetchKey, KeyMap, RetryPolicy, ServerUrl,
 };
 
 /// One download to make.
@@ -90,8 +89,8 @@ struct Running {
 
 #[derive(Default)]
 struct Queue {
-    waiting: HashMap<FetchKey, Queued>,
-    running: HashMap<FetchKey, Running>,
+    waiting: KeyMap<Queued>,
+    running: KeyMap<Running>,
     seq: u64,
     closed: bool,
 }

@@ -65,13 +65,32 @@ impl ServerUrl {
 
 /// What a client asks for: a whole object or one byte range of it, and the hash its bytes
 /// must have.
-#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+///
+/// Clients look keys up tens of thousands of times a frame (what is held, pinned, wanted), so
+/// a key is cheap to clone (the object id is shared) and to hash (its first 16 hex digits
+/// and the range; equal keys agree on them), and the maps keyed by it ([`KeyMap`],
+/// [`KeySet`]) use a fast non-cryptographic hasher.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub struct FetchKey {
     /// Object hash (64 lowercase hex digits).
-    pub object: String,
+    pub object: Arc<str>,
     /// `(offset, len)`; `None` = the whole object.
     pub range: Option<(u64, u64)>,
 }
+
+impl std::hash::Hash for FetchKey {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        let id = self.object.as_bytes();
+        state.write(&id[..id.len().min(16)]);
+        self.range.hash(state);
+    }
+}
+
+/// A map keyed by [`FetchKey`] (fast hashing; the keys come from the manifests the user
+/// chose to open).
+pub type KeyMap<V> = std::collections::HashMap<FetchKey, V, foldhash::fast::RandomState>;
+/// A set of [`FetchKey`]s (see [`KeyMap`]).
+pub type KeySet = std::collections::HashSet<FetchKey, foldhash::fast::RandomState>;
 
 /// Client failures.
 #[derive(Debug, Clone, thiserror::Error)]
@@ -413,7 +432,7 @@ impl Connection {
         cancel: Option<&AtomicBool>,
     ) -> Result<Bytes, ClientError> {
         let rel = object_rel_path(&key.object)
-            .ok_or_else(|| ClientError::BadObject(key.object.clone()))?;
+            .ok_or_else(|| ClientError::BadObject(key.object.to_string()))?;
         let path = format!("/{rel}");
         let attempts = self.policy.checksum_attempts.max(1);
         for _ in 0..attempts {
@@ -501,7 +520,7 @@ impl Connection {
         }
         for p in pieces {
             if object_rel_path(&p.key.object).is_none() {
-                return Err(ClientError::BadObject(p.key.object.clone()));
+                return Err(ClientError::BadObject(p.key.object.to_string()));
             }
             if p.key.range.is_some_and(|(_, len)| len != p.len) {
                 return Err(ClientError::Transfer {
@@ -565,7 +584,7 @@ impl Connection {
                 }
             }
             entries.push(crate::server::BundleEntry {
-                object: p.key.object.clone(),
+                object: p.key.object.to_string(),
                 range: p.key.range,
             });
         }
@@ -638,7 +657,7 @@ impl Connection {
         viewpoint: usize,
     ) -> Result<ViewTable, ClientError> {
         let key = FetchKey {
-            object: table.hash.clone(),
+            object: table.hash.as_str().into(),
             range: None,
         };
         let bytes = self.fetch_checked(&key, &table.hash, None).await?;
@@ -653,7 +672,7 @@ impl Connection {
         viewpoint: usize,
     ) -> Result<Vec<tracks::manifest::SegmentEntry>, ClientError> {
         let key = FetchKey {
-            object: ach.hash.clone(),
+            object: ach.hash.as_str().into(),
             range: None,
         };
         let bytes = self.fetch_checked(&key, &ach.hash, None).await?;

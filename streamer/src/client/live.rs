@@ -24,7 +24,7 @@
 //! When the server goes away, the connections retry with back-off; failed downloads are
 //! counted, new requests pause briefly, and what is cached stays available.
 
-use std::collections::{HashMap, HashSet, VecDeque};
+use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
@@ -39,7 +39,7 @@ use super::budget::{
 };
 use super::cache::Cache;
 use super::fetcher::{FetchRequest, Fetcher, FetcherConfig};
-use super::http::{ClientError, Connection, FetchKey, ServerUrl};
+use super::http::{ClientError, Connection, KeyMap, KeySet, ServerUrl};
 use super::items::ItemTable;
 use super::predict::{next_segment, segment_at, MotionTracker};
 use crate::visibility::{blend_weights, SceneIndex, Surface};
@@ -170,11 +170,11 @@ pub struct LiveSession {
     /// Tables that have arrived, per viewpoint of the session's track.
     tables: Vec<Option<ViewTable>>,
     /// Table keys requested and not yet arrived → viewpoint.
-    table_keys: HashMap<FetchKey, usize>,
+    table_keys: KeyMap<usize>,
     /// ACH lists that have arrived (from the viewpoints' ACH objects), per viewpoint.
     achs: Vec<Option<Vec<tracks::manifest::SegmentEntry>>>,
     /// ACH object keys requested and not yet arrived → viewpoint.
-    ach_keys: HashMap<FetchKey, usize>,
+    ach_keys: KeyMap<usize>,
     /// Parts of items added by a table that were already held under their shared key:
     /// handed out with the next update's arrivals.
     pending: Vec<Arrival>,
@@ -190,10 +190,12 @@ pub struct LiveSession {
     link: LinkEstimate,
     motion: MotionTracker,
     /// Every (item, part) that uses a key (content-addressed keys may be shared).
-    users: HashMap<FetchKey, Vec<(usize, usize)>>,
+    users: KeyMap<Vec<(usize, usize)>>,
     /// Keys submitted and not finished.
-    requested: HashSet<FetchKey>,
-    pinned: Vec<FetchKey>,
+    requested: KeySet,
+    pinned: KeySet,
+    /// Cached bytes of `pinned`.
+    pinned_bytes: u64,
     start: Instant,
     paused_until: Option<Instant>,
     recent: VecDeque<(Instant, u64)>,
@@ -251,7 +253,7 @@ impl LiveSession {
         table.set_share_parts(config.share_parts);
         let infos = table.infos();
         let index = SceneIndex::new(&manifest, track);
-        let mut users: HashMap<FetchKey, Vec<(usize, usize)>> = HashMap::new();
+        let mut users: KeyMap<Vec<(usize, usize)>> = KeyMap::default();
         for (i, it) in table.items.iter().enumerate() {
             for (p, part) in it.parts.iter().enumerate() {
                 users.entry(part.key.clone()).or_default().push((i, p));
@@ -276,9 +278,9 @@ impl LiveSession {
             manifest,
             top,
             tables: vec![None; n_vp],
-            table_keys: HashMap::new(),
+            table_keys: KeyMap::default(),
             achs: vec![None; n_vp],
-            ach_keys: HashMap::new(),
+            ach_keys: KeyMap::default(),
             pending: Vec::new(),
             track,
             table,
@@ -291,8 +293,9 @@ impl LiveSession {
             link,
             motion: MotionTracker::new(),
             users,
-            requested: HashSet::new(),
-            pinned: Vec::new(),
+            requested: KeySet::default(),
+            pinned: KeySet::default(),
+            pinned_bytes: 0,
             start: Instant::now(),
             paused_until: None,
             recent: VecDeque::new(),
@@ -485,10 +488,9 @@ impl LiveSession {
             link: &self.link,
         });
 
-        // Pins: what the plan keeps resident, and the current segment's coarsest levels.
-        for k in self.pinned.drain(..) {
-            self.cache.release(&k);
-        }
+        // Pins: what the plan keeps resident, and the current segment's coarsest levels. A key
+        // is pinned once however many items use it, and only the keys that join or leave the
+        // set touch the cache (the set holds tens of thousands of parts on big databases).
         let mut pin: Vec<(usize, usize)> = p.targets.iter().map(|&(i, _, r)| (i, r)).collect();
         pin.extend(
             seg_ach
@@ -497,24 +499,35 @@ impl LiveSession {
                 .chain(backgrounds.iter().copied())
                 .map(|i| (i, self.infos[i].min_parts())),
         );
+        let mut pins = KeySet::default();
         for (i, n) in pin {
             for part in &self.table.items[i].parts[..n.min(have[i])] {
-                if self.cache.acquire(&part.key) {
-                    self.pinned.push(part.key.clone());
-                }
+                pins.insert(part.key.clone());
             }
         }
-        self.stats.pinned_bytes = {
-            let uniq: HashSet<&FetchKey> = self.pinned.iter().collect();
-            uniq.iter()
-                .filter_map(|k| self.cache.get(k))
-                .map(|b| b.len() as u64)
-                .sum()
-        };
+        for k in self.pinned.iter().filter(|k| !pins.contains(*k)) {
+            self.pinned_bytes -= self.cache.get(k).map_or(0, |b| b.len() as u64);
+            self.cache.release(k);
+        }
+        let cache = &mut self.cache;
+        let mut added = 0;
+        pins.retain(|k| {
+            if self.pinned.contains(k) {
+                return true;
+            }
+            let held = cache.acquire(k);
+            if held {
+                added += cache.get(k).map_or(0, |b| b.len() as u64);
+            }
+            held
+        });
+        self.pinned_bytes += added;
+        self.pinned = pins;
+        self.stats.pinned_bytes = self.pinned_bytes;
 
         // Requests the plan still wants: running/queued parts of items below their target,
         // plus the new ones.
-        let mut keep: HashSet<FetchKey> = HashSet::new();
+        let mut keep = KeySet::default();
         for &(i, target, _) in &p.targets {
             for part in self.table.items[i].parts.iter().take(target).skip(have[i]) {
                 if self.requested.contains(&part.key) {

@@ -46,7 +46,7 @@ impl LiveSession {
             };
             if let Some(a) = ach {
                 let key = FetchKey {
-                    object: a.hash.clone(),
+                    object: a.hash.as_str().into(),
                     range: None,
                 };
                 self.ach_keys.insert(key.clone(), vi);
@@ -63,7 +63,7 @@ impl LiveSession {
                 continue;
             }
             let key = FetchKey {
-                object: v.table.hash.clone(),
+                object: v.table.hash.as_str().into(),
                 range: None,
             };
             self.table_keys.insert(key.clone(), vi);

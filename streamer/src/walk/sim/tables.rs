@@ -129,7 +129,7 @@ impl Sim<'_> {
         let keys: Vec<FetchKey> = refs
             .iter()
             .map(|r| FetchKey {
-                object: r.hash.clone(),
+                object: r.hash.as_str().into(),
                 range: None,
             })
             .collect();
