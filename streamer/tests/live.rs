@@ -15,6 +15,11 @@ use tracks::{PerspectiveCamera, TrackSet};
 
 /// Every part the session holds was handed out (as an arrival) for every item that uses it.
 fn assert_every_held_part_handed_out(session: &LiveSession, arrivals: &[Arrival]) {
+    assert_eq!(
+        session.held(),
+        &session.have()[..],
+        "held parts kept by the session"
+    );
     let got: std::collections::HashSet<(usize, usize)> =
         arrivals.iter().map(|a| (a.item, a.part)).collect();
     for (i, it) in session.table().items.iter().enumerate() {
@@ -200,6 +205,8 @@ fn a_session_receives_the_current_segment_and_stays_within_its_budget() {
             session.cache().pinned_bytes(),
             "at s = {s}"
         );
+        // So are the held parts, kept by arrivals and evictions.
+        assert_eq!(session.held(), &session.have()[..], "at s = {s}");
     }
     run_until(&mut session, len, Duration::from_secs(20), |s| {
         s.stats().coarse_fraction >= 1.0

@@ -43,6 +43,8 @@ pub struct Cache {
     position: f64,
     entries: KeyMap<Entry>,
     evictions: u64,
+    /// Keys evicted since the last [`Cache::take_evicted`], when recording.
+    evicted: Option<Vec<FetchKey>>,
 }
 
 impl Cache {
@@ -53,6 +55,7 @@ impl Cache {
             position: 0.0,
             entries: KeyMap::default(),
             evictions: 0,
+            evicted: None,
         }
     }
 
@@ -144,12 +147,29 @@ impl Cache {
             if let Some(e) = self.entries.remove(&k) {
                 self.used -= e.data.len() as u64;
                 self.evictions += 1;
+                if let Some(log) = &mut self.evicted {
+                    log.push(k);
+                }
             }
         }
         Ok(())
     }
 
     /// One more user of `key` (it will not be evicted while used). `false` if absent.
+    /// From now on, remember the keys evicted to make room, for [`Cache::take_evicted`]
+    /// (a caller that keeps its own view of what is held).
+    pub fn record_evictions(&mut self) {
+        self.evicted.get_or_insert_with(Vec::new);
+    }
+
+    /// The keys evicted since the last call (empty unless recording).
+    pub fn take_evicted(&mut self) -> Vec<FetchKey> {
+        self.evicted
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
+    }
+
     /// Bytes of the entries in use (at least one user).
     pub fn pinned_bytes(&self) -> u64 {
         self.entries
@@ -211,6 +231,27 @@ mod tests {
         assert!(!c.contains(&key(1)), "the entry farthest behind goes");
         assert!(c.contains(&key(2)) && c.contains(&key(3)) && c.contains(&key(4)));
         assert_eq!(c.used(), 300);
+    }
+
+    #[test]
+    fn evicted_keys_are_reported_once_when_recording() {
+        let fill = |c: &mut Cache| {
+            for i in 1..=4 {
+                c.insert(key(i), Bytes::from(vec![0; 100]), i as f64)
+                    .unwrap();
+            }
+        };
+        let mut quiet = Cache::new(200);
+        fill(&mut quiet);
+        assert!(quiet.take_evicted().is_empty(), "not recording");
+        let mut c = Cache::new(200);
+        c.record_evictions();
+        c.set_position(4.0);
+        fill(&mut c);
+        assert_eq!(c.take_evicted(), vec![key(1), key(2)]);
+        assert!(c.take_evicted().is_empty());
+        c.remove(&key(3));
+        assert!(c.take_evicted().is_empty(), "removals are the caller's own");
     }
 
     #[test]

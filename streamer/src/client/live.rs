@@ -39,8 +39,8 @@ use super::budget::{
 };
 use super::cache::Cache;
 use super::fetcher::{FetchRequest, Fetcher, FetcherConfig};
-use super::http::{ClientError, Connection, KeyMap, KeySet, ServerUrl};
-use super::items::ItemTable;
+use super::http::{ClientError, Connection, FetchKey, KeyMap, KeySet, ServerUrl};
+use super::items::{ItemTable, Part};
 use super::predict::{next_segment, segment_at, MotionTracker};
 use crate::visibility::{blend_weights, SceneIndex, Surface};
 
@@ -196,6 +196,9 @@ pub struct LiveSession {
     pinned: KeySet,
     /// Cached bytes of `pinned`.
     pinned_bytes: u64,
+    /// Parts held per item (the prefix in the cache), kept by arrivals and evictions; equal
+    /// to [`LiveSession::have`], which scans every part.
+    held: Vec<usize>,
     start: Instant,
     paused_until: Option<Instant>,
     recent: VecDeque<(Instant, u64)>,
@@ -260,11 +263,13 @@ impl LiveSession {
             }
         }
         let n_vp = top.tracks[track].viewpoints.len();
+        let n_items = table.items.len();
         let fetcher = {
             let _guard = runtime.enter();
             Fetcher::new(url, config.fetcher.clone())
         };
-        let cache = Cache::new(config.cache_bytes);
+        let mut cache = Cache::new(config.cache_bytes);
+        cache.record_evictions();
         let link = LinkEstimate::new(config.prior_bps, config.prior_latency_s);
         let stats = LiveStats {
             cache_budget: config.cache_bytes,
@@ -296,6 +301,7 @@ impl LiveSession {
             requested: KeySet::default(),
             pinned: KeySet::default(),
             pinned_bytes: 0,
+            held: vec![0; n_items],
             start: Instant::now(),
             paused_until: None,
             recent: VecDeque::new(),
@@ -394,7 +400,12 @@ impl LiveSession {
         self.cache.get(key)
     }
 
-    /// Parts held per item (the prefix present in the cache).
+    /// Parts held per item, as the session keeps them from frame to frame.
+    pub fn held(&self) -> &[usize] {
+        &self.held
+    }
+
+    /// Parts held per item (the prefix present in the cache), by looking every part up.
     pub fn have(&self) -> Vec<usize> {
         self.table
             .items
@@ -425,7 +436,7 @@ impl LiveSession {
         let mut arrivals = self.take_finished(now);
         arrivals.append(&mut self.pending);
 
-        let have = self.have();
+        let have = self.held.clone();
         let mut downloading = vec![false; self.table.items.len()];
         for k in &self.requested {
             for &(i, _) in self.users.get(k).map_or(&[][..], |v| v.as_slice()) {
@@ -669,6 +680,7 @@ impl LiveSession {
     /// Finished downloads: link estimate, cache, arrivals.
     fn take_finished(&mut self, now: Instant) -> Vec<Arrival> {
         let mut out = Vec::new();
+        let mut stored_keys = Vec::new();
         while let Some(done) = self.fetcher.try_next() {
             self.requested.remove(&done.key);
             match done.result {
@@ -705,6 +717,7 @@ impl LiveSession {
                             .is_ok();
                     }
                     if fresh && stored {
+                        stored_keys.push(done.key.clone());
                         out.extend(users.iter().map(|&(item, part)| Arrival {
                             item,
                             part,
@@ -723,7 +736,31 @@ impl LiveSession {
             }
         }
         self.stats.cache_peak = self.stats.cache_peak.max(self.cache.used());
+        self.update_held(&stored_keys);
         out
+    }
+
+    /// Keeps `held` true after parts were stored (`stored`) and others evicted to make room.
+    /// Evictions first cut the items that used them, then stored parts extend the items they
+    /// continue, each by what the cache holds now.
+    fn update_held(&mut self, stored: &[FetchKey]) {
+        for k in self.cache.take_evicted() {
+            for &(item, part) in self.users.get(&k).map_or(&[][..], |v| v.as_slice()) {
+                self.held[item] = self.held[item].min(part);
+            }
+        }
+        for k in stored {
+            for &(item, part) in self.users.get(k).map_or(&[][..], |v| v.as_slice()) {
+                if self.held[item] == part {
+                    self.held[item] = held_from(&self.table.items[item].parts, part, &self.cache);
+                }
+            }
+        }
+    }
+
+    /// Extends item `i`'s held prefix by the parts the cache holds.
+    pub(super) fn extend_held(&mut self, i: usize) {
+        self.held[i] = held_from(&self.table.items[i].parts, self.held[i], &self.cache);
     }
 
     fn update_stats(
@@ -798,6 +835,15 @@ impl LiveSession {
 }
 
 /// Fraction of the counted pixels whose item holds at least its coarsest level.
+/// End of the prefix of `parts` the cache holds, looking from part `from` on (the parts
+/// before it are held).
+fn held_from(parts: &[Part], from: usize, cache: &Cache) -> usize {
+    from + parts[from.min(parts.len())..]
+        .iter()
+        .take_while(|p| cache.contains(&p.key))
+        .count()
+}
+
 fn visible_fraction(counts: &[LiveCount], have: &[usize], infos: &[ItemInfo]) -> f64 {
     let total: f64 = counts.iter().map(|c| c.pixels).sum();
     if total <= 0.0 {

@@ -105,7 +105,7 @@ impl LiveSession {
                 return;
             }
         };
-        for i in range {
+        for i in range.clone() {
             let it = &self.table.items[i];
             self.infos.push(it.info.clone());
             for (p, part) in it.parts.iter().enumerate() {
@@ -121,6 +121,10 @@ impl LiveSession {
                     });
                 }
             }
+        }
+        self.held.resize(self.table.items.len(), 0);
+        for i in range {
+            self.extend_held(i);
         }
         self.refresh_plan_infos();
         self.tables[vi] = Some(vt);
