@@ -193,9 +193,8 @@ pub struct LiveSession {
     users: KeyMap<Vec<(usize, usize)>>,
     /// Keys submitted and not finished.
     requested: KeySet,
+    /// Keys pinned in the cache (their bytes: `stats.pinned_bytes`).
     pinned: KeySet,
-    /// Cached bytes of `pinned`.
-    pinned_bytes: u64,
     /// Parts held per item (the prefix in the cache), kept by arrivals and evictions; equal
     /// to [`LiveSession::have`], which scans every part.
     held: Vec<usize>,
@@ -300,7 +299,6 @@ impl LiveSession {
             users,
             requested: KeySet::default(),
             pinned: KeySet::default(),
-            pinned_bytes: 0,
             held: vec![0; n_items],
             start: Instant::now(),
             paused_until: None,
@@ -517,7 +515,7 @@ impl LiveSession {
             }
         }
         for k in self.pinned.iter().filter(|k| !pins.contains(*k)) {
-            self.pinned_bytes -= self.cache.get(k).map_or(0, |b| b.len() as u64);
+            self.stats.pinned_bytes -= self.cache.get(k).map_or(0, |b| b.len() as u64);
             self.cache.release(k);
         }
         let cache = &mut self.cache;
@@ -532,9 +530,8 @@ impl LiveSession {
             }
             held
         });
-        self.pinned_bytes += added;
+        self.stats.pinned_bytes += added;
         self.pinned = pins;
-        self.stats.pinned_bytes = self.pinned_bytes;
 
         // Requests the plan still wants: running/queued parts of items below their target,
         // plus the new ones.
@@ -834,7 +831,6 @@ impl LiveSession {
     }
 }
 
-/// Fraction of the counted pixels whose item holds at least its coarsest level.
 /// End of the prefix of `parts` the cache holds, looking from part `from` on (the parts
 /// before it are held).
 fn held_from(parts: &[Part], from: usize, cache: &Cache) -> usize {
@@ -844,6 +840,7 @@ fn held_from(parts: &[Part], from: usize, cache: &Cache) -> usize {
         .count()
 }
 
+/// Fraction of the counted pixels whose item holds at least its coarsest level.
 fn visible_fraction(counts: &[LiveCount], have: &[usize], infos: &[ItemInfo]) -> f64 {
     let total: f64 = counts.iter().map(|c| c.pixels).sum();
     if total <= 0.0 {
