@@ -124,7 +124,8 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
                         fragments.shaded += 1;
                         let (px, py) = pixel_on_face(face, p, n);
                         let c = layer.sample(tile_lod, face, px, py);
-                        let cut = if tile.slab == 0 || tile_lod < 1.0 {
+                        let level = tile_lod.min((layer.levels.len() - 1) as f32);
+                        let cut = if tile.slab == 0 || level < 1.0 {
                             0.5
                         } else {
                             0.25

@@ -18,23 +18,22 @@ struct View {
     params: vec4<f32>,       // frame lod, width, height, mip levels
 };
 
+// Face bases without branches (software rasterisers run every case of a `switch` for each
+// SIMD block): face f looks along axis f / 2, positive for even f.
 fn face_forward(f: u32) -> vec3<f32> {
-    switch f {
-        case 0u: { return vec3<f32>(1.0, 0.0, 0.0); }
-        case 1u: { return vec3<f32>(-1.0, 0.0, 0.0); }
-        case 2u: { return vec3<f32>(0.0, 1.0, 0.0); }
-        case 3u: { return vec3<f32>(0.0, -1.0, 0.0); }
-        case 4u: { return vec3<f32>(0.0, 0.0, 1.0); }
-        default: { return vec3<f32>(0.0, 0.0, -1.0); }
-    }
+    let axis = f >> 1u;
+    let sign = 1.0 - 2.0 * f32(f & 1u);
+    return vec3<f32>(
+        select(0.0, sign, axis == 0u),
+        select(0.0, sign, axis == 1u),
+        select(0.0, sign, axis == 2u),
+    );
 }
 
+// +y, except on the ±y faces (2, 3): ±z.
 fn face_up(f: u32) -> vec3<f32> {
-    switch f {
-        case 2u: { return vec3<f32>(0.0, 0.0, 1.0); }
-        case 3u: { return vec3<f32>(0.0, 0.0, -1.0); }
-        default: { return vec3<f32>(0.0, 1.0, 0.0); }
-    }
+    let y_face = (f >> 1u) == 1u;
+    return select(vec3<f32>(0.0, 1.0, 0.0), vec3<f32>(0.0, 0.0, 5.0 - 2.0 * f32(f)), y_face);
 }
 
 fn face_right(f: u32) -> vec3<f32> {
@@ -42,15 +41,15 @@ fn face_right(f: u32) -> vec3<f32> {
 }
 
 // Face holding a direction: major axis, ties x before y before z (FaceCoord::from_dir).
+// Selects, not branches (see face_forward).
 fn face_of(d: vec3<f32>) -> u32 {
     let a = abs(d);
-    if a.x >= a.y && a.x >= a.z {
-        return select(1u, 0u, d.x > 0.0);
-    }
-    if a.y >= a.z {
-        return select(3u, 2u, d.y > 0.0);
-    }
-    return select(5u, 4u, d.z > 0.0);
+    let x_major = a.x >= a.y && a.x >= a.z;
+    let y_major = a.y >= a.z;
+    let z_face = select(5u, 4u, d.z > 0.0);
+    let y_face = select(3u, 2u, d.y > 0.0);
+    let x_face = select(1u, 0u, d.x > 0.0);
+    return select(select(z_face, y_face, y_major), x_face, x_major);
 }
 
 // Level-0 face-pixel position of a direction on face f of a cube map n pixels wide.
@@ -61,23 +60,26 @@ fn pixel_on_face(f: u32, d: vec3<f32>, n: f32) -> vec2<f32> {
     return vec2<f32>((u + 1.0) * 0.5 * n, (1.0 - v) * 0.5 * n);
 }
 
-fn sample_level(
-    tex: texture_2d_array<f32>,
-    samp: sampler,
-    n: f32,
-    layer: u32,
-    f: u32,
-    pix: vec2<f32>,
-    level: f32,
-) -> vec4<f32> {
-    let nl = max(floor(n / exp2(level)), 1.0);
-    let p = clamp(pix * (nl / n), vec2<f32>(0.5), vec2<f32>(nl - 0.5));
-    let uv = vec2<f32>(p.x / nl, (f32(f) * nl + p.y) / (6.0 * nl));
-    return textureSampleLevel(tex, samp, uv, layer, level);
+// Margin of a face, in face units (0 to 1), that keeps a lookup at level of detail `lod`
+// inside its face: half a texel of the coarser of the two levels a trilinear lookup blends,
+// so neither level bleeds into the next face of the column. At a whole level it is exactly
+// half a texel of that level.
+fn face_margin(n: f32, lod: f32) -> f32 {
+    return 0.5 / max(floor(n / exp2(ceil(lod))), 1.0);
 }
 
-// Trilinear from two explicit levels, each clamped inside its own face; `n` is the face size
-// (View.origin_rel.w), `levels` the number of mip levels (View.params.w).
+// Texture coordinates of face position `p` (face units, 0 to 1 across and down) on face f
+// of a layer (six faces stacked in a column), clamped `margin` inside the face.
+fn face_uv(f: u32, p: vec2<f32>, margin: f32) -> vec2<f32> {
+    let c = clamp(p, vec2<f32>(margin), vec2<f32>(1.0 - margin));
+    return vec2<f32>(c.x, (f32(f) + c.y) * (1.0 / 6.0));
+}
+
+// Trilinear lookup at level of detail `lod_in` (clamped to the chain): one hardware lookup,
+// the sampler blends the two levels (mipmap filter linear). `n` is the face size
+// (View.origin_rel.w), `levels` the number of mip levels (View.params.w), `pix` the level-0
+// face-pixel position. One lookup and no branch: software rasterisers run both sides of a
+// branch for every SIMD block, so two explicit lookups cost two whatever the level.
 fn sample_face(
     tex: texture_2d_array<f32>,
     samp: sampler,
@@ -89,14 +91,8 @@ fn sample_face(
     lod_in: f32,
 ) -> vec4<f32> {
     let lod = clamp(lod_in, 0.0, levels - 1.0);
-    let l0 = floor(lod);
-    let t = lod - l0;
-    let a = sample_level(tex, samp, n, layer, f, pix, l0);
-    if t == 0.0 {
-        return a;
-    }
-    let b = sample_level(tex, samp, n, layer, f, pix, l0 + 1.0);
-    return mix(a, b, t);
+    let uv = face_uv(f, pix / n, face_margin(n, lod));
+    return textureSampleLevel(tex, samp, uv, layer, lod);
 }
 
 // World direction through the pixel at framebuffer position `pos` (camera rays of a View).

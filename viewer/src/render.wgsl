@@ -33,14 +33,19 @@ struct PassOut {
     @location(1) tile: u32,
 };
 
-// Background layer (sky), drawn after the meshes where none drew; alpha 0 (hole) where the
-// background has no sky either. No `discard`: the depth test alone decides, before shading.
-fn background_color(pos: vec2<f32>) -> vec4<f32> {
-    let d = pixel_ray(view.ray_right.xyz, view.ray_up.xyz, view.ray_forward.xyz, view.params.yz, pos);
+// Background layer (sky) of view `v`, drawn after the meshes where none drew; alpha 0
+// (hole) where the background has no sky either. No `discard`: the depth test alone
+// decides, before shading.
+fn background_of(v: View, tex: texture_2d_array<f32>, s: sampler, pos: vec2<f32>) -> vec4<f32> {
+    let d = pixel_ray(v.ray_right.xyz, v.ray_up.xyz, v.ray_forward.xyz, v.params.yz, pos);
     let f = face_of(d);
-    let n = view.origin_rel.w;
-    let c = sample_face(layers, samp, n, view.params.w, 0u, f, pixel_on_face(f, d, n), view.params.x);
+    let n = v.origin_rel.w;
+    let c = sample_face(tex, s, n, v.params.w, 0u, f, pixel_on_face(f, d, n), v.params.x);
     return select(vec4<f32>(0.0), vec4<f32>(c.rgb, SKY_DISTANCE), c.a > 0.0);
+}
+
+fn background_color(pos: vec2<f32>) -> vec4<f32> {
+    return background_of(view, layers, samp, pos);
 }
 
 @fragment
@@ -96,12 +101,11 @@ struct MeshOut {
     @location(2) ref_rufw: vec3<f32>,
     // face | layer << 8.
     @location(3) @interpolate(flat) face_layer: u32,
+    // Level of detail (clamped to the chain), the face margin at it (`face_margin`) and the
+    // opacity-mask cut.
     @location(4) @interpolate(flat) lod: f32,
-    // The texture level's constants (whole frame levels): half the level's face size,
-    // its row offset of the face (f · size), 1 / size, 1 / (6 · size); and the level and
-    // mask cut.
-    @location(5) @interpolate(flat) tex: vec4<f32>,
-    @location(6) @interpolate(flat) level_cut: vec2<f32>,
+    @location(5) @interpolate(flat) margin: f32,
+    @location(6) @interpolate(flat) cut: f32,
 };
 
 @vertex
@@ -121,15 +125,14 @@ fn vs_mesh(v: MeshIn) -> MeshOut {
     out.tile = tile;
     out.ref_rufw = vec3<f32>(u, w, 1.0) * scale;
     out.face_layer = info.x;
-    out.lod = max(view.params.x, f32(info.y));
-    let level = min(out.lod, view.params.w - 1.0);
-    let nl = max(floor(n / exp2(level)), 1.0);
-    out.tex = vec4<f32>(0.5 * nl, f32(f) * nl, 1.0 / nl, 1.0 / (6.0 * nl));
+    let level = clamp(max(view.params.x, f32(info.y)), 0.0, view.params.w - 1.0);
+    out.lod = level;
+    out.margin = face_margin(n, level);
     // Masks are cut at 0.5. From level 1 on, deeper slabs cut at 0.25: where two slabs'
     // filtered masks meet (they sum to about 1) one of them then always draws, so coarse
     // levels open no crack at slab boundaries; deeper slabs lie behind, so the depth test
     // hides what they overhang. Level 0 stays exact.
-    out.level_cut = vec2<f32>(level, select(0.25, 0.5, (info.x >> 8u) == 1u || out.lod < 1.0));
+    out.cut = select(0.25, 0.5, (info.x >> 8u) == 1u || level < 1.0);
     return out;
 }
 
@@ -138,24 +141,10 @@ fn vs_mesh(v: MeshIn) -> MeshOut {
 fn mesh_color(in: MeshOut) -> vec4<f32> {
     let f = in.face_layer & 7u;
     let layer = in.face_layer >> 8u;
-    let lod = in.lod;
-    let n = view.origin_rel.w;
     let q = in.ref_rufw.xy / in.ref_rufw.z;
-    var c: vec4<f32>;
-    if fract(view.params.x) == 0.0 {
-        // A whole frame level (and whole tile levels): one lookup (sample_level with the
-        // level's constants from the vertex shader). The condition is uniform, so SIMD
-        // rasterisers (llvmpipe runs both sides of per-pixel branches) skip the two-level
-        // path for the whole draw.
-        let half = in.tex.x;
-        let p = clamp(vec2<f32>((q.x + 1.0) * half, (1.0 - q.y) * half), vec2<f32>(0.5), vec2<f32>(2.0 * half - 0.5));
-        let uv = vec2<f32>(p.x * in.tex.z, (in.tex.y + p.y) * in.tex.w);
-        c = textureSampleLevel(layers, samp, uv, layer, in.level_cut.x);
-    } else {
-        let pix = vec2<f32>((q.x + 1.0) * 0.5 * n, (1.0 - q.y) * 0.5 * n);
-        c = sample_face(layers, samp, n, view.params.w, layer, f, pix, lod);
-    }
-    if c.a < in.level_cut.y {
+    let uv = face_uv(f, vec2<f32>(q.x + 1.0, 1.0 - q.y) * 0.5, in.margin);
+    let c = textureSampleLevel(layers, samp, uv, layer, in.lod);
+    if c.a < in.cut {
         discard;
     }
     let dist = clamp(length(in.cam_rel), 1e-3, SKY_DISTANCE);
@@ -213,17 +202,14 @@ fn fs_mesh_first(in: MeshOut) -> FirstOut {
     return out;
 }
 
-// The first view's sky at SKY_DEPTH where no mesh drew; holes keep the cleared values (alpha
-// 0, distance 0, depth 0), so the second view fills them (also where its weight is 0, as in
-// the composite).
+// The sky of a one-view frame where its meshes left the pixel empty (depth test, no depth
+// write, no `discard`, so the rasteriser skips covered blocks before shading); a hole writes
+// the cleared values (alpha 0, distance 0).
 @fragment
 fn fs_sky_first(in: FullOut) -> FirstOut {
     let c = background_color(in.pos.xy);
-    if c.a == 0.0 {
-        discard;
-    }
     var out: FirstOut;
-    out.color = vec4<f32>(c.rgb, 1.0);
+    out.color = vec4<f32>(c.rgb, select(0.0, 1.0, c.a > 0.0));
     out.dist = c.a;
     return out;
 }
@@ -251,12 +237,46 @@ fn fs_mesh_second(in: MeshOut) -> @location(0) vec4<f32> {
     return vec4<f32>(c.rgb, second_share(da, c.a));
 }
 
-// The second view's sky, drawn only where the first view left a hole (depth test): there it
-// is all there is.
+// The second view's meshes at a sample (weight 0; drawn only where nearer than the first
+// view's meshes): where the first view drew no mesh, its sky (looked up in the first view,
+// group 2) counts as a surface at SKY_DISTANCE, so the second view fills only the first
+// view's holes, as in the composite. (With any weight above 0 the blend gives a mesh almost
+// everything against the sky, as `fs_mesh_second` does where the first view's distance is 0.)
 @fragment
-fn fs_sky_second(in: FullOut) -> @location(0) vec4<f32> {
-    let c = background_color(in.pos.xy);
-    return vec4<f32>(c.rgb, select(0.0, 1.0, c.a > 0.0));
+fn fs_mesh_second_at_sample(in: MeshOut) -> @location(0) vec4<f32> {
+    let c = mesh_color(in);
+    let da = textureLoad(first_dist, vec2<i32>(in.pos.xy), 0).x;
+    let sky = background_of(other_view, other_layers, other_samp, in.pos.xy).a;
+    let share = second_share(select(da, sky, da == 0.0), c.a);
+    // No share (weight 0): no depth either, so the first view's sky is still drawn there.
+    if share == 0.0 {
+        discard;
+    }
+    return vec4<f32>(c.rgb, share);
+}
+
+// The other view of a two-view pass (group 2): the first view for the second view's meshes
+// at a sample (`fs_mesh_second_at_sample`), the second view for the sky (`fs_sky_both`).
+@group(2) @binding(0) var<uniform> other_view: View;
+@group(2) @binding(1) var other_layers: texture_2d_array<f32>;
+@group(2) @binding(2) var other_samp: sampler;
+
+// The sky of a two-view frame, drawn last where neither view's meshes drew (depth test
+// against the cleared depth, no depth write, no `discard`: covered blocks are skipped before
+// shading): both views' backgrounds blended as the composite blends two pixels at the same
+// distance (by the views' weights; the one that has sky where the other has none; a hole
+// where neither has).
+@fragment
+fn fs_sky_both(in: FullOut) -> @location(0) vec4<f32> {
+    let a = background_color(in.pos.xy);
+    let b = background_of(other_view, other_layers, other_samp, in.pos.xy);
+    let ca = select(0.0, 1.0, a.a > 0.0);
+    let cb = select(0.0, 1.0, b.a > 0.0);
+    let weighted = blend.weights.x * ca + blend.weights.y * cb > 0.0;
+    let wa = select(ca, blend.weights.x * ca, weighted);
+    let wb = select(cb, blend.weights.y * cb, weighted);
+    let rgb = (a.rgb * wa + b.rgb * wb) / max(wa + wb, 1e-30);
+    return select(vec4<f32>(0.0), vec4<f32>(rgb, 1.0), ca + cb > 0.0);
 }
 
 // Half-resolution second view (DrawBudget::half_res_second): the second view is drawn first,

@@ -57,12 +57,27 @@ impl Layer {
     /// Bilinear sample of level `level` at level-0 face-pixel position `(x, y)` (continuous,
     /// clamped half a texel inside the face so faces never bleed into each other), linear RGBA.
     pub fn sample_level(&self, level: usize, face: Face, x: f64, y: f64) -> [f32; 4] {
+        let level = level.min(self.levels.len() - 1);
+        let margin = 0.5 / self.levels[level].face_size() as f64;
+        self.sample_level_within(level, margin, face, x, y)
+    }
+
+    /// Bilinear sample of level `level` with the position clamped `margin` (face units, 0 to
+    /// 1) inside the face.
+    fn sample_level_within(
+        &self,
+        level: usize,
+        margin: f64,
+        face: Face,
+        x: f64,
+        y: f64,
+    ) -> [f32; 4] {
         let map = &self.levels[level.min(self.levels.len() - 1)];
-        let scale = map.face_size() as f64 / self.face_size() as f64;
+        let n0 = self.face_size() as f64;
         let n = map.face_size() as f64;
         let (x, y) = (
-            (x * scale).clamp(0.5, n - 0.5),
-            (y * scale).clamp(0.5, n - 0.5),
+            (x / n0).clamp(margin, 1.0 - margin) * n,
+            (y / n0).clamp(margin, 1.0 - margin) * n,
         );
         let (fx, fy) = (x - 0.5, y - 0.5);
         let (ix, iy) = (fx.floor(), fy.floor());
@@ -89,17 +104,21 @@ impl Layer {
         out
     }
 
-    /// Trilinear sample at level of detail `lod` (fractional, clamped to the chain).
+    /// Trilinear sample at level of detail `lod` (fractional, clamped to the chain), as the
+    /// GPU's one lookup (`sample_face` in `cube.wgsl`): both levels clamped half a texel of the
+    /// coarser level inside the face.
     pub fn sample(&self, lod: f32, face: Face, x: f64, y: f64) -> [f32; 4] {
         let max = (self.levels.len() - 1) as f32;
         let lod = lod.clamp(0.0, max);
         let l0 = lod.floor();
         let t = lod - l0;
-        let a = self.sample_level(l0 as usize, face, x, y);
         if t == 0.0 {
-            return a;
+            return self.sample_level(l0 as usize, face, x, y);
         }
-        let b = self.sample_level(l0 as usize + 1, face, x, y);
+        let coarse = l0 as usize + 1;
+        let margin = 0.5 / self.levels[coarse].face_size() as f64;
+        let a = self.sample_level_within(l0 as usize, margin, face, x, y);
+        let b = self.sample_level_within(coarse, margin, face, x, y);
         std::array::from_fn(|k| a[k] + (b[k] - a[k]) * t)
     }
 }

@@ -94,11 +94,38 @@ fn keep_rgb(rgb: &[[u8; 3]], w: u32, h: u32, name: &str) {
 fn gpu_matches_the_cpu_reference() {
     let Some(mut r) = renderer() else { return };
     let views = street_views(&Scene::street_slabs());
+    compare_with_cpu(&mut r, &views, DrawBudget::default());
+}
+
+/// Between two texture levels (a fractional level of detail: one trilinear lookup on the GPU,
+/// both levels clamped inside the face by the coarser level's half texel, as the CPU
+/// reference does): a sampler that rounded to one level, or clamped differently, would part
+/// from the reference.
+#[test]
+fn gpu_matches_the_cpu_reference_between_texture_levels() {
+    let Some(mut r) = renderer() else { return };
+    let views = street_views(&Scene::street_slabs());
+    for bias in [0.5, 1.25] {
+        let budget = DrawBudget {
+            lod_bias: bias,
+            ..Default::default()
+        };
+        let lod = plan_frame(&views, &camera(0.6, 12.0, -6.0, 96, 64), 0.6, budget)
+            .unwrap()
+            .passes[0]
+            .uniforms
+            .params[0];
+        assert!(lod.fract() != 0.0, "level of detail {lod}");
+        compare_with_cpu(&mut r, &views, budget);
+    }
+}
+
+fn compare_with_cpu(r: &mut Renderer, views: &[RefView], budget: DrawBudget) {
     let cam = camera(0.6, 12.0, -6.0, 96, 64);
-    let plan = plan_frame(&views, &cam, 0.6, DrawBudget::default()).unwrap();
+    let plan = plan_frame(views, &cam, 0.6, budget).unwrap();
     assert_eq!(plan.passes.len(), 2);
-    let g = r.render(&plan, &views).unwrap();
-    let c = cpu::render(&plan, &views);
+    let g = r.render(&plan, views).unwrap();
+    let c = cpu::render(&plan, views);
     let n = (g.width * g.height) as usize;
     let mut coverage_diff = 0;
     let mut sum = 0.0;

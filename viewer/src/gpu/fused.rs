@@ -5,9 +5,10 @@ use crate::plan::FramePlan;
 use crate::refview::RefView;
 
 impl Renderer {
-    /// Fused frames (no tile ids, no overlays): the first view straight into the output and
-    /// its distance target, then the second view blended into the output against the first
-    /// view's depth (`render.wgsl`); no view targets, no composite pass.
+    /// Fused frames (no tile ids, no overlays): the first view's meshes straight into the
+    /// output and its distance target, then the second view's meshes blended into the output
+    /// against the first view's depth, then the sky of both views where neither drew
+    /// (`render.wgsl`); no view targets, no composite pass.
     pub(super) fn encode_fused(
         &self,
         enc: &mut wgpu::CommandEncoder,
@@ -108,10 +109,14 @@ impl Renderer {
             rp.set_bind_group(0, &g.bind_group, &[]);
             if slot == 1 {
                 rp.set_bind_group(1, &targets.second_group, &[]);
+                // The other view (the first): its sky, for the second view near a sample.
+                rp.set_bind_group(2, &passes[0].1.bind_group, &[]);
             }
             if !pass.runs.is_empty() {
                 rp.set_pipeline(if slot == 0 {
                     &self.first_mesh
+                } else if pass.weight <= 0.0 {
+                    &self.second_mesh_at_sample
                 } else if pass.weight < SECOND_VIEW_MIN_WEIGHT {
                     &self.second_mesh_holes
                 } else {
@@ -119,12 +124,16 @@ impl Renderer {
                 });
                 self.draw_runs(&mut rp, plan, pass, g);
             }
-            rp.set_pipeline(if slot == 0 {
-                &self.first_sky
-            } else {
-                &self.second_sky
-            });
-            rp.draw(0..3, 0..1);
+            // The sky last, where no mesh drew: of the one view, or of both views blended.
+            if passes.len() == 1 {
+                rp.set_pipeline(&self.first_sky);
+                rp.draw(0..3, 0..1);
+            } else if slot == 1 {
+                rp.set_pipeline(&self.sky_both);
+                rp.set_bind_group(0, &passes[0].1.bind_group, &[]);
+                rp.set_bind_group(2, &g.bind_group, &[]);
+                rp.draw(0..3, 0..1);
+            }
         }
     }
 

@@ -20,13 +20,17 @@
 //! view, a cheap depth + `R32Uint` tile-id pass (`fs_mesh_id_only`: the opacity-mask lookup
 //! and the id, no colour, no sky) at `1 / `[`FramePlan::id_scale`] of the width and height
 //! (a quarter by default); the compute count runs on that small target and
-//! [`Renderer::feedback`] scales its counts by the area factor. The first view writes the output (sRGB, alpha 1) and
-//! its distance (an `R16Float` target); its sky writes a tiny depth. The second view is drawn
-//! against the first view's depth (scaled by `SECOND_VIEW_DEPTH_SCALE`, skipping what the
-//! blend would weigh at almost nothing) with hardware blending: each of its fragments carries
-//! the share β = w_b / (w_a + w_b) the composite would give it there, computed from the first
-//! view's distance; its sky fills the first view's holes only. Same image as the composite
-//! up to 8-bit rounding of the first view's colour.
+//! [`Renderer::feedback`] scales its counts by the area factor. The first view's meshes write
+//! the output (sRGB, alpha 1) and their distance (an `R16Float` target). The second view's
+//! meshes are drawn against the first view's depth (scaled by `SECOND_VIEW_DEPTH_SCALE`,
+//! skipping what the blend would weigh at almost nothing) with hardware blending: each of
+//! its fragments carries the share β = w_b / (w_a + w_b) the composite would give it there,
+//! computed from the first view's distance (0 where the first view drew no mesh: the sky is
+//! farther than any mesh, so there the second view's mesh wins as in the composite). Last,
+//! the sky of both views, blended by their weights, where neither view's meshes drew (a
+//! depth test against the cleared depth, no `discard`, so llvmpipe skips covered blocks
+//! before shading). Same image as the composite up to 8-bit rounding of the first view's
+//! colour.
 //! [`FramePlan::half_res_second`] (a [`crate::DrawBudget`] choice, off by default) draws the
 //! view with the smaller weight first at half width and height into its own target, then the
 //! other view writes every output pixel, blending the half-resolution texel in.
@@ -265,12 +269,16 @@ pub struct Renderer {
     /// distance target, the second view blended into the output (`render.wgsl`).
     second_bgl: wgpu::BindGroupLayout,
     first_mesh: wgpu::RenderPipeline,
+    /// The sky of a one-view fused frame.
     first_sky: wgpu::RenderPipeline,
     second_mesh: wgpu::RenderPipeline,
     /// The second view only where it is clearly nearer than the first view or the first view
     /// has sky or a hole (weight below `SECOND_VIEW_MIN_WEIGHT`).
     second_mesh_holes: wgpu::RenderPipeline,
-    second_sky: wgpu::RenderPipeline,
+    /// The same at a sample (weight 0): only where the first view has neither a mesh nor sky.
+    second_mesh_at_sample: wgpu::RenderPipeline,
+    /// The sky of a two-view fused frame, after both views' meshes: both backgrounds blended.
+    sky_both: wgpu::RenderPipeline,
     /// Half-resolution second view: the first view drawn over it, blending it in.
     mesh_over_half: wgpu::RenderPipeline,
     background_over_half: wgpu::RenderPipeline,

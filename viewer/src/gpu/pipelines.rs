@@ -228,15 +228,18 @@ impl Renderer {
             depth(wgpu::CompareFunction::Greater, true),
             &[],
         );
+        // Skies of fused frames: at the far plane (depth 0, the clear value) after the meshes,
+        // no depth write and no `discard`, so the depth test skips covered blocks before
+        // shading.
         let first_sky = mk(
-            "first view sky (fused)",
+            "one-view sky (fused)",
             &render,
             &view_layout,
-            "vs_sky_depth",
+            "vs_full",
             "fs_sky_first",
             &[],
             &first_targets,
-            depth(wgpu::CompareFunction::GreaterEqual, true),
+            depth(wgpu::CompareFunction::GreaterEqual, false),
             &[],
         );
         // The second view blends into the output: colour β·src + (1 − β)·dst with β the
@@ -268,6 +271,11 @@ impl Renderer {
             depth(wgpu::CompareFunction::Greater, true),
             &[("depth_scale", SECOND_VIEW_DEPTH_SCALE)],
         );
+        let two_view_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("two views"),
+            bind_group_layouts: &[Some(&view_bgl), Some(&second_bgl), Some(&view_bgl)],
+            immediate_size: 0,
+        });
         let second_mesh_holes = mk(
             "second view mesh, nearer only (fused)",
             &render,
@@ -279,14 +287,25 @@ impl Renderer {
             depth(wgpu::CompareFunction::Greater, true),
             &[("depth_scale", 1.0 / NEARER_ONLY)],
         );
-        let second_sky = mk(
-            "second view sky (fused)",
+        let second_mesh_at_sample = mk(
+            "second view mesh at a sample (fused)",
             &render,
-            &second_layout,
-            "vs_full",
-            "fs_sky_second",
-            &[],
+            &two_view_layout,
+            "vs_mesh",
+            "fs_mesh_second_at_sample",
+            &mesh_buffers,
             &second_targets,
+            depth(wgpu::CompareFunction::Greater, true),
+            &[("depth_scale", 1.0 / NEARER_ONLY)],
+        );
+        let sky_both = mk(
+            "sky of both views (fused)",
+            &render,
+            &two_view_layout,
+            "vs_full",
+            "fs_sky_both",
+            &[],
+            &output_target,
             depth(wgpu::CompareFunction::GreaterEqual, false),
             &[],
         );
@@ -361,7 +380,7 @@ impl Renderer {
             label: Some("layers"),
             mag_filter: wgpu::FilterMode::Linear,
             min_filter: wgpu::FilterMode::Linear,
-            mipmap_filter: wgpu::MipmapFilterMode::Nearest,
+            mipmap_filter: wgpu::MipmapFilterMode::Linear,
             ..Default::default()
         });
         let composite_uniforms = device.create_buffer(&wgpu::BufferDescriptor {
@@ -379,7 +398,8 @@ impl Renderer {
             first_sky,
             second_mesh,
             second_mesh_holes,
-            second_sky,
+            second_mesh_at_sample,
+            sky_both,
             mesh_over_half,
             background_over_half,
             mesh_ids,
