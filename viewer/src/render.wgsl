@@ -95,17 +95,13 @@ struct MeshOut {
     @builtin(position) pos: vec4<f32>,
     // Point relative to the camera (its length is the distance).
     @location(0) cam_rel: vec3<f32>,
-    @location(1) @interpolate(flat) tile: u32,
     // Point relative to the reference viewpoint in its face's basis (right, up, forward):
     // the face pixel is a projective function of it, exact per fragment.
-    @location(2) ref_rufw: vec3<f32>,
-    // face | layer << 8.
-    @location(3) @interpolate(flat) face_layer: u32,
-    // Level of detail (clamped to the chain), the face margin at it (`face_margin`) and the
-    // opacity-mask cut.
-    @location(4) @interpolate(flat) lod: f32,
-    @location(5) @interpolate(flat) margin: f32,
-    @location(6) @interpolate(flat) cut: f32,
+    @location(1) ref_rufw: vec3<f32>,
+    // Per tile, in one flat slot (a software rasteriser sets up every output slot of every
+    // triangle): the tile, face | layer << 8, the level of detail (clamped to the chain) and
+    // the face margin at it (`face_margin`), the last two as f32 bits.
+    @location(2) @interpolate(flat) per_tile: vec4<u32>,
 };
 
 @vertex
@@ -122,29 +118,26 @@ fn vs_mesh(v: MeshIn) -> MeshOut {
     out.pos = view.clip_from_cam * vec4<f32>(d + view.origin_rel.xyz, 1.0);
     out.pos.z = out.pos.z * depth_scale;
     out.cam_rel = d + view.origin_rel.xyz;
-    out.tile = tile;
     out.ref_rufw = vec3<f32>(u, w, 1.0) * scale;
-    out.face_layer = info.x;
     let level = clamp(max(view.params.x, f32(info.y)), 0.0, view.params.w - 1.0);
-    out.lod = level;
-    out.margin = face_margin(n, level);
-    // Masks are cut at 0.5. From level 1 on, deeper slabs cut at 0.25: where two slabs'
-    // filtered masks meet (they sum to about 1) one of them then always draws, so coarse
-    // levels open no crack at slab boundaries; deeper slabs lie behind, so the depth test
-    // hides what they overhang. Level 0 stays exact.
-    out.cut = select(0.25, 0.5, (info.x >> 8u) == 1u || level < 1.0);
+    out.per_tile = vec4<u32>(tile, info.x, bitcast<u32>(level), bitcast<u32>(face_margin(n, level)));
     return out;
 }
 
 // Projective texturing from the reference viewpoint: exact at the reference sample whatever
 // the mesh depth; the opacity mask cuts the slab. Alpha out = distance to the camera.
 fn mesh_color(in: MeshOut) -> vec4<f32> {
-    let f = in.face_layer & 7u;
-    let layer = in.face_layer >> 8u;
+    let f = in.per_tile.y & 7u;
+    let layer = in.per_tile.y >> 8u;
+    let lod = bitcast<f32>(in.per_tile.z);
     let q = in.ref_rufw.xy / in.ref_rufw.z;
-    let uv = face_uv(f, vec2<f32>(q.x + 1.0, 1.0 - q.y) * 0.5, in.margin);
-    let c = textureSampleLevel(layers, samp, uv, layer, in.lod);
-    if c.a < in.cut {
+    let uv = face_uv(f, vec2<f32>(q.x + 1.0, 1.0 - q.y) * 0.5, bitcast<f32>(in.per_tile.w));
+    let c = textureSampleLevel(layers, samp, uv, layer, lod);
+    // Masks are cut at 0.5. From level 1 on, deeper slabs cut at 0.25: where two slabs'
+    // filtered masks meet (they sum to about 1) one of them then always draws, so coarse
+    // levels open no crack at slab boundaries; deeper slabs lie behind, so the depth test
+    // hides what they overhang. Level 0 stays exact.
+    if c.a < select(0.25, 0.5, layer == 1u || lod < 1.0) {
         discard;
     }
     let dist = clamp(length(in.cam_rel), 1e-3, SKY_DISTANCE);
@@ -161,7 +154,7 @@ fn fs_mesh(in: MeshOut) -> @location(0) vec4<f32> {
 fn fs_mesh_ids(in: MeshOut) -> PassOut {
     var out: PassOut;
     out.color = mesh_color(in);
-    out.tile = in.tile + 1u;
+    out.tile = in.per_tile.x + 1u;
     return out;
 }
 
@@ -171,7 +164,7 @@ fn fs_mesh_ids(in: MeshOut) -> PassOut {
 @fragment
 fn fs_mesh_id_only(in: MeshOut) -> @location(0) u32 {
     _ = mesh_color(in);
-    return in.tile + 1u;
+    return in.per_tile.x + 1u;
 }
 
 // Fused frames (no tile ids, no overlays): no view targets and no composite pass. The first
