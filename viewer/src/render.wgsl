@@ -261,8 +261,16 @@ fn fs_mesh_second_at_sample(in: MeshOut) -> @location(0) vec4<f32> {
 // where neither has).
 @fragment
 fn fs_sky_both(in: FullOut) -> @location(0) vec4<f32> {
-    let a = background_color(in.pos.xy);
-    let b = background_of(other_view, other_layers, other_samp, in.pos.xy);
+    // One camera: the pixel's ray, face and position on it (face units) serve both views.
+    let d = pixel_ray(view.ray_right.xyz, view.ray_up.xyz, view.ray_forward.xyz, view.params.yz, in.pos.xy);
+    let f = face_of(d);
+    let p = pixel_on_face(f, d, 1.0);
+    let na = view.origin_rel.w;
+    let nb = other_view.origin_rel.w;
+    let sa = sample_face(layers, samp, na, view.params.w, 0u, f, p * na, view.params.x);
+    let sb = sample_face(other_layers, other_samp, nb, other_view.params.w, 0u, f, p * nb, other_view.params.x);
+    let a = select(vec4<f32>(0.0), vec4<f32>(sa.rgb, SKY_DISTANCE), sa.a > 0.0);
+    let b = select(vec4<f32>(0.0), vec4<f32>(sb.rgb, SKY_DISTANCE), sb.a > 0.0);
     let ca = select(0.0, 1.0, a.a > 0.0);
     let cb = select(0.0, 1.0, b.a > 0.0);
     let weighted = blend.weights.x * ca + blend.weights.y * cb > 0.0;
