@@ -285,7 +285,8 @@ pub struct Renderer {
     /// Background (sky) where no tile drew, with and without the tile-id target.
     background_ids: wgpu::RenderPipeline,
     background: wgpu::RenderPipeline,
-    /// Fast path: first view's sky with depth; second view's meshes against it.
+    /// Composite frames with the hole overlay: first view's sky with depth; second view's
+    /// meshes against it.
     sky_depth: wgpu::RenderPipeline,
     mesh_behind: wgpu::RenderPipeline,
     /// Tile meshes writing colour and tile ids.

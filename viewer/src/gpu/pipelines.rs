@@ -180,8 +180,9 @@ impl Renderer {
             depth(wgpu::CompareFunction::Greater, true),
             &[],
         );
-        // The fast path without tile ids: the first view's sky writes depth, the second view
-        // is drawn against the first view's depth (see `depth_scale` in render.wgsl).
+        // Composite frames with overlays but no tile ids (the hole overlay): the first view's
+        // sky writes depth, the second view is drawn against the first view's depth (see
+        // `depth_scale` in render.wgsl).
         let sky_depth = mk(
             "background (sky depth)",
             &render,
