@@ -39,8 +39,14 @@ struct PassOut {
 fn background_of(v: View, tex: texture_2d_array<f32>, s: sampler, pos: vec2<f32>) -> vec4<f32> {
     let d = pixel_ray(v.ray_right.xyz, v.ray_up.xyz, v.ray_forward.xyz, v.params.yz, pos);
     let f = face_of(d);
+    return background_at(v, tex, s, f, pixel_on_face(f, d, 1.0));
+}
+
+// Background of view `v` at position `p` (face units) on face f: alpha SKY_DISTANCE, or 0
+// (hole) where the background has no sky.
+fn background_at(v: View, tex: texture_2d_array<f32>, s: sampler, f: u32, p: vec2<f32>) -> vec4<f32> {
     let n = v.origin_rel.w;
-    let c = sample_face(tex, s, n, v.params.w, 0u, f, pixel_on_face(f, d, n), v.params.x);
+    let c = sample_face(tex, s, n, v.params.w, 0u, f, p * n, v.params.x);
     return select(vec4<f32>(0.0), vec4<f32>(c.rgb, SKY_DISTANCE), c.a > 0.0);
 }
 
@@ -265,12 +271,8 @@ fn fs_sky_both(in: FullOut) -> @location(0) vec4<f32> {
     let d = pixel_ray(view.ray_right.xyz, view.ray_up.xyz, view.ray_forward.xyz, view.params.yz, in.pos.xy);
     let f = face_of(d);
     let p = pixel_on_face(f, d, 1.0);
-    let na = view.origin_rel.w;
-    let nb = other_view.origin_rel.w;
-    let sa = sample_face(layers, samp, na, view.params.w, 0u, f, p * na, view.params.x);
-    let sb = sample_face(other_layers, other_samp, nb, other_view.params.w, 0u, f, p * nb, other_view.params.x);
-    let a = select(vec4<f32>(0.0), vec4<f32>(sa.rgb, SKY_DISTANCE), sa.a > 0.0);
-    let b = select(vec4<f32>(0.0), vec4<f32>(sb.rgb, SKY_DISTANCE), sb.a > 0.0);
+    let a = background_at(view, layers, samp, f, p);
+    let b = background_at(other_view, other_layers, other_samp, f, p);
     let ca = select(0.0, 1.0, a.a > 0.0);
     let cb = select(0.0, 1.0, b.a > 0.0);
     let weighted = blend.weights.x * ca + blend.weights.y * cb > 0.0;
