@@ -15,6 +15,11 @@
 //! skirts drawn beside the stored mesh and cut by the opacity mask; the stored meshes and
 //! databases are unchanged.)
 //!
+//! Adaptive meshes may reach up to [`FILL_RINGS`] pixels past the outline of the opaque
+//! pixels, over a band whose depth is extrapolated from the surface: their vertices there are
+//! never drawn as content (the opacity mask cuts), they only spare the mesh from tracing the
+//! outline's staircase pixel by pixel.
+//!
 //! Depth error is measured as parallax in pixels at the track's largest baseline `B`:
 //! `B · |1/r − 1/r_mesh| / θ_pixel` with `θ_pixel = (π/2)/N`. Two neighbouring opaque pixels
 //! are separated by a *discontinuity* when neither side's linear extrapolation of `q`
@@ -99,6 +104,12 @@ pub(crate) struct Field {
     /// Connected component over continuous edges; `u32::MAX` for transparent pixels (and for
     /// all pixels of a field built without components).
     comp: Vec<u32>,
+    /// Transparent pixels within [`FILL_RINGS`] of the surface, with an extrapolated depth
+    /// (`q`, `r` and `comp` set; `valid` stays false, so they count for neither coverage nor
+    /// error): adaptive meshes may place vertices there and overhang them; the mask cuts.
+    filled: Vec<bool>,
+    /// Ring of a filled pixel (1 = next to the surface), 0 elsewhere.
+    ring: Vec<u8>,
     /// Parallax pixels per unit of `1/r`: `B / θ_pixel`.
     px_per_inv_m: f64,
 }
@@ -188,6 +199,8 @@ impl Field {
             disc_right: vec![false; len],
             disc_down: vec![false; len],
             comp: vec![u32::MAX; len],
+            filled: vec![false; len],
+            ring: vec![0; len],
             px_per_inv_m,
         };
         let thr = params.discontinuity_px;
@@ -229,8 +242,66 @@ impl Field {
         }
         if components {
             f.label_components();
+            f.fill(FILL_RINGS);
         }
         f
+    }
+
+    /// Extrapolate the surface `rings` pixels into the transparent pixels around it, ring by
+    /// ring: each new pixel continues a neighbour linearly (from the pixel behind it in the same
+    /// direction, when that one is known and of the same component) or repeats it; of several
+    /// neighbours the nearest surface (largest `q`) wins.
+    fn fill(&mut self, rings: usize) {
+        let (w, h) = (self.w, self.h);
+        let known = |f: &Field, k: usize| f.valid[k] || f.filled[k];
+        for ring in 1..=rings {
+            let mut new: Vec<(usize, f64, u32)> = Vec::new();
+            for j in 0..h {
+                for i in 0..w {
+                    let k = j * w + i;
+                    if known(self, k) {
+                        continue;
+                    }
+                    let mut best: Option<(f64, u32)> = None;
+                    let dirs: [(i64, i64); 4] = [(1, 0), (-1, 0), (0, 1), (0, -1)];
+                    for (dx, dy) in dirs {
+                        let (ni, nj) = (i as i64 + dx, j as i64 + dy);
+                        if ni < 0 || nj < 0 || ni >= w as i64 || nj >= h as i64 {
+                            continue;
+                        }
+                        let nk = nj as usize * w + ni as usize;
+                        if !known(self, nk) {
+                            continue;
+                        }
+                        let qn = self.q[nk];
+                        let (bi, bj) = (ni + dx, nj + dy);
+                        let mut q = qn;
+                        if bi >= 0 && bj >= 0 && bi < w as i64 && bj < h as i64 {
+                            let bk = bj as usize * w + bi as usize;
+                            if known(self, bk) && self.comp[bk] == self.comp[nk] {
+                                q = (2.0 * qn - self.q[bk]).clamp(0.5 * qn, 2.0 * qn);
+                            }
+                        }
+                        if best.is_none_or(|(bq, _)| q > bq) {
+                            best = Some((q, self.comp[nk]));
+                        }
+                    }
+                    if let Some((q, c)) = best {
+                        new.push((k, q, c));
+                    }
+                }
+            }
+            if new.is_empty() {
+                break;
+            }
+            for (k, q, c) in new {
+                self.filled[k] = true;
+                self.ring[k] = ring as u8;
+                self.q[k] = q;
+                self.r[k] = self.dnorm[k] / q;
+                self.comp[k] = c;
+            }
+        }
     }
 
     fn label_components(&mut self) {
@@ -392,6 +463,12 @@ impl std::hash::Hasher for LatticeHasher {
 
 type LatticeHash = std::hash::BuildHasherDefault<LatticeHasher>;
 
+/// How far (pixels) adaptive meshes may reach beyond the surface into transparent pixels.
+/// Two rings let a mesh edge run straight past the staircase of an outline that turns
+/// slowly; the renderer's deeper-slab mask cut (0.45 from level 1 on) keeps coarse texture
+/// levels from drawing a slab's blurred edge over the slab behind it there.
+const FILL_RINGS: usize = 2;
+
 /// Builder that deduplicates lattice vertices.
 struct MeshOut<'f> {
     field: &'f Field,
@@ -496,10 +573,14 @@ fn unit_cell(f: &Field, out: &mut MeshOut, i: usize, j: usize) {
 
 /// An adaptive mesh: a Delaunay triangulation of the lattice, refined by inserting the worst
 /// pixel of every triangle whose error exceeds `max_error_px`, that covers a transparent
-/// pixel or another continuous surface, or whose corners are not one continuous surface.
-/// Every lattice point can be inserted, so refinement ends; triangles whose corners are not
-/// one surface and that cover no further pixel are dropped, and so are triangles with only
-/// transparent corners over only transparent pixels (transparent areas are not subdivided).
+/// pixel beyond the filled band ([`FILL_RINGS`]) or another continuous surface, or whose
+/// corners are not one continuous surface. A triangle of one surface may have corners in the
+/// filled band and overhang transparent pixels there: the renderer's opacity mask cuts the
+/// outline, so the mesh need not follow its staircase pixel by pixel (on the synthetic street
+/// this halves the triangles). A triangle whose corners are not one surface is refined only
+/// while it covers an opaque pixel, at its outermost filled pixel if it has one (the mesh
+/// then ends in the band), else at the opaque pixel nearest its centre; without an opaque
+/// pixel it is dropped. Every lattice point can be inserted, so refinement ends.
 pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
     let f = field;
     let (w, h) = (f.w, f.h);
@@ -536,16 +617,17 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
                 }
                 continue;
             }
-            let surface = ks.iter().all(|&k| f.valid[k])
+            let surface = ks.iter().all(|&k| f.valid[k] || f.filled[k])
+                && ks.iter().any(|&k| f.valid[k])
                 && f.comp[ks[0]] == f.comp[ks[1]]
                 && f.comp[ks[1]] == f.comp[ks[2]];
             let comp = f.comp[ks[0]];
             // A triangle with no opaque corner only needs refining to reach opaque pixels
             // inside it; over transparent pixels alone it is dropped, not subdivided.
-            let no_opaque_corner = ks.iter().all(|&k| !f.valid[k]);
             let qs = ks.map(|k| f.q[k]);
             // Worst offending pixel: (badness class, error), larger is worse.
             let mut worst: Option<((usize, usize), u8, f64)> = None;
+            let mut has_opaque = false;
             let centre = (
                 (c[0].0 + c[1].0 + c[2].0) as f64 / 3.0,
                 (c[0].1 + c[1].1 + c[2].1) as f64 / 3.0,
@@ -556,12 +638,19 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
                 if is_vertex[k] {
                     return;
                 }
-                let (class, err) = if !surface && no_opaque_corner && !f.valid[k] {
-                    return;
-                } else if !surface {
-                    // Prefer opaque pixels near the centre, to cover what can be covered.
+                let (class, err) = if !surface {
+                    // Refined only to cover opaque pixels: at the outermost filled pixels
+                    // first (the mesh may end there, the mask cuts), else at opaque pixels
+                    // near the centre.
+                    if f.valid[k] {
+                        has_opaque = true;
+                    } else if !f.filled[k] {
+                        return;
+                    }
                     let d = (i as f64 - centre.0).powi(2) + (j as f64 - centre.1).powi(2);
-                    (if f.valid[k] { 2 } else { 1 }, -d)
+                    (if f.filled[k] { 2 + f.ring[k] } else { 1 }, -d)
+                } else if f.filled[k] {
+                    return;
                 } else if !f.valid[k] || f.comp[k] != comp {
                     (3, 0.0)
                 } else {
@@ -576,6 +665,9 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
                     worst = Some(((i, j), class, err));
                 }
             });
+            if !surface && !has_opaque {
+                worst = None;
+            }
             match worst {
                 Some((p, _, _)) => pending.push(p),
                 None => {
@@ -801,6 +893,62 @@ mod tests {
                 .sum()
         };
         assert!(count(0.25) >= count(1.0) && count(1.0) >= count(4.0));
+    }
+
+    #[test]
+    fn adaptive_meshes_overhang_a_round_outline_instead_of_tracing_it() {
+        // A disk of a plane (radius 27 px) in the middle of a 64-pixel tile.
+        let (n, radius) = (64u32, 27.0f64);
+        let depth = box_depth(n, 3.0);
+        let mask = CubeMap::from_fn(n, |_, x, y| {
+            (x as f64 + 0.5 - 32.0).hypot(y as f64 + 0.5 - 32.0) <= radius
+        });
+        let grid = TileGrid::new(n, n).unwrap();
+        let t = grid.tiles().next().unwrap();
+        let p = params(2.0, 0.5);
+        let f = Field::new(&depth, &mask, grid, t, &p);
+        let mesh = adaptive_mesh(&f, 0.5);
+        let stats = mesh_stats(&f, &mesh);
+        assert_eq!(stats.uncovered_pixels, 0, "{stats:?}");
+        assert!(stats.max_error_px < 1e-3, "{stats:?}");
+        // Every vertex lies on the disk or within the filled band around it.
+        for v in &mesh.vertices {
+            let d = (v[0] as f64 - 32.0).hypot(v[1] as f64 - 32.0);
+            assert!(d <= radius + FILL_RINGS as f64 * 1.5, "vertex {v:?} at {d}");
+        }
+        // Without the band the mesh must follow the staircase: far more triangles.
+        let mut bare = Field::new(&depth, &mask, grid, t, &p);
+        bare.filled.fill(false);
+        let traced = adaptive_mesh(&bare, 0.5);
+        assert_eq!(mesh_stats(&bare, &traced).uncovered_pixels, 0);
+        assert!(
+            2 * mesh.triangle_count() < traced.triangle_count(),
+            "{} triangles with the band, {} without",
+            mesh.triangle_count(),
+            traced.triangle_count()
+        );
+    }
+
+    #[test]
+    fn filled_band_extends_a_plane_linearly() {
+        // Half a tile of a tilted plane: the band's extrapolated inverse depth stays affine.
+        let n = 32u32;
+        let depth = box_depth(n, 3.0);
+        let mask = CubeMap::from_fn(n, |_, x, _| x < 12);
+        let grid = TileGrid::new(n, 16).unwrap();
+        let t = grid.tiles().next().unwrap();
+        let f = Field::new(&depth, &mask, grid, t, &params(2.0, 0.5));
+        for j in 0..f.h {
+            for ring in 1..=FILL_RINGS {
+                let k = f.idx(11 + ring, j);
+                assert!(f.filled[k] && !f.valid[k], "({}, {j})", 11 + ring);
+                assert_eq!(f.ring[k] as usize, ring);
+                let expect =
+                    f.q[f.idx(11, j)] + ring as f64 * (f.q[f.idx(11, j)] - f.q[f.idx(10, j)]);
+                assert!((f.q[k] - expect).abs() < 1e-9, "({}, {j})", 11 + ring);
+            }
+            assert!(!f.filled[f.idx(12 + FILL_RINGS, j)]);
+        }
     }
 
     #[test]

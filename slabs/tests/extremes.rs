@@ -88,9 +88,14 @@ fn one_pixel_objects() {
     assert_eq!(lone.len(), 2);
     for tile in lone {
         assert_eq!((tile.depth_min, tile.depth_max), (2.0, 2.0));
-        // A lone pixel cannot be spanned by a triangle: it is reported, not hidden.
-        assert_eq!(tile.adaptive_stats.uncovered_pixels, 1);
-        assert_eq!(tile.adaptive_stats.covered_pixels, 0);
+        // A lone pixel is spanned by triangles reaching into the filled band around it
+        // (the opacity mask cuts them back to the pixel), exact at the pixel; one on a
+        // corner of the tile's lattice (NegZ (15, 0)) is a vertex from the start and no
+        // triangle of the band is refined towards it: it is reported, not hidden.
+        let corner = tile.tile.face == Face::NegZ;
+        assert_eq!(tile.adaptive_stats.uncovered_pixels, usize::from(corner));
+        assert_eq!(tile.adaptive_stats.covered_pixels, usize::from(!corner));
+        assert!(tile.adaptive_stats.max_error_px < 1e-3);
         let (x0, y0, x1, _) = t.grid.pixel_rect(tile.tile);
         let w = x1 - x0;
         let (dx, dy) = if tile.tile.face == Face::PosX {

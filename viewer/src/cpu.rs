@@ -128,7 +128,7 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
                         let cut = if tile.slab == 0 || level < 1.0 {
                             0.5
                         } else {
-                            0.25
+                            0.45
                         };
                         if c[3] >= cut {
                             fragments.kept += 1;

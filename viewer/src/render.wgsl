@@ -139,11 +139,13 @@ fn mesh_color(in: MeshOut) -> vec4<f32> {
     let q = in.ref_rufw.xy / in.ref_rufw.z;
     let uv = face_uv(f, vec2<f32>(q.x + 1.0, 1.0 - q.y) * 0.5, bitcast<f32>(in.per_tile.w));
     let c = textureSampleLevel(layers, samp, uv, layer, lod);
-    // Masks are cut at 0.5. From level 1 on, deeper slabs cut at 0.25: where two slabs'
+    // Masks are cut at 0.5. From level 1 on, deeper slabs cut at 0.45: where two slabs'
     // filtered masks meet (they sum to about 1) one of them then always draws, so coarse
-    // levels open no crack at slab boundaries; deeper slabs lie behind, so the depth test
-    // hides what they overhang. Level 0 stays exact.
-    if c.a < select(0.25, 0.5, layer == 1u || lod < 1.0) {
+    // levels open no crack at slab boundaries, while a slab's blurred edge reaches hardly
+    // past its outline (meshes overhang the outline by up to two texels, `slabs::mesh`, and
+    // a lower cut let a slab's coarse edge cover the deeper slab beside it). Level 0 stays
+    // exact.
+    if c.a < select(0.45, 0.5, layer == 1u || lod < 1.0) {
         discard;
     }
     let dist = clamp(length(in.cam_rel), 1e-3, SKY_DISTANCE);
