@@ -257,31 +257,32 @@ fn fs_mesh_second_at_sample(in: MeshOut) -> @location(0) vec4<f32> {
 }
 
 // The other view of a two-view pass (group 2): the first view for the second view's meshes
-// at a sample (`fs_mesh_second_at_sample`), the second view for the sky (`fs_sky_both`).
+// at a sample (`fs_mesh_second_at_sample`), the second view for the sky (`fs_sky_other`).
 @group(2) @binding(0) var<uniform> other_view: View;
 @group(2) @binding(1) var other_layers: texture_2d_array<f32>;
 @group(2) @binding(2) var other_samp: sampler;
 
-// The sky of a two-view frame, drawn last where neither view's meshes drew (depth test
-// against the cleared depth, no depth write, no `discard`: covered blocks are skipped before
-// shading): both views' backgrounds blended as the composite blends two pixels at the same
-// distance (by the views' weights; the one that has sky where the other has none; a hole
-// where neither has).
+// The sky of a two-view frame, drawn last where neither view's meshes drew, in two parts.
+// The sky lies at infinity: both reference views see the same sky in every direction where
+// both see sky, so one lookup in the heavier view stands for the blend of two. First part
+// (group 0 = the heavier view): its sky, writing SKY_DEPTH (`vs_sky_depth`) where it has sky; the depth test
+// against the cleared depth skips covered blocks before shading (the `discard` only delays
+// the depth write).
 @fragment
-fn fs_sky_both(in: FullOut) -> @location(0) vec4<f32> {
-    // One camera: the pixel's ray, face and position on it (face units) serve both views.
-    let d = pixel_ray(view.ray_right.xyz, view.ray_up.xyz, view.ray_forward.xyz, view.params.yz, in.pos.xy);
-    let f = face_of(d);
-    let p = pixel_on_face(f, d, 1.0);
-    let a = background_at(view, layers, samp, f, p);
-    let b = background_at(other_view, other_layers, other_samp, f, p);
-    let ca = select(0.0, 1.0, a.a > 0.0);
-    let cb = select(0.0, 1.0, b.a > 0.0);
-    let weighted = blend.weights.x * ca + blend.weights.y * cb > 0.0;
-    let wa = select(ca, blend.weights.x * ca, weighted);
-    let wb = select(cb, blend.weights.y * cb, weighted);
-    let rgb = (a.rgb * wa + b.rgb * wb) / max(wa + wb, 1e-30);
-    return select(vec4<f32>(0.0), vec4<f32>(rgb, 1.0), ca + cb > 0.0);
+fn fs_sky_first_of_two(in: FullOut) -> @location(0) vec4<f32> {
+    let c = background_color(in.pos.xy);
+    if c.a == 0.0 {
+        discard;
+    }
+    return vec4<f32>(c.rgb, 1.0);
+}
+
+// Second part: the other view's sky (group 2) where the heavier view's sky has a hole and no
+// mesh drew (depth still cleared); a hole (alpha 0) where neither view has sky.
+@fragment
+fn fs_sky_other(in: FullOut) -> @location(0) vec4<f32> {
+    let c = background_of(other_view, other_layers, other_samp, in.pos.xy);
+    return select(vec4<f32>(0.0), vec4<f32>(c.rgb, 1.0), c.a > 0.0);
 }
 
 // Half-resolution second view (DrawBudget::half_res_second): the second view is drawn first,

@@ -276,3 +276,66 @@ fn tile_region_uploads_match_a_full_upload() {
     assert_eq!(with.rgba, before.rgba);
     assert_ne!(without.rgba, with.rgba);
 }
+
+/// A view with only a background: `sky` everywhere, except a hole (no sky, nothing drawn)
+/// on the upper half of every face when `hole`.
+fn sky_view(index: usize, s: f64, sky: [u8; 3], hole: bool) -> RefView {
+    let n = 16;
+    let bg = tracks::CubeMap::from_fn(n, |_, _, y| {
+        if hole && y < n / 2 {
+            [0, 0, 0, 0]
+        } else {
+            [sky[0], sky[1], sky[2], 255]
+        }
+    });
+    RefView {
+        index,
+        s,
+        position: DVec3::new(s, EYE, 0.0),
+        face_size: n,
+        tile_size: 8,
+        layers: vec![Layer::from_rgba(dilate_masked(&bg))],
+        tiles: Vec::new(),
+    }
+}
+
+#[test]
+fn fused_sky_comes_from_the_heavier_view_and_the_other_fills_its_holes() {
+    let Some(mut r) = renderer() else { return };
+    // The sky lies at infinity: one view's sky stands for both. Here the two skies differ
+    // on purpose, to see which one is drawn: red (first view, a hole over the upper half of
+    // each face) and blue (second view).
+    let views = [
+        sky_view(0, 0.0, [200, 30, 30], true),
+        sky_view(1, 1.0, [30, 30, 200], false),
+    ];
+    let mut cam = camera(0.3);
+    cam.pitch_deg = 0.0;
+    cam.yaw_deg = 45.0;
+    let at = |r: &mut Renderer, s: f64| {
+        let mut c = cam.clone();
+        c.position = DVec3::new(s, EYE, 0.0);
+        let mut p = plan_frame(&views, &c, s, DrawBudget::default()).unwrap();
+        p.tile_ids = false;
+        r.render(&p, &views).unwrap()
+    };
+    let px = |f: &Frame, x: u32, y: u32| {
+        let i = 4 * (y * f.width + x) as usize;
+        [f.rgba[i], f.rgba[i + 1], f.rgba[i + 2], f.rgba[i + 3]]
+    };
+    let (w, h) = (cam.width, cam.height);
+    // 0.3 along: the first view weighs more. Its sky below the horizon, the second view's
+    // where the first has a hole (above).
+    let f = at(&mut r, 0.3);
+    // Not blended: each sky as it is (a blend by the weights 0.78 / 0.22 would be off by 35).
+    let near = |p: [u8; 4], c: [u8; 3]| (0..3).all(|k| p[k].abs_diff(c[k]) <= 3) && p[3] == 255;
+    let (red, blue) = ([200, 30, 30], [30, 30, 200]);
+    let (below, above) = (px(&f, w / 2, h - 4), px(&f, w / 2, 3));
+    assert!(near(below, red), "below: {below:?}");
+    assert!(near(above, blue), "above: {above:?}");
+    // 0.7 along: the second view weighs more, its sky everywhere.
+    let f = at(&mut r, 0.7);
+    for p in [px(&f, w / 2, h - 4), px(&f, w / 2, 3)] {
+        assert!(near(p, blue), "{p:?}");
+    }
+}

@@ -129,9 +129,17 @@ impl Renderer {
                 rp.set_pipeline(&self.first_sky);
                 rp.draw(0..3, 0..1);
             } else if slot == 1 {
-                rp.set_pipeline(&self.sky_both);
-                rp.set_bind_group(0, &passes[0].1.bind_group, &[]);
-                rp.set_bind_group(2, &g.bind_group, &[]);
+                // The heavier view's sky, then the other's where the first has none.
+                let (heavy, light) = if pass.weight > passes[0].0.weight {
+                    (*g, passes[0].1)
+                } else {
+                    (passes[0].1, *g)
+                };
+                rp.set_bind_group(0, &heavy.bind_group, &[]);
+                rp.set_bind_group(2, &light.bind_group, &[]);
+                rp.set_pipeline(&self.sky_first_of_two);
+                rp.draw(0..3, 0..1);
+                rp.set_pipeline(&self.sky_other);
                 rp.draw(0..3, 0..1);
             }
         }

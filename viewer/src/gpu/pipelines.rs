@@ -299,12 +299,25 @@ impl Renderer {
             depth(wgpu::CompareFunction::Greater, true),
             &[("depth_scale", 1.0 / NEARER_ONLY)],
         );
-        let sky_both = mk(
-            "sky of both views (fused)",
+        // The two-view sky (see `fs_sky_first_of_two` in render.wgsl): the first view's sky
+        // at SKY_DEPTH where it has sky, then the other view's where the depth is still clear.
+        let sky_first_of_two = mk(
+            "sky of the first of two views (fused)",
+            &render,
+            &two_view_layout,
+            "vs_sky_depth",
+            "fs_sky_first_of_two",
+            &[],
+            &output_target,
+            depth(wgpu::CompareFunction::Greater, true),
+            &[],
+        );
+        let sky_other = mk(
+            "sky of the other view (fused)",
             &render,
             &two_view_layout,
             "vs_full",
-            "fs_sky_both",
+            "fs_sky_other",
             &[],
             &output_target,
             depth(wgpu::CompareFunction::GreaterEqual, false),
@@ -400,7 +413,8 @@ impl Renderer {
             second_mesh,
             second_mesh_holes,
             second_mesh_at_sample,
-            sky_both,
+            sky_first_of_two,
+            sky_other,
             mesh_over_half,
             background_over_half,
             mesh_ids,
