@@ -12,6 +12,11 @@
 //! (bilinear alpha ≥ the cut inside an opaque texel, see `render.wgsl`) then cuts the outline
 //! as it does for grid meshes. Skirt vertices keep their edge vertex's radial depth: exact at
 //! the reference viewpoint (projective texturing), half a texel of depth off between.
+//!
+//! Adaptive meshes now reach up to two pixels past most outlines (`slabs::mesh`, the filled
+//! band), so their boundary edges mostly lie on transparent pixels, where a skirt changes
+//! nothing; skirts still close face edges, tile borders whose neighbour is not kept, lone
+//! outline vertices and the meshes of databases built before.
 
 use std::collections::{HashMap, HashSet};
 
