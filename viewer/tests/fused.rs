@@ -313,7 +313,7 @@ fn fused_sky_comes_from_the_heavier_view_and_the_other_fills_its_holes() {
     cam.pitch_deg = 0.0;
     cam.yaw_deg = 45.0;
     let at = |r: &mut Renderer, s: f64| {
-        let mut c = cam.clone();
+        let mut c = cam;
         c.position = DVec3::new(s, EYE, 0.0);
         let mut p = plan_frame(&views, &c, s, DrawBudget::default()).unwrap();
         p.tile_ids = false;
