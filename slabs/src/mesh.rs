@@ -104,11 +104,10 @@ pub(crate) struct Field {
     /// Connected component over continuous edges; `u32::MAX` for transparent pixels (and for
     /// all pixels of a field built without components).
     comp: Vec<u32>,
-    /// Transparent pixels within [`FILL_RINGS`] of the surface, with an extrapolated depth
+    /// The filled band: for transparent pixels within [`FILL_RINGS`] of the surface their ring
+    /// (1 = next to the surface), 0 for all others. Band pixels have an extrapolated depth
     /// (`q`, `r` and `comp` set; `valid` stays false, so they count for neither coverage nor
     /// error): adaptive meshes may place vertices there and overhang them; the mask cuts.
-    filled: Vec<bool>,
-    /// Ring of a filled pixel (1 = next to the surface), 0 elsewhere.
     ring: Vec<u8>,
     /// Parallax pixels per unit of `1/r`: `B / θ_pixel`.
     px_per_inv_m: f64,
@@ -199,7 +198,6 @@ impl Field {
             disc_right: vec![false; len],
             disc_down: vec![false; len],
             comp: vec![u32::MAX; len],
-            filled: vec![false; len],
             ring: vec![0; len],
             px_per_inv_m,
         };
@@ -253,7 +251,7 @@ impl Field {
     /// neighbours the nearest surface (largest `q`) wins.
     fn fill(&mut self, rings: usize) {
         let (w, h) = (self.w, self.h);
-        let known = |f: &Field, k: usize| f.valid[k] || f.filled[k];
+        let known = |f: &Field, k: usize| f.valid[k] || f.filled(k);
         for ring in 1..=rings {
             let mut new: Vec<(usize, f64, u32)> = Vec::new();
             for j in 0..h {
@@ -295,13 +293,17 @@ impl Field {
                 break;
             }
             for (k, q, c) in new {
-                self.filled[k] = true;
                 self.ring[k] = ring as u8;
                 self.q[k] = q;
                 self.r[k] = self.dnorm[k] / q;
                 self.comp[k] = c;
             }
         }
+    }
+
+    /// Whether pixel `k` lies in the filled band.
+    fn filled(&self, k: usize) -> bool {
+        self.ring[k] > 0
     }
 
     fn label_components(&mut self) {
@@ -617,13 +619,11 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
                 }
                 continue;
             }
-            let surface = ks.iter().all(|&k| f.valid[k] || f.filled[k])
+            let surface = ks.iter().all(|&k| f.valid[k] || f.filled(k))
                 && ks.iter().any(|&k| f.valid[k])
                 && f.comp[ks[0]] == f.comp[ks[1]]
                 && f.comp[ks[1]] == f.comp[ks[2]];
             let comp = f.comp[ks[0]];
-            // A triangle with no opaque corner only needs refining to reach opaque pixels
-            // inside it; over transparent pixels alone it is dropped, not subdivided.
             let qs = ks.map(|k| f.q[k]);
             // Worst offending pixel: (badness class, error), larger is worse.
             let mut worst: Option<((usize, usize), u8, f64)> = None;
@@ -644,12 +644,12 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
                     // near the centre.
                     if f.valid[k] {
                         has_opaque = true;
-                    } else if !f.filled[k] {
+                    } else if !f.filled(k) {
                         return;
                     }
                     let d = (i as f64 - centre.0).powi(2) + (j as f64 - centre.1).powi(2);
-                    (if f.filled[k] { 2 + f.ring[k] } else { 1 }, -d)
-                } else if f.filled[k] {
+                    (if f.filled(k) { 2 + f.ring[k] } else { 1 }, -d)
+                } else if f.filled(k) {
                     return;
                 } else if !f.valid[k] || f.comp[k] != comp {
                     (3, 0.0)
@@ -918,7 +918,7 @@ mod tests {
         }
         // Without the band the mesh must follow the staircase: far more triangles.
         let mut bare = Field::new(&depth, &mask, grid, t, &p);
-        bare.filled.fill(false);
+        bare.ring.fill(0);
         let traced = adaptive_mesh(&bare, 0.5);
         assert_eq!(mesh_stats(&bare, &traced).uncovered_pixels, 0);
         assert!(
@@ -941,13 +941,13 @@ mod tests {
         for j in 0..f.h {
             for ring in 1..=FILL_RINGS {
                 let k = f.idx(11 + ring, j);
-                assert!(f.filled[k] && !f.valid[k], "({}, {j})", 11 + ring);
+                assert!(f.filled(k) && !f.valid[k], "({}, {j})", 11 + ring);
                 assert_eq!(f.ring[k] as usize, ring);
                 let expect =
                     f.q[f.idx(11, j)] + ring as f64 * (f.q[f.idx(11, j)] - f.q[f.idx(10, j)]);
                 assert!((f.q[k] - expect).abs() < 1e-9, "({}, {j})", 11 + ring);
             }
-            assert!(!f.filled[f.idx(12 + FILL_RINGS, j)]);
+            assert!(!f.filled(f.idx(12 + FILL_RINGS, j)));
         }
     }
 
