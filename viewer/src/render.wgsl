@@ -33,20 +33,14 @@ struct PassOut {
     @location(1) tile: u32,
 };
 
-// Background layer (sky) of view `v`, drawn after the meshes where none drew; alpha 0
-// (hole) where the background has no sky either. No `discard`: the depth test alone
+// Background layer (sky) of view `v`, drawn after the meshes where none drew: alpha
+// SKY_DISTANCE, or 0 (hole) where the background has no sky either. No `discard`: the depth test alone
 // decides, before shading.
 fn background_of(v: View, tex: texture_2d_array<f32>, s: sampler, pos: vec2<f32>) -> vec4<f32> {
     let d = pixel_ray(v.ray_right.xyz, v.ray_up.xyz, v.ray_forward.xyz, v.params.yz, pos);
     let f = face_of(d);
-    return background_at(v, tex, s, f, pixel_on_face(f, d, 1.0));
-}
-
-// Background of view `v` at position `p` (face units) on face f: alpha SKY_DISTANCE, or 0
-// (hole) where the background has no sky.
-fn background_at(v: View, tex: texture_2d_array<f32>, s: sampler, f: u32, p: vec2<f32>) -> vec4<f32> {
     let n = v.origin_rel.w;
-    let c = sample_face(tex, s, n, v.params.w, 0u, f, p * n, v.params.x);
+    let c = sample_face(tex, s, n, v.params.w, 0u, f, pixel_on_face(f, d, n), v.params.x);
     return select(vec4<f32>(0.0), vec4<f32>(c.rgb, SKY_DISTANCE), c.a > 0.0);
 }
 
@@ -265,11 +259,11 @@ fn fs_mesh_second_at_sample(in: MeshOut) -> @location(0) vec4<f32> {
 // The sky of a two-view frame, drawn last where neither view's meshes drew, in two parts.
 // The sky lies at infinity: both reference views see the same sky in every direction where
 // both see sky, so one lookup in the heavier view stands for the blend of two. First part
-// (group 0 = the heavier view): its sky, writing SKY_DEPTH (`vs_sky_depth`) where it has sky; the depth test
-// against the cleared depth skips covered blocks before shading (the `discard` only delays
-// the depth write).
+// (group 0 = the heavier view): its sky, writing SKY_DEPTH (`vs_sky_depth`) where it has
+// sky; the depth test against the cleared depth skips covered blocks before shading (the
+// `discard` only delays the depth write).
 @fragment
-fn fs_sky_first_of_two(in: FullOut) -> @location(0) vec4<f32> {
+fn fs_sky_heavier(in: FullOut) -> @location(0) vec4<f32> {
     let c = background_color(in.pos.xy);
     if c.a == 0.0 {
         discard;

@@ -129,7 +129,7 @@ impl Renderer {
                 rp.set_pipeline(&self.first_sky);
                 rp.draw(0..3, 0..1);
             } else if slot == 1 {
-                // The heavier view's sky, then the other's where the first has none.
+                // The heavier view's sky, then the other's where that one has none.
                 let (heavy, light) = if pass.weight > passes[0].0.weight {
                     (*g, passes[0].1)
                 } else {
@@ -137,7 +137,7 @@ impl Renderer {
                 };
                 rp.set_bind_group(0, &heavy.bind_group, &[]);
                 rp.set_bind_group(2, &light.bind_group, &[]);
-                rp.set_pipeline(&self.sky_first_of_two);
+                rp.set_pipeline(&self.sky_heavier);
                 rp.draw(0..3, 0..1);
                 rp.set_pipeline(&self.sky_other);
                 rp.draw(0..3, 0..1);

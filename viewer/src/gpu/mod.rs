@@ -277,10 +277,10 @@ pub struct Renderer {
     second_mesh_holes: wgpu::RenderPipeline,
     /// The same at a sample (weight 0): only where the first view has neither a mesh nor sky.
     second_mesh_at_sample: wgpu::RenderPipeline,
-    /// The sky of a two-view fused frame, after both views' meshes: the first (heavier)
-    /// view's where it has sky (writing depth), then the other view's where it has none (the
-    /// sky is at infinity, the same from both viewpoints).
-    sky_first_of_two: wgpu::RenderPipeline,
+    /// The sky of a two-view fused frame, after both views' meshes: the heavier view's where
+    /// it has sky (writing depth), then the other view's where it has none (the sky is at
+    /// infinity, the same from both viewpoints).
+    sky_heavier: wgpu::RenderPipeline,
     sky_other: wgpu::RenderPipeline,
     /// Half-resolution second view: the first view drawn over it, blending it in.
     mesh_over_half: wgpu::RenderPipeline,

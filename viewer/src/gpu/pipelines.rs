@@ -299,14 +299,14 @@ impl Renderer {
             depth(wgpu::CompareFunction::Greater, true),
             &[("depth_scale", 1.0 / NEARER_ONLY)],
         );
-        // The two-view sky (see `fs_sky_first_of_two` in render.wgsl): the first view's sky
-        // at SKY_DEPTH where it has sky, then the other view's where the depth is still clear.
-        let sky_first_of_two = mk(
-            "sky of the first of two views (fused)",
+        // The two-view sky (see `fs_sky_heavier` in render.wgsl): the heavier view's sky at
+        // SKY_DEPTH where it has sky, then the other view's where the depth is still clear.
+        let sky_heavier = mk(
+            "sky of the heavier of two views (fused)",
             &render,
             &two_view_layout,
             "vs_sky_depth",
-            "fs_sky_first_of_two",
+            "fs_sky_heavier",
             &[],
             &output_target,
             depth(wgpu::CompareFunction::Greater, true),
@@ -413,7 +413,7 @@ impl Renderer {
             second_mesh,
             second_mesh_holes,
             second_mesh_at_sample,
-            sky_first_of_two,
+            sky_heavier,
             sky_other,
             mesh_over_half,
             background_over_half,
