@@ -25,6 +25,7 @@
 //! and use the totals as the live visible-pixel counts of Goss & Yuasa.
 
 use glam::DVec3;
+use rayon::prelude::*;
 use tracks::cubemap::subpixel_dir;
 use tracks::manifest::{Manifest, TrackEntry};
 use tracks::{FaceCoord, PerspectiveCamera, TileGrid};
@@ -203,11 +204,11 @@ impl SceneIndex {
         angle <= half_angle + radius + parallax + 1e-9
     }
 
-    fn lookup(&self, vp: &ViewpointIndex, slab: usize, dir: DVec3) -> Option<usize> {
+    /// Index (in a slab's dense tile table) of the tile in direction `dir`.
+    fn tile_index_at(&self, dir: DVec3) -> Option<usize> {
         let fc = FaceCoord::from_dir(dir)?;
         let (x, y) = fc.to_pixel(self.grid.face_size);
-        let t = self.grid.tile_of_pixel(fc.face, x, y);
-        vp.layers[slab].tiles[self.grid.tile_index(t)]
+        Some(self.grid.tile_index(self.grid.tile_of_pixel(fc.face, x, y)))
     }
 
     /// What viewpoint `vi` shows along the ray `origin + t·dir`: the surface and the hit
@@ -217,10 +218,8 @@ impl SceneIndex {
     pub fn trace(&self, vi: usize, origin: DVec3, dir: DVec3) -> Option<(Surface, Option<DVec3>)> {
         let vp = self.viewpoints.get(vi)?;
         let dir = dir.try_normalize()?;
-        let background = FaceCoord::from_dir(dir).and_then(|fc| {
-            let (x, y) = fc.to_pixel(self.grid.face_size);
-            let t = self.grid.tile_of_pixel(fc.face, x, y);
-            let tile = vp.background[self.grid.tile_index(t)]?;
+        let background = self.tile_index_at(dir).and_then(|ti| {
+            let tile = vp.background[ti]?;
             Some((
                 Surface::Background {
                     viewpoint: vi,
@@ -244,10 +243,12 @@ impl SceneIndex {
             let r1 = (p1 - vp.position).length();
             let mid = origin + dir * (0.5 * (t0 + t1));
             let (lo, hi) = (r0.min(r1), r0.max(r1));
-            for slab in 0..vp.layers.len() {
-                let Some(tile) = self.lookup(vp, slab, mid - vp.position) else {
-                    continue;
-                };
+            // One direction for every slab of the step.
+            let at = self.tile_index_at(mid - vp.position);
+            for tile in at
+                .iter()
+                .flat_map(|&ti| vp.layers.iter().filter_map(move |l| l.tiles[ti]))
+            {
                 let (dmin, dmax) = vp.depth[tile];
                 if hi >= dmin && lo <= dmax {
                     // Place the hit where the ray's distance from the viewpoint is closest to
@@ -289,38 +290,46 @@ impl SceneIndex {
         let px_per_sample = w * h / (sx as f64 * sy as f64);
         let alpha_c = 2.0 * (camera.fov_deg.to_radians() * 0.5).tan() / w;
         let alpha_v = 2.0 / self.grid.face_size as f64;
+        // Rows traced in parallel, summed in row order (the same sums as one thread).
+        let rows: Vec<Vec<(Surface, usize, f64)>> = (0..sy)
+            .into_par_iter()
+            .map(|j| {
+                let mut row = Vec::new();
+                for i in 0..sx {
+                    let x = (i as f64 + 0.5) * w / sx as f64;
+                    let y = (j as f64 + 0.5) * h / sy as f64;
+                    let dir = camera.ray_dir(x, y);
+                    for &(vi, weight) in viewpoints {
+                        if weight <= 0.0 {
+                            continue;
+                        }
+                        let Some((surface, hit)) = self.trace(vi, camera.position, dir) else {
+                            continue;
+                        };
+                        let q = match hit {
+                            Some(p) => {
+                                let d_c = (p - camera.position).length();
+                                let d_v = (p - self.viewpoints[vi].position).length().max(1e-9);
+                                alpha_c * d_c / (alpha_v * d_v)
+                            }
+                            None => alpha_c / alpha_v,
+                        };
+                        let level = if q > 1.0 {
+                            // The epsilon keeps exact powers of two on their level.
+                            ((q.log2() + 1e-9).floor() as usize).min(MAX_LEVELS - 1)
+                        } else {
+                            0
+                        };
+                        row.push((surface, level, weight * px_per_sample));
+                    }
+                }
+                row
+            })
+            .collect();
         let mut counts: std::collections::HashMap<Surface, [f64; MAX_LEVELS]> =
             std::collections::HashMap::new();
-        for j in 0..sy {
-            for i in 0..sx {
-                let x = (i as f64 + 0.5) * w / sx as f64;
-                let y = (j as f64 + 0.5) * h / sy as f64;
-                let dir = camera.ray_dir(x, y);
-                for &(vi, weight) in viewpoints {
-                    if weight <= 0.0 {
-                        continue;
-                    }
-                    let Some((surface, hit)) = self.trace(vi, camera.position, dir) else {
-                        continue;
-                    };
-                    let q = match hit {
-                        Some(p) => {
-                            let d_c = (p - camera.position).length();
-                            let d_v = (p - self.viewpoints[vi].position).length().max(1e-9);
-                            alpha_c * d_c / (alpha_v * d_v)
-                        }
-                        None => alpha_c / alpha_v,
-                    };
-                    let level = if q > 1.0 {
-                        // The epsilon keeps exact powers of two on their level.
-                        ((q.log2() + 1e-9).floor() as usize).min(MAX_LEVELS - 1)
-                    } else {
-                        0
-                    };
-                    counts.entry(surface).or_insert([0.0; MAX_LEVELS])[level] +=
-                        weight * px_per_sample;
-                }
-            }
+        for (surface, level, pixels) in rows.into_iter().flatten() {
+            counts.entry(surface).or_insert([0.0; MAX_LEVELS])[level] += pixels;
         }
         let mut out: Vec<SurfaceCount> = counts
             .into_iter()

@@ -534,15 +534,20 @@ impl StreamedWalkthrough {
                 .into_iter()
                 .map(|v| self.walk.views[v].index),
         );
-        for v in self.evict_over_budget(s, &protected) {
+        // Decoded bytes per view, counted once a step (every item of every view).
+        let mut per_view: Vec<u64> = (0..self.walk.views.len())
+            .map(|v| self.view_decoded_bytes(v))
+            .collect();
+        for v in self.evict_over_budget(s, &protected, &per_view) {
             let index = self.walk.views[v].index;
             report.evicted.push(index);
             views.insert(index);
+            per_view[v] = self.view_decoded_bytes(v);
         }
         report.regions.retain(|r| !report.evicted.contains(&r.0));
         self.protected = protected;
         report.changed_views = views.into_iter().collect();
-        report.decoded_bytes = self.decoded_bytes();
+        report.decoded_bytes = per_view.iter().sum();
         self.fade_highlights(now);
         report
     }
@@ -664,11 +669,14 @@ impl StreamedWalkthrough {
     }
 
     /// Drop the decoded state of the views farthest along the track from `s` (never those
-    /// in `protected`) until the total is within the budget; returns the views dropped.
-    fn evict_over_budget(&mut self, s: f64, protected: &BTreeSet<usize>) -> Vec<usize> {
-        let per_view: Vec<u64> = (0..self.walk.views.len())
-            .map(|v| self.view_decoded_bytes(v))
-            .collect();
+    /// in `protected`) until the total is within the budget (`per_view`: the decoded bytes
+    /// of each view); returns the views dropped.
+    fn evict_over_budget(
+        &mut self,
+        s: f64,
+        protected: &BTreeSet<usize>,
+        per_view: &[u64],
+    ) -> Vec<usize> {
         let mut total: u64 = per_view.iter().sum();
         let mut out = Vec::new();
         if total <= self.decoded_budget_bytes {

@@ -756,3 +756,91 @@ fn redecode_step_times() {
 fn renderer_enabled() -> bool {
     !std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1")
 }
+
+/// Streaming steps while walking and while standing, once everything around has arrived: the
+/// part of each window frame the streaming client takes on the main thread (no drawing, no
+/// GPU counts, so the CPU visibility estimate runs as it does between feedback frames).
+/// `RAILVIEW_STEP_FACE=512 cargo test --release -p viewer --test stream steady_step_times --
+/// --ignored --nocapture` (synthetic street at that face size, default 256), or
+/// `RAILVIEW_STEP_DB=DIR` to serve a database built by `railview build` instead.
+#[test]
+#[ignore]
+fn steady_step_times() {
+    let (dir, owned) = match std::env::var("RAILVIEW_STEP_DB") {
+        Ok(d) => (PathBuf::from(d), false),
+        Err(_) => {
+            let face: u32 = std::env::var("RAILVIEW_STEP_FACE")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(256);
+            let street = synth_street(face, &Scene::street_slabs(), MeshParams::default()).unwrap();
+            let dir =
+                std::env::temp_dir().join(format!("railview-viewer-steady-{}", std::process::id()));
+            write_db(&street, &dir);
+            (dir, true)
+        }
+    };
+    let (url, stop, thread) = serve(&dir);
+    let mut st =
+        StreamedWalkthrough::connect(&url, None, LiveConfig::with_cache(64 << 20)).unwrap();
+    let arcs: Vec<f64> = st.walk.views.iter().map(|v| v.s).collect();
+    let (first, last) = (arcs[0], *arcs.last().unwrap());
+    let s0 = first + 0.25 * (last - first);
+    let quiet = |st: &mut StreamedWalkthrough, s: f64| {
+        let cam = camera(&st.walk, s, 0.0);
+        let (mut idle, start) = (0, Instant::now());
+        while idle < 20 && start.elapsed() < Duration::from_secs(300) {
+            let rep = st.step(s, &cam, None);
+            let stats = st.session().stats();
+            let busy = rep.arrivals > 0 || rep.backlog > 0 || stats.in_flight + stats.queued > 0;
+            idle = if busy { 0 } else { idle + 1 };
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    };
+    quiet(&mut st, s0);
+    let median = |mut t: Vec<Duration>| {
+        t.sort();
+        (t[t.len() / 2], *t.last().unwrap())
+    };
+    // Standing still, not turning (the same camera every frame).
+    let mut idle = Vec::new();
+    for _ in 0..60 {
+        let cam = camera(&st.walk, s0, 0.0);
+        let t = Instant::now();
+        st.step(s0, &cam, None);
+        idle.push(t.elapsed());
+    }
+    // Standing still, looking around.
+    let mut still = Vec::new();
+    for i in 0..60 {
+        let cam = camera(&st.walk, s0, i as f64 * 0.5);
+        let t = Instant::now();
+        st.step(s0, &cam, None);
+        still.push(t.elapsed());
+    }
+    // Walking 1.2 m/s at 60 frames per second over a tenth of the track.
+    let mut walking = Vec::new();
+    let mut s = s0;
+    while s < s0 + 0.1 * (last - first) {
+        let cam = camera(&st.walk, s, 0.0);
+        let t = Instant::now();
+        st.step(s, &cam, None);
+        walking.push(t.elapsed());
+        s += 0.02;
+    }
+    let (im, ix) = median(idle);
+    let (sm, sx) = median(still);
+    let (wm, wx) = median(walking);
+    eprintln!(
+        "{}: items {}; standing: step median {im:?}, slowest {ix:?}; turning: median \
+         {sm:?}, slowest {sx:?}; walking ({} steps): median {wm:?}, slowest {wx:?}",
+        dir.display(),
+        st.session().table().items.len(),
+        ((0.1 * (last - first)) / 0.02).ceil()
+    );
+    drop(stop);
+    thread.join().unwrap();
+    if owned {
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}

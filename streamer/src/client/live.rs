@@ -160,6 +160,13 @@ pub struct LiveStats {
     pub manifest_s: f64,
 }
 
+/// The CPU visibility counts of one camera and pair of blend weights, per item.
+struct CpuCounts {
+    camera: PerspectiveCamera,
+    weights: Vec<(usize, f64)>,
+    counts: Vec<LiveCount>,
+}
+
 /// A streaming session (see the module docs).
 pub struct LiveSession {
     // Dropped before the runtime: its workers are aborted on it.
@@ -195,6 +202,12 @@ pub struct LiveSession {
     requested: KeySet,
     /// Keys pinned in the cache (their bytes: `stats.pinned_bytes`).
     pinned: KeySet,
+    /// What `pinned` was made from: per item the parts pinned (sorted by item), and whether
+    /// the cache held every one of them. The same list again leaves the pins as they are.
+    pin_spec: (Vec<(usize, usize)>, bool),
+    /// The CPU visibility counts of the last update and what they were counted for (camera,
+    /// viewpoints and weights); cleared when the index changes.
+    cpu_counts: Option<CpuCounts>,
     /// Parts held per item (the prefix in the cache), kept by arrivals and evictions; equal
     /// to [`LiveSession::have`], which scans every part.
     held: Vec<usize>,
@@ -299,6 +312,8 @@ impl LiveSession {
             users,
             requested: KeySet::default(),
             pinned: KeySet::default(),
+            pin_spec: (Vec::new(), true),
+            cpu_counts: None,
             held: vec![0; n_items],
             start: Instant::now(),
             paused_until: None,
@@ -499,7 +514,8 @@ impl LiveSession {
 
         // Pins: what the plan keeps resident, and the current segment's coarsest levels. A key
         // is pinned once however many items use it, and only the keys that join or leave the
-        // set touch the cache (the set holds tens of thousands of parts on big databases).
+        // set touch the cache (the set holds tens of thousands of parts on big databases);
+        // while the list of pinned parts stays the same (most frames), the set is not rebuilt.
         let mut pin: Vec<(usize, usize)> = p.targets.iter().map(|&(i, _, r)| (i, r)).collect();
         pin.extend(
             seg_ach
@@ -508,30 +524,42 @@ impl LiveSession {
                 .chain(backgrounds.iter().copied())
                 .map(|i| (i, self.infos[i].min_parts())),
         );
-        let mut pins = KeySet::default();
-        for (i, n) in pin {
-            for part in &self.table.items[i].parts[..n.min(have[i])] {
-                pins.insert(part.key.clone());
+        // Per item the most parts pinned; held parts only (the prefix the cache holds).
+        let mut spec: Vec<(usize, usize)> = pin
+            .into_iter()
+            .map(|(i, n)| (i, n.min(have[i])))
+            .filter(|&(_, n)| n > 0)
+            .collect();
+        spec.sort_unstable_by_key(|&(i, n)| (i, std::cmp::Reverse(n)));
+        spec.dedup_by_key(|a| a.0);
+        if spec != self.pin_spec.0 || !self.pin_spec.1 {
+            let mut pins = KeySet::default();
+            for &(i, n) in &spec {
+                for part in &self.table.items[i].parts[..n] {
+                    pins.insert(part.key.clone());
+                }
             }
+            for k in self.pinned.iter().filter(|k| !pins.contains(*k)) {
+                self.stats.pinned_bytes -= self.cache.get(k).map_or(0, |b| b.len() as u64);
+                self.cache.release(k);
+            }
+            let cache = &mut self.cache;
+            let (mut added, mut complete) = (0, true);
+            pins.retain(|k| {
+                if self.pinned.contains(k) {
+                    return true;
+                }
+                let held = cache.acquire(k);
+                if held {
+                    added += cache.get(k).map_or(0, |b| b.len() as u64);
+                }
+                complete &= held;
+                held
+            });
+            self.stats.pinned_bytes += added;
+            self.pinned = pins;
+            self.pin_spec = (spec, complete);
         }
-        for k in self.pinned.iter().filter(|k| !pins.contains(*k)) {
-            self.stats.pinned_bytes -= self.cache.get(k).map_or(0, |b| b.len() as u64);
-            self.cache.release(k);
-        }
-        let cache = &mut self.cache;
-        let mut added = 0;
-        pins.retain(|k| {
-            if self.pinned.contains(k) {
-                return true;
-            }
-            let held = cache.acquire(k);
-            if held {
-                added += cache.get(k).map_or(0, |b| b.len() as u64);
-            }
-            held
-        });
-        self.stats.pinned_bytes += added;
-        self.pinned = pins;
 
         // Requests the plan still wants: running/queued parts of items below their target,
         // plus the new ones.
@@ -623,9 +651,10 @@ impl LiveSession {
             .collect()
     }
 
-    /// CPU visibility counts at `camera`, with the caller's counts replacing them per item.
+    /// CPU visibility counts at `camera` (counted again only when the camera or the blend
+    /// weights changed), merged with the caller's counts per item.
     fn live_counts(
-        &self,
+        &mut self,
         s: f64,
         camera: &PerspectiveCamera,
         live: Option<&[LiveCount]>,
@@ -633,24 +662,39 @@ impl LiveSession {
         let mut by_item: HashMap<usize, LiveCount> = HashMap::new();
         if let Some(index) = &self.index {
             let weights = blend_weights(&self.table.vp_s, s);
-            let (sx, sy) = self.config.samples;
-            for c in index.count(camera, &weights, sx, sy) {
-                let item = match c.surface {
-                    Surface::Tile { viewpoint, tile } => self.table.tile_item(viewpoint, tile),
-                    Surface::Background { viewpoint, tile } => {
-                        self.table.background_item(viewpoint, tile)
-                    }
-                };
-                if let Some(item) = item {
-                    by_item.insert(
-                        item,
-                        LiveCount {
+            let same = self
+                .cpu_counts
+                .as_ref()
+                .is_some_and(|c| c.camera == *camera && c.weights == weights);
+            if !same {
+                let (sx, sy) = self.config.samples;
+                let counts = index
+                    .count(camera, &weights, sx, sy)
+                    .into_iter()
+                    .filter_map(|c| {
+                        let item = match c.surface {
+                            Surface::Tile { viewpoint, tile } => {
+                                self.table.tile_item(viewpoint, tile)
+                            }
+                            Surface::Background { viewpoint, tile } => {
+                                self.table.background_item(viewpoint, tile)
+                            }
+                        }?;
+                        Some(LiveCount {
                             item,
                             pixels: c.pixels(),
                             needed_level: c.finest_needed(),
-                        },
-                    );
-                }
+                        })
+                    })
+                    .collect();
+                self.cpu_counts = Some(CpuCounts {
+                    camera: *camera,
+                    weights,
+                    counts,
+                });
+            }
+            for c in self.cpu_counts.iter().flat_map(|c| &c.counts) {
+                by_item.insert(c.item, *c);
             }
         }
         // The caller's counts (measured on the GPU) and the CPU estimate are merged by the

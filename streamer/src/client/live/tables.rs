@@ -160,5 +160,8 @@ impl LiveSession {
         rows[self.track] = row;
         self.manifest = assemble(&self.top, &rows);
         self.index = SceneIndex::new(&self.manifest, self.track);
+        // New tiles and items: count and pin again.
+        self.cpu_counts = None;
+        self.pin_spec.1 = false;
     }
 }
