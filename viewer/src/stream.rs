@@ -9,9 +9,11 @@
 //! incremental [`Decoder`]); a tile joins its view once its mesh and coarsest level are in,
 //! and is upgraded in place as finer levels decode (the coarse level stands in, nearest, and
 //! [`crate::refview::ViewTile::finest_level`] keeps the renderer from sampling finer than what
-//! arrived). A background is pasted at whatever level has arrived. Only the layers that
-//! changed are rebuilt, and the step reports which views changed so the renderer re-uploads
-//! just those ([`crate::gpu::Renderer::invalidate_view`]). Each tile's
+//! arrived). A background is pasted at whatever level has arrived. The parts taken in a step
+//! are decoded for all items at once on every core (each item has its own decoder), then
+//! placed in order. Only the texels around each tile that arrived are rebuilt, and the step
+//! reports them so the renderer writes just those ([`StepReport::regions`]); views laid out
+//! or dropped are re-uploaded whole ([`crate::gpu::Renderer::invalidate_view`]). Each tile's
 //! [`crate::refview::ViewTile::highlight`] is 1 when a level of it arrives and fades to 0 over
 //! [`HIGHLIGHT`], for the renderer's highlight overlay.
 //!
@@ -41,10 +43,11 @@
 //! any streamed one is: whole when it is laid out again, by tile regions afterwards.
 
 use std::cmp::Reverse;
-use std::collections::{BTreeSet, BinaryHeap, HashMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, BinaryHeap, HashMap, VecDeque};
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
+use rayon::prelude::*;
 use streamer::client::{
     next_segment, LiveConfig, LiveCount, LiveError, LiveSession, MotionTracker,
 };
@@ -58,7 +61,7 @@ use crate::refview::{RefView, ViewTile};
 use crate::source::{
     image_rgba, manifest_track, paste_tile, tile_mesh_from_bytes, SourceError, Walkthrough,
 };
-use crate::texture::{dilate_masked, FaceRect, Layer};
+use crate::texture::{FaceRect, Layer};
 
 /// How long a newly loaded tile stays highlighted.
 pub const HIGHLIGHT: Duration = Duration::from_secs(1);
@@ -124,8 +127,9 @@ struct ItemState {
 /// What one [`StreamedWalkthrough::step`] did.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct StepReport {
-    /// `RefView::index` of every view whose content changed as a whole (a background
-    /// arrived): re-upload these.
+    /// `RefView::index` of every view whose content changed as a whole (laid out, dropped
+    /// back to placeholders, or no longer needed before anything of it arrived): re-upload
+    /// these.
     pub changed_views: Vec<usize>,
     /// Tile arrivals: `(RefView::index, layer, texel rectangles per mip level)` as
     /// [`Layer::update_region`] returned them, for
@@ -482,24 +486,42 @@ impl StreamedWalkthrough {
         {
             self.arrivals.pop_front();
         }
-        // (view, layer) pairs whose dense map changed as a whole, and tile rectangles.
-        let mut dirty: BTreeSet<(usize, usize)> = BTreeSet::new();
-        let mut rects: Vec<(usize, usize, FaceRect)> = Vec::new();
         let plan = self.plan_redecode(&touched, &protected, s);
         report.redecoded_parts = plan.parts;
         report.redecoded_bytes = plan.bytes;
         report.backlog = plan.backlog;
-        for item in touched {
-            let cached = plan.allowed.get(&item).copied().unwrap_or(0);
-            match self.consume(item, cached, now) {
+        // The parts each touched item takes in this step, decoded for all items at once on
+        // every core (each item has its own decoder), then placed into the views in order.
+        let work: Vec<(usize, Vec<Bytes>, String)> = touched
+            .iter()
+            .map(|&item| {
+                let cached = plan.allowed.get(&item).copied().unwrap_or(0);
+                (item, self.take_parts(item, cached), self.item_name(item))
+            })
+            .collect();
+        let mut work = work.into_iter().peekable();
+        let mut jobs = Vec::new();
+        for (i, it) in self.items.iter_mut().enumerate() {
+            if let Some((_, parts, what)) = work.next_if(|w| w.0 == i) {
+                jobs.push((i, it, parts, what));
+            }
+        }
+        let decoded: Vec<(usize, String, Result<Option<Decoded>, SourceError>)> = jobs
+            .into_par_iter()
+            .map(|(i, it, parts, what)| {
+                let d = decode_parts(it, parts, &what);
+                (i, what, d)
+            })
+            .collect();
+        // Tile rectangles that changed.
+        let mut rects: Vec<(usize, usize, FaceRect)> = Vec::new();
+        for (item, what, d) in decoded {
+            match d.and_then(|d| match d {
+                Some(d) => self.place(item, d, &what, now),
+                None => Ok(None),
+            }) {
                 Ok(Some((layer, rect))) => {
-                    let v = self.items[item].view;
-                    match rect {
-                        Some(r) => rects.push((v, layer, r)),
-                        None => {
-                            dirty.insert((v, layer));
-                        }
-                    }
+                    rects.push((self.items[item].view, layer, rect));
                     report.upgraded += 1;
                 }
                 Ok(None) => {}
@@ -509,25 +531,31 @@ impl StreamedWalkthrough {
                 }
             }
         }
-        for &(v, layer) in &dirty {
-            let map = &self.dense[v][layer];
-            self.walk.views[v].layers[layer] = Layer::from_rgba(dilate_masked(map));
-            views.insert(self.walk.views[v].index);
-        }
-        // A tile redoes the dilation and mip texels around its own rectangle only (the
-        // whole layer is rebuilt above when it changed as a whole in this step anyway).
+        // A tile redoes the dilation and mip texels around its own rectangle only; the
+        // layers that changed are redone in parallel.
+        let mut by_layer: BTreeMap<(usize, usize), Vec<FaceRect>> = BTreeMap::new();
         for (v, layer, rect) in rects {
-            if dirty.contains(&(v, layer)) {
-                continue;
-            }
-            let per_level =
-                self.walk.views[v].layers[layer].update_region(&self.dense[v][layer], rect);
-            if !per_level.is_empty() {
-                report
-                    .regions
-                    .push((self.walk.views[v].index, layer, per_level));
+            by_layer.entry((v, layer)).or_default().push(rect);
+        }
+        let mut jobs = Vec::new();
+        for (v, (view, dense)) in self.walk.views.iter_mut().zip(&self.dense).enumerate() {
+            for (l, (layer, map)) in view.layers.iter_mut().zip(dense).enumerate() {
+                if let Some(rects) = by_layer.remove(&(v, l)) {
+                    jobs.push((view.index, l, layer, map, rects));
+                }
             }
         }
+        let regions: Vec<Vec<(usize, usize, Vec<FaceRect>)>> = jobs
+            .into_par_iter()
+            .map(|(index, l, layer, map, rects)| {
+                rects
+                    .into_iter()
+                    .map(|r| (index, l, layer.update_region(map, r)))
+                    .filter(|r| !r.2.is_empty())
+                    .collect()
+            })
+            .collect();
+        report.regions.extend(regions.into_iter().flatten());
         // Views laid out in this step changed shape: uploaded whole.
         views.extend(
             std::mem::take(&mut self.fresh)
@@ -779,25 +807,16 @@ impl StreamedWalkthrough {
         }
     }
 
-    /// Consume the parts of `item` that are next in order, at most `cached` of them taken
-    /// from the session's cache; returns the layer that changed and, for a tile, the face
-    /// rectangle that changed (`None`: the whole layer).
-    fn consume(
-        &mut self,
-        item: usize,
-        mut cached: usize,
-        now: Instant,
-    ) -> Result<Option<(usize, Option<FaceRect>)>, SourceError> {
-        let what = self.item_name(item);
-        let session = &self.session;
+    /// The parts of `item` that are next in order (received, or at most `cached` of them
+    /// taken from the session's cache), out of its waiting list.
+    fn take_parts(&mut self, item: usize, mut cached: usize) -> Vec<Bytes> {
         let it = &mut self.items[item];
-        let before = it.level;
-        // Parts in order: received in this step, or held by the session's cache (consumed
-        // again after an eviction) while the step's budget allows.
+        let mut out = Vec::new();
         loop {
-            let data = match it.waiting.remove(&it.next) {
+            let next = it.next + out.len();
+            let data = match it.waiting.remove(&next) {
                 Some(data) => data,
-                None if cached > 0 => match session.part_bytes(item, it.next) {
+                None if cached > 0 => match self.session.part_bytes(item, next) {
                     Some(data) => {
                         cached -= 1;
                         data.clone()
@@ -806,48 +825,32 @@ impl StreamedWalkthrough {
                 },
                 None => break,
             };
-            if it.next < it.first_level_part {
-                it.mesh = Some(tile_mesh_from_bytes(&data, &what)?);
-            } else {
-                it.decoder.push(&data).map_err(|e| SourceError::Format {
-                    what: what.clone(),
-                    message: e.to_string(),
-                })?;
-            }
-            it.next += 1;
+            out.push(data);
         }
-        let level = it.decoder.finest_level();
-        if level == before || level.is_none() {
-            return Ok(None);
-        }
-        let Some(img) = it.decoder.finest() else {
-            return Ok(None);
-        };
-        let level = level.unwrap_or(0);
-        let rgba = image_rgba(img);
-        let (w, h) = (img.width(), img.height());
+        out
+    }
+
+    /// Put a tile's (or background tile's) newly decoded finest level into its view: the
+    /// layer and the face rectangle that changed.
+    fn place(
+        &mut self,
+        item: usize,
+        d: Decoded,
+        what: &str,
+        now: Instant,
+    ) -> Result<Option<(usize, FaceRect)>, SourceError> {
+        let it = &self.items[item];
         let view = it.view;
-        // The full level decoded: nothing more will come for this item, its decoder's
-        // levels are no longer needed.
-        if level == 0 {
-            it.decoder = Decoder::new(it.limits);
-        }
+        let pixels = (&d.rgba[..], d.width, d.height, d.level);
         match it.kind {
             Kind::Unusable => Ok(None),
             Kind::Background { tile } => {
                 self.lay_out(view);
-                paste_tile(
-                    &mut self.dense[view][0],
-                    self.grid,
-                    tile,
-                    (&rgba, w, h, level),
-                    &what,
-                )?;
+                paste_tile(&mut self.dense[view][0], self.grid, tile, pixels, what)?;
                 let it = &mut self.items[item];
-                it.level = Some(level);
+                it.level = Some(d.level);
                 it.loaded_at = Some(now);
-                let rect = FaceRect::of_tile(self.grid, tile);
-                Ok(Some((0, Some(rect))))
+                Ok(Some((0, FaceRect::of_tile(self.grid, tile))))
             }
             Kind::Tile { tile, slab } => {
                 let joined = self.tile_items[view].iter().position(|&i| i == item);
@@ -856,32 +859,25 @@ impl StreamedWalkthrough {
                 }
                 let layer = slab as usize + 1;
                 self.lay_out(view);
-                paste_tile(
-                    &mut self.dense[view][layer],
-                    self.grid,
-                    tile,
-                    (&rgba, w, h, level),
-                    &what,
-                )?;
+                paste_tile(&mut self.dense[view][layer], self.grid, tile, pixels, what)?;
                 let it = &mut self.items[item];
-                it.level = Some(level);
+                it.level = Some(d.level);
                 it.loaded_at = Some(now);
                 let v = &mut self.walk.views[view];
                 match joined {
-                    Some(slot) => v.tiles[slot].finest_level = level,
+                    Some(slot) => v.tiles[slot].finest_level = d.level,
                     None => {
                         // The view's tile holds the mesh from now on.
                         let mesh = it.mesh.take().unwrap_or_default();
                         let mut vt = ViewTile::new(tile, slab, mesh, v.face_size);
-                        vt.finest_level = level;
+                        vt.finest_level = d.level;
                         let key = |t: &ViewTile| (t.slab, self.grid.tile_index(t.tile));
                         let slot = v.tiles.partition_point(|t| key(t) < key(&vt));
                         v.tiles.insert(slot, vt);
                         self.tile_items[view].insert(slot, item);
                     }
                 }
-                let rect = FaceRect::of_tile(self.grid, tile);
-                Ok(Some((layer, Some(rect))))
+                Ok(Some((layer, FaceRect::of_tile(self.grid, tile))))
             }
         }
     }
@@ -993,6 +989,55 @@ impl StreamedWalkthrough {
             .map(|a| a.1 as u64)
             .sum()
     }
+}
+
+/// An item's finest level, decoded ([`decode_parts`]).
+struct Decoded {
+    level: u32,
+    rgba: Vec<u8>,
+    width: u32,
+    height: u32,
+}
+
+/// Feed `parts` (the item's next parts, in order) to its mesh and decoder; its finest level
+/// when that became finer than the one shown. Items are independent, so a step decodes them
+/// in parallel.
+fn decode_parts(
+    it: &mut ItemState,
+    parts: Vec<Bytes>,
+    what: &str,
+) -> Result<Option<Decoded>, SourceError> {
+    for data in parts {
+        if it.next < it.first_level_part {
+            it.mesh = Some(tile_mesh_from_bytes(&data, what)?);
+        } else {
+            it.decoder.push(&data).map_err(|e| SourceError::Format {
+                what: what.to_string(),
+                message: e.to_string(),
+            })?;
+        }
+        it.next += 1;
+    }
+    let level = it.decoder.finest_level();
+    if level == it.level || level.is_none() {
+        return Ok(None);
+    }
+    let Some(img) = it.decoder.finest() else {
+        return Ok(None);
+    };
+    let level = level.unwrap_or(0);
+    let d = Decoded {
+        level,
+        rgba: image_rgba(img),
+        width: img.width(),
+        height: img.height(),
+    };
+    // The full level decoded: nothing more will come for this item, its decoder's levels
+    // are no longer needed.
+    if level == 0 {
+        it.decoder = Decoder::new(it.limits);
+    }
+    Ok(Some(d))
 }
 
 /// Transparent layers with 1×1 faces for a view not laid out: they draw as nothing (no
