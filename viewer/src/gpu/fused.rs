@@ -139,8 +139,12 @@ impl Renderer {
                 rp.set_bind_group(2, &light.bind_group, &[]);
                 rp.set_pipeline(&self.sky_heavier);
                 rp.draw(0..3, 0..1);
-                rp.set_pipeline(&self.sky_other);
-                rp.draw(0..3, 0..1);
+                // Nothing for the other view's sky to fill when the heavier view's has no
+                // hole (a full-screen pass that llvmpipe would still bin and depth-test).
+                if !heavy.sky_whole {
+                    rp.set_pipeline(&self.sky_other);
+                    rp.draw(0..3, 0..1);
+                }
             }
         }
     }

@@ -214,6 +214,9 @@ pub struct GpuView {
     pub bytes: u64,
     /// Of which meshes and tile buffers.
     mesh_bytes: u64,
+    /// The background layer has sky (alpha > 0) at every texel, so at every level: where
+    /// this view is the heavier one, a fused frame needs no other view's sky.
+    sky_whole: bool,
 }
 
 struct Targets {

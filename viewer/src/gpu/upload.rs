@@ -12,7 +12,9 @@ use crate::refview::{decimated_indices, mesh_cell, RefView, MESH_LEVELS};
 impl Renderer {
     pub(super) fn upload(&self, view: &RefView) -> GpuView {
         let (texture, bytes) = self.upload_texture(view);
-        self.upload_meshes(view, texture, bytes)
+        let mut g = self.upload_meshes(view, texture, bytes);
+        g.sky_whole = sky_whole(view);
+        g
     }
 
     /// The view's texture array with every layer and level written; its bytes in GPU memory.
@@ -225,6 +227,7 @@ impl Renderer {
             face_layer,
             bytes,
             mesh_bytes: bytes - tex_bytes,
+            sky_whole: false,
         }
     }
 
@@ -253,7 +256,8 @@ impl Renderer {
                     return;
                 };
                 let tex_bytes = old.bytes - old.mesh_bytes;
-                let g = self.upload_meshes(view, old.texture, tex_bytes);
+                let mut g = self.upload_meshes(view, old.texture, tex_bytes);
+                g.sky_whole = old.sky_whole;
                 self.views.insert(view.index, g);
             }
             _ => {
@@ -275,11 +279,15 @@ impl Renderer {
         layer: usize,
         rects: &[crate::texture::FaceRect],
     ) -> bool {
-        let (Some(g), Some(src)) = (self.views.get(&view.index), view.layers.get(layer)) else {
+        let (Some(g), Some(src)) = (self.views.get_mut(&view.index), view.layers.get(layer))
+        else {
             return false;
         };
         if !Self::texture_fits(g, view) {
             return false;
+        }
+        if layer == 0 {
+            g.sky_whole = sky_whole(view);
         }
         for (level, (r, map)) in rects.iter().zip(&src.levels).enumerate() {
             let m = map.face_size();
@@ -490,4 +498,13 @@ fn texture_face_size(view: &RefView) -> u32 {
     view.layers
         .first()
         .map_or(view.face_size, |l| l.face_size())
+}
+
+/// Whether `view`'s background layer has sky (alpha > 0) at every texel of its finest level;
+/// then every coarser level has too (alpha averages of four), and so has any filtered lookup.
+fn sky_whole(view: &RefView) -> bool {
+    view.layers
+        .first()
+        .and_then(|l| l.levels.first())
+        .is_some_and(|m| m.as_slice().iter().all(|p| p[3] > 0))
 }
