@@ -279,8 +279,7 @@ impl Renderer {
         layer: usize,
         rects: &[crate::texture::FaceRect],
     ) -> bool {
-        let (Some(g), Some(src)) = (self.views.get_mut(&view.index), view.layers.get(layer))
-        else {
+        let (Some(g), Some(src)) = (self.views.get_mut(&view.index), view.layers.get(layer)) else {
             return false;
         };
         if !Self::texture_fits(g, view) {
