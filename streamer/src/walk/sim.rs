@@ -676,6 +676,17 @@ pub(crate) async fn run_one(
             .copied()
             .filter(|&(i, _)| in_cone(i, wide))
             .collect();
+        // Backgrounds are not in the ACH lists; they fill everything no tile covers, so they
+        // rank with the strongest tile (as `LiveSession` ranks them).
+        let top = ach.iter().map(|a| a.1).fold(0.0f64, f64::max);
+        let top = if top > 0.0 { top } else { 1.0 };
+        let backgrounds: Vec<(usize, f64)> = weights
+            .iter()
+            .flat_map(|&(vi, _)| sim.table.background_items(vi))
+            .map(|b| (b, top))
+            .collect();
+        sim.view_ach.extend(&backgrounds);
+        sim.wide_ach.extend(&backgrounds);
         // The paper's quality is measured against the segment's ACH list as the database
         // has it, whether or not the strategy fetched the lists: the client's item of each
         // entry's tile (`None` while its table is missing).

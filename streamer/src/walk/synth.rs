@@ -1,7 +1,8 @@
 //! A small synthetic database for tests and benchmarks of streaming: a straight corridor
 //! (walls at `x = ±half_width`, a floor at `y = 0`, far buildings beyond `far_m`, sky
 //! above) seen from viewpoints along a track, with PTM-shaped objects of pseudo-random bytes
-//! (incompressible, so byte counts are honest) and ACH from the CPU visibility reference.
+//! (incompressible, so byte counts are honest) and ACH from the CPU visibility reference;
+//! optionally ([`SynthParams::backgrounds`]) a background tile wherever a tile sees sky.
 //! It writes only the manifest and the objects — what a server needs.
 
 use std::io;
@@ -10,8 +11,8 @@ use std::path::Path;
 use glam::DVec3;
 use tracks::cubemap::subpixel_dir;
 use tracks::manifest::{
-    object_rel_path, AchEntry, LevelRef, Manifest, ObjectRef, PtmRef, SegmentEntry, TileEntry,
-    TrackEntry, ViewpointEntry, MANIFEST_VERSION,
+    object_rel_path, AchEntry, BackgroundTile, LevelRef, Manifest, ObjectRef, PtmRef, SegmentEntry,
+    TileEntry, TrackEntry, ViewpointEntry, MANIFEST_VERSION,
 };
 use tracks::{PerspectiveCamera, SlabRange, TileGrid, TrackSet};
 
@@ -32,6 +33,8 @@ pub struct SynthParams {
     /// Stored bytes per decoded texel (a stand-in for the codec's ratio).
     pub bytes_per_texel: f64,
     pub seed: u64,
+    /// Give every tile that sees some sky a background tile (a PTM of the same shape).
+    pub backgrounds: bool,
 }
 
 impl Default for SynthParams {
@@ -46,6 +49,7 @@ impl Default for SynthParams {
             slab_split_m: 8.0,
             bytes_per_texel: 1.5,
             seed: 7,
+            backgrounds: false,
         }
     }
 }
@@ -99,6 +103,36 @@ fn corridor_hit(o: DVec3, d: DVec3, half_width: f64) -> Option<f64> {
     best.is_finite().then_some(best)
 }
 
+/// A PTM-shaped object of pseudo-random bytes for a `side × side` tile: a header, then the
+/// levels coarse to fine at `p.bytes_per_texel`; the object and its level references.
+fn ptm_blob(rng: &mut Rng, side: u32, p: &SynthParams) -> (Vec<u8>, Vec<LevelRef>) {
+    let mut levels = Vec::new();
+    let mut blob = rng.bytes(16); // header
+    for l in (0..p.levels).rev() {
+        let w = (side >> l).max(1);
+        let n = ((w * w * 4) as f64 * p.bytes_per_texel / 4.0)
+            .ceil()
+            .max(1.0) as usize;
+        let offset = if levels.is_empty() {
+            0
+        } else {
+            blob.len() as u64
+        };
+        blob.extend(rng.bytes(n));
+        let len = blob.len() as u64 - offset;
+        let hash = blake3::hash(&blob[offset as usize..]).to_hex().to_string();
+        levels.push(LevelRef {
+            level: l,
+            width: w,
+            height: w,
+            offset,
+            len,
+            hash,
+        });
+    }
+    (blob, levels)
+}
+
 /// Write a synthetic database to `root` (created) and return its manifest.
 pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
     let bad = |m: String| io::Error::new(io::ErrorKind::InvalidInput, m);
@@ -115,6 +149,7 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
     let mut viewpoints = Vec::new();
     for vp in track.viewpoints() {
         let mut tiles = Vec::new();
+        let mut background = Vec::new();
         for tile in grid.tiles() {
             let (x0, y0, x1, y1) = grid.pixel_rect(tile);
             // Depth range from a 3×3 probe of the tile.
@@ -133,35 +168,25 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
                     }
                 }
             }
+            let side = x1 - x0;
+            if p.backgrounds && hits < 9 {
+                let (blob, levels) = ptm_blob(&mut rng, side, p);
+                background.push(BackgroundTile {
+                    tile,
+                    ptm: PtmRef {
+                        object: put(root, &blob)?,
+                        width: side,
+                        height: side,
+                        channels: 4,
+                        levels,
+                    },
+                });
+            }
             if hits == 0 {
                 continue;
             }
             let slab = u32::from(dmin >= p.slab_split_m);
-            let side = x1 - x0;
-            let mut levels = Vec::new();
-            let mut blob = rng.bytes(16); // header
-            for l in (0..p.levels).rev() {
-                let w = (side >> l).max(1);
-                let n = ((w * w * 4) as f64 * p.bytes_per_texel / 4.0)
-                    .ceil()
-                    .max(1.0) as usize;
-                let offset = if levels.is_empty() {
-                    0
-                } else {
-                    blob.len() as u64
-                };
-                blob.extend(rng.bytes(n));
-                let len = blob.len() as u64 - offset;
-                let hash = blake3::hash(&blob[offset as usize..]).to_hex().to_string();
-                levels.push(LevelRef {
-                    level: l,
-                    width: w,
-                    height: w,
-                    offset,
-                    len,
-                    hash,
-                });
-            }
+            let (blob, levels) = ptm_blob(&mut rng, side, p);
             let object = put(root, &blob)?;
             let mesh_len = 48 + (rng.next() % 32) as usize;
             let mesh = put(root, &rng.bytes(mesh_len))?;
@@ -188,7 +213,7 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
             index: vp.index,
             s: vp.s,
             position: vp.position,
-            background: Vec::new(),
+            background,
             tiles,
         });
     }
