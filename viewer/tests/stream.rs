@@ -810,13 +810,13 @@ fn steady_step_times() {
         st.step(s0, &cam, None);
         idle.push(t.elapsed());
     }
-    // Standing still, looking around.
-    let mut still = Vec::new();
+    // Standing, looking around.
+    let mut turning = Vec::new();
     for i in 0..60 {
         let cam = camera(&st.walk, s0, i as f64 * 0.5);
         let t = Instant::now();
         st.step(s0, &cam, None);
-        still.push(t.elapsed());
+        turning.push(t.elapsed());
     }
     // Walking 1.2 m/s at 60 frames per second over a tenth of the track.
     let mut walking = Vec::new();
@@ -829,14 +829,14 @@ fn steady_step_times() {
         s += 0.02;
     }
     let (im, ix) = median(idle);
-    let (sm, sx) = median(still);
+    let steps = walking.len();
+    let (tm, tx) = median(turning);
     let (wm, wx) = median(walking);
     eprintln!(
         "{}: items {}; standing: step median {im:?}, slowest {ix:?}; turning: median \
-         {sm:?}, slowest {sx:?}; walking ({} steps): median {wm:?}, slowest {wx:?}",
+         {tm:?}, slowest {tx:?}; walking ({steps} steps): median {wm:?}, slowest {wx:?}",
         dir.display(),
         st.session().table().items.len(),
-        ((0.1 * (last - first)) / 0.02).ceil()
     );
     drop(stop);
     thread.join().unwrap();
