@@ -10,7 +10,8 @@
 //! A tile's mesh covers the lattice of pixel centres from its own first pixel up to the first
 //! pixel of the next tile on the same face, so neighbouring tiles of one face join without
 //! cracks; the outer half pixel at each face edge, and isolated pixels that no triangle can
-//! span, stay uncovered and are counted in [`MeshStats::uncovered_pixels`]. (The viewer
+//! span (a near pixel with a discontinuity all round inside a farther surface), stay
+//! uncovered and are counted in [`MeshStats::uncovered_pixels`]. (The viewer
 //! closes the outer half pixel of every outline, face edges included, with half-texel
 //! skirts drawn beside the stored mesh and cut by the opacity mask; the stored meshes and
 //! databases are unchanged.)
@@ -593,8 +594,50 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
     // Final verdicts (kept or dropped) by vertex triple: a triangle that survives an
     // insertion pass unchanged covers the same pixels, so it need not be rasterised again.
     let mut settled: std::collections::HashMap<[usize; 3], bool, LatticeHash> = Default::default();
+    // Opaque vertices already refined towards (see below).
+    let mut reached = vec![false; w * h];
     loop {
         pending.retain(|&(i, j)| !is_vertex[f.idx(i, j)]);
+        if pending.is_empty() {
+            // An opaque vertex that no kept triangle uses (a lone pixel on a corner of the
+            // lattice, a vertex from the start) is covered by refining towards it: its
+            // opaque or filled neighbours become vertices, and the triangles between them
+            // and it are one surface.
+            let mut used = vec![false; w * h];
+            for t in &keep {
+                for &(i, j) in t {
+                    used[f.idx(i, j)] = true;
+                }
+            }
+            for j in 0..h {
+                for i in 0..w {
+                    let k = f.idx(i, j);
+                    if !is_vertex[k] || !f.valid[k] || used[k] || reached[k] || !f.in_tile(i, j) {
+                        continue;
+                    }
+                    reached[k] = true;
+                    for (di, dj) in [
+                        (-1, -1),
+                        (0, -1),
+                        (1, -1),
+                        (-1, 0),
+                        (1, 0),
+                        (-1, 1),
+                        (0, 1),
+                        (1, 1),
+                    ] {
+                        let (ni, nj) = (i as i64 + di, j as i64 + dj);
+                        if ni < 0 || nj < 0 || ni >= w as i64 || nj >= h as i64 {
+                            continue;
+                        }
+                        let n = f.idx(ni as usize, nj as usize);
+                        if !is_vertex[n] && (f.valid[n] || f.filled(n)) {
+                            pending.push((ni as usize, nj as usize));
+                        }
+                    }
+                }
+            }
+        }
         pending.sort_unstable();
         pending.dedup();
         if pending.is_empty() {
