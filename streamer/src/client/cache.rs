@@ -45,6 +45,8 @@ pub struct Cache {
     evictions: u64,
     /// Keys evicted since the last [`Cache::take_evicted`], when recording.
     evicted: Option<Vec<FetchKey>>,
+    /// Moves whenever a key joins or leaves ([`Cache::changes`]).
+    changes: u64,
 }
 
 impl Cache {
@@ -56,7 +58,14 @@ impl Cache {
             entries: KeyMap::default(),
             evictions: 0,
             evicted: None,
+            changes: 0,
         }
+    }
+
+    /// A count that moves whenever a key joins or leaves the cache (inserted, evicted or
+    /// removed): what was looked up under the same count still holds.
+    pub fn changes(&self) -> u64 {
+        self.changes
     }
 
     pub fn budget(&self) -> u64 {
@@ -108,6 +117,7 @@ impl Cache {
         let need = data.len() as u64;
         self.make_room(need)?;
         self.used += need;
+        self.changes += 1;
         self.entries.insert(
             key,
             Entry {
@@ -147,6 +157,7 @@ impl Cache {
             if let Some(e) = self.entries.remove(&k) {
                 self.used -= e.data.len() as u64;
                 self.evictions += 1;
+                self.changes += 1;
                 if let Some(log) = &mut self.evicted {
                     log.push(k);
                 }
@@ -204,6 +215,7 @@ impl Cache {
     pub fn remove(&mut self, key: &FetchKey) -> Option<Bytes> {
         let e = self.entries.remove(key)?;
         self.used -= e.data.len() as u64;
+        self.changes += 1;
         Some(e.data)
     }
 }

@@ -57,6 +57,9 @@ struct Sim<'a> {
     delivered_table_bytes: u64,
     items: Vec<ItemInfo>,
     cache: Cache,
+    /// [`Sim::have`] of the last call, with the cache's change count and the item count
+    /// it was looked up at.
+    have_memo: Option<((u64, usize), Vec<usize>)>,
     link: VirtualLink,
     estimate: LinkEstimate,
     motion: MotionTracker,
@@ -134,10 +137,18 @@ impl Sim<'_> {
         }
     }
 
-    /// Parts held per item (a prefix; naive: all or nothing).
-    fn have(&self) -> Vec<usize> {
+    /// Parts held per item (a prefix; naive: all or nothing), looked up again only when the
+    /// cache or the items changed since the last call.
+    fn have(&mut self) -> Vec<usize> {
+        let stamp = (self.cache.changes(), self.table.items.len());
+        if let Some((at, have)) = &self.have_memo {
+            if *at == stamp {
+                return have.clone();
+            }
+        }
         let naive = self.strategy == Strategy::Naive;
-        self.table()
+        let have: Vec<usize> = self
+            .table()
             .items
             .iter()
             .map(|it| {
@@ -154,7 +165,9 @@ impl Sim<'_> {
                         .count()
                 }
             })
-            .collect()
+            .collect();
+        self.have_memo = Some((stamp, have.clone()));
+        have
     }
 
     /// What to prefetch for the next segment `next`: what can be in view on arrival, seen
@@ -576,6 +589,7 @@ pub(crate) async fn run_one(
         delivered_table_bytes: 0,
         items,
         cache: Cache::new(if naive { u64::MAX } else { cfg.cache_bytes }),
+        have_memo: None,
         link: VirtualLink::new(bandwidth, cfg.latency_s),
         estimate: LinkEstimate::new(bandwidth.map_or(1e9, |b| b as f64), cfg.latency_s),
         motion: MotionTracker::new(),

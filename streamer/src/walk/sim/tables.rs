@@ -19,6 +19,7 @@ impl Sim<'_> {
         if free == 0 {
             return Ok(0);
         }
+        let have = self.have();
         let vp_s = &self.table.vp_s;
         let mut want: Vec<usize> = Vec::new();
         if let Some(seg) = segment_at(vp_s, self.s) {
@@ -28,7 +29,6 @@ impl Sim<'_> {
         }
         // The next segment's tables are prefetched once the view has no holes (the view
         // first).
-        let have = self.have();
         let holes = self
             .live
             .iter()
