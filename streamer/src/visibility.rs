@@ -87,6 +87,8 @@ struct ViewpointIndex {
     depth: Vec<(f64, f64)>,
     /// Largest finite tile depth.
     far: f64,
+    /// Smallest depth of an indexed tile (infinite when there is none).
+    near: f64,
     /// Background tile position per `TileGrid::tile_index`.
     background: Vec<Option<usize>>,
     /// Per tile position: unit direction to the tile's centre, its angular radius (radians,
@@ -121,6 +123,7 @@ impl SceneIndex {
                 let mut depth = Vec::with_capacity(vp.tiles.len());
                 let mut cones = Vec::with_capacity(vp.tiles.len());
                 let mut far: f64 = 0.0;
+                let mut near = f64::INFINITY;
                 for (i, tile) in vp.tiles.iter().enumerate() {
                     depth.push((tile.depth_min, tile.depth_max));
                     let usable = tile.kept
@@ -136,6 +139,7 @@ impl SceneIndex {
                     if let (true, Some(layer)) = (usable, layers.get_mut(tile.slab as usize)) {
                         layer.tiles[grid.tile_index(tile.tile)] = Some(i);
                         far = far.max(tile.depth_max);
+                        near = near.min(tile.depth_min);
                     }
                 }
                 let mut background = vec![None; grid.tile_count()];
@@ -149,6 +153,7 @@ impl SceneIndex {
                     layers,
                     depth,
                     far,
+                    near,
                     background,
                     cones,
                 }
@@ -237,12 +242,25 @@ impl SceneIndex {
         let ratio = (t_far / t_near).powf(1.0 / MARCH_STEPS as f64);
         let mut t0 = 0.0;
         let mut r0 = (origin - vp.position).length();
+        // The distance from the viewpoint is convex along the ray: from a start within the
+        // farthest tile, once a step lies wholly beyond it, so does every later step.
+        let starts_within = r0 <= vp.far;
         let mut t1 = t_near;
         for _ in 0..=MARCH_STEPS {
             let p1 = origin + dir * t1;
             let r1 = (p1 - vp.position).length();
-            let mid = origin + dir * (0.5 * (t0 + t1));
             let (lo, hi) = (r0.min(r1), r0.max(r1));
+            if starts_within && lo > vp.far {
+                break;
+            }
+            // No tile is that near: nothing to look up in this step.
+            if hi < vp.near {
+                t0 = t1;
+                r0 = r1;
+                t1 *= ratio;
+                continue;
+            }
+            let mid = origin + dir * (0.5 * (t0 + t1));
             // One direction for every slab of the step.
             let at = self.tile_index_at(mid - vp.position);
             for tile in at
