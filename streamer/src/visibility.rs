@@ -10,7 +10,8 @@
 //!    depth); at each step, the direction viewpoint → step midpoint picks a tile per slab
 //!    (front to back), and the tile is hit when the step's range of distances from the
 //!    viewpoint overlaps the tile's `[depth_min, depth_max]` — so parallax between camera and
-//!    viewpoint is followed and thin depth ranges cannot be stepped over;
+//!    viewpoint is followed and thin depth ranges cannot be stepped over (steps nearer than
+//!    every tile look nothing up, and the march stops once a step lies beyond every tile);
 //! 2. the first step with a hit wins (lower slab first within a step); no hit means the
 //!    sample shows the viewpoint's background tile in the ray's direction (the sky lies at
 //!    infinity), or a disocclusion hole where the viewpoint has no background tile;
