@@ -616,23 +616,12 @@ pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
                         continue;
                     }
                     reached[k] = true;
-                    for (di, dj) in [
-                        (-1, -1),
-                        (0, -1),
-                        (1, -1),
-                        (-1, 0),
-                        (1, 0),
-                        (-1, 1),
-                        (0, 1),
-                        (1, 1),
-                    ] {
-                        let (ni, nj) = (i as i64 + di, j as i64 + dj);
-                        if ni < 0 || nj < 0 || ni >= w as i64 || nj >= h as i64 {
-                            continue;
-                        }
-                        let n = f.idx(ni as usize, nj as usize);
-                        if !is_vertex[n] && (f.valid[n] || f.filled(n)) {
-                            pending.push((ni as usize, nj as usize));
+                    for nj in j.saturating_sub(1)..(j + 2).min(h) {
+                        for ni in i.saturating_sub(1)..(i + 2).min(w) {
+                            let n = f.idx(ni, nj);
+                            if !is_vertex[n] && (f.valid[n] || f.filled(n)) {
+                                pending.push((ni, nj));
+                            }
                         }
                     }
                 }
