@@ -13,14 +13,14 @@ use viewer::{plan_frame, DrawBudget};
 pub struct Args {
     /// Database or prerender directory, or `synth:street`.
     pub db: String,
-    /// Arc length along the track, metres.
-    #[arg(long, default_value_t = 0.0)]
+    /// Arc length along the track, metres (0 to the track's length).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub at: f64,
     /// Yaw in degrees (0 looks along −z, 90 along +x); default: along the track.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub yaw: Option<f64>,
-    /// Pitch in degrees (positive looks up).
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    /// Pitch in degrees, −90 to 90 (positive looks up).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub pitch: f64,
     /// Horizontal field of view, degrees.
     #[arg(long, default_value_t = 90.0)]
@@ -28,7 +28,7 @@ pub struct Args {
     /// Image size WxH.
     #[arg(long, default_value = "1280x720")]
     pub size: String,
-    /// Output PNG (RGBA; alpha 0 marks holes).
+    /// Output PNG (RGBA; alpha 0 marks holes); the name must end in `.png`.
     #[arg(short = 'o', long)]
     pub output: PathBuf,
     /// Track name (default: the first).
@@ -47,8 +47,20 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (w, h) = parse_size(&args.size).map_err(anyhow::Error::msg)?;
+    check_png_name(&args.output, "--output")?;
+    if let Some(t) = &args.truth {
+        check_png_name(t, "--truth")?;
+    }
     let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
         .with_context(|| format!("opening {}", args.db))?;
+    let len = walk.track.length();
+    anyhow::ensure!(
+        (0.0..=len).contains(&args.at),
+        "--at {}: outside track `{}`, which runs from 0 to {:.3} m",
+        args.at,
+        walk.track.name,
+        len
+    );
     let camera = tracks::PerspectiveCamera {
         position: walk.position_at(args.at),
         yaw_deg: args.yaw.unwrap_or_else(|| yaw_along(&walk, args.at)),
@@ -92,6 +104,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.at,
         frame.hole_fraction() * 100.0,
         renderer.gpu.info.name
+    );
+    Ok(())
+}
+
+/// Only PNG is written: a name ending in anything else (`.jpg`, none) is an error, before
+/// anything is rendered, rather than PNG bytes under a misleading name.
+pub fn check_png_name(path: &std::path::Path, flag: &str) -> anyhow::Result<()> {
+    let png = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    anyhow::ensure!(
+        png,
+        "{flag} {}: only PNG images are written; name the file `.png`",
+        path.display()
     );
     Ok(())
 }

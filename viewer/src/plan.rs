@@ -22,7 +22,7 @@ pub const NEAR_M: f64 = 0.01;
 pub enum PlanError {
     #[error("no reference views to draw")]
     NoViews,
-    #[error("camera {field} is invalid: {value}")]
+    #[error("camera {field} is invalid: {value} (fov_deg in (0, 179), pitch_deg in [-90, 90], the rest finite)")]
     Camera { field: &'static str, value: f64 },
     #[error("reference views are not sorted by arc length at view {0}")]
     Unsorted(usize),
@@ -238,7 +238,8 @@ fn check_camera(c: &PerspectiveCamera) -> Result<(), PlanError> {
     if !c.yaw_deg.is_finite() {
         return bad("yaw_deg", c.yaw_deg);
     }
-    if !c.pitch_deg.is_finite() {
+    // Straight up or down at most: past the vertical the picture would turn upside down.
+    if !(-90.0..=90.0).contains(&c.pitch_deg) {
         return bad("pitch_deg", c.pitch_deg);
     }
     Ok(())
@@ -695,6 +696,17 @@ mod tests {
             Err(PlanError::Camera { .. })
         ));
         c.fov_deg = 90.0;
+        for pitch in [90.5, -91.0, f64::NAN] {
+            c.pitch_deg = pitch;
+            assert!(matches!(
+                plan_frame(&[], &c, 0.0, DrawBudget::default()),
+                Err(PlanError::Camera {
+                    field: "pitch_deg",
+                    ..
+                })
+            ));
+        }
+        c.pitch_deg = -90.0;
         assert_eq!(
             plan_frame(&[], &c, 0.0, DrawBudget::default()),
             Err(PlanError::NoViews)
