@@ -15,6 +15,7 @@ use viewer::{plan_frame, DrawBudget, MeshParams, RefView};
 pub struct Args {
     /// Database or prerender directory; default: the synthetic street at `--face` pixels.
     pub db: Option<String>,
+    /// Frame size WxH.
     #[arg(long, default_value = "1920x1080")]
     pub size: String,
     /// Face size of the synthetic street.

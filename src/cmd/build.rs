@@ -78,9 +78,10 @@ pub struct Args {
     /// zstd level of the PTM groups (19 = smallest practical; lower encodes faster).
     #[arg(long, default_value_t = 19)]
     pub zstd_level: i32,
-    /// ACH: viewpoints sampled per track segment, and pixels per side of the six cameras.
+    /// ACH: viewpoints sampled per track segment.
     #[arg(long, default_value_t = 8)]
     pub ach_samples: usize,
+    /// ACH: pixels per side of each of the six cameras at a sampled viewpoint.
     #[arg(long, default_value_t = 64)]
     pub ach_camera_size: u32,
 }

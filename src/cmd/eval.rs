@@ -20,8 +20,10 @@ pub struct Args {
     /// Output directory: eval.json, eval.csv, eval.md, psnr_vs_frame_ms.png, psnr_vs_bytes.png.
     #[arg(long)]
     pub out: PathBuf,
+    /// Image size WxH.
     #[arg(long, default_value = "256x192")]
     pub size: String,
+    /// Horizontal field of view, degrees.
     #[arg(long, default_value_t = 90.0)]
     pub fov: f64,
     /// Segments evaluated from the start of the track.
@@ -30,6 +32,7 @@ pub struct Args {
     /// Positions evaluated inside each segment.
     #[arg(long, default_value_t = 1)]
     pub between: usize,
+    /// Track name (default: the first).
     #[arg(long)]
     pub track: Option<String>,
 }

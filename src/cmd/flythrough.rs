@@ -20,10 +20,13 @@ pub struct Args {
     /// Number of frames from the start to the end of the track.
     #[arg(long, default_value_t = 60)]
     pub frames: usize,
+    /// Image size WxH.
     #[arg(long, default_value = "640x360")]
     pub size: String,
+    /// Horizontal field of view, degrees.
     #[arg(long, default_value_t = 90.0)]
     pub fov: f64,
+    /// Track name (default: the first).
     #[arg(long)]
     pub track: Option<String>,
 }

@@ -14,8 +14,10 @@ use streamer::walk::load;
 pub struct Args {
     /// Database directory or server URL.
     pub db: String,
+    /// Concurrent clients.
     #[arg(long, default_value_t = 100)]
     pub clients: usize,
+    /// How long the clients run, seconds.
     #[arg(long, default_value_t = 10.0)]
     pub seconds: f64,
     /// Per-connection throttle of the in-process server (default unlimited).

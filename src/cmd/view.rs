@@ -14,6 +14,7 @@ pub struct Args {
     /// Database or prerender directory, `synth:street`, or a server URL
     /// (`http://127.0.0.1:8080`, as `railview serve` prints).
     pub db: String,
+    /// Track name (default: the first).
     #[arg(long)]
     pub track: Option<String>,
     /// Close after this many frames (smoke tests, screenshots).
