@@ -197,16 +197,20 @@ fn fs_mesh_first(in: MeshOut) -> FirstOut {
     return out;
 }
 
-// The sky of a one-view frame where its meshes left the pixel empty (depth test, no depth
-// write, no `discard`, so the rasteriser skips covered blocks before shading); a hole writes
-// the cleared values (alpha 0, distance 0).
+// One-view frames: nothing reads a distance, so the output is the only target (a second
+// target costs a software rasteriser a conversion and a write per pixel). The meshes first:
 @fragment
-fn fs_sky_first(in: FullOut) -> FirstOut {
+fn fs_mesh_alone(in: MeshOut) -> @location(0) vec4<f32> {
+    return vec4<f32>(mesh_color(in).rgb, 1.0);
+}
+
+// then the sky where the meshes left the pixel empty (depth test, no depth write, no
+// `discard`, so the rasteriser skips covered blocks before shading); a hole writes the
+// cleared alpha 0.
+@fragment
+fn fs_sky_alone(in: FullOut) -> @location(0) vec4<f32> {
     let c = background_color(in.pos.xy);
-    var out: FirstOut;
-    out.color = vec4<f32>(c.rgb, select(0.0, 1.0, c.a > 0.0));
-    out.dist = c.a;
-    return out;
+    return vec4<f32>(c.rgb, select(0.0, 1.0, c.a > 0.0));
 }
 
 // Share β of the second view at a pixel where the first view's distance is `da` (0 = hole)

@@ -76,10 +76,13 @@ fn fused_frames_match_the_composite_at_samples_and_between() {
     // 0 and 1.5: reference samples (the second view only fills holes); 0.02 and 1.49:
     // second weight below 0.003 (drawn only where it is nearer than the first view or that
     // has sky or a hole); between: blending.
+    // `blend: false` draws one view (the frame budget's rung without blending): the output
+    // alone, no distance target.
     for s in [0.0, 0.02, 0.4, 0.75, 1.49, 1.5] {
-        for slabs in [1, usize::MAX] {
+        for (slabs, blend) in [(1, true), (usize::MAX, true), (usize::MAX, false)] {
             let budget = DrawBudget {
                 max_slabs: slabs,
+                blend,
                 ..Default::default()
             };
             // The composite path: the highlight overlay with no tile highlighted (the
@@ -94,9 +97,14 @@ fn fused_frames_match_the_composite_at_samples_and_between() {
                 "feedback frames draw the fused picture"
             );
             let (max, mean) = diff(&with_ids, &fused);
-            eprintln!("s {s} slabs {slabs}: fused vs composite max |diff| {max}, mean {mean:.4}");
+            eprintln!(
+                "s {s} slabs {slabs} blend {blend}: fused vs composite max |diff| {max}, mean {mean:.4}"
+            );
             assert_eq!(with_ids.hole_fraction(), fused.hole_fraction(), "s {s}");
-            assert!(max <= 2 && mean < 0.2, "s {s} slabs {slabs}: {max} {mean}");
+            assert!(
+                max <= 2 && mean < 0.2,
+                "s {s} slabs {slabs} blend {blend}: {max} {mean}"
+            );
         }
     }
 }

@@ -65,7 +65,9 @@ impl Renderer {
             self.gpu
                 .queue
                 .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
+            // The distance target only where a second view reads it.
             let first_targets = [clear(&targets.output_view), clear(&targets.dist_view)];
+            let first_targets = &first_targets[..if passes.len() > 1 { 2 } else { 1 }];
             let second_targets = [Some(wgpu::RenderPassColorAttachment {
                 view: &targets.output_view,
                 depth_slice: None,
@@ -82,7 +84,7 @@ impl Renderer {
                     "second view"
                 }),
                 color_attachments: if slot == 0 {
-                    &first_targets[..]
+                    first_targets
                 } else {
                     &second_targets[..]
                 },
@@ -113,7 +115,9 @@ impl Renderer {
                 rp.set_bind_group(2, &passes[0].1.bind_group, &[]);
             }
             if !pass.runs.is_empty() {
-                rp.set_pipeline(if slot == 0 {
+                rp.set_pipeline(if passes.len() == 1 {
+                    &self.alone_mesh
+                } else if slot == 0 {
                     &self.first_mesh
                 } else if pass.weight <= 0.0 {
                     &self.second_mesh_at_sample
@@ -126,7 +130,7 @@ impl Renderer {
             }
             // The sky last, where no mesh drew: of the one view, or of both views blended.
             if passes.len() == 1 {
-                rp.set_pipeline(&self.first_sky);
+                rp.set_pipeline(&self.alone_sky);
                 rp.draw(0..3, 0..1);
             } else if slot == 1 {
                 // The heavier view's sky, then the other's where that one has none.

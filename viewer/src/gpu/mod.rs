@@ -272,8 +272,9 @@ pub struct Renderer {
     /// distance target, the second view blended into the output (`render.wgsl`).
     second_bgl: wgpu::BindGroupLayout,
     first_mesh: wgpu::RenderPipeline,
-    /// The sky of a one-view fused frame.
-    first_sky: wgpu::RenderPipeline,
+    /// One-view fused frames: the meshes and the sky into the output alone.
+    alone_mesh: wgpu::RenderPipeline,
+    alone_sky: wgpu::RenderPipeline,
     second_mesh: wgpu::RenderPipeline,
     /// The second view only where it is clearly nearer than the first view or the first view
     /// has sky or a hole (weight below `SECOND_VIEW_MIN_WEIGHT`).

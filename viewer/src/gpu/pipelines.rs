@@ -229,17 +229,29 @@ impl Renderer {
             depth(wgpu::CompareFunction::Greater, true),
             &[],
         );
-        // Skies of fused frames: at the far plane (depth 0, the clear value) after the meshes,
-        // no depth write and no `discard`, so the depth test skips covered blocks before
-        // shading.
-        let first_sky = mk(
+        // One-view fused frames: the output only (nothing reads the distance), the meshes
+        // then the sky at the far plane (depth 0, the clear value), no depth write and no
+        // `discard`, so the depth test skips covered blocks before shading.
+        let alone_targets = [target(OUTPUT_FORMAT)];
+        let alone_mesh = mk(
+            "one-view mesh (fused)",
+            &render,
+            &view_layout,
+            "vs_mesh",
+            "fs_mesh_alone",
+            &mesh_buffers,
+            &alone_targets,
+            depth(wgpu::CompareFunction::Greater, true),
+            &[],
+        );
+        let alone_sky = mk(
             "one-view sky (fused)",
             &render,
             &view_layout,
             "vs_full",
-            "fs_sky_first",
+            "fs_sky_alone",
             &[],
-            &first_targets,
+            &alone_targets,
             depth(wgpu::CompareFunction::GreaterEqual, false),
             &[],
         );
@@ -409,7 +421,8 @@ impl Renderer {
             composite_bgl,
             second_bgl,
             first_mesh,
-            first_sky,
+            alone_mesh,
+            alone_sky,
             second_mesh,
             second_mesh_holes,
             second_mesh_at_sample,
