@@ -170,16 +170,14 @@ fn fs_mesh_id_only(in: MeshOut) -> @location(0) u32 {
 }
 
 // Fused frames (no tile ids, no overlays): no view targets and no composite pass. The first
-// view draws straight into the output (sRGB colour, alpha 1) and its distance into a small
-// R16Float target; the second view is then drawn against the first view's depth (scaled by
-// `depth_scale`, as above) with hardware blending, each of its fragments weighted by the
-// share the composite would give it, computed from the first view's distance there:
-// out = β c_b + (1 − β) c_a with β = w_b / (w_a + w_b) (composite.wgsl's `blend_at`).
-
-struct FirstOut {
-    @location(0) color: vec4<f32>,
-    @location(1) dist: f32,
-};
+// view draws straight into the output (sRGB colour, alpha 1) and its depth; the second view
+// is then drawn against that depth (scaled by `depth_scale`, as above) with hardware
+// blending, each of its fragments weighted by the share the composite would give it,
+// computed from the first view's distance there: out = β c_b + (1 − β) c_a with
+// β = w_b / (w_a + w_b) (composite.wgsl's `blend_at`). The distance comes from a copy of the
+// first view's depth: with reversed Z, NDC depth is NEAR / z, so along one pixel's ray
+// d_a = d_b · z_b / z_a (no distance target: a second colour target costs a software
+// rasteriser a conversion and a write per pixel).
 
 struct Blend {
     weights: vec4<f32>,  // w0, w1, number of views, unused
@@ -187,30 +185,29 @@ struct Blend {
 };
 @group(1) @binding(0) var<uniform> blend: Blend;
 @group(1) @binding(1) var first_dist: texture_2d<f32>;
+@group(1) @binding(2) var first_depth: texture_depth_2d;
 
+// The first view's meshes (and a one-view frame's sky below): the output alone.
 @fragment
-fn fs_mesh_first(in: MeshOut) -> FirstOut {
-    let c = mesh_color(in);
-    var out: FirstOut;
-    out.color = vec4<f32>(c.rgb, 1.0);
-    out.dist = c.a;
-    return out;
-}
-
-// One-view frames: nothing reads a distance, so the output is the only target (a second
-// target costs a software rasteriser a conversion and a write per pixel). The meshes first:
-@fragment
-fn fs_mesh_alone(in: MeshOut) -> @location(0) vec4<f32> {
+fn fs_mesh_first(in: MeshOut) -> @location(0) vec4<f32> {
     return vec4<f32>(mesh_color(in).rgb, 1.0);
 }
 
-// then the sky where the meshes left the pixel empty (depth test, no depth write, no
-// `discard`, so the rasteriser skips covered blocks before shading); a hole writes the
-// cleared alpha 0.
+// The sky of a one-view frame where its meshes left the pixel empty (depth test, no depth
+// write, no `discard`, so the rasteriser skips covered blocks before shading); a hole writes
+// the cleared alpha 0.
 @fragment
-fn fs_sky_alone(in: FullOut) -> @location(0) vec4<f32> {
+fn fs_sky_first(in: FullOut) -> @location(0) vec4<f32> {
     let c = background_color(in.pos.xy);
     return vec4<f32>(c.rgb, select(0.0, 1.0, c.a > 0.0));
+}
+
+// The first view's distance along the ray of the second view's fragment `in`, whose own
+// distance is `db`; 0 where the first view drew no mesh (cleared depth).
+fn first_distance(in: MeshOut, db: f32) -> f32 {
+    let za = textureLoad(first_depth, vec2<i32>(in.pos.xy), 0);
+    let zb = in.pos.z / depth_scale;
+    return select(0.0, clamp(db * zb / za, 1e-3, SKY_DISTANCE), za > 0.0);
 }
 
 // Share β of the second view at a pixel where the first view's distance is `da` (0 = hole)
@@ -232,7 +229,7 @@ fn second_share(da: f32, db: f32) -> f32 {
 @fragment
 fn fs_mesh_second(in: MeshOut) -> @location(0) vec4<f32> {
     let c = mesh_color(in);
-    let da = textureLoad(first_dist, vec2<i32>(in.pos.xy), 0).x;
+    let da = first_distance(in, c.a);
     return vec4<f32>(c.rgb, second_share(da, c.a));
 }
 
@@ -244,7 +241,7 @@ fn fs_mesh_second(in: MeshOut) -> @location(0) vec4<f32> {
 @fragment
 fn fs_mesh_second_at_sample(in: MeshOut) -> @location(0) vec4<f32> {
     let c = mesh_color(in);
-    let da = textureLoad(first_dist, vec2<i32>(in.pos.xy), 0).x;
+    let da = first_distance(in, c.a);
     let sky = background_of(other_view, other_layers, other_samp, in.pos.xy).a;
     let share = second_share(select(da, sky, da == 0.0), c.a);
     // No share (weight 0): no depth either, so the first view's sky is still drawn there.

@@ -6,8 +6,8 @@ use crate::refview::RefView;
 
 impl Renderer {
     /// Fused frames (no tile ids, no overlays): the first view's meshes straight into the
-    /// output and its distance target, then the second view's meshes blended into the output
-    /// against the first view's depth, then the sky of both views where neither drew
+    /// output, then the second view's meshes blended into the output against the first
+    /// view's depth (and weighted by it, from a copy), then the sky of both views where neither drew
     /// (`render.wgsl`); no view targets, no composite pass.
     pub(super) fn encode_fused(
         &self,
@@ -65,9 +65,22 @@ impl Renderer {
             self.gpu
                 .queue
                 .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
-            // The distance target only where a second view reads it.
-            let first_targets = [clear(&targets.output_view), clear(&targets.dist_view)];
-            let first_targets = &first_targets[..if passes.len() > 1 { 2 } else { 1 }];
+            let first_targets = [clear(&targets.output_view)];
+            if slot == 1 {
+                // The second view's weights need the first view's depth where it is itself
+                // depth-tested against (and writes) the same attachment: a copy.
+                let copy = |texture| wgpu::TexelCopyTextureInfo {
+                    texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                };
+                enc.copy_texture_to_texture(
+                    copy(&targets.depth),
+                    copy(&targets.depth_copy),
+                    targets.depth.size(),
+                );
+            }
             let second_targets = [Some(wgpu::RenderPassColorAttachment {
                 view: &targets.output_view,
                 depth_slice: None,
@@ -84,7 +97,7 @@ impl Renderer {
                     "second view"
                 }),
                 color_attachments: if slot == 0 {
-                    first_targets
+                    &first_targets[..]
                 } else {
                     &second_targets[..]
                 },
@@ -115,9 +128,7 @@ impl Renderer {
                 rp.set_bind_group(2, &passes[0].1.bind_group, &[]);
             }
             if !pass.runs.is_empty() {
-                rp.set_pipeline(if passes.len() == 1 {
-                    &self.alone_mesh
-                } else if slot == 0 {
+                rp.set_pipeline(if slot == 0 {
                     &self.first_mesh
                 } else if pass.weight <= 0.0 {
                     &self.second_mesh_at_sample
@@ -130,7 +141,7 @@ impl Renderer {
             }
             // The sky last, where no mesh drew: of the one view, or of both views blended.
             if passes.len() == 1 {
-                rp.set_pipeline(&self.alone_sky);
+                rp.set_pipeline(&self.first_sky);
                 rp.draw(0..3, 0..1);
             } else if slot == 1 {
                 // The heavier view's sky, then the other's where that one has none.

@@ -21,11 +21,12 @@
 //! and the id, no colour, no sky) at `1 / `[`FramePlan::id_scale`] of the width and height
 //! (a quarter by default); the compute count runs on that small target and
 //! [`Renderer::feedback`] scales its counts by the area factor. The first view's meshes write
-//! the output (sRGB, alpha 1) and their distance (an `R16Float` target). The second view's
-//! meshes are drawn against the first view's depth (scaled by `SECOND_VIEW_DEPTH_SCALE`,
-//! skipping what the blend would weigh at almost nothing) with hardware blending: each of
-//! its fragments carries the share β = w_b / (w_a + w_b) the composite would give it there,
-//! computed from the first view's distance (0 where the first view drew no mesh: the sky is
+//! the output (sRGB, alpha 1) and the depth. The second view's meshes are drawn against the
+//! first view's depth (scaled by `SECOND_VIEW_DEPTH_SCALE`, skipping what the blend would
+//! weigh at almost nothing) with hardware blending: each of its fragments carries the share
+//! β = w_b / (w_a + w_b) the composite would give it there, computed from the first view's
+//! distance, which a copy of the first view's depth gives along the fragment's ray (reversed
+//! Z: d_a = d_b · z_b / z_a; 0 where the first view drew no mesh: the sky is
 //! farther than any mesh, so there the second view's mesh wins as in the composite). Last,
 //! the sky of both views, blended by their weights, where neither view's meshes drew (a
 //! depth test against the cleared depth, no `discard`, so llvmpipe skips covered blocks
@@ -69,7 +70,6 @@ const SECOND_VIEW_DEPTH_SCALE: f64 = 1.5;
 const SECOND_VIEW_MIN_WEIGHT: f64 = 0.003;
 const NEARER_ONLY: f64 = 1.05;
 /// Fused frames: the first view's distance to the camera (0 = hole), read by the second view.
-const DIST_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R16Float;
 /// Features [`Renderer::throughput`] needs for GPU times (requested where available).
 const TIMESTAMPS: wgpu::Features =
     wgpu::Features::TIMESTAMP_QUERY.union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS);
@@ -224,10 +224,12 @@ struct Targets {
     height: u32,
     view_views: [wgpu::TextureView; 2],
     id_views: [wgpu::TextureView; 2],
+    depth: wgpu::Texture,
     depth_view: wgpu::TextureView,
-    /// Fused frames: the first view's distance, and the second view's bind group 1
-    /// (composite uniforms + that distance).
-    dist_view: wgpu::TextureView,
+    /// Fused two-view frames: the first view's depth copied before the second view is drawn
+    /// against it, and the second view's bind group 1 (composite uniforms, the half-resolution
+    /// target unused, that copy).
+    depth_copy: wgpu::Texture,
     second_group: wgpu::BindGroup,
     /// Half-resolution second view: colour + distance, its depth, and the bind group 1 of
     /// the first view drawn over it.
@@ -268,13 +270,12 @@ pub struct Renderer {
     pub gpu: Gpu,
     view_bgl: wgpu::BindGroupLayout,
     composite_bgl: wgpu::BindGroupLayout,
-    /// Fused frames (no tile ids, no overlays): the first view into the output and its
-    /// distance target, the second view blended into the output (`render.wgsl`).
+    /// Fused frames (no tile ids, no overlays): the first view into the output, the second
+    /// view blended into it, weighted by the first view's depth (`render.wgsl`).
     second_bgl: wgpu::BindGroupLayout,
+    /// Fused frames: the first view's meshes into the output alone, and a one-view frame's sky.
     first_mesh: wgpu::RenderPipeline,
-    /// One-view fused frames: the meshes and the sky into the output alone.
-    alone_mesh: wgpu::RenderPipeline,
-    alone_sky: wgpu::RenderPipeline,
+    first_sky: wgpu::RenderPipeline,
     second_mesh: wgpu::RenderPipeline,
     /// The second view only where it is clearly nearer than the first view or the first view
     /// has sky or a hole (weight below `SECOND_VIEW_MIN_WEIGHT`).

@@ -3,8 +3,8 @@
 use std::collections::HashMap;
 
 use super::{
-    shader_source, CompositeUniforms, Gpu, GpuVertex, Renderer, DEPTH_FORMAT, DIST_FORMAT,
-    ID_FORMAT, NEARER_ONLY, OUTPUT_FORMAT, SECOND_VIEW_DEPTH_SCALE, VIEW_FORMAT,
+    shader_source, CompositeUniforms, Gpu, GpuVertex, Renderer, DEPTH_FORMAT, ID_FORMAT,
+    NEARER_ONLY, OUTPUT_FORMAT, SECOND_VIEW_DEPTH_SCALE, VIEW_FORMAT,
 };
 
 impl Renderer {
@@ -43,6 +43,17 @@ impl Renderer {
             entries: &[
                 uniform_entry(0),
                 texture_entry(1, wgpu::TextureViewDimension::D2),
+                // The first view's depth (a copy), for the second view's blend weights.
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Depth,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
             ],
         });
         let render = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -120,7 +131,11 @@ impl Renderer {
                 fragment: Some(wgpu::FragmentState {
                     module,
                     entry_point: Some(fs),
-                    compilation_options: Default::default(),
+                    // Both stages: the second view's fragments undo `depth_scale`.
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants,
+                        ..Default::default()
+                    },
                     targets,
                 }),
                 multiview_mask: None,
@@ -216,8 +231,11 @@ impl Renderer {
             depth(wgpu::CompareFunction::Greater, true),
             &[],
         );
-        // Fused frames: the first view writes the output (no blending) and its distance.
-        let first_targets = [target(OUTPUT_FORMAT), target(DIST_FORMAT)];
+        // Fused frames: the first view writes the output alone (no blending; the second view
+        // reads its depth). A one-view frame's sky at the far plane (depth 0, the clear value)
+        // after the meshes, no depth write and no `discard`, so the depth test skips covered
+        // blocks before shading.
+        let first_targets = [target(OUTPUT_FORMAT)];
         let first_mesh = mk(
             "first view mesh (fused)",
             &render,
@@ -229,29 +247,14 @@ impl Renderer {
             depth(wgpu::CompareFunction::Greater, true),
             &[],
         );
-        // One-view fused frames: the output only (nothing reads the distance), the meshes
-        // then the sky at the far plane (depth 0, the clear value), no depth write and no
-        // `discard`, so the depth test skips covered blocks before shading.
-        let alone_targets = [target(OUTPUT_FORMAT)];
-        let alone_mesh = mk(
-            "one-view mesh (fused)",
-            &render,
-            &view_layout,
-            "vs_mesh",
-            "fs_mesh_alone",
-            &mesh_buffers,
-            &alone_targets,
-            depth(wgpu::CompareFunction::Greater, true),
-            &[],
-        );
-        let alone_sky = mk(
+        let first_sky = mk(
             "one-view sky (fused)",
             &render,
             &view_layout,
             "vs_full",
-            "fs_sky_alone",
+            "fs_sky_first",
             &[],
-            &alone_targets,
+            &first_targets,
             depth(wgpu::CompareFunction::GreaterEqual, false),
             &[],
         );
@@ -421,8 +424,7 @@ impl Renderer {
             composite_bgl,
             second_bgl,
             first_mesh,
-            alone_mesh,
-            alone_sky,
+            first_sky,
             second_mesh,
             second_mesh_holes,
             second_mesh_at_sample,

@@ -3,8 +3,8 @@
 use wgpu::util::DeviceExt;
 
 use super::{
-    GpuError, GpuVertex, GpuView, Renderer, Targets, DEPTH_FORMAT, DIST_FORMAT, ID_FORMAT,
-    OUTPUT_FORMAT, VIEW_FORMAT,
+    GpuError, GpuVertex, GpuView, Renderer, Targets, DEPTH_FORMAT, ID_FORMAT, OUTPUT_FORMAT,
+    VIEW_FORMAT,
 };
 use crate::plan::ViewUniforms;
 use crate::refview::{decimated_indices, mesh_cell, RefView, MESH_LEVELS};
@@ -371,8 +371,14 @@ impl Renderer {
         let depth = tex(
             "depth",
             DEPTH_FORMAT,
-            wgpu::TextureUsages::RENDER_ATTACHMENT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
         );
+        let depth_copy = tex(
+            "first view depth (copy)",
+            DEPTH_FORMAT,
+            wgpu::TextureUsages::COPY_DST | wgpu::TextureUsages::TEXTURE_BINDING,
+        );
+        let depth_copy_view = depth_copy.create_view(&Default::default());
         let output = tex(
             "output",
             OUTPUT_FORMAT,
@@ -391,8 +397,6 @@ impl Renderer {
             views[0].create_view(&Default::default()),
             views[1].create_view(&Default::default()),
         ];
-        let dist_view =
-            tex("first view distance", DIST_FORMAT, view_usage).create_view(&Default::default());
         let group = |view: &wgpu::TextureView| {
             device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("second view"),
@@ -406,10 +410,13 @@ impl Renderer {
                         binding: 1,
                         resource: wgpu::BindingResource::TextureView(view),
                     },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: wgpu::BindingResource::TextureView(&depth_copy_view),
+                    },
                 ],
             })
         };
-        let second_group = group(&dist_view);
         let half_tex = |label, format, usage| {
             device
                 .create_texture(&wgpu::TextureDescriptor {
@@ -435,6 +442,8 @@ impl Renderer {
             wgpu::TextureUsages::RENDER_ATTACHMENT,
         );
         let half_group = group(&half_view);
+        // The fused second view reads the first view's depth, not binding 1.
+        let second_group = group(&half_view);
         let small = (id_scale > 1).then(|| {
             let small_tex = |label, format, usage| {
                 device
@@ -470,12 +479,13 @@ impl Renderer {
         self.targets = Some(Targets {
             width,
             height,
-            dist_view,
+            depth_copy,
             second_group,
             half_view,
             half_depth,
             half_group,
             depth_view: depth.create_view(&Default::default()),
+            depth,
             output_view: output.create_view(&Default::default()),
             output_view_unorm: output.create_view(&wgpu::TextureViewDescriptor {
                 format: Some(wgpu::TextureFormat::Rgba8Unorm),
