@@ -184,7 +184,9 @@ struct Blend {
     flags: vec4<u32>,
 };
 @group(1) @binding(0) var<uniform> blend: Blend;
-@group(1) @binding(1) var first_dist: texture_2d<f32>;
+// The half-resolution second view (colour, alpha = distance; `blend_half`).
+@group(1) @binding(1) var half_second: texture_2d<f32>;
+// A copy of the first view's depth (`first_distance`).
 @group(1) @binding(2) var first_depth: texture_depth_2d;
 
 // The first view's meshes (and a one-view frame's sky below): the output alone.
@@ -282,12 +284,12 @@ fn fs_sky_other(in: FullOut) -> @location(0) vec4<f32> {
 
 // Half-resolution second view (DrawBudget::half_res_second): the second view is drawn first,
 // at half the width and height, into an Rgba16Float target (alpha = distance, 0 = hole) bound
-// as `first_dist`; the first view then draws every pixel (meshes, then its background where
+// as `half_second`; the first view then draws every pixel (meshes, then its background where
 // no mesh drew, holes included) and blends in the second view's nearest texel as the
 // composite would.
 fn blend_half(pos: vec2<f32>, a: vec4<f32>) -> vec4<f32> {
-    let size = vec2<i32>(textureDimensions(first_dist));
-    let b = textureLoad(first_dist, min(vec2<i32>(pos * 0.5), size - vec2<i32>(1)), 0);
+    let size = vec2<i32>(textureDimensions(half_second));
+    let b = textureLoad(half_second, min(vec2<i32>(pos * 0.5), size - vec2<i32>(1)), 0);
     let ca = select(0.0, 1.0, a.a > 0.0);
     let cb = select(0.0, 1.0, b.a > 0.0);
     if ca + cb == 0.0 {

@@ -7,8 +7,8 @@ use crate::refview::RefView;
 impl Renderer {
     /// Fused frames (no tile ids, no overlays): the first view's meshes straight into the
     /// output, then the second view's meshes blended into the output against the first
-    /// view's depth (and weighted by it, from a copy), then the sky of both views where neither drew
-    /// (`render.wgsl`); no view targets, no composite pass.
+    /// view's depth (and weighted by it, from a copy), then the sky of both views where
+    /// neither drew (`render.wgsl`); no view targets, no composite pass.
     pub(super) fn encode_fused(
         &self,
         enc: &mut wgpu::CommandEncoder,

@@ -69,7 +69,6 @@ const SECOND_VIEW_DEPTH_SCALE: f64 = 1.5;
 /// difference, so it is skipped (near the reference samples, t < 0.03 of a segment).
 const SECOND_VIEW_MIN_WEIGHT: f64 = 0.003;
 const NEARER_ONLY: f64 = 1.05;
-/// Fused frames: the first view's distance to the camera (0 = hole), read by the second view.
 /// Features [`Renderer::throughput`] needs for GPU times (requested where available).
 const TIMESTAMPS: wgpu::Features =
     wgpu::Features::TIMESTAMP_QUERY.union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS);
