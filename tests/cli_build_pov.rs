@@ -2,31 +2,14 @@
 //! slabs rendered by POV-Ray, cull, encode, ACH, then `railview verify` on the database.
 //! Faces of 16 px and a low-resolution pass of 8 px keep it fast.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-fn railview(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_railview"))
-        .args(args)
-        .output()
-        .expect("run railview")
-}
+use std::path::{Path, PathBuf};
+
+use common::{railview, scratch_path, text};
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "railview-cli-build-pov-{name}-{}",
-        std::process::id()
-    ));
-    std::fs::remove_dir_all(&d).ok();
-    d
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "stdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
+    scratch_path("cli-build-pov", name)
 }
 
 fn json(path: &Path) -> serde_json::Value {

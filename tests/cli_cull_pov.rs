@@ -2,23 +2,11 @@
 //! positions between the reference viewpoints (faces of 16 px keep it fast), and the
 //! conservative variant at α = 1 has no false culls while α = 0.8 is judged by the same marks.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-fn railview(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_railview"))
-        .args(args)
-        .output()
-        .expect("run railview")
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "stdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
+use common::{railview, text};
 
 fn repo(rel: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -1,27 +1,14 @@
 //! `railview prerender` end to end: files, report, resume, shards, bad input (exit codes and
 //! messages). Small faces keep it fast.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-fn railview(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_railview"))
-        .args(args)
-        .output()
-        .expect("run railview")
-}
+use std::path::{Path, PathBuf};
+
+use common::{railview, scratch_path, stderr};
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "railview-cli-prerender-{name}-{}",
-        std::process::id()
-    ));
-    std::fs::remove_dir_all(&d).ok();
-    d
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
+    scratch_path("cli-prerender", name)
 }
 
 fn report(dir: &Path) -> serde_json::Value {

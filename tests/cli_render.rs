@@ -2,25 +2,15 @@
 //! off the track, a pitch past the vertical, an output that is not PNG) fails with a message
 //! naming the flag before anything is written. The built-in synthetic street keeps it fast.
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
+mod common;
 
-fn railview(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_railview"))
-        .args(args)
-        .output()
-        .expect("run railview")
-}
+use std::path::PathBuf;
+use std::process::Output;
+
+use common::{railview, scratch_dir, stderr};
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("railview-cli-render-{name}-{}", std::process::id()));
-    std::fs::remove_dir_all(&d).ok();
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
+    scratch_dir("cli-render", name)
 }
 
 fn render(at: &str, yaw: &str, pitch: &str, out: &std::path::Path) -> Output {

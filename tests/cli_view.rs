@@ -3,15 +3,16 @@
 //! Needs `xvfb-run` and a Vulkan adapter (lavapipe); `RAILVIEW_SKIP_GPU_TESTS=1` switches it
 //! off.
 
+mod common;
+
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 
+use common::scratch_dir;
+
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("railview-cli-view-{name}-{}", std::process::id()));
-    std::fs::remove_dir_all(&d).ok();
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    scratch_dir("cli-view", name)
 }
 
 /// Kills the server when the test ends, however it ends.

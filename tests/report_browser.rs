@@ -8,9 +8,12 @@
 //! turn the browser part off explicitly; without Chromium and without that variable, the test
 //! fails rather than passing silently.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use common::scratch_dir;
 use image::{Rgb, RgbImage, Rgba, RgbaImage};
 use serde_json::{json, Value};
 
@@ -18,12 +21,7 @@ const FACE: u32 = 8;
 const SAMPLES: usize = 3;
 
 fn tmp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("railview-report-{name}-{}", std::process::id()));
-    if d.exists() {
-        std::fs::remove_dir_all(&d).unwrap();
-    }
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    scratch_dir("report", name)
 }
 
 fn write_json(path: &Path, v: &Value) {
