@@ -228,11 +228,15 @@ fn second_share(da: f32, db: f32) -> f32 {
     return wb / (wa + wb);
 }
 
+// The share depends on the ratio of the two distances only, and along one ray
+// d_a / d_b = z_b / z_a: no distance is computed (nor the point relative to the camera
+// interpolated) for the second view's fragments.
 @fragment
 fn fs_mesh_second(in: MeshOut) -> @location(0) vec4<f32> {
     let c = mesh_color(in);
-    let da = first_distance(in, c.a);
-    return vec4<f32>(c.rgb, second_share(da, c.a));
+    let za = textureLoad(first_depth, vec2<i32>(in.pos.xy), 0);
+    let ratio = select(0.0, in.pos.z / depth_scale / za, za > 0.0);
+    return vec4<f32>(c.rgb, second_share(ratio, 1.0));
 }
 
 // The second view's meshes at a sample (weight 0; drawn only where nearer than the first
