@@ -224,15 +224,19 @@ impl ViewerApp {
             highlight: streaming && self.stream.highlight,
             ..self.overlays
         };
-        let result = plan_frame(&walk.views, &camera, self.s, self.budget)
-            .map_err(|e| e.to_string())
-            .and_then(|mut plan| {
-                // Tile ids only on the frames whose feedback is read.
-                plan.tile_ids = feedback;
-                plan.overlays = overlays;
-                r.draw(&plan, &walk.views).map_err(|e| e.to_string())?;
-                Ok(plan)
-            });
+        let planned = match &self.source {
+            // Streaming: where the views around the position have nothing yet, the nearest
+            // that have (not a black frame).
+            Source::Stream(st) => st.plan(&camera, self.s, self.budget),
+            _ => plan_frame(&walk.views, &camera, self.s, self.budget),
+        };
+        let result = planned.map_err(|e| e.to_string()).and_then(|mut plan| {
+            // Tile ids only on the frames whose feedback is read.
+            plan.tile_ids = feedback;
+            plan.overlays = overlays;
+            r.draw(&plan, &walk.views).map_err(|e| e.to_string())?;
+            Ok(plan)
+        });
         let plan = match result {
             Ok(p) => p,
             Err(e) => {

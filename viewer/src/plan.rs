@@ -203,6 +203,24 @@ pub fn blend_pair(arcs: &[f64], s: f64) -> Option<(usize, usize, f64)> {
     Some((a, b, w))
 }
 
+/// [`blend_pair`] among the views for which `usable` holds (positions in `arcs`): the pair
+/// around `s` when both can be drawn, else the nearest usable views on either side of it
+/// (or the nearest one alone past the last). With every view usable, or none, the same as
+/// [`blend_pair`].
+pub fn blend_pair_among(
+    arcs: &[f64],
+    s: f64,
+    usable: &dyn Fn(usize) -> bool,
+) -> Option<(usize, usize, f64)> {
+    let idx: Vec<usize> = (0..arcs.len()).filter(|&i| usable(i)).collect();
+    if idx.is_empty() || idx.len() == arcs.len() {
+        return blend_pair(arcs, s);
+    }
+    let sub: Vec<f64> = idx.iter().map(|&i| arcs[i]).collect();
+    let (a, b, w) = blend_pair(&sub, s)?;
+    Some((idx[a], idx[b], w))
+}
+
 /// Rotation + reversed-Z infinite perspective of `camera`, as `clip_from_cam` (f64).
 pub fn clip_from_cam(camera: &PerspectiveCamera) -> DMat4 {
     let (r, u, f) = camera.basis();
@@ -262,6 +280,19 @@ pub fn plan_frame(
     s: f64,
     budget: DrawBudget,
 ) -> Result<FramePlan, PlanError> {
+    plan_frame_among(views, camera, s, budget, &|_| true)
+}
+
+/// [`plan_frame`] drawing only views for which `usable` holds (positions in `views`) where
+/// the pair around `s` is not ([`blend_pair_among`]): a streamed walk draws the nearest views
+/// that received something rather than nothing where the pair around the camera has not.
+pub fn plan_frame_among(
+    views: &[RefView],
+    camera: &PerspectiveCamera,
+    s: f64,
+    budget: DrawBudget,
+    usable: &dyn Fn(usize) -> bool,
+) -> Result<FramePlan, PlanError> {
     check_camera(camera)?;
     if views.is_empty() {
         return Err(PlanError::NoViews);
@@ -273,7 +304,7 @@ pub fn plan_frame(
         return Err(PlanError::Unsorted(i + 1));
     }
     let arcs: Vec<f64> = views.iter().map(|v| v.s).collect();
-    let (a, b, wb) = blend_pair(&arcs, s).ok_or(PlanError::NoViews)?;
+    let (a, b, wb) = blend_pair_among(&arcs, s, usable).ok_or(PlanError::NoViews)?;
     let mut pairs = vec![(a, 1.0 - wb)];
     if b != a && budget.blend {
         pairs.push((b, wb));
@@ -294,6 +325,75 @@ pub fn plan_frame(
         half_res_second: budget.half_res_second,
         id_scale: DEFAULT_ID_SCALE,
     })
+}
+
+/// The tiles of `view` (indices into `RefView::tiles`) of its first `max_slabs` slabs whose
+/// bounding spheres reach into the camera's frustum.
+fn frustum_tiles(view: &RefView, camera: &PerspectiveCamera, max_slabs: usize) -> Vec<usize> {
+    let origin_rel = view.position - camera.position;
+    let (r, u, f) = camera.basis();
+    let t = (camera.fov_deg.to_radians() * 0.5).tan();
+    let ty = t * camera.height.max(1) as f64 / camera.width.max(1) as f64;
+    // Frustum side planes in view space (x right, y up, -z forward), inward distances.
+    let side = |a: f64, b: f64, c: f64| DVec3::new(a, b, c) / (a * a + b * b + c * c).sqrt();
+    let planes = [
+        side(-1.0, 0.0, -t),
+        side(1.0, 0.0, -t),
+        side(0.0, -1.0, -ty),
+        side(0.0, 1.0, -ty),
+    ];
+    view.tiles
+        .iter()
+        .enumerate()
+        .filter(|(_, tile)| (tile.slab as usize) < max_slabs.max(1))
+        .filter(|(_, tile)| {
+            let c = tile.bound_center + origin_rel;
+            let cv = DVec3::new(c.dot(r), c.dot(u), -c.dot(f));
+            let rad = tile.bound_radius * (1.0 + 1e-6) + 1e-6;
+            // Behind the near plane entirely?
+            if -cv.z + rad < NEAR_M {
+                return false;
+            }
+            planes.iter().all(|p| p.dot(cv) >= -rad)
+        })
+        .map(|(i, _)| i)
+        .collect()
+}
+
+/// Per view: its tiles (those present in `RefView::tiles`, of the first `max_slabs` slabs)
+/// that reach into the camera's frustum.
+pub fn frustum_counts(
+    views: &[RefView],
+    camera: &PerspectiveCamera,
+    max_slabs: usize,
+) -> Vec<usize> {
+    views
+        .iter()
+        .map(|v| frustum_tiles(v, camera, max_slabs).len())
+        .collect()
+}
+
+/// Which views may stand in for the pair around `s` when that pair shows too little of the
+/// frame: `shown_around` (the fraction of the frame's visible pixels whose tiles the pair
+/// holds, as the streaming session counts them) below one half, or neither view of the pair
+/// holding a tile in the frustum (`counts`: [`frustum_counts`]). The stand-ins are the views
+/// holding at least half as many tiles in the frustum as the view that holds most; `None`
+/// (draw the pair around `s`) when the pair shows enough or nothing else does.
+pub fn stand_ins(arcs: &[f64], counts: &[usize], s: f64, shown_around: f64) -> Option<Vec<bool>> {
+    let (a, b, _) = blend_pair(arcs, s)?;
+    let n = |v: usize| counts.get(v).copied().unwrap_or(0);
+    if shown_around >= 0.5 && n(a).max(n(b)) > 0 {
+        return None;
+    }
+    let most = counts.iter().copied().max().unwrap_or(0);
+    if most == 0 || n(a).max(n(b)) * 2 >= most {
+        return None;
+    }
+    Some(
+        (0..arcs.len())
+            .map(|v| n(v) > 0 && n(v) * 2 >= most)
+            .collect(),
+    )
 }
 
 fn plan_view(
@@ -320,31 +420,7 @@ fn plan_view(
         ray_forward: v4(f, 0.0),
         params: [lod, w as f32, h as f32, levels as f32],
     };
-    // Frustum side planes in view space (x right, y up, -z forward), inward distances.
-    let side = |a: f64, b: f64, c: f64| DVec3::new(a, b, c) / (a * a + b * b + c * c).sqrt();
-    let planes = [
-        side(-1.0, 0.0, -t),
-        side(1.0, 0.0, -t),
-        side(0.0, -1.0, -ty),
-        side(0.0, 1.0, -ty),
-    ];
-    let visible: Vec<usize> = view
-        .tiles
-        .iter()
-        .enumerate()
-        .filter(|(_, tile)| (tile.slab as usize) < budget.max_slabs.max(1))
-        .filter(|(_, tile)| {
-            let c = tile.bound_center + origin_rel;
-            let cv = DVec3::new(c.dot(r), c.dot(u), -c.dot(f));
-            let rad = tile.bound_radius * (1.0 + 1e-6) + 1e-6;
-            // Behind the near plane entirely?
-            if -cv.z + rad < NEAR_M {
-                return false;
-            }
-            planes.iter().all(|p| p.dot(cv) >= -rad)
-        })
-        .map(|(i, _)| i)
-        .collect();
+    let visible = frustum_tiles(view, camera, budget.max_slabs);
     let mut runs: Vec<TileRun> = Vec::new();
     for &i in &visible {
         match runs.last_mut() {
@@ -611,6 +687,40 @@ mod tests {
             assert!(w >= prev);
             prev = w;
         }
+    }
+
+    #[test]
+    fn views_without_content_give_way_to_the_nearest_with() {
+        let arcs = [0.0, 1.0, 2.0, 3.0, 4.0];
+        for s in [0.0, 0.3, 1.5, 3.9, 4.0, 9.0] {
+            assert_eq!(blend_pair_among(&arcs, s, &|_| true), blend_pair(&arcs, s));
+            // Nothing anywhere (the start of a stream): the pair around `s` all the same.
+            assert_eq!(blend_pair_among(&arcs, s, &|_| false), blend_pair(&arcs, s));
+        }
+        // Views 2 and 3 have nothing: between 1 and 4 the pair is (1, 4), weighted over 3 m.
+        let (a, b, w) = blend_pair_among(&arcs, 2.5, &|v| v != 2 && v != 3).unwrap();
+        assert_eq!((a, b), (1, 4));
+        assert!((w - smooth_weight(0.5)).abs() < 1e-12);
+        // Past the last view with content: that view, its neighbour at weight 0.
+        assert_eq!(blend_pair_among(&arcs, 3.5, &|v| v < 2), Some((1, 0, 0.0)));
+    }
+
+    #[test]
+    fn stand_ins_only_where_the_pair_around_shows_too_little() {
+        let arcs = [0.0, 1.0, 2.0, 3.0, 4.0];
+        // The pair around 3.5 (views 3 and 4) holds enough: no stand-ins.
+        assert_eq!(stand_ins(&arcs, &[40, 50, 10, 30, 20], 3.5, 1.0), None);
+        assert_eq!(stand_ins(&arcs, &[40, 50, 10, 30, 20], 3.5, 0.2), None);
+        // It holds nothing in the frustum (the session may not even know its tiles).
+        let ok = stand_ins(&arcs, &[40, 50, 10, 0, 0], 3.5, 1.0).unwrap();
+        assert_eq!(ok, [true, true, false, false, false]);
+        // It holds a little, and the session counts most visible pixels missing.
+        assert_eq!(stand_ins(&arcs, &[40, 50, 10, 5, 0], 3.5, 0.9), None);
+        let ok = stand_ins(&arcs, &[40, 50, 10, 5, 0], 3.5, 0.1).unwrap();
+        assert_eq!(ok, [true, true, false, false, false]);
+        assert_eq!(blend_pair_among(&arcs, 3.5, &|v| ok[v]), Some((1, 0, 0.0)));
+        // Nothing anywhere: the pair around.
+        assert_eq!(stand_ins(&arcs, &[0; 5], 3.5, 0.0), None);
     }
 
     #[test]

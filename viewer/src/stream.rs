@@ -396,7 +396,7 @@ impl StreamedWalkthrough {
             arrivals: arrived.len(),
             ..Default::default()
         };
-        let protected = self.protected_views(s, now);
+        let protected = self.protected_views(s, camera, now);
         // Views that stopped being drawn before anything of them arrived: the renderer may
         // hold a placeholder upload of them.
         let mut views: BTreeSet<usize> = self
@@ -441,7 +441,7 @@ impl StreamedWalkthrough {
         {
             self.arrivals.pop_front();
         }
-        let plan = self.plan_redecode(&touched, &protected, s);
+        let plan = self.plan_redecode(&touched, &protected, s, camera);
         report.redecoded_parts = plan.parts;
         report.redecoded_bytes = plan.bytes;
         report.backlog = plan.backlog;
@@ -535,24 +535,74 @@ impl StreamedWalkthrough {
         report
     }
 
-    /// Positions in `walk.views` of the pair [`crate::plan_frame`] draws at `s`.
-    fn drawn_views(&self, s: f64) -> BTreeSet<usize> {
+    /// Positions in `walk.views` of the pair around `s` (what arrives for them is kept) and
+    /// of the views [`StreamedWalkthrough::plan`] draws for `camera` instead where that pair
+    /// shows next to nothing ([`crate::plan::stand_ins`]).
+    fn drawn_views(&self, s: f64, camera: &PerspectiveCamera) -> BTreeSet<usize> {
         let s = if s.is_finite() { s } else { 0.0 };
         let vp_s: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
-        crate::plan::blend_pair(&vp_s, s)
-            .map(|(a, b, _)| BTreeSet::from([a, b]))
-            .unwrap_or_default()
+        let around = crate::plan::blend_pair(&vp_s, s);
+        // Kept whenever they hold much more of the frustum than the pair around `s`, whether
+        // drawn yet or not (the session's count of the pixels shown wavers from step to step,
+        // and an evicted view would not come back without the server).
+        let shown = self
+            .stand_ins(camera, s, usize::MAX, 0.0)
+            .and_then(|ok| crate::plan::blend_pair_among(&vp_s, s, &|v| ok[v]));
+        around
+            .into_iter()
+            .chain(shown)
+            .flat_map(|(a, b, _)| [a, b])
+            .collect()
+    }
+
+    /// [`crate::plan::stand_ins`] for `camera` at `s`, `shown` the fraction of the visible
+    /// pixels the pair around `s` shows.
+    fn stand_ins(
+        &self,
+        camera: &PerspectiveCamera,
+        s: f64,
+        max_slabs: usize,
+        shown: f64,
+    ) -> Option<Vec<bool>> {
+        let arcs: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
+        let counts = crate::plan::frustum_counts(&self.walk.views, camera, max_slabs);
+        crate::plan::stand_ins(&arcs, &counts, s, shown)
+    }
+
+    /// The frame at `s`: [`crate::plan_frame`], except that where the views around `s`
+    /// show too little of the frame while others that arrived earlier show much more (the
+    /// walk went on past what arrived, e.g. the server is gone), the nearest of those are
+    /// drawn instead of a mostly black frame ([`crate::plan::stand_ins`]). They are kept from
+    /// eviction meanwhile.
+    pub fn plan(
+        &self,
+        camera: &PerspectiveCamera,
+        s: f64,
+        budget: crate::DrawBudget,
+    ) -> Result<FramePlan, crate::PlanError> {
+        let shown = self.session.stats().visible_fraction;
+        match self.stand_ins(camera, s, budget.max_slabs, shown) {
+            Some(ok) => {
+                crate::plan::plan_frame_among(&self.walk.views, camera, s, budget, &|v| ok[v])
+            }
+            None => crate::plan_frame(&self.walk.views, camera, s, budget),
+        }
     }
 
     /// Positions in `walk.views` of the views kept at `s`: the two around it (the ones
     /// [`crate::plan_frame`] draws) and those of the segment the session prefetches (the
     /// motion predicted as it does).
-    fn protected_views(&mut self, s: f64, now: Instant) -> BTreeSet<usize> {
+    fn protected_views(
+        &mut self,
+        s: f64,
+        camera: &PerspectiveCamera,
+        now: Instant,
+    ) -> BTreeSet<usize> {
         let t = now.duration_since(self.start).as_secs_f64();
         let s = if s.is_finite() { s } else { 0.0 };
         self.motion.observe(t, s);
         let vp_s: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
-        let mut out = self.drawn_views(s);
+        let mut out = self.drawn_views(s, camera);
         let config = self.session.config();
         if config.prefetch {
             if let Some(next) = next_segment(&self.motion, &vp_s, s, config.prefetch_horizon_s) {

@@ -19,7 +19,7 @@ use tracks::manifest::{
 };
 use tracks::{PerspectiveCamera, TileGrid};
 use viewer::gpu::{Frame, Gpu, Renderer};
-use viewer::headless::{synth_street, yaw_along};
+use viewer::headless::{synth_street, synth_street_spaced, yaw_along};
 use viewer::source::{open, LoadOptions, Walkthrough};
 use viewer::stream::StreamedWalkthrough;
 use viewer::synth::Scene;
@@ -652,6 +652,64 @@ fn evicted_views_are_decoded_again_over_several_steps() {
     );
     assert!(!dropped, "a 64 MiB cache keeps the whole street");
     eprintln!("decoded again over several steps: mean |diff| {diff}");
+}
+
+#[test]
+fn walking_on_after_the_server_is_gone_draws_the_views_that_arrived() {
+    let Some(mut r) = renderer() else {
+        return;
+    };
+    // Views every 0.5 m: the first segment's parts are all that arrives before the server
+    // goes away.
+    let street =
+        synth_street_spaced(FACE, &Scene::street_slabs(), MeshParams::default(), 0.5).unwrap();
+    let dir: PathBuf = std::env::temp_dir().join(format!(
+        "railview-viewer-stream-gone-{}",
+        std::process::id()
+    ));
+    write_db(&street, &dir);
+    let (url, stop, thread) = serve(&dir);
+    // No prefetch: only the first segment's views (at 0 and 0.5 m) receive anything; nor
+    // identical parts shared (the street repeats, so later views would find theirs).
+    let config = LiveConfig {
+        prefetch: false,
+        share_parts: false,
+        ..LiveConfig::with_cache(64 << 20)
+    };
+    let mut st = StreamedWalkthrough::connect(&url, None, config).unwrap();
+    let cam = camera(&st.walk, 0.25, 0.0);
+    settle(&mut st, &mut r, 0.25, &cam);
+    drop(stop);
+    thread.join().unwrap();
+
+    // The walk goes on to the last segment (views at 4 and 4.5 m), which never arrives.
+    let s = 4.25;
+    let cam = camera(&st.walk, s, 0.0);
+    let budget = DrawBudget {
+        max_slabs: st.walk.slabs.len(),
+        ..Default::default()
+    };
+    for _ in 0..5 {
+        let rep = st.step(s, &cam, None);
+        rep.apply(&mut r, &st.walk.views);
+    }
+    let tiles = |v: usize| st.walk.views[v].tiles.len();
+    assert!((2..10).all(|v| tiles(v) == 0));
+    assert!(tiles(0) > 0 && tiles(1) > 0, "kept from eviction");
+    let around = plan_frame(&st.walk.views, &cam, s, budget).unwrap();
+    let black = r.render(&around, &st.walk.views).unwrap();
+    let plan = st.plan(&cam, s, budget).unwrap();
+    let views: Vec<usize> = plan.passes.iter().map(|p| p.view).collect();
+    assert_eq!(views, [1, 0], "the nearest views that arrived");
+    let shown = r.render(&plan, &st.walk.views).unwrap();
+    eprintln!(
+        "holes: the views around {:.3}, the views that arrived {:.3}",
+        black.hole_fraction(),
+        shown.hole_fraction()
+    );
+    assert!(black.hole_fraction() > 0.99);
+    assert!(shown.hole_fraction() < 0.2);
+    let _ = std::fs::remove_dir_all(dir);
 }
 
 /// Not a check but a measurement, run by hand:
