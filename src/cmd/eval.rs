@@ -26,7 +26,7 @@ pub struct Args {
     /// Horizontal field of view, degrees.
     #[arg(long, default_value_t = 90.0)]
     pub fov: f64,
-    /// Segments evaluated from the start of the track.
+    /// Segments evaluated from the start of the track (at least 1).
     #[arg(long, default_value_t = 3)]
     pub segments: usize,
     /// Positions evaluated inside each segment.
@@ -51,6 +51,7 @@ struct EvalJson<'a> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let size = parse_size(&args.size).map_err(anyhow::Error::msg)?;
+    anyhow::ensure!(args.segments >= 1, "--segments must be at least 1");
     let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
         .with_context(|| format!("opening {}", args.db))?;
     let truth = Truth::for_scene(&walk.scene).ok_or_else(|| {
