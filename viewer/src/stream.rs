@@ -396,7 +396,8 @@ impl StreamedWalkthrough {
             arrivals: arrived.len(),
             ..Default::default()
         };
-        let protected = self.protected_views(s, camera, now);
+        let drawn = self.drawn_views(s, camera);
+        let protected = self.protected_views(s, &drawn, now);
         // Views that stopped being drawn before anything of them arrived: the renderer may
         // hold a placeholder upload of them.
         let mut views: BTreeSet<usize> = self
@@ -441,7 +442,7 @@ impl StreamedWalkthrough {
         {
             self.arrivals.pop_front();
         }
-        let plan = self.plan_redecode(&touched, &protected, s, camera);
+        let plan = self.plan_redecode(&touched, &drawn, &protected, s);
         report.redecoded_parts = plan.parts;
         report.redecoded_bytes = plan.bytes;
         report.backlog = plan.backlog;
@@ -589,20 +590,20 @@ impl StreamedWalkthrough {
         }
     }
 
-    /// Positions in `walk.views` of the views kept at `s`: the two around it (the ones
-    /// [`crate::plan_frame`] draws) and those of the segment the session prefetches (the
-    /// motion predicted as it does).
+    /// Positions in `walk.views` of the views kept at `s`: those `drawn` there
+    /// ([`StreamedWalkthrough::drawn_views`]) and those of the segment the session
+    /// prefetches (the motion predicted as it does).
     fn protected_views(
         &mut self,
         s: f64,
-        camera: &PerspectiveCamera,
+        drawn: &BTreeSet<usize>,
         now: Instant,
     ) -> BTreeSet<usize> {
         let t = now.duration_since(self.start).as_secs_f64();
         let s = if s.is_finite() { s } else { 0.0 };
         self.motion.observe(t, s);
         let vp_s: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
-        let mut out = self.drawn_views(s, camera);
+        let mut out = drawn.clone();
         let config = self.session.config();
         if config.prefetch {
             if let Some(next) = next_segment(&self.motion, &vp_s, s, config.prefetch_horizon_s) {

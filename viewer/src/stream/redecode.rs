@@ -4,8 +4,6 @@
 use std::cmp::Reverse;
 use std::collections::{BTreeSet, BinaryHeap, HashMap};
 
-use tracks::PerspectiveCamera;
-
 use super::{StreamedWalkthrough, REDECODE_PART_BYTES};
 
 /// What [`StreamedWalkthrough::plan_redecode`] allows one step to take from the cache.
@@ -78,11 +76,10 @@ impl StreamedWalkthrough {
     pub(super) fn plan_redecode(
         &self,
         touched: &BTreeSet<usize>,
+        drawn: &BTreeSet<usize>,
         protected: &BTreeSet<usize>,
         s: f64,
-        camera: &PerspectiveCamera,
     ) -> RedecodePlan {
-        let drawn = self.drawn_views(s, camera);
         let table = &self.session.table().items;
         // The next part of `item` from `part` on that must come from the cache, if held.
         let next_cached = |item: usize, mut part: usize| -> Option<usize> {
