@@ -9,7 +9,7 @@ use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 
-use common::scratch_dir;
+use common::{railview, scratch_dir, stderr};
 
 fn tmp(name: &str) -> PathBuf {
     scratch_dir("cli-view", name)
@@ -23,6 +23,17 @@ impl Drop for Server {
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
+}
+
+#[test]
+fn a_negative_cache_budget_is_refused_before_any_window_opens() {
+    let o = railview(&["view", "synth:street", "--memory-mib", "-1"]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("--memory-mib -1: must be a positive number"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 #[test]

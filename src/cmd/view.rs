@@ -34,7 +34,7 @@ pub struct Args {
     #[arg(long)]
     pub no_prefetch: bool,
     /// Streaming: cache budget for downloaded bytes, MiB.
-    #[arg(long, default_value_t = 64.0)]
+    #[arg(long, default_value_t = 64.0, allow_negative_numbers = true)]
     pub memory_mib: f64,
     /// Streaming: downloads in flight at most.
     #[arg(long, default_value_t = 6)]
