@@ -69,3 +69,121 @@ fn bad_render_input_names_the_flag_and_writes_nothing() {
     );
     assert!(!jpg.exists());
 }
+
+/// The PSNR `railview render … --truth` reports, from its standard error.
+fn psnr_of(o: &Output) -> f64 {
+    let err = stderr(o);
+    assert!(o.status.success(), "{err}");
+    err.lines()
+        .find_map(|l| l.strip_prefix("PSNR against the ground truth: "))
+        .and_then(|v| v.trim_end_matches(" dB").parse().ok())
+        .unwrap_or_else(|| panic!("no PSNR in {err}"))
+}
+
+/// Rewrite a database's top manifest with another format number (formats 4 and 5 share
+/// their layout; only what a reader may assume of the PTMs under alpha 0 differs).
+fn relabel_format(db: &std::path::Path, version: u32) {
+    use streamer::db::{hash_hex, Database, MANIFEST_FILE, MANIFEST_HASH_FILE};
+    let mut top = Database::open(db).unwrap().top().clone();
+    top.version = version;
+    let json = serde_json::to_vec(&top).unwrap();
+    std::fs::write(db.join(MANIFEST_FILE), &json).unwrap();
+    std::fs::write(
+        db.join(MANIFEST_HASH_FILE),
+        format!("{}\n", hash_hex(&json)),
+    )
+    .unwrap();
+    std::fs::remove_file(db.join(format!("{MANIFEST_FILE}.gz"))).ok();
+}
+
+/// `--level-groups 1` draws what a streaming client shows before the finer levels arrive.
+/// A format-5 database clears the colour under every mask, so coarse levels are colour ×
+/// coverage and their outlines are drawn in the colour of what they cover: nearer the ground
+/// truth than the same bytes read as format 4, whose coarse colours are drawn as stored
+/// (darkened by the empty texels beside every outline).
+#[test]
+fn coarse_levels_draw_outlines_in_their_own_colour() {
+    let d = tmp("coarse");
+    let track = d.join("short.toml");
+    std::fs::write(
+        &track,
+        "[[track]]\nname = \"short\"\npoints = [[0, 1.7, 42], [0, 1.7, 36]]\ncount = 3\n",
+    )
+    .unwrap();
+    let db = d.join("db");
+    let o = railview(&[
+        "build",
+        "--scene",
+        "castle",
+        "--track",
+        track.to_str().unwrap(),
+        "--face-size",
+        "64",
+        "--zstd-level",
+        "3",
+        "--out",
+        db.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let view = |groups: Option<&str>| {
+        let mut args = vec![
+            "render",
+            db.to_str().unwrap(),
+            "--at",
+            "3",
+            "--size",
+            "320x180",
+            "-o",
+        ];
+        let out = d.join("view.png");
+        let truth = d.join("truth.png");
+        args.push(out.to_str().unwrap());
+        args.extend(["--truth", truth.to_str().unwrap()]);
+        if let Some(g) = groups {
+            args.extend(["--level-groups", g]);
+        }
+        psnr_of(&railview(&args))
+    };
+    let full = view(None);
+    let coarse = view(Some("1"));
+    relabel_format(&db, 4);
+    let as_stored = view(Some("1"));
+    eprintln!("PSNR: all levels {full:.2} dB, coarsest group {coarse:.2} dB, read as format 4 {as_stored:.2} dB");
+    assert!(full > coarse, "{full} against {coarse}");
+    assert!(coarse > as_stored + 1.0, "{coarse} against {as_stored}");
+}
+
+#[test]
+fn level_groups_need_a_database_and_at_least_one_group() {
+    let d = tmp("groups");
+    let out = d.join("view.png");
+    let o = railview(&[
+        "render",
+        "synth:street",
+        "--level-groups",
+        "1",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("--level-groups: synth:street is not a database"),
+        "{}",
+        stderr(&o)
+    );
+    let o = railview(&[
+        "render",
+        "synth:street",
+        "--level-groups",
+        "0",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("--level-groups 0: at least 1"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!out.exists(), "nothing written");
+}

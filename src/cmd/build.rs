@@ -251,9 +251,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         zstd_level: args.zstd_level,
         ..EncodeOptions::default()
     };
+    // `db{TOP_VERSION}`: a format's rule on the PTMs' content (format 5 clears the colour
+    // under the mask) re-encodes samples encoded under another.
     let key = format!(
-        "ptm-v{} zstd{} cull:{}",
+        "ptm-v{} db{} zstd{} cull:{}",
         ptm::FORMAT_VERSION,
+        streamer::db::TOP_VERSION,
         args.zstd_level,
         report.culling
     );
@@ -564,8 +567,13 @@ fn encode_sample(
                 (None, None)
             } else {
                 kept_bytes += bytes;
-                let px = crop(&color, &grid, rec.tile);
-                let img = Image::new(x1 - x0, y1 - y0, 4, px.into_iter().flatten().collect())?;
+                let mut px: Vec<u8> = crop(&color, &grid, rec.tile)
+                    .into_iter()
+                    .flatten()
+                    .collect();
+                // Colour 0 under the mask (format 5): coarse levels are colour × coverage.
+                streamer::db::clear_masked(&mut px);
+                let img = Image::new(x1 - x0, y1 - y0, 4, px)?;
                 let enc = ptm::encode(&img, opts)?;
                 let ptm = writer.put_ptm_staged(&enc, 4)?;
                 let data = MeshData {

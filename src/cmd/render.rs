@@ -43,6 +43,10 @@ pub struct Args {
     /// Also write the ground truth from the same camera here (built-in scenes, synth:street).
     #[arg(long)]
     pub truth: Option<PathBuf>,
+    /// Draw from the first N level groups of every tile's PTM only (coarsest first): what a
+    /// streaming client shows before the finer levels arrive. Databases only; default: all.
+    #[arg(long)]
+    pub level_groups: Option<usize>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -51,7 +55,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(t) = &args.truth {
         check_png_name(t, "--truth")?;
     }
-    let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
+    if let Some(g) = args.level_groups {
+        anyhow::ensure!(
+            g >= 1,
+            "--level-groups {g}: at least 1 (the coarsest group)"
+        );
+        let is_db = std::path::Path::new(&args.db)
+            .join(streamer::db::MANIFEST_FILE)
+            .is_file();
+        anyhow::ensure!(
+            is_db,
+            "--level-groups: {} is not a database (only databases hold PTM level groups)",
+            args.db
+        );
+    }
+    let opts = LoadOptions {
+        level_groups: args.level_groups,
+        ..Default::default()
+    };
+    let walk = open(&args.db, args.track.as_deref(), opts)
         .with_context(|| format!("opening {}", args.db))?;
     let len = walk.track.length();
     anyhow::ensure!(

@@ -118,6 +118,7 @@ fn decode_ptm(
     groups: Option<usize>,
     what: &str,
 ) -> Result<(Vec<u8>, u32, u32, u32), SourceError> {
+    let premultiplied = db.top().coarse_levels_premultiplied();
     let count = groups
         .unwrap_or(ptm.levels.len())
         .clamp(1, ptm.levels.len().max(1));
@@ -132,7 +133,12 @@ fn decode_ptm(
     let img = dec
         .finest()
         .ok_or_else(|| format_err(what, "no level decoded"))?;
-    let rgba = image_rgba(img);
+    let mut rgba = image_rgba(img);
+    // A coarse level of a format-5 database holds colour × coverage: its outline is drawn in
+    // the covered texels' own colour, not darkened by the empty texels beside them.
+    if premultiplied && level > 0 {
+        streamer::db::unpremultiply(&mut rgba);
+    }
     Ok((rgba, img.width(), img.height(), level))
 }
 

@@ -223,6 +223,9 @@ pub struct StreamedWalkthrough {
     arrivals: VecDeque<(Instant, usize)>,
     /// Problems with received data (bytes that passed their checksum but do not decode).
     pub errors: Vec<String>,
+    /// Coarse PTM levels hold colour × coverage (format 5 on): divided by the coverage
+    /// before they are pasted ([`streamer::db::unpremultiply`]).
+    premultiplied: bool,
 }
 
 /// The state of session item `i` (nothing received yet).
@@ -296,6 +299,7 @@ impl StreamedWalkthrough {
             ))
         })?;
         let layer_count = m.slabs.len() + 1;
+        let premultiplied = session.top().coarse_levels_premultiplied();
         let views: Vec<RefView> = entry
             .viewpoints
             .iter()
@@ -345,6 +349,7 @@ impl StreamedWalkthrough {
             fresh: BTreeSet::new(),
             arrivals: VecDeque::new(),
             errors: Vec::new(),
+            premultiplied,
         })
     }
 
@@ -462,10 +467,11 @@ impl StreamedWalkthrough {
                 jobs.push((i, it, parts, what));
             }
         }
+        let premultiplied = self.premultiplied;
         let decoded: Vec<(usize, String, Result<Option<Decoded>, SourceError>)> = jobs
             .into_par_iter()
             .map(|(i, it, parts, what)| {
-                let d = decode_parts(it, parts, &what);
+                let d = decode_parts(it, parts, &what, premultiplied);
                 (i, what, d)
             })
             .collect();
@@ -934,12 +940,14 @@ struct Decoded {
 }
 
 /// Feed `parts` (the item's next parts, in order) to its mesh and decoder; its finest level
-/// when that became finer than the one shown. Items are independent, so a step decodes them
-/// in parallel.
+/// when that became finer than the one shown (a coarse level divided by its coverage when
+/// `premultiplied`, see [`streamer::db::clear_masked`]). Items are independent, so a step
+/// decodes them in parallel.
 fn decode_parts(
     it: &mut ItemState,
     parts: Vec<Bytes>,
     what: &str,
+    premultiplied: bool,
 ) -> Result<Option<Decoded>, SourceError> {
     for data in parts {
         if it.next < it.first_level_part {
@@ -960,9 +968,13 @@ fn decode_parts(
         return Ok(None);
     };
     let level = level.unwrap_or(0);
+    let mut rgba = image_rgba(img);
+    if premultiplied && level > 0 {
+        streamer::db::unpremultiply(&mut rgba);
+    }
     let d = Decoded {
         level,
-        rgba: image_rgba(img),
+        rgba,
         width: img.width(),
         height: img.height(),
     };

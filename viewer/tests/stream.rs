@@ -63,6 +63,8 @@ fn write_db(walk: &Walkthrough, dir: &Path) {
                     px.extend_from_slice(p);
                 }
             }
+            // As `railview build` stores it (format 5): no colour under the mask.
+            streamer::db::clear_masked(&mut px);
             let img = Image::new(x1 - x0, y1 - y0, 4, px).unwrap();
             let ptm = w.put_ptm(&encode(&img, &opts).unwrap(), 4).unwrap();
             let mesh = MeshData {
@@ -97,13 +99,14 @@ fn write_db(walk: &Walkthrough, dir: &Path) {
                 for tx in 0..grid.tiles_per_side() {
                     let tile = tracks::TileId { face, tx, ty };
                     let (x0, y0, x1, y1) = grid.pixel_rect(tile);
-                    let px: Vec<u8> = (y0..y1)
+                    let mut px: Vec<u8> = (y0..y1)
                         .flat_map(|y| (x0..x1).map(move |x| (x, y)))
                         .flat_map(|(x, y)| *sky.get(face, x, y))
                         .collect();
                     if px.chunks(4).all(|p| p[3] == 0) {
                         continue;
                     }
+                    streamer::db::clear_masked(&mut px);
                     let img = Image::new(x1 - x0, y1 - y0, 4, px).unwrap();
                     background.push(BackgroundTile {
                         tile,
@@ -238,23 +241,6 @@ fn mean_abs_diff(a: &Frame, b: &Frame) -> f64 {
         / n
 }
 
-/// Mean squared difference between horizontal neighbours (detail).
-fn detail(f: &Frame) -> f64 {
-    let w = f.width as usize;
-    let mut sum = 0.0;
-    let mut n = 0.0;
-    for row in f.rgba.chunks(4 * w) {
-        for x in 1..w {
-            for c in 0..3 {
-                let d = row[4 * x + c] as f64 - row[4 * (x - 1) + c] as f64;
-                sum += d * d;
-            }
-            n += 3.0;
-        }
-    }
-    sum / n
-}
-
 /// Step at `s` until nothing is left to download or to consume from the session's cache
 /// for the current view, or the timeout;
 /// each step draws the frame and hands the GPU's visible-pixel counts to the session, as the
@@ -383,18 +369,14 @@ fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
     r.forget_views();
     let full = render(&mut r, &full_ref, &cam, s);
     r.forget_views();
+    // Sharper: the coarse picture differs from the fully loaded one, the final one does not
+    // (most of this small street's tiles hold all their levels in one group, and coarse
+    // outlines keep their colour, so the difference is small, but far from none).
+    let (d_coarse, d_sharp) = (mean_abs_diff(&coarse, &full), mean_abs_diff(&sharp, &full));
     assert!(
-        detail(&sharp) > detail(&coarse) * 1.2,
-        "detail {} vs {}",
-        detail(&sharp),
-        detail(&coarse)
+        d_coarse > 0.02 && d_sharp * 4.0 < d_coarse,
+        "difference to the full database: coarse {d_coarse}, sharp {d_sharp}"
     );
-    assert!(
-        mean_abs_diff(&sharp, &full) < 0.5,
-        "{}",
-        mean_abs_diff(&sharp, &full)
-    );
-    assert!(mean_abs_diff(&coarse, &full) > mean_abs_diff(&sharp, &full));
     // Background tiles of both views around the position reached full resolution (those in
     // view; tiles that arrived under the cap while the camera looked elsewhere may stay
     // coarse — the image above matches the full one either way).
@@ -627,12 +609,12 @@ fn evicted_views_come_back_from_the_session_cache() {
 
 #[test]
 fn evicted_views_whose_bytes_left_the_cache_are_downloaded_again() {
-    // A cache of about half the database: the first views' bytes leave it at the far end.
+    // A cache of three fifths of the database: the first views' bytes leave it at the far end.
     // Identical parts are not shared here: the street repeats so many that, shared, every
     // part of it fits in half the database and nothing would leave the cache.
     let config = |dir: &Path| LiveConfig {
         share_parts: false,
-        ..LiveConfig::with_cache(dir_bytes(dir) * 11 / 20)
+        ..LiveConfig::with_cache(dir_bytes(dir) * 12 / 20)
     };
     let (dropped, diff) = there_and_back(config, None, "evict-refetch");
     if renderer_enabled() {

@@ -1,5 +1,5 @@
 //! The walkthrough database: a directory of immutable content-addressed objects plus a
-//! manifest (types in [`tracks::manifest`]), stored split ([`split`], format 4): a small top
+//! manifest (types in [`tracks::manifest`]), stored split ([`split`], format 5): a small top
 //! manifest, one binary tile table per viewpoint ([`table`]) and one pack per viewpoint
 //! ([`pack`]) holding its tiles' meshes and PTM level groups; tables and packs are objects.
 //!
@@ -14,7 +14,7 @@
 //! [`range_hash`]); objects keep their full BLAKE3.
 //!
 //! ```text
-//! DB/manifest.json          the TopManifest (format 4), written last, atomically
+//! DB/manifest.json          the TopManifest (format 5), written last, atomically
 //! DB/manifest.json.blake3   lowercase hex BLAKE3 of manifest.json (so a flipped byte in the
 //!                           manifest is caught too), written right after it
 //! DB/manifest.json.gz       gzip of manifest.json's exact bytes, written after it: what a
@@ -46,7 +46,7 @@ use tracks::manifest::{object_rel_path, LevelRef, Manifest, ObjectRef, PtmRef};
 
 use crate::ptm;
 
-pub use split::{TopManifest, ViewTable, TOP_VERSION};
+pub use split::{TopManifest, ViewTable, OLDEST_READ_VERSION, TOP_VERSION};
 pub use verify::{verify, Problem, Report};
 
 /// Name of the manifest file in a database directory.
@@ -190,7 +190,8 @@ impl DbWriter {
         Ok(obj)
     }
 
-    /// Stores an encoded PTM and describes its level groups for the manifest.
+    /// Stores an encoded PTM and describes its level groups for the manifest. Its image must
+    /// hold colour 0 wherever alpha is 0 ([`clear_masked`]; the format promises it).
     pub fn put_ptm(&mut self, enc: &ptm::Encoded, channels: u8) -> Result<PtmRef, DbError> {
         let object = self.put(&enc.bytes)?;
         Ok(ptm_ref(object, enc, channels))
@@ -607,8 +608,8 @@ pub fn read_top(dir: &Path) -> Result<TopManifest, DbError> {
     parse_top(&path, &bytes)
 }
 
-/// Parses top-manifest bytes read from `path` and checks the version; a database of format
-/// 1 (one manifest with every tile) is refused with a request to rebuild it.
+/// Parses top-manifest bytes read from `path` and checks the version: formats 4 and 5 are
+/// read; older ones are refused with a request to rebuild the database.
 pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
     #[derive(serde::Deserialize)]
     struct Version {
@@ -616,8 +617,8 @@ pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
     }
     let v: Version = serde_json::from_slice(bytes)
         .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
-    if v.version != TOP_VERSION {
-        let hint = if v.version < TOP_VERSION {
+    if !(OLDEST_READ_VERSION..=TOP_VERSION).contains(&v.version) {
+        let hint = if v.version < OLDEST_READ_VERSION {
             " (format 4 packs each viewpoint's tiles into one object and lists them in a \
              column-wise binary table with 32-bit range checksums): rebuild the database with `railview \
              build` (it resumes from its work directory)"
@@ -627,13 +628,43 @@ pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
         return Err(DbError::format(
             path,
             format!(
-                "manifest format {}{hint}; this build reads format {TOP_VERSION}",
+                "manifest format {}{hint}; this build reads formats {OLDEST_READ_VERSION} to {TOP_VERSION}",
                 v.version
             ),
         ));
     }
     serde_json::from_slice(bytes)
         .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))
+}
+
+/// Clear the colour of every RGBA texel whose alpha is 0, as format 5 stores every PTM.
+///
+/// The PTM pyramid averages each channel on its own (eq. 1), so a coarse level's colour is
+/// then the covered texels' colour times their coverage, which its alpha is: a reader that
+/// divides by the alpha ([`unpremultiply`]) draws a coarse level's outline in the colour of
+/// what it covers, where a colour left under alpha 0 (black, or a renderer's background)
+/// would darken or tint it. The opaque texels and every alpha are unchanged.
+pub fn clear_masked(rgba: &mut [u8]) {
+    for p in rgba.chunks_exact_mut(4) {
+        if p[3] == 0 {
+            p[..3].fill(0);
+        }
+    }
+}
+
+/// Divide the colour of every partly covered RGBA texel (0 < alpha < 255) of a coarse PTM
+/// level of a format-5 database by its alpha ([`clear_masked`]): the mean colour of the
+/// opaque texels it covers. Texels with alpha 0 or 255 are unchanged.
+pub fn unpremultiply(rgba: &mut [u8]) {
+    for p in rgba.chunks_exact_mut(4) {
+        let a = u32::from(p[3]);
+        if a == 0 || a == 255 {
+            continue;
+        }
+        for c in &mut p[..3] {
+            *c = ((u32::from(*c) * 255 + a / 2) / a).min(255) as u8;
+        }
+    }
 }
 
 #[cfg(test)]

@@ -1,4 +1,4 @@
-//! The split manifest (format 4): a small top-level [`TopManifest`] plus one content-addressed
+//! The split manifest (format 5; format 4 is read too): a small top-level [`TopManifest`] plus one content-addressed
 //! tile table per viewpoint ([`ViewTable`]), so a client needs the top and the tables of the
 //! viewpoints around it before its first frame, not the whole database's entries.
 //!
@@ -26,14 +26,20 @@ use tracks::manifest::{
 use tracks::SlabRange;
 
 /// Version of the split manifest written by this crate (3: binary tables, one pack object
-/// per viewpoint, 64-bit range checksums; 4: column-wise tables, 32-bit range checksums).
-pub const TOP_VERSION: u32 = 4;
+/// per viewpoint, 64-bit range checksums; 4: column-wise tables, 32-bit range checksums;
+/// 5: the layout of 4, and every PTM's colour is 0 wherever its alpha is 0, see
+/// [`super::clear_masked`]).
+pub const TOP_VERSION: u32 = 5;
+
+/// The oldest format this crate reads (format 4 differs from 5 only in what its PTMs hold
+/// under alpha 0, which [`TopManifest::coarse_levels_premultiplied`] tells readers).
+pub const OLDEST_READ_VERSION: u32 = 4;
 
 pub use super::table::{
     decode_ach, decode_table, encode_ach, encode_table, TableError, MAX_TABLE_BYTES,
 };
 
-/// `manifest.json` of format 4.
+/// `manifest.json` of format 4 or 5.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TopManifest {
     pub version: u32,
@@ -44,6 +50,17 @@ pub struct TopManifest {
     pub cull_alpha: Option<f64>,
     pub cull_variant: Option<String>,
     pub tracks: Vec<TopTrack>,
+}
+
+impl TopManifest {
+    /// Whether every PTM's coarse levels hold colour × coverage ([`super::clear_masked`],
+    /// format 5 on): then a reader recovers the covered texels' own mean colour with
+    /// [`super::unpremultiply`]. In format 4 the colour under alpha 0 was whatever the
+    /// renderer left there (black for the built-in renderer, POV-Ray's background for
+    /// POV-Ray slab layers), so coarse levels are drawn as they are.
+    pub fn coarse_levels_premultiplied(&self) -> bool {
+        self.version >= 5
+    }
 }
 
 /// A track of the top manifest.

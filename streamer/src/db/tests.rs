@@ -476,3 +476,139 @@ fn range_checksums_are_32_64_or_128_bits_and_full_hashes_still_match() {
     assert!(valid_range_hash(&h[..32]) && valid_range_hash(&h));
     assert!(!valid_range_hash(&h[..40]) && !valid_range_hash(&h.to_uppercase()));
 }
+
+#[test]
+fn a_format_4_manifest_is_read_and_its_coarse_levels_are_taken_as_they_are() {
+    let dir = tmpdir("v4");
+    let (m, mut w) = build(&dir);
+    w.finish(&m).unwrap();
+    let db = Database::open(&dir).unwrap();
+    assert_eq!(db.top().version, TOP_VERSION);
+    assert!(db.top().coarse_levels_premultiplied());
+    // The same database labelled format 4 (the layout is the same).
+    let mut top = db.top().clone();
+    top.version = 4;
+    let json = serde_json::to_vec(&top).unwrap();
+    write_atomic(&dir.join(MANIFEST_FILE), &json).unwrap();
+    write_atomic(
+        &dir.join(MANIFEST_HASH_FILE),
+        format!("{}\n", hash_hex(&json)).as_bytes(),
+    )
+    .unwrap();
+    let _ = fs::remove_file(dir.join(format!("{MANIFEST_FILE}.gz")));
+    let db = Database::open(&dir).unwrap();
+    assert_eq!(db.top().version, 4);
+    assert!(!db.top().coarse_levels_premultiplied());
+    // A format from a newer build is refused, naming both.
+    top.version = TOP_VERSION + 1;
+    let json = serde_json::to_vec(&top).unwrap();
+    write_atomic(&dir.join(MANIFEST_FILE), &json).unwrap();
+    write_atomic(
+        &dir.join(MANIFEST_HASH_FILE),
+        format!("{}\n", hash_hex(&json)).as_bytes(),
+    )
+    .unwrap();
+    let err = Database::open(&dir).unwrap_err().to_string();
+    assert!(
+        err.contains(&format!("manifest format {}", TOP_VERSION + 1))
+            && err.contains("reads formats 4 to 5"),
+        "{err}"
+    );
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn clear_masked_touches_only_texels_without_alpha() {
+    let mut px = vec![10, 20, 30, 0, 40, 50, 60, 255, 70, 80, 90, 128, 0, 0, 0, 0];
+    clear_masked(&mut px);
+    assert_eq!(
+        px,
+        vec![0, 0, 0, 0, 40, 50, 60, 255, 70, 80, 90, 128, 0, 0, 0, 0]
+    );
+}
+
+#[test]
+fn unpremultiply_leaves_empty_and_opaque_texels_alone() {
+    let mut px = vec![
+        0, 0, 0, 0, 40, 50, 60, 255, 100, 20, 0, 128, 200, 200, 200, 100,
+    ];
+    unpremultiply(&mut px);
+    // 100·255/128 = 199.2; 200·255/100 = 510 → 255 (more colour than coverage: clamped).
+    assert_eq!(
+        px,
+        vec![0, 0, 0, 0, 40, 50, 60, 255, 199, 40, 0, 128, 255, 255, 255, 100]
+    );
+}
+
+proptest::proptest! {
+    /// A tile cleared under its mask (format 5) and reduced by the PTM pyramid: every coarse
+    /// texel, divided by its alpha, is the mean colour of the opaque texels it covers (within
+    /// the pyramid's integer rounding), so coarse outlines are neither darkened nor tinted by
+    /// what lay under the mask.
+    #[test]
+    fn coarse_levels_unpremultiplied_are_the_covered_texels_mean_colour(
+        seed in proptest::prelude::any::<u64>(),
+        fill in 1u32..16,
+        junk in proptest::prelude::any::<u8>(),
+    ) {
+        let n = 16u32;
+        let mut state = seed | 1;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        // Binary alpha (as every renderer writes it); colour everywhere, `junk` under the mask.
+        let mut px = Vec::new();
+        for _ in 0..n * n {
+            let r = next();
+            let opaque = (r % 16) < u64::from(fill);
+            let c = [(r >> 8) as u8, (r >> 16) as u8, (r >> 24) as u8];
+            if opaque {
+                px.extend_from_slice(&[c[0], c[1], c[2], 255]);
+            } else {
+                px.extend_from_slice(&[junk, junk, junk, 0]);
+            }
+        }
+        let mut cleared = px.clone();
+        clear_masked(&mut cleared);
+        let chain = ptm::MipChain::build(&ptm::Image::new(n, n, 4, cleared).unwrap(), 4).unwrap();
+        for (level, img) in chain.levels.iter().enumerate().skip(1) {
+            let step = 1u32 << level;
+            let mut texels = img.data().to_vec();
+            unpremultiply(&mut texels);
+            for (i, t) in texels.chunks_exact(4).enumerate() {
+                let (cx, cy) = (i as u32 % img.width(), i as u32 / img.width());
+                let mut sum = [0u32; 3];
+                let mut count = 0u32;
+                for y in cy * step..(cy + 1) * step {
+                    for x in cx * step..(cx + 1) * step {
+                        let p = &px[((y * n + x) * 4) as usize..][..4];
+                        if p[3] == 255 {
+                            count += 1;
+                            for k in 0..3 {
+                                sum[k] += u32::from(p[k]);
+                            }
+                        }
+                    }
+                }
+                if count == 0 {
+                    proptest::prop_assert_eq!(t, &[0, 0, 0, 0][..]);
+                    continue;
+                }
+                for k in 0..3 {
+                    let mean = sum[k] as f64 / count as f64;
+                    // The pyramid rounds each level down by up to one unit of the level's
+                    // colour; divided by a coverage down to 1/step², that is step² units.
+                    let tol = 1.0 + f64::from(step * step) / f64::from(count).max(1.0) * 2.0;
+                    proptest::prop_assert!(
+                        (f64::from(t[k]) - mean).abs() <= tol,
+                        "level {} texel ({}, {}) channel {}: {} against the mean {:.1} of {} texels",
+                        level, cx, cy, k, t[k], mean, count
+                    );
+                }
+            }
+        }
+    }
+}
