@@ -5,6 +5,8 @@
 //! mask carry the colour of their nearest opaque neighbours ([`dilate_masked`]) so bilinear
 //! filtering at a mask edge never pulls in black.
 
+use std::sync::LazyLock;
+
 use tracks::{CubeMap, Face, TileGrid, TileId};
 
 /// One cube-map layer and its mip chain (level 0 first).
@@ -13,8 +15,16 @@ pub struct Layer {
     pub levels: Vec<CubeMap<[u8; 4]>>,
 }
 
-/// sRGB byte → linear.
+/// sRGB byte → linear (a table of [`srgb_to_linear_exact`]: mip levels and the CPU sampler
+/// convert every texel they touch, and `powf` was most of a streamed tile's mip update).
 pub fn srgb_to_linear(c: u8) -> f32 {
+    static TABLE: LazyLock<[f32; 256]> =
+        LazyLock::new(|| std::array::from_fn(|b| srgb_to_linear_exact(b as u8)));
+    TABLE[c as usize]
+}
+
+/// sRGB byte → linear, computed.
+pub fn srgb_to_linear_exact(c: u8) -> f32 {
     let c = c as f32 / 255.0;
     if c <= 0.04045 {
         c / 12.92
@@ -23,8 +33,36 @@ pub fn srgb_to_linear(c: u8) -> f32 {
     }
 }
 
-/// Linear → sRGB byte (rounded).
+/// Linear → sRGB byte (rounded): the same byte as [`linear_to_srgb_exact`] for every `c`,
+/// found among the 255 smallest linear values at which the computed byte steps up (NaN
+/// gives 0, as the computed form does).
 pub fn linear_to_srgb(c: f32) -> u8 {
+    static STEPS: LazyLock<[f32; 255]> =
+        LazyLock::new(|| std::array::from_fn(|b| first_at_least(b as u8 + 1)));
+    if c.is_nan() {
+        return 0;
+    }
+    STEPS.partition_point(|&t| t <= c) as u8
+}
+
+/// The smallest `f32` in [0, 1] whose computed sRGB byte is at least `b` (> 0): bisection
+/// over the bit patterns, which order non-negative floats as their values.
+fn first_at_least(b: u8) -> f32 {
+    let (mut lo, mut hi) = (0u32, 1.0f32.to_bits());
+    // Invariant: byte(lo) < b <= byte(hi).
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if linear_to_srgb_exact(f32::from_bits(mid)) >= b {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    f32::from_bits(hi)
+}
+
+/// Linear → sRGB byte (rounded), computed.
+pub fn linear_to_srgb_exact(c: f32) -> u8 {
     let c = c.clamp(0.0, 1.0);
     let s = if c <= 0.003_130_8 {
         c * 12.92
@@ -334,6 +372,40 @@ fn dilate_window(map: &CubeMap<[u8; 4]>, window: FaceRect) -> Vec<[u8; 4]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_tables_give_the_computed_conversions() {
+        for b in 0..=255u8 {
+            assert_eq!(
+                srgb_to_linear(b).to_bits(),
+                srgb_to_linear_exact(b).to_bits()
+            );
+        }
+        // Around every step of the byte (a float either side), at the ends, past them, and
+        // on a dense sweep of [0, 1].
+        let mut probes = vec![-1.0, -0.0, 0.0, 1.0, 1.5, f32::INFINITY, f32::NEG_INFINITY];
+        for b in 1..=255u8 {
+            let t = first_at_least(b);
+            probes.extend([
+                t,
+                f32::from_bits(t.to_bits() - 1),
+                f32::from_bits(t.to_bits() + 1),
+            ]);
+        }
+        probes.extend((0..=200_000).map(|i| i as f32 / 200_000.0));
+        for c in probes {
+            assert_eq!(linear_to_srgb(c), linear_to_srgb_exact(c), "{c:e}");
+        }
+        assert_eq!(linear_to_srgb(f32::NAN), linear_to_srgb_exact(f32::NAN));
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn linear_to_srgb_table_matches_for_any_float(bits in proptest::prelude::any::<u32>()) {
+            let c = f32::from_bits(bits);
+            proptest::prop_assert_eq!(linear_to_srgb(c), linear_to_srgb_exact(c));
+        }
+    }
 
     #[test]
     fn srgb_round_trips_every_byte() {
