@@ -101,6 +101,8 @@ fn view_streams_from_a_served_database_and_closes_after_its_frames() {
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(out.contains("every visible tile shown after"), "{out}");
+    // How smooth the walk was: the frame-to-frame intervals.
+    assert!(out.contains("frame interval median"), "{out}");
     let summary = out
         .lines()
         .find(|l| l.contains("frames in"))

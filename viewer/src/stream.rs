@@ -29,16 +29,18 @@
 //! walker comes back, the views are consumed again from the session's cache, and what left
 //! the cache is downloaded again (the session asks for what its cache lacks).
 //!
-//! Re-decoding is spread over several steps so that a returning view does not cost one long
-//! frame: parts taken from the session's cache (rather than arrived in this step, which are
-//! few and always consumed at once) count against [`StreamedWalkthrough::redecode_budget`]
-//! per step (the decoded texels of the PTM levels, as the session's item table counts them,
-//! plus [`REDECODE_PART_BYTES`] per part for its fixed cost; at least one part per step).
+//! Decoding is spread over several steps so that neither a returning view nor a burst of
+//! arrivals costs one long frame: every part a step consumes, whether it arrived in this
+//! step or is taken from the session's cache, counts against
+//! [`StreamedWalkthrough::redecode_budget`] per step (the decoded texels of the PTM levels,
+//! as the session's item table counts them, plus [`REDECODE_PART_BYTES`] per part for its
+//! fixed cost; at least one part per step).
 //! The parts are taken first for the pair of views drawn, then the other protected views;
 //! within those, every item's mesh and coarsest level before any item's finer levels (the
 //! PTM decoder gives the coarse levels first, so a view being re-filled draws from whatever
 //! levels it has, coarse everywhere before sharp anywhere), nearest view first. The rest
-//! waits in the cache for the next steps ([`StepReport::backlog`]); nothing is skipped, so
+//! waits, arrived parts beside their item and the others in the cache, for the next steps
+//! ([`StepReport::backlog`]); nothing is skipped, so
 //! the views end as the one-step path leaves them. A partially re-filled view is reported as
 //! any streamed one is: whole when it is laid out again, by tile regions afterwards.
 
@@ -73,7 +75,9 @@ pub const HIGHLIGHT: Duration = Duration::from_secs(1);
 /// loaded 2-core machine) that is about 200 parts and a median of 11 ms per step for choosing,
 /// decoding, pasting and updating tile regions, where decoding a returning view in one step
 /// took up to 630 ms; a returning face-1024 view (tens of megabytes) is re-filled over some
-/// dozens of frames, the coarse levels of all its tiles within the first ones.
+/// dozens of frames, the coarse levels of all its tiles within the first ones. The same
+/// budget spreads a burst of arrivals (a fast link delivers a segment's parts within a few
+/// steps).
 pub const DEFAULT_REDECODE_BUDGET: u64 = 1 << 20;
 
 /// What one part counts against [`StreamedWalkthrough::redecode_budget`] besides its decoded
@@ -145,15 +149,16 @@ pub struct StepReport {
     pub evicted: Vec<usize>,
     /// [`StreamedWalkthrough::decoded_bytes`] after the step.
     pub decoded_bytes: u64,
-    /// Parts consumed from the session's cache in this step (re-decoding after an eviction,
-    /// or parts that arrived while their view was not needed), and what they count against
+    /// Parts consumed in this step (arrived in it, or taken from the session's cache:
+    /// re-decoding after an eviction, or parts that arrived while their view was not
+    /// needed, or in a step whose budget was spent), and what they count against
     /// [`StreamedWalkthrough::redecode_budget`] (decoded bytes as the session's item table
     /// counts them, plus [`REDECODE_PART_BYTES`] each): at most the budget unless it is a
     /// single part.
     pub redecoded_parts: usize,
     pub redecoded_bytes: u64,
-    /// Items of the views needed now (or with parts that arrived) whose next parts wait in
-    /// the session's cache for later steps, the per-step budget being spent.
+    /// Items of the views needed now (or with parts that arrived) whose next parts wait
+    /// (arrived, or in the session's cache) for later steps, the per-step budget being spent.
     pub backlog: usize,
 }
 
@@ -440,6 +445,21 @@ impl StreamedWalkthrough {
                 }
             }
         }
+        // Parts that arrived in earlier steps and wait for a step with budget left: taken in
+        // turn where their view is still wanted, else left to the session's cache (from which
+        // they are consumed when the view is needed again).
+        for (i, it) in self.items.iter_mut().enumerate() {
+            if it.waiting.is_empty() {
+                continue;
+            }
+            let wanted = protected.contains(&it.view)
+                || self.dense.get(it.view).is_some_and(|d| !d.is_empty());
+            if !wanted {
+                it.waiting.clear();
+            } else if !it.failed && it.waiting.contains_key(&it.next) {
+                touched.insert(i);
+            }
+        }
         while self
             .arrivals
             .front()
@@ -456,8 +476,8 @@ impl StreamedWalkthrough {
         let work: Vec<(usize, Vec<Bytes>, String)> = touched
             .iter()
             .map(|&item| {
-                let cached = plan.allowed.get(&item).copied().unwrap_or(0);
-                (item, self.take_parts(item, cached), self.item_name(item))
+                let count = plan.allowed.get(&item).copied().unwrap_or(0);
+                (item, self.take_parts(item, count), self.item_name(item))
             })
             .collect();
         let mut work = work.into_iter().peekable();
@@ -749,21 +769,19 @@ impl StreamedWalkthrough {
 
     /// The parts of `item` that are next in order (received, or at most `cached` of them
     /// taken from the session's cache), out of its waiting list.
-    fn take_parts(&mut self, item: usize, mut cached: usize) -> Vec<Bytes> {
+    /// The next `count` parts of `item` in order, each from those that arrived for it or
+    /// from the session's cache (fewer when one is in neither).
+    fn take_parts(&mut self, item: usize, count: usize) -> Vec<Bytes> {
         let it = &mut self.items[item];
         let mut out = Vec::new();
-        loop {
+        while out.len() < count {
             let next = it.next + out.len();
             let data = match it.waiting.remove(&next) {
                 Some(data) => data,
-                None if cached > 0 => match self.session.part_bytes(item, next) {
-                    Some(data) => {
-                        cached -= 1;
-                        data.clone()
-                    }
+                None => match self.session.part_bytes(item, next) {
+                    Some(data) => data.clone(),
                     None => break,
                 },
-                None => break,
             };
             out.push(data);
         }

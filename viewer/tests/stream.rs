@@ -884,3 +884,63 @@ fn steady_step_times() {
         let _ = std::fs::remove_dir_all(dir);
     }
 }
+
+/// A burst of arrivals (everything the first segment needs, at once on loopback) is consumed
+/// a budget per step, the drawn pair's coarse levels first, and ends as the whole database
+/// draws: no step decodes more than the budget, and some steps leave arrived parts over.
+#[test]
+fn a_burst_of_arrivals_is_consumed_a_budget_per_step() {
+    let Some(mut r) = renderer() else {
+        return;
+    };
+    let street = synth_street(FACE, &Scene::street_slabs(), MeshParams::default()).unwrap();
+    let dir: PathBuf =
+        std::env::temp_dir().join(format!("railview-viewer-burst-{}", std::process::id()));
+    write_db(&street, &dir);
+    let full_ref = open(&dir, None, LoadOptions::default()).unwrap();
+    let (url, stop, thread) = serve(&dir);
+    let mut st =
+        StreamedWalkthrough::connect(&url, None, LiveConfig::with_cache(64 << 20)).unwrap();
+    let budget = 8 << 10;
+    st.set_redecode_budget(budget);
+    let s = 0.75;
+    let cam = camera(&st.walk, s, 0.0);
+    let (mut steps_over, mut left_over) = (0, 0);
+    let start = Instant::now();
+    loop {
+        let rep = st.step(s, &cam, None);
+        rep.apply(&mut r, &st.walk.views);
+        assert!(
+            rep.redecoded_parts <= 1 || rep.redecoded_bytes <= budget,
+            "{} parts, {} bytes in one step",
+            rep.redecoded_parts,
+            rep.redecoded_bytes
+        );
+        left_over += usize::from(rep.backlog > 0);
+        steps_over += 1;
+        let stats = st.session().stats();
+        if rep.arrivals == 0
+            && rep.backlog == 0
+            && stats.in_flight + stats.queued == 0
+            && st.segment_showable()
+        {
+            break;
+        }
+        assert!(start.elapsed() < Duration::from_secs(30), "did not settle");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    settle(&mut st, &mut r, s, &cam);
+    eprintln!("burst consumed over {steps_over} steps, {left_over} of them leaving parts over");
+    assert!(left_over > 0, "the burst fitted one step's budget");
+    let got = render(&mut r, &st.walk, &cam, s);
+    r.forget_views();
+    let want = render(&mut r, &full_ref, &cam, s);
+    assert!(
+        mean_abs_diff(&got, &want) < 0.5,
+        "{}",
+        mean_abs_diff(&got, &want)
+    );
+    drop(stop);
+    thread.join().unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+}

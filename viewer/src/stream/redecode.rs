@@ -1,28 +1,28 @@
-//! Re-decoding from the session's cache a budget per step (see the parent module's docs):
-//! which parts a step takes, in which order.
+//! Decoding a budget per step, parts that arrived and parts from the session's cache alike
+//! (see the parent module's docs): which parts a step takes, in which order.
 
 use std::cmp::Reverse;
 use std::collections::{BTreeSet, BinaryHeap, HashMap};
 
 use super::{StreamedWalkthrough, REDECODE_PART_BYTES};
 
-/// What [`StreamedWalkthrough::plan_redecode`] allows one step to take from the cache.
+/// What [`StreamedWalkthrough::plan_redecode`] allows one step to consume.
 #[derive(Debug, Default)]
 pub(super) struct RedecodePlan {
     /// Parts per item.
     pub(super) allowed: HashMap<usize, usize>,
     pub(super) parts: usize,
     pub(super) bytes: u64,
-    /// Items with cached parts left over.
+    /// Items with parts left over (arrived or cached).
     pub(super) backlog: usize,
 }
 
-/// An item's next part to take from the cache, in the order parts are taken: `(rank of its
+/// An item's next part to consume, in the order parts are taken: `(rank of its
 /// view, level position, distance bits, item, part)` (see
 /// [`StreamedWalkthrough::plan_redecode`]).
 type QueueKey = (u8, usize, u64, usize, usize);
 
-/// Take parts off `queue` (one entry per item: its next part from the cache) in order while
+/// Take parts off `queue` (one entry per item: its next part) in order while
 /// their `cost` fits `budget` (the first always does), queueing each item's following part
 /// (`next` of an item and the part just taken).
 fn schedule(
@@ -53,26 +53,26 @@ fn schedule(
 }
 
 impl StreamedWalkthrough {
-    /// Decoded bytes (plus [`REDECODE_PART_BYTES`] per part) of parts consumed from the
-    /// session's cache per step (default [`DEFAULT_REDECODE_BUDGET`]).
+    /// Decoded bytes (plus [`REDECODE_PART_BYTES`] per part) of the parts a step consumes,
+    /// arrived or from the session's cache (default [`DEFAULT_REDECODE_BUDGET`]).
     pub fn redecode_budget(&self) -> u64 {
         self.redecode_budget
     }
 
-    /// Consume parts from the session's cache worth at most `bytes` per step (decoded bytes
-    /// plus [`REDECODE_PART_BYTES`] each; always at least one part, so a step makes progress
-    /// whatever the budget); what is left is consumed in later steps (see the module docs).
-    /// `u64::MAX`: everything at once.
+    /// Consume parts (arrived, or from the session's cache) worth at most `bytes` per step
+    /// (decoded bytes plus [`REDECODE_PART_BYTES`] each; always at least one part, so a step
+    /// makes progress whatever the budget); what is left is consumed in later steps (see the
+    /// module docs). `u64::MAX`: everything at once.
     pub fn set_redecode_budget(&mut self, bytes: u64) {
         self.redecode_budget = bytes;
     }
 
-    /// Which parts to take from the session's cache in this step, within
-    /// [`StreamedWalkthrough::redecode_budget`]: among the items about to be consumed, those
-    /// of the pair of views drawn first, then the other protected views, then the rest; within
-    /// those, by how far along its parts an item is (each item's mesh and coarsest level
-    /// before any item's finer levels), then the view nearest to `s`, then item order. Parts
-    /// that arrived in this step (`waiting`) cost nothing and are skipped over.
+    /// Which parts to consume in this step, within [`StreamedWalkthrough::redecode_budget`]:
+    /// among the items about to be consumed (their next part arrived or is in the session's
+    /// cache), those of the pair of views drawn first, then the other protected views, then
+    /// the rest; within those, by how far along its parts an item is (each item's mesh and
+    /// coarsest level before any item's finer levels), then the view nearest to `s`, then
+    /// item order.
     pub(super) fn plan_redecode(
         &self,
         touched: &BTreeSet<usize>,
@@ -81,13 +81,11 @@ impl StreamedWalkthrough {
         s: f64,
     ) -> RedecodePlan {
         let table = &self.session.table().items;
-        // The next part of `item` from `part` on that must come from the cache, if held.
-        let next_cached = |item: usize, mut part: usize| -> Option<usize> {
-            let it = &self.items[item];
-            while it.waiting.contains_key(&part) {
-                part += 1;
-            }
-            self.session.part_bytes(item, part).map(|_| part)
+        // Part `part` of `item`, if it arrived or is held in the cache.
+        let available = |item: usize, part: usize| -> Option<usize> {
+            (self.items[item].waiting.contains_key(&part)
+                || self.session.part_bytes(item, part).is_some())
+            .then_some(part)
         };
         let key = |item: usize, part: usize| {
             let it = &self.items[item];
@@ -111,17 +109,23 @@ impl StreamedWalkthrough {
         let queue: Vec<QueueKey> = touched
             .iter()
             .filter(|&&i| !self.items[i].failed)
-            .filter_map(|&i| next_cached(i, self.items[i].next).map(|p| key(i, p)))
+            .filter_map(|&i| available(i, self.items[i].next).map(|p| key(i, p)))
             .collect();
         let cost = |item: usize, part: usize| {
             table
                 .get(item)
                 .and_then(|t| t.info.part_mem.get(part).copied())
-                .or_else(|| self.session.part_bytes(item, part).map(|b| b.len() as u64))
+                .or_else(|| {
+                    let it = &self.items[item];
+                    it.waiting
+                        .get(&part)
+                        .or_else(|| self.session.part_bytes(item, part))
+                        .map(|b| b.len() as u64)
+                })
                 .unwrap_or(0)
                 .saturating_add(REDECODE_PART_BYTES)
         };
-        let next = |item: usize, part: usize| next_cached(item, part + 1).map(|p| key(item, p));
+        let next = |item: usize, part: usize| available(item, part + 1).map(|p| key(item, p));
         schedule(queue, self.redecode_budget, cost, next)
     }
 }
