@@ -7,7 +7,7 @@ mod common;
 use std::path::PathBuf;
 use std::process::Output;
 
-use common::{railview, scratch_dir, stderr};
+use common::{railview, scratch_dir, small_castle, stderr};
 
 fn tmp(name: &str) -> PathBuf {
     scratch_dir("cli-render", name)
@@ -104,27 +104,7 @@ fn relabel_format(db: &std::path::Path, version: u32) {
 #[test]
 fn coarse_levels_draw_outlines_in_their_own_colour() {
     let d = tmp("coarse");
-    let track = d.join("short.toml");
-    std::fs::write(
-        &track,
-        "[[track]]\nname = \"short\"\npoints = [[0, 1.7, 42], [0, 1.7, 36]]\ncount = 3\n",
-    )
-    .unwrap();
-    let db = d.join("db");
-    let o = railview(&[
-        "build",
-        "--scene",
-        "castle",
-        "--track",
-        track.to_str().unwrap(),
-        "--face-size",
-        "64",
-        "--zstd-level",
-        "3",
-        "--out",
-        db.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let db = small_castle(&d, 64);
     let view = |groups: Option<&str>| {
         let mut args = vec![
             "render",

@@ -49,6 +49,26 @@ struct EvalJson<'a> {
     summary: Vec<viewer::headless::EvalSummary>,
 }
 
+/// For a database directory, the level-group counts (1, 2) below the most any tile's PTM has:
+/// the partial loads worth evaluating. Nothing for other sources.
+fn coarse_level_groups(db: &str) -> anyhow::Result<Vec<usize>> {
+    let dir = std::path::Path::new(db);
+    if !dir.join(streamer::db::MANIFEST_FILE).is_file() {
+        return Ok(Vec::new());
+    }
+    let db = streamer::db::Database::open(dir)?;
+    let most = db
+        .manifest()
+        .tracks
+        .iter()
+        .flat_map(|t| &t.viewpoints)
+        .flat_map(|v| v.tiles.iter().filter_map(|t| t.ptm.as_ref()))
+        .map(|p| p.levels.len())
+        .max()
+        .unwrap_or(0);
+    Ok((1..=2).filter(|&g| g < most).collect())
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let size = parse_size(&args.size).map_err(anyhow::Error::msg)?;
     anyhow::ensure!(args.segments >= 1, "--segments must be at least 1");
@@ -102,6 +122,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             viewer::headless::synth_street_spaced(64, &slabs3, base, 2.25)?,
             full("db spacing=2.25"),
         ));
+    }
+    // A database: also what a client shows before the finer texture levels arrive (the first
+    // level groups of every PTM), whose bytes are what those groups cost.
+    for groups in coarse_level_groups(&args.db)? {
+        let name = format!("db level groups={groups}");
+        let w = open(
+            &args.db,
+            args.track.as_deref(),
+            LoadOptions {
+                level_groups: Some(groups),
+                ..Default::default()
+            },
+        )
+        .with_context(|| format!("opening {} with {groups} level groups", args.db))?;
+        let configs = vec![viewer::headless::EvalConfig {
+            name: name.clone(),
+            budget: viewer::DrawBudget::default(),
+        }];
+        runs.push((name, w, configs));
     }
     runs.insert(0, (args.db.clone(), walk, default_configs()));
     let total: usize = runs

@@ -43,3 +43,32 @@ pub fn text(o: &Output) -> String {
         String::from_utf8_lossy(&o.stderr)
     )
 }
+
+/// Build the built-in castle along a 6 m track of three viewpoints at face `face` into
+/// `dir/db` (prerender, slabs, culling and encoding take a second or two at face 64) and
+/// return the database's path.
+pub fn small_castle(dir: &std::path::Path, face: u32) -> PathBuf {
+    let track = dir.join("short.toml");
+    std::fs::write(
+        &track,
+        "[[track]]\nname = \"short\"\npoints = [[0, 1.7, 42], [0, 1.7, 36]]\ncount = 3\n",
+    )
+    .unwrap();
+    let db = dir.join("db");
+    let face = face.to_string();
+    let o = railview(&[
+        "build",
+        "--scene",
+        "castle",
+        "--track",
+        track.to_str().unwrap(),
+        "--face-size",
+        &face,
+        "--zstd-level",
+        "3",
+        "--out",
+        db.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    db
+}

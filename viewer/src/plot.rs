@@ -4,13 +4,17 @@
 use image::{Rgb, RgbImage};
 
 /// Series colours, in order, with their names for the legend.
-pub const SERIES_COLORS: [([u8; 3], &str); 6] = [
+pub const SERIES_COLORS: [([u8; 3], &str); 10] = [
     ([31, 119, 180], "blue"),
     ([255, 127, 14], "orange"),
     ([44, 160, 44], "green"),
     ([214, 39, 40], "red"),
     ([148, 103, 189], "purple"),
     ([140, 86, 75], "brown"),
+    ([227, 119, 194], "pink"),
+    ([127, 127, 127], "grey"),
+    ([188, 189, 34], "olive"),
+    ([23, 190, 207], "cyan"),
 ];
 
 /// Axis ranges `(x_min, x_max, y_min, y_max)` of the finite points (padded 5 %).

@@ -119,9 +119,7 @@ fn decode_ptm(
     what: &str,
 ) -> Result<(Vec<u8>, u32, u32, u32), SourceError> {
     let premultiplied = db.top().coarse_levels_premultiplied();
-    let count = groups
-        .unwrap_or(ptm.levels.len())
-        .clamp(1, ptm.levels.len().max(1));
+    let count = groups_used(ptm, groups);
     let mut dec = Decoder::new(Limits::default());
     for g in 0..count.min(ptm.levels.len()) {
         let bytes = db.read_level(ptm, g)?;
@@ -140,6 +138,24 @@ fn decode_ptm(
         streamer::db::unpremultiply(&mut rgba);
     }
     Ok((rgba, img.width(), img.height(), level))
+}
+
+/// How many of `ptm`'s level groups a load limited to `groups` reads (all for `None`; at
+/// least the coarsest).
+fn groups_used(ptm: &PtmRef, groups: Option<usize>) -> usize {
+    groups
+        .unwrap_or(ptm.levels.len())
+        .clamp(1, ptm.levels.len().max(1))
+        .min(ptm.levels.len())
+}
+
+/// Bytes of the level groups of `ptm` that a load limited to `groups` reads.
+fn group_bytes(ptm: &PtmRef, groups: Option<usize>) -> u64 {
+    ptm.levels
+        .iter()
+        .take(groups_used(ptm, groups))
+        .map(|l| l.len)
+        .sum()
 }
 
 /// A decoded PTM level as RGBA8 (grey, grey+alpha and RGB expanded).
@@ -232,7 +248,7 @@ pub fn from_database(
         let mut background = CubeMap::filled(n, [0, 0, 0, 0]);
         for (bi, bg) in vp.background.iter().enumerate() {
             let key = format!("{what} background tile {bi}");
-            bytes += bg.ptm.levels.iter().map(|l| l.len).sum::<u64>();
+            bytes += group_bytes(&bg.ptm, opts.level_groups);
             let (rgba, w, h, level) = decode_ptm(db, &bg.ptm, opts.level_groups, &key)?;
             paste_tile(&mut background, grid, bg.tile, (&rgba, w, h, level), &key)?;
         }
@@ -252,7 +268,7 @@ pub fn from_database(
             let layer = layers.get_mut(t.slab as usize).ok_or_else(|| {
                 format_err(&key, format!("slab {} beyond the manifest's slabs", t.slab))
             })?;
-            bytes += ptm.levels.iter().map(|l| l.len).sum::<u64>() + mesh_bytes.len() as u64;
+            bytes += group_bytes(ptm, opts.level_groups) + mesh_bytes.len() as u64;
             let (rgba, w, h, level) = decode_ptm(db, ptm, opts.level_groups, &key)?;
             paste_tile(layer, grid, t.tile, (&rgba, w, h, level), &key)?;
             let mesh = tile_mesh_from_bytes(&mesh_bytes, &key)?;
