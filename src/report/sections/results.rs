@@ -170,6 +170,7 @@ pub(super) fn evaluation(c: &mut Ctx) {
                 between.mean(1),
                 between.mean(2),
                 between.mean(3),
+                between.mean(4),
             ]
         })
         .collect();
@@ -184,6 +185,7 @@ pub(super) fn evaluation(c: &mut Ctx) {
             "SSIM between",
             "hole fraction between",
             "frame ms",
+            "database bytes",
         ]
         .map(String::from)
         .to_vec(),
@@ -191,18 +193,18 @@ pub(super) fn evaluation(c: &mut Ctx) {
     }));
 }
 
-/// Sums of `psnr_db`, `ssim`, `hole_fraction`, `frame_ms`.
+/// Sums of `psnr_db`, `ssim`, `hole_fraction`, `frame_ms`, `db_bytes`.
 #[derive(Default)]
 struct Acc {
     n: usize,
-    sums: [f64; 4],
-    counts: [usize; 4],
+    sums: [f64; 5],
+    counts: [usize; 5],
 }
 
 impl Acc {
     fn add(&mut self, row: &Value) {
         self.n += 1;
-        for (i, key) in ["psnr_db", "ssim", "hole_fraction", "frame_ms"]
+        for (i, key) in ["psnr_db", "ssim", "hole_fraction", "frame_ms", "db_bytes"]
             .iter()
             .enumerate()
         {
@@ -215,6 +217,9 @@ impl Acc {
     fn mean(&self, i: usize) -> String {
         if self.counts[i] == 0 {
             "–".into()
+        } else if i == 4 {
+            // Bytes: the same for every row of a configuration.
+            format!("{:.0}", self.sums[i] / self.counts[i] as f64)
         } else {
             format!("{:.3}", self.sums[i] / self.counts[i] as f64)
         }
