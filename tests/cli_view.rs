@@ -37,6 +37,19 @@ fn a_negative_cache_budget_is_refused_before_any_window_opens() {
 }
 
 #[test]
+fn a_target_rate_out_of_range_is_refused_before_any_window_opens() {
+    for bad in ["0", "-5", "NaN"] {
+        let o = railview(&["view", "synth:street", "--target-fps", bad]);
+        assert!(!o.status.success());
+        assert!(
+            stderr(&o).contains(&format!("--target-fps {bad}: must be between 1 and 1000")),
+            "{}",
+            stderr(&o)
+        );
+    }
+}
+
+#[test]
 fn view_streams_from_a_served_database_and_closes_after_its_frames() {
     if std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1") {
         eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
@@ -101,8 +114,13 @@ fn view_streams_from_a_served_database_and_closes_after_its_frames() {
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(out.contains("every visible tile shown after"), "{out}");
-    // How smooth the walk was: the frame-to-frame intervals.
+    // How smooth the walk was (the frame-to-frame intervals), and what the frame-time budget
+    // drew at the end.
     assert!(out.contains("frame interval median"), "{out}");
+    assert!(
+        out.contains("drawing at the end:") && out.contains("(target 10 fps)"),
+        "{out}"
+    );
     let summary = out
         .lines()
         .find(|l| l.contains("frames in"))

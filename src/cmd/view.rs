@@ -39,6 +39,9 @@ pub struct Args {
     /// Streaming: downloads in flight at most.
     #[arg(long, default_value_t = 6)]
     pub requests: usize,
+    /// Frame rate the frame-time budget holds by drawing less (a slider in the window too).
+    #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
+    pub target_fps: f64,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -55,6 +58,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.memory_mib
     );
     anyhow::ensure!(args.requests > 0, "--requests must be at least 1");
+    anyhow::ensure!(
+        args.target_fps.is_finite() && (1.0..=1000.0).contains(&args.target_fps),
+        "--target-fps {}: must be between 1 and 1000",
+        args.target_fps
+    );
     let source = if args.db.starts_with("http://") || args.db.starts_with("https://") {
         let mut config = LiveConfig::with_cache((args.memory_mib * 1048576.0) as u64);
         config.mode = strategy.mode();
@@ -73,6 +81,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         screenshot: args.screenshot,
         play: args.play,
         started,
+        target_fps: args.target_fps,
     };
     viewer::app::run(source, opts).map_err(|e| anyhow::anyhow!("viewer window: {e}"))
 }
