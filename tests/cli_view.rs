@@ -9,7 +9,7 @@ use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 
-use common::{railview, scratch_dir, stderr};
+use common::{railview, scratch_dir, small_castle, stderr};
 
 fn tmp(name: &str) -> PathBuf {
     scratch_dir("cli-view", name)
@@ -57,21 +57,7 @@ fn view_streams_from_a_served_database_and_closes_after_its_frames() {
     }
     let bin = env!("CARGO_BIN_EXE_railview");
     let work = tmp("castle");
-    let track = work.join("short.toml");
-    std::fs::write(
-        &track,
-        "[[track]]\nname = \"short\"\npoints = [[0, 1.7, 42], [0, 1.7, 36]]\ncount = 3\n",
-    )
-    .unwrap();
-    let db = work.join("db");
-    let o = Command::new(bin)
-        .args(["build", "--scene", "castle", "--track"])
-        .arg(&track)
-        .args(["--face-size", "16", "--zstd-level", "3", "--out"])
-        .arg(&db)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let db = small_castle(&work, 16);
 
     let mut child = Command::new(bin)
         .arg("serve")

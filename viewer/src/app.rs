@@ -210,16 +210,20 @@ impl ViewerApp {
         }
     }
 
-    /// What the frame draws: slabs, texture level, views, mesh level.
-    fn budget_text(&self) -> String {
-        let b = self.budget;
-        let slabs = self
-            .source
+    /// Slabs of the walkthrough's views (at least 1).
+    fn slab_count(&self) -> usize {
+        self.source
             .walk()
             .views
             .first()
             .map_or(1, |v| v.slab_count())
-            .max(1);
+            .max(1)
+    }
+
+    /// What the frame draws: slabs, texture level, views, mesh level.
+    fn budget_text(&self) -> String {
+        let b = self.budget;
+        let slabs = self.slab_count();
         format!(
             "{} slab(s), texture level +{}, {}, mesh level {}",
             b.max_slabs.min(slabs),
@@ -536,13 +540,7 @@ impl ViewerApp {
         ui.separator();
         ui.checkbox(&mut self.auto_budget, "frame-time budget");
         ui.add(egui::Slider::new(&mut self.target_fps, 5.0..=120.0).text("target fps"));
-        let slabs = self
-            .source
-            .walk()
-            .views
-            .first()
-            .map_or(1, |v| v.slab_count())
-            .max(1);
+        let slabs = self.slab_count();
         ui.add_enabled(
             !self.auto_budget,
             egui::Slider::new(&mut self.budget.max_slabs, 1..=slabs).text("slabs"),

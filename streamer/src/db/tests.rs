@@ -486,28 +486,25 @@ fn a_format_4_manifest_is_read_and_its_coarse_levels_are_taken_as_they_are() {
     assert_eq!(db.top().version, TOP_VERSION);
     assert!(db.top().coarse_levels_premultiplied());
     // The same database labelled format 4 (the layout is the same).
+    let write_top = |top: &TopManifest| {
+        let json = serde_json::to_vec(top).unwrap();
+        write_atomic(&dir.join(MANIFEST_FILE), &json).unwrap();
+        write_atomic(
+            &dir.join(MANIFEST_HASH_FILE),
+            format!("{}\n", hash_hex(&json)).as_bytes(),
+        )
+        .unwrap();
+        let _ = fs::remove_file(dir.join(format!("{MANIFEST_FILE}.gz")));
+    };
     let mut top = db.top().clone();
     top.version = 4;
-    let json = serde_json::to_vec(&top).unwrap();
-    write_atomic(&dir.join(MANIFEST_FILE), &json).unwrap();
-    write_atomic(
-        &dir.join(MANIFEST_HASH_FILE),
-        format!("{}\n", hash_hex(&json)).as_bytes(),
-    )
-    .unwrap();
-    let _ = fs::remove_file(dir.join(format!("{MANIFEST_FILE}.gz")));
+    write_top(&top);
     let db = Database::open(&dir).unwrap();
     assert_eq!(db.top().version, 4);
     assert!(!db.top().coarse_levels_premultiplied());
     // A format from a newer build is refused, naming both.
     top.version = TOP_VERSION + 1;
-    let json = serde_json::to_vec(&top).unwrap();
-    write_atomic(&dir.join(MANIFEST_FILE), &json).unwrap();
-    write_atomic(
-        &dir.join(MANIFEST_HASH_FILE),
-        format!("{}\n", hash_hex(&json)).as_bytes(),
-    )
-    .unwrap();
+    write_top(&top);
     let err = Database::open(&dir).unwrap_err().to_string();
     assert!(
         err.contains(&format!("manifest format {}", TOP_VERSION + 1))
