@@ -98,6 +98,8 @@ struct StreamUi {
     strategy: Strategy,
     prefetch: bool,
     level_cap: usize,
+    /// The debug overlay tinting tiles that arrived in the last second: off until asked for
+    /// (on a slow link tiles arrive all the time, and the walk would be seen through a tint).
     highlight: bool,
     live: Option<Vec<LiveCount>>,
     history: VecDeque<StreamSample>,
@@ -177,7 +179,7 @@ impl ViewerApp {
                 strategy,
                 prefetch,
                 level_cap: 0,
-                highlight: true,
+                highlight: false,
                 live: None,
                 history: VecDeque::new(),
                 first_complete_s: None,
