@@ -446,17 +446,11 @@ impl StreamedWalkthrough {
             }
         }
         // Parts that arrived in earlier steps and wait for a step with budget left: taken in
-        // turn where their view is still wanted, else left to the session's cache (from which
-        // they are consumed when the view is needed again).
-        for (i, it) in self.items.iter_mut().enumerate() {
-            if it.waiting.is_empty() {
-                continue;
-            }
-            let wanted = protected.contains(&it.view)
-                || self.dense.get(it.view).is_some_and(|d| !d.is_empty());
-            if !wanted {
-                it.waiting.clear();
-            } else if !it.failed && it.waiting.contains_key(&it.next) {
+        // turn, as they would have been at once, even where their view is no longer needed
+        // (a view that received them may stand in later, e.g. with the server gone; the
+        // decoded budget evicts what is too far).
+        for (i, it) in self.items.iter().enumerate() {
+            if !it.failed && it.waiting.contains_key(&it.next) {
                 touched.insert(i);
             }
         }
