@@ -120,3 +120,73 @@ fn view_streams_from_a_served_database_and_closes_after_its_frames() {
     drop(server);
     let _ = std::fs::remove_dir_all(work);
 }
+
+#[test]
+fn the_window_shows_the_headless_render_of_the_same_camera() {
+    if std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1") {
+        eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
+        return;
+    }
+    let bin = env!("CARGO_BIN_EXE_railview");
+    let work = tmp("same-picture");
+    let db = small_castle(&work, 16);
+    let shot = work.join("window.png");
+    let runtime = work.join("xdg");
+    std::fs::create_dir_all(&runtime).unwrap();
+    // Standing at the track's start, the default view; a target rate no frame misses, so
+    // the frame-time budget draws everything, as `railview render` does.
+    let o = Command::new("xvfb-run")
+        .args(["-a", bin, "view"])
+        .arg(&db)
+        .args(["--frames", "12", "--target-fps", "1", "--screenshot"])
+        .arg(&shot)
+        .env("XDG_RUNTIME_DIR", &runtime)
+        .output()
+        .expect("xvfb-run (apt-get install xvfb)");
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{out}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    // `…; view WxH px`: the view fills the window's right and bottom edges.
+    let size = out
+        .split("; view ")
+        .nth(1)
+        .and_then(|t| t.split_whitespace().next())
+        .unwrap_or_else(|| panic!("no view size in {out}"))
+        .to_string();
+    let (w, h) = size.split_once('x').unwrap();
+    let (w, h): (u32, u32) = (w.parse().unwrap(), h.parse().unwrap());
+    let rendered = work.join("render.png");
+    let o = railview(&[
+        "render",
+        db.to_str().unwrap(),
+        "--at",
+        "0",
+        "--fov",
+        "90",
+        "--size",
+        &size,
+        "-o",
+        rendered.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let window = image::open(&shot).unwrap().to_rgb8();
+    let headless = image::open(&rendered).unwrap().to_rgb8();
+    assert!(
+        window.width() >= w && window.height() == h,
+        "{size} in {window:?}"
+    );
+    let x0 = window.width() - w;
+    let mut worst = 0u8;
+    for (x, y, p) in headless.enumerate_pixels() {
+        let q = window.get_pixel(x0 + x, y);
+        for c in 0..3 {
+            worst = worst.max(p[c].abs_diff(q[c]));
+        }
+    }
+    // The view is copied into the window texel for pixel: the same bytes.
+    assert!(worst <= 1, "largest difference {worst} of 255");
+    let _ = std::fs::remove_dir_all(work);
+}

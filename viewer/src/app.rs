@@ -25,6 +25,8 @@ use crate::source::Walkthrough;
 use crate::stream::StreamedWalkthrough;
 use streamer::client::{LiveCount, PriorityMode};
 
+mod blit;
+
 const HISTORY: usize = 300;
 /// Frames between two GPU feedback read-backs while streaming.
 const FEEDBACK_EVERY: u64 = 5;
@@ -117,7 +119,6 @@ pub struct ViewerApp {
     view_px: [u32; 2],
     started: Instant,
     renderer: Option<Renderer>,
-    texture: Option<(egui::TextureId, [u32; 2])>,
     s: f64,
     speed_mps: f64,
     playing: bool,
@@ -148,6 +149,9 @@ pub struct ViewerApp {
 impl ViewerApp {
     /// Build from eframe's creation context; the renderer shares eframe's wgpu device.
     pub fn new(cc: &eframe::CreationContext<'_>, source: Source) -> ViewerApp {
+        if let Some(rs) = &cc.wgpu_render_state {
+            blit::BlitResources::install(rs);
+        }
         let (renderer, error) = match &cc.wgpu_render_state {
             Some(rs) => (
                 Some(Renderer::new(Gpu {
@@ -187,7 +191,6 @@ impl ViewerApp {
             view_px: [640, 360],
             started: Instant::now(),
             renderer,
-            texture: None,
             s: 0.0,
             speed_mps: 1.5,
             playing: false,
@@ -246,14 +249,19 @@ impl ViewerApp {
         q.push_back(v);
     }
 
-    /// Draw the current view into the renderer's target and show it as an egui texture.
+    /// Draw the current view into the renderer's target and show it (copied into the
+    /// window's pass by [`blit::BlitCallback`]).
     fn draw_view(&mut self, ui: &mut egui::Ui, frame: &eframe::Frame, size: egui::Vec2) {
-        let ppp = ui.ctx().pixels_per_point();
-        let w = ((size.x * ppp) as u32).max(1);
-        let h = ((size.y * ppp) as u32).max(1);
+        let (rect, response) = ui.allocate_exact_size(size, egui::Sense::drag());
+        let d = response.drag_delta();
+        self.yaw_offset_deg -= d.x as f64 * self.fov_deg / size.x.max(1.0) as f64;
+        self.pitch_deg = (self.pitch_deg + d.y as f64 * self.fov_deg / size.x.max(1.0) as f64)
+            .clamp(-90.0, 90.0);
+        // The output has the size of the viewport the copy is drawn in: texel for pixel.
+        let [w, h] = blit::viewport_px(rect, ui.ctx().pixels_per_point());
         self.view_px = [w, h];
         let camera = self.camera(w, h);
-        let (Some(r), Some(rs)) = (&mut self.renderer, frame.wgpu_render_state()) else {
+        let (Some(r), Some(_)) = (&mut self.renderer, frame.wgpu_render_state()) else {
             return;
         };
         let t0 = Instant::now();
@@ -294,49 +302,17 @@ impl ViewerApp {
         }
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         Self::push(&mut self.frame_ms, ms);
-        let Some(view) = r.output_view_unorm() else {
+        let (Some(srgb), Some(unorm)) = (r.output_view(), r.output_view_unorm()) else {
             return;
         };
-        let mut egui_renderer = rs.renderer.write();
-        let id = match self.texture {
-            Some((id, dims)) if dims == [w, h] => {
-                egui_renderer.update_egui_texture_from_wgpu_texture(
-                    &rs.device,
-                    view,
-                    wgpu::FilterMode::Linear,
-                    id,
-                );
-                id
-            }
-            Some((id, _)) => {
-                egui_renderer.update_egui_texture_from_wgpu_texture(
-                    &rs.device,
-                    view,
-                    wgpu::FilterMode::Linear,
-                    id,
-                );
-                self.texture = Some((id, [w, h]));
-                id
-            }
-            None => {
-                let id = egui_renderer.register_native_texture(
-                    &rs.device,
-                    view,
-                    wgpu::FilterMode::Linear,
-                );
-                self.texture = Some((id, [w, h]));
-                id
-            }
-        };
-        drop(egui_renderer);
-        let response = ui.add(
-            egui::Image::from_texture(egui::load::SizedTexture::new(id, size))
-                .sense(egui::Sense::drag()),
-        );
-        let d = response.drag_delta();
-        self.yaw_offset_deg -= d.x as f64 * self.fov_deg / size.x.max(1.0) as f64;
-        self.pitch_deg = (self.pitch_deg + d.y as f64 * self.fov_deg / size.x.max(1.0) as f64)
-            .clamp(-90.0, 90.0);
+        ui.painter()
+            .add(eframe::egui_wgpu::Callback::new_paint_callback(
+                rect,
+                blit::BlitCallback {
+                    srgb: srgb.clone(),
+                    unorm: unorm.clone(),
+                },
+            ));
     }
 
     /// The camera at the current position and view direction for a `w × h` image.
@@ -668,9 +644,11 @@ impl eframe::App for ViewerApp {
         if self.quit_after.is_some_and(|n| self.frames == n) {
             if let Some(line) = interval_summary(&self.intervals_ms) {
                 println!(
-                    "railview view: {line}; drawing at the end: {} (target {} fps)",
+                    "railview view: {line}; drawing at the end: {} (target {} fps); view {}x{} px",
                     self.budget_text(),
-                    self.target_fps
+                    self.target_fps,
+                    self.view_px[0],
+                    self.view_px[1]
                 );
             }
             if let Source::Stream(st) = &self.source {

@@ -1,0 +1,190 @@
+//! Showing the renderer's output in the window: a paint callback that copies it into egui's
+//! render pass texel for texel.
+//!
+//! Shown as an egui image, the view went through egui's own shader, which handles every case
+//! an image may need (filtering in the shader or the sampler, wrap modes, dithering); a
+//! software rasteriser runs every branch of it for every pixel, and at 700×650 that cost
+//! about 11 ms a frame on lavapipe. The view's output has the size of the rectangle it is
+//! shown in (the same rounding as the callback's viewport), so a copy needs one texel load
+//! and no blending.
+
+use eframe::egui;
+use eframe::egui_wgpu::{self, wgpu};
+
+/// The copy's pipeline, kept in egui's callback resources for the window's lifetime.
+pub struct BlitResources {
+    pipeline: wgpu::RenderPipeline,
+    layout: wgpu::BindGroupLayout,
+    /// The window's colour target is sRGB-encoding: bind the output's sRGB view (decoded on
+    /// load, encoded on store: the same bytes). Otherwise its plain view (the stored bytes).
+    srgb_target: bool,
+    /// This frame's output (set by `prepare`).
+    bind_group: Option<wgpu::BindGroup>,
+}
+
+const SHADER: &str = r#"
+@group(0) @binding(0) var view_image: texture_2d<f32>;
+
+struct Out {
+    @builtin(position) pos: vec4<f32>,
+    @location(0) uv: vec2<f32>,
+};
+
+// One triangle over the whole viewport (the callback's rectangle); `uv` runs 0..1 across it.
+@vertex
+fn vs(@builtin(vertex_index) i: u32) -> Out {
+    let uv = vec2<f32>(f32((i << 1u) & 2u), f32(i & 2u));
+    var o: Out;
+    o.pos = vec4<f32>(uv.x * 2.0 - 1.0, 1.0 - uv.y * 2.0, 0.0, 1.0);
+    o.uv = uv;
+    return o;
+}
+
+@fragment
+fn fs(in: Out) -> @location(0) vec4<f32> {
+    let size = vec2<i32>(textureDimensions(view_image));
+    let texel = clamp(vec2<i32>(in.uv * vec2<f32>(size)), vec2<i32>(0), size - vec2<i32>(1));
+    return vec4<f32>(textureLoad(view_image, texel, 0).rgb, 1.0);
+}
+"#;
+
+impl BlitResources {
+    /// Build the pipeline for the window's colour target and keep it in egui's callback
+    /// resources.
+    pub fn install(rs: &egui_wgpu::RenderState) {
+        let device = &rs.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("view blit"),
+            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+        });
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("view blit"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                    view_dimension: wgpu::TextureViewDimension::D2,
+                    multisampled: false,
+                },
+                count: None,
+            }],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("view blit"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("view blit"),
+            layout: Some(&pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: rs.target_format,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            primitive: wgpu::PrimitiveState::default(),
+            // eframe's render pass: no depth buffer, no multisampling (the window's defaults).
+            depth_stencil: None,
+            multisample: wgpu::MultisampleState::default(),
+            multiview_mask: None,
+            cache: None,
+        });
+        rs.renderer
+            .write()
+            .callback_resources
+            .insert(BlitResources {
+                pipeline,
+                layout,
+                srgb_target: rs.target_format.is_srgb(),
+                bind_group: None,
+            });
+    }
+}
+
+/// This frame's copy of the view: the renderer's output in its sRGB view (`srgb`) and its
+/// plain view (`unorm`), the one matching the window's target is bound.
+pub struct BlitCallback {
+    pub srgb: wgpu::TextureView,
+    pub unorm: wgpu::TextureView,
+}
+
+impl egui_wgpu::CallbackTrait for BlitCallback {
+    fn prepare(
+        &self,
+        device: &wgpu::Device,
+        _queue: &wgpu::Queue,
+        _screen: &egui_wgpu::ScreenDescriptor,
+        _encoder: &mut wgpu::CommandEncoder,
+        resources: &mut egui_wgpu::CallbackResources,
+    ) -> Vec<wgpu::CommandBuffer> {
+        if let Some(r) = resources.get_mut::<BlitResources>() {
+            let view = if r.srgb_target {
+                &self.srgb
+            } else {
+                &self.unorm
+            };
+            r.bind_group = Some(device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("view blit"),
+                layout: &r.layout,
+                entries: &[wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::TextureView(view),
+                }],
+            }));
+        }
+        Vec::new()
+    }
+
+    fn paint(
+        &self,
+        _info: egui::PaintCallbackInfo,
+        render_pass: &mut wgpu::RenderPass<'static>,
+        resources: &egui_wgpu::CallbackResources,
+    ) {
+        let Some(r) = resources.get::<BlitResources>() else {
+            return;
+        };
+        let Some(group) = &r.bind_group else {
+            return;
+        };
+        render_pass.set_pipeline(&r.pipeline);
+        render_pass.set_bind_group(0, group, &[]);
+        render_pass.draw(0..3, 0..1);
+    }
+}
+
+/// The size in pixels of the viewport egui gives a paint callback over `rect` (the same
+/// rounding as `egui::ViewportInPixels`, without the clamp to the screen).
+pub fn viewport_px(rect: egui::Rect, pixels_per_point: f32) -> [u32; 2] {
+    let px = |v: f32| (pixels_per_point * v).round() as i64;
+    let w = (px(rect.max.x) - px(rect.min.x)).max(1);
+    let h = (px(rect.max.y) - px(rect.min.y)).max(1);
+    [w as u32, h as u32]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn viewport_size_rounds_the_edges_as_egui_does() {
+        let r = egui::Rect::from_min_max(egui::pos2(10.3, 20.0), egui::pos2(110.6, 70.4));
+        assert_eq!(viewport_px(r, 1.0), [101, 50]);
+        assert_eq!(viewport_px(r, 1.5), [151, 76]);
+        // An empty rectangle still gets one pixel (the renderer needs a target).
+        let empty = egui::Rect::from_min_max(egui::pos2(5.0, 5.0), egui::pos2(5.0, 5.0));
+        assert_eq!(viewport_px(empty, 2.0), [1, 1]);
+    }
+}
