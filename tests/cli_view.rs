@@ -190,3 +190,54 @@ fn the_window_shows_the_headless_render_of_the_same_camera() {
     assert!(worst <= 1, "largest difference {worst} of 255");
     let _ = std::fs::remove_dir_all(work);
 }
+
+#[test]
+fn a_rate_out_of_reach_draws_the_view_smaller_and_scales_it_up() {
+    if std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1") {
+        eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
+        return;
+    }
+    let bin = env!("CARGO_BIN_EXE_railview");
+    let work = tmp("scaled");
+    let db = small_castle(&work, 16);
+    let shot = work.join("window.png");
+    let runtime = work.join("xdg");
+    std::fs::create_dir_all(&runtime).unwrap();
+    // 1000 fps: every step of the budget is too slow, so it walks down the whole ladder
+    // (one step per eight frames), the view's size included.
+    let o = Command::new("xvfb-run")
+        .args(["-a", bin, "view"])
+        .arg(&db)
+        .args(["--frames", "120", "--target-fps", "1000", "--screenshot"])
+        .arg(&shot)
+        .env("XDG_RUNTIME_DIR", &runtime)
+        .output()
+        .expect("xvfb-run (apt-get install xvfb)");
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{out}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(out.contains("drawn at 50 % of the view's size"), "{out}");
+    // The smaller picture fills the view's whole rectangle: its corners are scene, not the
+    // panels' colour.
+    let size = out
+        .split("; view ")
+        .nth(1)
+        .and_then(|t| t.split_whitespace().next())
+        .unwrap_or_else(|| panic!("no view size in {out}"));
+    let w: u32 = size.split_once('x').unwrap().0.parse().unwrap();
+    let window = image::open(&shot).unwrap().to_rgb8();
+    let panel = *window.get_pixel(2, window.height() - 2);
+    let (x0, x1) = (window.width() - w + 2, window.width() - 3);
+    for (x, y) in [
+        (x0, 2),
+        (x1, 2),
+        (x0, window.height() - 3),
+        (x1, window.height() - 3),
+    ] {
+        assert_ne!(*window.get_pixel(x, y), panel, "({x}, {y})");
+    }
+    let _ = std::fs::remove_dir_all(work);
+}

@@ -117,6 +117,8 @@ pub struct ViewerApp {
     stream: StreamUi,
     /// Size of the view drawn last (the camera for the next streaming step).
     view_px: [u32; 2],
+    /// Size of the rectangle it was shown in (larger where the budget draws it smaller).
+    shown_px: [u32; 2],
     started: Instant,
     renderer: Option<Renderer>,
     s: f64,
@@ -189,6 +191,7 @@ impl ViewerApp {
                 first_complete_s: None,
             },
             view_px: [640, 360],
+            shown_px: [640, 360],
             started: Instant::now(),
             renderer,
             s: 0.0,
@@ -225,12 +228,20 @@ impl ViewerApp {
             .max(1)
     }
 
-    /// What the frame draws: slabs, texture level, views, mesh level.
+    /// What the frame draws: slabs, texture level, views, mesh level, size.
     fn budget_text(&self) -> String {
         let b = self.budget;
         let slabs = self.slab_count();
+        let size = if b.render_scale < 1.0 {
+            format!(
+                ", drawn at {:.0} % of the view's size",
+                b.render_scale * 100.0
+            )
+        } else {
+            String::new()
+        };
         format!(
-            "{} slab(s), texture level +{}, {}, mesh level {}",
+            "{} slab(s), texture level +{}, {}, mesh level {}{size}",
             b.max_slabs.min(slabs),
             b.lod_bias,
             match (b.blend, b.half_res_second) {
@@ -257,8 +268,11 @@ impl ViewerApp {
         self.yaw_offset_deg -= d.x as f64 * self.fov_deg / size.x.max(1.0) as f64;
         self.pitch_deg = (self.pitch_deg + d.y as f64 * self.fov_deg / size.x.max(1.0) as f64)
             .clamp(-90.0, 90.0);
-        // The output has the size of the viewport the copy is drawn in: texel for pixel.
-        let [w, h] = blit::viewport_px(rect, ui.ctx().pixels_per_point());
+        // At full size the output has the size of the viewport the copy is drawn in: texel
+        // for pixel.
+        let shown = blit::viewport_px(rect, ui.ctx().pixels_per_point());
+        let [w, h] = blit::drawn_px(shown, self.budget.render_scale);
+        self.shown_px = shown;
         self.view_px = [w, h];
         let camera = self.camera(w, h);
         let (Some(r), Some(_)) = (&mut self.renderer, frame.wgpu_render_state()) else {
@@ -311,6 +325,7 @@ impl ViewerApp {
                 blit::BlitCallback {
                     srgb: srgb.clone(),
                     unorm: unorm.clone(),
+                    scaled: [w, h] != shown,
                 },
             ));
     }
@@ -517,7 +532,12 @@ impl ViewerApp {
         });
         ui.separator();
         ui.checkbox(&mut self.auto_budget, "frame-time budget");
-        ui.add(egui::Slider::new(&mut self.target_fps, 5.0..=120.0).text("target fps"));
+        // `--target-fps` may be outside the slider's range (1–1000): kept until edited.
+        ui.add(
+            egui::Slider::new(&mut self.target_fps, 5.0..=120.0)
+                .clamping(egui::SliderClamping::Edits)
+                .text("target fps"),
+        );
         let slabs = self.slab_count();
         ui.add_enabled(
             !self.auto_budget,
@@ -530,6 +550,12 @@ impl ViewerApp {
         ui.add_enabled(
             !self.auto_budget,
             egui::Checkbox::new(&mut self.budget.blend, "blend two views"),
+        );
+        ui.add_enabled(
+            !self.auto_budget,
+            egui::Slider::new(&mut self.budget.render_scale, 0.5..=1.0)
+                .step_by(0.25)
+                .text("size drawn"),
         );
         ui.label(format!("drawing: {}", self.budget_text()));
         ui.separator();
@@ -657,8 +683,8 @@ impl eframe::App for ViewerApp {
                     "railview view: {line}; drawing at the end: {} (target {} fps); view {}x{} px",
                     self.budget_text(),
                     self.target_fps,
-                    self.view_px[0],
-                    self.view_px[1]
+                    self.shown_px[0],
+                    self.shown_px[1]
                 );
             }
             if let Source::Stream(st) = &self.source {

@@ -45,6 +45,12 @@ pub struct DrawBudget {
     /// blend it in while drawing the first (frames without tile ids and overlays only; see
     /// [`crate::gpu`]). Off = full quality.
     pub half_res_second: bool,
+    /// Fraction of the window's width and height the view is drawn at (1, 0.75 or 0.5; the
+    /// window scales the picture up to its rectangle). Where a texel covers more than a
+    /// pixel, as at face 256 in a 700-pixel window, a smaller frame loses little detail,
+    /// unlike coarser texture levels. The window's choice only: headless commands draw at
+    /// the size asked for.
+    pub render_scale: f32,
 }
 
 impl Default for DrawBudget {
@@ -55,6 +61,7 @@ impl Default for DrawBudget {
             blend: true,
             mesh_level: 0,
             half_res_second: false,
+            render_scale: 1.0,
         }
     }
 }
@@ -447,7 +454,8 @@ fn plan_view(
 /// The frame-time budget (Marvie, Perret & Bouatouch §5.4): from the mean of recent frame
 /// times, step the drawing down when it is over `target_ms` (first the second view at half
 /// resolution, the cheapest in quality: −0.03 dB and −0.006 SSIM between samples on the
-/// street, a quarter less frame time on lavapipe; then coarser textures, then coarser meshes,
+/// street, a quarter less frame time on lavapipe; then the window's view drawn at 3/4 and
+/// 1/2 of its width and height, then coarser textures, then coarser meshes,
 /// then the second view, then slabs beyond the first: dropping slabs opens holes, so it
 /// comes last) and back up in the reverse order when it is well under (below
 /// 60 %), one step per call. `slabs` is the number of slabs the views have. Stateless; see
@@ -472,14 +480,36 @@ pub fn adjust_budget(b: DrawBudget, recent_ms: &[f64], target_ms: f64, slabs: us
 /// Most texture levels the budget adds.
 const MAX_LOD_BIAS: f32 = 2.0;
 
+/// Smallest [`DrawBudget::render_scale`] the budget picks, and its step.
+const MIN_RENDER_SCALE: f32 = 0.5;
+const RENDER_SCALE_STEP: f32 = 0.25;
+
+/// Steps of the render scale from 1 down to [`MIN_RENDER_SCALE`].
+fn scale_steps_max() -> usize {
+    ((1.0 - MIN_RENDER_SCALE) / RENDER_SCALE_STEP).round() as usize
+}
+
+/// Steps of [`DrawBudget::render_scale`] below 1 (0, 1 or 2).
+fn scale_steps(b: DrawBudget) -> usize {
+    let s = if b.render_scale.is_finite() {
+        b.render_scale.clamp(MIN_RENDER_SCALE, 1.0)
+    } else {
+        1.0
+    };
+    ((1.0 - s) / RENDER_SCALE_STEP).round() as usize
+}
+
 /// One step cheaper (unchanged at the bottom).
 pub fn step_down(b: DrawBudget, slabs: usize) -> DrawBudget {
     let slabs = slabs.max(1);
     let mut out = b;
     out.max_slabs = b.max_slabs.min(slabs).max(1);
     out.mesh_level = b.mesh_level.min(crate::refview::MESH_LEVELS);
+    out.render_scale = 1.0 - RENDER_SCALE_STEP * scale_steps(b) as f32;
     if !out.half_res_second {
         out.half_res_second = true;
+    } else if scale_steps(out) < scale_steps_max() {
+        out.render_scale = 1.0 - RENDER_SCALE_STEP * (scale_steps(out) + 1) as f32;
     } else if out.lod_bias < MAX_LOD_BIAS {
         out.lod_bias = (out.lod_bias + 1.0).min(MAX_LOD_BIAS);
     } else if out.mesh_level < crate::refview::MESH_LEVELS {
@@ -498,6 +528,7 @@ pub fn step_up(b: DrawBudget, slabs: usize) -> DrawBudget {
     let mut out = b;
     out.max_slabs = b.max_slabs.min(slabs).max(1);
     out.mesh_level = b.mesh_level.min(crate::refview::MESH_LEVELS);
+    out.render_scale = 1.0 - RENDER_SCALE_STEP * scale_steps(b) as f32;
     if out.max_slabs < slabs {
         out.max_slabs += 1;
     } else if !out.blend {
@@ -506,6 +537,8 @@ pub fn step_up(b: DrawBudget, slabs: usize) -> DrawBudget {
         out.mesh_level -= 1;
     } else if out.lod_bias > 0.0 {
         out.lod_bias = (out.lod_bias - 1.0).max(0.0);
+    } else if scale_steps(out) > 0 {
+        out.render_scale = 1.0 - RENDER_SCALE_STEP * (scale_steps(out) - 1) as f32;
     } else if out.half_res_second {
         out.half_res_second = false;
     }
@@ -515,6 +548,7 @@ pub fn step_up(b: DrawBudget, slabs: usize) -> DrawBudget {
 /// Position of a budget on the ladder of [`step_down`] (0 = full quality).
 fn rung(b: DrawBudget, slabs: usize) -> usize {
     usize::from(b.half_res_second)
+        + scale_steps(b)
         + b.lod_bias.clamp(0.0, MAX_LOD_BIAS).ceil() as usize
         + b.mesh_level.min(crate::refview::MESH_LEVELS) as usize
         + usize::from(!b.blend)
@@ -641,10 +675,10 @@ mod tests {
             ..Default::default()
         };
         let mut b = full;
-        // The second view at half resolution, 2 texture levels, 2 mesh levels, the second
-        // view, 2 slabs.
+        // The second view at half resolution, the view at 3/4 and 1/2 of the window, 2 texture
+        // levels, 2 mesh levels, the second view, 2 slabs.
         let mut seen = vec![b];
-        for _ in 0..8 {
+        for _ in 0..10 {
             b = adjust_budget(b, &[50.0, 60.0], 33.0, 3);
             seen.push(b);
         }
@@ -652,18 +686,22 @@ mod tests {
         assert_eq!(b.mesh_level, crate::refview::MESH_LEVELS);
         assert_eq!(b.max_slabs, 1);
         assert!(!b.blend);
-        // The half-resolution second view first (cheapest in quality), then textures, then
-        // meshes, then the second view, slabs last.
+        assert_eq!(b.render_scale, 0.5);
+        // The half-resolution second view first (cheapest in quality), then the frame's
+        // size, then textures, then meshes, then the second view, slabs last.
         assert!(seen[1].half_res_second && seen[1].lod_bias == 0.0);
-        assert_eq!(seen[3].lod_bias, 2.0);
-        assert_eq!(seen[3].mesh_level, 0);
-        assert_eq!(seen[5].mesh_level, 2);
-        assert!(seen[5].blend);
-        assert!(!seen[6].blend);
-        assert_eq!(seen[6].max_slabs, 3);
+        assert_eq!(seen[1].render_scale, 1.0);
+        assert_eq!(seen[2].render_scale, 0.75);
+        assert_eq!((seen[3].render_scale, seen[3].lod_bias), (0.5, 0.0));
+        assert_eq!(seen[5].lod_bias, 2.0);
+        assert_eq!(seen[5].mesh_level, 0);
+        assert_eq!(seen[7].mesh_level, 2);
+        assert!(seen[7].blend);
+        assert!(!seen[8].blend);
+        assert_eq!(seen[8].max_slabs, 3);
         // At the bottom nothing changes.
         assert_eq!(adjust_budget(b, &[99.0], 33.0, 3), b);
-        for _ in 0..8 {
+        for _ in 0..10 {
             b = adjust_budget(b, &[5.0], 33.0, 3);
         }
         assert_eq!(b, full);
@@ -853,9 +891,11 @@ mod tests {
 
     #[test]
     fn controller_converges_to_the_best_budget_under_the_target() {
-        // Rungs: full, half-resolution second view, +1 level, +2 levels, mesh 1, mesh 2, one
-        // view, 2 slabs, 1 slab.
-        let cost = vec![90.0, 80.0, 75.0, 62.0, 50.0, 41.0, 25.0, 20.0, 15.0];
+        // Rungs: full, half-resolution second view, 3/4 and 1/2 of the window, +1 level,
+        // +2 levels, mesh 1, mesh 2, one view, 2 slabs, 1 slab.
+        let cost = vec![
+            90.0, 80.0, 78.0, 77.0, 75.0, 62.0, 50.0, 41.0, 25.0, 20.0, 15.0,
+        ];
         let mut m = Model {
             cost: cost.clone(),
             noise: 0.15,
@@ -873,11 +913,11 @@ mod tests {
         }
         // The first step under the target: one view (25 ms), meshes at level 2.
         let b = c.budget();
-        assert_eq!(rung(b, 3), 6, "{b:?}");
+        assert_eq!(rung(b, 3), 8, "{b:?}");
         assert!(!b.blend && b.mesh_level == 2 && b.max_slabs == 3);
         assert_eq!(over, 0);
         // Back at full speed (a lighter scene): the controller climbs back up.
-        m.cost = vec![10.0; 9];
+        m.cost = vec![10.0; 11];
         for _ in 0..2000 {
             let ms = m.frame(c.budget(), 3);
             c.push(ms);
@@ -887,9 +927,11 @@ mod tests {
 
     #[test]
     fn controller_does_not_oscillate_on_noisy_input() {
-        // Rung 6 is 18 ms (< 60 % of 33) but rung 5 is 36 ms (> 33): the stateless rule
+        // Rung 8 is 18 ms (< 60 % of 33) but rung 7 is 36 ms (> 33): the stateless rule
         // would flip between them every decision.
-        let cost = vec![80.0, 75.0, 70.0, 60.0, 50.0, 36.0, 18.0, 14.0, 10.0];
+        let cost = vec![
+            80.0, 75.0, 73.0, 72.0, 70.0, 60.0, 50.0, 36.0, 18.0, 14.0, 10.0,
+        ];
         let mut m = Model {
             cost,
             noise: 0.25,
@@ -909,7 +951,7 @@ mod tests {
         // Only a retry of the slower step after the memory runs out (each costs two
         // changes): at most 2 per 600 frames, against one per 8 frames without memory.
         assert!(changes <= 2 * (2700 / 600 + 1), "{changes} changes");
-        assert_eq!(rung(c.budget(), 3), 6);
+        assert_eq!(rung(c.budget(), 3), 8);
         // The stateless rule on the same input does flip.
         let mut b = DrawBudget {
             max_slabs: 3,
@@ -945,7 +987,7 @@ mod tests {
         }
         assert_eq!(c.budget(), full);
         let mut b = full;
-        for k in 0..8 {
+        for k in 0..10 {
             assert_eq!(rung(b, 3), k);
             b = step_down(b, 3);
         }

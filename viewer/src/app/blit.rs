@@ -1,29 +1,35 @@
 //! Showing the renderer's output in the window: a paint callback that copies it into egui's
-//! render pass texel for texel.
+//! render pass texel for pixel, or scales it up bilinearly where the frame-time budget drew
+//! it smaller ([`crate::DrawBudget::render_scale`]).
 //!
 //! Shown as an egui image, the view went through egui's own shader, which handles every case
 //! an image may need (filtering in the shader or the sampler, wrap modes, dithering); a
 //! software rasteriser runs every branch of it for every pixel, and at 700×650 that cost
-//! about 11 ms a frame on lavapipe. The view's output has the size of the rectangle it is
-//! shown in (the same rounding as the callback's viewport), so a copy needs one texel load
-//! and no blending.
+//! about 11 ms a frame on lavapipe. At full size the view's output has the size of the
+//! rectangle it is shown in (the same rounding as the callback's viewport), so a copy needs
+//! one texel load and no blending; each case has its own pipeline, no branch.
 
 use eframe::egui;
 use eframe::egui_wgpu::{self, wgpu};
 
 /// The copy's pipeline, kept in egui's callback resources for the window's lifetime.
 pub struct BlitResources {
-    pipeline: wgpu::RenderPipeline,
+    /// Texel for pixel.
+    copy: wgpu::RenderPipeline,
+    /// Bilinear, for an output smaller than the viewport.
+    scale_up: wgpu::RenderPipeline,
+    sampler: wgpu::Sampler,
     layout: wgpu::BindGroupLayout,
     /// The window's colour target is sRGB-encoding: bind the output's sRGB view (decoded on
     /// load, encoded on store: the same bytes). Otherwise its plain view (the stored bytes).
     srgb_target: bool,
-    /// This frame's output (set by `prepare`).
-    bind_group: Option<wgpu::BindGroup>,
+    /// This frame's output and whether it is scaled up (set by `prepare`).
+    bind_group: Option<(wgpu::BindGroup, bool)>,
 }
 
 const SHADER: &str = r#"
 @group(0) @binding(0) var view_image: texture_2d<f32>;
+@group(0) @binding(1) var view_sampler: sampler;
 
 struct Out {
     @builtin(position) pos: vec4<f32>,
@@ -46,6 +52,11 @@ fn fs(in: Out) -> @location(0) vec4<f32> {
     let texel = clamp(vec2<i32>(in.uv * vec2<f32>(size)), vec2<i32>(0), size - vec2<i32>(1));
     return vec4<f32>(textureLoad(view_image, texel, 0).rgb, 1.0);
 }
+
+@fragment
+fn fs_scaled(in: Out) -> @location(0) vec4<f32> {
+    return vec4<f32>(textureSampleLevel(view_image, view_sampler, in.uv, 0.0).rgb, 1.0);
+}
 "#;
 
 impl BlitResources {
@@ -59,53 +70,74 @@ impl BlitResources {
         });
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("view blit"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::FRAGMENT,
-                ty: wgpu::BindingType::Texture {
-                    sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                    view_dimension: wgpu::TextureViewDimension::D2,
-                    multisampled: false,
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
                 },
-                count: None,
-            }],
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+            ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("view blit"),
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        let pipeline = |entry: &str| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("view blit"),
+                layout: Some(&pipeline_layout),
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some("vs"),
+                    compilation_options: Default::default(),
+                    buffers: &[],
+                },
+                fragment: Some(wgpu::FragmentState {
+                    module: &module,
+                    entry_point: Some(entry),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: rs.target_format,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                }),
+                primitive: wgpu::PrimitiveState::default(),
+                // eframe's render pass: no depth buffer, no multisampling (the window's
+                // defaults).
+                depth_stencil: None,
+                multisample: wgpu::MultisampleState::default(),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let copy = pipeline("fs");
+        let scale_up = pipeline("fs_scaled");
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("view blit"),
-            layout: Some(&pipeline_layout),
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: Some("vs"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("fs"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: rs.target_format,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
-            }),
-            primitive: wgpu::PrimitiveState::default(),
-            // eframe's render pass: no depth buffer, no multisampling (the window's defaults).
-            depth_stencil: None,
-            multisample: wgpu::MultisampleState::default(),
-            multiview_mask: None,
-            cache: None,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            ..Default::default()
         });
         rs.renderer
             .write()
             .callback_resources
             .insert(BlitResources {
-                pipeline,
+                copy,
+                scale_up,
+                sampler,
                 layout,
                 srgb_target: rs.target_format.is_srgb(),
                 bind_group: None,
@@ -114,10 +146,12 @@ impl BlitResources {
 }
 
 /// This frame's copy of the view: the renderer's output in its sRGB view (`srgb`) and its
-/// plain view (`unorm`), the one matching the window's target is bound.
+/// plain view (`unorm`), the one matching the window's target is bound; `scaled` where the
+/// output is smaller than the viewport.
 pub struct BlitCallback {
     pub srgb: wgpu::TextureView,
     pub unorm: wgpu::TextureView,
+    pub scaled: bool,
 }
 
 impl egui_wgpu::CallbackTrait for BlitCallback {
@@ -135,14 +169,21 @@ impl egui_wgpu::CallbackTrait for BlitCallback {
             } else {
                 &self.unorm
             };
-            r.bind_group = Some(device.create_bind_group(&wgpu::BindGroupDescriptor {
+            let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("view blit"),
                 layout: &r.layout,
-                entries: &[wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: wgpu::BindingResource::TextureView(view),
-                }],
-            }));
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: wgpu::BindingResource::TextureView(view),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: wgpu::BindingResource::Sampler(&r.sampler),
+                    },
+                ],
+            });
+            r.bind_group = Some((group, self.scaled));
         }
         Vec::new()
     }
@@ -156,10 +197,10 @@ impl egui_wgpu::CallbackTrait for BlitCallback {
         let Some(r) = resources.get::<BlitResources>() else {
             return;
         };
-        let Some(group) = &r.bind_group else {
+        let Some((group, scaled)) = &r.bind_group else {
             return;
         };
-        render_pass.set_pipeline(&r.pipeline);
+        render_pass.set_pipeline(if *scaled { &r.scale_up } else { &r.copy });
         render_pass.set_bind_group(0, group, &[]);
         render_pass.draw(0..3, 0..1);
     }
@@ -174,6 +215,16 @@ pub fn viewport_px(rect: egui::Rect, pixels_per_point: f32) -> [u32; 2] {
     [w as u32, h as u32]
 }
 
+/// The size the view is drawn at for a viewport of `px` pixels at `scale` (at least 1×1).
+pub fn drawn_px(px: [u32; 2], scale: f32) -> [u32; 2] {
+    let s = if scale.is_finite() {
+        scale.clamp(0.1, 1.0)
+    } else {
+        1.0
+    };
+    px.map(|v| ((v as f32 * s).round() as u32).clamp(1, v.max(1)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -186,5 +237,15 @@ mod tests {
         // An empty rectangle still gets one pixel (the renderer needs a target).
         let empty = egui::Rect::from_min_max(egui::pos2(5.0, 5.0), egui::pos2(5.0, 5.0));
         assert_eq!(viewport_px(empty, 2.0), [1, 1]);
+    }
+
+    #[test]
+    fn the_drawn_size_scales_the_viewport_and_stays_inside_it() {
+        assert_eq!(drawn_px([700, 650], 1.0), [700, 650]);
+        assert_eq!(drawn_px([700, 650], 0.75), [525, 488]);
+        assert_eq!(drawn_px([701, 651], 0.5), [351, 326]);
+        assert_eq!(drawn_px([1, 1], 0.5), [1, 1]);
+        assert_eq!(drawn_px([640, 360], f32::NAN), [640, 360]);
+        assert_eq!(drawn_px([640, 360], 3.0), [640, 360]);
     }
 }
