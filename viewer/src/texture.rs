@@ -254,32 +254,49 @@ impl Layer {
 
 /// Texel `(x, y)` of face `f` of the half-size map of `map` ([`downsample`]).
 fn downsample_texel(map: &CubeMap<[u8; 4]>, f: Face, x: u32, y: u32) -> [u8; 4] {
-    {
-        let mut rgb = [0.0f32; 3];
-        let mut plain = [0.0f32; 3];
-        let mut alpha = 0.0f32;
-        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-            let c = map.get(f, 2 * x + dx, 2 * y + dy);
-            let a = c[3] as f32 / 255.0;
-            for k in 0..3 {
-                let l = srgb_to_linear(c[k]);
-                rgb[k] += l * a;
-                plain[k] += l;
-            }
-            alpha += a;
-        }
-        let col: [f32; 3] = if alpha > 0.0 {
-            rgb.map(|v| v / alpha)
-        } else {
-            plain.map(|v| v / 4.0)
-        };
-        [
-            linear_to_srgb(col[0]),
-            linear_to_srgb(col[1]),
-            linear_to_srgb(col[2]),
-            (alpha / 4.0 * 255.0).round() as u8,
-        ]
+    let n = map.face_size() as usize;
+    let top = map.index(f, 2 * x, 2 * y);
+    let data = map.as_slice();
+    let quad = [data[top], data[top + 1], data[top + n], data[top + n + 1]];
+    downsample_quad(quad)
+}
+
+/// The mean of four texels: colour averaged in linear light weighted by alpha (plain where
+/// all four are empty), alpha averaged.
+fn downsample_quad(quad: [[u8; 4]; 4]) -> [u8; 4] {
+    // Four equal texels average to themselves (sRGB bytes round-trip, see the tests): most
+    // of a slab layer is empty, and most of the rest is flat.
+    if quad[1] == quad[0] && quad[2] == quad[0] && quad[3] == quad[0] {
+        return quad[0];
     }
+    weighted_mean(quad)
+}
+
+/// [`downsample_quad`] without the shortcut.
+fn weighted_mean(quad: [[u8; 4]; 4]) -> [u8; 4] {
+    let mut rgb = [0.0f32; 3];
+    let mut plain = [0.0f32; 3];
+    let mut alpha = 0.0f32;
+    for c in quad {
+        let a = c[3] as f32 / 255.0;
+        for k in 0..3 {
+            let l = srgb_to_linear(c[k]);
+            rgb[k] += l * a;
+            plain[k] += l;
+        }
+        alpha += a;
+    }
+    let col: [f32; 3] = if alpha > 0.0 {
+        rgb.map(|v| v / alpha)
+    } else {
+        plain.map(|v| v / 4.0)
+    };
+    [
+        linear_to_srgb(col[0]),
+        linear_to_srgb(col[1]),
+        linear_to_srgb(col[2]),
+        (alpha / 4.0 * 255.0).round() as u8,
+    ]
 }
 
 /// Halve a cube map: colour averaged in linear light weighted by alpha, alpha averaged.
@@ -311,7 +328,7 @@ pub fn dilate_masked(map: &CubeMap<[u8; 4]>) -> CubeMap<[u8; 4]> {
             )
         })
         .collect();
-    CubeMap::from_fn(n, |f, x, y| faces[f.index()][(y * n + x) as usize])
+    CubeMap::from_vec(n, faces.concat()).expect("six whole faces")
 }
 
 /// [`dilate_masked`] computed inside `window` only (row-major texels of the window). Texels
@@ -322,47 +339,65 @@ fn dilate_window(map: &CubeMap<[u8; 4]>, window: FaceRect) -> Vec<[u8; 4]> {
         (window.x1 - window.x0) as i64,
         (window.y1 - window.y0) as i64,
     );
-    let mut cur: Vec<[u8; 4]> = (window.y0..window.y1)
-        .flat_map(|y| (window.x0..window.x1).map(move |x| (x, y)))
-        .map(|(x, y)| *map.get(window.face, x, y))
-        .collect();
+    let n = map.face_size() as usize;
+    let face = map.face(window.face);
+    let mut cur: Vec<[u8; 4]> = Vec::with_capacity((w * h) as usize);
+    for y in window.y0 as usize..window.y1 as usize {
+        cur.extend_from_slice(&face[y * n + window.x0 as usize..y * n + window.x1 as usize]);
+    }
     let mut filled: Vec<bool> = cur.iter().map(|c| c[3] > 0).collect();
+    let mut prev = cur.clone();
+    let mut prev_filled = filled.clone();
+    // Per row, the first and last filled column (none: `(w, -1)`): a texel can only be
+    // filled from a row within one of it, and within one column of that row's span.
+    let mut spans = vec![(w, -1i64); h as usize];
     for _ in 0..DILATE_STEPS {
-        let prev = cur.clone();
-        let prev_filled = filled.clone();
+        prev.copy_from_slice(&cur);
+        prev_filled.copy_from_slice(&filled);
+        for (y, span) in spans.iter_mut().enumerate() {
+            let row = &prev_filled[y * w as usize..(y + 1) * w as usize];
+            *span = match (row.iter().position(|&f| f), row.iter().rposition(|&f| f)) {
+                (Some(a), Some(b)) => (a as i64, b as i64),
+                _ => (w, -1),
+            };
+        }
         for y in 0..h {
-            for x in 0..w {
+            let (ya, yb) = ((y - 1).max(0), (y + 1).min(h - 1));
+            let (first, last) = (ya..=yb).fold((w, -1), |(a, b), r| {
+                let (c, d) = spans[r as usize];
+                (a.min(c), b.max(d))
+            });
+            if first > last {
+                continue;
+            }
+            for x in (first - 1).max(0)..=(last + 1).min(w - 1) {
                 let i = (y * w + x) as usize;
                 if prev_filled[i] {
                     continue;
                 }
+                let (xa, xb) = ((x - 1).max(0), (x + 1).min(w - 1));
                 let mut sum = [0u32; 3];
-                let mut count = 0;
-                for dy in -1..=1i64 {
-                    for dx in -1..=1i64 {
-                        let (px, py) = (x + dx, y + dy);
-                        if px < 0 || py < 0 || px >= w || py >= h {
-                            continue;
-                        }
-                        let j = (py * w + px) as usize;
+                let mut count = 0u32;
+                for py in ya..=yb {
+                    let row = (py * w) as usize;
+                    for px in xa..=xb {
+                        let j = row + px as usize;
                         if prev_filled[j] {
-                            for k in 0..3 {
-                                sum[k] += prev[j][k] as u32;
-                            }
+                            let c = prev[j];
+                            sum[0] += c[0] as u32;
+                            sum[1] += c[1] as u32;
+                            sum[2] += c[2] as u32;
                             count += 1;
                         }
                     }
                 }
-                if let Some(mean) = sum
-                    .iter()
-                    .map(|s| s.checked_div(count))
-                    .collect::<Option<Vec<u32>>>()
-                {
-                    for k in 0..3 {
-                        cur[i][k] = mean[k] as u8;
-                    }
-                    filled[i] = true;
+                if count == 0 {
+                    continue;
                 }
+                for k in 0..3 {
+                    cur[i][k] = (sum[k] / count) as u8;
+                }
+                filled[i] = true;
             }
         }
     }
@@ -404,6 +439,94 @@ mod tests {
         fn linear_to_srgb_table_matches_for_any_float(bits in proptest::prelude::any::<u32>()) {
             let c = f32::from_bits(bits);
             proptest::prop_assert_eq!(linear_to_srgb(c), linear_to_srgb_exact(c));
+        }
+    }
+
+    /// The dilation as specified, texel by texel over each whole face (no row spans).
+    fn dilate_reference(map: &CubeMap<[u8; 4]>) -> CubeMap<[u8; 4]> {
+        let n = map.face_size() as i64;
+        let mut cur = map.clone();
+        let mut filled = map.map(|c| c[3] > 0);
+        for _ in 0..DILATE_STEPS {
+            let (prev, prev_filled) = (cur.clone(), filled.clone());
+            for f in Face::ALL {
+                for y in 0..n {
+                    for x in 0..n {
+                        if *prev_filled.get(f, x as u32, y as u32) {
+                            continue;
+                        }
+                        let mut sum = [0u32; 3];
+                        let mut count = 0;
+                        for dy in -1..=1 {
+                            for dx in -1..=1 {
+                                let (px, py) = (x + dx, y + dy);
+                                if px < 0 || py < 0 || px >= n || py >= n {
+                                    continue;
+                                }
+                                if *prev_filled.get(f, px as u32, py as u32) {
+                                    let c = prev.get(f, px as u32, py as u32);
+                                    for k in 0..3 {
+                                        sum[k] += c[k] as u32;
+                                    }
+                                    count += 1;
+                                }
+                            }
+                        }
+                        if count == 0 {
+                            continue;
+                        }
+                        let t = cur.get_mut(f, x as u32, y as u32);
+                        for k in 0..3 {
+                            t[k] = (sum[k] / count) as u8;
+                        }
+                        *filled.get_mut(f, x as u32, y as u32) = true;
+                    }
+                }
+            }
+        }
+        cur
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn dilation_matches_the_texel_by_texel_rule(
+            seed in proptest::prelude::any::<u64>(),
+            density in 0.0f64..0.3,
+        ) {
+            let mut state = seed | 1;
+            let mut next = || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                state
+            };
+            let map = CubeMap::from_fn(12, |_, _, _| {
+                let r = next();
+                if (r % 10_000) as f64 / 10_000.0 < density {
+                    [(r >> 16) as u8, (r >> 24) as u8, (r >> 32) as u8, (r >> 40) as u8 | 1]
+                } else {
+                    [(r >> 48) as u8, 0, 0, 0]
+                }
+            });
+            proptest::prop_assert_eq!(dilate_masked(&map), dilate_reference(&map));
+        }
+    }
+
+    #[test]
+    fn four_equal_texels_average_to_themselves_by_the_general_rule() {
+        // What makes the shortcut in `downsample_quad` exact: every alpha, with and without
+        // colour, and every colour byte at several alphas.
+        for v in 0..=255u8 {
+            for c in [
+                [v, v, v, v],
+                [v, 255 - v, v / 2, 255],
+                [0, 0, 0, v],
+                [v, 17, 200, 0],
+                [200, v, 3, 1],
+                [9, 250, v, 128],
+            ] {
+                assert_eq!(weighted_mean([c; 4]), c, "{c:?}");
+            }
         }
     }
 

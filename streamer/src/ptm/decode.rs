@@ -36,7 +36,6 @@ pub struct Decoder {
     header: Option<Header>,
     /// Decoded levels, lowest stored level first.
     levels: Vec<Image>,
-    zstd: Option<zstd::bulk::Decompressor<'static>>,
     /// Decompressed group payload, reused from group to group.
     scratch: Vec<u8>,
     /// The payload back in interleaved order (when its mode rearranged it), reused.
@@ -120,7 +119,6 @@ impl Decoder {
             fixed: None,
             header: None,
             levels: Vec::new(),
-            zstd: None,
             scratch: Vec::new(),
             merged: Vec::new(),
         }
@@ -333,12 +331,6 @@ impl Decoder {
                     level,
                     message,
                 };
-                if self.zstd.is_none() {
-                    self.zstd = Some(
-                        zstd::bulk::Decompressor::new()
-                            .map_err(|e| zerr(format!("zstd context: {e}")))?,
-                    );
-                }
                 let (&mode, frame) = payload.split_first().expect("length checked");
                 let c = c as usize;
                 if (g == 0 && mode != 0) || !mode_allowed(mode, c) {
@@ -348,12 +340,10 @@ impl Decoder {
                         mode,
                     });
                 }
-                let z = self.zstd.as_mut().expect("just created");
                 // The capacity bounds what a hostile frame can make zstd write.
                 self.scratch.clear();
                 self.scratch.reserve(expected);
-                let n = z
-                    .decompress_to_buffer(frame, &mut self.scratch)
+                let n = with_zstd(|z| z.decompress_to_buffer(frame, &mut self.scratch))
                     .map_err(|e| zerr(format!("zstd: {e}")))?;
                 if n != expected {
                     return Err(zerr(format!(
@@ -381,6 +371,29 @@ impl Decoder {
         let parent = self.levels.last().expect("parent decoded first");
         level_from_plain(&plain, parent, w, hh, level, method)
     }
+}
+
+thread_local! {
+    /// One zstd decompression context per thread, reused by every decoder on it: a PTM is a
+    /// few kilobytes, and setting up a context for each was a tenth of opening a database.
+    static ZSTD: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Run `f` with this thread's decompression context (created on first use).
+fn with_zstd<T>(
+    f: impl FnOnce(&mut zstd::bulk::Decompressor<'static>) -> std::io::Result<T>,
+) -> std::io::Result<T> {
+    ZSTD.with(|cell| {
+        let mut slot = cell.borrow_mut();
+        if slot.is_none() {
+            *slot = Some(zstd::bulk::Decompressor::new()?);
+        }
+        match slot.as_mut() {
+            Some(z) => f(z),
+            None => Err(std::io::Error::other("no zstd context")),
+        }
+    })
 }
 
 fn lowest_from_plain(plain: &[u8], w: u32, h: u32, c: u8, method: Method) -> Image {
