@@ -884,11 +884,14 @@ fn held_from(parts: &[Part], from: usize, cache: &Cache) -> usize {
         .count()
 }
 
-/// Fraction of the counted pixels whose item holds at least its coarsest level.
+/// Fraction of the counted pixels whose item holds at least its coarsest level. With no
+/// pixel counted, 0: the tables of the viewpoints around are not known yet, so nothing can
+/// be shown (every pixel counts for some item once they are: backgrounds fill what no tile
+/// covers).
 fn visible_fraction(counts: &[LiveCount], have: &[usize], infos: &[ItemInfo]) -> f64 {
     let total: f64 = counts.iter().map(|c| c.pixels).sum();
     if total <= 0.0 {
-        return 1.0;
+        return 0.0;
     }
     let shown: f64 = counts
         .iter()
@@ -896,4 +899,51 @@ fn visible_fraction(counts: &[LiveCount], have: &[usize], infos: &[ItemInfo]) ->
         .map(|c| c.pixels)
         .sum();
     shown / total
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn info() -> ItemInfo {
+        ItemInfo {
+            part_bytes: vec![100, 200, 400],
+            part_mem: vec![0, 300, 1200],
+            first_level_part: 1,
+            levels: vec![1, 0],
+        }
+    }
+
+    #[test]
+    fn nothing_counted_is_nothing_shown() {
+        // Before the first tables arrive there are no counts: not "everything shown".
+        assert_eq!(visible_fraction(&[], &[], &[info()]), 0.0);
+        let zero = LiveCount {
+            item: 0,
+            pixels: 0.0,
+            needed_level: 0,
+        };
+        assert_eq!(visible_fraction(&[zero], &[3], &[info()]), 0.0);
+    }
+
+    #[test]
+    fn the_fraction_weighs_items_by_their_pixels_and_needs_the_coarsest_level() {
+        let counts = [
+            LiveCount {
+                item: 0,
+                pixels: 30.0,
+                needed_level: 0,
+            },
+            LiveCount {
+                item: 1,
+                pixels: 10.0,
+                needed_level: 0,
+            },
+        ];
+        let infos = [info(), info()];
+        // Mesh and coarsest level held (2 parts) against the mesh alone.
+        assert_eq!(visible_fraction(&counts, &[2, 1], &infos), 0.75);
+        assert_eq!(visible_fraction(&counts, &[3, 2], &infos), 1.0);
+        assert_eq!(visible_fraction(&counts, &[0, 0], &infos), 0.0);
+    }
 }
