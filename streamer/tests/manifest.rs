@@ -431,3 +431,53 @@ async fn the_first_frame_needs_the_nearest_tables_and_their_tiles_only() {
     assert!(r.bytes >= r.table_bytes);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[test]
+fn an_item_table_grown_in_any_order_equals_the_one_built_at_once() {
+    let (dir, m) = temp_db("grown-table");
+    let whole = streamer::client::ItemTable::new(&m, 0).unwrap();
+    assert!(
+        whole.segment_ach.iter().any(|l| !l.is_empty()),
+        "the synthetic database has ACH lists"
+    );
+    let t = &m.tracks[0];
+    let n = t.viewpoints.len();
+    let segments_from = |vi: usize| -> Vec<_> {
+        t.segments
+            .iter()
+            .filter(|s| s.from == t.viewpoints[vi].index)
+            .cloned()
+            .collect()
+    };
+    // Tables far end first, ACH lists of every other viewpoint before its table (they wait
+    // for the tiles they name), the rest with their tables.
+    let mut grown = streamer::client::ItemTable::empty(&m, 0).unwrap();
+    for vi in (0..n).step_by(2) {
+        grown.add_segments(vi, &segments_from(vi));
+    }
+    for vi in (0..n).rev() {
+        let v = &t.viewpoints[vi];
+        let segs = if vi % 2 == 0 {
+            Vec::new()
+        } else {
+            segments_from(vi)
+        };
+        grown
+            .add_viewpoint(vi, &v.background, &v.tiles, &segs)
+            .unwrap();
+    }
+    // Items are numbered in arrival order: compare by what they are.
+    let name = |table: &streamer::client::ItemTable, item: usize| {
+        let it = &table.items[item];
+        (it.viewpoint, it.tile, it.background)
+    };
+    let lists = |table: &streamer::client::ItemTable| -> Vec<Vec<_>> {
+        table
+            .segment_ach
+            .iter()
+            .map(|l| l.iter().map(|&(i, a)| (name(table, i), a)).collect())
+            .collect()
+    };
+    assert_eq!(lists(&grown), lists(&whole));
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -5,6 +5,9 @@
 
 use std::collections::HashMap;
 
+/// The table's lookups: looked up for every ACH entry and tile as tables arrive.
+type FastMap<K, V> = HashMap<K, V, foldhash::fast::RandomState>;
+
 use tracks::manifest::{
     object_rel_path, AchEntry, BackgroundTile, Manifest, PtmRef, SegmentEntry, TileEntry,
 };
@@ -49,22 +52,25 @@ pub struct ItemTable {
     /// Per segment, `(item, ach)` in the manifest's (descending) order; entries whose tile's
     /// table has not arrived yet are left out (they come in when it does).
     pub segment_ach: Vec<Vec<(usize, f64)>>,
-    by_tile: HashMap<(usize, usize), usize>,
+    by_tile: FastMap<(usize, usize), usize>,
     /// `(viewpoint position, background tile position)` → item.
-    by_background: HashMap<(usize, usize), usize>,
+    by_background: FastMap<(usize, usize), usize>,
     /// Whether each viewpoint's table has been added.
     loaded: Vec<bool>,
     /// Per viewpoint (by `ViewpointEntry::index`), its position in the track.
-    index_of: HashMap<usize, usize>,
+    index_of: FastMap<usize, usize>,
     /// `(viewpoint position, slab, tile)` → position in that viewpoint's tiles.
-    key_to_tile: HashMap<(usize, u32, tracks::TileId), usize>,
+    key_to_tile: FastMap<(usize, u32, tracks::TileId), usize>,
     /// Per segment: its `(from, to)` positions and its raw ACH list once known.
     segments: Vec<SegmentSlot>,
+    /// Per segment: the viewpoint positions its raw ACH list names (sorted, distinct), so a
+    /// table that arrives re-resolves only the lists that name it.
+    segment_refs: Vec<Vec<usize>>,
     track: usize,
     /// Whether parts with the same checksum and length share one key
     /// ([`ItemTable::set_share_parts`]), and the key of each such pair so far.
     share_parts: bool,
-    shared: HashMap<(String, u64), FetchKey>,
+    shared: FastMap<(String, u64), FetchKey>,
 }
 
 impl ItemTable {
@@ -92,7 +98,7 @@ impl ItemTable {
             .tracks
             .get(track)
             .ok_or_else(|| ClientError::Manifest(format!("no track {track}")))?;
-        let index_of: HashMap<usize, usize> = t
+        let index_of: FastMap<usize, usize> = t
             .viewpoints
             .iter()
             .enumerate()
@@ -111,15 +117,16 @@ impl ItemTable {
             items: Vec::new(),
             vp_s: t.viewpoints.iter().map(|v| v.s).collect(),
             segment_ach: vec![Vec::new(); segments.len()],
-            by_tile: HashMap::new(),
-            by_background: HashMap::new(),
+            segment_refs: vec![Vec::new(); segments.len()],
+            by_tile: FastMap::default(),
+            by_background: FastMap::default(),
             loaded: vec![false; t.viewpoints.len()],
             index_of,
-            key_to_tile: HashMap::new(),
+            key_to_tile: FastMap::default(),
             segments,
             track,
             share_parts: true,
-            shared: HashMap::new(),
+            shared: FastMap::default(),
         })
     }
 
@@ -241,6 +248,13 @@ impl ItemTable {
             self.items.push(item);
         }
         self.loaded[vi] = true;
+        // Lists already known that name this viewpoint: its tiles can now be resolved.
+        let naming: Vec<usize> = (0..self.segments.len())
+            .filter(|&k| self.segment_refs[k].binary_search(&vi).is_ok())
+            .collect();
+        for k in naming {
+            self.resolve_segment(k);
+        }
         self.add_segments(vi, segments);
         Ok(start..self.items.len())
     }
@@ -256,10 +270,18 @@ impl ItemTable {
                 .iter()
                 .position(|((f, t), _)| *f == vi && Some(*t) == to)
             {
+                let mut refs: Vec<usize> = seg
+                    .ach
+                    .iter()
+                    .filter_map(|a| self.index_of.get(&a.viewpoint).copied())
+                    .collect();
+                refs.sort_unstable();
+                refs.dedup();
+                self.segment_refs[k] = refs;
                 self.segments[k].1 = Some(seg.ach.clone());
+                self.resolve_segment(k);
             }
         }
-        self.resolve_ach();
     }
 
     fn vp_index(&self, vi: usize) -> Option<usize> {
@@ -269,20 +291,20 @@ impl ItemTable {
             .map(|(&index, _)| index)
     }
 
-    /// Recomputes `segment_ach` from the raw lists and the tiles known so far.
-    fn resolve_ach(&mut self) {
-        for (k, (_, raw)) in self.segments.iter().enumerate() {
-            let Some(raw) = raw else { continue };
-            self.segment_ach[k] = raw
-                .iter()
-                .filter_map(|a| {
-                    let vi = *self.index_of.get(&a.viewpoint)?;
-                    let ti = *self.key_to_tile.get(&(vi, a.slab, a.tile))?;
-                    let item = *self.by_tile.get(&(vi, ti))?;
-                    (a.ach.is_finite() && a.ach > 0.0).then_some((item, a.ach))
-                })
-                .collect();
-        }
+    /// Recomputes `segment_ach[k]` from its raw list and the tiles known so far.
+    fn resolve_segment(&mut self, k: usize) {
+        let Some((_, Some(raw))) = self.segments.get(k) else {
+            return;
+        };
+        self.segment_ach[k] = raw
+            .iter()
+            .filter_map(|a| {
+                let vi = *self.index_of.get(&a.viewpoint)?;
+                let ti = *self.key_to_tile.get(&(vi, a.slab, a.tile))?;
+                let item = *self.by_tile.get(&(vi, ti))?;
+                (a.ach.is_finite() && a.ach > 0.0).then_some((item, a.ach))
+            })
+            .collect();
     }
 
     /// Item of tile `tile` (position in `viewpoints[vp].tiles`).

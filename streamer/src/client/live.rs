@@ -722,6 +722,7 @@ impl LiveSession {
     fn take_finished(&mut self, now: Instant) -> Vec<Arrival> {
         let mut out = Vec::new();
         let mut stored_keys = Vec::new();
+        let mut tables_changed = false;
         while let Some(done) = self.fetcher.try_next() {
             self.requested.remove(&done.key);
             match done.result {
@@ -740,11 +741,11 @@ impl LiveSession {
                     self.stats.last_error = None;
                     self.recent.push_back((now, len));
                     if let Some(vi) = self.table_keys.remove(&done.key) {
-                        self.table_arrived(vi, &data);
+                        tables_changed |= self.table_arrived(vi, &data);
                         continue;
                     }
                     if let Some(vi) = self.ach_keys.remove(&done.key) {
-                        self.ach_arrived(vi, &data);
+                        tables_changed |= self.ach_arrived(vi, &data);
                         continue;
                     }
                     let users = self.users.get(&done.key).cloned().unwrap_or_default();
@@ -775,6 +776,9 @@ impl LiveSession {
                     self.paused_until = Some(now + self.config.error_pause);
                 }
             }
+        }
+        if tables_changed {
+            self.tables_changed();
         }
         self.stats.cache_peak = self.stats.cache_peak.max(self.cache.used());
         self.update_held(&stored_keys);
