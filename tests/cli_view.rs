@@ -86,7 +86,7 @@ fn view_streams_from_a_served_database_and_closes_after_its_frames() {
             "view",
             &url,
             "--frames",
-            "40",
+            "80",
             "--memory-mib",
             "1",
         ])
