@@ -101,9 +101,19 @@ fn build_pov_analytic_end_to_end_and_verify() {
         .iter()
         .any(|t| t.kept));
 
-    let v = railview(&["verify", db.to_str().unwrap()]);
+    // Decoded too: POV-Ray leaves its background under every slab's mask, and the builder
+    // clears it (format 5).
+    let v = railview(&["verify", db.to_str().unwrap(), "--decode"]);
     assert!(v.status.success(), "{}", text(&v));
-    assert!(String::from_utf8_lossy(&v.stdout).contains("intact"));
+    let out = String::from_utf8_lossy(&v.stdout);
+    assert!(out.contains("intact"), "{out}");
+    let decoded: usize = out
+        .lines()
+        .find_map(|l| l.strip_suffix(" PTMs decoded"))
+        .unwrap_or_else(|| panic!("no count in {out}"))
+        .parse()
+        .unwrap();
+    assert!(decoded > 0, "{out}");
 
     // A second build resumes every stage: nothing rendered or written again, same manifest.
     let first = std::fs::read(db.join("manifest.json")).unwrap();

@@ -47,7 +47,7 @@ use tracks::manifest::{object_rel_path, LevelRef, Manifest, ObjectRef, PtmRef};
 use crate::ptm;
 
 pub use split::{TopManifest, ViewTable, OLDEST_READ_VERSION, TOP_VERSION};
-pub use verify::{verify, Problem, Report};
+pub use verify::{verify, verify_with, Problem, Report, VerifyOptions};
 
 /// Name of the manifest file in a database directory.
 pub const MANIFEST_FILE: &str = "manifest.json";

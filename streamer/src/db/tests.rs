@@ -609,3 +609,52 @@ proptest::proptest! {
         }
     }
 }
+
+#[test]
+fn decoding_finds_colour_left_under_the_mask_of_a_format_5_database() {
+    // The tiny database's tile images were not cleared under their masks (some texels have
+    // alpha 0 and colour): the files are intact, their content breaks format 5's rule.
+    let dir = tmpdir("decode-rule");
+    let (m, _) = build(&dir);
+    assert!(verify(&dir).unwrap().is_intact());
+    let r = verify_with(&dir, VerifyOptions { decode: true }).unwrap();
+    // 4 kept tiles and 2 backgrounds.
+    assert_eq!(r.ptms_decoded, 6, "{r:?}");
+    let stray: Vec<_> = r
+        .problems
+        .iter()
+        .filter(|p| p.what.contains("with alpha 0 hold colour"))
+        .collect();
+    assert!(!stray.is_empty(), "{:?}", r.problems);
+    assert_eq!(stray.len(), r.problems.len(), "{:?}", r.problems);
+    // Named by the pack they are in.
+    let packs: Vec<PathBuf> = m.tracks[0]
+        .viewpoints
+        .iter()
+        .filter_map(|v| v.tiles[0].ptm.as_ref())
+        .map(|p| dir.join(p.object.rel_path().unwrap()))
+        .collect();
+    assert!(stray.iter().all(|p| packs.contains(&p.path)), "{stray:?}");
+    // Read as format 4 (colour under the mask is whatever the renderer left), the same
+    // content is fine.
+    let mut top = Database::open(&dir).unwrap().top().clone();
+    top.version = 4;
+    let json = serde_json::to_vec(&top).unwrap();
+    write_atomic(&dir.join(MANIFEST_FILE), &json).unwrap();
+    write_atomic(
+        &dir.join(MANIFEST_HASH_FILE),
+        format!("{}\n", hash_hex(&json)).as_bytes(),
+    )
+    .unwrap();
+    let _ = fs::remove_file(dir.join(MANIFEST_GZ_FILE));
+    let r = verify_with(&dir, VerifyOptions { decode: true }).unwrap();
+    assert!(r.is_intact(), "{:?}", r.problems);
+    assert_eq!(r.ptms_decoded, 6);
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn colour_under_empty_texels_counts_only_alpha_zero_with_colour() {
+    let px = [0, 0, 0, 0, 5, 0, 0, 0, 9, 9, 9, 255, 0, 0, 1, 0, 7, 7, 7, 1];
+    assert_eq!(verify::colour_under_empty_texels(&px), 2);
+}

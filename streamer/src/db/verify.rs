@@ -33,6 +33,8 @@ pub struct Report {
     pub level_ranges_checked: usize,
     /// Viewpoint tables read, hash-checked and decoded.
     pub tables_checked: usize,
+    /// PTMs decoded to their finest level ([`VerifyOptions::decode`]; 0 otherwise).
+    pub ptms_decoded: usize,
     /// Damage: the database is intact only when this is empty.
     pub problems: Vec<Problem>,
     /// Harmless findings (leftover temporary files of a killed writer, unreferenced objects).
@@ -45,10 +47,25 @@ impl Report {
     }
 }
 
+/// What [`verify_with`] checks beyond the files.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct VerifyOptions {
+    /// Decode every PTM to its finest level (the hashes say the bytes are the ones written,
+    /// not that they decode), and in a format-5 database check its rule: colour 0 under
+    /// every texel with alpha 0 ([`super::clear_masked`]; readers divide coarse levels by
+    /// their alpha).
+    pub decode: bool,
+}
+
 /// Checks the manifest, its checksum, its gzip copy (when present: it must decompress to
 /// exactly manifest.json's bytes), every object's size and hash (referenced or not), and
 /// every PTM level range's hash. `Err` only when `dir` itself cannot be read.
 pub fn verify(dir: &Path) -> Result<Report, DbError> {
+    verify_with(dir, VerifyOptions::default())
+}
+
+/// [`verify`], with the checks of `opts`.
+pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
     let mut report = Report::default();
     fs::read_dir(dir).map_err(|e| DbError::io(dir, e))?;
     let problem = |path: PathBuf, what: String| Problem { path, what };
@@ -104,6 +121,10 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
 
     // Every viewpoint's table: present, hash, decode; a bad one is named by viewpoint.
     let top: Option<TopManifest> = manifest;
+    let decode = opts.decode.then(|| {
+        top.as_ref()
+            .is_some_and(|t| t.coarse_levels_premultiplied())
+    });
     let mut table_refs: Vec<ObjectRef> = Vec::new();
     let mut tables: Vec<Vec<Option<ViewTable>>> = Vec::new();
     if let Some(top) = &top {
@@ -266,6 +287,9 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
                             }
                             for p in ptms {
                                 check_ptm(&path, &bytes, p, &mut report);
+                                if let Some(cleared) = decode {
+                                    decode_ptm(&path, &bytes, p, cleared, &mut report);
+                                }
                             }
                             for r in meshes {
                                 check_mesh_range(&path, &bytes, r, &mut report);
@@ -425,6 +449,57 @@ fn check_ptm(path: &Path, bytes: &[u8], p: &PtmRef, report: &mut Report) {
         }
     }
     report.level_ranges_checked += p.levels.len();
+}
+
+/// Decode `p`'s level groups in order to its finest level; with `cleared` (format 5) its
+/// texels with alpha 0 must hold colour 0. Ranges outside the file were reported by
+/// [`check_ptm`] and are not decoded again.
+fn decode_ptm(path: &Path, bytes: &[u8], p: &PtmRef, cleared: bool, report: &mut Report) {
+    let mut dec = ptm::Decoder::new(ptm::Limits::default());
+    for (g, l) in p.levels.iter().enumerate() {
+        let Some(end) = l
+            .offset
+            .checked_add(l.len)
+            .filter(|&e| e <= bytes.len() as u64)
+        else {
+            return;
+        };
+        if let Err(e) = dec.push(&bytes[l.offset as usize..end as usize]) {
+            report.problems.push(Problem {
+                path: path.to_path_buf(),
+                what: format!(
+                    "PTM at bytes {}.. (level group {g}, level {}) does not decode: {e}",
+                    p.levels.first().map_or(0, |f| f.offset),
+                    l.level
+                ),
+            });
+            return;
+        }
+    }
+    report.ptms_decoded += 1;
+    let Some(img) = dec.finest() else {
+        return;
+    };
+    if cleared && img.channels() == 4 {
+        let stray = colour_under_empty_texels(img.data());
+        if stray > 0 {
+            report.problems.push(Problem {
+                path: path.to_path_buf(),
+                what: format!(
+                    "PTM at bytes {}..: {stray} texel(s) with alpha 0 hold colour; a format-5 \
+                     database stores colour 0 there (readers divide coarse levels by alpha)",
+                    p.levels.first().map_or(0, |f| f.offset)
+                ),
+            });
+        }
+    }
+}
+
+/// Texels of interleaved RGBA bytes with alpha 0 and some colour.
+pub(super) fn colour_under_empty_texels(rgba: &[u8]) -> usize {
+    rgba.chunks_exact(4)
+        .filter(|p| p[3] == 0 && p[..3] != [0, 0, 0])
+        .count()
 }
 
 /// A mesh's range inside its pack must lie in the file and match its checksum.
