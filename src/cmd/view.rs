@@ -17,7 +17,9 @@ pub struct Args {
     /// Track name (default: the first).
     #[arg(long)]
     pub track: Option<String>,
-    /// Close after this many frames (smoke tests, screenshots).
+    /// Close after this many frames (smoke tests, screenshots, measurements): prints the
+    /// frame-to-frame intervals (median, 95th percentile, longest), what the frame-time
+    /// budget drew at the end and the view's size in pixels.
     #[arg(long)]
     pub frames: Option<u64>,
     /// With --frames: save a screenshot of the window (PNG) just before closing.
@@ -39,7 +41,9 @@ pub struct Args {
     /// Streaming: downloads in flight at most.
     #[arg(long, default_value_t = 6)]
     pub requests: usize,
-    /// Frame rate the frame-time budget holds by drawing less (a slider in the window too).
+    /// Frame rate the frame-time budget holds by drawing less (a slider in the window too):
+    /// the second view at half resolution, the view at 3/4 and 1/2 of its size, coarser
+    /// textures, coarser meshes, one view, fewer slabs, in that order.
     #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
     pub target_fps: f64,
 }
