@@ -6,6 +6,7 @@ use std::path::Path;
 
 use glam::DVec3;
 use prerender::store::{self, PrerenderDir};
+use rayon::prelude::*;
 use streamer::db::{mesh::decode_mesh, Database};
 use streamer::ptm::{Decoder, Limits};
 use tracks::manifest::{PtmRef, TrackEntry};
@@ -241,53 +242,66 @@ pub fn from_database(
     let n = m.face_size;
     let grid = TileGrid::new(n, m.tile_size)
         .ok_or_else(|| format_err("manifest.json tile_size", m.tile_size))?;
+    // Viewpoints on every core (each decodes its own tiles and builds its own layers); the
+    // first error in viewpoint order is the one reported.
+    let loaded: Vec<Result<(RefView, u64), SourceError>> = entry
+        .viewpoints
+        .par_iter()
+        .map(|vp| -> Result<(RefView, u64), SourceError> {
+            let mut bytes = 0u64;
+            let what = format!("viewpoint {}", vp.index);
+            let mut background = CubeMap::filled(n, [0, 0, 0, 0]);
+            for (bi, bg) in vp.background.iter().enumerate() {
+                let key = format!("{what} background tile {bi}");
+                bytes += group_bytes(&bg.ptm, opts.level_groups);
+                let (rgba, w, h, level) = decode_ptm(db, &bg.ptm, opts.level_groups, &key)?;
+                paste_tile(&mut background, grid, bg.tile, (&rgba, w, h, level), &key)?;
+            }
+            let mut layers: Vec<CubeMap<[u8; 4]>> =
+                vec![CubeMap::filled(n, [0, 0, 0, 0]); m.slabs.len()];
+            let mut tiles = Vec::new();
+            for t in vp.tiles.iter().filter(|t| t.kept) {
+                let Some(ptm) = &t.ptm else {
+                    continue;
+                };
+                let mesh_bytes = match (&t.mesh, &t.mesh_range) {
+                    (Some(m), _) => db.read_object(m)?,
+                    (None, Some(r)) => db.read_checked_range(&ptm.object, r)?,
+                    (None, None) => continue,
+                };
+                let key = tracks::manifest::tile_key(vp.index, t.slab, t.tile);
+                let layer = layers.get_mut(t.slab as usize).ok_or_else(|| {
+                    format_err(&key, format!("slab {} beyond the manifest's slabs", t.slab))
+                })?;
+                bytes += group_bytes(ptm, opts.level_groups) + mesh_bytes.len() as u64;
+                let (rgba, w, h, level) = decode_ptm(db, ptm, opts.level_groups, &key)?;
+                paste_tile(layer, grid, t.tile, (&rgba, w, h, level), &key)?;
+                let mesh = tile_mesh_from_bytes(&mesh_bytes, &key)?;
+                let mut vt = ViewTile::new(t.tile, t.slab, mesh, n);
+                vt.finest_level = level;
+                tiles.push(vt);
+            }
+            tiles.sort_by_key(|t| (t.slab, grid.tile_index(t.tile)));
+            let mut all = vec![Layer::from_rgba(dilate_masked(&background))];
+            all.extend(layers.iter().map(|l| Layer::from_rgba(dilate_masked(l))));
+            let view = RefView {
+                index: vp.index,
+                s: vp.s,
+                position: vp.position,
+                face_size: n,
+                tile_size: m.tile_size,
+                layers: all,
+                tiles,
+            };
+            Ok((view, bytes))
+        })
+        .collect();
     let mut bytes = 0u64;
-    let mut views = Vec::with_capacity(entry.viewpoints.len());
-    for vp in &entry.viewpoints {
-        let what = format!("viewpoint {}", vp.index);
-        let mut background = CubeMap::filled(n, [0, 0, 0, 0]);
-        for (bi, bg) in vp.background.iter().enumerate() {
-            let key = format!("{what} background tile {bi}");
-            bytes += group_bytes(&bg.ptm, opts.level_groups);
-            let (rgba, w, h, level) = decode_ptm(db, &bg.ptm, opts.level_groups, &key)?;
-            paste_tile(&mut background, grid, bg.tile, (&rgba, w, h, level), &key)?;
-        }
-        let mut layers: Vec<CubeMap<[u8; 4]>> =
-            vec![CubeMap::filled(n, [0, 0, 0, 0]); m.slabs.len()];
-        let mut tiles = Vec::new();
-        for t in vp.tiles.iter().filter(|t| t.kept) {
-            let Some(ptm) = &t.ptm else {
-                continue;
-            };
-            let mesh_bytes = match (&t.mesh, &t.mesh_range) {
-                (Some(m), _) => db.read_object(m)?,
-                (None, Some(r)) => db.read_checked_range(&ptm.object, r)?,
-                (None, None) => continue,
-            };
-            let key = tracks::manifest::tile_key(vp.index, t.slab, t.tile);
-            let layer = layers.get_mut(t.slab as usize).ok_or_else(|| {
-                format_err(&key, format!("slab {} beyond the manifest's slabs", t.slab))
-            })?;
-            bytes += group_bytes(ptm, opts.level_groups) + mesh_bytes.len() as u64;
-            let (rgba, w, h, level) = decode_ptm(db, ptm, opts.level_groups, &key)?;
-            paste_tile(layer, grid, t.tile, (&rgba, w, h, level), &key)?;
-            let mesh = tile_mesh_from_bytes(&mesh_bytes, &key)?;
-            let mut vt = ViewTile::new(t.tile, t.slab, mesh, n);
-            vt.finest_level = level;
-            tiles.push(vt);
-        }
-        tiles.sort_by_key(|t| (t.slab, grid.tile_index(t.tile)));
-        let mut all = vec![Layer::from_rgba(dilate_masked(&background))];
-        all.extend(layers.iter().map(|l| Layer::from_rgba(dilate_masked(l))));
-        views.push(RefView {
-            index: vp.index,
-            s: vp.s,
-            position: vp.position,
-            face_size: n,
-            tile_size: m.tile_size,
-            layers: all,
-            tiles,
-        });
+    let mut views = Vec::with_capacity(loaded.len());
+    for r in loaded {
+        let (view, b) = r?;
+        bytes += b;
+        views.push(view);
     }
     Ok(Walkthrough {
         scene: m.scene.clone(),
