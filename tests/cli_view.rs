@@ -121,41 +121,82 @@ fn view_streams_from_a_served_database_and_closes_after_its_frames() {
     let _ = std::fs::remove_dir_all(work);
 }
 
-#[test]
-fn the_window_shows_the_headless_render_of_the_same_camera() {
+/// What [`window_shot`] saw.
+struct Shot {
+    /// The command's standard output.
+    out: String,
+    window: image::RgbImage,
+    /// The view's size in pixels, `WxH` (`…; view WxH px`: the view fills the window's right
+    /// and bottom edges).
+    size: String,
+    /// The scratch directory (removed by the caller) and the database in it.
+    work: PathBuf,
+    db: PathBuf,
+}
+
+/// A window on a small castle database closed after `frames` frames at `--target-fps fps`,
+/// with a screenshot; `None` when GPU tests are switched off.
+fn window_shot(name: &str, frames: u32, fps: u32) -> Option<Shot> {
     if std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1") {
         eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
-        return;
+        return None;
     }
     let bin = env!("CARGO_BIN_EXE_railview");
-    let work = tmp("same-picture");
+    let work = tmp(name);
     let db = small_castle(&work, 16);
     let shot = work.join("window.png");
     let runtime = work.join("xdg");
     std::fs::create_dir_all(&runtime).unwrap();
-    // Standing at the track's start, the default view; a target rate no frame misses, so
-    // the frame-time budget draws everything, as `railview render` does.
     let o = Command::new("xvfb-run")
         .args(["-a", bin, "view"])
         .arg(&db)
-        .args(["--frames", "12", "--target-fps", "1", "--screenshot"])
+        .args([
+            "--frames",
+            &frames.to_string(),
+            "--target-fps",
+            &fps.to_string(),
+        ])
+        .arg("--screenshot")
         .arg(&shot)
         .env("XDG_RUNTIME_DIR", &runtime)
         .output()
         .expect("xvfb-run (apt-get install xvfb)");
-    let out = String::from_utf8_lossy(&o.stdout);
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
     assert!(
         o.status.success(),
         "{out}\n{}",
         String::from_utf8_lossy(&o.stderr)
     );
-    // `…; view WxH px`: the view fills the window's right and bottom edges.
     let size = out
         .split("; view ")
         .nth(1)
         .and_then(|t| t.split_whitespace().next())
         .unwrap_or_else(|| panic!("no view size in {out}"))
         .to_string();
+    let window = image::open(&shot).unwrap().to_rgb8();
+    Some(Shot {
+        out,
+        window,
+        size,
+        work,
+        db,
+    })
+}
+
+#[test]
+fn the_window_shows_the_headless_render_of_the_same_camera() {
+    // Standing at the track's start, the default view; a target rate no frame misses, so
+    // the frame-time budget draws everything, as `railview render` does.
+    let Some(Shot {
+        window,
+        size,
+        work,
+        db,
+        ..
+    }) = window_shot("same-picture", 12, 1)
+    else {
+        return;
+    };
     let (w, h) = size.split_once('x').unwrap();
     let (w, h): (u32, u32) = (w.parse().unwrap(), h.parse().unwrap());
     let rendered = work.join("render.png");
@@ -172,7 +213,6 @@ fn the_window_shows_the_headless_render_of_the_same_camera() {
         rendered.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let window = image::open(&shot).unwrap().to_rgb8();
     let headless = image::open(&rendered).unwrap().to_rgb8();
     assert!(
         window.width() >= w && window.height() == h,
@@ -193,42 +233,22 @@ fn the_window_shows_the_headless_render_of_the_same_camera() {
 
 #[test]
 fn a_rate_out_of_reach_draws_the_view_smaller_and_scales_it_up() {
-    if std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1") {
-        eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
-        return;
-    }
-    let bin = env!("CARGO_BIN_EXE_railview");
-    let work = tmp("scaled");
-    let db = small_castle(&work, 16);
-    let shot = work.join("window.png");
-    let runtime = work.join("xdg");
-    std::fs::create_dir_all(&runtime).unwrap();
     // 1000 fps: every step of the budget is too slow, so it walks down the whole ladder
     // (one step per eight frames), the view's size included.
-    let o = Command::new("xvfb-run")
-        .args(["-a", bin, "view"])
-        .arg(&db)
-        .args(["--frames", "120", "--target-fps", "1000", "--screenshot"])
-        .arg(&shot)
-        .env("XDG_RUNTIME_DIR", &runtime)
-        .output()
-        .expect("xvfb-run (apt-get install xvfb)");
-    let out = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        o.status.success(),
-        "{out}\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    let Some(Shot {
+        out,
+        window,
+        size,
+        work,
+        ..
+    }) = window_shot("scaled", 120, 1000)
+    else {
+        return;
+    };
     assert!(out.contains("drawn at 50 % of the view's size"), "{out}");
     // The smaller picture fills the view's whole rectangle: its corners are scene, not the
     // panels' colour.
-    let size = out
-        .split("; view ")
-        .nth(1)
-        .and_then(|t| t.split_whitespace().next())
-        .unwrap_or_else(|| panic!("no view size in {out}"));
     let w: u32 = size.split_once('x').unwrap().0.parse().unwrap();
-    let window = image::open(&shot).unwrap().to_rgb8();
     let panel = *window.get_pixel(2, window.height() - 2);
     let (x0, x1) = (window.width() - w + 2, window.width() - 3);
     for (x, y) in [

@@ -391,18 +391,14 @@ fn check_ptm(path: &Path, bytes: &[u8], p: &PtmRef, report: &mut Report) {
         })
     };
     for (g, l) in p.levels.iter().enumerate() {
-        let Some(end) = l
-            .offset
-            .checked_add(l.len)
-            .filter(|&e| e <= bytes.len() as u64)
-        else {
+        let Some(range) = level_bytes(bytes, l) else {
             push(format!(
                 "level group {g}: range {}+{} outside the file",
                 l.offset, l.len
             ));
             continue;
         };
-        let range = &bytes[l.offset as usize..end as usize];
+        let end = l.offset + l.len;
         if !hash_matches(range, &l.hash) {
             let got = hash_hex(range);
             push(format!(
@@ -451,20 +447,22 @@ fn check_ptm(path: &Path, bytes: &[u8], p: &PtmRef, report: &mut Report) {
     report.level_ranges_checked += p.levels.len();
 }
 
+/// The bytes of level group `l` inside its object's `bytes`, if the range lies in them.
+fn level_bytes<'a>(bytes: &'a [u8], l: &tracks::manifest::LevelRef) -> Option<&'a [u8]> {
+    let end = l.offset.checked_add(l.len)?;
+    bytes.get(usize::try_from(l.offset).ok()?..usize::try_from(end).ok()?)
+}
+
 /// Decode `p`'s level groups in order to its finest level; with `cleared` (format 5) its
 /// texels with alpha 0 must hold colour 0. Ranges outside the file were reported by
 /// [`check_ptm`] and are not decoded again.
 fn decode_ptm(path: &Path, bytes: &[u8], p: &PtmRef, cleared: bool, report: &mut Report) {
     let mut dec = ptm::Decoder::new(ptm::Limits::default());
     for (g, l) in p.levels.iter().enumerate() {
-        let Some(end) = l
-            .offset
-            .checked_add(l.len)
-            .filter(|&e| e <= bytes.len() as u64)
-        else {
+        let Some(range) = level_bytes(bytes, l) else {
             return;
         };
-        if let Err(e) = dec.push(&bytes[l.offset as usize..end as usize]) {
+        if let Err(e) = dec.push(range) {
             report.problems.push(Problem {
                 path: path.to_path_buf(),
                 what: format!(
