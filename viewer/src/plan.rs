@@ -489,6 +489,11 @@ fn scale_steps_max() -> usize {
     ((1.0 - MIN_RENDER_SCALE) / RENDER_SCALE_STEP).round() as usize
 }
 
+/// The render scale `steps` steps below 1.
+fn scale_at(steps: usize) -> f32 {
+    1.0 - RENDER_SCALE_STEP * steps as f32
+}
+
 /// Steps of [`DrawBudget::render_scale`] below 1 (0, 1 or 2).
 fn scale_steps(b: DrawBudget) -> usize {
     let s = if b.render_scale.is_finite() {
@@ -505,11 +510,11 @@ pub fn step_down(b: DrawBudget, slabs: usize) -> DrawBudget {
     let mut out = b;
     out.max_slabs = b.max_slabs.min(slabs).max(1);
     out.mesh_level = b.mesh_level.min(crate::refview::MESH_LEVELS);
-    out.render_scale = 1.0 - RENDER_SCALE_STEP * scale_steps(b) as f32;
+    out.render_scale = scale_at(scale_steps(b));
     if !out.half_res_second {
         out.half_res_second = true;
     } else if scale_steps(out) < scale_steps_max() {
-        out.render_scale = 1.0 - RENDER_SCALE_STEP * (scale_steps(out) + 1) as f32;
+        out.render_scale = scale_at(scale_steps(out) + 1);
     } else if out.lod_bias < MAX_LOD_BIAS {
         out.lod_bias = (out.lod_bias + 1.0).min(MAX_LOD_BIAS);
     } else if out.mesh_level < crate::refview::MESH_LEVELS {
@@ -528,7 +533,7 @@ pub fn step_up(b: DrawBudget, slabs: usize) -> DrawBudget {
     let mut out = b;
     out.max_slabs = b.max_slabs.min(slabs).max(1);
     out.mesh_level = b.mesh_level.min(crate::refview::MESH_LEVELS);
-    out.render_scale = 1.0 - RENDER_SCALE_STEP * scale_steps(b) as f32;
+    out.render_scale = scale_at(scale_steps(b));
     if out.max_slabs < slabs {
         out.max_slabs += 1;
     } else if !out.blend {
@@ -538,7 +543,7 @@ pub fn step_up(b: DrawBudget, slabs: usize) -> DrawBudget {
     } else if out.lod_bias > 0.0 {
         out.lod_bias = (out.lod_bias - 1.0).max(0.0);
     } else if scale_steps(out) > 0 {
-        out.render_scale = 1.0 - RENDER_SCALE_STEP * (scale_steps(out) - 1) as f32;
+        out.render_scale = scale_at(scale_steps(out) - 1);
     } else if out.half_res_second {
         out.half_res_second = false;
     }
