@@ -87,6 +87,29 @@ pub fn is_temporary(file_name: &str) -> bool {
     file_name.starts_with('.') && file_name.contains(TEMP_MARK)
 }
 
+/// Remove the temporary files killed writers left directly in `dir` (not below it); returns
+/// how many. For a writer about to rewrite what it owns alone (a sample of one shard): a
+/// writer still running in `dir` would lose its temporary file and fail.
+pub fn remove_temporaries(dir: &Path) -> io::Result<usize> {
+    let entries = match fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(0),
+        Err(e) => return Err(e),
+    };
+    let mut removed = 0;
+    for e in entries {
+        let e = e?;
+        if is_temporary(&e.file_name().to_string_lossy()) && e.file_type()?.is_file() {
+            match fs::remove_file(e.path()) {
+                Ok(()) => removed += 1,
+                Err(err) if err.kind() == io::ErrorKind::NotFound => {}
+                Err(err) => return Err(err),
+            }
+        }
+    }
+    Ok(removed)
+}
+
 /// Create a new file `{prefix}{random}{suffix}` in `dir` (created if needed) that no other
 /// writer anywhere has: for files one run owns alone, such as its run log. The file is kept.
 pub fn create_unique(dir: &Path, prefix: &str, suffix: &str) -> io::Result<(File, PathBuf)> {
@@ -211,6 +234,18 @@ mod tests {
         assert!(during[0].starts_with(".manifest.json.tmp."), "{during:?}");
         assert!(!is_temporary("manifest.json"));
         assert!(!is_temporary("tmp.json"));
+        fs::remove_dir_all(&d).ok();
+    }
+
+    #[test]
+    fn leftovers_of_killed_writers_are_removed() {
+        let d = scratch("leftovers");
+        fs::write(d.join(".color.png.tmp.AbCdEf12"), b"half").unwrap();
+        fs::write(d.join("color.png"), b"whole").unwrap();
+        fs::create_dir(d.join(".x.tmp.dir")).unwrap();
+        assert_eq!(remove_temporaries(&d).unwrap(), 1);
+        assert_eq!(names(&d), [".x.tmp.dir", "color.png"]);
+        assert_eq!(remove_temporaries(&d.join("absent")).unwrap(), 0);
         fs::remove_dir_all(&d).ok();
     }
 
