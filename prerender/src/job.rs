@@ -312,6 +312,9 @@ pub struct LoggedWork {
     pub warnings: Vec<String>,
 }
 
+/// The run (its shard and host) that last logged a sample, and the timing it logged.
+type Attributed<'a> = (Option<(usize, usize)>, &'a str, &'a SampleTiming);
+
 /// Attribute every complete sample in `complete` (index, face size, low-res face size) to the
 /// last run that logged rendering it with those sizes, and sum the times per shard. Runs of
 /// every stage count (`prerender`, `import-pov`, `slabs` for layers).
@@ -323,7 +326,7 @@ pub fn logged_work(
     use std::collections::BTreeMap;
     let (runs, warnings) = read_runs(dir.root())?;
     // Latest timing per sample: runs are oldest first, events in order, so later ones win.
-    let mut base: BTreeMap<usize, (Option<(usize, usize)>, &str, &SampleTiming)> = BTreeMap::new();
+    let mut base: BTreeMap<usize, Attributed<'_>> = BTreeMap::new();
     let mut layer_time: BTreeMap<usize, f64> = BTreeMap::new();
     for run in &runs {
         for e in &run.events {
@@ -338,10 +341,10 @@ pub fn logged_work(
                         base.insert(t.index, (run.start.shard, run.start.host.as_str(), t));
                     }
                 }
-                RunEvent::Layers(t) => {
-                    if layers.iter().any(|(i, s)| *i == t.index && *s == t.slabs) {
-                        layer_time.insert(t.index, t.seconds);
-                    }
+                RunEvent::Layers(t)
+                    if layers.iter().any(|(i, s)| *i == t.index && *s == t.slabs) =>
+                {
+                    layer_time.insert(t.index, t.seconds);
                 }
                 _ => {}
             }
