@@ -270,9 +270,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &walk.views[0].flatten(),
     )];
     let pano_plan = plan_frame(&pano, &camera, s, DrawBudget::default())?;
-    let mut r = Renderer::new(Gpu::new()?);
+    let mut r = Renderer::new(Gpu::new()?)?;
     // A second renderer without the half-texel mesh skirts (what they cost).
-    let mut r_bare = Renderer::new(Gpu::new()?);
+    let mut r_bare = Renderer::new(Gpu::new()?)?;
     r_bare.set_skirts(false);
     // (name, budget, tile ids written); frames without overlays take the fused path (no
     // view targets, no composite pass), feedback frames (tile ids) add a depth + id pass per
