@@ -6,29 +6,14 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-packages=(povray povray-includes povray-examples mesa-vulkan-drivers libvulkan1 xvfb chromium)
-missing=()
-for p in "${packages[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
-if [ ${#missing[@]} -gt 0 ]; then
-  if [ "$(id -u)" -ne 0 ]; then
-    echo "missing packages: ${missing[*]} (run as root, or: sudo apt-get install ${missing[*]})" >&2
-    exit 1
-  fi
-  echo "installing: ${missing[*]}"
-  for attempt in 1 2 3; do
-    if apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}"; then
-      break
-    fi
-    [ "$attempt" = 3 ] && { echo "apt-get install failed" >&2; exit 1; }
-    sleep 10
-  done
-fi
-
-# Mesa prints harmless warnings without a runtime dir.
-export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp/railview-xdg}"
-mkdir -p "$XDG_RUNTIME_DIR" && chmod 700 "$XDG_RUNTIME_DIR"
+# shellcheck source=scripts/packages.sh
+. scripts/packages.sh
+# POV-Ray and its scenes; Mesa's Vulkan and GL drivers (the renderer is tested on both);
+# Xvfb (and xauth, which xvfb-run needs) for the window; Chromium for the report page.
+ensure_packages strict povray povray-includes povray-examples \
+  mesa-vulkan-drivers libvulkan1 libegl1 libegl-mesa0 libgl1-mesa-dri \
+  xvfb xauth chromium
+ensure_runtime_dir
 
 cargo fmt --all --check
 cargo clippy --release --workspace --all-targets --locked -- -D warnings

@@ -828,13 +828,15 @@ pub fn run(source: Source, opts: WindowOptions) -> Result<(), WindowError> {
             Ok(e) => Err((*e).into()),
             Err(e) => Err(WindowError::Window(e.to_string())),
         },
-        Err(eframe::Error::Wgpu(eframe::egui_wgpu::WgpuError::RequestAdapterError(e))) => {
-            Err(crate::gpu::no_adapter(
-                wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY | wgpu::Backends::GL),
-                &e.to_string(),
-            )
-            .into())
-        }
+        // No driver: no adapter, or no backend could make a surface for the window.
+        Err(eframe::Error::Wgpu(
+            e @ (eframe::egui_wgpu::WgpuError::RequestAdapterError(_)
+            | eframe::egui_wgpu::WgpuError::CreateSurfaceError(_)),
+        )) => Err(crate::gpu::no_adapter(
+            wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY | wgpu::Backends::GL),
+            e.to_string().trim_end_matches(": {}"),
+        )
+        .into()),
         Err(e) => Err(WindowError::Window(e.to_string())),
     }
 }
