@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Runs every test of railview on a fresh Debian machine: installs what the tests need
-# (POV-Ray and its scenes, Mesa's Vulkan driver for headless wgpu, Xvfb, Chromium for the
-# report test), then format check, lints and the whole test suite in the one build profile
-# (release) that the tools use too.
+# (POV-Ray and its scenes, Mesa's Vulkan and GL drivers for headless wgpu, Xvfb, Chromium for
+# the report test), then format check, lints and the whole test suite in the one build
+# profile (release) that the tools use too; then the viewer's GPU tests again on wgpu's GL
+# backend, and the README's first command end to end at a small size, with and without
+# Mesa's Vulkan driver.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -18,3 +20,17 @@ ensure_runtime_dir
 cargo fmt --all --check
 cargo clippy --release --workspace --all-targets --locked -- -D warnings
 cargo test --release --workspace --locked
+
+# The renderer's own tests run on wgpu's default backend (Vulkan) above; once more on GL
+# (about a minute, no rebuild). viewer/tests/backends.rs and tests/cli_backends.rs compare
+# the two backends in every run.
+WGPU_BACKEND=gl cargo test --release --locked -p viewer
+
+# The README's first command at a small size (15 to 20 s each once built): as it is, and on
+# a machine whose Vulkan loader finds no driver, where wgpu falls back to GL.
+demo_dir=$(mktemp -d)
+trap 'rm -rf "$demo_dir"' EXIT
+demo_args=(--no-window --face-size 16 --walk-speed 36)
+./scripts/demo.sh "${demo_args[@]}" --out "$demo_dir/default"
+VK_ICD_FILENAMES=/nonexistent VK_DRIVER_FILES=/nonexistent \
+  ./scripts/demo.sh "${demo_args[@]}" --out "$demo_dir/without-vulkan"

@@ -691,11 +691,14 @@ impl eframe::App for ViewerApp {
         if self.quit_after.is_some_and(|n| self.frames == n) {
             if let Some(line) = interval_summary(&self.intervals_ms) {
                 println!(
-                    "railview view: {line}; drawing at the end: {} (target {} fps); view {}x{} px",
+                    "railview view: {line}; drawing at the end: {} (target {} fps); view {}x{} px; adapter {}",
                     self.budget_text(),
                     self.target_fps,
                     self.shown_px[0],
-                    self.shown_px[1]
+                    self.shown_px[1],
+                    self.renderer
+                        .as_ref()
+                        .map_or_else(|| "none".to_string(), |r| r.gpu.describe())
                 );
             }
             if let Source::Stream(st) = &self.source {
