@@ -113,6 +113,23 @@ pub struct GpuRequest {
     pub limits: DeviceLimits,
 }
 
+impl GpuRequest {
+    /// One backend by the name `WGPU_BACKEND` takes (`vulkan`, `gl`, `metal`, `dx12`).
+    pub fn for_backend(name: &str) -> Option<GpuRequest> {
+        let backends = match name.to_ascii_lowercase().as_str() {
+            "vulkan" | "vk" => wgpu::Backends::VULKAN,
+            "gl" | "gles" | "opengl" => wgpu::Backends::GL,
+            "metal" | "mtl" => wgpu::Backends::METAL,
+            "dx12" | "d3d12" => wgpu::Backends::DX12,
+            _ => return None,
+        };
+        Some(GpuRequest {
+            backends: Some(backends),
+            ..Default::default()
+        })
+    }
+}
+
 /// Errors wgpu reported on a device outside any error scope (validation, out of memory,
 /// internal errors such as a shader a backend cannot translate, device loss), kept until the
 /// renderer asks ([`Gpu::check`]).
