@@ -597,6 +597,9 @@ struct Cameras<'a> {
     near: (&'a tracks::PerspectiveCamera, f64),
 }
 
+/// A frame type of `--backends`: budget, tile ids written, near a sample.
+type FrameKind = (DrawBudget, bool, bool);
+
 /// One backend of `--backends`: its adapter and, per frame type, median wall ms per frame
 /// drawn and waited for, throughput ms per frame, and the ratio of both to the first
 /// backend's.
@@ -633,8 +636,8 @@ fn compare_backends(
         let gpu = Gpu::request(&request).with_context(|| format!("--backends {name}"))?;
         renderers.push((name.clone(), Renderer::new(gpu)?));
     }
-    // (name, budget, tile ids, near a sample); `None`: the plain panorama.
-    let kinds: Vec<(&str, Option<(DrawBudget, bool, bool)>)> = vec![
+    // (name, (budget, tile ids, near a sample)); `None`: the plain panorama.
+    let kinds: Vec<(&str, Option<FrameKind>)> = vec![
         ("plain single cube map", None),
         (
             "full without tile ids (fused)",
@@ -671,7 +674,7 @@ fn compare_backends(
             )),
         ),
     ];
-    let plan_of = |kind: &Option<(DrawBudget, bool, bool)>| -> anyhow::Result<viewer::FramePlan> {
+    let plan_of = |kind: &Option<FrameKind>| -> anyhow::Result<viewer::FramePlan> {
         let (camera, s) = cameras.mid;
         Ok(match kind {
             None => plan_frame(pano, camera, s, DrawBudget::default())?,
@@ -702,31 +705,32 @@ fn compare_backends(
             }
         }
     }
-    let mut wall = vec![vec![Vec::new(); kinds.len()]; renderers.len()];
+    // wall[frame type][backend]: ms per frame.
+    let mut wall = vec![vec![Vec::new(); renderers.len()]; kinds.len()];
     for _ in 0..args.frames {
-        for k in 0..kinds.len() {
-            for (b, (_, r)) in renderers.iter_mut().enumerate() {
+        for (k, per_backend) in wall.iter_mut().enumerate() {
+            for ((_, r), times) in renderers.iter_mut().zip(per_backend.iter_mut()) {
                 let t = Instant::now();
                 draw(r, k)?;
-                wall[b][k].push(t.elapsed().as_secs_f64() * 1e3);
+                times.push(t.elapsed().as_secs_f64() * 1e3);
             }
         }
     }
     let mut through = vec![vec![None; kinds.len()]; renderers.len()];
     if args.throughput_frames > 0 {
-        for k in 0..kinds.len() {
+        for (k, (plan, (_, kind))) in plans.iter().zip(&kinds).enumerate() {
             for (b, (_, r)) in renderers.iter_mut().enumerate() {
-                let t = match kinds[k].1 {
-                    None => r.throughput_panorama(&plans[k], pano, args.throughput_frames)?,
-                    Some(_) => r.throughput(&plans[k], views, args.throughput_frames)?,
+                let t = match kind {
+                    None => r.throughput_panorama(plan, pano, args.throughput_frames)?,
+                    Some(_) => r.throughput(plan, views, args.throughput_frames)?,
                 };
                 through[b][k] = Some(t.wall_ms);
             }
         }
     }
-    let walls: Vec<Vec<f64>> = wall
-        .into_iter()
-        .map(|per| per.into_iter().map(median).collect())
+    // walls[backend][frame type]: median ms.
+    let walls: Vec<Vec<f64>> = (0..renderers.len())
+        .map(|b| wall.iter().map(|per| median(per[b].clone())).collect())
         .collect();
     let results: Vec<BackendResult> = renderers
         .iter()
