@@ -7,6 +7,9 @@ use std::sync::{Arc, Mutex};
 
 use super::{GpuError, TIMESTAMPS};
 
+/// How long [`Gpu::wait`] waits for submitted work before it reports the GPU as stuck.
+const GPU_WAIT_LIMIT: std::time::Duration = std::time::Duration::from_secs(600);
+
 /// What the device can do, and so which paths the renderer takes. Every path gives the same
 /// picture; a missing capability costs speed or a debug overlay, never a frame.
 ///
@@ -222,6 +225,29 @@ impl Gpu {
             info: adapter.get_info(),
             caps,
             errors,
+        }
+    }
+
+    /// Wait until the GPU has finished everything submitted. wgpu's GL backend gives up a
+    /// wait after 4.3 s (the largest timeout GL takes), which a software rasteriser on a busy
+    /// machine can need for a few large frames: it waits again, up to `GPU_WAIT_LIMIT` in all.
+    pub fn wait(&self, what: &str) -> Result<(), GpuError> {
+        let start = std::time::Instant::now();
+        loop {
+            match self.device.poll(wgpu::PollType::wait_indefinitely()) {
+                Ok(_) => return Ok(()),
+                Err(wgpu::PollError::Timeout) if start.elapsed() < GPU_WAIT_LIMIT => {}
+                Err(e) => {
+                    return Err(GpuError::Wgpu {
+                        what: what.to_string(),
+                        adapter: self.describe(),
+                        message: format!(
+                            "waiting for the GPU: {e} (after {:.0} s)",
+                            start.elapsed().as_secs_f64()
+                        ),
+                    })
+                }
+            }
         }
     }
 

@@ -434,10 +434,7 @@ impl Renderer {
         } else {
             plan.id_scale.max(1)
         };
-        self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.gpu.wait("drawing a frame")?;
         self.gpu.check("drawing a frame")
     }
 
@@ -813,10 +810,7 @@ impl Renderer {
             });
         self.encode_panorama(&mut enc, plan, views);
         self.gpu.queue.submit([enc.finish()]);
-        self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.gpu.wait("drawing a panorama")?;
         self.gpu.check("drawing a panorama")
     }
 

@@ -49,9 +49,7 @@ impl Renderer {
             }
             self.gpu.queue.submit([enc.finish()]);
         }
-        device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.gpu.wait("timing frames")?;
         let wall_ms = t0.elapsed().as_secs_f64() * 1e3 / frames as f64;
         let gpu_ms = match &queries {
             Some(q) => {
@@ -286,10 +284,7 @@ impl Renderer {
             // The receiver outlives the poll below; a send error cannot happen.
             tx.send(r).ok();
         });
-        self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.gpu.wait("reading back")?;
         rx.recv()
             .map_err(|e| GpuError::Readback(e.to_string()))?
             .map_err(|e| GpuError::Readback(e.to_string()))?;
