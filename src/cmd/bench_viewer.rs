@@ -616,8 +616,12 @@ struct BackendResult {
 struct BackendVariant {
     name: String,
     wall_ms: f64,
+    /// CPU time of all the process's threads while the frame was drawn (only that
+    /// backend's renderer works then; steadier than the wall clock on a loaded machine).
+    cpu_ms: Option<f64>,
     throughput_ms: Option<f64>,
     wall_ratio: f64,
+    cpu_ratio: Option<f64>,
     throughput_ratio: Option<f64>,
 }
 
@@ -705,14 +709,21 @@ fn compare_backends(
             }
         }
     }
-    // wall[frame type][backend]: ms per frame.
+    // wall[frame type][backend], cpu likewise: ms per frame.
     let mut wall = vec![vec![Vec::new(); renderers.len()]; kinds.len()];
+    let mut cpu = wall.clone();
     for _ in 0..args.frames {
-        for (k, per_backend) in wall.iter_mut().enumerate() {
-            for ((_, r), times) in renderers.iter_mut().zip(per_backend.iter_mut()) {
-                let t = Instant::now();
+        for (k, (per_backend, cpu_per_backend)) in wall.iter_mut().zip(&mut cpu).enumerate() {
+            for ((_, r), (times, cpu_times)) in renderers
+                .iter_mut()
+                .zip(per_backend.iter_mut().zip(cpu_per_backend.iter_mut()))
+            {
+                let (t, c) = (Instant::now(), cpu_ns());
                 draw(r, k)?;
                 times.push(t.elapsed().as_secs_f64() * 1e3);
+                if let (Some(a), Some(b)) = (c, cpu_ns()) {
+                    cpu_times.push(b.saturating_sub(a) as f64 / 1e6);
+                }
             }
         }
     }
@@ -728,9 +739,16 @@ fn compare_backends(
             }
         }
     }
-    // walls[backend][frame type]: median ms.
+    // walls[backend][frame type]: median ms; cpus likewise where measured.
     let walls: Vec<Vec<f64>> = (0..renderers.len())
         .map(|b| wall.iter().map(|per| median(per[b].clone())).collect())
+        .collect();
+    let cpus: Vec<Vec<Option<f64>>> = (0..renderers.len())
+        .map(|b| {
+            cpu.iter()
+                .map(|per| (!per[b].is_empty()).then(|| median(per[b].clone())))
+                .collect()
+        })
         .collect();
     let results: Vec<BackendResult> = renderers
         .iter()
@@ -745,8 +763,10 @@ fn compare_backends(
                 .map(|(k, (kind, _))| BackendVariant {
                     name: kind.to_string(),
                     wall_ms: walls[b][k],
+                    cpu_ms: cpus[b][k],
                     throughput_ms: through[b][k],
                     wall_ratio: walls[b][k] / walls[0][k],
+                    cpu_ratio: cpus[b][k].zip(cpus[0][k]).map(|(a, z)| a / z),
                     throughput_ratio: through[b][k].zip(through[0][k]).map(|(a, z)| a / z),
                 })
                 .collect(),
@@ -764,10 +784,12 @@ fn compare_backends(
         );
         for v in &res.variants {
             eprintln!(
-                "  {:<40} {:>8.1} ms wall ({:>4.2}x)  throughput {:>7.2} ms ({:>4.2}x)",
+                "  {:<40} {:>8.1} ms wall ({:>4.2}x)  {:>8.1} ms cpu ({:>4.2}x)  throughput {:>7.2} ms ({:>4.2}x)",
                 v.name,
                 v.wall_ms,
                 v.wall_ratio,
+                v.cpu_ms.unwrap_or(f64::NAN),
+                v.cpu_ratio.unwrap_or(f64::NAN),
                 v.throughput_ms.unwrap_or(f64::NAN),
                 v.throughput_ratio.unwrap_or(f64::NAN),
             );
