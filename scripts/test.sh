@@ -21,10 +21,11 @@ cargo fmt --all --check
 cargo clippy --release --workspace --all-targets --locked -- -D warnings
 cargo test --release --workspace --locked
 
-# The renderer's own tests run on wgpu's default backend (Vulkan) above; once more on GL
-# (about a minute, no rebuild). viewer/tests/backends.rs and tests/cli_backends.rs compare
-# the two backends in every run.
-WGPU_BACKEND=gl cargo test --release --locked -p viewer
+# The renderer's GPU tests run on wgpu's default backend (Vulkan) above; once more on GL
+# (about 20 s; `--workspace` keeps the features of the build above, so nothing is rebuilt).
+# viewer/tests/backends.rs and tests/cli_backends.rs compare the two backends in every run.
+WGPU_BACKEND=gl cargo test --release --locked --workspace \
+  --test backends --test castle --test fused --test gpu --test overlays --test stream
 
 # The README's first command at a small size (15 to 20 s each once built): as it is, and on
 # a machine whose Vulkan loader finds no driver, where wgpu falls back to GL.
