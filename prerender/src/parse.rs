@@ -190,26 +190,37 @@ pub fn tracks_from_scene_toml(
     text: &str,
     source_name: &str,
 ) -> Result<Option<tracks::TrackSet>, SceneError> {
-    let table: toml::Table = toml::from_str(text).map_err(|e| syntax(text, source_name, &e))?;
-    let Some(track) = table.get("track") else {
-        return Ok(None);
-    };
-    let mut only = toml::Table::new();
-    only.insert("track".into(), track.clone());
-    let sub = toml::to_string(&only).map_err(|e| SceneError::Syntax {
-        source_name: source_name.to_string(),
-        line: 0,
-        message: e.to_string(),
-    })?;
-    tracks::TrackSet::parse(&sub, source_name)
-        .map(Some)
-        .map_err(|e| SceneError::Invalid {
+    tracks::TrackSet::parse_within(text, source_name).map_err(|e| match e {
+        tracks::TrackError::Syntax {
+            source_name,
+            line,
+            message,
+        } => SceneError::Syntax {
+            source_name,
+            line,
+            message,
+        },
+        tracks::TrackError::Invalid {
+            source_name,
+            line,
+            track,
+            field,
+            message,
+        } => SceneError::Invalid {
+            source_name,
+            line,
+            item: format!("track `{track}`"),
+            field: field.to_string(),
+            message,
+        },
+        other => SceneError::Invalid {
             source_name: source_name.to_string(),
             line: 0,
-            item: "track".into(),
+            item: "tracks".into(),
             field: "track".into(),
-            message: e.to_string(),
-        })
+            message: other.to_string(),
+        },
+    })
 }
 
 fn syntax(text: &str, source_name: &str, e: &toml::de::Error) -> SceneError {

@@ -60,8 +60,9 @@ pub const MANIFEST_GZ_FILE: &str = "manifest.json.gz";
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum DbError {
-    #[error("{path}: {source}")]
-    Io { path: PathBuf, source: io::Error },
+    /// The I/O error is part of the message (not a separate source, so it prints once).
+    #[error("{path}: {error}")]
+    Io { path: PathBuf, error: io::Error },
     /// The file's content is wrong (bad JSON, wrong hash or size, unknown version, …).
     #[error("{path}: {message}")]
     Format { path: PathBuf, message: String },
@@ -71,10 +72,10 @@ pub enum DbError {
 }
 
 impl DbError {
-    fn io(path: &Path, source: io::Error) -> DbError {
+    fn io(path: &Path, error: io::Error) -> DbError {
         DbError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         }
     }
     fn format(path: &Path, message: impl Into<String>) -> DbError {

@@ -605,7 +605,7 @@ fn for_each_object<'m>(
 /// The message of an error whose path is reported separately.
 fn strip_path(e: &DbError) -> String {
     match e {
-        DbError::Io { source, .. } => source.to_string(),
+        DbError::Io { error, .. } => error.to_string(),
         DbError::Format { message, .. } => message.clone(),
         DbError::Request(m) => m.clone(),
     }
