@@ -185,6 +185,25 @@ impl Scene {
     }
 }
 
+/// Largest image texture, pixels per side (the decoder refuses larger ones before
+/// allocating them).
+pub const MAX_TEXTURE_SIZE: u32 = 16384;
+
+/// An image texture's bytes as RGB, within [`MAX_TEXTURE_SIZE`] per side.
+fn decode_texture(bytes: &[u8]) -> Result<image::RgbImage, String> {
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_TEXTURE_SIZE);
+    limits.max_image_height = Some(MAX_TEXTURE_SIZE);
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| format!("not a readable image: {e}"))?;
+    reader.limits(limits);
+    Ok(reader
+        .decode()
+        .map_err(|e| format!("not a readable image (at most {MAX_TEXTURE_SIZE} px per side): {e}"))?
+        .to_rgb8())
+}
+
 /// The `[[track]]` tables of a scene file, if it has any.
 pub fn tracks_from_scene_toml(
     text: &str,
@@ -358,9 +377,7 @@ fn parse_desc(
                     message,
                 };
                 let bytes = load(&path).map_err(asset)?;
-                let img = image::load_from_memory(&bytes)
-                    .map_err(|e| asset(format!("not a readable image: {e}")))?
-                    .to_rgb8();
+                let img = decode_texture(&bytes).map_err(asset)?;
                 if img.width() == 0 || img.height() == 0 {
                     return Err(asset("image is empty".into()));
                 }

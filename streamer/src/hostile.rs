@@ -52,6 +52,10 @@ pub struct AttackConfig {
     pub reconnect_pause: Duration,
     /// Local addresses to connect from, round robin (empty: the system's choice).
     pub sources: Vec<IpAddr>,
+    /// Receive buffer of the stalled readers, bytes (`None`: the system's, which on Linux
+    /// grows to megabytes; a small one keeps the server's writes blocked instead of the
+    /// kernel taking the response off its hands).
+    pub stalled_recv_buffer: Option<u32>,
 }
 
 impl Default for AttackConfig {
@@ -64,6 +68,7 @@ impl Default for AttackConfig {
             slow_interval: Duration::from_millis(500),
             reconnect_pause: Duration::from_millis(100),
             sources: Vec::new(),
+            stalled_recv_buffer: Some(16 << 10),
         }
     }
 }
@@ -159,12 +164,19 @@ impl Attack {
     }
 }
 
-async fn connect(target: SocketAddr, source: Option<IpAddr>) -> std::io::Result<TcpStream> {
+async fn connect(
+    target: SocketAddr,
+    source: Option<IpAddr>,
+    recv_buffer: Option<u32>,
+) -> std::io::Result<TcpStream> {
     let socket = if target.is_ipv4() {
         TcpSocket::new_v4()?
     } else {
         TcpSocket::new_v6()?
     };
+    if let Some(n) = recv_buffer {
+        socket.set_recv_buffer_size(n)?;
+    }
     if let Some(ip) = source {
         socket.bind(SocketAddr::new(ip, 0))?;
     }
@@ -175,7 +187,8 @@ async fn connect(target: SocketAddr, source: Option<IpAddr>) -> std::io::Result<
 
 /// One connection of one attacker, until the server closes it.
 async fn attacker(config: &AttackConfig, source: Option<IpAddr>, stalled: bool, c: &Counters) {
-    let mut stream = match connect(config.target, source).await {
+    let recv_buffer = config.stalled_recv_buffer.filter(|_| stalled);
+    let mut stream = match connect(config.target, source, recv_buffer).await {
         Ok(s) => s,
         Err(_) => {
             c.connect_errors.fetch_add(1, Relaxed);

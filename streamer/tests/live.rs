@@ -50,7 +50,8 @@ fn repeating_db(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&dir);
     let mut w = streamer::db::DbWriter::create(&dir)
         .unwrap()
-        .with_stage(&src);
+        .with_stage(&src)
+        .unwrap();
     w.finish(&m).unwrap();
     let _ = std::fs::remove_dir_all(&src);
     dir

@@ -24,6 +24,11 @@ pub const MAX_TRACKS: usize = 1024;
 pub const MAX_SLABS: usize = 64;
 /// Longest text field of a manifest (a track's TOML, the scene name).
 pub const MAX_TEXT_BYTES: usize = 1 << 20;
+/// Most cells of a track's tile grids: tiles per face grid × slabs × viewpoints (a client
+/// indexes every one; 64 Mi cells are a few hundred MiB of index).
+pub const MAX_GRID_CELLS: u64 = 1 << 26;
+/// Largest `manifest.json` read, bytes (clients and readers refuse larger ones unread).
+pub const MAX_MANIFEST_BYTES: u64 = 256 << 20;
 /// Largest coordinate or arc length, metres (positions beyond it lose f32 precision on the
 /// GPU long before; it also keeps lengths / spacing finite).
 pub const MAX_COORDINATE_M: f64 = 1e7;

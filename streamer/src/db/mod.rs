@@ -91,6 +91,56 @@ pub fn hash_hex(bytes: &[u8]) -> String {
     blake3::hash(bytes).to_hex().to_string()
 }
 
+/// Whether a file name is a temporary file of an interrupted write: a leading `.` and a
+/// `.tmp` marker (this writer's `.NAME.tmp.PID`, the `tempfile` crate's `.tmpXXXXXX`).
+pub fn is_temp_name(name: &str) -> bool {
+    name.starts_with('.') && name.contains(".tmp")
+}
+
+/// The process id in one of this writer's temporary names (`.NAME.tmp.PID`).
+fn temp_pid(name: &str) -> Option<u32> {
+    let (_, pid) = name.strip_prefix('.')?.rsplit_once(".tmp.")?;
+    pid.parse().ok()
+}
+
+/// Whether process `pid` is running (on systems without `/proc`, assumed not).
+fn process_alive(pid: u32) -> bool {
+    Path::new("/proc/self").exists() && Path::new("/proc").join(pid.to_string()).exists()
+}
+
+/// Removes the temporary files this writer leaves when it is killed (`.NAME.tmp.PID` of a
+/// process that is no longer running) from `root`, `root/objects/` and every
+/// `root/objects/HH/`; returns what it removed. Files of a writer still running, and other
+/// temporary names, are left alone ([`verify()`] reports those).
+pub fn remove_stale_temp(root: &Path) -> Result<Vec<PathBuf>, DbError> {
+    let mut dirs = vec![root.to_path_buf(), root.join("objects")];
+    if let Ok(rd) = fs::read_dir(root.join("objects")) {
+        let mut subs: Vec<PathBuf> = rd
+            .filter_map(Result::ok)
+            .filter(|e| e.file_type().is_ok_and(|t| t.is_dir()))
+            .map(|e| e.path())
+            .collect();
+        subs.sort();
+        dirs.extend(subs);
+    }
+    let mut removed = Vec::new();
+    for dir in dirs {
+        let Ok(rd) = fs::read_dir(&dir) else {
+            continue;
+        };
+        for e in rd.filter_map(Result::ok) {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let stale = is_temp_name(&name) && temp_pid(&name).is_some_and(|p| !process_alive(p));
+            if stale && e.file_type().is_ok_and(|t| t.is_file()) {
+                let path = e.path();
+                fs::remove_file(&path).map_err(|err| DbError::io(&path, err))?;
+                removed.push(path);
+            }
+        }
+    }
+    Ok(removed)
+}
+
 /// Writes `bytes` to `path` through a temporary file in the same directory and a rename.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DbError> {
     let dir = path.parent().unwrap_or(Path::new("."));
@@ -124,20 +174,25 @@ pub struct DbWriter {
     pub bytes_written: u64,
     /// Objects that were already present (resumed or shared content).
     pub objects_reused: u64,
+    /// Temporary files of an earlier, killed writer removed on opening.
+    pub leftovers_removed: Vec<PathBuf>,
 }
 
 impl DbWriter {
-    /// Opens (creating if needed) a database directory for writing. An existing manifest is
-    /// left in place until [`DbWriter::finish`] replaces it.
+    /// Opens (creating if needed) a database directory for writing, and removes the
+    /// temporary files a killed writer left there ([`remove_stale_temp`]). An existing
+    /// manifest is left in place until [`DbWriter::finish`] replaces it.
     pub fn create(root: &Path) -> Result<DbWriter, DbError> {
         let objects = root.join("objects");
         fs::create_dir_all(&objects).map_err(|e| DbError::io(&objects, e))?;
+        let leftovers_removed = remove_stale_temp(root)?;
         Ok(DbWriter {
             root: root.to_path_buf(),
             stage: None,
             objects_written: 0,
             bytes_written: 0,
             objects_reused: 0,
+            leftovers_removed,
         })
     }
 
@@ -145,9 +200,12 @@ impl DbWriter {
     /// [`DbWriter::finish`] copies into its viewpoint's pack) under `stage/objects/` instead
     /// of the database, so the database holds only what its manifest refers to while a
     /// resumed build still finds them.
-    pub fn with_stage(mut self, stage: &Path) -> DbWriter {
+    pub fn with_stage(mut self, stage: &Path) -> Result<DbWriter, DbError> {
+        if stage.is_dir() {
+            self.leftovers_removed.extend(remove_stale_temp(stage)?);
+        }
         self.stage = Some(stage.to_path_buf());
-        self
+        Ok(self)
     }
 
     pub fn root(&self) -> &Path {
@@ -591,7 +649,7 @@ pub fn read_tables(dir: &Path, top: &TopManifest) -> Result<Manifest, DbError> {
 /// its version.
 pub fn read_top(dir: &Path) -> Result<TopManifest, DbError> {
     let path = dir.join(MANIFEST_FILE);
-    let bytes = fs::read(&path).map_err(|e| DbError::io(&path, e))?;
+    let bytes = read_limited(&path, tracks::limits::MAX_MANIFEST_BYTES)?;
     let hash_path = dir.join(MANIFEST_HASH_FILE);
     match fs::read_to_string(&hash_path) {
         Ok(text) => {
@@ -607,6 +665,30 @@ pub fn read_top(dir: &Path) -> Result<TopManifest, DbError> {
         Err(e) => return Err(DbError::io(&hash_path, e)),
     }
     parse_top(&path, &bytes)
+}
+
+/// The bytes of `path`, refused unread when the file is larger than `limit`.
+pub fn read_limited(path: &Path, limit: u64) -> Result<Vec<u8>, DbError> {
+    let mut f = fs::File::open(path).map_err(|e| DbError::io(path, e))?;
+    let len = f.metadata().map_err(|e| DbError::io(path, e))?.len();
+    if len > limit {
+        return Err(DbError::format(
+            path,
+            format!("{len} bytes; at most {limit} are read"),
+        ));
+    }
+    let mut out = Vec::with_capacity(len as usize);
+    (&mut f)
+        .take(limit + 1)
+        .read_to_end(&mut out)
+        .map_err(|e| DbError::io(path, e))?;
+    if out.len() as u64 > limit {
+        return Err(DbError::format(
+            path,
+            format!("more than {limit} bytes; at most {limit} are read"),
+        ));
+    }
+    Ok(out)
 }
 
 /// Parses top-manifest bytes read from `path` and checks the version: formats 4 and 5 are
@@ -634,8 +716,11 @@ pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
             ),
         ));
     }
-    serde_json::from_slice(bytes)
-        .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))
+    let top: TopManifest = serde_json::from_slice(bytes)
+        .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
+    top.check_limits()
+        .map_err(|e| DbError::format(path, format!("{e} (limits of this build)")))?;
+    Ok(top)
 }
 
 /// Clear the colour of every RGBA texel whose alpha is 0, as format 5 stores every PTM.

@@ -209,6 +209,11 @@ impl ConnState {
         }
     }
 
+    /// Why the server closed (or is closing) this connection, if it did.
+    pub(crate) fn close_reason(&self) -> Option<CloseReason> {
+        CloseReason::from_u8(self.reason.load(Relaxed))
+    }
+
     /// Resolves when [`ConnState::close`] was called.
     pub(crate) async fn closed(&self) -> CloseReason {
         loop {

@@ -2,6 +2,10 @@
 //! request-head clock, writes the socket refuses start the blocked-write clock, bytes the
 //! socket takes are counted. No timers here: the sweeper reads the state
 //! ([`super::admit::timed_out`]).
+//!
+//! A connection the server closes for a reason (a timeout, eviction) is reset, not shut
+//! down: an orderly close would leave the kernel delivering what the send buffer holds (up
+//! to megabytes) to a peer that reads a byte a second, for minutes.
 
 use std::io;
 use std::pin::Pin;
@@ -13,13 +17,27 @@ use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use super::admit::{Clock, ConnState};
 
 /// A stream whose progress is recorded in a [`ConnState`].
-pub(crate) struct Guarded<S> {
+pub(crate) struct Guarded<S: Abort> {
     inner: S,
     state: Arc<ConnState>,
     clock: Clock,
 }
 
-impl<S> Guarded<S> {
+/// A stream that can be closed with a reset, its unsent data dropped.
+pub(crate) trait Abort {
+    fn abort_on_close(&self);
+}
+
+impl Abort for tokio::net::TcpStream {
+    fn abort_on_close(&self) {
+        // SO_LINGER 0: close() sends RST and frees the send buffer (never blocks).
+        if let Err(e) = self.set_zero_linger() {
+            tracing::debug!("SO_LINGER: {e}");
+        }
+    }
+}
+
+impl<S: Abort> Guarded<S> {
     pub(crate) fn new(inner: S, state: Arc<ConnState>, clock: Clock) -> Guarded<S> {
         Guarded {
             inner,
@@ -29,7 +47,15 @@ impl<S> Guarded<S> {
     }
 }
 
-impl<S: AsyncRead + Unpin> AsyncRead for Guarded<S> {
+impl<S: Abort> Drop for Guarded<S> {
+    fn drop(&mut self) {
+        if self.state.close_reason().is_some() {
+            self.inner.abort_on_close();
+        }
+    }
+}
+
+impl<S: AsyncRead + Abort + Unpin> AsyncRead for Guarded<S> {
     fn poll_read(
         self: Pin<&mut Self>,
         cx: &mut Context<'_>,
@@ -46,7 +72,7 @@ impl<S: AsyncRead + Unpin> AsyncRead for Guarded<S> {
     }
 }
 
-impl<S: AsyncWrite + Unpin> Guarded<S> {
+impl<S: AsyncWrite + Abort + Unpin> Guarded<S> {
     fn record(&self, r: &Poll<io::Result<usize>>) {
         match r {
             Poll::Pending => self.state.on_write_blocked(self.clock.now_ms()),
@@ -56,7 +82,7 @@ impl<S: AsyncWrite + Unpin> Guarded<S> {
     }
 }
 
-impl<S: AsyncWrite + Unpin> AsyncWrite for Guarded<S> {
+impl<S: AsyncWrite + Abort + Unpin> AsyncWrite for Guarded<S> {
     fn poll_write(
         self: Pin<&mut Self>,
         cx: &mut Context<'_>,

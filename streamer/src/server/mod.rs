@@ -146,7 +146,7 @@ pub enum ServerError {
         error: std::io::Error,
     },
     /// The database does not open (the message names the damaged file).
-    #[error("cannot serve {root}: {error} (`railview verify {root}` lists every problem)")]
+    #[error("cannot serve {root}: {error}{}", verify_hint(error, root))]
     Database {
         root: PathBuf,
         error: crate::db::DbError,
@@ -155,6 +155,17 @@ pub enum ServerError {
     Manifest { path: PathBuf, message: String },
     #[error("accepting connections: {0}")]
     Accept(std::io::Error),
+}
+
+/// For a database whose files are damaged: where to find every problem.
+fn verify_hint(e: &crate::db::DbError, root: &Path) -> String {
+    match e {
+        crate::db::DbError::Format { .. } => format!(
+            " (`railview verify {}` lists every problem)",
+            root.display()
+        ),
+        _ => String::new(),
+    }
 }
 
 /// Counters, readable while the server runs.
@@ -237,10 +248,8 @@ impl ServedDb {
         let top = crate::db::read_top(root).map_err(err)?;
         let manifest: Manifest = crate::db::read_tables(root, &top).map_err(err)?;
         // The bytes served are the bytes checked (re-read: the reader does not return them).
-        let raw = std::fs::read(&path).map_err(|error| ServerError::Io {
-            path: path.clone(),
-            error,
-        })?;
+        let raw =
+            crate::db::read_limited(&path, tracks::limits::MAX_MANIFEST_BYTES).map_err(err)?;
         if crate::db::parse_top(&path, &raw).ok().as_ref() != Some(&top) {
             return Err(ServerError::Manifest {
                 path,
@@ -264,6 +273,13 @@ impl ServedDb {
         }
         let read_optional = |name: &str| -> Result<Option<Vec<u8>>, ServerError> {
             let path = root.join(name);
+            if std::fs::metadata(&path).is_ok_and(|m| m.len() > tracks::limits::MAX_MANIFEST_BYTES)
+            {
+                return Err(ServerError::Manifest {
+                    path,
+                    message: format!("larger than {} bytes", tracks::limits::MAX_MANIFEST_BYTES),
+                });
+            }
             match std::fs::read(&path) {
                 Ok(b) => Ok(Some(b)),
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
