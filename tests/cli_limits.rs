@@ -26,7 +26,7 @@ fn refused(args: &[&str], needles: &[&str]) -> String {
     // Log lines (warnings on the way) are not the error.
     let lines: Vec<&str> = err
         .lines()
-        .filter(|l| !l.trim().is_empty() && !l.contains(" WARN ") && !l.contains(" INFO "))
+        .filter(|l| !l.trim().is_empty() && !l.contains("WARN") && !l.contains("INFO"))
         .collect();
     assert!(
         lines.first().is_some_and(|l| l.starts_with("error:")),

@@ -22,7 +22,7 @@ use streamer::walk::synth;
 /// Peak resident memory the server may reach under the attack. The attack asks for 256 ×
 /// 8 MiB of bundles that are never read: a server that assembled responses in memory would
 /// hold 2 GiB. Streamed, each connection holds a 32 KiB chunk and its write buffer.
-const MAX_SERVER_RSS_MIB: u64 = 160;
+const MAX_SERVER_RSS_MIB: u64 = 128;
 
 struct Server {
     child: Child,
