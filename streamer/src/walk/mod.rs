@@ -172,7 +172,7 @@ impl WalkConfig {
                 self.speed_mps, self.frame_dt_s
             ));
         }
-        if !(self.pause_s.is_finite() && self.pause_s >= 0.0) || !length_m.is_finite() {
+        if !(self.pause_s.is_finite() && self.pause_s >= 0.0 && length_m.is_finite()) {
             return Err(format!(
                 "pause {} s and track length {length_m} m must be finite",
                 self.pause_s
@@ -501,8 +501,7 @@ pub async fn run_walk(
                 &stats,
                 &scene,
                 config,
-                strategy,
-                bw,
+                (strategy, bw),
                 cost,
                 &mut on_frame,
             )
@@ -531,13 +530,33 @@ async fn fetch_scene(
     };
     // The whole database, for what each frame needs (the walker's eyes, not its client: the
     // runs fetch the tables again, on their links, as a viewer would).
+    // A table that is damaged or missing on the server is one the walker cannot see either
+    // (its viewpoint shows nothing); the runs count it when they ask for it.
     let mut tables = Vec::new();
     for t in &fetched.top.tracks {
         let mut row = Vec::new();
         for v in &t.viewpoints {
-            let mut table = conn.fetch_table(&v.table, v.index).await?;
+            let mut table = match conn.fetch_table(&v.table, v.index).await {
+                Ok(t) => t,
+                Err(e) if e.is_object_fault() || matches!(e, ClientError::Manifest(_)) => {
+                    tracing::warn!("walk: viewpoint {}'s table unreadable: {e}", v.index);
+                    ViewTable {
+                        viewpoint: v.index,
+                        background: Vec::new(),
+                        tiles: Vec::new(),
+                        segments: Vec::new(),
+                    }
+                }
+                Err(e) => return Err(e.into()),
+            };
             if let Some(ach) = &v.ach {
-                table.segments = conn.fetch_ach(ach, v.index).await?;
+                match conn.fetch_ach(ach, v.index).await {
+                    Ok(seg) => table.segments = seg,
+                    Err(e) if e.is_object_fault() || matches!(e, ClientError::Manifest(_)) => {
+                        tracing::warn!("walk: viewpoint {}'s ACH lists unreadable: {e}", v.index)
+                    }
+                    Err(e) => return Err(e.into()),
+                }
             }
             row.push(table);
         }

@@ -639,8 +639,7 @@ pub(crate) async fn run_one(
     stats: &ClientStats,
     scene: &Scene,
     cfg: &WalkConfig,
-    strategy: Strategy,
-    bandwidth: Option<u64>,
+    (strategy, bandwidth): (Strategy, Option<u64>),
     manifest: ManifestCost,
     on_frame: &mut dyn FnMut(u64),
 ) -> (RunReport, Option<WalkError>) {
