@@ -31,23 +31,31 @@ url=http://127.0.0.1:$port
 run_wrk() {
   wrk -t2 -c100 -d"${secs}s" --latency -s scripts/wrk-paths.lua "$url" -- "$work/paths.txt"
 }
-echo "== wrk alone"
-run_wrk | tee "$work/alone.txt"
-echo "== wrk under attack"
-"$attack" --target 127.0.0.1:$port --db "$db" --slow 400 --stalled 256 --sources 16 \
-  --seconds $((secs + 10)) &
-attacker=$!
-sleep 5
-run_wrk | tee "$work/attack.txt"
-wait $attacker
-peak=$(awk '/VmHWM/ {print $2}' /proc/$server/status)
-echo "== server peak RSS: $((peak / 1024)) MiB ($(nproc) cores, $(date -I))"
-kill -TERM $server; wait $server || true
-tail -1 "$work/serve.log"
 summary() {
   awk -v name="$1" '/Requests\/sec/ {rps=$2} /^ +50%/ {p50=$2} /^ +99%/ {p99=$2}
     END {printf "%s: %s req/s, p50 %s, p99 %s\n", name, rps, p50, p99}' "$2"
 }
-summary alone "$work/alone.txt"
-summary "under attack" "$work/attack.txt"
+# Alone and under attack, twice in turn: other load on the machine changes between phases,
+# so compare each attack phase with the alone phase before it.
+for round in 1 2; do
+  echo "== round $round: wrk alone"
+  run_wrk | tee "$work/alone$round.txt"
+  echo "== round $round: wrk under attack"
+  "$attack" --target 127.0.0.1:$port --db "$db" --slow 400 --stalled 256 --sources 16 \
+    --seconds $((secs + 8)) &
+  attacker=$!
+  sleep 5
+  run_wrk | tee "$work/attack$round.txt"
+  wait $attacker
+  sleep 2
+done
+peak=$(awk '/VmHWM/ {print $2}' /proc/$server/status)
+kill -TERM $server; wait $server || true
+tail -1 "$work/serve.log"
+echo "== $(nproc) cores, $(date -u '+%Y-%m-%d %H:%M UTC'), load $(cut -d' ' -f1-3 /proc/loadavg)"
+for round in 1 2; do
+  summary "round $round alone" "$work/alone$round.txt"
+  summary "round $round under attack" "$work/attack$round.txt"
+done
+echo "server peak RSS: $((peak / 1024)) MiB"
 rm -rf "$work"

@@ -251,3 +251,45 @@ fn messages_name_the_right_thing() {
     assert!(!m.tracks.is_empty());
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// Row 4: a walk against a server that accepts connections and never answers (or one frozen
+/// with SIGSTOP) ends with a clear error within its timeouts, and writes walk.json saying
+/// why, instead of hanging.
+#[test]
+fn a_walk_against_a_silent_server_ends_within_its_timeout() {
+    let dir = scratch_dir("limits", "silent");
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let url = format!("http://{}", listener.local_addr().unwrap());
+    std::thread::spawn(move || {
+        // Accept and hold every connection; never answer.
+        let mut held = Vec::new();
+        for c in listener.incoming() {
+            held.push(c);
+        }
+    });
+    let out = dir.join("walk");
+    let t0 = std::time::Instant::now();
+    let line = refused(
+        &[
+            "walk",
+            &url,
+            "--out",
+            out.to_str().unwrap(),
+            "--response-timeout",
+            "1s",
+            "--give-up-after",
+            "3s",
+        ],
+        &[&url, "no response within 1.0 s", "gave up"],
+    );
+    let took = t0.elapsed();
+    assert!(
+        took < std::time::Duration::from_secs(10),
+        "{took:?}: {line}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("walk.json")).unwrap()).unwrap();
+    assert!(json["error"].as_str().unwrap().contains("no response"));
+    assert_eq!(json["runs"].as_array().unwrap().len(), 0);
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -870,6 +870,23 @@ normal = [0, 1, 0]
         assert!(e.to_string().contains("colour"), "{e}");
     }
 
+    /// Regression: a bad track in a scene file was reported at line 0 of a re-serialised
+    /// copy; it names the line of its `[[track]]` in the scene file.
+    #[test]
+    fn track_errors_in_a_scene_file_name_their_line() {
+        let text =
+            format!("{SMALL}\n[[track]]\nname='main'\npoints=[[0,1,0],[72,1,0]]\nspacing=1e-9\n");
+        let line = text.lines().position(|l| l == "[[track]]").unwrap() + 1;
+        let err = tracks_from_scene_toml(&text, "s.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with(&format!("s.toml:{line}: track `main`: field `spacing`")),
+            "{err}"
+        );
+        assert!(!err.contains(":0:"), "{err}");
+    }
+
     #[test]
     fn external_files_go_through_the_loader() {
         let text = "[[object]]\ntype='mesh'\nobj='tri.obj'\nscale=2\n";

@@ -111,7 +111,13 @@ pub fn config(args: &Args) -> anyhow::Result<ServerConfig> {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let config = config(&args)?;
     let db = ServedDb::open(&args.db)?;
-    let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
+    // Few blocking threads: they only read the chunks of long bodies, and hundreds of
+    // stalled readers would otherwise start hundreds of threads that fight for the cores.
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .max_blocking_threads(16)
+        .build()
+        .context("starting the async runtime")?;
     rt.block_on(async {
         let listener = tokio::net::TcpListener::bind(&args.addr)
             .await

@@ -2,8 +2,10 @@
 //!
 //! An object or byte range, or a `/bundle` of many, is a list of [`Segment`]s (file, offset,
 //! length). A body of at most one chunk is read whole before the response starts
-//! ([`read_small`]); a longer one is read a chunk at a time on the blocking pool as the
-//! connection takes it ([`FileStream`]), one file open at a time. A peer that does not read
+//! ([`read_small`], on the connection's own task, as nginx reads files without its thread
+//! pool: a page-cache read of a few KiB costs less than a hop to another thread); a longer
+//! one is read a chunk at a time on the blocking pool as the connection takes it
+//! ([`FileStream`]), one file open at a time. A peer that does not read
 //! therefore makes the server hold one chunk (plus the connection's write buffer), however
 //! large the response: the bytes a request can make the server hold are bounded by the
 //! chunk, not by what it asks for.
@@ -73,9 +75,13 @@ impl Reader {
             }
             let want = (max - out.len()).min(self.left as usize);
             let start = out.len();
-            out.resize(start + want, 0);
+            out.reserve(want);
+            // Into the spare capacity, no zeroing first.
             if let Some(f) = self.file.as_mut() {
-                f.read_exact(&mut out[start..])?;
+                f.take(want as u64).read_to_end(&mut out)?;
+            }
+            if out.len() - start < want {
+                return Err(io::ErrorKind::UnexpectedEof.into());
             }
             self.left -= want as u64;
             if self.left == 0 {

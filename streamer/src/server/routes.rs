@@ -180,32 +180,37 @@ fn flip_for(s: &Shared) -> Option<u64> {
     k.is_multiple_of(n).then_some(k)
 }
 
-/// The body for `segments` (`total` bytes): read now when small, else streamed; one byte
-/// flipped when `flip` says so (counted).
-async fn file_body(
+/// The body of a request that reads files: the files' sizes, the segments `plan` makes of
+/// them (or its refusal), and the bytes right away when they fit in one chunk (read here,
+/// [`super::body`] says why), else a stream; one byte flipped when `flip` says so (counted).
+/// `unreadable` is the answer when a file cannot be read.
+fn file_body<T>(
     s: &Shared,
-    segments: Vec<Segment>,
-    total: u64,
+    paths: Vec<PathBuf>,
     flip: Option<u64>,
-) -> std::io::Result<ServeBody> {
+    unreadable: (StatusCode, String),
+    plan: impl FnOnce(Vec<std::io::Result<u64>>) -> Result<(Vec<Segment>, T), Resp>,
+) -> Result<(ServeBody, T), Resp> {
+    let sizes = paths
+        .iter()
+        .map(|p| std::fs::metadata(p).map(|m| m.len()))
+        .collect();
+    let (segments, extra) = plan(sizes)?;
+    let total: u64 = segments.iter().map(|s| s.len).sum();
     let corrupt_at = flip.filter(|_| total > 0).map(|k| (k * 7919) % total);
     if corrupt_at.is_some() {
         s.stats.corrupted.fetch_add(1, Ordering::Relaxed);
     }
-    if total as usize <= CHUNK_BYTES {
-        let data = tokio::task::spawn_blocking(move || read_small(segments, corrupt_at))
-            .await
-            .map_err(std::io::Error::other)??;
-        Ok(ServeBody::full(data))
+    let body = if total as usize <= CHUNK_BYTES {
+        let data = read_small(segments, corrupt_at).map_err(|e| {
+            tracing::warn!("reading a response: {e}");
+            reply(unreadable.0, unreadable.1)
+        })?;
+        ServeBody::full(data)
     } else {
-        Ok(ServeBody::files(FileStream::new(segments, corrupt_at)))
-    }
-}
-
-async fn file_size(path: PathBuf) -> std::io::Result<u64> {
-    tokio::task::spawn_blocking(move || std::fs::metadata(&path).map(|m| m.len()))
-        .await
-        .map_err(std::io::Error::other)?
+        ServeBody::files(FileStream::new(segments, corrupt_at))
+    };
+    Ok((body, extra))
 }
 
 async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp, Resp> {
@@ -230,58 +235,66 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
     if let Some(r) = not_modified(req, &etag) {
         return Ok(r);
     }
-    let path = s.db.root.join(rel);
-    let not_there = |e: std::io::Error| {
-        tracing::warn!("{}: {e}", path.display());
-        reply(
-            StatusCode::NOT_FOUND,
-            format!("object {hash} is listed but not readable"),
-        )
-    };
-    let size = file_size(path.clone()).await.map_err(not_there)?;
-    let limit = s.config.max_response_bytes;
-    let range = match req.headers().get(header::RANGE) {
+    let range_text = match req.headers().get(header::RANGE) {
         None => None,
-        Some(v) => {
-            let text = v
-                .to_str()
-                .map_err(|_| reply(StatusCode::BAD_REQUEST, "Range header is not ASCII"))?;
-            match parse_range(text, size, limit) {
-                Ok(r) => Some(r),
-                Err(e @ RangeError::Unsatisfiable { .. }) => {
-                    let mut r = reply(StatusCode::RANGE_NOT_SATISFIABLE, e.to_string());
-                    if let Ok(v) = HeaderValue::from_str(&format!("bytes */{size}")) {
-                        r.headers_mut().insert(header::CONTENT_RANGE, v);
+        Some(v) => Some(
+            v.to_str()
+                .map_err(|_| reply(StatusCode::BAD_REQUEST, "Range header is not ASCII"))?
+                .to_string(),
+        ),
+    };
+    let path = s.db.root.join(rel);
+    let limit = s.config.max_response_bytes;
+    let not_readable = format!("object {hash} is listed but not readable");
+    let unreadable = (StatusCode::NOT_FOUND, not_readable.clone());
+    let (body, (size, offset, len, ranged)) = file_body(
+        s,
+        vec![path.clone()],
+        flip_for(s),
+        unreadable,
+        move |sizes| {
+            let size = match sizes.into_iter().next() {
+                Some(Ok(size)) => size,
+                Some(Err(e)) => {
+                    tracing::warn!("{}: {e}", path.display());
+                    return Err(reply(StatusCode::NOT_FOUND, not_readable));
+                }
+                None => return Err(reply(StatusCode::NOT_FOUND, not_readable)),
+            };
+            let range = match range_text {
+                None => None,
+                Some(text) => match parse_range(&text, size, limit) {
+                    Ok(r) => Some(r),
+                    Err(e @ RangeError::Unsatisfiable { .. }) => {
+                        let mut r = reply(StatusCode::RANGE_NOT_SATISFIABLE, e.to_string());
+                        if let Ok(v) = HeaderValue::from_str(&format!("bytes */{size}")) {
+                            r.headers_mut().insert(header::CONTENT_RANGE, v);
+                        }
+                        return Err(r);
                     }
-                    return Err(r);
-                }
-                Err(e @ RangeError::TooLarge { .. }) => {
-                    return Err(reply(StatusCode::RANGE_NOT_SATISFIABLE, e.to_string()))
-                }
-                Err(e) => return Err(reply(StatusCode::BAD_REQUEST, e.to_string())),
+                    Err(e @ RangeError::TooLarge { .. }) => {
+                        return Err(reply(StatusCode::RANGE_NOT_SATISFIABLE, e.to_string()))
+                    }
+                    Err(e) => return Err(reply(StatusCode::BAD_REQUEST, e.to_string())),
+                },
+            };
+            let (offset, len) = range.unwrap_or((0, size));
+            if len > limit {
+                return Err(reply(
+                    StatusCode::RANGE_NOT_SATISFIABLE,
+                    format!(
+                        "object of {len} bytes is larger than the response limit of {limit} \
+                         bytes; ask for ranges"
+                    ),
+                ));
             }
-        }
-    };
-    let (offset, len) = range.unwrap_or((0, size));
-    if len > limit {
-        return Err(reply(
-            StatusCode::RANGE_NOT_SATISFIABLE,
-            format!(
-                "object of {len} bytes is larger than the response limit of {limit} bytes; ask for ranges"
-            ),
-        ));
-    }
-    let seg = Segment {
-        path: path.clone(),
-        offset,
-        len,
-    };
-    let body = file_body(s, vec![seg], len, flip_for(s))
-        .await
-        .map_err(not_there)?;
+            let seg = Segment { path, offset, len };
+            Ok((vec![seg], (size, offset, len, range.is_some())))
+        },
+    )?;
     let mut r = Response::new(body);
     add_object_headers(&mut r, &etag);
-    if range.is_some() {
+    if ranged {
         *r.status_mut() = StatusCode::PARTIAL_CONTENT;
         let cr = format!("bytes {}-{}/{}", offset, offset + len - 1, size);
         if let Ok(v) = HeaderValue::from_str(&cr) {
@@ -301,8 +314,10 @@ async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
     if let Some(r) = not_modified(req, &etag) {
         return Ok(r);
     }
-    // Each distinct object's size, looked up once (on the blocking pool, all together).
-    let mut paths: HashMap<&str, PathBuf> = HashMap::new();
+    // Each distinct object's size is looked up once.
+    let mut paths: Vec<PathBuf> = Vec::new();
+    let mut slot: HashMap<&str, usize> = HashMap::new();
+    let mut which = Vec::with_capacity(entries.len());
     for (i, e) in entries.iter().enumerate() {
         if !s.db.objects.contains(&e.object) {
             return Err(reply(
@@ -319,74 +334,61 @@ async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
                 format!("bundle entry {i}: bad hash"),
             )
         })?;
-        paths
-            .entry(&e.object)
-            .or_insert_with(|| s.db.root.join(rel));
-    }
-    let list: Vec<(String, PathBuf)> = paths
-        .iter()
-        .map(|(h, p)| (h.to_string(), p.clone()))
-        .collect();
-    let sizes: HashMap<String, Result<u64, String>> = tokio::task::spawn_blocking(move || {
-        list.into_iter()
-            .map(|(h, p)| {
-                let size = std::fs::metadata(&p).map(|m| m.len()).map_err(|e| {
-                    tracing::warn!("{}: {e}", p.display());
-                    e.to_string()
-                });
-                (h, size)
-            })
-            .collect()
-    })
-    .await
-    .map_err(|_| reply(StatusCode::INTERNAL_SERVER_ERROR, "bundle lookup failed"))?;
-    let limit = s.config.max_bundle_bytes;
-    let mut segments = Vec::with_capacity(entries.len());
-    let mut total = 0u64;
-    for (i, e) in entries.iter().enumerate() {
-        let size = match sizes.get(&e.object) {
-            Some(Ok(size)) => *size,
-            _ => {
-                return Err(reply(
-                    StatusCode::UNPROCESSABLE_ENTITY,
-                    format!(
-                        "bundle entry {i}: object {} is listed but not readable",
-                        e.object
-                    ),
-                ))
-            }
-        };
-        let (offset, len) = e.range.unwrap_or((0, size));
-        if offset.checked_add(len).is_none_or(|end| end > size) {
-            return Err(reply(
-                StatusCode::RANGE_NOT_SATISFIABLE,
-                format!(
-                    "bundle entry {i}: range {offset}+{len} is outside the object of {size} bytes"
-                ),
-            ));
-        }
-        total = total.saturating_add(len);
-        if total > limit {
-            return Err(reply(
-                StatusCode::RANGE_NOT_SATISFIABLE,
-                format!("bundle is larger than the limit of {limit} bytes; ask for fewer entries"),
-            ));
-        }
-        segments.push(Segment {
-            path: paths[e.object.as_str()].clone(),
-            offset,
-            len,
+        let k = *slot.entry(&e.object).or_insert_with(|| {
+            paths.push(s.db.root.join(rel));
+            paths.len() - 1
         });
+        which.push(k);
     }
-    let body = file_body(s, segments, total, flip_for(s))
-        .await
-        .map_err(|e| {
-            tracing::warn!("bundle: {e}");
-            reply(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                "a bundle entry's object is listed but not readable",
-            )
-        })?;
+    let limit = s.config.max_bundle_bytes;
+    let files = paths.clone();
+    let unreadable = (
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "a bundle entry's object is listed but not readable".to_string(),
+    );
+    let (body, ()) = file_body(s, paths, flip_for(s), unreadable, move |sizes| {
+        let mut segments = Vec::with_capacity(entries.len());
+        let mut total = 0u64;
+        for (i, (e, k)) in entries.iter().zip(which).enumerate() {
+            let size = match &sizes[k] {
+                Ok(size) => *size,
+                Err(err) => {
+                    tracing::warn!("{}: {err}", files[k].display());
+                    return Err(reply(
+                        StatusCode::UNPROCESSABLE_ENTITY,
+                        format!(
+                            "bundle entry {i}: object {} is listed but not readable",
+                            e.object
+                        ),
+                    ));
+                }
+            };
+            let (offset, len) = e.range.unwrap_or((0, size));
+            if offset.checked_add(len).is_none_or(|end| end > size) {
+                return Err(reply(
+                    StatusCode::RANGE_NOT_SATISFIABLE,
+                    format!(
+                        "bundle entry {i}: range {offset}+{len} is outside the object of {size} bytes"
+                    ),
+                ));
+            }
+            total = total.saturating_add(len);
+            if total > limit {
+                return Err(reply(
+                    StatusCode::RANGE_NOT_SATISFIABLE,
+                    format!(
+                        "bundle is larger than the limit of {limit} bytes; ask for fewer entries"
+                    ),
+                ));
+            }
+            segments.push(Segment {
+                path: files[k].clone(),
+                offset,
+                len,
+            });
+        }
+        Ok((segments, ()))
+    })?;
     let mut r = Response::new(body);
     add_object_headers(&mut r, &etag);
     r.headers_mut().remove(header::ACCEPT_RANGES);
