@@ -186,8 +186,8 @@ impl Scene {
 }
 
 /// Largest image texture, pixels per side (the decoder refuses larger ones before
-/// allocating them).
-pub const MAX_TEXTURE_SIZE: u32 = 16384;
+/// allocating them; a texture is kept as linear f32 RGB, 768 MiB at this size).
+pub const MAX_TEXTURE_SIZE: u32 = 8192;
 
 /// An image texture's bytes as RGB, within [`MAX_TEXTURE_SIZE`] per side.
 fn decode_texture(bytes: &[u8]) -> Result<image::RgbImage, String> {

@@ -26,6 +26,11 @@ fn reply(status: StatusCode, reason: impl Into<String>) -> Resp {
     r
 }
 
+/// A refusal built inside a planning closure (boxed: a response is large).
+fn refuse(status: StatusCode, reason: impl Into<String>) -> Box<Resp> {
+    Box::new(reply(status, reason))
+}
+
 pub(crate) async fn handle(s: &Shared, req: Request<Incoming>) -> Resp {
     s.stats.requests.fetch_add(1, Ordering::Relaxed);
     if !s.config.latency.is_zero() {
@@ -189,8 +194,8 @@ fn file_body<T>(
     paths: Vec<PathBuf>,
     flip: Option<u64>,
     unreadable: (StatusCode, String),
-    plan: impl FnOnce(Vec<std::io::Result<u64>>) -> Result<(Vec<Segment>, T), Resp>,
-) -> Result<(ServeBody, T), Resp> {
+    plan: impl FnOnce(Vec<std::io::Result<u64>>) -> Result<(Vec<Segment>, T), Box<Resp>>,
+) -> Result<(ServeBody, T), Box<Resp>> {
     let sizes = paths
         .iter()
         .map(|p| std::fs::metadata(p).map(|m| m.len()))
@@ -204,7 +209,7 @@ fn file_body<T>(
     let body = if total as usize <= CHUNK_BYTES {
         let data = read_small(segments, corrupt_at).map_err(|e| {
             tracing::warn!("reading a response: {e}");
-            reply(unreadable.0, unreadable.1)
+            refuse(unreadable.0, unreadable.1)
         })?;
         ServeBody::full(data)
     } else {
@@ -257,9 +262,9 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
                 Some(Ok(size)) => size,
                 Some(Err(e)) => {
                     tracing::warn!("{}: {e}", path.display());
-                    return Err(reply(StatusCode::NOT_FOUND, not_readable));
+                    return Err(refuse(StatusCode::NOT_FOUND, not_readable));
                 }
-                None => return Err(reply(StatusCode::NOT_FOUND, not_readable)),
+                None => return Err(refuse(StatusCode::NOT_FOUND, not_readable)),
             };
             let range = match range_text {
                 None => None,
@@ -270,17 +275,17 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
                         if let Ok(v) = HeaderValue::from_str(&format!("bytes */{size}")) {
                             r.headers_mut().insert(header::CONTENT_RANGE, v);
                         }
-                        return Err(r);
+                        return Err(Box::new(r));
                     }
                     Err(e @ RangeError::TooLarge { .. }) => {
-                        return Err(reply(StatusCode::RANGE_NOT_SATISFIABLE, e.to_string()))
+                        return Err(refuse(StatusCode::RANGE_NOT_SATISFIABLE, e.to_string()))
                     }
-                    Err(e) => return Err(reply(StatusCode::BAD_REQUEST, e.to_string())),
+                    Err(e) => return Err(refuse(StatusCode::BAD_REQUEST, e.to_string())),
                 },
             };
             let (offset, len) = range.unwrap_or((0, size));
             if len > limit {
-                return Err(reply(
+                return Err(refuse(
                     StatusCode::RANGE_NOT_SATISFIABLE,
                     format!(
                         "object of {len} bytes is larger than the response limit of {limit} \
@@ -291,7 +296,8 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
             let seg = Segment { path, offset, len };
             Ok((vec![seg], (size, offset, len, range.is_some())))
         },
-    )?;
+    )
+    .map_err(|r| *r)?;
     let mut r = Response::new(body);
     add_object_headers(&mut r, &etag);
     if ranged {
@@ -354,7 +360,7 @@ async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
                 Ok(size) => *size,
                 Err(err) => {
                     tracing::warn!("{}: {err}", files[k].display());
-                    return Err(reply(
+                    return Err(refuse(
                         StatusCode::UNPROCESSABLE_ENTITY,
                         format!(
                             "bundle entry {i}: object {} is listed but not readable",
@@ -365,7 +371,7 @@ async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
             };
             let (offset, len) = e.range.unwrap_or((0, size));
             if offset.checked_add(len).is_none_or(|end| end > size) {
-                return Err(reply(
+                return Err(refuse(
                     StatusCode::RANGE_NOT_SATISFIABLE,
                     format!(
                         "bundle entry {i}: range {offset}+{len} is outside the object of {size} bytes"
@@ -374,7 +380,7 @@ async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
             }
             total = total.saturating_add(len);
             if total > limit {
-                return Err(reply(
+                return Err(refuse(
                     StatusCode::RANGE_NOT_SATISFIABLE,
                     format!(
                         "bundle is larger than the limit of {limit} bytes; ask for fewer entries"
@@ -388,7 +394,8 @@ async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
             });
         }
         Ok((segments, ()))
-    })?;
+    })
+    .map_err(|r| *r)?;
     let mut r = Response::new(body);
     add_object_headers(&mut r, &etag);
     r.headers_mut().remove(header::ACCEPT_RANGES);
