@@ -9,9 +9,9 @@ use streamer::server::{self, parse_duration, parse_rate, ServedDb, ServerConfig,
 
 #[derive(clap::Args)]
 #[command(after_help = "\
-Limits against hostile or broken clients (defaults in brackets):
-  A request head must be complete --header-timeout after its first byte, however slowly it
-  arrives; a connection that sends no request is closed after --idle-timeout; one whose client
+Limits against hostile or broken clients (defaults above):
+  A request head (at most 16 KiB) must be complete --header-timeout after its first byte,
+  however slowly it arrives; a connection that sends no request is closed after --idle-timeout; one whose client
   stops reading after --write-timeout; one whose client reads at less than --min-send-rate
   once the socket fills (checked over --write-timeout) is closed too. Request bodies are never
   read (413). Responses stream from the files in 32 KiB chunks, so a client that does not read

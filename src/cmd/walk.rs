@@ -189,7 +189,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 if args.synthetic {
                     write_synthetic(&args, &dir)?;
                 }
-                let db = ServedDb::open(&dir)?;
+                let db = match ServedDb::open(&dir) {
+                    Ok(db) => db,
+                    Err(e) => {
+                        // Nothing measured, but walk.json says why.
+                        let report = walk::WalkReport {
+                            speed_mps: config.speed_mps,
+                            latency_s: config.latency_s,
+                            error: Some(e.to_string()),
+                            ..walk::WalkReport::default()
+                        };
+                        walk::write_outputs(&report, &args.out)?;
+                        return Err(e.into());
+                    }
+                };
                 let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
                 let url = ServerUrl::parse(&format!("http://{}", listener.local_addr()?))?;
                 let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
