@@ -191,8 +191,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .filter(|c| !c.accepted)
         .map(|c| c.depth_m)
         .collect();
-    let img = slabs::plot::plot_histogram(&choice.histogram, &choice.slabs, &rejected, 800, 300);
-    store::write_atomic(&root.join("histogram.png"), &slabs::plot::encode_png(&img))?;
+    let fig = slabs::plot::histogram_figure(&choice.histogram, &choice.slabs, &rejected);
+    store::write_atomic(&root.join("histogram.svg"), charts::svg(&fig)?.as_bytes())?;
+    store::write_atomic(&root.join("histogram.png"), &charts::png(&fig)?)?;
     for (k, s) in report.slabs.iter().enumerate() {
         eprintln!(
             "slab {k} {}: tiles {} -> {}, adaptive mesh {} triangles (max {:.3} px), grid {} triangles (max {:.3} px)",
