@@ -292,60 +292,21 @@ fn render_layers(
     Ok(())
 }
 
-/// The POV-Ray import that wrote `pre`, re-created from `prerender.json` (scene path, up axis,
-/// face sizes, anti-aliasing, gamma, binary, threads and timeout as `import-pov` recorded them).
+/// The POV-Ray import that wrote `pre`, re-created from what `import-pov` recorded in
+/// `prerender.json`, with its generated files in `DIR/pov-work`.
 pub(crate) fn pov_import_from_report(
     dir: &PrerenderDir,
     pre: &PrerenderReport,
 ) -> anyhow::Result<prerender::pov::PovImport> {
-    use prerender::pov::{PovImport, PovOptions, UpAxis};
-    let report = dir.report_json();
-    let field = |name: &str| {
-        let v = &pre.extra[name];
-        if v.is_null() {
-            None
-        } else {
-            Some(v)
-        }
-    };
-    let up: UpAxis = match field("up").map(|v| v.as_str()) {
-        None => UpAxis::Y,
-        Some(Some(s)) => s
-            .parse()
-            .map_err(|e| anyhow::anyhow!("{}: extra.up `{s}`: {e}", report.display()))?,
-        Some(None) => bail!("{}: extra.up is not a string", report.display()),
-    };
-    let mut opts = PovOptions::new(pre.face_size, dir.root().join("pov-work"));
-    opts.lowres_face_size = pre.lowres_face_size;
-    opts.up = up;
-    opts.antialias = field("antialias")
-        .and_then(|v| v.as_bool())
-        .unwrap_or(false);
-    if let Some(p) = field("povray").and_then(|v| v.as_str()) {
-        opts.povray = PathBuf::from(p);
-    }
-    if let Some(t) = field("threads").and_then(|v| v.as_u64()) {
-        opts.threads = (t as usize).max(1);
-    }
-    if let Some(t) = field("timeout_secs").and_then(|v| v.as_f64()) {
-        if !(t.is_finite() && t > 0.0) {
-            bail!(
-                "{}: extra.timeout_secs {t} is not a positive number",
-                report.display()
-            );
-        }
-        opts.timeout = Some(std::time::Duration::from_secs_f64(t));
-    }
-    opts.file_gamma = field("gamma")
-        .or_else(|| field("file_gamma"))
-        .and_then(|v| v.as_f64());
-    PovImport::new(&pre.scene, opts).with_context(|| {
-        format!(
-            "re-creating the POV-Ray import of `{}` recorded in {}",
-            pre.scene,
-            report.display()
-        )
-    })
+    prerender::pov::PovImport::from_report(dir, pre, &dir.root().join("pov-work")).with_context(
+        || {
+            format!(
+                "re-creating the POV-Ray import of `{}` recorded in {}",
+                pre.scene,
+                dir.report_json().display()
+            )
+        },
+    )
 }
 
 /// Render slab layers of `missing` samples of a POV-Ray import with POV-Ray.
