@@ -182,7 +182,7 @@ fn tile_one(
     if count == 0 {
         return None;
     }
-    let m = mesh_tile(
+    let mut m = mesh_tile(
         layer.depth,
         layer.mask,
         grid,
@@ -194,6 +194,17 @@ fn tile_one(
             Some(params.keep)
         },
     );
+    // Vertices stay within the depths of the tile's own opaque pixels, so within its slab:
+    // an error-bounded or extrapolated vertex (the band past the outline) can then never put
+    // a deeper slab's surface in front of a nearer slab's.
+    for v in m
+        .grid
+        .vertices
+        .iter_mut()
+        .chain(m.adaptive.vertices.iter_mut())
+    {
+        v[2] = v[2].clamp(lo, hi);
+    }
     Some(SlabTile {
         viewpoint,
         slab,
