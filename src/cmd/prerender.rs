@@ -195,6 +195,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
     )
     .map_err(store_error)?;
+    // Later stages render slab layers the way the panoramas were rendered.
+    let mut report = report;
+    if let Some(extra) = report.extra.as_object_mut() {
+        extra.insert("supersample".into(), args.supersample.into());
+        extra.insert("shadows".into(), (!args.no_shadows).into());
+    }
+    store::write_json(&dir.report_json(), &report).map_err(store_error)?;
     eprintln!(
         "{} of {} samples complete in {} ({} rendered, {} skipped); {:.0} primary rays/s",
         report.extra["complete_samples"],

@@ -258,10 +258,13 @@ fn render_layers(
             prerender::scene::Scene::parse_toml(&text, &pre.scene)?
         }
     };
+    // As the panoramas were rendered (`prerender` records it; 1 ray, shadows if not).
     let opts = prerender::render::RenderOptions {
         face_size: pre.face_size,
-        supersample: 1,
-        shadows: true,
+        supersample: pre.extra["supersample"]
+            .as_u64()
+            .map_or(1, |s| s.clamp(1, 16) as u32),
+        shadows: pre.extra["shadows"].as_bool().unwrap_or(true),
     };
     let bar = progress(missing.len() as u64, "rendering slab layers");
     for &i in missing {
