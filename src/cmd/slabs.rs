@@ -36,9 +36,13 @@ pub struct Args {
     /// Parallax (pixels at the largest baseline) that makes neighbouring pixels a discontinuity.
     #[arg(long, default_value_t = 1.0)]
     pub discontinuity: f64,
-    /// `auto`, or slab ranges `0-1000,1000-10000,10000-inf` (metres).
+    /// `auto`; `fewer` / `more` (the automatic choice with one boundary fewer or more;
+    /// `auto-N`, `auto+N` for N); or slab ranges `0-1000,1000-10000,10000-inf` (metres).
     #[arg(long, default_value = "auto")]
     pub slabs: String,
+    /// Choose the boundaries and render the missing layers, but do not tile them.
+    #[arg(long)]
+    pub layers_only: bool,
     /// Pixels of parallax above which a histogram valley becomes a boundary.
     #[arg(long, default_value_t = 1.0)]
     pub threshold_px: f64,
@@ -85,34 +89,46 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let existing: Vec<Option<LayersMeta>> = indices.iter().map(|&i| dir.layers_meta(i)).collect();
     let rendered: Option<Vec<SlabRange>> =
         existing.iter().flatten().next().map(|m| m.slabs.clone());
-    let choice: SlabChoice = if let Some(slabs) = &rendered {
-        if args.slabs != "auto" {
-            let want =
-                SlabRange::parse_list(&args.slabs).map_err(|e| anyhow::anyhow!("--slabs: {e}"))?;
-            if &want != slabs {
+    let auto = boundaries::choose(&lowres, max_spacing, pre.face_size, &params);
+    let want: Option<Vec<SlabRange>> = match parse_spec(&args.slabs)? {
+        Spec::Auto(0) => None,
+        Spec::Auto(d) => Some(boundaries::adjust(&auto, d)),
+        Spec::List(l) => Some(l),
+    };
+    let given = |slabs: Vec<SlabRange>, auto: SlabChoice| {
+        let mut c = auto;
+        c.criterion.manual = true;
+        c.criterion.summary = format!(
+            "{} slab(s) from --slabs {}; the automatic choice is {} ({})",
+            slabs.len(),
+            args.slabs,
+            c.slabs.len(),
+            c.criterion.summary
+        );
+        c.slabs = slabs;
+        c
+    };
+    let choice: SlabChoice = match (&rendered, want) {
+        (Some(slabs), want) => {
+            if let Some(want) = want.filter(|w| !same_ranges(w, slabs)) {
                 bail!(
                     "the samples already have slab layers {}; remove the slab_K directories and layers.json to render {}",
                     labels(slabs),
                     labels(&want)
                 );
             }
-        }
-        // Layers rendered from the automatic choice keep its numbers in the report.
-        let auto = boundaries::choose(&lowres, max_spacing, pre.face_size, &params);
-        if same_ranges(&auto.slabs, slabs) {
-            SlabChoice {
-                slabs: slabs.clone(),
-                ..auto
+            // Layers rendered from the automatic choice keep its numbers in the report.
+            if same_ranges(&auto.slabs, slabs) {
+                SlabChoice {
+                    slabs: slabs.clone(),
+                    ..auto
+                }
+            } else {
+                given(slabs.clone(), auto)
             }
-        } else {
-            boundaries::manual(slabs.clone(), &lowres, max_spacing, pre.face_size, &params)
         }
-    } else if args.slabs == "auto" {
-        boundaries::choose(&lowres, max_spacing, pre.face_size, &params)
-    } else {
-        let want =
-            SlabRange::parse_list(&args.slabs).map_err(|e| anyhow::anyhow!("--slabs: {e}"))?;
-        boundaries::manual(want, &lowres, max_spacing, pre.face_size, &params)
+        (None, None) => auto,
+        (None, Some(want)) => given(want, auto),
     };
     drop(lowres);
     eprintln!("{}", choice.criterion.summary);
@@ -126,6 +142,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .collect();
     if !missing.is_empty() && !choice.slabs.is_empty() {
         render_layers(&dir, &pre, &choice.slabs, &missing)?;
+    }
+
+    if args.layers_only {
+        eprintln!(
+            "layers {} rendered; tiles left to a later run",
+            labels(&choice.slabs)
+        );
+        return Ok(());
     }
 
     let mesh = MeshParams {
@@ -208,6 +232,31 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     eprintln!("wrote {}", root.join("slabs.json").display());
     Ok(())
+}
+
+/// What `--slabs` asks for: the automatic choice moved by a number of boundaries, or a list.
+enum Spec {
+    Auto(i32),
+    List(Vec<SlabRange>),
+}
+
+fn parse_spec(text: &str) -> anyhow::Result<Spec> {
+    let bad = || {
+        anyhow::anyhow!("--slabs `{text}`: expected auto, fewer, more, auto-N, auto+N or ranges like 0-10,10-inf")
+    };
+    Ok(match text {
+        "auto" => Spec::Auto(0),
+        "fewer" => Spec::Auto(-1),
+        "more" => Spec::Auto(1),
+        t if t.starts_with("auto") => {
+            let d: i32 = t["auto".len()..].parse().map_err(|_| bad())?;
+            if !(-16..=16).contains(&d) {
+                return Err(bad());
+            }
+            Spec::Auto(d)
+        }
+        t => Spec::List(SlabRange::parse_list(t).map_err(|e| anyhow::anyhow!("--slabs: {e}"))?),
+    })
 }
 
 /// Equal up to JSON round-off (ranges read back from `layers.json`).
