@@ -113,6 +113,31 @@ pub struct Args {
     /// ACH: pixels per side of each of the six cameras at a sampled viewpoint.
     #[arg(long, default_value_t = 64)]
     pub ach_camera_size: u32,
+    /// Leave out what the scene does not need: sweep the build's knobs around the settings
+    /// given (as `railview tune` does by default), and build the cheapest configuration (by
+    /// --cost) whose worst 5 % of views reach this PSNR in dB. The sweep is kept in
+    /// --tune-dir and reused; the choice and its evidence go into the build report.
+    #[arg(long)]
+    pub target_psnr: Option<f64>,
+    /// With --target-psnr: the cost to minimise: db-bytes, walk-bytes, prerender-cpu,
+    /// build-cpu or frame-ms.
+    #[arg(long, default_value = "db-bytes")]
+    pub cost: String,
+    /// With --target-psnr: the sweep's directory (default: WORK/tune).
+    #[arg(long)]
+    pub tune_dir: Option<PathBuf>,
+    /// With --target-psnr: evaluation views per segment and directions per position.
+    #[arg(long, default_value_t = 2)]
+    pub per_segment: usize,
+    #[arg(long, default_value_t = 4)]
+    pub directions: usize,
+    /// Where the report goes when not into the work directory (the choice of --target-psnr
+    /// builds in the sweep's directory and reports beside the database).
+    #[arg(skip)]
+    pub report_dir: Option<PathBuf>,
+    /// What --target-psnr chose and why, for the report.
+    #[arg(skip)]
+    pub evidence: Option<serde_json::Value>,
 }
 
 /// Bytes at each stage (raw RGBA8 unless stated).
@@ -190,6 +215,9 @@ struct BuildReport {
     cpu_seconds: Vec<(String, f64)>,
     objects_written: u64,
     objects_reused: u64,
+    /// With --target-psnr: the target, the choice, what it left out and saved, the sweep.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    target: Option<serde_json::Value>,
 }
 
 impl BuildReport {
@@ -214,7 +242,7 @@ fn stage(n: usize, what: &str) {
     eprintln!("[{n}/6] {what}");
 }
 
-fn run_sub(argv: &[String]) -> anyhow::Result<()> {
+pub(crate) fn run_sub(argv: &[String]) -> anyhow::Result<()> {
     let mut full = vec!["railview".to_string()];
     full.extend_from_slice(argv);
     let cli = crate::Cli::try_parse_from(&full)
@@ -277,6 +305,43 @@ fn check_args(args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The track `track` names: a track file (its track `track_name`, `main` or its only one),
+/// or a track of the scene (built-in or scene file).
+pub(crate) fn resolve_track(
+    scene: Option<&str>,
+    track: &str,
+    track_name: Option<&str>,
+) -> anyhow::Result<tracks::Track> {
+    let from_file = |path: &Path| -> anyhow::Result<TrackSet> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("reading track file {}", path.display()))?;
+        Ok(TrackSet::parse(&text, &path.display().to_string())?)
+    };
+    let set = if Path::new(track).is_file() {
+        from_file(Path::new(track))?
+    } else if let Some(b) = scene.and_then(prerender::scenes::builtin) {
+        b.tracks
+    } else if let Some(scene) = scene.filter(|s| Path::new(s).is_file()) {
+        let text = std::fs::read_to_string(scene)
+            .with_context(|| format!("reading scene file {scene}"))?;
+        prerender::parse::tracks_from_scene_toml(&text, scene)?
+            .with_context(|| format!("{scene} has no [[track]]"))?
+    } else {
+        bail!("track `{track}` is neither a track file nor a track of the scene");
+    };
+    let name = track_name.unwrap_or(track);
+    Ok(match set.get(name) {
+        Some(t) => t.clone(),
+        None if set.tracks.len() == 1 => set.tracks[0].clone(),
+        None => set.get("main").cloned().with_context(|| {
+            format!(
+                "no track `{name}` or `main` among {}",
+                set.names().join(", ")
+            )
+        })?,
+    })
+}
+
 /// The track file the first stage renders: the track as given, or resampled to `--samples`
 /// or `--spacing` (written to `WORK/track-resampled.toml`).
 fn track_arg(args: &Args, work: &Path) -> anyhow::Result<String> {
@@ -286,37 +351,12 @@ fn track_arg(args: &Args, work: &Path) -> anyhow::Result<String> {
         (None, Some(d)) => Sampling::Spacing(d),
         (None, None) => return Ok(args.track.clone()),
     };
-    let from_file = |path: &Path| -> anyhow::Result<TrackSet> {
-        let text = std::fs::read_to_string(path)
-            .with_context(|| format!("reading track file {}", path.display()))?;
-        Ok(TrackSet::parse(&text, &path.display().to_string())?)
-    };
-    let set = if Path::new(&args.track).is_file() {
-        from_file(Path::new(&args.track))?
-    } else if let Some(b) = args.scene.as_deref().and_then(prerender::scenes::builtin) {
-        b.tracks
-    } else if let Some(scene) = args.scene.as_deref().filter(|s| Path::new(s).is_file()) {
-        let text = std::fs::read_to_string(scene)
-            .with_context(|| format!("reading scene file {scene}"))?;
-        prerender::parse::tracks_from_scene_toml(&text, scene)?
-            .with_context(|| format!("{scene} has no [[track]]"))?
-    } else {
-        bail!(
-            "--samples/--spacing: track `{}` is neither a track file nor a track of the scene",
-            args.track
-        );
-    };
-    let name = args.track_name.as_deref().unwrap_or(&args.track);
-    let mut track = match set.get(name) {
-        Some(t) => t.clone(),
-        None if set.tracks.len() == 1 => set.tracks[0].clone(),
-        None => set.get("main").cloned().with_context(|| {
-            format!(
-                "no track `{name}` or `main` among {}",
-                set.names().join(", ")
-            )
-        })?,
-    };
+    let mut track = resolve_track(
+        args.scene.as_deref(),
+        &args.track,
+        args.track_name.as_deref(),
+    )
+    .context("--samples/--spacing")?;
     track.sampling = sampling;
     let path = work.join("track-resampled.toml");
     let one = TrackSet {
@@ -357,6 +397,9 @@ fn check_panoramas(work: &Path, args: &Args) -> anyhow::Result<()> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     check_args(&args)?;
+    if let Some(target) = args.target_psnr {
+        return build_for_target(args, target);
+    }
     let t_all = Instant::now();
     let cpu_all = tune::cost::Meter::start();
     let work = args.work.clone().unwrap_or_else(|| {
@@ -643,16 +686,146 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .seconds
         .push(("total".into(), t_all.elapsed().as_secs_f64()));
     report.cpu_seconds.push(("total".into(), cpu_all.stop().0));
-    store::write_json(&work.join("build.json"), &report)?;
+    report.target = args.evidence.clone();
+    let report_dir = args.report_dir.clone().unwrap_or(work);
+    store::write_json(&report_dir.join("build.json"), &report)?;
     let md = markdown(&report);
-    store::write_atomic(&work.join("build.md"), md.as_bytes())?;
+    store::write_atomic(&report_dir.join("build.md"), md.as_bytes())?;
     println!("{md}");
     eprintln!(
         "wrote {} (report: {})",
         args.out.join("manifest.json").display(),
-        work.join("build.md").display()
+        report_dir.join("build.md").display()
     );
     Ok(())
+}
+
+/// `--target-psnr`: sweep the knobs around the settings given (`railview tune`'s lists),
+/// choose the cheapest configuration reaching the target on the worst 5 % of views, and
+/// build it into `--out` from the sweep's own stages (nothing is rendered or encoded again),
+/// with the choice and its evidence in the report.
+fn build_for_target(args: Args, target: f64) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        target.is_finite() && target > 0.0,
+        "--target-psnr must be a positive number of dB"
+    );
+    let work = args.work.clone().unwrap_or_else(|| {
+        let mut w = args.out.clone().into_os_string();
+        w.push(".work");
+        PathBuf::from(w)
+    });
+    store::ensure_writable_dir(&work)?;
+    let tune_dir = args.tune_dir.clone().unwrap_or_else(|| work.join("tune"));
+    let track = track_arg(&args, &work)?;
+    let mut argv: Vec<String> = vec!["railview".into(), "tune".into()];
+    match (&args.scene, &args.pov) {
+        (Some(s), _) => argv.extend(["--scene".into(), s.clone()]),
+        (None, Some(p)) => {
+            argv.extend(["--pov".into(), p.display().to_string()]);
+            if let Some(up) = &args.up {
+                argv.extend(["--up".into(), up.clone()]);
+            }
+        }
+        (None, None) => bail!("give --scene NAME or --pov SCENE.pov"),
+    }
+    let cull = if args.cull_variant == "none" {
+        "none".to_string()
+    } else {
+        format!("{}:{}", args.cull_variant, args.alpha)
+    };
+    argv.extend([
+        "--track".into(),
+        track,
+        "--out".into(),
+        tune_dir.display().to_string(),
+        "--face-size".into(),
+        args.face_size.to_string(),
+        "--supersample".into(),
+        args.supersample.to_string(),
+        "--slabs".into(),
+        args.slabs.clone(),
+        "--tile-size".into(),
+        args.tile_size.to_string(),
+        "--mesh-error".into(),
+        args.mesh_error.to_string(),
+        "--cull".into(),
+        cull,
+        "--target-psnr".into(),
+        target.to_string(),
+        "--cost".into(),
+        args.cost.clone(),
+        "--combine".into(),
+        "--per-segment".into(),
+        args.per_segment.to_string(),
+        "--directions".into(),
+        args.directions.to_string(),
+        "--zstd-level".into(),
+        args.zstd_level.to_string(),
+        "--ach-samples".into(),
+        args.ach_samples.to_string(),
+        "--ach-camera-size".into(),
+        args.ach_camera_size.to_string(),
+    ]);
+    if args.pov.is_some() && args.supersample > 2 {
+        bail!("--supersample with --pov: 1 or 2");
+    }
+    if let Some(n) = args.lowres_face_size {
+        argv.extend(["--lowres-face-size".into(), n.to_string()]);
+    }
+    let cli = crate::Cli::try_parse_from(&argv).context("the sweep's arguments")?;
+    let crate::Command::Tune(tune_args) = cli.command else {
+        bail!("the sweep's arguments did not parse as `railview tune`");
+    };
+    let mut sweep = super::tune::Sweep::new(tune_args)?;
+    let report = sweep.run()?;
+    let selection = report
+        .selections
+        .first()
+        .context("the sweep made no choice")?;
+    let text = tune::report::selection_text(&report, selection);
+    let Some(i) = selection.chosen else {
+        bail!("{text} (the sweep is in {})", tune_dir.display());
+    };
+    let chosen = &report.records[i];
+    eprintln!("{text}");
+    let node = tune_dir.join(&chosen.dir);
+    let k = &chosen.knobs;
+    let evidence = serde_json::json!({
+        "target_psnr_db": target,
+        "judged_on": "PSNR of the worst 5 % of views between samples",
+        "cost": selection.cost,
+        "chosen": chosen,
+        "left_out": k.differences(&report.base),
+        "summary": text,
+        "sweep": tune_dir.display().to_string(),
+        "table": tune::report::table(&report),
+        "configurations": report.records.len(),
+    });
+    let chosen_args = Args {
+        track: node
+            .join("prerender")
+            .join("track.toml")
+            .display()
+            .to_string(),
+        track_name: None,
+        samples: None,
+        spacing: None,
+        face_size: k.face_size,
+        supersample: k.supersample,
+        aa: args.aa || (args.pov.is_some() && k.supersample == 2),
+        slabs: k.slabs.clone(),
+        tile_size: k.tile_size,
+        mesh_error: k.mesh_error_px,
+        cull_variant: k.cull_variant.clone(),
+        alpha: k.alpha,
+        drop_levels: k.drop_levels,
+        work: Some(node),
+        target_psnr: None,
+        report_dir: Some(work),
+        evidence: Some(evidence),
+        ..args
+    };
+    run(chosen_args)
 }
 
 /// The first stage's command line: `prerender` for built-in and TOML scenes, `import-pov`
@@ -983,6 +1156,15 @@ fn markdown(r: &BuildReport) -> String {
         "\nObjects written {}, reused {} (a rebuild reuses everything already written).\n",
         r.objects_written, r.objects_reused
     );
+    if let Some(t) = &r.target {
+        m += &format!(
+            "\n## Chosen for a PSNR target\n\n{}\n\nThe sweep ({} configurations, in {}):\n\n{}",
+            t["summary"].as_str().unwrap_or(""),
+            t["configurations"],
+            t["sweep"].as_str().unwrap_or(""),
+            t["table"].as_str().unwrap_or("")
+        );
+    }
     m
 }
 
@@ -1018,6 +1200,13 @@ mod tests {
             mesh_error: 0.5,
             cull_variant: "conservative".into(),
             drop_levels: 0,
+            target_psnr: None,
+            cost: "db-bytes".into(),
+            tune_dir: None,
+            per_segment: 2,
+            directions: 4,
+            report_dir: None,
+            evidence: None,
             alpha: 1.0,
             zstd_level: 3,
             ach_samples: 2,

@@ -63,17 +63,18 @@ mod tests {
     }
 
     #[test]
-    fn spinning_uses_cpu() {
+    fn work_is_counted() {
         let m = Meter::start();
+        // A fixed amount of work (not a fixed time: the machine may be shared), well above
+        // the 10 ms resolution of the counters.
         let mut x = 0u64;
-        let t = std::time::Instant::now();
-        while t.elapsed().as_millis() < 300 {
-            x = x.wrapping_mul(6364136223846793005).wrapping_add(1);
+        for i in 0..100_000_000u64 {
+            x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(i));
         }
         std::hint::black_box(x);
         let (cpu, wall) = m.stop();
         if cpu.is_finite() {
-            assert!(cpu > 0.05 && cpu <= wall * 4.0 + 0.05, "{cpu} {wall}");
+            assert!(cpu >= 0.02, "{cpu} s of CPU in {wall} s");
         }
     }
 }
