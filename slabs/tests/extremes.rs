@@ -115,7 +115,9 @@ fn one_pixel_objects() {
     assert_eq!(wall.depth_min, 1.0);
     let near: Vec<&[f32; 3]> = wall.mesh.vertices.iter().filter(|v| v[2] != 30.0).collect();
     assert_eq!(near.len(), 4, "{:?}", wall.mesh.vertices);
-    assert!(near.iter().all(|v| v[2] == 1.0 && v[0].fract() == 0.0 && v[1].fract() == 0.0));
+    assert!(near
+        .iter()
+        .all(|v| v[2] == 1.0 && v[0].fract() == 0.0 && v[1].fract() == 0.0));
     let (xs, ys) = (
         near.iter().map(|v| v[0]).fold(f32::MAX, f32::min),
         near.iter().map(|v| v[1]).fold(f32::MAX, f32::min),
