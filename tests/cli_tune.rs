@@ -32,6 +32,8 @@ fn sweep_args(track: &Path, out: &Path) -> Vec<String> {
         "32",
         "--every",
         "2",
+        "--face-sizes",
+        "",
         "--supersamples",
         "",
         "--slab-counts",

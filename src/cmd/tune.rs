@@ -61,8 +61,8 @@ pub struct Args {
     /// Swept: keep every N-th reference viewpoint, comma separated (`` for none).
     #[arg(long, default_value = "2")]
     pub every: String,
-    /// Swept: face sizes.
-    #[arg(long, default_value = "")]
+    /// Swept: face sizes (`3/4`: three quarters of the base's, a multiple of 8).
+    #[arg(long, default_value = "3/4")]
     pub face_sizes: String,
     /// Swept: rays per panorama pixel along each axis.
     #[arg(long, default_value = "2")]
@@ -171,7 +171,11 @@ impl Args {
         let spec = SweepSpec {
             base,
             every: list(&self.every, "every")?,
-            face_size: list(&self.face_sizes, "face-sizes")?,
+            face_size: if self.face_sizes == "3/4" {
+                vec![(self.face_size * 3 / 4).div_ceil(8).max(1) * 8]
+            } else {
+                list(&self.face_sizes, "face-sizes")?
+            },
             supersample: list(&self.supersamples, "supersamples")?,
             slabs: list(&self.slab_counts, "slab-counts")?,
             tile_size: list(&self.tile_sizes, "tile-sizes")?,
