@@ -453,6 +453,8 @@ impl Sweep {
             name: "full".into(),
             budget: viewer::DrawBudget::default(),
         }];
+        let bar = indicatif::ProgressBar::new(views.len() as u64);
+        bar.set_message("evaluating");
         let rows = eval::evaluate(
             &mut b.renderer,
             EvalInput {
@@ -465,8 +467,9 @@ impl Sweep {
                 fov_deg: b.fov,
                 timed_draws: 2,
             },
-            |_| {},
+            |_| bar.inc(1),
         )?;
+        bar.finish_and_clear();
         let s = eval::summarize(&rows);
         let s = s.first().context("no views evaluated")?;
         let face = walk.views.first().map_or(b.base_face, |v| v.face_size);
