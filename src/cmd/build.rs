@@ -20,6 +20,7 @@ use anyhow::{bail, Context};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use occlusion::report::TileDecisions;
+use prerender::runlog::RunLog;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
 use serde::{Deserialize, Serialize};
 use slabs::io as sio;
@@ -259,23 +260,26 @@ fn bar(n: u64, what: &str) -> ProgressBar {
     b
 }
 
-/// Refuse settings that make no sense before anything runs.
+/// Every number of the command line against its limit, before any stage runs.
 fn check_args(args: &Args) -> anyhow::Result<()> {
+    use tracks::limits::{check_f64, MAX_VIEWPOINTS};
+    super::face_size("--face-size", args.face_size)?;
+    if let Some(n) = args.lowres_face_size {
+        super::face_size("--lowres-face-size", n)?;
+    }
     if let Some(n) = args.samples {
-        anyhow::ensure!(
-            (1..=100_000).contains(&n),
-            "--samples must be in 1..=100000"
-        );
+        super::count("--samples", n, MAX_VIEWPOINTS)?;
     }
     if let Some(d) = args.spacing {
         anyhow::ensure!(
             d.is_finite() && d > 0.0,
-            "--spacing must be a positive number of metres"
+            "--spacing {d}: must be a positive number of metres"
         );
     }
     anyhow::ensure!(
         (1..=16).contains(&args.supersample),
-        "--supersample must be in 1..=16"
+        "--supersample {}: must be from 1 to 16",
+        args.supersample
     );
     anyhow::ensure!(
         args.pov.is_none() || args.supersample <= 2,
@@ -289,7 +293,8 @@ fn check_args(args: &Args) -> anyhow::Result<()> {
     );
     anyhow::ensure!(
         args.mesh_error.is_finite() && args.mesh_error > 0.0,
-        "--mesh-error must be a positive number of pixels"
+        "--mesh-error {}: must be a positive number of pixels",
+        args.mesh_error
     );
     anyhow::ensure!(
         matches!(args.cull_variant.as_str(), "none")
@@ -297,11 +302,27 @@ fn check_args(args: &Args) -> anyhow::Result<()> {
         "--cull-variant `{}`: expected conservative, paper or none",
         args.cull_variant
     );
+    // α = 0 would keep nothing behind the first slab; the culling stage refuses it too.
     anyhow::ensure!(
         args.alpha.is_finite() && args.alpha > 0.0 && args.alpha <= 1.0,
-        "--alpha must be in (0, 1]"
+        "--alpha {}: must be a number in (0, 1]",
+        args.alpha
     );
-    anyhow::ensure!(args.drop_levels <= 8, "--drop-levels must be at most 8");
+    anyhow::ensure!(
+        args.drop_levels <= 8,
+        "--drop-levels {}: must be at most 8",
+        args.drop_levels
+    );
+    anyhow::ensure!(
+        (-7..=22).contains(&args.zstd_level),
+        "--zstd-level {}: must be from -7 to 22",
+        args.zstd_level
+    );
+    super::count("--ach-samples", args.ach_samples, 1024)?;
+    super::face_size("--ach-camera-size", args.ach_camera_size)?;
+    if let Some(t) = args.timeout_secs {
+        check_f64("--timeout-secs", t, 0.001, 1e6)?;
+    }
     Ok(())
 }
 
@@ -425,6 +446,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ..BuildReport::default()
     };
     let p = |x: &Path| x.display().to_string();
+    let log = RunLog::create(&work, "build", None)?;
 
     // 1–3: the other stages, each resuming on its own.
     let m = tune::cost::Meter::start();
@@ -500,7 +522,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The tiles' own PTM and mesh objects, which the viewpoints' packs replace, stay in the
     // work directory: the database holds only what its manifest refers to.
     let staged_objects = work.join("encode");
-    let mut writer = DbWriter::create(&args.out)?.with_stage(&staged_objects);
+    let mut writer = DbWriter::create(&args.out)?.with_stage(&staged_objects)?;
+    if !writer.leftovers_removed.is_empty() {
+        eprintln!(
+            "      removed {} temporary file(s) of an interrupted build",
+            writer.leftovers_removed.len()
+        );
+    }
     let opts = EncodeOptions {
         zstd_level: args.zstd_level,
         ..EncodeOptions::default()
@@ -687,6 +715,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .push(("total".into(), t_all.elapsed().as_secs_f64()));
     report.cpu_seconds.push(("total".into(), cpu_all.stop().0));
     report.target = args.evidence.clone();
+    let stage_seconds: Vec<(&str, serde_json::Value)> = report
+        .seconds
+        .iter()
+        .map(|(name, secs)| (name.as_str(), (*secs).into()))
+        .collect();
+    log.end(&stage_seconds)?;
     let report_dir = args.report_dir.clone().unwrap_or(work);
     store::write_json(&report_dir.join("build.json"), &report)?;
     let md = markdown(&report);

@@ -71,7 +71,9 @@ pub struct Args {
 
 /// Refuse nonsense before anything is rendered or written.
 fn check(args: &Args) -> anyhow::Result<()> {
-    anyhow::ensure!(args.segments != Some(0), "--segments must be at least 1");
+    if let Some(n) = args.segments {
+        super::count("--segments", n, 100_000)?;
+    }
     anyhow::ensure!(
         args.fov.is_finite() && args.fov > 0.0 && args.fov < 180.0,
         "--fov must be in (0, 180) degrees"
@@ -251,7 +253,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .iter()
         .map(|r| views_of(&r.walk).len() * r.configs.len())
         .sum();
-    let mut renderer = Renderer::new(Gpu::new()?);
+    let mut renderer = Renderer::new(Gpu::new()?)?;
     let bar = indicatif::ProgressBar::new(total as u64);
     let mut rows: Vec<EvalRow> = Vec::new();
     for r in &runs {

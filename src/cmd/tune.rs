@@ -418,7 +418,7 @@ impl Sweep {
                 arcs.len()
             );
             self.bench = Some(Bench {
-                renderer: viewer::gpu::Renderer::new(viewer::gpu::Gpu::new()?),
+                renderer: viewer::gpu::Renderer::new(viewer::gpu::Gpu::new()?)?,
                 truth,
                 cache: TruthCache {
                     dir: Some(self.setup.root.join("truth")),

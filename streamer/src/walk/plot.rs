@@ -99,6 +99,18 @@ mod tests {
             max_resident_bytes: 0,
             resident_within_budget: true,
             memory_budget_bytes: 0,
+            wall_s: 0.0,
+            retries: 0,
+            timeouts: 0,
+            outage_s: 0.0,
+            longest_outage_s: 0.0,
+            longest_wait_s: 0.0,
+            part_faults: 0,
+            parts_given_up: 0,
+            table_faults: 0,
+            tables_given_up: 0,
+            completed: true,
+            error: None,
             frames: frames(1.0),
         };
         let r = WalkReport {
@@ -112,6 +124,7 @@ mod tests {
                 run("ach", Some(56_000)),
                 run("naive", None),
             ],
+            error: None,
         };
         let fig = figure(&r);
         assert_eq!(fig.panels.len(), 2);
