@@ -231,7 +231,7 @@ fn build_for_a_target_takes_the_cheapest_configuration_that_reaches_it() {
     );
     let md = std::fs::read_to_string(work.join("build.md")).unwrap();
     assert!(md.contains("## Chosen for a PSNR target"), "{md}");
-    assert!(md.contains("Saved against the base"), "{md}");
+    assert!(md.contains("Against the base: db-bytes"), "{md}");
     // A target nothing reaches fails and says what the best was.
     let o = build("99");
     assert!(!o.status.success());

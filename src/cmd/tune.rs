@@ -261,6 +261,8 @@ pub struct Sweep {
     track: tracks::Track,
     base_samples: usize,
     bench: Option<Bench>,
+    /// The GPU, found before anything is built: a machine without one fails at once.
+    gpu: Option<viewer::gpu::Gpu>,
     built: usize,
     reused: usize,
 }
@@ -310,6 +312,7 @@ impl Sweep {
             track,
             base_samples,
             bench: None,
+            gpu: None,
             built: 0,
             reused: 0,
         })
@@ -418,7 +421,10 @@ impl Sweep {
                 arcs.len()
             );
             self.bench = Some(Bench {
-                renderer: viewer::gpu::Renderer::new(viewer::gpu::Gpu::new()?)?,
+                renderer: viewer::gpu::Renderer::new(match self.gpu.take() {
+                    Some(gpu) => gpu,
+                    None => viewer::gpu::Gpu::new()?,
+                })?,
                 truth,
                 cache: TruthCache {
                     dir: Some(self.setup.root.join("truth")),
@@ -562,6 +568,10 @@ impl Sweep {
                 self.args.cost
             )
         })?;
+        // Every configuration is evaluated on the GPU: without one, say so before building.
+        if self.bench.is_none() && self.gpu.is_none() {
+            self.gpu = Some(viewer::gpu::Gpu::new()?);
+        }
         let base = spec.base.clone();
         let mut records = Vec::new();
         let configs = spec.configs();
@@ -584,7 +594,7 @@ impl Sweep {
             targets.iter().map(|&t| select(&records, t, cost)).collect();
         let b = self.bench.as_ref();
         let views = format!(
-            "{} views between the {} reference samples of the base sampling ({} positions per segment × {} directions), {}×{} px at FOV {}° (matched to faces of {} px), against {}; error is PSNR between samples.",
+            "{} views between the {} reference samples of the base sampling ({} position(s) per segment × {} direction(s)), {}×{} px at FOV {}° (matched to faces of {} px), against {}; error is PSNR between samples.",
             records.first().map_or(0, |m| m.error.views),
             self.base_samples,
             self.args.per_segment,

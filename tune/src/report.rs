@@ -224,15 +224,20 @@ pub fn selection_text(r: &SweepReport, s: &Selection) -> String {
             };
             // Not "-0 %".
             let pct = if pct.abs() < 0.5 { 0.0 } else { pct };
+            let change = if pct < 0.0 {
+                format!("{:.0} % more", -pct)
+            } else {
+                format!("{pct:.0} % saved")
+            };
             format!(
-                "{} {} → {} ({pct:.0} % saved)",
+                "{} {} → {} ({change})",
                 c.name(),
                 c.format(vb),
                 c.format(vc)
             )
         })
         .collect();
-        let _ = write!(t, " Saved against the base: {}.", saved.join("; "));
+        let _ = write!(t, " Against the base: {}.", saved.join("; "));
     }
     t
 }
