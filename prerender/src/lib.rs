@@ -9,7 +9,9 @@
 //! - [`runlog`]: the run log (`runs/*.jsonl`): timings kept apart from the content.
 //! - [`scenes`]: built-in procedural scenes (`castle`, `nature`) with their tracks.
 //! - [`render`]: cube maps of colour + radial depth, slab layers in one pass, low-res depth,
-//!   perspective ground truth.
+//!   perspective views.
+//! - [`truth`]: anti-aliased ground truth of any scene kind (built-in, TOML, POV-Ray import)
+//!   from any camera, by the renderer that made the panoramas.
 
 mod accel;
 mod geom;
@@ -22,5 +24,6 @@ pub mod scene;
 pub mod scenes;
 mod shade;
 pub mod store;
+pub mod truth;
 
 pub use accel::Hit;

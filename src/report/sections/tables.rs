@@ -169,6 +169,7 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
                 src: name,
                 caption: format!("kept and culled tiles, {}", file.trim_end_matches(".png")),
                 checker: false,
+                vector: None,
             });
         }
     }

@@ -608,7 +608,10 @@ pub fn write_outputs(report: &WalkReport, dir: &Path) -> Result<(), WalkError> {
         }
     }
     write("walk.csv", csv.as_bytes())?;
-    let png = plot::plot_png(report).map_err(|e| err(&dir.join("walk.png"), &e))?;
+    let fig = plot::figure(report);
+    let svg = charts::svg(&fig).map_err(|e| err(&dir.join("walk.svg"), &e))?;
+    write("walk.svg", svg.as_bytes())?;
+    let png = charts::png(&fig).map_err(|e| err(&dir.join("walk.png"), &e))?;
     write("walk.png", &png)?;
     write("summary.md", summary_markdown(report).as_bytes())
 }
@@ -657,10 +660,7 @@ pub fn summary_markdown(r: &WalkReport) -> String {
     if let Some(e) = &r.error {
         s += &format!("\n**The walk stopped early:** {e}\n");
     }
-    s += "\nPlot colours (walk.png, one panel per bandwidth; solid = quality, dotted = needed fraction): ";
-    let names: Vec<String> = plot::legend(r);
-    s += &names.join(", ");
-    s += "\n";
+    s += "\n![Quality over time, one panel per bandwidth](walk.svg)\n";
     s
 }
 
