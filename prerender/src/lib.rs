@@ -7,10 +7,12 @@
 //! - [`parse`]: the TOML scene format (read and write).
 //! - [`job`]: rendering a track into a prerender directory (resume, shards, report).
 //! - [`scenes`]: built-in procedural scenes (`castle`, `nature`) with their tracks.
+//! - [`erode`]: segments against solids shrunk by a distance (occluder shrinking for culling).
 //! - [`render`]: cube maps of colour + radial depth, slab layers in one pass, low-res depth,
 //!   perspective ground truth.
 
 mod accel;
+pub mod erode;
 mod geom;
 pub mod job;
 pub mod parse;
