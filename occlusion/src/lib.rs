@@ -39,6 +39,7 @@ pub mod input;
 pub mod maps;
 pub mod oracle;
 pub mod report;
+pub mod shrunk;
 pub mod synth;
 pub mod window;
 
@@ -49,6 +50,7 @@ pub use oracle::{
     mark_visible, oracle_track, score, DepthRenders, DepthSource, Geometry, MatchRule, RayCast,
     SlabScore, Visibility,
 };
+pub use shrunk::{cull_viewpoint_shrunk, SceneSolids, ShrunkParams, ShrunkStats, Solids};
 
 /// Errors of the culling library, by who is at fault.
 #[derive(Debug, thiserror::Error)]

@@ -1,0 +1,857 @@
+//! The `shrunk` variant: occluder shrinking along the track segment, with sampling refined
+//! where visibility changes. Provably conservative for every point of the segment, not only
+//! the sampled ones, and tested against the scene's exact solids rather than the reference
+//! viewpoint's depth image, so openings and occluders of any size count, however they fall
+//! between pixels.
+//!
+//! # What a tile holds
+//!
+//! A tile of slab `k` is kept when any of its points can be seen from any point `X` of the
+//! cell (the track to both neighbouring viewpoints). Its points are what its opaque pixels
+//! stand for — and, so that the independent oracle ([`crate::oracle`]) can never count a
+//! culled tile as seen, exactly what the oracle would attribute to one of its pixels `p`
+//! (stored radial depth `r_p`, [`MatchRule`] tolerance `τ` and search radius `R`): every
+//! surface point `Y` whose direction from the reference viewpoint `V` falls within `R`
+//! pixels of `p` on `p`'s face and whose distance satisfies `|r_p − |Y − V|| ≤ τ·|Y − V|`,
+//! i.e. `|Y − V| ∈ [r_p/(1 + τ), r_p/(1 − τ)]`. Call that region `Z_p` (a piece of a cone
+//! from `V`); a group of pixels is covered by a box `B` (in a frame along the group's mean
+//! direction) that holds every `Z_p` of the group.
+//!
+//! # Lemma (occluder shrinking)
+//!
+//! Take a segment from `X` to `P`, its point `Q = X + t·(P − X)` at some `t ∈ (0, 1)`, and
+//! a convex solid `S` whose interior holds the ball around `Q` of radius
+//! `c = (1 − t)·ε + t·δ`. Then for every `X'` with `|X' − X| ≤ ε` and every `P'` with
+//! `|P' − P| ≤ δ`, the segment `X' → P'` passes through `Q' = X' + t·(P' − X')`, and
+//! `|Q' − Q| = |(1 − t)(X' − X) + t(P' − P)| ≤ c`, so `Q'` lies in the interior of `S`.
+//! If `X'` is not inside `S`, the segment enters `S` before `Q'` — it meets `S`'s surface
+//! strictly before `P'`, so `P'` is hidden from `X'` (a viewer on `S`'s surface looking
+//! into it sees that surface at distance 0).
+//!
+//! Points farther along the line cost nothing. Write a target point as
+//! `P' = P + α·u + w` with `u = (P − X)/L`, `L = |P − X|`, `α ≥ 0`, `|w| ≤ w_max`: the
+//! segment `X' → P'` at parameter `t/κ`, `κ = (L + α)/L ≥ 1`, lies at
+//! `Q + (1 − t/κ)(X' − X) + (t/κ)·w` from `Q`, within `(1 − t)·ε + t·δ` of it with
+//! `δ = ε·α_max/(L + α_max) + w_max`. So a box `B` of targets is handled by one segment
+//! from `X` to the point `P_c` of `B` nearest along `u` (`α ≥ 0` for all of `B`), with `δ`
+//! from `B`'s extent across `u` (`w_max`, at a corner) and along it (`α_max`).
+//!
+//! # Why no point of the segment can see a culled tile
+//!
+//! Each straight stretch of the cell is cut into intervals; an interval `[X_a, X_b]` is the
+//! ball of radius `ε = |X_b − X_a|/2` around its centre `X` as far as the track is
+//! concerned. For an (interval, pixel group) pair the test asks the scene
+//! ([`Solids::blocks`]) whether the segment `X → P_c` passes through some solid shrunk by
+//! `(1 − t)·ε + t·δ` at parameter `t` — exact ray–solid arithmetic on boxes, spheres,
+//! cylinders and cones shrunk by a linearly varying distance (`prerender::erode`), never a
+//! depth image — leaving out any solid whose interior the interval itself enters (where
+//! the track runs inside a solid the lemma's "X' not inside S" would fail). If it does, by
+//! the lemma no point of the interval sees any point of the group. A tile is culled only
+//! when every pair of a cover of the cell's intervals by a cover of its pixels is shown
+//! hidden this way: every point of the segment lies in some interval, every point the tile
+//! holds in some group. Different pairs may be hidden by different solids, so occluders
+//! fuse (a row of columns hides what no single column does).
+//!
+//! When a pair is not shown hidden, the exact segment from `X` to a pixel's stored point is
+//! cast ([`Solids::sees`]): if nothing is in the way, the tile is seen and kept at once.
+//! Otherwise the pair is refined — the interval halved when it is the larger term of the
+//! shrink distance, else the pixel group quartered — so that small shrink distances are
+//! used only where visibility changes between neighbouring samples. A pair that reaches
+//! the smallest interval ([`ShrunkParams::min_interval_m`]) as a single pixel, or a tile
+//! that runs out of tests ([`ShrunkParams::max_tests_per_tile`]), keeps the tile. Every way
+//! out but "all pairs hidden" keeps: culling needs the proof, keeping never does.
+//!
+//! Cases the argument settles by itself:
+//! - **Occluders thinner than the shrink distance** (a column thinner than `2·((1 − t)ε +
+//!   tδ)` where the segment crosses it) vanish from the shrunk scene: a ray through them is
+//!   not counted as blocked, the pair is refined (smaller `ε`, smaller groups) and, if the
+//!   occluder stays too thin even then, the tile is kept. Thin occluders only ever keep
+//!   more; they never hide anything they do not hide.
+//! - **Openings narrower than a pixel** (a slit in a wall that falls between the reference
+//!   viewpoint's pixel centres) are in the scene's solids, not in a depth image: the
+//!   segment through the slit does not pass through any solid, so it is not blocked,
+//!   however the slit falls on the pixel grid.
+//! - **Surfaces without volume** (triangles, meshes, planes) have no inside and never block
+//!   in the shrunk scene: what only they hide is kept. A ground plane never hides anything
+//!   stored anyway (the track and the stored points are on the same side of it).
+//! - **An occluder touching the track**: touching is not entering, so it still blocks; a
+//!   track that runs through a solid leaves that solid out for the intervals inside it.
+//! - **Nothing in front**: a pixel that the earlier slabs leave uncovered is seen from `V`
+//!   itself and keeps its tile without a test.
+//!
+//! What it assumes: the layers' stored depths and masks are what the scene holds at the
+//! pixel centres (the tracer made them); a point that the viewer shows between pixel
+//! centres on a surface whose depth changes by more than `τ` across one pixel (a grazing
+//! surface) belongs to the neighbouring pixels' `Z_p` only as far as their depth bands reach.
+
+use std::collections::HashMap;
+
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use tracks::cubemap::{pixel_dir, subpixel_dir};
+use tracks::{Face, TileGrid};
+
+use crate::cull::{SlabDecision, ViewpointCull};
+use crate::input::{Cell, SlabLayer, TileInfo};
+use crate::oracle::MatchRule;
+use crate::OcclusionError;
+
+/// Exact solid geometry, asked about segments (the shrunk variant's only view of the scene).
+pub trait Solids: Sync {
+    /// Whether nothing lies strictly between `from` and `to` (a point on a surface): `to` is
+    /// seen from `from`. Used only to keep tiles early, so erring towards "seen" is safe.
+    fn sees(&self, from: DVec3, to: DVec3) -> bool;
+    /// Whether the segment from `from` to `to` passes through the interior of a solid shrunk
+    /// by `(1 − t)·e_from + t·e_to` at its point of parameter `t`, a solid whose interior
+    /// the segment `source` does not enter. Must never answer `true` wrongly.
+    fn blocks(
+        &self,
+        from: DVec3,
+        to: DVec3,
+        e_from: f64,
+        e_to: f64,
+        source: (DVec3, DVec3),
+    ) -> bool;
+}
+
+/// A point on a surface, reached from `from` unless something lies in front of it; the
+/// last part in `1e-5` of the way is not looked at (the point's own surface).
+fn sees_via<G: crate::oracle::Geometry + ?Sized>(g: &G, from: DVec3, to: DVec3) -> bool {
+    let v = to - from;
+    let len = v.length();
+    if !(len > 0.0 && len.is_finite()) {
+        return true;
+    }
+    g.first_hit(from, v / len, len * (1.0 - 1e-5)).is_none()
+}
+
+/// A scene as the shrunk variant sees it: exact first hits for "is this point seen" and the
+/// scene's solids, with touching boxes fused ([`prerender::erode::Occluders`]), for the
+/// shrunk-segment tests.
+pub struct SceneSolids<'a, G: ?Sized> {
+    geometry: &'a G,
+    occluders: prerender::erode::Occluders,
+}
+
+impl<'a> SceneSolids<'a, prerender::scene::Scene> {
+    /// A built-in or TOML scene: its boxes, spheres, cylinders and cones occlude.
+    pub fn new(scene: &'a prerender::scene::Scene) -> Self {
+        SceneSolids {
+            geometry: scene,
+            occluders: prerender::erode::Occluders::new(
+                scene.desc().objects.iter().map(|o| &o.shape),
+            ),
+        }
+    }
+}
+
+impl<'a> SceneSolids<'a, crate::synth::BoxScene> {
+    /// An analytic box scene: its boxes occlude (the ground plane has no inside).
+    pub fn boxes(scene: &'a crate::synth::BoxScene) -> Self {
+        let shapes: Vec<prerender::scene::Shape> = scene
+            .boxes
+            .iter()
+            .map(|b| prerender::scene::Shape::Box {
+                min: b.min,
+                max: b.max,
+            })
+            .collect();
+        SceneSolids {
+            geometry: scene,
+            occluders: prerender::erode::Occluders::new(shapes.iter()),
+        }
+    }
+}
+
+impl<G: crate::oracle::Geometry + ?Sized> SceneSolids<'_, G> {
+    /// Solids taken from the scene, and fused boxes added.
+    pub fn counts(&self) -> (usize, usize) {
+        self.occluders.counts()
+    }
+}
+
+impl<G: crate::oracle::Geometry + ?Sized> Solids for SceneSolids<'_, G> {
+    fn sees(&self, from: DVec3, to: DVec3) -> bool {
+        sees_via(self.geometry, from, to)
+    }
+    fn blocks(
+        &self,
+        from: DVec3,
+        to: DVec3,
+        e_from: f64,
+        e_to: f64,
+        source: (DVec3, DVec3),
+    ) -> bool {
+        self.occluders.blocks(from, to, e_from, e_to, source)
+    }
+}
+
+/// Knobs of the shrunk variant.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShrunkParams {
+    /// Each straight stretch of the cell starts as this many equal intervals (the base
+    /// sampling; refined from there where a pair is not settled).
+    pub base_intervals: u32,
+    /// Intervals are not halved below this length, metres.
+    pub min_interval_m: f64,
+    /// Segment tests per tile before giving up (and keeping it).
+    pub max_tests_per_tile: u32,
+    /// What a pixel holds: the oracle's rule for attributing a seen point to a pixel.
+    pub content: MatchRule,
+}
+
+impl Default for ShrunkParams {
+    fn default() -> Self {
+        ShrunkParams {
+            base_intervals: 4,
+            min_interval_m: 1e-3,
+            max_tests_per_tile: 4096,
+            content: MatchRule::default(),
+        }
+    }
+}
+
+/// What happened to the tiles of one run, summed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ShrunkStats {
+    /// Later-slab tiles decided.
+    pub tiles: u64,
+    /// Kept because a pixel is seen from the reference viewpoint itself (nothing in front).
+    pub kept_direct: u64,
+    /// Kept because a segment from a track point to a stored point is free.
+    pub kept_seen: u64,
+    /// Kept without proof either way (refinement floor or test budget reached).
+    pub kept_undecided: u64,
+    /// Culled: every (interval, pixel group) pair shown hidden.
+    pub culled: u64,
+    /// Shrunk-segment tests and free-segment tests cast.
+    pub block_tests: u64,
+    pub see_tests: u64,
+}
+
+impl ShrunkStats {
+    pub fn add(&mut self, o: &ShrunkStats) {
+        self.tiles += o.tiles;
+        self.kept_direct += o.kept_direct;
+        self.kept_seen += o.kept_seen;
+        self.kept_undecided += o.kept_undecided;
+        self.culled += o.culled;
+        self.block_tests += o.block_tests;
+        self.see_tests += o.see_tests;
+    }
+}
+
+/// Cull one reference viewpoint's layers (nearest first) for the motion in `cell`, against
+/// exact `solids`. The nearest slab is kept whole (it is what `V` sees); every tile of a
+/// later slab is decided on its own, so the result does not depend on thread count or on
+/// the order tiles, slabs or viewpoints are processed in.
+pub fn cull_viewpoint_shrunk(
+    cell: &Cell,
+    grid: &TileGrid,
+    layers: &[SlabLayer],
+    params: &ShrunkParams,
+    solids: &dyn Solids,
+) -> Result<(ViewpointCull, ShrunkStats), OcclusionError> {
+    crate::cull::check_inputs(cell, grid, layers)?;
+    let n = grid.face_size;
+    let tol = params.content.depth_tolerance
+        + params.content.per_pixel_angle * std::f64::consts::FRAC_PI_2 / n as f64;
+    if !(tol.is_finite() && (0.0..0.5).contains(&tol)) {
+        return Err(OcclusionError::Parameter {
+            name: "content",
+            message: format!("depth tolerance {tol} must be in [0, 0.5)"),
+        });
+    }
+    if params.base_intervals == 0 || params.min_interval_m.is_nan() || params.min_interval_m <= 0.0
+    {
+        return Err(OcclusionError::Parameter {
+            name: "shrunk",
+            message: "base intervals must be at least 1 and the smallest interval positive".into(),
+        });
+    }
+    let v = cell.viewpoint;
+    let stretches: Vec<(DVec3, DVec3)> = cell
+        .motion_pieces(params.base_intervals)
+        .into_iter()
+        .map(|(a, b)| (v + a, v + b))
+        .collect();
+    let ctx = Ctx {
+        v,
+        grid,
+        layers,
+        stretches: &stretches,
+        params,
+        solids,
+        tol,
+    };
+    let jobs: Vec<(usize, usize)> = layers
+        .iter()
+        .enumerate()
+        .skip(1)
+        .flat_map(|(k, l)| (0..l.tiles.len()).map(move |i| (k, i)))
+        .collect();
+    let results: Vec<(bool, ShrunkStats)> = jobs
+        .par_iter()
+        .map(|&(k, i)| ctx.decide(k, &layers[k].tiles[i]))
+        .collect();
+    let mut stats = ShrunkStats::default();
+    let mut out: Vec<SlabDecision> = layers
+        .iter()
+        .enumerate()
+        .map(|(k, l)| SlabDecision {
+            slab: k,
+            kept: if k == 0 { l.tiles.clone() } else { Vec::new() },
+            culled: Vec::new(),
+        })
+        .collect();
+    for (&(k, i), (keep, s)) in jobs.iter().zip(&results) {
+        stats.add(s);
+        let t = layers[k].tiles[i];
+        if *keep {
+            out[k].kept.push(t);
+        } else {
+            out[k].culled.push(t);
+        }
+    }
+    Ok((ViewpointCull { slabs: out }, stats))
+}
+
+struct Ctx<'a> {
+    v: DVec3,
+    grid: &'a TileGrid,
+    layers: &'a [SlabLayer],
+    /// Base intervals of the cell, world coordinates.
+    stretches: &'a [(DVec3, DVec3)],
+    params: &'a ShrunkParams,
+    solids: &'a dyn Solids,
+    tol: f64,
+}
+
+/// A piece of what a tile holds: the footprint of one pixel `(x, y)` of its face (not
+/// grown) times a distance band from `V` — the union of the bands `[r_q/(1 + τ), r_q/(1 − τ)]`
+/// of the tile's opaque pixels `q` within the search radius of `(x, y)` whose bands overlap.
+/// Every `Z_q` is a union of such pieces, so covering the pieces covers the tile.
+#[derive(Clone, Copy, Debug)]
+struct Item {
+    x: u32,
+    y: u32,
+    s0: f64,
+    s1: f64,
+    /// A stored point (world coordinates) of one of the pixels the band came from.
+    sample: DVec3,
+}
+
+/// The pieces of one tile, and the geometry of their footprints.
+struct TileItems {
+    face: Face,
+    items: Vec<Item>,
+    /// The footprint rectangle they cover (the tile grown by the search radius).
+    rect: (u32, u32, u32, u32),
+}
+
+/// A group of a tile's pieces: the box that holds all of them (frame `f, e1, e2`
+/// relative to `V`, ranges per axis), a stored point to look at, and whether it splits.
+#[derive(Clone, Copy, Debug)]
+struct Group {
+    frame: [DVec3; 3],
+    lo: [f64; 3],
+    hi: [f64; 3],
+    sample: DVec3,
+    split: Split,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Split {
+    /// Several footprint pixels: quarter the rectangle.
+    Quarters,
+    /// One footprint pixel with several bands: one group per piece.
+    Items,
+    /// One piece: halve its distance band (a long band seen from aside is wide across the
+    /// line of sight; its far part may also lie inside the solid whose surface it is on).
+    Band,
+    /// A single piece that is not split further.
+    No,
+}
+
+/// Which pieces a group holds: those in a footprint rectangle, or part `j` of `2^level` of
+/// one piece's distance band.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+enum Key {
+    Rect(u32, u32, u32, u32),
+    Piece(u32, u8, u32),
+}
+
+/// How many times a piece's band may be halved.
+const BAND_LEVELS: u8 = 4;
+
+/// A work item: an interval of a stretch (parameters `t0..t1`) and a group of pieces.
+#[derive(Clone, Copy, Debug)]
+struct Pair {
+    stretch: u32,
+    t0: f64,
+    t1: f64,
+    key: Key,
+}
+
+enum Outcome {
+    Hidden,
+    Seen,
+    Undecided,
+}
+
+impl Ctx<'_> {
+    /// Keep (`true`) or cull one tile of slab `k`, with what it took.
+    fn decide(&self, k: usize, tile: &TileInfo) -> (bool, ShrunkStats) {
+        let mut stats = ShrunkStats {
+            tiles: 1,
+            ..ShrunkStats::default()
+        };
+        let id = tile.id;
+        let layer = &self.layers[k];
+        let n = self.grid.face_size;
+        let rr = self.params.content.search_radius;
+        let (x0, y0, x1, y1) = self.grid.pixel_rect(id);
+        let rect = (
+            x0.saturating_sub(rr),
+            y0.saturating_sub(rr),
+            (x1 + rr).min(n),
+            (y1 + rr).min(n),
+        );
+        let (w, h) = (rect.2 - rect.0, rect.3 - rect.1);
+        // Bands per footprint pixel of the grown rectangle.
+        // What the oracle could put in each footprint pixel of the grown rectangle and
+        // attribute to one of the tile's pixels: its own band at the pixel itself; at a
+        // neighbour, the band's part that its search for neighbours can reach.
+        let mut bands: Vec<Vec<(f64, f64, DVec3)>> = vec![Vec::new(); (w * h) as usize];
+        let mut direct = false;
+        for y in y0..y1 {
+            for x in x0..x1 {
+                if *layer.alpha.get(id.face, x, y) < 128 {
+                    continue;
+                }
+                // Nothing of the earlier slabs in front: seen from V itself.
+                if self.layers[..k]
+                    .iter()
+                    .all(|l| *l.alpha.get(id.face, x, y) < 128)
+                {
+                    direct = true;
+                }
+                let r = *layer.depth.get(id.face, x, y) as f64;
+                let sample = self.v + pixel_dir(id.face, x, y, n) * r;
+                let band = (r / (1.0 + self.tol), r / (1.0 - self.tol));
+                for cy in y.saturating_sub(rr).max(rect.1)..(y + rr + 1).min(rect.3) {
+                    for cx in x.saturating_sub(rr).max(rect.0)..(x + rr + 1).min(rect.2) {
+                        let at = &mut bands[((cy - rect.1) * w + (cx - rect.0)) as usize];
+                        if (cx, cy) == (x, y) {
+                            at.push((band.0, band.1, sample));
+                            continue;
+                        }
+                        // Through the oracle's neighbour search: only distances in this
+                        // slab that no layer at (cx, cy) holds itself.
+                        let mut parts =
+                            vec![(band.0.max(layer.range.near), band.1.min(layer.range.far))];
+                        for l in self.layers {
+                            if *l.alpha.get(id.face, cx, cy) >= 128 {
+                                let d = *l.depth.get(id.face, cx, cy) as f64;
+                                parts =
+                                    subtract(&parts, (d / (1.0 + self.tol), d / (1.0 - self.tol)));
+                            }
+                        }
+                        at.extend(
+                            parts
+                                .into_iter()
+                                .filter(|p| p.1 > p.0)
+                                .map(|p| (p.0, p.1, sample)),
+                        );
+                    }
+                }
+            }
+        }
+        if direct {
+            stats.kept_direct = 1;
+            return (true, stats);
+        }
+        let mut items = Vec::new();
+        for (i, b) in bands.iter_mut().enumerate() {
+            if b.is_empty() {
+                continue;
+            }
+            b.sort_by(|p, q| p.0.total_cmp(&q.0).then(p.1.total_cmp(&q.1)));
+            let (x, y) = (rect.0 + i as u32 % w, rect.1 + i as u32 / w);
+            let mut cur: Option<Item> = None;
+            for &(s0, s1, sample) in b.iter() {
+                match &mut cur {
+                    Some(c) if s0 <= c.s1 => c.s1 = c.s1.max(s1),
+                    _ => {
+                        items.extend(cur.take());
+                        cur = Some(Item {
+                            x,
+                            y,
+                            s0,
+                            s1,
+                            sample,
+                        });
+                    }
+                }
+            }
+            items.extend(cur);
+        }
+        if items.is_empty() {
+            stats.culled = 1;
+            return (false, stats);
+        }
+        let tile = TileItems {
+            face: id.face,
+            items,
+            rect,
+        };
+        match self.search(&tile, &mut stats) {
+            Outcome::Hidden => {
+                stats.culled = 1;
+                (false, stats)
+            }
+            Outcome::Seen => {
+                stats.kept_seen = 1;
+                (true, stats)
+            }
+            Outcome::Undecided => {
+                stats.kept_undecided = 1;
+                (true, stats)
+            }
+        }
+    }
+
+    /// The box holding the pieces of group `key`.
+    fn group(&self, t: &TileItems, key: Key) -> Option<Group> {
+        let n = self.grid.face_size;
+        let face = t.face;
+        let (members, (x0, y0, x1, y1)): (Vec<Item>, _) = match key {
+            Key::Rect(x0, y0, x1, y1) => (
+                t.items
+                    .iter()
+                    .filter(|p| p.x >= x0 && p.x < x1 && p.y >= y0 && p.y < y1)
+                    .copied()
+                    .collect(),
+                (x0, y0, x1, y1),
+            ),
+            Key::Piece(i, level, j) => {
+                let mut p = *t.items.get(i as usize)?;
+                let step = (p.s1 - p.s0) / (1u32 << level) as f64;
+                let s0 = p.s0 + step * j as f64;
+                (p.s0, p.s1) = (s0, if j + 1 == 1 << level { p.s1 } else { s0 + step });
+                (vec![p], (p.x, p.y, p.x + 1, p.y + 1))
+            }
+        };
+        if members.is_empty() {
+            return None;
+        }
+        let f = subpixel_dir(face, 0.5 * (x0 + x1) as f64, 0.5 * (y0 + y1) as f64, n);
+        let e1 = (face.right() - f * face.right().dot(f)).normalize();
+        let e2 = f.cross(e1);
+        let frame = [f, e1, e2];
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        let (cx, cy) = (0.5 * (x0 + x1) as f64, 0.5 * (y0 + y1) as f64);
+        let mut nearest: Option<(f64, &Item)> = None;
+        let members = &members;
+        for p in members {
+            let dd = (p.x as f64 + 0.5 - cx).powi(2) + (p.y as f64 + 0.5 - cy).powi(2);
+            if nearest.is_none_or(|(b, _)| dd < b) {
+                nearest = Some((dd, p));
+            }
+            let (px, py) = (p.x as f64, p.y as f64);
+            let corners = [
+                subpixel_dir(face, px, py, n),
+                subpixel_dir(face, px + 1.0, py, n),
+                subpixel_dir(face, px + 1.0, py + 1.0, n),
+                subpixel_dir(face, px, py + 1.0, n),
+            ];
+            // Every direction of the footprint is a normalised convex combination of the
+            // corners, whose length before normalising is at least the cosine of the widest
+            // angle between two corners (its dot product with any corner is).
+            let wide = corners[0]
+                .dot(corners[2])
+                .min(corners[1].dot(corners[3]))
+                .max(1e-3);
+            // Along f: at least s0 · (smallest cosine, at a corner); at most s1.
+            let min_cos = corners
+                .iter()
+                .map(|c| c.dot(f))
+                .fold(f64::INFINITY, f64::min);
+            lo[0] = lo[0].min(if min_cos >= 0.0 {
+                p.s0 * min_cos
+            } else {
+                p.s1 * min_cos
+            });
+            hi[0] = hi[0].max(p.s1);
+            // Across: corner values, grown for the footprint's bulge between corners.
+            for (axis, e) in [(1, e1), (2, e2)] {
+                let (mut m, mut mm) = (f64::INFINITY, f64::NEG_INFINITY);
+                for c in &corners {
+                    let w = c.dot(e);
+                    m = m.min(w);
+                    mm = mm.max(w);
+                }
+                let top = if mm >= 0.0 {
+                    p.s1 * mm / wide
+                } else {
+                    p.s0 * mm
+                };
+                let bottom = if m <= 0.0 { p.s1 * m / wide } else { p.s0 * m };
+                lo[axis] = lo[axis].min(bottom);
+                hi[axis] = hi[axis].max(top);
+            }
+        }
+        let (_, sample) = nearest?;
+        let split = match key {
+            Key::Piece(_, level, _)
+                if level < BAND_LEVELS && members[0].s1 - members[0].s0 > 1e-3 * members[0].s1 =>
+            {
+                Split::Band
+            }
+            Key::Piece(..) => Split::No,
+            Key::Rect(..) if x1 - x0 > 1 || y1 - y0 > 1 => Split::Quarters,
+            Key::Rect(..) if members.len() > 1 => Split::Items,
+            Key::Rect(..) => Split::No,
+        };
+        Some(Group {
+            frame,
+            lo,
+            hi,
+            sample: sample.sample,
+            split,
+        })
+    }
+
+    /// The groups a group splits into.
+    fn children(&self, t: &TileItems, key: Key, split: Split) -> Vec<Key> {
+        match (key, split) {
+            (Key::Rect(x0, y0, x1, y1), Split::Quarters) => quarters((x0, y0, x1, y1))
+                .into_iter()
+                .map(|(a, b, c, d)| Key::Rect(a, b, c, d))
+                .collect(),
+            (Key::Rect(x0, y0, _, _), Split::Items) => t
+                .items
+                .iter()
+                .enumerate()
+                .filter(|(_, p)| p.x == x0 && p.y == y0)
+                .map(|(i, _)| Key::Piece(i as u32, 0, 0))
+                .collect(),
+            (Key::Piece(i, level, j), Split::Band) => vec![
+                Key::Piece(i, level + 1, 2 * j),
+                Key::Piece(i, level + 1, 2 * j + 1),
+            ],
+            _ => Vec::new(),
+        }
+    }
+
+    /// Refine (interval, group) pairs until all are hidden, a stored point is seen, or no
+    /// more can be learnt.
+    fn search(&self, t: &TileItems, stats: &mut ShrunkStats) -> Outcome {
+        let mut groups: HashMap<Key, Option<Group>> = HashMap::new();
+        let (rx0, ry0, rx1, ry1) = t.rect;
+        let root = Key::Rect(rx0, ry0, rx1, ry1);
+        let mut stack: Vec<Pair> = (0..self.stretches.len() as u32)
+            .rev()
+            .map(|s| Pair {
+                stretch: s,
+                t0: 0.0,
+                t1: 1.0,
+                key: root,
+            })
+            .collect();
+        let mut tests = 0u32;
+        while let Some(pair) = stack.pop() {
+            if tests >= self.params.max_tests_per_tile {
+                return Outcome::Undecided;
+            }
+            let g = *groups
+                .entry(pair.key)
+                .or_insert_with(|| self.group(t, pair.key));
+            let Some(g) = g else { continue };
+            let (a, b) = self.stretches[pair.stretch as usize];
+            let (xa, xb) = (a.lerp(b, pair.t0), a.lerp(b, pair.t1));
+            let x = 0.5 * (xa + xb);
+            let eps = 0.5 * xa.distance(xb);
+            let aim = target(&g, self.v, x, eps);
+            if let Some((pc, delta, _)) = aim {
+                tests += 1;
+                stats.block_tests += 1;
+                let margin = 1e-6 + 1e-9 * (x.abs().max_element() + pc.distance(x));
+                if self
+                    .solids
+                    .blocks(x, pc, eps + margin, delta + margin, (xa, xb))
+                {
+                    continue;
+                }
+            }
+            // Not shown hidden: is the group's stored point simply seen?
+            tests += 1;
+            stats.see_tests += 1;
+            if self.solids.sees(x, g.sample) {
+                return Outcome::Seen;
+            }
+            // Refine the larger term of the shrink distance; a single piece whose own
+            // extent dominates gains nothing from smaller intervals.
+            let w_max = aim.map_or(f64::INFINITY, |a| a.2);
+            let can_split = g.split != Split::No;
+            let can_halve = 2.0 * eps > self.params.min_interval_m
+                && (can_split || aim.is_none() || eps > 0.125 * w_max);
+            if can_halve && (!can_split || aim.is_none() || eps >= w_max) {
+                let tm = 0.5 * (pair.t0 + pair.t1);
+                stack.push(Pair { t0: tm, ..pair });
+                stack.push(Pair { t1: tm, ..pair });
+            } else if can_split {
+                for key in self.children(t, pair.key, g.split).into_iter().rev() {
+                    stack.push(Pair { key, ..pair });
+                }
+            } else {
+                return Outcome::Undecided;
+            }
+        }
+        Outcome::Hidden
+    }
+}
+
+/// The point `P_c` to aim at from `x` (interval radius `eps`) for a group's box, the
+/// shrink distance `δ` at it and the box's extent across the line of sight (`w_max`);
+/// `None` when `x` is not in front of the box.
+fn target(g: &Group, v: DVec3, x: DVec3, eps: f64) -> Option<(DVec3, f64, f64)> {
+    let [f, e1, e2] = g.frame;
+    let mid = [
+        0.5 * (g.lo[0] + g.hi[0]),
+        0.5 * (g.lo[1] + g.hi[1]),
+        0.5 * (g.lo[2] + g.hi[2]),
+    ];
+    let half = [
+        0.5 * (g.hi[0] - g.lo[0]),
+        0.5 * (g.hi[1] - g.lo[1]),
+        0.5 * (g.hi[2] - g.lo[2]),
+    ];
+    if half.iter().any(|h| !(h.is_finite() && *h >= 0.0)) {
+        return None;
+    }
+    let c = v + f * mid[0] + e1 * mid[1] + e2 * mid[2];
+    let to_c = c - x;
+    let dist = to_c.length();
+    if !(dist > 0.0 && dist.is_finite()) {
+        return None;
+    }
+    let u = to_c / dist;
+    let uf = [u.dot(f) * half[0], u.dot(e1) * half[1], u.dot(e2) * half[2]];
+    let reach = uf[0].abs() + uf[1].abs() + uf[2].abs();
+    let l = dist - reach;
+    if l.is_nan() || l <= 0.0 {
+        return None;
+    }
+    // Across the line of sight: the corner with the smallest |corner · u| is the widest.
+    let h2 = half[0] * half[0] + half[1] * half[1] + half[2] * half[2];
+    let min_along = [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)]
+        .iter()
+        .map(|(s1, s2)| (uf[0] + s1 * uf[1] + s2 * uf[2]).abs())
+        .fold(f64::INFINITY, f64::min);
+    let w_max = (h2 - min_along * min_along).max(0.0).sqrt();
+    let span = 2.0 * reach;
+    let delta = eps * span / (l + span) + w_max;
+    Some((c - u * reach, delta, w_max))
+}
+
+/// The parts of the intervals `parts` outside `cut` (closed intervals; ends kept, so the
+/// parts cover a little more, never less).
+fn subtract(parts: &[(f64, f64)], cut: (f64, f64)) -> Vec<(f64, f64)> {
+    let mut out = Vec::with_capacity(parts.len() + 1);
+    for &(a, b) in parts {
+        if cut.1 < a || cut.0 > b {
+            out.push((a, b));
+            continue;
+        }
+        if cut.0 > a {
+            out.push((a, cut.0));
+        }
+        if cut.1 < b {
+            out.push((cut.1, b));
+        }
+    }
+    out
+}
+
+/// The non-empty quarters (or halves, for a one-pixel-wide rectangle) of a rectangle.
+fn quarters((x0, y0, x1, y1): (u32, u32, u32, u32)) -> Vec<(u32, u32, u32, u32)> {
+    let (mx, my) = ((x0 + x1).div_ceil(2), (y0 + y1).div_ceil(2));
+    let xs: &[(u32, u32)] = if x1 - x0 >= 2 {
+        &[(x0, mx), (mx, x1)]
+    } else {
+        &[(x0, x1)]
+    };
+    let ys: &[(u32, u32)] = if y1 - y0 >= 2 {
+        &[(y0, my), (my, y1)]
+    } else {
+        &[(y0, y1)]
+    };
+    ys.iter()
+        .flat_map(|&(ya, yb)| xs.iter().map(move |&(xa, xb)| (xa, ya, xb, yb)))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn subtracting_bands() {
+        let parts = vec![(1.0, 5.0), (7.0, 9.0)];
+        assert_eq!(
+            subtract(&parts, (2.0, 3.0)),
+            vec![(1.0, 2.0), (3.0, 5.0), (7.0, 9.0)]
+        );
+        assert_eq!(subtract(&parts, (0.0, 8.0)), vec![(8.0, 9.0)]);
+        assert_eq!(subtract(&parts, (5.5, 6.5)), parts);
+        assert!(subtract(&parts, (0.0, 10.0)).is_empty());
+    }
+
+    #[test]
+    fn quarters_cover_the_rectangle_once() {
+        for r in [(0, 0, 8, 8), (3, 5, 4, 9), (2, 2, 7, 3), (0, 0, 1, 1)] {
+            let q = quarters(r);
+            let area: u32 = q.iter().map(|&(a, b, c, d)| (c - a) * (d - b)).sum();
+            assert_eq!(area, (r.2 - r.0) * (r.3 - r.1), "{r:?} {q:?}");
+        }
+    }
+
+    /// The lemma's target: every corner of the box lies at `P_c + α·u + w` with `α ≥ 0`
+    /// and `|w| ≤ w_max`, and `P_c` is on the line from `x` through the box centre.
+    #[test]
+    fn target_covers_every_corner_of_the_box() {
+        let f = DVec3::new(0.3, 0.2, 1.0).normalize();
+        let e1 = DVec3::X.cross(f).normalize();
+        let e2 = f.cross(e1);
+        let g = Group {
+            frame: [f, e1, e2],
+            lo: [9.0, -0.4, -0.2],
+            hi: [12.5, 0.3, 0.5],
+            sample: DVec3::ZERO,
+            split: Split::Quarters,
+        };
+        let v = DVec3::new(1.0, 2.0, 3.0);
+        for x in [
+            v,
+            v + DVec3::new(2.0, 0.0, -1.0),
+            v + DVec3::new(-3.0, 0.5, 2.0),
+        ] {
+            let (pc, delta, w_max) = target(&g, v, x, 0.25).unwrap();
+            let u = (pc - x).normalize();
+            assert!(delta >= w_max);
+            for i in 0..8 {
+                let a = if i & 1 == 0 { g.lo[0] } else { g.hi[0] };
+                let b = if i & 2 == 0 { g.lo[1] } else { g.hi[1] };
+                let c = if i & 4 == 0 { g.lo[2] } else { g.hi[2] };
+                let corner = v + f * a + e1 * b + e2 * c;
+                let rel = corner - pc;
+                let along = rel.dot(u);
+                let across = (rel - u * along).length();
+                assert!(along >= -1e-9, "{x} corner {i}: α = {along}");
+                assert!(across <= w_max + 1e-9, "{x} corner {i}: {across} > {w_max}");
+            }
+        }
+    }
+}
