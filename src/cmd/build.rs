@@ -1,5 +1,7 @@
 //! `railview build --scene NAME --track NAME --face-size N --out DB`: the whole pipeline —
 //! prerender → slabs → cull → encode (PTM + meshes) → ACH → manifest — with one report.
+//! Culling uses the shrunk variant at α = 1 for built-in and TOML scenes (provably
+//! conservative for every track point) and the conservative one otherwise (`--cull-variant`).
 //! `railview build --pov SCENE.pov --track TRACK.toml [--up y|z] …` runs the same pipeline on
 //! a POV-Ray scene: `import-pov` renders the base passes, `slabs` chooses the boundaries from
 //! the low-resolution depth and renders the layers with POV-Ray; culling, encoding and ACH
@@ -20,6 +22,7 @@ use anyhow::{bail, Context};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use occlusion::report::TileDecisions;
+use occlusion::Variant;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
 use serde::{Deserialize, Serialize};
 use slabs::io as sio;
@@ -75,6 +78,11 @@ pub struct Args {
     /// Occlusion culling α used for the database (a run with this α is used or made).
     #[arg(long, default_value_t = 1.0)]
     pub alpha: f64,
+    /// Culling variant for the database: `shrunk` (conservative for every track point,
+    /// against the scene's solids), `conservative`, `paper`, or `auto`: shrunk at α = 1 for
+    /// built-in and TOML scenes, conservative otherwise (POV-Ray imports, α < 1).
+    #[arg(long, default_value = "auto")]
+    pub cull_variant: String,
     /// zstd level of the PTM groups (19 = smallest practical; lower encodes faster).
     #[arg(long, default_value_t = 19)]
     pub zstd_level: i32,
@@ -196,7 +204,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .push(("slabs".into(), t.elapsed().as_secs_f64()));
     let t = Instant::now();
     stage(3, "cull");
-    let decisions = cull_decisions(&pre_root, args.alpha);
+    let variant = cull_variant(&args)?;
+    let decisions = cull_decisions(&pre_root, args.alpha, variant);
     let decisions = match decisions {
         Some(d) => Some(d),
         None => match run_sub(&[
@@ -205,9 +214,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "--alpha".into(),
             args.alpha.to_string(),
             "--variant".into(),
-            "conservative".into(),
+            variant.name().into(),
         ]) {
-            Ok(()) => cull_decisions(&pre_root, args.alpha),
+            Ok(()) => cull_decisions(&pre_root, args.alpha, variant),
             Err(e) => {
                 eprintln!("      culling unavailable ({e:#}): every non-empty tile is kept");
                 None
@@ -215,7 +224,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
     };
     report.culling = match &decisions {
-        Some(_) => format!("conservative, α = {}", args.alpha),
+        Some(_) => format!("{}, α = {}", variant.name(), args.alpha),
         None => "none (cull stage unavailable): every non-empty tile kept".into(),
     };
     report
@@ -406,7 +415,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tile_size: grid.tile_size,
         slabs: pre.slabs.clone(),
         cull_alpha: decisions.as_ref().map(|_| args.alpha),
-        cull_variant: decisions.as_ref().map(|_| "conservative".to_string()),
+        cull_variant: decisions.as_ref().map(|_| variant.name().to_string()),
         tracks: vec![TrackEntry {
             name: pre.track.clone(),
             track_toml,
@@ -490,13 +499,40 @@ fn prerender_argv(args: &Args, pre_root: &Path) -> anyhow::Result<Vec<String>> {
     Ok(argv)
 }
 
-/// Kept/culled decisions of the conservative run with this α, by viewpoint and slab.
-fn cull_decisions(pre_root: &Path, alpha: f64) -> Option<TileDecisions> {
+/// The culling variant of the database: `--cull-variant`, where `auto` is the shrunk
+/// variant at α = 1 for scenes whose solids the tracer has, else the conservative one.
+fn cull_variant(args: &Args) -> anyhow::Result<Variant> {
+    match args.cull_variant.trim() {
+        "auto" => Ok(if args.pov.is_none() && args.alpha == 1.0 {
+            Variant::Shrunk
+        } else {
+            Variant::Conservative
+        }),
+        s => {
+            let v = Variant::parse(s).with_context(|| {
+                format!("--cull-variant `{s}`: expected auto, shrunk, conservative or paper")
+            })?;
+            if v == Variant::Shrunk && args.alpha != 1.0 {
+                bail!(
+                    "--cull-variant shrunk runs at α = 1 only (found --alpha {})",
+                    args.alpha
+                );
+            }
+            if v == Variant::Shrunk && args.pov.is_some() {
+                bail!("--cull-variant shrunk needs the scene's solids: not with --pov");
+            }
+            Ok(v)
+        }
+    }
+}
+
+/// Kept/culled decisions of the run with this α and variant, by viewpoint and slab.
+fn cull_decisions(pre_root: &Path, alpha: f64, variant: Variant) -> Option<TileDecisions> {
     let d: TileDecisions = store::read_json(&pre_root.join("cull_tiles.json")).ok()?;
     let run = d
         .runs
         .iter()
-        .find(|r| (r.alpha - alpha).abs() < 1e-9 && r.variant.name() == "conservative")?
+        .find(|r| (r.alpha - alpha).abs() < 1e-9 && r.variant == variant)?
         .clone();
     Some(TileDecisions {
         grid: d.grid,
@@ -751,6 +787,7 @@ mod tests {
             out: out.clone(),
             work: Some(work.clone()),
             alpha: 1.0,
+            cull_variant: "auto".into(),
             zstd_level: 3,
             ach_samples: 2,
             ach_camera_size: 16,
@@ -762,6 +799,8 @@ mod tests {
         assert!(v.notes.is_empty(), "{:?}", v.notes);
         let db = streamer::db::Database::open(&out).unwrap();
         let m = db.manifest();
+        // A built-in scene: the shrunk variant by default.
+        assert_eq!(m.cull_variant.as_deref(), Some("shrunk"));
         let track = &m.tracks[0];
         assert!(track.viewpoints.len() > 1);
         assert_eq!(track.segments.len(), track.viewpoints.len() - 1);
