@@ -328,30 +328,35 @@ struct Ctx<'a> {
     tol: f64,
 }
 
-/// A piece of what a tile holds: the footprint of one pixel `(x, y)` of its face (not
-/// grown) times a distance band from `V` — the union of the bands `[r_q/(1 + τ), r_q/(1 − τ)]`
-/// of the tile's opaque pixels `q` within the search radius of `(x, y)` whose bands overlap.
-/// Every `Z_q` is a union of such pieces, so covering the pieces covers the tile.
-#[derive(Clone, Copy, Debug)]
-struct Item {
-    x: u32,
-    y: u32,
-    s0: f64,
-    s1: f64,
-    /// A stored point (world coordinates) of one of the pixels the band came from.
-    sample: DVec3,
-}
-
-/// The pieces of one tile, and the geometry of their footprints.
-struct TileItems {
+/// The tile under test: its face, its opaque pixels' stored depths (NaN where transparent)
+/// over the tile's pixel rectangle, and the footprint rectangle of what it holds (the tile
+/// grown by the search radius, clamped to the face).
+struct TileData {
     face: Face,
-    items: Vec<Item>,
-    /// The footprint rectangle they cover (the tile grown by the search radius).
+    slab: usize,
+    tile: (u32, u32, u32, u32),
+    depth: Vec<f64>,
     rect: (u32, u32, u32, u32),
 }
 
-/// A group of a tile's pieces: the box that holds all of them (frame `f, e1, e2`
-/// relative to `V`, ranges per axis), a stored point to look at, and whether it splits.
+impl TileData {
+    fn depth_at(&self, x: u32, y: u32) -> f64 {
+        let (x0, y0, x1, _) = self.tile;
+        self.depth[((y - y0) * (x1 - x0) + (x - x0)) as usize]
+    }
+}
+
+/// A piece of what a tile holds at one footprint pixel: a distance band (the union of the
+/// overlapping bands that reach the pixel) and a stored point of a pixel it came from.
+#[derive(Clone, Copy, Debug)]
+struct Piece {
+    s0: f64,
+    s1: f64,
+    sample: DVec3,
+}
+
+/// A group of what a tile holds: the box that holds all of it (frame `f, e1, e2` relative
+/// to `V`, ranges per axis), a stored point to look at, and how it splits.
 #[derive(Clone, Copy, Debug)]
 struct Group {
     frame: [DVec3; 3],
@@ -365,27 +370,34 @@ struct Group {
 enum Split {
     /// Several footprint pixels: quarter the rectangle.
     Quarters,
-    /// One footprint pixel with several bands: one group per piece.
-    Items,
-    /// One piece: halve its distance band (a long band seen from aside is wide across the
-    /// line of sight; its far part may also lie inside the solid whose surface it is on).
+    /// One footprint pixel holding several bands: one group per band.
+    Pieces,
+    /// One band: halve it (a long band seen from aside is wide across the line of sight;
+    /// its far part may also lie inside the solid whose surface it is on).
     Band,
-    /// A single piece that is not split further.
+    /// Not split further.
     No,
 }
 
-/// Which pieces a group holds: those in a footprint rectangle, or part `j` of `2^level` of
-/// one piece's distance band.
+/// What a group holds: every footprint pixel of a rectangle (bounded coarsely: its
+/// footprint times the union of the bands that reach it), or part `j` of `2^level` of the
+/// band of piece `k` of footprint pixel `(x, y)`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum Key {
     Rect(u32, u32, u32, u32),
-    Piece(u32, u8, u32),
+    Piece {
+        x: u32,
+        y: u32,
+        k: u16,
+        level: u8,
+        j: u32,
+    },
 }
 
 /// How many times a piece's band may be halved.
 const BAND_LEVELS: u8 = 4;
 
-/// A work item: an interval of a stretch (parameters `t0..t1`) and a group of pieces.
+/// A work item: an interval of a stretch (parameters `t0..t1`) and a group.
 #[derive(Clone, Copy, Debug)]
 struct Pair {
     stretch: u32,
@@ -400,6 +412,11 @@ enum Outcome {
     Undecided,
 }
 
+/// The band `[r/(1 + τ), r/(1 − τ)]` of a stored distance.
+fn band(r: f64, tol: f64) -> (f64, f64) {
+    (r / (1.0 + tol), r / (1.0 - tol))
+}
+
 impl Ctx<'_> {
     /// Keep (`true`) or cull one tile of slab `k`, with what it took.
     fn decide(&self, k: usize, tile: &TileInfo) -> (bool, ShrunkStats) {
@@ -412,22 +429,12 @@ impl Ctx<'_> {
         let n = self.grid.face_size;
         let rr = self.params.content.search_radius;
         let (x0, y0, x1, y1) = self.grid.pixel_rect(id);
-        let rect = (
-            x0.saturating_sub(rr),
-            y0.saturating_sub(rr),
-            (x1 + rr).min(n),
-            (y1 + rr).min(n),
-        );
-        let (w, h) = (rect.2 - rect.0, rect.3 - rect.1);
-        // Bands per footprint pixel of the grown rectangle.
-        // What the oracle could put in each footprint pixel of the grown rectangle and
-        // attribute to one of the tile's pixels: its own band at the pixel itself; at a
-        // neighbour, the band's part that its search for neighbours can reach.
-        let mut bands: Vec<Vec<(f64, f64, DVec3)>> = vec![Vec::new(); (w * h) as usize];
-        let mut direct = false;
+        let mut depth = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+        let mut any = false;
         for y in y0..y1 {
             for x in x0..x1 {
                 if *layer.alpha.get(id.face, x, y) < 128 {
+                    depth.push(f64::NAN);
                     continue;
                 }
                 // Nothing of the earlier slabs in front: seen from V itself.
@@ -435,78 +442,30 @@ impl Ctx<'_> {
                     .iter()
                     .all(|l| *l.alpha.get(id.face, x, y) < 128)
                 {
-                    direct = true;
+                    stats.kept_direct = 1;
+                    return (true, stats);
                 }
-                let r = *layer.depth.get(id.face, x, y) as f64;
-                let sample = self.v + pixel_dir(id.face, x, y, n) * r;
-                let band = (r / (1.0 + self.tol), r / (1.0 - self.tol));
-                for cy in y.saturating_sub(rr).max(rect.1)..(y + rr + 1).min(rect.3) {
-                    for cx in x.saturating_sub(rr).max(rect.0)..(x + rr + 1).min(rect.2) {
-                        let at = &mut bands[((cy - rect.1) * w + (cx - rect.0)) as usize];
-                        if (cx, cy) == (x, y) {
-                            at.push((band.0, band.1, sample));
-                            continue;
-                        }
-                        // Through the oracle's neighbour search: only distances in this
-                        // slab that no layer at (cx, cy) holds itself.
-                        let mut parts =
-                            vec![(band.0.max(layer.range.near), band.1.min(layer.range.far))];
-                        for l in self.layers {
-                            if *l.alpha.get(id.face, cx, cy) >= 128 {
-                                let d = *l.depth.get(id.face, cx, cy) as f64;
-                                parts =
-                                    subtract(&parts, (d / (1.0 + self.tol), d / (1.0 - self.tol)));
-                            }
-                        }
-                        at.extend(
-                            parts
-                                .into_iter()
-                                .filter(|p| p.1 > p.0)
-                                .map(|p| (p.0, p.1, sample)),
-                        );
-                    }
-                }
+                depth.push(*layer.depth.get(id.face, x, y) as f64);
+                any = true;
             }
         }
-        if direct {
-            stats.kept_direct = 1;
-            return (true, stats);
-        }
-        let mut items = Vec::new();
-        for (i, b) in bands.iter_mut().enumerate() {
-            if b.is_empty() {
-                continue;
-            }
-            b.sort_by(|p, q| p.0.total_cmp(&q.0).then(p.1.total_cmp(&q.1)));
-            let (x, y) = (rect.0 + i as u32 % w, rect.1 + i as u32 / w);
-            let mut cur: Option<Item> = None;
-            for &(s0, s1, sample) in b.iter() {
-                match &mut cur {
-                    Some(c) if s0 <= c.s1 => c.s1 = c.s1.max(s1),
-                    _ => {
-                        items.extend(cur.take());
-                        cur = Some(Item {
-                            x,
-                            y,
-                            s0,
-                            s1,
-                            sample,
-                        });
-                    }
-                }
-            }
-            items.extend(cur);
-        }
-        if items.is_empty() {
+        if !any {
             stats.culled = 1;
             return (false, stats);
         }
-        let tile = TileItems {
+        let t = TileData {
             face: id.face,
-            items,
-            rect,
+            slab: k,
+            tile: (x0, y0, x1, y1),
+            depth,
+            rect: (
+                x0.saturating_sub(rr),
+                y0.saturating_sub(rr),
+                (x1 + rr).min(n),
+                (y1 + rr).min(n),
+            ),
         };
-        match self.search(&tile, &mut stats) {
+        match self.search(&t, &mut stats) {
             Outcome::Hidden => {
                 stats.culled = 1;
                 (false, stats)
@@ -522,133 +481,232 @@ impl Ctx<'_> {
         }
     }
 
-    /// The box holding the pieces of group `key`.
-    fn group(&self, t: &TileItems, key: Key) -> Option<Group> {
+    /// The tile's pixels whose content can reach footprint rectangle `r`: those within the
+    /// search radius of it.
+    fn reaching(&self, t: &TileData, r: (u32, u32, u32, u32)) -> (u32, u32, u32, u32) {
+        let rr = self.params.content.search_radius;
+        let (tx0, ty0, tx1, ty1) = t.tile;
+        (
+            r.0.saturating_sub(rr).max(tx0),
+            r.1.saturating_sub(rr).max(ty0),
+            (r.2 + rr).min(tx1),
+            (r.3 + rr).min(ty1),
+        )
+    }
+
+    /// What the oracle could put in footprint pixel `(x, y)` and attribute to one of the
+    /// tile's pixels: its own band at the pixel itself; at a neighbour, the part of the
+    /// band in the slab's range that no layer at `(x, y)` holds itself (only then does
+    /// the oracle search the neighbours). Overlapping bands merged, nearest first.
+    fn pieces(&self, t: &TileData, x: u32, y: u32) -> Vec<Piece> {
+        let n = self.grid.face_size;
+        let layer = &self.layers[t.slab];
+        let (qx0, qy0, qx1, qy1) = self.reaching(t, (x, y, x + 1, y + 1));
+        let mut bands: Vec<Piece> = Vec::new();
+        for qy in qy0..qy1 {
+            for qx in qx0..qx1 {
+                let r = t.depth_at(qx, qy);
+                if r.is_nan() {
+                    continue;
+                }
+                let sample = self.v + pixel_dir(t.face, qx, qy, n) * r;
+                let (s0, s1) = band(r, self.tol);
+                if (qx, qy) == (x, y) {
+                    bands.push(Piece { s0, s1, sample });
+                    continue;
+                }
+                let mut parts = [(0.0, 0.0); 8];
+                parts[0] = (s0.max(layer.range.near), s1.min(layer.range.far));
+                let mut count = usize::from(parts[0].1 > parts[0].0);
+                for l in self.layers {
+                    // A cut adds at most one part; with no room left, keep the parts whole.
+                    if count < parts.len() && *l.alpha.get(t.face, x, y) >= 128 {
+                        let cut = band(*l.depth.get(t.face, x, y) as f64, self.tol);
+                        count = subtract(&mut parts, count, cut);
+                    }
+                }
+                bands.extend(
+                    parts[..count]
+                        .iter()
+                        .map(|&(s0, s1)| Piece { s0, s1, sample }),
+                );
+            }
+        }
+        bands.sort_by(|a, b| a.s0.total_cmp(&b.s0).then(a.s1.total_cmp(&b.s1)));
+        let mut out: Vec<Piece> = Vec::with_capacity(bands.len());
+        for b in bands {
+            match out.last_mut() {
+                Some(c) if b.s0 <= c.s1 => c.s1 = c.s1.max(b.s1),
+                _ => out.push(b),
+            }
+        }
+        out
+    }
+
+    /// The box of a group, in a frame along its mean direction.
+    fn group(
+        &self,
+        t: &TileData,
+        key: Key,
+        pieces: &mut HashMap<(u32, u32), Vec<Piece>>,
+    ) -> Option<Group> {
         let n = self.grid.face_size;
         let face = t.face;
-        let (members, (x0, y0, x1, y1)): (Vec<Item>, _) = match key {
-            Key::Rect(x0, y0, x1, y1) => (
-                t.items
-                    .iter()
-                    .filter(|p| p.x >= x0 && p.x < x1 && p.y >= y0 && p.y < y1)
-                    .copied()
-                    .collect(),
-                (x0, y0, x1, y1),
-            ),
-            Key::Piece(i, level, j) => {
-                let mut p = *t.items.get(i as usize)?;
+        let (rect, s0, s1, sample, split) = match key {
+            Key::Rect(x0, y0, x1, y1) if x1 - x0 > 1 || y1 - y0 > 1 => {
+                // Every band that reaches the rectangle, and the stored point nearest its
+                // centre.
+                let (qx0, qy0, qx1, qy1) = self.reaching(t, (x0, y0, x1, y1));
+                let (cx, cy) = (0.5 * (x0 + x1) as f64, 0.5 * (y0 + y1) as f64);
+                let (mut s0, mut s1) = (f64::INFINITY, f64::NEG_INFINITY);
+                let mut nearest: Option<(f64, u32, u32, f64)> = None;
+                for qy in qy0..qy1 {
+                    for qx in qx0..qx1 {
+                        let r = t.depth_at(qx, qy);
+                        if r.is_nan() {
+                            continue;
+                        }
+                        let (a, b) = band(r, self.tol);
+                        (s0, s1) = (s0.min(a), s1.max(b));
+                        let dd = (qx as f64 + 0.5 - cx).powi(2) + (qy as f64 + 0.5 - cy).powi(2);
+                        if nearest.is_none_or(|p| dd < p.0) {
+                            nearest = Some((dd, qx, qy, r));
+                        }
+                    }
+                }
+                let (_, qx, qy, r) = nearest?;
+                let sample = self.v + pixel_dir(face, qx, qy, n) * r;
+                ((x0, y0, x1, y1), s0, s1, sample, Split::Quarters)
+            }
+            Key::Rect(x, y, ..) => {
+                let ps = pieces.entry((x, y)).or_insert_with(|| self.pieces(t, x, y));
+                match ps.as_slice() {
+                    [] => return None,
+                    [p] => ((x, y, x + 1, y + 1), p.s0, p.s1, p.sample, Split::Band),
+                    [first, .., last] => (
+                        (x, y, x + 1, y + 1),
+                        first.s0,
+                        last.s1,
+                        first.sample,
+                        Split::Pieces,
+                    ),
+                }
+            }
+            Key::Piece { x, y, k, level, j } => {
+                let ps = pieces.entry((x, y)).or_insert_with(|| self.pieces(t, x, y));
+                let p = *ps.get(k as usize)?;
                 let step = (p.s1 - p.s0) / (1u32 << level) as f64;
                 let s0 = p.s0 + step * j as f64;
-                (p.s0, p.s1) = (s0, if j + 1 == 1 << level { p.s1 } else { s0 + step });
-                (vec![p], (p.x, p.y, p.x + 1, p.y + 1))
+                let s1 = if j + 1 == 1 << level { p.s1 } else { s0 + step };
+                let split = if level < BAND_LEVELS && s1 - s0 > 1e-3 * s1 {
+                    Split::Band
+                } else {
+                    Split::No
+                };
+                ((x, y, x + 1, y + 1), s0, s1, p.sample, split)
             }
         };
-        if members.is_empty() {
-            return None;
-        }
+        let (x0, y0, x1, y1) = rect;
         let f = subpixel_dir(face, 0.5 * (x0 + x1) as f64, 0.5 * (y0 + y1) as f64, n);
         let e1 = (face.right() - f * face.right().dot(f)).normalize();
         let e2 = f.cross(e1);
-        let frame = [f, e1, e2];
-        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-        let (cx, cy) = (0.5 * (x0 + x1) as f64, 0.5 * (y0 + y1) as f64);
-        let mut nearest: Option<(f64, &Item)> = None;
-        let members = &members;
-        for p in members {
-            let dd = (p.x as f64 + 0.5 - cx).powi(2) + (p.y as f64 + 0.5 - cy).powi(2);
-            if nearest.is_none_or(|(b, _)| dd < b) {
-                nearest = Some((dd, p));
-            }
-            let (px, py) = (p.x as f64, p.y as f64);
-            let corners = [
-                subpixel_dir(face, px, py, n),
-                subpixel_dir(face, px + 1.0, py, n),
-                subpixel_dir(face, px + 1.0, py + 1.0, n),
-                subpixel_dir(face, px, py + 1.0, n),
-            ];
-            // Every direction of the footprint is a normalised convex combination of the
-            // corners, whose length before normalising is at least the cosine of the widest
-            // angle between two corners (its dot product with any corner is).
-            let wide = corners[0]
-                .dot(corners[2])
-                .min(corners[1].dot(corners[3]))
-                .max(1e-3);
-            // Along f: at least s0 · (smallest cosine, at a corner); at most s1.
-            let min_cos = corners
-                .iter()
-                .map(|c| c.dot(f))
-                .fold(f64::INFINITY, f64::min);
-            lo[0] = lo[0].min(if min_cos >= 0.0 {
-                p.s0 * min_cos
+        let (fx0, fy0, fx1, fy1) = (x0 as f64, y0 as f64, x1 as f64, y1 as f64);
+        let corners = [
+            subpixel_dir(face, fx0, fy0, n),
+            subpixel_dir(face, fx1, fy0, n),
+            subpixel_dir(face, fx1, fy1, n),
+            subpixel_dir(face, fx0, fy1, n),
+        ];
+        // Every direction of the footprint is a normalised convex combination of the
+        // corners, whose length before normalising is at least the cosine of the widest
+        // angle between two corners (its dot product with any corner is).
+        let wide = corners[0]
+            .dot(corners[2])
+            .min(corners[1].dot(corners[3]))
+            .max(1e-3);
+        // Along f: at least s0 · (smallest cosine, at a corner); at most s1.
+        let min_cos = corners
+            .iter()
+            .map(|c| c.dot(f))
+            .fold(f64::INFINITY, f64::min);
+        let mut lo = [
+            if min_cos >= 0.0 {
+                s0 * min_cos
             } else {
-                p.s1 * min_cos
-            });
-            hi[0] = hi[0].max(p.s1);
-            // Across: corner values, grown for the footprint's bulge between corners.
-            for (axis, e) in [(1, e1), (2, e2)] {
-                let (mut m, mut mm) = (f64::INFINITY, f64::NEG_INFINITY);
-                for c in &corners {
-                    let w = c.dot(e);
-                    m = m.min(w);
-                    mm = mm.max(w);
-                }
-                let top = if mm >= 0.0 {
-                    p.s1 * mm / wide
-                } else {
-                    p.s0 * mm
-                };
-                let bottom = if m <= 0.0 { p.s1 * m / wide } else { p.s0 * m };
-                lo[axis] = lo[axis].min(bottom);
-                hi[axis] = hi[axis].max(top);
+                s1 * min_cos
+            },
+            0.0,
+            0.0,
+        ];
+        let mut hi = [s1, 0.0, 0.0];
+        // Across: corner values, grown for the footprint's bulge between corners.
+        for (axis, e) in [(1, e1), (2, e2)] {
+            let (mut m, mut mm) = (f64::INFINITY, f64::NEG_INFINITY);
+            for c in &corners {
+                let w = c.dot(e);
+                m = m.min(w);
+                mm = mm.max(w);
             }
+            hi[axis] = if mm >= 0.0 { s1 * mm / wide } else { s0 * mm };
+            lo[axis] = if m <= 0.0 { s1 * m / wide } else { s0 * m };
         }
-        let (_, sample) = nearest?;
-        let split = match key {
-            Key::Piece(_, level, _)
-                if level < BAND_LEVELS && members[0].s1 - members[0].s0 > 1e-3 * members[0].s1 =>
-            {
-                Split::Band
-            }
-            Key::Piece(..) => Split::No,
-            Key::Rect(..) if x1 - x0 > 1 || y1 - y0 > 1 => Split::Quarters,
-            Key::Rect(..) if members.len() > 1 => Split::Items,
-            Key::Rect(..) => Split::No,
-        };
         Some(Group {
-            frame,
+            frame: [f, e1, e2],
             lo,
             hi,
-            sample: sample.sample,
+            sample,
             split,
         })
     }
 
     /// The groups a group splits into.
-    fn children(&self, t: &TileItems, key: Key, split: Split) -> Vec<Key> {
+    fn children(
+        &self,
+        key: Key,
+        split: Split,
+        pieces: &HashMap<(u32, u32), Vec<Piece>>,
+    ) -> Vec<Key> {
         match (key, split) {
             (Key::Rect(x0, y0, x1, y1), Split::Quarters) => quarters((x0, y0, x1, y1))
                 .into_iter()
                 .map(|(a, b, c, d)| Key::Rect(a, b, c, d))
                 .collect(),
-            (Key::Rect(x0, y0, _, _), Split::Items) => t
-                .items
-                .iter()
-                .enumerate()
-                .filter(|(_, p)| p.x == x0 && p.y == y0)
-                .map(|(i, _)| Key::Piece(i as u32, 0, 0))
+            (Key::Rect(x, y, ..), Split::Pieces) => (0..pieces.get(&(x, y)).map_or(0, Vec::len))
+                .map(|k| Key::Piece {
+                    x,
+                    y,
+                    k: k as u16,
+                    level: 0,
+                    j: 0,
+                })
                 .collect(),
-            (Key::Piece(i, level, j), Split::Band) => vec![
-                Key::Piece(i, level + 1, 2 * j),
-                Key::Piece(i, level + 1, 2 * j + 1),
-            ],
+            (Key::Rect(x, y, ..), Split::Band) => (0..2)
+                .map(|j| Key::Piece {
+                    x,
+                    y,
+                    k: 0,
+                    level: 1,
+                    j,
+                })
+                .collect(),
+            (Key::Piece { x, y, k, level, j }, Split::Band) => (0..2)
+                .map(|h| Key::Piece {
+                    x,
+                    y,
+                    k,
+                    level: level + 1,
+                    j: 2 * j + h,
+                })
+                .collect(),
             _ => Vec::new(),
         }
     }
 
     /// Refine (interval, group) pairs until all are hidden, a stored point is seen, or no
     /// more can be learnt.
-    fn search(&self, t: &TileItems, stats: &mut ShrunkStats) -> Outcome {
+    fn search(&self, t: &TileData, stats: &mut ShrunkStats) -> Outcome {
         let mut groups: HashMap<Key, Option<Group>> = HashMap::new();
+        let mut pieces: HashMap<(u32, u32), Vec<Piece>> = HashMap::new();
         let (rx0, ry0, rx1, ry1) = t.rect;
         let root = Key::Rect(rx0, ry0, rx1, ry1);
         let mut stack: Vec<Pair> = (0..self.stretches.len() as u32)
@@ -665,9 +723,14 @@ impl Ctx<'_> {
             if tests >= self.params.max_tests_per_tile {
                 return Outcome::Undecided;
             }
-            let g = *groups
-                .entry(pair.key)
-                .or_insert_with(|| self.group(t, pair.key));
+            let g = match groups.get(&pair.key) {
+                Some(g) => *g,
+                None => {
+                    let g = self.group(t, pair.key, &mut pieces);
+                    groups.insert(pair.key, g);
+                    g
+                }
+            };
             let Some(g) = g else { continue };
             let (a, b) = self.stretches[pair.stretch as usize];
             let (xa, xb) = (a.lerp(b, pair.t0), a.lerp(b, pair.t1));
@@ -702,7 +765,7 @@ impl Ctx<'_> {
                 stack.push(Pair { t0: tm, ..pair });
                 stack.push(Pair { t1: tm, ..pair });
             } else if can_split {
-                for key in self.children(t, pair.key, g.split).into_iter().rev() {
+                for key in self.children(pair.key, g.split, &pieces).into_iter().rev() {
                     stack.push(Pair { key, ..pair });
                 }
             } else {
@@ -756,23 +819,32 @@ fn target(g: &Group, v: DVec3, x: DVec3, eps: f64) -> Option<(DVec3, f64, f64)> 
     Some((c - u * reach, delta, w_max))
 }
 
-/// The parts of the intervals `parts` outside `cut` (closed intervals; ends kept, so the
-/// parts cover a little more, never less).
-fn subtract(parts: &[(f64, f64)], cut: (f64, f64)) -> Vec<(f64, f64)> {
-    let mut out = Vec::with_capacity(parts.len() + 1);
-    for &(a, b) in parts {
+/// Remove `cut` from the first `count` intervals of `parts` (closed intervals; ends kept,
+/// so the parts cover a little more, never less); returns the new count. At most one
+/// interval splits per cut, so eight places hold the cuts of seven layers.
+fn subtract(parts: &mut [(f64, f64); 8], count: usize, cut: (f64, f64)) -> usize {
+    let mut out = [(0.0, 0.0); 8];
+    let mut m = 0;
+    for &(a, b) in &parts[..count] {
+        let mut push = |p: (f64, f64)| {
+            if m < out.len() {
+                out[m] = p;
+                m += 1;
+            }
+        };
         if cut.1 < a || cut.0 > b {
-            out.push((a, b));
+            push((a, b));
             continue;
         }
         if cut.0 > a {
-            out.push((a, cut.0));
+            push((a, cut.0));
         }
         if cut.1 < b {
-            out.push((cut.1, b));
+            push((cut.1, b));
         }
     }
-    out
+    *parts = out;
+    m
 }
 
 /// The non-empty quarters (or halves, for a one-pixel-wide rectangle) of a rectangle.
@@ -799,14 +871,23 @@ mod tests {
 
     #[test]
     fn subtracting_bands() {
-        let parts = vec![(1.0, 5.0), (7.0, 9.0)];
-        assert_eq!(
-            subtract(&parts, (2.0, 3.0)),
-            vec![(1.0, 2.0), (3.0, 5.0), (7.0, 9.0)]
-        );
-        assert_eq!(subtract(&parts, (0.0, 8.0)), vec![(8.0, 9.0)]);
-        assert_eq!(subtract(&parts, (5.5, 6.5)), parts);
-        assert!(subtract(&parts, (0.0, 10.0)).is_empty());
+        let start = || {
+            let mut p = [(0.0, 0.0); 8];
+            p[0] = (1.0, 5.0);
+            p[1] = (7.0, 9.0);
+            p
+        };
+        let mut p = start();
+        assert_eq!(subtract(&mut p, 2, (2.0, 3.0)), 3);
+        assert_eq!(p[..3], [(1.0, 2.0), (3.0, 5.0), (7.0, 9.0)]);
+        let mut p = start();
+        assert_eq!(subtract(&mut p, 2, (0.0, 8.0)), 1);
+        assert_eq!(p[0], (8.0, 9.0));
+        let mut p = start();
+        assert_eq!(subtract(&mut p, 2, (5.5, 6.5)), 2);
+        assert_eq!(p[..2], [(1.0, 5.0), (7.0, 9.0)]);
+        let mut p = start();
+        assert_eq!(subtract(&mut p, 2, (0.0, 10.0)), 0);
     }
 
     #[test]
