@@ -243,16 +243,16 @@ impl Accel {
     }
 
     /// Whether the segment from `o` to `p` passes through a solid primitive's interior at
-    /// inside distance above `e0 + (e1 − e0)·t` at its point of parameter `t ∈ (0, 1)`, a
-    /// solid whose interior the segment `source` (which may be a single point) does not
-    /// enter. Triangles and planes have no interior and never count.
+    /// inside distance above `e0 + (e1 − e0)·t` at its point of parameter `t ∈ (0, 1)`,
+    /// leaving out the primitives (by index in this accelerator) that `excluded` names.
+    /// Triangles and planes have no interior and never count.
     pub fn solid_blocks(
         &self,
         o: DVec3,
         p: DVec3,
         e0: f64,
         e1: f64,
-        source: (DVec3, DVec3),
+        excluded: impl Fn(usize) -> bool,
     ) -> bool {
         let v = p - o;
         let len = v.length();
@@ -261,17 +261,6 @@ impl Accel {
         }
         let d = v / len;
         let g = (e1 - e0) / len;
-        // The source segment, widened by a hair so that a single point works too.
-        let sv = source.1 - source.0;
-        let slen = sv.length();
-        let sd = if slen > 0.0 { sv / slen } else { DVec3::X };
-        let hair = 1e-9 * (1.0 + source.0.abs().max_element());
-        let enters = |prim: &Prim| {
-            prim.eroded_span(source.0, sd, (-hair, slen + hair), 0.0, 0.0)
-                .is_some()
-        };
-        let blocks =
-            |prim: &Prim| prim.eroded_span(o, d, (0.0, len), e0, g).is_some() && !enters(prim);
         // Unbounded primitives are planes: never solid.
         let Some(bvh) = &self.bvh else { return false };
         let Some((mut ray, shift)) = self.f32_ray(o, d) else {
@@ -279,7 +268,11 @@ impl Accel {
         };
         ray.tmax = self.bound32(len, shift);
         !bvh.ray_traverse_miss(ray, |_, id| {
-            if blocks(&self.prims[id]) {
+            if self.prims[id]
+                .eroded_span(o, d, (0.0, len), e0, g)
+                .is_some()
+                && !excluded(id)
+            {
                 0.0
             } else {
                 f32::INFINITY

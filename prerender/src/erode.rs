@@ -31,50 +31,64 @@ use crate::scene::Shape;
 /// boxes keep what touching solids hide together. Two rounds: rows of three fuse too.
 pub struct Occluders {
     accel: Accel,
-    solids: usize,
+    /// Per accelerator primitive: the scene solids (indices into `solids`) whose interior a
+    /// source segment must not enter for it to count — itself, or a fused box's parts.
+    guards: Vec<Vec<u32>>,
+    solids: Vec<Prim>,
     fused: usize,
 }
 
 impl Occluders {
     /// The occluders of `shapes`.
     pub fn new<'a>(shapes: impl IntoIterator<Item = &'a Shape>) -> Occluders {
-        let mut prims = Vec::new();
+        let mut solids = Vec::new();
         for s in shapes {
             match s {
                 Shape::Box { .. } | Shape::Sphere { .. } | Shape::Cone { .. } => {
-                    s.push_prims(&mut prims);
+                    s.push_prims(&mut solids);
                 }
                 Shape::Plane { .. } | Shape::Triangle { .. } | Shape::Mesh(_) => {}
             }
         }
-        let solids = prims.len();
-        let boxes: Vec<(DVec3, DVec3)> = prims
+        let boxes: Vec<(usize, (DVec3, DVec3))> = solids
             .iter()
-            .filter_map(|p| match *p {
-                Prim::Box { min, max } => Some((min, max)),
+            .enumerate()
+            .filter_map(|(i, p)| match *p {
+                Prim::Box { min, max } => Some((i, (min, max))),
                 _ => None,
             })
             .collect();
-        let fused = fuse_boxes(&boxes, 2, 4 * boxes.len() + 64);
-        let n_fused = fused.len();
-        prims.extend(fused.into_iter().map(|(min, max)| Prim::Box { min, max }));
-        let (accel, _) = Accel::build(prims);
+        let just: Vec<(DVec3, DVec3)> = boxes.iter().map(|b| b.1).collect();
+        let fused = fuse_boxes(&just, 2, 4 * boxes.len() + 64);
+        let mut prims = solids.clone();
+        let mut guards: Vec<Vec<u32>> = (0..solids.len() as u32).map(|i| vec![i]).collect();
+        for (bx, parts) in &fused {
+            prims.push(Prim::Box {
+                min: bx.0,
+                max: bx.1,
+            });
+            guards.push(parts.iter().map(|&k| boxes[k].0 as u32).collect());
+        }
+        let (accel, ids) = Accel::build(prims);
+        let guards = ids.iter().map(|&i| guards[i as usize].clone()).collect();
         Occluders {
             accel,
+            guards,
             solids,
-            fused: n_fused,
+            fused: fused.len(),
         }
     }
 
     /// Solids taken from the scene, and fused boxes added.
     pub fn counts(&self) -> (usize, usize) {
-        (self.solids, self.fused)
+        (self.solids.len(), self.fused)
     }
 
     /// Whether the segment from `from` to `to` passes through the interior of an occluder
     /// shrunk by `(1 − t)·erosion_from + t·erosion_to` at its point of parameter `t`, leaving
-    /// out any occluder whose interior the segment `source` (a single point when both ends
-    /// are equal) enters.
+    /// out any occluder whose interior — or, for a fused box, the interior of one of its
+    /// parts — the segment `source` (a single point when both ends are equal) enters: where
+    /// the viewer is inside a solid, the argument for what it cannot see does not hold.
     pub fn blocks(
         &self,
         from: DVec3,
@@ -83,28 +97,48 @@ impl Occluders {
         erosion_to: f64,
         source: (DVec3, DVec3),
     ) -> bool {
+        // The source segment, widened by a hair so that a single point works too.
+        let sv = source.1 - source.0;
+        let slen = sv.length();
+        let sd = if slen > 0.0 { sv / slen } else { DVec3::X };
+        let hair = 1e-9 * (1.0 + source.0.abs().max_element());
+        let enters = |k: u32| {
+            self.solids[k as usize]
+                .eroded_span(source.0, sd, (-hair, slen + hair), 0.0, 0.0)
+                .is_some()
+        };
         self.accel
-            .solid_blocks(from, to, erosion_from, erosion_to, source)
+            .solid_blocks(from, to, erosion_from, erosion_to, |id| {
+                self.guards[id].iter().any(|&k| enters(k))
+            })
     }
 }
 
+/// A box, and the indices (into the input) of the boxes whose union holds it.
+type Fused = ((DVec3, DVec3), Vec<usize>);
+
 /// Boxes inside the union of touching or overlapping pairs of `boxes` (and, for `rounds`
 /// above 1, of those with the boxes again), at most `cap` of them, none equal to or inside
-/// a box already there. Deterministic: the order of the input decides the order out.
-fn fuse_boxes(boxes: &[(DVec3, DVec3)], rounds: usize, cap: usize) -> Vec<(DVec3, DVec3)> {
+/// a box already there, each with the input boxes it is made of. Deterministic: the order
+/// of the input decides the order out.
+fn fuse_boxes(boxes: &[(DVec3, DVec3)], rounds: usize, cap: usize) -> Vec<Fused> {
     let inside =
         |a: &(DVec3, DVec3), b: &(DVec3, DVec3)| a.0.cmpge(b.0).all() && a.1.cmple(b.1).all();
-    let mut all: Vec<(DVec3, DVec3)> = boxes.to_vec();
-    let mut out: Vec<(DVec3, DVec3)> = Vec::new();
-    let mut frontier: Vec<(DVec3, DVec3)> = boxes.to_vec();
+    let mut all: Vec<Fused> = boxes
+        .iter()
+        .enumerate()
+        .map(|(i, b)| (*b, vec![i]))
+        .collect();
+    let mut out: Vec<Fused> = Vec::new();
+    let mut frontier: Vec<Fused> = all.clone();
     for _ in 0..rounds {
-        let mut next = Vec::new();
+        let mut next: Vec<Fused> = Vec::new();
         // Sweep along x: only boxes whose x ranges meet can fuse.
         let mut order: Vec<usize> = (0..all.len()).collect();
-        order.sort_by(|&i, &j| all[i].0.x.total_cmp(&all[j].0.x).then(i.cmp(&j)));
-        for f in &frontier {
+        order.sort_by(|&i, &j| all[i].0 .0.x.total_cmp(&all[j].0 .0.x).then(i.cmp(&j)));
+        for (f, fparts) in &frontier {
             for &j in &order {
-                let b = all[j];
+                let (b, bparts) = &all[j];
                 if b.0.x > f.1.x {
                     break;
                 }
@@ -125,10 +159,12 @@ fn fuse_boxes(boxes: &[(DVec3, DVec3)], rounds: usize, cap: usize) -> Vec<(DVec3
                     lo[k] = f.0[k].min(b.0[k]);
                     hi[k] = f.1[k].max(b.1[k]);
                     let c = (lo, hi);
-                    if all.iter().chain(&next).any(|a| inside(&c, a)) {
+                    if all.iter().chain(&next).any(|a| inside(&c, &a.0)) {
                         continue;
                     }
-                    next.push(c);
+                    let mut parts = fparts.clone();
+                    parts.extend(bparts.iter().filter(|p| !fparts.contains(p)));
+                    next.push((c, parts));
                     if out.len() + next.len() >= cap {
                         out.extend(next);
                         return out;
@@ -139,8 +175,8 @@ fn fuse_boxes(boxes: &[(DVec3, DVec3)], rounds: usize, cap: usize) -> Vec<(DVec3
         if next.is_empty() {
             break;
         }
-        all.extend(next.iter().copied());
-        out.extend(next.iter().copied());
+        all.extend(next.iter().cloned());
+        out.extend(next.iter().cloned());
         frontier = next;
     }
     out
@@ -370,6 +406,9 @@ mod tests {
         let a2 = Occluders::new(apart.iter());
         assert_eq!(a2.counts(), (2, 0));
         assert!(!a2.blocks(a, b, 0.0, 0.0, here));
+        // A track inside one part leaves the fused box out too (the viewer is inside a solid).
+        let inside_low = (DVec3::new(-1.0, 1.0, 6.0), DVec3::new(-1.0, 1.0, 6.0));
+        assert!(!fused.blocks(a, b, 0.5, 0.5, inside_low));
         // A row of three fuses end to end in the second round.
         // Each 1 m wide: a pair leaves 1 m of clearance, the row 1.5 m.
         let row = [bx(-1.5, -0.5, 3.0), bx(-0.5, 0.5, 3.0), bx(0.5, 1.5, 3.0)];
