@@ -1,88 +1,106 @@
-//! The `shrunk` variant: occluder shrinking along the track segment, with sampling refined
-//! where visibility changes. Provably conservative for every point of the segment, not only
-//! the sampled ones, and tested against the scene's exact solids rather than the reference
-//! viewpoint's depth image, so openings and occluders of any size count, however they fall
-//! between pixels.
+//! The `shrunk` variant: occluder shrinking along the track, with sampling refined where
+//! visibility changes. Conservative for every point of the cell, not only sampled ones, and
+//! tested against the scene's exact solids rather than the reference viewpoint's depth
+//! image, so openings and occluders count whatever their size and however they fall
+//! between pixel centres.
 //!
 //! # What a tile holds
 //!
-//! A tile of slab `k` is kept when any of its points can be seen from any point `X` of the
-//! cell (the track to both neighbouring viewpoints). Its points are what its opaque pixels
-//! stand for — and, so that the independent oracle ([`crate::oracle`]) can never count a
-//! culled tile as seen, exactly what the oracle would attribute to one of its pixels `p`
-//! (stored radial depth `r_p`, [`MatchRule`] tolerance `τ` and search radius `R`): every
-//! surface point `Y` whose direction from the reference viewpoint `V` falls within `R`
-//! pixels of `p` on `p`'s face and whose distance satisfies `|r_p − |Y − V|| ≤ τ·|Y − V|`,
-//! i.e. `|Y − V| ∈ [r_p/(1 + τ), r_p/(1 − τ)]`. Call that region `Z_p` (a piece of a cone
-//! from `V`); a group of pixels is covered by a box `B` (in a frame along the group's mean
-//! direction) that holds every `Z_p` of the group.
+//! A tile of slab `k` must be kept when any of its points can be seen from any point `X` of
+//! the cell (the track from the previous to the next reference viewpoint). Its points are
+//! what its opaque pixels stand for, taken as the independent oracle ([`crate::oracle`])
+//! takes them, so that the oracle can never count a culled tile as seen. With `V` the
+//! reference viewpoint, `r_p` a pixel's stored radial depth and `τ` the [`MatchRule`]
+//! tolerance (`depth_tolerance + per_pixel_angle · π/2/N`), the oracle attributes a surface
+//! point `Y` seen from some `X` to pixel `p` when
+//! - `Y`'s direction from `V` falls in `p`'s footprint and `|Y − V|` lies in the band
+//!   `[r_p/(1 + τ), r_p/(1 − τ)]`, or
+//! - `Y`'s direction falls in a neighbouring pixel `c` (within the search radius `R`, same
+//!   face), no layer at `c` has a depth whose band holds `|Y − V|`, and `|Y − V|` lies in
+//!   `p`'s band and in slab `k`'s range.
 //!
-//! # Lemma (occluder shrinking)
+//! So for each footprint pixel `c` of the tile grown by `R` the tile holds `footprint(c) ×`
+//! a union of distance intervals: the band of `c` itself (if it is the tile's), and for
+//! each tile pixel `q ≠ c` within `R`, `q`'s band within the slab's range minus the bands of
+//! every layer at `c`. These pieces cover every point the oracle could ever attribute to
+//! the tile (the last condition mostly removes the neighbours' share: on a continuous
+//! surface the bands at `c` already hold them).
+//!
+//! # Lemma (occluder shrinking; Wonka, Wimmer & Schmalstieg 2000, in our form)
 //!
 //! Take a segment from `X` to `P`, its point `Q = X + t·(P − X)` at some `t ∈ (0, 1)`, and
-//! a convex solid `S` whose interior holds the ball around `Q` of radius
-//! `c = (1 − t)·ε + t·δ`. Then for every `X'` with `|X' − X| ≤ ε` and every `P'` with
-//! `|P' − P| ≤ δ`, the segment `X' → P'` passes through `Q' = X' + t·(P' − X')`, and
-//! `|Q' − Q| = |(1 − t)(X' − X) + t(P' − P)| ≤ c`, so `Q'` lies in the interior of `S`.
-//! If `X'` is not inside `S`, the segment enters `S` before `Q'` — it meets `S`'s surface
-//! strictly before `P'`, so `P'` is hidden from `X'` (a viewer on `S`'s surface looking
-//! into it sees that surface at distance 0).
+//! an occluder `S` whose interior holds the ball around `Q` of radius `c = (1 − t)·ε + t·δ`.
+//! Then for every `X'` with `|X' − X| ≤ ε` and every `P'` with `|P' − P| ≤ δ` the segment
+//! `X' → P'` passes through `Q' = X' + t·(P' − X')`, and `|Q' − Q| = |(1 − t)(X' − X) +
+//! t(P' − P)| ≤ c`: `Q'` lies inside `S`. `S` is a solid of the scene, or a box inside the
+//! union of two touching ones (whose boundary is made of their surfaces). If `X'` is not
+//! inside `S`, the segment enters `S` before `Q'`: it crosses a surface strictly before
+//! `P'`, and `P'` is hidden from `X'` (a viewer on a surface looking into its solid sees it
+//! at distance 0).
 //!
-//! Points farther along the line cost nothing. Write a target point as
-//! `P' = P + α·u + w` with `u = (P − X)/L`, `L = |P − X|`, `α ≥ 0`, `|w| ≤ w_max`: the
-//! segment `X' → P'` at parameter `t/κ`, `κ = (L + α)/L ≥ 1`, lies at
-//! `Q + (1 − t/κ)(X' − X) + (t/κ)·w` from `Q`, within `(1 − t)·ε + t·δ` of it with
-//! `δ = ε·α_max/(L + α_max) + w_max`. So a box `B` of targets is handled by one segment
-//! from `X` to the point `P_c` of `B` nearest along `u` (`α ≥ 0` for all of `B`), with `δ`
-//! from `B`'s extent across `u` (`w_max`, at a corner) and along it (`α_max`).
+//! Points farther along the line cost nothing. Write a target point as `P' = P + α·u + w`,
+//! `u = (P − X)/L`, `L = |P − X|`, `α ∈ [0, α_max]`, `|w| ≤ w_max`: at parameter `t/κ`,
+//! `κ = (L + α)/L ≥ 1`, the segment `X' → P'` lies at `Q + (1 − t/κ)(X' − X) + (t/κ)·w`,
+//! within `(1 − t)·ε + t·δ` of `Q` for `δ = ε·α_max/(L + α_max) + w_max`. So a box of
+//! targets is handled by one segment from `X` to its point `P_c` nearest along `u`, with `δ`
+//! from the box's extent across `u` (`w_max`, at a corner) and along it (`α_max`).
 //!
 //! # Why no point of the segment can see a culled tile
 //!
-//! Each straight stretch of the cell is cut into intervals; an interval `[X_a, X_b]` is the
-//! ball of radius `ε = |X_b − X_a|/2` around its centre `X` as far as the track is
-//! concerned. For an (interval, pixel group) pair the test asks the scene
-//! ([`Solids::blocks`]) whether the segment `X → P_c` passes through some solid shrunk by
-//! `(1 − t)·ε + t·δ` at parameter `t` — exact ray–solid arithmetic on boxes, spheres,
-//! cylinders and cones shrunk by a linearly varying distance (`prerender::erode`), never a
-//! depth image — leaving out any solid whose interior the interval itself enters (where
-//! the track runs inside a solid the lemma's "X' not inside S" would fail). If it does, by
-//! the lemma no point of the interval sees any point of the group. A tile is culled only
-//! when every pair of a cover of the cell's intervals by a cover of its pixels is shown
-//! hidden this way: every point of the segment lies in some interval, every point the tile
-//! holds in some group. Different pairs may be hidden by different solids, so occluders
-//! fuse (a row of columns hides what no single column does).
+//! Each straight stretch of the cell starts as [`ShrunkParams::base_intervals`] intervals;
+//! an interval `[X_a, X_b]` lies in the ball of radius `ε = |X_b − X_a|/2` around its centre
+//! `X`. What the tile holds starts as one group: a box around the footprint of the grown
+//! tile times every band that reaches it (in a frame along its mean direction; the box
+//! allows for the footprint's bulge between its corner directions). For each (interval,
+//! group) pair, [`Solids::blocks`] asks whether the segment `X → P_c` passes through an
+//! occluder shrunk by `(1 − t)·ε + t·δ` at parameter `t` — exact arithmetic on boxes,
+//! spheres, cylinders and cones shrunk by a linearly varying distance, never a depth image
+//! ([`prerender::erode`]) — leaving out any occluder whose interior the interval enters (the
+//! lemma's "`X'` not inside `S`"). If so, by the lemma no point of the interval sees any
+//! point of the group. A tile is culled only when every pair of a cover of the cell by
+//! intervals and of the tile's pieces by groups is shown hidden: every point of the cell
+//! lies in an interval, every point the tile holds in a group. Different pairs may be
+//! hidden by different occluders, so occluders fuse (a row of columns hides what no single
+//! column does).
 //!
-//! When a pair is not shown hidden, the exact segment from `X` to a pixel's stored point is
-//! cast ([`Solids::sees`]): if nothing is in the way, the tile is seen and kept at once.
-//! Otherwise the pair is refined — the interval halved when it is the larger term of the
-//! shrink distance, else the pixel group quartered — so that small shrink distances are
-//! used only where visibility changes between neighbouring samples. A pair that reaches
-//! the smallest interval ([`ShrunkParams::min_interval_m`]) as a single pixel, or a tile
-//! that runs out of tests ([`ShrunkParams::max_tests_per_tile`]), keeps the tile. Every way
-//! out but "all pairs hidden" keeps: culling needs the proof, keeping never does.
+//! When a pair is not shown hidden, the exact segment from `X` to a stored point of the
+//! group is cast ([`Solids::sees`]): if nothing is in the way the tile is seen and kept at
+//! once. Otherwise the pair is refined where visibility changes — the interval halved when
+//! `ε` is the larger term of the shrink distance, else the group split: a rectangle into
+//! quarters, down to single footprint pixels, whose exact pieces are then built; a pixel
+//! with several bands into one group per band; a band into halves (a long band seen from
+//! aside is wide across the line of sight, and its far part may lie inside the very solid
+//! whose surface it is on). A pair that cannot be refined further — a single band, halved
+//! four times, under an interval of [`ShrunkParams::min_interval_m`] or one much
+//! shorter than the band is wide — or a tile that runs out of
+//! [`ShrunkParams::max_tests_per_tile`] keeps the tile. Every way out but "all pairs
+//! hidden" keeps: culling needs the proof, keeping never does. Each tile is decided on its
+//! own, so the result depends neither on thread count nor on order.
 //!
 //! Cases the argument settles by itself:
-//! - **Occluders thinner than the shrink distance** (a column thinner than `2·((1 − t)ε +
-//!   tδ)` where the segment crosses it) vanish from the shrunk scene: a ray through them is
-//!   not counted as blocked, the pair is refined (smaller `ε`, smaller groups) and, if the
-//!   occluder stays too thin even then, the tile is kept. Thin occluders only ever keep
-//!   more; they never hide anything they do not hide.
-//! - **Openings narrower than a pixel** (a slit in a wall that falls between the reference
-//!   viewpoint's pixel centres) are in the scene's solids, not in a depth image: the
-//!   segment through the slit does not pass through any solid, so it is not blocked,
-//!   however the slit falls on the pixel grid.
-//! - **Surfaces without volume** (triangles, meshes, planes) have no inside and never block
-//!   in the shrunk scene: what only they hide is kept. A ground plane never hides anything
-//!   stored anyway (the track and the stored points are on the same side of it).
+//! - **Occluders thinner than the shrink distance** (a column thinner than twice `(1 − t)ε +
+//!   tδ` where the segment crosses it, or a wall thinner than that) vanish from the shrunk
+//!   scene: the segment is not counted as blocked, the pair is refined and, if the occluder
+//!   stays too thin even for the smallest pairs, the tile is kept. Thin occluders only ever
+//!   keep more; a tile they hide together with others is culled when the pairs they hide
+//!   alone are small enough.
+//! - **Openings narrower than a pixel** (a slit that falls between the reference viewpoint's
+//!   pixel centres) are in the scene's solids, not in a depth image: a segment through the
+//!   slit passes through no solid and is not blocked, however the slit falls on the pixels.
+//! - **Touching solids** hide together: the face two boxes share is inside their union
+//!   (fused boxes, [`prerender::erode::Occluders`]), not an opening.
+//! - **Surfaces without volume** (triangles, meshes, planes) have no inside and never block:
+//!   what only they hide is kept (a ground plane hides nothing stored anyway: the track and
+//!   the stored points are on the same side of it).
 //! - **An occluder touching the track**: touching is not entering, so it still blocks; a
-//!   track that runs through a solid leaves that solid out for the intervals inside it.
-//! - **Nothing in front**: a pixel that the earlier slabs leave uncovered is seen from `V`
-//!   itself and keeps its tile without a test.
+//!   track that runs into a solid leaves that solid out for the intervals inside it.
+//! - **Nothing in front**: a tile with a pixel that the earlier slabs leave uncovered is
+//!   seen from `V` itself and kept without a test.
 //!
-//! What it assumes: the layers' stored depths and masks are what the scene holds at the
-//! pixel centres (the tracer made them); a point that the viewer shows between pixel
-//! centres on a surface whose depth changes by more than `τ` across one pixel (a grazing
-//! surface) belongs to the neighbouring pixels' `Z_p` only as far as their depth bands reach.
+//! What it takes as given: the layers' stored depths and masks are what the scene holds at
+//! the pixel centres (the tracer made them). A point the viewer draws between pixel centres,
+//! on a surface whose depth changes by more than `τ` across a pixel (a grazing surface),
+//! counts only as far as some pixel's band reaches it — as for the oracle.
 
 use std::collections::HashMap;
 
