@@ -187,6 +187,11 @@ impl<G: crate::oracle::Geometry + ?Sized> SceneSolids<'_, G> {
     pub fn counts(&self) -> (usize, usize) {
         self.occluders.counts()
     }
+
+    /// The scene these solids come from.
+    pub fn scene(&self) -> &G {
+        self.geometry
+    }
 }
 
 impl<G: crate::oracle::Geometry + ?Sized> Solids for SceneSolids<'_, G> {
