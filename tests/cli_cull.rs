@@ -1,10 +1,11 @@
 //! `railview cull --oracle` on a TOML scene: the three variants side by side in the paper's
 //! table form with run time and kept ÷ seen, the shrunk one at α = 1 only and without false
-//! culls; `--variant` named one by one, and a clear error for a name it does not know.
+//! culls; `--variant` named one by one, and a clear error for a name it does not know; a scene
+//! edited since `prerender` refused by the shrunk variant.
 
 mod common;
 
-use common::{railview, scratch_path, stderr, text};
+use common::{railview, scratch_dir, scratch_path, stderr, text};
 
 #[test]
 fn three_variants_side_by_side() {
@@ -74,5 +75,51 @@ fn three_variants_side_by_side() {
         "{}",
         stderr(&o)
     );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The shrunk variant's proof is about the scene's solids: a scene file edited after
+/// `prerender` is refused with a message that says so, and the image-based variants still run.
+#[test]
+fn shrunk_refuses_a_scene_edited_since_prerender() {
+    let dir = scratch_dir("cli-cull", "edited");
+    let scene = dir.join("cloister.toml");
+    let original =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cloister.toml"))
+            .unwrap();
+    std::fs::write(&scene, &original).unwrap();
+    let d = dir.join("pre");
+    let d = d.to_str().unwrap();
+    let o = railview(&[
+        "prerender",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--face-size",
+        "16",
+        "--lowres-face-size",
+        "8",
+        "--no-shadows",
+        "--out",
+        d,
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let o = railview(&["slabs", d, "--tile-size", "8"]);
+    assert!(o.status.success(), "{}", text(&o));
+    // Unchanged: accepted.
+    let o = railview(&["cull", d, "--variant", "shrunk"]);
+    assert!(o.status.success(), "{}", text(&o));
+    // The lawn raised by 30 cm: every ground pixel of the first viewpoint moves.
+    let edited = original.replacen("point = [0, 0, 0]", "point = [0, 0.3, 0]", 1);
+    assert_ne!(edited, original);
+    std::fs::write(&scene, edited).unwrap();
+    let o = railview(&["cull", d, "--variant", "shrunk"]);
+    assert!(!o.status.success(), "{}", text(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("the scene changed since `railview prerender`") && e.contains("cloister.toml"),
+        "{e}"
+    );
+    let o = railview(&["cull", d, "--variant", "conservative"]);
+    assert!(o.status.success(), "{}", text(&o));
     std::fs::remove_dir_all(&dir).ok();
 }

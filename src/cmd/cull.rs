@@ -161,9 +161,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let t = Instant::now();
         let cur = load_viewpoint(&dir, vp.index)?;
         load_seconds += t.elapsed().as_secs_f64();
-        if let (None, Some(s)) = (&first, &solids) {
-            same_geometry(s.scene(), vp.position, &cur.layers)
-                .with_context(|| format!("the shrunk variant needs scene `{}`", pre.scene))?;
+        if let Some(s) = &solids {
+            same_geometry(s.scene(), vp.position, &cur.layers).with_context(|| {
+                format!(
+                    "viewpoint {}: the shrunk variant needs scene `{}`",
+                    vp.index, pre.scene
+                )
+            })?;
         }
         match &first {
             None => first = Some((cur.grid, cur.layers.iter().map(|l| l.range).collect())),
@@ -509,28 +513,35 @@ impl Drop for OracleSource {
     }
 }
 
-/// Whether `scene` is the geometry the layers were rendered from: its first hits from the
-/// viewpoint match the nearest slab's stored depths (on a grid of about 4 000 pixels; a few
-/// per cent may differ where an edge splits a pixel). The shrunk variant's guarantee is about
-/// the solids it is given, so a scene file edited since `prerender` must not be used.
+/// Whether `scene` is the geometry the layers were rendered from: its first hit from the
+/// viewpoint along each pixel centre of a grid of about 4 000 pixels is the depth of the
+/// nearest layer opaque there, and lies in no slab's range where every layer is empty (a few
+/// per cent may differ where an edge splits a pixel). The shrunk variant's guarantee is
+/// about the solids it is given, so a scene file edited since `prerender` must not be used.
 fn same_geometry(scene: &Scene, position: DVec3, layers: &[SlabLayer]) -> anyhow::Result<()> {
-    let Some(l) = layers.first() else {
+    let Some(l0) = layers.first() else {
         return Ok(());
     };
-    let n = l.depth.face_size();
-    let stride = ((6 * n * n) as f64 / 4000.0).sqrt().ceil().max(1.0) as u32;
+    let n = l0.depth.face_size();
+    let stride = ((6 * n * n) as f64 / 4000.0).sqrt().ceil().max(1.0) as usize;
     let (mut checked, mut differ) = (0u32, 0u32);
     for face in tracks::Face::ALL {
-        for y in (0..n).step_by(stride as usize) {
-            for x in (0..n).step_by(stride as usize) {
-                if *l.alpha.get(face, x, y) < 128 {
-                    continue;
-                }
-                let d = *l.depth.get(face, x, y) as f64;
+        for y in (0..n).step_by(stride) {
+            for x in (0..n).step_by(stride) {
+                let stored = layers
+                    .iter()
+                    .find(|l| *l.alpha.get(face, x, y) >= 128)
+                    .map(|l| *l.depth.get(face, x, y) as f64);
                 let dir = tracks::cubemap::pixel_dir(face, x, y, n);
                 let hit = scene.first_hit(position, dir, f64::INFINITY);
                 checked += 1;
-                if hit.is_none_or(|h| (h - d).abs() > 1e-3 * d + 1e-4) {
+                let same = match (stored, hit) {
+                    (Some(d), Some(h)) => (h - d).abs() <= 1e-3 * d + 1e-4,
+                    (Some(_), None) => false,
+                    (None, Some(h)) => !layers.iter().any(|l| h >= l.range.near && h < l.range.far),
+                    (None, None) => true,
+                };
+                if !same {
                     differ += 1;
                 }
             }
@@ -538,8 +549,8 @@ fn same_geometry(scene: &Scene, position: DVec3, layers: &[SlabLayer]) -> anyhow
     }
     if checked > 0 && differ as f64 > 0.05 * checked as f64 {
         bail!(
-            "its first hits differ from the stored depth at {differ} of {checked} pixels of \
-             the nearest slab: the scene changed since `railview prerender` (render again)"
+            "its first hits differ from the stored depth at {differ} of {checked} pixels: \
+             the scene changed since `railview prerender` (render again)"
         );
     }
     Ok(())
