@@ -1,5 +1,7 @@
 //! `railview build --scene NAME --track NAME --face-size N --out DB`: the whole pipeline —
 //! prerender → slabs → cull → encode (PTM + meshes) → ACH → manifest — with one report.
+//! Culling uses the shrunk variant at α = 1 for built-in and TOML scenes (provably
+//! conservative for every track point) and the conservative one otherwise (`--cull-variant`).
 //! `railview build --pov SCENE.pov --track TRACK.toml [--up y|z] …` runs the same pipeline on
 //! a POV-Ray scene: `import-pov` renders the base passes, `slabs` chooses the boundaries from
 //! the low-resolution depth and renders the layers with POV-Ray; culling, encoding and ACH
@@ -20,6 +22,7 @@ use anyhow::{bail, Context};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use occlusion::report::TileDecisions;
+use occlusion::Variant;
 use prerender::runlog::RunLog;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
 use serde::{Deserialize, Serialize};
@@ -95,12 +98,15 @@ pub struct Args {
     /// Error bound of the tiles' depth meshes: parallax pixels at the track's longest segment.
     #[arg(long, default_value_t = 0.5)]
     pub mesh_error: f64,
-    /// Occlusion culling: `conservative`, `paper` or `none` (keep every non-empty tile).
-    #[arg(long, default_value = "conservative")]
-    pub cull_variant: String,
     /// Occlusion culling α used for the database (a run with this α is used or made).
     #[arg(long, default_value_t = 1.0)]
     pub alpha: f64,
+    /// Culling variant for the database: `shrunk` (conservative for every track point,
+    /// against the scene's solids), `conservative`, `paper`, `none` (keep every non-empty
+    /// tile), or `auto`: shrunk at α = 1 for built-in and TOML scenes, conservative otherwise
+    /// (POV-Ray imports, α < 1).
+    #[arg(long, default_value = "auto")]
+    pub cull_variant: String,
     /// Leave out the N finest texture levels: each tile's colour is kept at 1/2^N of its
     /// resolution (opacity masks and meshes stay whole).
     #[arg(long, default_value_t = 0)]
@@ -296,12 +302,7 @@ fn check_args(args: &Args) -> anyhow::Result<()> {
         "--mesh-error {}: must be a positive number of pixels",
         args.mesh_error
     );
-    anyhow::ensure!(
-        matches!(args.cull_variant.as_str(), "none")
-            || occlusion::Variant::parse(&args.cull_variant).is_some(),
-        "--cull-variant `{}`: expected conservative, paper or none",
-        args.cull_variant
-    );
+    cull_variant(args)?;
     // α = 0 would keep nothing behind the first slab; the culling stage refuses it too.
     anyhow::ensure!(
         args.alpha.is_finite() && args.alpha > 0.0 && args.alpha <= 1.0,
@@ -469,11 +470,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     report.stage_done("slabs", m);
     let m = tune::cost::Meter::start();
     stage(3, "cull");
-    let variant = args.cull_variant.as_str();
-    let decisions = if variant == "none" {
-        None
-    } else {
-        match cull_decisions(&pre_root, args.alpha, variant) {
+    let variant = cull_variant(&args)?;
+    let decisions = match variant {
+        None => None,
+        Some(v) => match cull_decisions(&pre_root, args.alpha, v) {
             Some(d) => Some(d),
             None => match run_sub(&[
                 "cull".into(),
@@ -481,20 +481,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 "--alpha".into(),
                 args.alpha.to_string(),
                 "--variant".into(),
-                variant.into(),
+                v.name().into(),
             ]) {
-                Ok(()) => cull_decisions(&pre_root, args.alpha, variant),
+                Ok(()) => cull_decisions(&pre_root, args.alpha, v),
                 Err(e) => {
                     eprintln!("      culling unavailable ({e:#}): every non-empty tile is kept");
                     None
                 }
             },
-        }
+        },
     };
-    report.culling = match &decisions {
-        Some(_) => format!("{variant}, α = {}", args.alpha),
-        None if variant == "none" => "none (--cull-variant none): every non-empty tile kept".into(),
-        None => "none (cull stage unavailable): every non-empty tile kept".into(),
+    report.culling = match (&decisions, variant) {
+        (Some(_), Some(v)) => format!("{}, α = {}", v.name(), args.alpha),
+        (_, None) => "none (--cull-variant none): every non-empty tile kept".into(),
+        (None, Some(_)) => "none (cull stage unavailable): every non-empty tile kept".into(),
     };
     report.stage_done("cull", m);
 
@@ -697,7 +697,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tile_size: grid.tile_size,
         slabs: pre.slabs.clone(),
         cull_alpha: decisions.as_ref().map(|_| args.alpha),
-        cull_variant: decisions.as_ref().map(|_| variant.to_string()),
+        cull_variant: decisions
+            .as_ref()
+            .and(variant)
+            .map(|v| v.name().to_string()),
         tracks: vec![TrackEntry {
             name: pre.track.clone(),
             track_toml,
@@ -762,10 +765,9 @@ fn build_for_target(args: Args, target: f64) -> anyhow::Result<()> {
         }
         (None, None) => bail!("give --scene NAME or --pov SCENE.pov"),
     }
-    let cull = if args.cull_variant == "none" {
-        "none".to_string()
-    } else {
-        format!("{}:{}", args.cull_variant, args.alpha)
+    let cull = match cull_variant(&args)? {
+        None => "none".to_string(),
+        Some(v) => format!("{}:{}", v.name(), args.alpha),
     };
     argv.extend([
         "--track".into(),
@@ -921,13 +923,42 @@ fn prerender_argv(args: &Args, track: &str, pre_root: &Path) -> anyhow::Result<V
     Ok(argv)
 }
 
-/// Kept/culled decisions of the run of `variant` with this α, by viewpoint and slab.
-fn cull_decisions(pre_root: &Path, alpha: f64, variant: &str) -> Option<TileDecisions> {
+/// The culling variant of the database: `--cull-variant`, where `auto` is the shrunk
+/// variant at α = 1 for scenes whose solids the tracer has, else the conservative one, and
+/// `none` keeps every non-empty tile.
+fn cull_variant(args: &Args) -> anyhow::Result<Option<Variant>> {
+    match args.cull_variant.trim() {
+        "none" => Ok(None),
+        "auto" => Ok(Some(if args.pov.is_none() && args.alpha == 1.0 {
+            Variant::Shrunk
+        } else {
+            Variant::Conservative
+        })),
+        s => {
+            let v = Variant::parse(s).with_context(|| {
+                format!("--cull-variant `{s}`: expected auto, shrunk, conservative, paper or none")
+            })?;
+            if v == Variant::Shrunk && args.alpha != 1.0 {
+                bail!(
+                    "--cull-variant shrunk runs at α = 1 only (found --alpha {})",
+                    args.alpha
+                );
+            }
+            if v == Variant::Shrunk && args.pov.is_some() {
+                bail!("--cull-variant shrunk needs the scene's solids: not with --pov");
+            }
+            Ok(Some(v))
+        }
+    }
+}
+
+/// Kept/culled decisions of the run with this α and variant, by viewpoint and slab.
+fn cull_decisions(pre_root: &Path, alpha: f64, variant: Variant) -> Option<TileDecisions> {
     let d: TileDecisions = store::read_json(&pre_root.join("cull_tiles.json")).ok()?;
     let run = d
         .runs
         .iter()
-        .find(|r| (r.alpha - alpha).abs() < 1e-9 && r.variant.name() == variant)?
+        .find(|r| (r.alpha - alpha).abs() < 1e-9 && r.variant == variant)?
         .clone();
     Some(TileDecisions {
         grid: d.grid,
@@ -1232,7 +1263,6 @@ mod tests {
             slabs: "auto".into(),
             tile_size: 32,
             mesh_error: 0.5,
-            cull_variant: "conservative".into(),
             drop_levels: 0,
             target_psnr: None,
             cost: "db-bytes".into(),
@@ -1242,6 +1272,7 @@ mod tests {
             report_dir: None,
             evidence: None,
             alpha: 1.0,
+            cull_variant: "auto".into(),
             zstd_level: 3,
             ach_samples: 2,
             ach_camera_size: 16,
@@ -1253,6 +1284,8 @@ mod tests {
         assert!(v.notes.is_empty(), "{:?}", v.notes);
         let db = streamer::db::Database::open(&out).unwrap();
         let m = db.manifest();
+        // A built-in scene: the shrunk variant by default.
+        assert_eq!(m.cull_variant.as_deref(), Some("shrunk"));
         let track = &m.tracks[0];
         assert!(track.viewpoints.len() > 1);
         assert_eq!(track.segments.len(), track.viewpoints.len() - 1);

@@ -220,9 +220,9 @@ fn finish(layout: &Layout, log: &mut RunLog, record: StageRecord) -> StageStatus
 }
 
 /// The stages that make the database, in order: `build` runs prerender → slabs → cull
-/// (conservative, α = 1) → encode → ACH, each resuming; then `cull` runs again over every α
-/// and both variants with the oracle, for the report's tables (it rewrites the same decisions
-/// for the run `build` used).
+/// (shrunk, α = 1) → encode → ACH, each resuming; then `cull` runs again over every α and
+/// every variant with the oracle, for the report's tables (it rewrites the same decisions for
+/// the run `build` used).
 fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
     let work = layout.prerender();
     let db = layout.db();

@@ -54,7 +54,8 @@ pub struct Args {
     /// Base configuration: mesh error, parallax pixels.
     #[arg(long, default_value_t = 0.5)]
     pub mesh_error: f64,
-    /// Base configuration: culling `VARIANT:ALPHA` or `none`.
+    /// Base configuration: culling `VARIANT:ALPHA` (`auto`, `shrunk`, `conservative`,
+    /// `paper`) or `none`.
     #[arg(long, default_value = "conservative:1")]
     pub cull: String,
 
@@ -76,7 +77,7 @@ pub struct Args {
     /// Swept: mesh errors.
     #[arg(long, default_value = "2")]
     pub mesh_errors: String,
-    /// Swept: culling, `VARIANT:ALPHA` or `none`.
+    /// Swept: culling, `VARIANT:ALPHA` (`auto`, `shrunk`, `conservative`, `paper`) or `none`.
     #[arg(long, default_value = "paper:1,conservative:0.9,none")]
     pub culls: String,
     /// Swept: finest texture levels left out.
@@ -136,7 +137,10 @@ fn list<T: std::str::FromStr>(text: &str, flag: &str) -> anyhow::Result<Vec<T>> 
         .collect()
 }
 
-fn cull(text: &str, flag: &str) -> anyhow::Result<(String, f64)> {
+/// A culling choice, `VARIANT:ALPHA` or `none`; `auto` is `railview build`'s default: the
+/// shrunk variant at α = 1 for scenes whose solids the tracer has, the conservative one
+/// otherwise.
+fn cull(text: &str, flag: &str, pov: bool) -> anyhow::Result<(String, f64)> {
     if text == "none" {
         return Ok(("none".into(), 1.0));
     }
@@ -146,17 +150,28 @@ fn cull(text: &str, flag: &str) -> anyhow::Result<(String, f64)> {
         .ok()
         .filter(|x: &f64| *x > 0.0 && *x <= 1.0)
         .with_context(|| format!("--{flag} `{text}`: α must be in (0, 1]"))?;
+    let variant = if v == "auto" {
+        if pov || alpha != 1.0 {
+            occlusion::Variant::Conservative
+        } else {
+            occlusion::Variant::Shrunk
+        }
+    } else {
+        occlusion::Variant::parse(v).with_context(|| {
+            format!("--{flag} `{text}`: expected auto, shrunk, conservative, paper or none")
+        })?
+    };
     anyhow::ensure!(
-        occlusion::Variant::parse(v).is_some(),
-        "--{flag} `{text}`: expected conservative, paper or none"
+        variant != occlusion::Variant::Shrunk || (alpha == 1.0 && !pov),
+        "--{flag} `{text}`: the shrunk variant runs at α = 1 on scenes with solids (not --pov)"
     );
-    Ok((v.to_string(), alpha))
+    Ok((variant.name().to_string(), alpha))
 }
 
 impl Args {
     /// The sweep these arguments ask for.
     pub fn spec(&self) -> anyhow::Result<SweepSpec> {
-        let (cull_variant, alpha) = cull(&self.cull, "cull")?;
+        let (cull_variant, alpha) = cull(&self.cull, "cull", self.pov.is_some())?;
         let base = Knobs {
             every: 1,
             face_size: self.face_size,
@@ -185,7 +200,7 @@ impl Args {
                 .split(',')
                 .map(str::trim)
                 .filter(|s| !s.is_empty())
-                .map(|c| cull(c, "culls"))
+                .map(|c| cull(c, "culls", self.pov.is_some()))
                 .collect::<anyhow::Result<_>>()?,
             drop_levels: list(&self.drop_levels, "drop-levels")?,
         };
