@@ -69,9 +69,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     let source = if args.db.starts_with("http://") || args.db.starts_with("https://") {
         let mut config = LiveConfig::with_cache((args.memory_mib * 1048576.0) as u64);
-        config.mode = strategy.mode();
-        config.prefetch = !args.no_prefetch;
-        config.fetcher.max_in_flight = args.requests;
+        config.schedule.strategy = streamer::client::Strategy::Budget {
+            mode: strategy.mode(),
+            prefetch: !args.no_prefetch,
+        };
+        config.schedule.max_in_flight = args.requests;
         let stream = StreamedWalkthrough::connect(&args.db, args.track.as_deref(), config)
             .with_context(|| format!("connecting to {}", args.db))?;
         Source::Stream(Box::new(stream))

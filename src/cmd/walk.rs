@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::Context;
-use streamer::client::{BudgetParams, ServerUrl};
+use streamer::client::{BudgetParams, SchedulerConfig, ServerUrl};
 use streamer::server::{self, parse_duration, parse_rate, ServedDb, ServerConfig, ServerStats};
 use streamer::walk::{self, synth, Strategy, WalkConfig};
 
@@ -101,7 +101,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.speed.is_finite() && args.speed > 0.0,
         "--speed must be positive"
     );
-    let paper = BudgetParams::default();
+    let defaults = SchedulerConfig::default();
+    let paper = defaults.budget;
     let config = WalkConfig {
         speed_mps: args.speed,
         latency_s: parse_duration(&args.latency)
@@ -109,26 +110,29 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .context("--latency")?
             .as_secs_f64(),
         pause_s: args.pause.max(0.0),
-        budget: BudgetParams {
-            memory_bytes: args
-                .memory_mb
-                .map_or(Ok(paper.memory_bytes), |m| mib(m, "memory-mb"))?,
-            dt_max_s: args.dt_max,
-            memory_static_bytes: args
-                .memory_static_mb
-                .map_or(Ok(paper.memory_static_bytes), |m| {
-                    mib(m, "memory-static-mb")
-                })?,
-            dt_static_s: args.dt_static,
-            t_static_s: args.t_static,
+        schedule: SchedulerConfig {
+            budget: BudgetParams {
+                memory_bytes: args
+                    .memory_mb
+                    .map_or(Ok(paper.memory_bytes), |m| mib(m, "memory-mb"))?,
+                dt_max_s: args.dt_max,
+                memory_static_bytes: args
+                    .memory_static_mb
+                    .map_or(Ok(paper.memory_static_bytes), |m| {
+                        mib(m, "memory-static-mb")
+                    })?,
+                dt_static_s: args.dt_static,
+                t_static_s: args.t_static,
+            },
+            // Given budgets are taken as they are; defaults grow with the database.
+            scale_budget: args.memory_mb.is_none() && args.memory_static_mb.is_none(),
+            cache_bytes: mib(args.cache_mb, "cache-mb")?,
+            max_in_flight: args.in_flight.max(1),
+            prefetch_turn_deg: args.prefetch_turn.clamp(0.0, 90.0),
+            prefetch_horizon_s: args.prefetch_horizon.clamp(0.0, 60.0),
+            prefetch_coverage: args.prefetch_coverage.clamp(0.0, 1.0),
+            ..defaults
         },
-        // Given budgets are taken as they are; defaults grow with the database.
-        scale_budget: args.memory_mb.is_none() && args.memory_static_mb.is_none(),
-        cache_bytes: mib(args.cache_mb, "cache-mb")?,
-        max_in_flight: args.in_flight.max(1),
-        prefetch_turn_deg: args.prefetch_turn.clamp(0.0, 90.0),
-        prefetch_horizon_s: args.prefetch_horizon.clamp(0.0, 60.0),
-        prefetch_coverage: args.prefetch_coverage.clamp(0.0, 1.0),
         ..WalkConfig::default()
     };
     let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;

@@ -167,15 +167,15 @@ impl ViewerApp {
         };
         let slabs = source.walk().views.first().map_or(1, |v| v.slab_count());
         let strategy = match &source {
-            Source::Stream(st) => match st.session().config().mode {
-                PriorityMode::Ach => Strategy::Ach,
-                PriorityMode::Visibility => Strategy::Visibility,
-                PriorityMode::Combined { .. } => Strategy::Both,
+            Source::Stream(st) => match st.session().mode() {
+                Some(PriorityMode::Ach) => Strategy::Ach,
+                Some(PriorityMode::Visibility) => Strategy::Visibility,
+                Some(PriorityMode::Combined { .. }) | None => Strategy::Both,
             },
             Source::Local(_) => Strategy::Both,
         };
         let prefetch = match &source {
-            Source::Stream(st) => st.session().config().prefetch,
+            Source::Stream(st) => st.session().prefetch(),
             Source::Local(_) => true,
         };
         ViewerApp {

@@ -624,9 +624,9 @@ impl StreamedWalkthrough {
         self.motion.observe(t, s);
         let vp_s: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
         let mut out = drawn.clone();
-        let config = self.session.config();
-        if config.prefetch {
-            if let Some(next) = next_segment(&self.motion, &vp_s, s, config.prefetch_horizon_s) {
+        if self.session.prefetch() {
+            let horizon = self.session.config().schedule.prefetch_horizon_s;
+            if let Some(next) = next_segment(&self.motion, &vp_s, s, horizon) {
                 out.extend([next, next + 1]);
             }
         }

@@ -612,9 +612,10 @@ fn evicted_views_whose_bytes_left_the_cache_are_downloaded_again() {
     // A cache of three fifths of the database: the first views' bytes leave it at the far end.
     // Identical parts are not shared here: the street repeats so many that, shared, every
     // part of it fits in half the database and nothing would leave the cache.
-    let config = |dir: &Path| LiveConfig {
-        share_parts: false,
-        ..LiveConfig::with_cache(dir_bytes(dir) * 12 / 20)
+    let config = |dir: &Path| {
+        let mut c = LiveConfig::with_cache(dir_bytes(dir) * 12 / 20);
+        c.schedule.share_parts = false;
+        c
     };
     let (dropped, diff) = there_and_back(config, None, "evict-refetch");
     if renderer_enabled() {
@@ -653,11 +654,12 @@ fn walking_on_after_the_server_is_gone_draws_the_views_that_arrived() {
     let (url, stop, thread) = serve(&dir);
     // No prefetch: only the first segment's views (at 0 and 0.5 m) receive anything; nor
     // identical parts shared (the street repeats, so later views would find theirs).
-    let config = LiveConfig {
+    let mut config = LiveConfig::with_cache(64 << 20);
+    config.schedule.strategy = streamer::client::Strategy::Budget {
+        mode: streamer::client::PriorityMode::Combined { ach_weight: 0.5 },
         prefetch: false,
-        share_parts: false,
-        ..LiveConfig::with_cache(64 << 20)
     };
+    config.schedule.share_parts = false;
     let mut st = StreamedWalkthrough::connect(&url, None, config).unwrap();
     let cam = camera(&st.walk, 0.25, 0.0);
     settle(&mut st, &mut r, 0.25, &cam);
