@@ -40,7 +40,10 @@ pub fn locate(arcs: &[f64], s: f64) -> Option<SegmentPos> {
         return None;
     }
     let s = if s.is_nan() { arcs[0] } else { s };
-    let index = arcs.partition_point(|&a| a <= s).saturating_sub(1).min(n - 2);
+    let index = arcs
+        .partition_point(|&a| a <= s)
+        .saturating_sub(1)
+        .min(n - 2);
     let (a0, a1) = (arcs[index], arcs[index + 1]);
     let t = if a1 > a0 {
         ((s - a0) / (a1 - a0)).clamp(0.0, 1.0)
@@ -139,7 +142,10 @@ mod tests {
         assert_eq!(locate(&arcs, 5.0), Some(SegmentPos { index: 3, t: 0.0 }));
         assert_eq!(locate(&arcs, 7.0), Some(SegmentPos { index: 3, t: 0.5 }));
         assert_eq!(locate(&arcs, 99.0), Some(SegmentPos { index: 3, t: 1.0 }));
-        assert_eq!(locate(&arcs, f64::NAN), Some(SegmentPos { index: 0, t: 0.0 }));
+        assert_eq!(
+            locate(&arcs, f64::NAN),
+            Some(SegmentPos { index: 0, t: 0.0 })
+        );
         assert_eq!(locate(&[1.0], 1.0), None);
         assert_eq!(locate(&[], 1.0), None);
         assert_eq!(segment_at(&[0.0, 5.0, 10.0, 15.0], 15.0), Some(2));
