@@ -6,7 +6,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-packages=(povray povray-includes povray-examples mesa-vulkan-drivers libvulkan1 xvfb chromium)
+packages=(povray povray-includes povray-examples mesa-vulkan-drivers libvulkan1 xvfb chromium slurm-wlm munge)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -20,6 +20,7 @@ use anyhow::{bail, Context};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use occlusion::report::TileDecisions;
+use prerender::runlog::RunLog;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
 use serde::{Deserialize, Serialize};
 use slabs::io as sio;
@@ -176,6 +177,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ..BuildReport::default()
     };
     let p = |x: &Path| x.display().to_string();
+    let log = RunLog::create(&work, "build", None)?;
 
     // 1–3: the other stages, each resuming on its own.
     let t = Instant::now();
@@ -422,6 +424,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     report
         .seconds
         .push(("total".into(), t_all.elapsed().as_secs_f64()));
+    let stage_seconds: Vec<(&str, serde_json::Value)> = report
+        .seconds
+        .iter()
+        .map(|(name, secs)| (name.as_str(), (*secs).into()))
+        .collect();
+    log.end(&stage_seconds)?;
     store::write_json(&work.join("build.json"), &report)?;
     let md = markdown(&report);
     store::write_atomic(&work.join("build.md"), md.as_bytes())?;

@@ -29,6 +29,7 @@ use occlusion::{
     cull_viewpoint, mark_visible, raw_rgba_bytes, score, Cell, CullParams, MatchRule, SlabLayer,
     TileInfo, Variant, Visibility,
 };
+use prerender::runlog::RunLog;
 use prerender::scene::Scene;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
 use slabs::io::{self as sio, TilesFile};
@@ -71,6 +72,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let pre: PrerenderReport = dir
         .read_report()
         .context("reading the prerender report (run `railview prerender` first)")?;
+    let log = RunLog::create(&args.dir, "cull", None)?;
     let alphas = parse_alphas(&args.alpha)?;
     let variants = match args.variant.as_str() {
         "both" => vec![Variant::Conservative, Variant::Paper],
@@ -235,6 +237,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             o.per_segment, o.face_size, o.seconds
         );
     }
+    log.end(&[
+        ("viewpoints", count.into()),
+        ("runs", report.runs.len().into()),
+        ("load_seconds", load_seconds.into()),
+        ("oracle_seconds", oracle_seconds.into()),
+    ])?;
     println!(
         "wrote {}, cull.md, cull_tiles.json, cull/*.png ({:.2} s)",
         args.dir.join("cull.json").display(),

@@ -90,25 +90,11 @@ pub fn hash_hex(bytes: &[u8]) -> String {
     blake3::hash(bytes).to_hex().to_string()
 }
 
-/// Writes `bytes` to `path` through a temporary file in the same directory and a rename.
+/// Writes `bytes` to `path` whole: a uniquely named temporary file in the same directory
+/// (`.NAME.tmp.RANDOM`, which verify recognises as a leftover), fsync, rename. Safe with
+/// several writers at once, on one host or many sharing a file system.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DbError> {
-    let dir = path.parent().unwrap_or(Path::new("."));
-    fs::create_dir_all(dir).map_err(|e| DbError::io(dir, e))?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp.{}", std::process::id()));
-    let result = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    result.map_err(|e| {
-        fs::remove_file(&tmp).ok(); // best effort: the write error is what gets reported
-        DbError::io(path, e)
-    })
+    railview_files::write(path, bytes).map_err(|e| DbError::io(path, e))
 }
 
 /// Builds a database directory; objects first, the manifest last ([`DbWriter::finish`]).

@@ -366,9 +366,7 @@ pub fn write_outputs(report: &WalkReport, dir: &Path) -> Result<(), WalkError> {
     std::fs::create_dir_all(dir).map_err(|e| err(dir, &e))?;
     let write = |name: &str, data: &[u8]| -> Result<(), WalkError> {
         let path = dir.join(name);
-        let tmp = dir.join(format!("{name}.tmp"));
-        std::fs::write(&tmp, data).map_err(|e| err(&tmp, &e))?;
-        std::fs::rename(&tmp, &path).map_err(|e| err(&path, &e))
+        railview_files::write(&path, data).map_err(|e| err(&path, &e))
     };
     let json = serde_json::to_vec_pretty(report).map_err(|e| err(dir, &e))?;
     write("walk.json", &json)?;
