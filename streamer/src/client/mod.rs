@@ -24,6 +24,7 @@
 //!   viewer.
 
 pub mod budget;
+pub mod byteranges;
 pub mod cache;
 pub mod clock;
 pub mod fetcher;
