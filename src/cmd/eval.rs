@@ -81,7 +81,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )
     })?;
     prerender::store::ensure_writable_dir(&args.out)?;
-    let mut renderer = Renderer::new(Gpu::new()?);
+    let mut renderer = Renderer::new(Gpu::new()?)?;
     // Renderer budgets on the walkthrough as given; for the synthetic street also other
     // databases: one slab, a coarser mesh, twice the sample spacing.
     let mut runs: Vec<(

@@ -89,5 +89,5 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         started,
         target_fps: args.target_fps,
     };
-    viewer::app::run(source, opts).map_err(|e| anyhow::anyhow!("viewer window: {e}"))
+    viewer::app::run(source, opts).map_err(anyhow::Error::from)
 }
