@@ -704,13 +704,16 @@ impl eframe::App for ViewerApp {
             if let Source::Stream(st) = &self.source {
                 let stats = st.session().stats();
                 println!(
-                    "railview view: {} frames in {:.2} s, {} bytes fetched in {} requests, cache peak {} of {} bytes, visible shown {:.0} %",
+                    "railview view: {} frames in {:.2} s, {} bytes fetched in {} requests, cache peak {} of {} bytes, decoded views peak {} of {} bytes at PTM level {}, visible shown {:.0} %",
                     self.frames,
                     self.started.elapsed().as_secs_f64(),
                     stats.bytes,
                     stats.requests,
                     stats.cache_peak,
                     stats.cache_budget,
+                    st.decoded_peak(),
+                    st.decoded_budget_bytes,
+                    st.layout_level(),
                     stats.visible_fraction * 100.0
                 );
             }

@@ -946,3 +946,64 @@ fn a_burst_of_arrivals_is_consumed_a_budget_per_step() {
     thread.join().unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A database directory is streamed like a server, and a memory budget too small for four
+/// views at full resolution lays them out a level coarser: half the faces, no finer level
+/// fetched, the decoded state within the budget, and a picture that is the full database's
+/// slightly blurred.
+#[test]
+fn a_directory_streams_within_a_memory_budget_at_a_coarser_layout() {
+    let Some(mut r) = renderer() else {
+        return;
+    };
+    let street = synth_street(FACE, &Scene::street_slabs(), MeshParams::default()).unwrap();
+    let dir: PathBuf = std::env::temp_dir().join(format!(
+        "railview-viewer-stream-budget-{}",
+        std::process::id()
+    ));
+    write_db(&street, &dir);
+    let full_ref = open(&dir, None, LoadOptions::default()).unwrap();
+    let mut st = StreamedWalkthrough::connect(
+        dir.to_str().unwrap(),
+        None,
+        LiveConfig::with_cache(64 << 20),
+    )
+    .unwrap();
+    // Four full-resolution views fit: level 0. Half of that does not: level 1.
+    assert_eq!(st.set_memory_budget(u64::MAX / 8), 0);
+    let full_view = st.full_view_bytes();
+    let budget = 2 * full_view;
+    assert_eq!(st.set_memory_budget(budget), 1);
+    assert!(st.walk.views.iter().all(|v| v.face_size == FACE / 2));
+    assert!(4 * st.full_view_bytes() <= budget);
+    let s = 0.75;
+    let cam = camera(&st.walk, s, 0.0);
+    settle(&mut st, &mut r, s, &cam);
+    // No level finer than 1 was fetched.
+    let table = st.session().table();
+    for (i, it) in table.items.iter().enumerate() {
+        let held = st.session().held()[i];
+        assert!(
+            held <= it.info.parts_for_level(1),
+            "item {i}: {held} parts held"
+        );
+    }
+    assert!(
+        st.decoded_bytes() <= budget,
+        "{} > {budget}",
+        st.decoded_bytes()
+    );
+    let coarse = render(&mut r, &st.walk, &cam, s);
+    r.forget_views();
+    let full = render(&mut r, &full_ref, &cam, s);
+    r.forget_views();
+    let d = mean_abs_diff(&coarse, &full);
+    assert!(d > 0.0 && d < 12.0, "mean |diff| to the full database {d}");
+    assert!(
+        coarse.hole_fraction() <= full.hole_fraction() + 0.02,
+        "holes {} vs {}",
+        coarse.hole_fraction(),
+        full.hole_fraction()
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -287,6 +287,11 @@ impl LiveSession {
         self.scheduler.level_cap()
     }
 
+    /// Fetch no PTM level finer than `level` ([`Scheduler::set_finest_level`]).
+    pub fn set_finest_level(&mut self, level: Option<u32>) {
+        self.scheduler.set_finest_level(level);
+    }
+
     /// Cached bytes of one part, if held.
     pub fn part_bytes(&self, item: usize, part: usize) -> Option<&Bytes> {
         self.scheduler.part_bytes(item, part)

@@ -126,6 +126,8 @@ pub struct Scheduler {
     /// `infos` cut to the level cap (what [`plan`] sees).
     plan_infos: Vec<ItemInfo>,
     level_cap: Option<usize>,
+    /// Finest PTM level fetched (`None`: level 0).
+    finest_level: Option<u32>,
     index: Option<SceneIndex>,
     cache: Cache,
     link: LinkEstimate,
@@ -211,6 +213,7 @@ impl Scheduler {
             infos,
             table,
             level_cap: None,
+            finest_level: None,
             index,
             cache,
             link,
@@ -306,6 +309,17 @@ impl Scheduler {
         self.level_cap
     }
 
+    /// Fetch no PTM level finer than `level` (`None`: every level): a viewer that lays its
+    /// views out at a reduced resolution to stay within its memory needs no finer one.
+    pub fn set_finest_level(&mut self, level: Option<u32>) {
+        self.finest_level = level.filter(|&l| l > 0);
+        self.refresh_plan_infos();
+    }
+
+    pub fn finest_level(&self) -> u32 {
+        self.finest_level.unwrap_or(0)
+    }
+
     /// Cached bytes of one part, if held.
     pub fn part_bytes(&self, item: usize, part: usize) -> Option<&Bytes> {
         let key = &self.table.items.get(item)?.parts.get(part)?.key;
@@ -321,17 +335,23 @@ impl Scheduler {
         self.plan_infos = self
             .infos
             .iter()
-            .map(|info| match self.level_cap {
-                Some(g) => {
-                    let parts = (info.first_level_part + g).min(info.parts());
-                    ItemInfo {
-                        part_bytes: info.part_bytes[..parts].to_vec(),
-                        part_mem: info.part_mem[..parts].to_vec(),
-                        first_level_part: info.first_level_part,
-                        levels: info.levels[..parts - info.first_level_part.min(parts)].to_vec(),
-                    }
+            .map(|info| {
+                let mut parts = info.parts();
+                if let Some(g) = self.level_cap {
+                    parts = parts.min(info.first_level_part + g);
                 }
-                None => info.clone(),
+                if let Some(l) = self.finest_level {
+                    parts = parts.min(info.parts_for_level(l));
+                }
+                if parts == info.parts() {
+                    return info.clone();
+                }
+                ItemInfo {
+                    part_bytes: info.part_bytes[..parts].to_vec(),
+                    part_mem: info.part_mem[..parts].to_vec(),
+                    first_level_part: info.first_level_part,
+                    levels: info.levels[..parts - info.first_level_part.min(parts)].to_vec(),
+                }
             })
             .collect();
     }
