@@ -153,7 +153,11 @@ fn nginx_with_the_readme_configuration_streams_as_well_as_railview_serve() {
     let ngx = Nginx::start(&dir.join("nginx"), |port| readme_server_block(&www, port));
 
     // The README's configuration does what it says.
-    let m = get(ngx.port, "/castle/manifest.json", &[("Accept-Encoding", "gzip")]);
+    let m = get(
+        ngx.port,
+        "/castle/manifest.json",
+        &[("Accept-Encoding", "gzip")],
+    );
     assert_eq!(m.status, 200, "{}", ngx.errors());
     assert_eq!(m.header("content-encoding"), Some("gzip"), "gzip_static");
     assert_eq!(m.header("cache-control"), Some("no-cache"));
@@ -278,7 +282,10 @@ fn a_caching_proxy_serves_the_second_client_from_its_cache() {
     let whole = get(ngx.port, &path, &[]);
     assert_eq!(whole.status, 200);
     assert_eq!(whole.header("x-cache-status"), Some("HIT"));
-    assert_eq!(whole.header("etag"), Some(format!("\"{}\"", table.hash).as_str()));
+    assert_eq!(
+        whole.header("etag"),
+        Some(format!("\"{}\"", table.hash).as_str())
+    );
     assert!(whole
         .header("cache-control")
         .is_some_and(|c| c.contains("immutable")));
@@ -295,7 +302,11 @@ fn a_caching_proxy_serves_the_second_client_from_its_cache() {
     let etag = format!("\"{}\"", table.hash);
     let cond = get(ngx.port, &path, &[("If-None-Match", etag.as_str())]);
     assert_eq!(cond.status, 304);
-    assert_eq!(origin.requests(), before, "ranges and revalidation from the cache");
+    assert_eq!(
+        origin.requests(),
+        before,
+        "ranges and revalidation from the cache"
+    );
     drop(ngx);
     drop(origin);
     let _ = std::fs::remove_dir_all(dir);

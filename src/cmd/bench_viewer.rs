@@ -219,7 +219,10 @@ fn load_average() -> Option<f64> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (w, h) = parse_size(&args.size).map_err(anyhow::Error::msg)?;
-    anyhow::ensure!(args.frames >= 1, "--frames must be at least 1");
+    super::count("--frames", args.frames, 100_000)?;
+    super::count("--throughput-frames", args.throughput_frames, 100_000)?;
+    super::face_size("--face", args.face)?;
+    super::count("--mesh-step", args.mesh_step as usize, 4096)?;
     let mesh = MeshParams {
         step: args.mesh_step,
         adaptive: match args.mesh.as_str() {

@@ -156,7 +156,34 @@ fn bar(n: u64, what: &str) -> ProgressBar {
     b
 }
 
+/// Every number of the command line against its limit, before any stage runs.
+fn check_args(args: &Args) -> anyhow::Result<()> {
+    use tracks::limits::check_f64;
+    super::face_size("--face-size", args.face_size)?;
+    if let Some(n) = args.lowres_face_size {
+        super::face_size("--lowres-face-size", n)?;
+    }
+    // α = 0 would keep nothing behind the first slab; the culling stage refuses it too.
+    anyhow::ensure!(
+        args.alpha.is_finite() && args.alpha > 0.0 && args.alpha <= 1.0,
+        "--alpha {}: must be a number in (0, 1]",
+        args.alpha
+    );
+    anyhow::ensure!(
+        (-7..=22).contains(&args.zstd_level),
+        "--zstd-level {}: must be from -7 to 22",
+        args.zstd_level
+    );
+    super::count("--ach-samples", args.ach_samples, 1024)?;
+    super::face_size("--ach-camera-size", args.ach_camera_size)?;
+    if let Some(t) = args.timeout_secs {
+        check_f64("--timeout-secs", t, 0.001, 1e6)?;
+    }
+    Ok(())
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
+    check_args(&args)?;
     let t_all = Instant::now();
     let work = args.work.clone().unwrap_or_else(|| {
         let mut w = args.out.clone().into_os_string();
@@ -248,7 +275,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The tiles' own PTM and mesh objects, which the viewpoints' packs replace, stay in the
     // work directory: the database holds only what its manifest refers to.
     let staged_objects = work.join("encode");
-    let mut writer = DbWriter::create(&args.out)?.with_stage(&staged_objects);
+    let mut writer = DbWriter::create(&args.out)?.with_stage(&staged_objects)?;
+    if !writer.leftovers_removed.is_empty() {
+        eprintln!(
+            "      removed {} temporary file(s) of an interrupted build",
+            writer.leftovers_removed.len()
+        );
+    }
     let opts = EncodeOptions {
         zstd_level: args.zstd_level,
         ..EncodeOptions::default()

@@ -87,8 +87,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if pre.viewpoints.is_empty() {
         bail!("{}: no viewpoints", dir.report_json().display());
     }
-    if args.oracle && args.oracle_per_segment == 0 {
-        bail!("--oracle-per-segment must be at least 1");
+    if args.oracle {
+        super::count("--oracle-per-segment", args.oracle_per_segment, 10_000)?;
+    }
+    if let Some(n) = args.oracle_face_size {
+        super::face_size("--oracle-face-size", n)?;
     }
     let mut geometry = if args.oracle {
         Some(OracleSource::load(&dir, &pre, args.oracle_face_size)?)
@@ -434,12 +437,10 @@ fn load_geometry(pre: &PrerenderReport) -> anyhow::Result<Scene> {
         return Ok(b.scene);
     }
     let path = Path::new(&pre.scene);
-    let text = std::fs::read_to_string(path)
+    let text = super::read_text(path)
         .with_context(|| format!("--oracle: reading scene file {}", path.display()))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-    let loader = move |rel: &str| -> Result<Vec<u8>, String> {
-        std::fs::read(base.join(rel)).map_err(|e| format!("{}: {e}", base.join(rel).display()))
-    };
+    let loader = move |rel: &str| -> Result<Vec<u8>, String> { super::read_asset(&base.join(rel)) };
     Ok(Scene::parse_toml_with(&text, &pre.scene, &loader)?)
 }
 

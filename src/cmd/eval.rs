@@ -71,7 +71,8 @@ fn coarse_level_groups(db: &str) -> anyhow::Result<Vec<usize>> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let size = parse_size(&args.size).map_err(anyhow::Error::msg)?;
-    anyhow::ensure!(args.segments >= 1, "--segments must be at least 1");
+    super::count("--segments", args.segments, 100_000)?;
+    super::count("--between", args.between.max(1), 10_000)?;
     let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
         .with_context(|| format!("opening {}", args.db))?;
     let truth = Truth::for_scene(&walk.scene).ok_or_else(|| {

@@ -41,7 +41,7 @@ struct FrameInfo {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (w, h) = parse_size(&args.size).map_err(anyhow::Error::msg)?;
-    anyhow::ensure!(args.frames >= 1, "--frames must be at least 1");
+    super::count("--frames", args.frames, 100_000)?;
     let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
         .with_context(|| format!("opening {}", args.db))?;
     prerender::store::ensure_writable_dir(&args.output)?;

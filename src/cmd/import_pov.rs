@@ -89,13 +89,15 @@ fn pass_group(pass: &str) -> &'static str {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    super::face_size("--face-size", args.face_size)?;
+    super::face_size("--lowres-face-size", args.lowres_face_size)?;
     let explicit_slabs = args
         .slabs
         .as_deref()
         .map(|s| SlabRange::parse_list(s).map_err(|e| anyhow::anyhow!("--slabs: {e}")))
         .transpose()?;
     let shard = args.shard.as_deref().map(parse_shard).transpose()?;
-    let track_text = std::fs::read_to_string(&args.track)
+    let track_text = super::read_text(&args.track)
         .with_context(|| format!("cannot read track file {}", args.track.display()))?;
     let set = TrackSet::parse(&track_text, &args.track.display().to_string())?;
     let track = match &args.track_name {

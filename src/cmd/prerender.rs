@@ -63,12 +63,10 @@ fn load_scene(spec: &str) -> anyhow::Result<(Scene, Option<TrackSet>)> {
             prerender::scenes::NAMES.join(", ")
         );
     }
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("reading scene file {}", path.display()))?;
+    let text =
+        super::read_text(path).with_context(|| format!("reading scene file {}", path.display()))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-    let loader = move |rel: &str| -> Result<Vec<u8>, String> {
-        std::fs::read(base.join(rel)).map_err(|e| format!("{}: {e}", base.join(rel).display()))
-    };
+    let loader = move |rel: &str| -> Result<Vec<u8>, String> { super::read_asset(&base.join(rel)) };
     let scene = Scene::parse_toml_with(&text, spec, &loader)?;
     let tracks = prerender::parse::tracks_from_scene_toml(&text, spec)?;
     Ok((scene, tracks))
@@ -83,8 +81,8 @@ fn pick_track(spec: &str, scene_tracks: Option<&TrackSet>) -> anyhow::Result<Tra
         let names = scene_tracks.map_or(String::from("none"), |s| s.names().join(", "));
         bail!("track `{spec}` is neither a track of the scene (tracks: {names}) nor a track file");
     }
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("reading track file {}", path.display()))?;
+    let text =
+        super::read_text(path).with_context(|| format!("reading track file {}", path.display()))?;
     let set = TrackSet::parse(&text, spec)?;
     match set.tracks.as_slice() {
         [one] => Ok(one.clone()),
@@ -116,9 +114,8 @@ fn store_error(e: store::StoreError) -> anyhow::Error {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    if args.face_size == 0 || args.lowres_face_size == 0 {
-        bail!("--face-size and --lowres-face-size must be at least 1");
-    }
+    super::face_size("--face-size", args.face_size)?;
+    super::face_size("--lowres-face-size", args.lowres_face_size)?;
     if args.supersample == 0 || args.supersample > 16 {
         bail!("--supersample must be between 1 and 16");
     }
@@ -189,6 +186,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         supersample: args.supersample,
         shadows: !args.no_shadows,
     };
+    // What the run will do, before it starts: a large face size is a long run.
+    let px = 6.0 * (args.face_size as f64).powi(2);
+    eprintln!(
+        "rendering {} of {} samples: 6 faces of {} px per side, {:.1} Mpx per sample \
+         (colour and depth ≈ {:.0} MiB per sample in memory); the bar's eta follows the first",
+        mine.len(),
+        viewpoints.len(),
+        args.face_size,
+        px / 1e6,
+        px * 7.0 / 1048576.0
+    );
     let pb = bar(mine.len(), "samples");
     let mut stats = job::render_track(
         &dir,

@@ -61,6 +61,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !args.tile_size.is_power_of_two() {
         bail!("--tile-size {}: must be a power of two", args.tile_size);
     }
+    super::face_size("--tile-size", args.tile_size)?;
+    super::count("--mesh-step", args.mesh_step as usize, 4096)?;
     let positive = |v: f64| v.is_finite() && v > 0.0;
     if args.mesh_step == 0 || !positive(args.mesh_error) || !positive(args.discontinuity) {
         bail!("--mesh-step, --mesh-error and --discontinuity must be positive");
@@ -262,7 +264,7 @@ fn render_layers(
     let scene = match prerender::scenes::builtin(&pre.scene) {
         Some(b) => b.scene,
         None => {
-            let text = std::fs::read_to_string(&pre.scene)
+            let text = super::read_text(std::path::Path::new(&pre.scene))
                 .with_context(|| format!("reading scene `{}`", pre.scene))?;
             prerender::scene::Scene::parse_toml(&text, &pre.scene)?
         }

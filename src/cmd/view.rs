@@ -64,7 +64,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "--memory-mib {}: must be between 1 and 1048576 (1 TiB)",
         args.memory_mib
     );
-    anyhow::ensure!(args.requests > 0, "--requests must be at least 1");
+    tracks::limits::check_u64("--requests", args.requests as u64, 1, 64)?;
     anyhow::ensure!(
         args.target_fps.is_finite() && (1.0..=1000.0).contains(&args.target_fps),
         "--target-fps {}: must be between 1 and 1000",

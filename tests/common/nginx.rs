@@ -37,7 +37,10 @@ pub fn nginx_binary() -> PathBuf {
 pub fn readme_server_block(root: &Path, port: u16) -> String {
     let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md"))
         .expect("README.md");
-    let start = readme.find("```nginx\n").expect("README has an nginx block") + 9;
+    let start = readme
+        .find("```nginx\n")
+        .expect("README has an nginx block")
+        + 9;
     let block = &readme[start..];
     let block = &block[..block.find("```").expect("nginx block ends")];
     let mut out = String::new();
@@ -55,7 +58,10 @@ pub fn readme_server_block(root: &Path, port: u16) -> String {
             out.push('\n');
         }
     }
-    assert!(listen && rooted, "the README's server block has listen and root lines");
+    assert!(
+        listen && rooted,
+        "the README's server block has listen and root lines"
+    );
     out
 }
 

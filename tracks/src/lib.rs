@@ -8,6 +8,8 @@
 //! - [`segment`]: where an arc length falls between reference viewpoints and how the two
 //!   views around it blend (smoothstep): the one rule of the renderer, the client and the
 //!   walk simulator.
+//! - [`limits`]: the stated limits on numbers from outside (face sizes, counts, lengths)
+//!   that every reader checks before allocating or looping.
 //! - [`track`]: named 3D polylines read from TOML, optionally Catmull-Rom smoothed, sampled
 //!   into [`ReferenceViewpoint`]s; consecutive viewpoints bound a segment.
 //!
@@ -30,6 +32,7 @@
 
 pub mod camera;
 pub mod cubemap;
+pub mod limits;
 pub mod manifest;
 pub mod segment;
 pub mod slab;

@@ -486,10 +486,23 @@ impl ViewerApp {
         if let Some(t) = self.stream.first_complete_s {
             ui.label(format!("every visible tile shown after {t:.2} s"));
         }
-        if stats.failed_requests > 0 || stats.checksum_failures > 0 {
+        if stats.failed_requests > 0 || stats.checksum_failures > 0 || stats.part_faults > 0 {
             ui.label(format!(
-                "{} failed downloads, {} checksum mismatches (re-fetched)",
-                stats.failed_requests, stats.checksum_failures
+                "{} failed downloads, {} checksum mismatches (re-fetched), {} damaged parts ({} given up)",
+                stats.failed_requests,
+                stats.checksum_failures,
+                stats.part_faults,
+                stats.parts_given_up
+            ));
+        }
+        if stats.retries > 0 || stats.longest_stall_s >= 1.0 {
+            ui.label(format!(
+                "waiting {:.1} s now, {:.1} s at most · {} retries, {} timeouts, server unreachable {:.1} s",
+                stats.stalled_s,
+                stats.longest_stall_s,
+                stats.retries,
+                stats.timeouts,
+                stats.outage_s
             ));
         }
         if let Some(e) = &stats.last_error {

@@ -14,9 +14,13 @@
 //! 3. returns the parts that arrived since the last call ([`Arrival`]: checked bytes only).
 //!
 //! The walk simulator drives the same scheduler on a virtual clock and link, so its numbers
-//! are this session's. When the server goes away, the connections retry with back-off;
-//! failed downloads are counted, new requests pause briefly, and what is cached stays
-//! available.
+//! are this session's. When the server goes away, the connections retry with back-off
+//! (within the timeouts of [`super::RetryPolicy`]); failed downloads are counted, new requests
+//! pause briefly, and what is cached stays available. A part or table whose object is damaged
+//! or missing is a fault of that part alone ([`super::FailureBook`], kept by the scheduler):
+//! asked for again later, given up after repeated faults, while everything else streams on.
+//! [`LiveStats`] shows the outage: time without progress now and at its longest, retries,
+//! timeouts, faults.
 
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -28,6 +32,7 @@ use tracks::PerspectiveCamera;
 use super::budget::{LiveCount, PriorityMode};
 use super::cache::Cache;
 use super::clock::{Clock, WallClock};
+use super::failures::ProgressClock;
 use super::http::{ClientError, FetchKey, RetryPolicy};
 use super::items::ItemTable;
 use super::pool::Pool;
@@ -100,9 +105,24 @@ pub struct LiveStats {
     pub requests: u64,
     /// Parts received (checked).
     pub parts: u64,
+    /// Downloads that failed because the server could not be reached (given up after
+    /// retries), not counting object faults.
     pub failed_requests: u64,
     pub checksum_failures: u64,
     pub reconnects: u64,
+    /// Attempts retried after a connection failure, timeout or 5xx, and of them timeouts.
+    pub retries: u64,
+    pub timeouts: u64,
+    /// Seconds requests spent failing before they succeeded or gave up (server
+    /// unreachable), summed over requests.
+    pub outage_s: f64,
+    /// Seconds with requests outstanding and nothing arriving: now, and at the longest.
+    pub stalled_s: f64,
+    pub longest_stall_s: f64,
+    /// Faults of parts or tables whose object is damaged or missing (each asked for again
+    /// later), and those given up after repeated faults.
+    pub part_faults: u64,
+    pub parts_given_up: u64,
     /// Link estimate `(bits/s, latency s)`.
     pub link: (f64, f64),
     /// Latest download error, cleared by the next success.
@@ -122,6 +142,8 @@ pub struct LiveSession {
     clock: Arc<dyn Clock>,
     /// Arrivals over the last seconds `(t, bytes)`.
     recent: VecDeque<(f64, u64)>,
+    /// Time without progress (requests outstanding, nothing arriving).
+    progress: ProgressClock,
     stats: LiveStats,
 }
 
@@ -196,6 +218,7 @@ impl LiveSession {
             config,
             clock,
             recent: VecDeque::new(),
+            progress: ProgressClock::default(),
             stats,
         })
     }
@@ -352,14 +375,24 @@ impl LiveSession {
         // In request order, as the simulator delivers them (a stable sort keeps each
         // request's pieces in order).
         done.sort_by_key(|c| c.request);
+        let waiting = self.pool.load() != (0, 0) || !done.is_empty();
+        let mut arrived = false;
         for c in done {
+            self.stats.retries += c.transfer.retries as u64;
+            self.stats.timeouts += c.transfer.timeouts as u64;
+            self.stats.outage_s += c.transfer.outage_s;
             match &c.result {
                 Ok(b) => {
+                    arrived = true;
                     self.stats.parts += 1;
                     self.stats.last_error = None;
                     self.recent.push_back((now, b.len() as u64));
                 }
                 Err(ClientError::Cancelled) => {}
+                // An object's fault: the scheduler asks for it again later, or gives it up.
+                Err(e) if e.is_object_fault() => {
+                    self.stats.last_error = Some(e.to_string());
+                }
                 Err(e) => {
                     self.stats.failed_requests += 1;
                     self.stats.last_error = Some(e.to_string());
@@ -369,6 +402,7 @@ impl LiveSession {
         }
         self.scheduler.set_bundles(self.pool.bundles_supported());
         let running = self.pool.running_keys();
+        self.progress.observe(now, waiting, arrived);
         let actions = self.scheduler.tick(now, s, camera, live, &running);
         self.pool.cancel(&actions.cancel);
         self.pool.set_queue(actions.wants, actions.limits);
@@ -384,10 +418,16 @@ impl LiveSession {
         let span = now.clamp(0.25, window);
         let (in_flight, queued) = self.pool.load();
         let (requests, bytes, checksum_failures, reconnects) = self.pool.totals();
+        // Waiting from here on when requests are outstanding after this update.
+        self.progress.observe(now, in_flight + queued > 0, false);
         let v = self.scheduler.stats();
         let cache = self.scheduler.cache();
         self.stats = LiveStats {
             t_s: now,
+            stalled_s: self.progress.current_s(now),
+            longest_stall_s: self.progress.longest_s(),
+            part_faults: v.part_faults + v.table_faults,
+            parts_given_up: v.parts_given_up + v.tables_given_up,
             bytes_per_s: self.recent.iter().map(|r| r.1).sum::<u64>() as f64 / span,
             in_flight,
             queued,

@@ -12,6 +12,8 @@
 //! - [`pool`]: [`Pool`] — the live executor: workers taking the scheduler's requests as
 //!   request slots free up, with cancellation.
 //! - [`fetcher`]: [`Fetcher`] — a stand-alone priority queue of checked downloads.
+//! - [`failures`]: [`FailureBook`] — per-key object faults (retried later, then given up)
+//!   and [`ProgressClock`] — time without progress, on any clock; what a scheduler keeps.
 //! - [`cache`]: [`Cache`] — checked bytes under a byte budget, evicted by distance along the
 //!   track, with reference counts for shared entries.
 //! - [`budget`]: [`plan`] — the PTM memory/time budget rules, live pixel counts, prefetch;
@@ -27,6 +29,7 @@ pub mod budget;
 pub mod byteranges;
 pub mod cache;
 pub mod clock;
+pub mod failures;
 pub mod fetcher;
 pub mod http;
 pub mod items;
@@ -41,10 +44,11 @@ pub use budget::{
 };
 pub use cache::{Cache, CacheError};
 pub use clock::{Clock, ManualClock, WallClock};
+pub use failures::{FailureBook, FailurePolicy, ProgressClock, Verdict};
 pub use fetcher::{FetchOutcome, FetchRequest, Fetcher, FetcherConfig};
 pub use http::{
     BundlePiece, ClientError, ClientStats, Connection, FetchKey, ManifestFetch, RetryPolicy,
-    ServerUrl,
+    ServerUrl, TransferReport,
 };
 pub use items::{ItemTable, Part};
 pub use live::{LiveConfig, LiveError, LiveSession, LiveStats};

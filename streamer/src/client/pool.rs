@@ -20,7 +20,7 @@ use tokio::sync::{mpsc, Notify};
 use tokio::task::JoinHandle;
 
 use super::clock::Clock;
-use super::http::{ClientError, ClientStats, FetchKey, KeySet, RetryPolicy};
+use super::http::{ClientError, ClientStats, FetchKey, KeySet, RetryPolicy, TransferReport};
 use super::schedule::{Batch, DispatchLimits, Dispatcher, Want};
 use super::transport::{Source, Transport};
 
@@ -37,6 +37,9 @@ pub struct Completion {
     pub http_requests: u64,
     /// Seconds from the request going out to its last byte.
     pub elapsed_s: f64,
+    /// What the request cost in retries and outage (on one completion of the request, the
+    /// others' default).
+    pub transfer: TransferReport,
 }
 
 struct Job {
@@ -196,16 +199,6 @@ impl Drop for Pool {
     }
 }
 
-/// Whether a failed batch is worth fetching piece by piece (the server refused or mangled
-/// this batch) rather than reporting the error for every piece (it is unreachable).
-fn retry_singly(e: &ClientError) -> bool {
-    match e {
-        ClientError::Checksum { .. } | ClientError::Length { .. } => true,
-        ClientError::Status { status, .. } => (400..500).contains(status),
-        _ => false,
-    }
-}
-
 async fn worker(shared: Arc<Shared>, mut t: Transport, tx: mpsc::UnboundedSender<Completion>) {
     loop {
         let (batch, job) = loop {
@@ -276,34 +269,19 @@ async fn run(shared: &Shared, t: &mut Transport, batch: &Batch, job: &Job) -> Ve
             request_bytes: bytes,
             http_requests: reqs,
             elapsed_s,
+            transfer: TransferReport::default(),
         }
     };
-    match outcome {
-        Ok(d) => d
-            .data
-            .into_iter()
-            .enumerate()
-            .map(|(i, b)| done(i, Ok(b), d.wire_bytes, d.requests))
-            .collect(),
-        Err(e) if retry_singly(&e) && batch.pieces.len() > 1 => {
-            tracing::warn!(
-                "request of {} pieces failed ({e}); fetching them one by one",
-                batch.pieces.len()
-            );
-            let mut out = Vec::with_capacity(batch.pieces.len());
-            for (i, p) in batch.pieces.iter().enumerate() {
-                if cancelled(i) {
-                    out.push(done(i, Err(ClientError::Cancelled), 0, 0));
-                    continue;
-                }
-                let r = t.fetch_one(&p.key, &p.hash, Some(&job.flags[i])).await;
-                let len = r.as_ref().map_or(0, |b| b.len() as u64);
-                out.push(done(i, r, len, 1));
-            }
-            out
-        }
-        Err(e) => (0..batch.pieces.len())
-            .map(|i| done(i, Err(e.clone()), 0, 0))
-            .collect(),
-    }
+    // What the transfer cost in retries travels with the batch's first piece.
+    let mut transfer = Some(outcome.transfer);
+    outcome
+        .data
+        .into_iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let mut c = done(i, r, outcome.wire_bytes, outcome.requests);
+            c.transfer = transfer.take().unwrap_or_default();
+            c
+        })
+        .collect()
 }

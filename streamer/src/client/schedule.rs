@@ -26,6 +26,11 @@
 //! one latency's worth of bytes at the estimated bandwidth, about two latencies' worth stay
 //! on the link, prefetch takes at most a third of the request slots and none while the view
 //! has holes. `naive` streams every tile whole in manifest order instead.
+//!
+//! A part or table whose object is damaged or missing is a fault of that object alone
+//! ([`FailureBook`], on the driver's clock): it is asked for again after a wait and given
+//! up after repeated faults, while everything else streams on. Only a server that cannot be
+//! reached pauses new requests.
 
 use std::collections::{HashMap, VecDeque};
 
@@ -37,6 +42,7 @@ use super::budget::{
     plan, BudgetParams, ItemInfo, LinkEstimate, LiveCount, PlanInput, PriorityMode,
 };
 use super::cache::Cache;
+use super::failures::{FailureBook, Verdict};
 use super::http::{ClientError, FetchKey, KeyMap, KeySet};
 use super::items::{ItemTable, Part};
 use super::pool::Completion;
@@ -93,6 +99,12 @@ pub struct ViewStats {
     /// Downloads that failed (cancellations not counted), and the latest error.
     pub failed: u64,
     pub last_error: Option<String>,
+    /// Faults of parts whose object is damaged or missing (each asked for again later), and
+    /// parts given up after repeated faults; the same for viewpoint tables and ACH objects.
+    pub part_faults: u64,
+    pub parts_given_up: u64,
+    pub table_faults: u64,
+    pub tables_given_up: u64,
 }
 
 /// The CPU visibility counts of one camera and pair of blend weights, per item.
@@ -157,6 +169,11 @@ pub struct Scheduler {
     tables_dirty: bool,
     /// Live counts of the latest tick (CPU estimate merged with the caller's).
     live: Vec<LiveCount>,
+    /// Object faults of parts, and of tables and ACH objects (driver's clock).
+    failures: FailureBook,
+    table_failures: FailureBook,
+    /// Time of the latest tick or arrival.
+    now: f64,
     stats: ViewStats,
 }
 
@@ -198,6 +215,7 @@ impl Scheduler {
         let index = SceneIndex::new(&manifest, track);
         let held = vec![0; table.items.len()];
         let link = LinkEstimate::new(config.prior_bps, config.prior_latency_s);
+        let config_failures = config.failures;
         Ok(Scheduler {
             budget: config.budget,
             config,
@@ -232,6 +250,9 @@ impl Scheduler {
             bundles: true,
             tables_dirty: false,
             live: Vec::new(),
+            failures: FailureBook::new(config_failures),
+            table_failures: FailureBook::new(config_failures),
+            now: 0.0,
             stats: ViewStats::default(),
         })
     }
@@ -360,8 +381,11 @@ impl Scheduler {
     /// arrivals. Feed the downloads of a tick in request order (`request`), as both
     /// drivers do.
     pub fn arrive(&mut self, now: f64, done: Completion) {
+        self.now = self.now.max(now);
         match done.result {
             Ok(data) => {
+                self.failures.succeeded(&done.key);
+                self.table_failures.succeeded(&done.key);
                 if done.request != 0 && !self.timed.contains(&done.request) {
                     self.link.observe(done.request_bytes, done.elapsed_s);
                     if self.timed.len() == 64 {
@@ -411,6 +435,22 @@ impl Scheduler {
             Err(ClientError::Cancelled) => {
                 self.cancelled.remove(&done.key);
             }
+            Err(e) if e.is_object_fault() => {
+                // This object alone: asked for again later, given up after a few faults.
+                self.cancelled.remove(&done.key);
+                let table = self.table_keys.contains_key(&done.key)
+                    || self.ach_keys.contains_key(&done.key);
+                let book = if table {
+                    &mut self.table_failures
+                } else {
+                    &mut self.failures
+                };
+                if book.fault(&done.key, now) == Verdict::GivenUp {
+                    tracing::warn!("giving up {}: {e}", done.key.object);
+                }
+                self.stats.last_error = Some(e.to_string());
+                self.fault_stats();
+            }
             Err(e) => {
                 self.cancelled.remove(&done.key);
                 self.stats.failed += 1;
@@ -418,6 +458,20 @@ impl Scheduler {
                 self.paused_until = Some(now + self.config.error_pause_s.max(0.0));
             }
         }
+    }
+
+    /// The fault counters of [`ViewStats`] from the failure books.
+    fn fault_stats(&mut self) {
+        self.stats.part_faults = self.failures.faults();
+        self.stats.parts_given_up = self.failures.given_up();
+        self.stats.table_faults = self.table_failures.faults();
+        self.stats.tables_given_up = self.table_failures.given_up();
+    }
+
+    /// Whether part `key` may be asked for now (none of its faults waits for its retry
+    /// time, and it was not given up).
+    fn part_ready(&self, key: &FetchKey) -> bool {
+        self.failures.may_request(key, self.now)
     }
 
     /// Every (item, part) that uses `key`.
@@ -458,6 +512,7 @@ impl Scheduler {
         running: &KeySet,
     ) -> Actions {
         let s = if s.is_finite() { s } else { 0.0 };
+        self.now = self.now.max(now);
         if std::mem::take(&mut self.tables_dirty) {
             // Once for all the tables of the tick (castle 256's 37 tables, rebuilt one by
             // one, cost 0.66 s in one frame).
@@ -587,8 +642,11 @@ impl Scheduler {
                         } else {
                             WantClass::Current
                         };
+                        // A part that failed waits for its retry time (or was given up): the
+                        // parts after it are of no use without it.
                         let todo: Vec<&Part> = parts[r.part..end.max(r.part)]
                             .iter()
+                            .take_while(|p| self.part_ready(&p.key))
                             .filter(|p| !running.contains(&p.key) && seen.insert(p.key.clone()))
                             .collect();
                         push_wants(&mut tile_wants, class, &todo);
@@ -677,6 +735,7 @@ impl Scheduler {
         let mut order: Vec<usize> = (0..items.len())
             .filter(|&i| have[i] < items[i].parts.len())
             .filter(|&i| !items[i].parts.iter().any(|p| running.contains(&p.key)))
+            .filter(|&i| items[i].parts.iter().all(|p| self.part_ready(&p.key)))
             .collect();
         order.sort_by_key(|&i| (items[i].viewpoint, items[i].tile.is_none(), i));
         let limit = self.config.max_in_flight.max(1) * self.config.max_pieces.max(1);

@@ -12,7 +12,7 @@ use tracks::manifest::object_rel_path;
 
 use super::http::{
     BundlePiece, ClientError, ClientStats, Connection, FetchKey, ManifestFetch, RetryPolicy,
-    ServerUrl,
+    ServerUrl, TransferReport,
 };
 use super::schedule::Piece;
 use crate::db::hash_matches;
@@ -55,13 +55,26 @@ impl std::fmt::Display for Source {
     }
 }
 
-/// What one batch took: the checked bytes of each piece (in order), and the requests and
-/// body bytes it cost (retries included).
+/// What one batch took: per piece (in order) its checked bytes or why it failed (an
+/// object's fault fails that piece alone; a server that cannot be reached fails the pieces
+/// not yet fetched), the requests and body bytes it cost (retries included) and what the
+/// transfer cost in retries and outage.
 #[derive(Clone, Debug)]
 pub struct BatchData {
-    pub data: Vec<Bytes>,
+    pub data: Vec<Result<Bytes, ClientError>>,
     pub requests: u64,
     pub wire_bytes: u64,
+    pub transfer: TransferReport,
+}
+
+impl BatchData {
+    /// The first failure that is the server's (unreachable), not one object's.
+    pub fn unreachable(&self) -> Option<&ClientError> {
+        self.data
+            .iter()
+            .filter_map(|r| r.as_ref().err())
+            .find(|e| !e.is_object_fault() && !matches!(e, ClientError::Cancelled))
+    }
 }
 
 /// One way of reading a database: a keep-alive HTTP connection or a directory.
@@ -113,15 +126,16 @@ impl Transport {
         }
     }
 
-    /// The pieces of one batch, each checked against its hash.
+    /// The pieces of one batch, each checked against its hash: together where they check
+    /// out, else one by one so that only the damaged ones fail.
     pub async fn fetch_batch(
         &mut self,
         pieces: &[Piece],
         cancel: Option<&AtomicBool>,
-    ) -> Result<BatchData, ClientError> {
+    ) -> BatchData {
         let requests0 = self.stats.requests.load(Ordering::Relaxed);
         let bytes0 = self.stats.bytes.load(Ordering::Relaxed);
-        let data = match &mut self.inner {
+        let (data, transfer) = match &mut self.inner {
             Inner::Http(c) => {
                 let b: Vec<BundlePiece> = pieces
                     .iter()
@@ -131,40 +145,29 @@ impl Transport {
                         hash: &p.hash,
                     })
                     .collect();
-                c.fetch_checked_bundle(&b, cancel).await?
+                let data = c.fetch_pieces(&b, cancel).await;
+                (data, c.take_report())
             }
             Inner::Dir(d) => {
                 let d = d.clone();
                 let pieces = pieces.to_vec();
-                blocking(move || {
-                    pieces
+                let n = pieces.len();
+                let data = blocking(move || {
+                    Ok(pieces
                         .iter()
                         .map(|p| d.fetch_checked(&p.key, &p.hash))
-                        .collect::<Result<Vec<_>, _>>()
+                        .collect::<Vec<_>>())
                 })
-                .await?
+                .await
+                .unwrap_or_else(|e| vec![Err(e); n]);
+                (data, TransferReport::default())
             }
         };
-        Ok(BatchData {
+        BatchData {
             data,
             requests: self.stats.requests.load(Ordering::Relaxed) - requests0,
             wire_bytes: self.stats.bytes.load(Ordering::Relaxed) - bytes0,
-        })
-    }
-
-    /// One piece alone (after a batch failed for one bad piece).
-    pub async fn fetch_one(
-        &mut self,
-        key: &FetchKey,
-        hash: &str,
-        cancel: Option<&AtomicBool>,
-    ) -> Result<Bytes, ClientError> {
-        match &mut self.inner {
-            Inner::Http(c) => c.fetch_checked(key, hash, cancel).await,
-            Inner::Dir(d) => {
-                let (d, key, hash) = (d.clone(), key.clone(), hash.to_string());
-                blocking(move || d.fetch_checked(&key, &hash)).await
-            }
+            transfer,
         }
     }
 }

@@ -6,8 +6,8 @@ use super::{
 };
 use crate::client::schedule::surface_item;
 use crate::client::{
-    segment_at, Batch, Completion, Dispatcher, FetchKey, ItemTable, Scheduler, SchedulerConfig,
-    Source, Transport, WantClass,
+    segment_at, Batch, ClientError, Completion, Dispatcher, FetchKey, ItemTable, ProgressClock,
+    Scheduler, SchedulerConfig, Source, TransferReport, Transport, WantClass,
 };
 use crate::visibility::{blend_weights, Surface, SurfaceCount};
 use bytes::Bytes;
@@ -15,8 +15,8 @@ use bytes::Bytes;
 /// A request on the virtual link.
 struct InFlight {
     batch: Batch,
-    /// Checked bytes of each piece.
-    data: Vec<Bytes>,
+    /// Checked bytes of each piece, or why it failed (an object's fault).
+    data: Vec<Result<Bytes, ClientError>>,
     /// HTTP requests and body bytes it took.
     requests: u64,
     wire_bytes: u64,
@@ -41,13 +41,30 @@ struct Exec {
     delivered_bytes: u64,
     delivered_table_bytes: u64,
     log: Option<Vec<Vec<FetchKey>>>,
+    /// Time without progress on the virtual clock.
+    progress: ProgressClock,
+    /// Retries the real transfers took, and the longest outage one request met (wall clock).
+    transfer: TransferReport,
+    longest_outage_s: f64,
 }
 
 impl Exec {
     /// Send every request the dispatcher gives at time `t`.
     async fn send(&mut self, t: f64, sched: &Scheduler) -> Result<(), WalkError> {
         while let Some(batch) = self.dispatcher.pop() {
-            let d = self.transport.fetch_batch(&batch.pieces, None).await?;
+            let d = self.transport.fetch_batch(&batch.pieces, None).await;
+            // An outage (wall-clock time the requests spent failing) holds the virtual link
+            // for as long, from `t` on, so requests issued during it arrive after it, as
+            // they would on a real link.
+            if d.transfer.outage_s > 0.0 {
+                self.link.outage(t, d.transfer.outage_s);
+                self.longest_outage_s = self.longest_outage_s.max(d.transfer.outage_s);
+            }
+            self.transfer.add(&d.transfer);
+            // A server that stopped answering ends the run (its measures so far are kept).
+            if let Some(e) = d.unreachable() {
+                return Err(WalkError::Unreachable(e.clone()));
+            }
             let requests = d.requests.max(1);
             self.requests += requests;
             self.bytes += d.wire_bytes;
@@ -56,6 +73,7 @@ impl Exec {
                 self.table_requests += requests;
             }
             for (p, b) in batch.pieces.iter().zip(&d.data) {
+                let Ok(b) = b else { continue };
                 let background = sched
                     .users(&p.key)
                     .iter()
@@ -77,6 +95,7 @@ impl Exec {
                 arrives,
             });
         }
+        self.progress.observe(t, !self.in_flight.is_empty(), false);
         Ok(())
     }
 
@@ -85,7 +104,12 @@ impl Exec {
         let (done, pending): (Vec<_>, Vec<_>) = std::mem::take(&mut self.in_flight)
             .into_iter()
             .partition(|f| f.arrives <= t + 1e-9);
+        let waiting = !done.is_empty() || !pending.is_empty();
         self.in_flight = pending;
+        self.progress.observe(t, waiting, !done.is_empty());
+        if self.in_flight.is_empty() {
+            self.progress.observe(t, false, false);
+        }
         for f in done {
             self.dispatcher.finish(f.batch.id);
             self.arrived.push(f);
@@ -106,11 +130,12 @@ impl Exec {
                     t,
                     Completion {
                         key: p.key,
-                        result: Ok(data),
+                        result: data,
                         request: f.batch.id,
                         request_bytes: f.wire_bytes,
                         http_requests: f.requests,
                         elapsed_s: f.arrives - f.issued,
+                        transfer: TransferReport::default(),
                     },
                 );
             }
@@ -134,10 +159,11 @@ pub(crate) async fn run_one(
     source: &Source,
     scene: &Scene,
     cfg: &WalkConfig,
-    strategy: Strategy,
-    bandwidth: Option<u64>,
+    (strategy, bandwidth): (Strategy, Option<u64>),
     manifest: ManifestCost,
-) -> Result<RunReport, WalkError> {
+    on_frame: &mut dyn FnMut(u64),
+) -> (RunReport, Option<WalkError>) {
+    let wall = std::time::Instant::now();
     // The manifest comes first, alone on the link from t = 0; the walk (and every request)
     // starts when it has arrived, `t0` later.
     let t0 = VirtualLink::new(bandwidth, cfg.latency_s).schedule_requests(
@@ -149,10 +175,22 @@ pub(crate) async fn run_one(
         strategy,
         ..cfg.schedule.clone()
     };
-    let retry = crate::client::RetryPolicy::default();
-    let mut sched = Scheduler::new(scene.top.clone(), cfg.track, config)?;
+    let mut sched = match Scheduler::new(scene.top.clone(), cfg.track, config) {
+        Ok(s) => s,
+        Err(e) => {
+            let report = RunReport {
+                strategy: strategy.name(),
+                bandwidth_bps: bandwidth,
+                manifest_bytes: manifest.bytes,
+                manifest_s: t0,
+                error: Some(e.to_string()),
+                ..RunReport::default()
+            };
+            return (report, Some(e.into()));
+        }
+    };
     let mut exec = Exec {
-        transport: Transport::new(source, retry),
+        transport: Transport::new(source, cfg.retry.clone()),
         dispatcher: Dispatcher::new(),
         link: VirtualLink::new(bandwidth, cfg.latency_s),
         in_flight: Vec::new(),
@@ -165,7 +203,11 @@ pub(crate) async fn run_one(
         delivered_bytes: 0,
         delivered_table_bytes: 0,
         log: cfg.record_requests.then(Vec::new),
+        progress: ProgressClock::default(),
+        transfer: TransferReport::default(),
+        longest_outage_s: 0.0,
     };
+    let mut error = None;
     let failures_before = exec
         .transport
         .stats()
@@ -215,8 +257,11 @@ pub(crate) async fn run_one(
         let running = exec.dispatcher.running_keys();
         let actions = sched.tick(t, s, &cam, None, &running);
         exec.dispatcher.replace(actions.wants, actions.limits);
-        exec.send(t, &sched).await?;
+        if let Err(e) = exec.send(t, &sched).await {
+            error = Some(e);
+        }
         max_cache = max_cache.max(sched.cache().used());
+        on_frame(k as u64);
         frames.push(FrameRecord {
             t_s: t0 + t,
             s_m: s,
@@ -226,12 +271,21 @@ pub(crate) async fn run_one(
             bytes: exec.bytes,
             cache_bytes: sched.cache().used(),
         });
+        if error.is_some() {
+            break;
+        }
         // Between frames: each arrival frees a slot, and the next request goes at once.
         let t_next = (k + 1) as f64 * dt;
         while let Some(te) = exec.next_arrival(t_next) {
             exec.arrive_until(te);
             sched.set_bundles(exec.transport.bundles_supported());
-            exec.send(te, &sched).await?;
+            if let Err(e) = exec.send(te, &sched).await {
+                error = Some(e);
+                break;
+            }
+        }
+        if error.is_some() {
+            break;
         }
     }
     let mean = |f: &dyn Fn(&FrameRecord) -> f64| {
@@ -245,7 +299,7 @@ pub(crate) async fn run_one(
         .checksum_failures
         .load(std::sync::atomic::Ordering::Relaxed)
         - failures_before;
-    Ok(RunReport {
+    let report = RunReport {
         strategy: strategy.name(),
         bandwidth_bps: bandwidth,
         time_to_first_frame_s: first_frame,
@@ -276,9 +330,22 @@ pub(crate) async fn run_one(
         max_resident_bytes: stats.max_resident_bytes,
         resident_within_budget: !stats.over_budget,
         memory_budget_bytes: stats.memory_budget_bytes,
+        wall_s: wall.elapsed().as_secs_f64(),
+        retries: exec.transfer.retries as u64,
+        timeouts: exec.transfer.timeouts as u64,
+        outage_s: exec.transfer.outage_s,
+        longest_outage_s: exec.longest_outage_s,
+        longest_wait_s: exec.progress.longest_s(),
+        part_faults: stats.part_faults,
+        parts_given_up: stats.parts_given_up,
+        table_faults: stats.table_faults,
+        tables_given_up: stats.tables_given_up,
+        completed: error.is_none(),
+        error: error.as_ref().map(|e| e.to_string()),
         frames,
         request_log: exec.log.unwrap_or_default(),
-    })
+    };
+    (report, error)
 }
 
 /// `(quality, needed fraction, complete)` of one frame; `ach` is the segment's ACH list as

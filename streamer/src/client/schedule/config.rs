@@ -1,6 +1,7 @@
 //! The scheduler's settings and strategies.
 
 use crate::client::budget::{BudgetParams, PriorityMode};
+use crate::client::failures::FailurePolicy;
 
 /// How a client chooses what to download.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -113,6 +114,9 @@ pub struct SchedulerConfig {
     /// Parts with the same checksum and length fetched and cached once under one key
     /// ([`ItemTable::set_share_parts`]; `naive` never shares).
     pub share_parts: bool,
+    /// When a damaged or missing part or table is asked for again (seconds of the driver's
+    /// clock), and when it is given up.
+    pub failures: FailurePolicy,
 }
 
 impl Default for SchedulerConfig {
@@ -137,6 +141,7 @@ impl Default for SchedulerConfig {
             prior_latency_s: 0.02,
             error_pause_s: 0.5,
             share_parts: true,
+            failures: FailurePolicy::default(),
         }
     }
 }

@@ -19,14 +19,19 @@ impl Scheduler {
             return Vec::new();
         };
         let mut out = Vec::new();
-        if self.tables[v].is_none() && !running.contains(&whole(&vp.table.hash)) {
+        // One that failed waits for its retry time, or was given up.
+        let ready = |hash: &str| self.table_failures.may_request(&whole(hash), self.now);
+        if self.tables[v].is_none()
+            && !running.contains(&whole(&vp.table.hash))
+            && ready(&vp.table.hash)
+        {
             out.push(Want {
                 class,
                 pieces: vec![whole_piece(&vp.table.hash, vp.table.size)],
             });
         }
         if let Some(a) = vp.ach.as_ref().filter(|_| self.config.strategy.uses_ach()) {
-            if self.achs[v].is_none() && !running.contains(&whole(&a.hash)) {
+            if self.achs[v].is_none() && !running.contains(&whole(&a.hash)) && ready(&a.hash) {
                 out.push(Want {
                     class,
                     pieces: vec![whole_piece(&a.hash, a.size)],
@@ -107,6 +112,11 @@ impl Scheduler {
         let vp_s = &self.table.vp_s;
         let v = (0..vp_s.len())
             .filter(|&v| !self.table_requested(v, running))
+            .filter(|&v| {
+                !self
+                    .table_wants(v, WantClass::BackgroundTable, running)
+                    .is_empty()
+            })
             .min_by(|&a, &b| {
                 (vp_s[a] - s)
                     .abs()
@@ -125,8 +135,11 @@ impl Scheduler {
         let mut vt = match decode_table(data, v.index) {
             Ok(vt) => vt,
             Err(e) => {
-                self.stats.failed += 1;
-                self.stats.last_error = Some(format!("table of viewpoint {}: {e}", v.index));
+                // Intact (its hash matched) but unusable: the database is broken there.
+                let (key, index) = (whole(&v.table.hash), v.index);
+                self.table_failures.give_up(&key);
+                self.fault_stats();
+                self.stats.last_error = Some(format!("table of viewpoint {index}: {e}"));
                 return false;
             }
         };
@@ -176,8 +189,12 @@ impl Scheduler {
         let segments = match decode_ach(data, v.index) {
             Ok(s) => s,
             Err(e) => {
-                self.stats.failed += 1;
-                self.stats.last_error = Some(format!("ACH lists of viewpoint {}: {e}", v.index));
+                let (key, index) = (v.ach.as_ref().map(|a| whole(&a.hash)), v.index);
+                if let Some(key) = key {
+                    self.table_failures.give_up(&key);
+                    self.fault_stats();
+                }
+                self.stats.last_error = Some(format!("ACH lists of viewpoint {index}: {e}"));
                 return false;
             }
         };
