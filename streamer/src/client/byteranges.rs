@@ -145,8 +145,8 @@ pub enum RangeError {
 }
 
 /// Parse `bytes START-END/SIZE` (SIZE may be `*`): the span, checked against `size` (the
-/// object's size as the manifest gives it).
-pub fn parse_content_range(value: &str, size: u64) -> Result<Span, RangeError> {
+/// object's size as the manifest gives it, when known) or else against SIZE.
+pub fn parse_content_range(value: &str, size: Option<u64>) -> Result<Span, RangeError> {
     let bad = || RangeError::ContentRange(value.chars().take(80).collect());
     let rest = value.trim().strip_prefix("bytes ").ok_or_else(bad)?;
     let (range, total) = rest.split_once('/').ok_or_else(bad)?;
@@ -159,10 +159,14 @@ pub fn parse_content_range(value: &str, size: u64) -> Result<Span, RangeError> {
         s.parse().map_err(|_| bad())
     };
     let (start, end) = (num(a)?, num(b)?);
-    if end < start || end >= size {
+    let total = match total.trim() {
+        "*" => None,
+        t => Some(num(t)?),
+    };
+    if size.is_some() && total.is_some() && total != size {
         return Err(bad());
     }
-    if total.trim() != "*" && num(total)? != size {
+    if end < start || size.or(total).is_some_and(|n| end >= n) {
         return Err(bad());
     }
     Ok(Span {
@@ -197,32 +201,27 @@ pub fn multipart_boundary(content_type: &str) -> Option<Result<String, RangeErro
     })
 }
 
-/// What a response to a range request for `asked` (spans of an object of `size` bytes)
-/// holds: `status`, its `Content-Type` and `Content-Range` headers, and the body.
+/// What a response to a range request of an object (of `size` bytes, when known) holds:
+/// `status`, its `Content-Type` and `Content-Range` headers, and the body.
 pub fn parse_response(
     status: u16,
     content_type: Option<&str>,
     content_range: Option<&str>,
     body: Bytes,
-    size: u64,
+    size: Option<u64>,
     limits: &RangeLimits,
 ) -> Result<Chunks, RangeError> {
     match status {
         200 => {
-            if body.len() as u64 != size {
+            let len = body.len() as u64;
+            if size.is_some_and(|s| s != len) {
                 return Err(RangeError::Length {
-                    got: body.len() as u64,
-                    want: size,
+                    got: len,
+                    want: size.unwrap_or(len),
                 });
             }
             Ok(Chunks {
-                parts: vec![(
-                    Span {
-                        start: 0,
-                        len: size,
-                    },
-                    body,
-                )],
+                parts: vec![(Span { start: 0, len }, body)],
                 whole: true,
             })
         }
@@ -245,7 +244,7 @@ pub fn parse_response(
                 });
             }
             Ok(Chunks {
-                whole: span.start == 0 && span.len == size,
+                whole: span.start == 0 && size == Some(span.len),
                 parts: vec![(span, body)],
             })
         }
@@ -260,7 +259,7 @@ pub fn parse_response(
 pub fn parse_multipart(
     body: &Bytes,
     boundary: &str,
-    size: u64,
+    size: Option<u64>,
     limits: &RangeLimits,
 ) -> Result<Vec<(Span, Bytes)>, RangeError> {
     let err = |what, at| RangeError::Multipart { what, at };
@@ -412,7 +411,15 @@ mod tests {
         let asked = [span(0, 10), span(500, 20)];
         let body = multipart("00000000000000000001", &object, &asked);
         let ct = "multipart/byteranges; boundary=00000000000000000001";
-        let c = parse_response(206, Some(ct), None, body, 1000, &RangeLimits::default()).unwrap();
+        let c = parse_response(
+            206,
+            Some(ct),
+            None,
+            body,
+            Some(1000),
+            &RangeLimits::default(),
+        )
+        .unwrap();
         assert_eq!(c.parts.len(), 2);
         assert_eq!(c.piece(span(505, 5)).unwrap(), &object[505..510]);
         assert_eq!(c.piece(span(0, 10)).unwrap(), &object[..10]);
@@ -424,21 +431,21 @@ mod tests {
             None,
             Some("bytes 0-519/1000"),
             one,
-            1000,
+            Some(1000),
             &RangeLimits::default(),
         )
         .unwrap();
         assert_eq!(c.piece(span(500, 20)).unwrap(), &object[500..520]);
         // Or ignore ranges and send the object.
         let all = Bytes::from(object.clone());
-        let c = parse_response(200, None, None, all, 1000, &RangeLimits::default()).unwrap();
+        let c = parse_response(200, None, None, all, Some(1000), &RangeLimits::default()).unwrap();
         assert!(c.whole);
         assert!(parse_response(
             200,
             None,
             None,
             Bytes::from_static(b"x"),
-            1000,
+            Some(1000),
             &RangeLimits::default()
         )
         .is_err());
@@ -451,7 +458,7 @@ mod tests {
             Some("multipart/byteranges; boundary=\"a b\""),
             None,
             Bytes::from(b),
-            1000,
+            Some(1000),
             &RangeLimits::default(),
         )
         .unwrap();
@@ -464,7 +471,7 @@ mod tests {
         let ct = "multipart/byteranges; boundary=XYZ";
         let lim = RangeLimits::default();
         let good = multipart("XYZ", &object, &[span(0, 10), span(100, 10)]);
-        let parse = |b: Bytes| parse_response(206, Some(ct), None, b, 1000, &lim);
+        let parse = |b: Bytes| parse_response(206, Some(ct), None, b, Some(1000), &lim);
         assert!(parse(good.clone()).is_ok());
         // Every prefix is refused (a truncated answer is never half used).
         for cut in 0..good.len() - 4 {
@@ -489,7 +496,7 @@ mod tests {
             "multipart/byteranges; boundary=a\u{7f}",
         ] {
             assert!(
-                parse_response(206, Some(ct), None, good.clone(), 1000, &lim).is_err(),
+                parse_response(206, Some(ct), None, good.clone(), Some(1000), &lim).is_err(),
                 "{ct}"
             );
         }
@@ -505,7 +512,7 @@ mod tests {
                 Some(ct),
                 None,
                 multipart("XYZ", &object, &many),
-                1000,
+                Some(1000),
                 &few
             ),
             Err(RangeError::TooManyParts(4))
@@ -513,18 +520,18 @@ mod tests {
         // Headers without end.
         let endless = Bytes::from(format!("--XYZ\r\n{}", "X-Pad: 1\r\n".repeat(500)).into_bytes());
         assert!(parse(endless).is_err());
-        assert!(parse_response(416, Some(ct), None, good, 1000, &lim).is_err());
+        assert!(parse_response(416, Some(ct), None, good, Some(1000), &lim).is_err());
     }
 
     proptest! {
         #[test]
         fn any_bytes_parse_or_fail_without_panicking(body in proptest::collection::vec(any::<u8>(), 0..600), cut in 0usize..5) {
             let b = Bytes::from(body);
-            let _ = parse_multipart(&b, "XYZ", 1000, &RangeLimits::default());
+            let _ = parse_multipart(&b, "XYZ", Some(1000), &RangeLimits::default());
             let mut framed = b"--XYZ\r\nContent-Range: bytes 0-3/1000\r\n\r\n".to_vec();
             framed.extend_from_slice(&b[..b.len().min(cut)]);
             framed.extend_from_slice(&b);
-            let _ = parse_multipart(&Bytes::from(framed), "XYZ", 1000, &RangeLimits::default());
+            let _ = parse_multipart(&Bytes::from(framed), "XYZ", Some(1000), &RangeLimits::default());
         }
 
         #[test]

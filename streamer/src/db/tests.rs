@@ -716,9 +716,7 @@ fn a_resumed_writer_removes_the_leftovers_of_a_killed_one() {
     want.sort();
     assert_eq!(w.leftovers_removed, want);
     fs::write(&obj, b"partial").unwrap();
-    let second = DbWriter::create(&dir)
-        .err()
-        .expect("a second writer is refused");
+    let second = DbWriter::create(&dir).expect_err("a second writer is refused");
     assert!(second.to_string().contains("another build"), "{second}");
     assert!(obj.exists(), "the refused writer removed nothing");
     drop(w);

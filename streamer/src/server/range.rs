@@ -123,17 +123,25 @@ pub fn multipart_body(
 ) -> Vec<u8> {
     let mut out = Vec::new();
     for &(off, len) in ranges {
-        out.extend_from_slice(
-            format!(
-                "\r\n--{boundary}\r\nContent-Type: application/octet-stream\r\nContent-Range: bytes {off}-{}/{size}\r\n\r\n",
-                off + len - 1
-            )
-            .as_bytes(),
-        );
+        out.extend_from_slice(part_head(boundary, off, len, size).as_bytes());
         out.extend_from_slice(&read(off, len));
     }
-    out.extend_from_slice(format!("\r\n--{boundary}--\r\n").as_bytes());
+    out.extend_from_slice(close_delimiter(boundary).as_bytes());
     out
+}
+
+/// What goes before the bytes of range `(off, len)` in a multipart answer: its delimiter
+/// and headers.
+pub fn part_head(boundary: &str, off: u64, len: u64, size: u64) -> String {
+    format!(
+        "\r\n--{boundary}\r\nContent-Type: application/octet-stream\r\nContent-Range: bytes {off}-{}/{size}\r\n\r\n",
+        off + len.max(1) - 1
+    )
+}
+
+/// The end of a multipart answer.
+pub fn close_delimiter(boundary: &str) -> String {
+    format!("\r\n--{boundary}--\r\n")
 }
 
 #[cfg(test)]
@@ -230,7 +238,7 @@ mod tests {
         let parts = crate::client::byteranges::parse_multipart(
             &bytes::Bytes::from(body),
             "b0und",
-            200,
+            Some(200),
             &Default::default(),
         )
         .unwrap();
