@@ -250,10 +250,10 @@ pub fn segment_samples(path: &[DVec3], per_segment: usize) -> Vec<DVec3> {
     if path.len() < 2 || per_segment == 0 {
         return path.first().copied().into_iter().collect();
     }
-    let arc = crate::input::arc_lengths(path);
+    let arc = tracks::segment::arc_lengths(path);
     let len = *arc.last().unwrap_or(&0.0);
     (0..=per_segment)
-        .map(|j| crate::input::point_at(path, &arc, len * j as f64 / per_segment as f64))
+        .map(|j| tracks::segment::point_at(path, &arc, len * j as f64 / per_segment as f64))
         .collect()
 }
 
@@ -268,14 +268,12 @@ pub fn oracle_positions(path: &[DVec3], per_segment: usize) -> Vec<DVec3> {
     if path.len() < 2 {
         return path.first().copied().into_iter().collect();
     }
-    let arc = crate::input::arc_lengths(path);
+    let arc = tracks::segment::arc_lengths(path);
     let len = *arc.last().unwrap_or(&0.0);
     let mut out = vec![path[0]];
-    out.extend(
-        (0..per_segment).map(|j| {
-            crate::input::point_at(path, &arc, len * (j as f64 + PHI) / per_segment as f64)
-        }),
-    );
+    out.extend((0..per_segment).map(|j| {
+        tracks::segment::point_at(path, &arc, len * (j as f64 + PHI) / per_segment as f64)
+    }));
     out.extend(path.last().copied());
     out
 }

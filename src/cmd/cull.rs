@@ -595,10 +595,10 @@ impl TrackPath {
             .and_then(|set| {
                 let t = set.get(&pre.track).or_else(|| set.tracks.first())?.clone();
                 let c = t.curve().to_vec();
-                let a = occlusion::input::arc_lengths(&c);
+                let a = tracks::segment::arc_lengths(&c);
                 // Use the curve only if it reproduces the viewpoints.
                 let ok = positions.iter().zip(&arcs).all(|(p, &s)| {
-                    occlusion::input::point_at(&c, &a, s).distance(*p) <= 1e-6 * (1.0 + p.length())
+                    tracks::segment::point_at(&c, &a, s).distance(*p) <= 1e-6 * (1.0 + p.length())
                 });
                 ok.then_some((c, a))
             });

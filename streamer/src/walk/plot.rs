@@ -93,6 +93,7 @@ mod tests {
             bytes: 0,
             bytes_per_m: 0.0,
             requests: 0,
+            requests_per_m: 0.0,
             checksum_failures: 0,
             cache_budget_bytes: None,
             max_cache_bytes: 0,
@@ -112,6 +113,7 @@ mod tests {
             completed: true,
             error: None,
             frames: frames(1.0),
+            request_log: Vec::new(),
         };
         let r = WalkReport {
             scene: "castle".into(),
