@@ -1,14 +1,15 @@
 //! `railview build` killed with SIGKILL at several moments, then run again: the database
 //! is byte for byte the one an uninterrupted build writes, with no stray temporary file
 //! (property-style: the kill points are drawn from a seeded generator over the whole build,
-//! one per fifth of its duration, so every stage is hit across the cases).
+//! one per fifth of its progress, counted in the files it has written, so every stage is hit
+//! across the cases however loaded the machine is).
 
 mod common;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::time::Instant;
+use std::time::Duration;
 
 use common::{railview, scratch_dir, stderr};
 
@@ -64,6 +65,23 @@ fn files(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     out
 }
 
+/// How many files and directories are under `dir` (0 when it does not exist yet; entries
+/// that vanish while it is read, such as renamed temporary files, are skipped).
+fn entries(dir: &Path) -> usize {
+    let Ok(rd) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    rd.filter_map(Result::ok)
+        .map(|e| {
+            1 + if e.file_type().is_ok_and(|t| t.is_dir()) {
+                entries(&e.path())
+            } else {
+                0
+            }
+        })
+        .sum()
+}
+
 /// A small deterministic generator (the kill points must repeat from run to run).
 struct Lcg(u64);
 
@@ -86,14 +104,17 @@ fn a_build_killed_at_random_moments_resumes_to_identical_bytes_and_no_stray_file
         "[[track]]\nname = \"short\"\npoints = [[0, 1.7, 42], [0, 1.7, 36]]\ncount = 3\n",
     )
     .unwrap();
-    // The uninterrupted build, and how long it takes.
+    // The uninterrupted build, and how many entries it writes (its progress measure).
     let reference = dir.join("ref");
     let args = build_args(&track, &reference, &dir.join("ref.work"));
-    let t0 = Instant::now();
     let argv: Vec<&str> = args.iter().map(String::as_str).collect();
     let o = railview(&argv);
     assert!(o.status.success(), "{}", stderr(&o));
-    let whole = t0.elapsed();
+    let whole = entries(&reference) + entries(&dir.join("ref.work"));
+    assert!(
+        whole >= 20,
+        "the reference build wrote only {whole} entries"
+    );
     let want = files(&reference);
     let mut rng = Lcg(0x5eed_1234);
     let mut killed_midway = 0;
@@ -101,16 +122,23 @@ fn a_build_killed_at_random_moments_resumes_to_identical_bytes_and_no_stray_file
         let out = dir.join(format!("db{case}"));
         let work = dir.join(format!("db{case}.work"));
         let args = build_args(&track, &out, &work);
-        // One kill point in each fifth of the build.
-        let at = whole.mul_f64((case as f64 + rng.unit()) / 5.0);
+        // One kill point in each fifth of the build's progress.
+        let at = ((whole as f64 * (case as f64 + rng.unit()) / 5.0) as usize).max(1);
         let mut child = Command::new(env!("CARGO_BIN_EXE_railview"))
             .args(&args)
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()
             .unwrap();
-        std::thread::sleep(at);
-        let finished = child.try_wait().unwrap().is_some();
+        let finished = loop {
+            if child.try_wait().unwrap().is_some() {
+                break true;
+            }
+            if entries(&out) + entries(&work) >= at {
+                break false;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        };
         child.kill().unwrap(); // SIGKILL: no chance to clean up
         child.wait().unwrap();
         killed_midway += usize::from(!finished);
@@ -129,7 +157,7 @@ fn a_build_killed_at_random_moments_resumes_to_identical_bytes_and_no_stray_file
         let o = railview(&argv);
         assert!(
             o.status.success(),
-            "case {case} (killed at {at:?}): {}",
+            "case {case} (killed at {at} entries): {}",
             stderr(&o)
         );
         let got = files(&out);
@@ -144,12 +172,12 @@ fn a_build_killed_at_random_moments_resumes_to_identical_bytes_and_no_stray_file
         assert_eq!(
             got.keys().collect::<Vec<_>>(),
             want.keys().collect::<Vec<_>>(),
-            "case {case} (killed at {at:?}): different files"
+            "case {case} (killed at {at} entries): different files"
         );
         for (path, bytes) in &want {
             assert!(
                 got[path] == *bytes,
-                "case {case} (killed at {at:?}): {} differs",
+                "case {case} (killed at {at} entries): {} differs",
                 path.display()
             );
         }
