@@ -264,10 +264,10 @@ pub fn from_database(
                 let Some(ptm) = &t.ptm else {
                     continue;
                 };
-                let mesh_bytes = match (&t.mesh, &t.mesh_range) {
-                    (Some(m), _) => db.read_object(m)?,
-                    (None, Some(r)) => db.read_checked_range(&ptm.object, r)?,
-                    (None, None) => continue,
+                let mesh_bytes = match t.mesh_at() {
+                    Some((m, None)) => db.read_object(m)?,
+                    Some((o, Some(r))) => db.read_checked_range(o, r)?,
+                    None => continue,
                 };
                 let key = tracks::manifest::tile_key(vp.index, t.slab, t.tile);
                 let layer = layers.get_mut(t.slab as usize).ok_or_else(|| {

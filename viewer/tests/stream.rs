@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use streamer::client::LiveConfig;
-use streamer::db::mesh::{encode_mesh, MeshData};
+use streamer::db::mesh::{encode_mesh, MeshCoding, MeshData};
 use streamer::db::DbWriter;
 use streamer::ptm::{encode, EncodeOptions, Image};
 use streamer::server::{self, ServedDb, ServerConfig, ServerStats};
@@ -41,10 +41,7 @@ fn renderer() -> Option<Renderer> {
 fn write_db(walk: &Walkthrough, dir: &Path) {
     let _ = std::fs::remove_dir_all(dir);
     let mut w = DbWriter::create(dir).unwrap();
-    let opts = EncodeOptions {
-        zstd_level: 3,
-        ..Default::default()
-    };
+    let opts = EncodeOptions::default();
     let tile_size = walk.views[0].tile_size;
     let face = walk.views[0].face_size;
     let grid = TileGrid::new(face, tile_size).unwrap();
@@ -87,7 +84,10 @@ fn write_db(walk: &Walkthrough, dir: &Path) {
                 opaque_pixels: opaque.max(1),
                 kept: true,
                 ptm: Some(ptm),
-                mesh: Some(w.put(&encode_mesh(&mesh).unwrap()).unwrap()),
+                mesh: Some(
+                    w.put(&encode_mesh(&mesh, &MeshCoding::for_parallax(face, 1.0, 0.05)).unwrap())
+                        .unwrap(),
+                ),
                 mesh_range: None,
             });
         }

@@ -194,8 +194,8 @@ impl ItemTable {
             let field = || format!("tracks[{track}].viewpoints[{vi}].tiles[{ti}]");
             let (mut parts, levels) = ptm_parts(ptm, &|| format!("{}.ptm", field()))?;
             let mut first = 0;
-            let mesh = match (&tile.mesh, &tile.mesh_range) {
-                (Some(mesh), _) => {
+            let mesh = match tile.mesh_at() {
+                Some((mesh, None)) => {
                     check_hash(&mesh.hash, || format!("{}.mesh.hash", field()))?;
                     Some(Part {
                         key: FetchKey {
@@ -207,12 +207,12 @@ impl ItemTable {
                         mem: mesh.size,
                     })
                 }
-                (None, Some(r)) => {
+                Some((object, Some(r))) => {
                     let f = || format!("{}.mesh_range", field());
-                    check_range(&ptm.object, r.offset, r.len, &r.hash, f)?;
+                    check_range(object, r.offset, r.len, &r.hash, f)?;
                     Some(Part {
                         key: FetchKey {
-                            object: ptm.object.hash.as_str().into(),
+                            object: object.hash.as_str().into(),
                             range: Some((r.offset, r.len)),
                         },
                         hash: r.hash.clone(),
@@ -220,7 +220,7 @@ impl ItemTable {
                         mem: r.len,
                     })
                 }
-                (None, None) => None,
+                None => None,
             };
             if let Some(m) = mesh {
                 parts.insert(0, m);
