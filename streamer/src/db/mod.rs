@@ -31,6 +31,7 @@
 //! right size are not rewritten, which is what makes `build` resumable.
 
 pub mod ach;
+pub mod baseline;
 pub mod mesh;
 pub mod pack;
 pub mod split;
