@@ -35,6 +35,11 @@ pub struct Args {
     /// Track name (default: the first).
     #[arg(long)]
     pub track: Option<String>,
+    /// Other databases of the same scene and track (other build options: a lossy build,
+    /// another depth bound, another tile size), evaluated beside it as configurations named
+    /// after their directory and texture coding, so their points share the plots.
+    #[arg(long)]
+    pub also: Vec<String>,
 }
 
 #[derive(serde::Serialize)]
@@ -67,6 +72,28 @@ fn coarse_level_groups(db: &str) -> anyhow::Result<Vec<usize>> {
         .max()
         .unwrap_or(0);
     Ok((1..=2).filter(|&g| g < most).collect())
+}
+
+/// How a database codes its textures, read from its first PTM's header: `lossless` or
+/// `lossy near=N`.
+fn texture_coding(db: &str) -> anyhow::Result<String> {
+    let db = streamer::db::Database::open(std::path::Path::new(db))?;
+    let first = db
+        .manifest()
+        .tracks
+        .iter()
+        .flat_map(|t| &t.viewpoints)
+        .flat_map(|v| v.tiles.iter().filter_map(|t| t.ptm.as_ref()))
+        .next();
+    let Some(p) = first else {
+        return Ok("no textures".into());
+    };
+    let mut dec = streamer::ptm::Decoder::new(streamer::ptm::Limits::default());
+    dec.push(&db.read_level(p, 0)?)?;
+    Ok(match dec.header().map_or(0, |h| h.near) {
+        0 => "lossless".into(),
+        n => format!("lossy near={n}"),
+    })
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -136,6 +163,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             },
         )
         .with_context(|| format!("opening {} with {groups} level groups", args.db))?;
+        let configs = vec![viewer::headless::EvalConfig {
+            name: name.clone(),
+            budget: viewer::DrawBudget::default(),
+        }];
+        runs.push((name, w, configs));
+    }
+    for other in &args.also {
+        let name = format!("also {other} ({})", texture_coding(other)?);
+        let w = open(other, args.track.as_deref(), LoadOptions::default())
+            .with_context(|| format!("opening {other}"))?;
+        anyhow::ensure!(
+            w.scene == walk.scene,
+            "--also {other}: scene `{}`, not `{}`",
+            w.scene,
+            walk.scene
+        );
         let configs = vec![viewer::headless::EvalConfig {
             name: name.clone(),
             budget: viewer::DrawBudget::default(),

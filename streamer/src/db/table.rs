@@ -1562,6 +1562,52 @@ mod tests {
         encode_table(&table, pack.as_ref()).unwrap()
     }
 
+    /// The long fuzz run of the table decoder (tables whose payloads lie in the pack, earlier
+    /// in it, or in earlier packs; damaged, cut or garbage):
+    /// `TABLE_FUZZ_CASES=1000000 cargo test --release -p streamer table_long_fuzz -- --ignored`.
+    #[test]
+    #[ignore = "long fuzz run; set TABLE_FUZZ_CASES"]
+    fn table_long_fuzz() {
+        use proptest::test_runner::{Config, TestRunner};
+        let cases = std::env::var("TABLE_FUZZ_CASES")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(20_000);
+        let mut runner = TestRunner::new(Config {
+            cases,
+            failure_persistence: None,
+            ..Config::default()
+        });
+        let strategy = (
+            proptest::collection::vec(tile(), 0..10),
+            proptest::collection::vec(0u8..16, 10),
+            any::<u64>(),
+            proptest::collection::vec((any::<usize>(), any::<u8>()), 0..4),
+            any::<usize>(),
+            proptest::collection::vec(any::<u8>(), 0..64),
+        );
+        runner
+            .run(&strategy, |(tiles, choices, seed, flips, cut, junk)| {
+                let (mut table, _) = sample(4, tiles, seed);
+                table.background.clear();
+                let pack = lay_out_shared(&mut table.tiles, &choices, seed);
+                let bytes = encode_table(&table, pack.as_ref()).unwrap();
+                prop_assert_eq!(decode_table(&bytes, 4).unwrap(), as_stored(table));
+                let mut damaged = bytes.clone();
+                for (at, x) in flips {
+                    let i = at % damaged.len();
+                    damaged[i] ^= x.max(1);
+                }
+                damaged.truncate(cut % (damaged.len() + 1));
+                let _ = decode_table(&damaged, 4);
+                let mut garbage = b"RVTB\x05\x00".to_vec();
+                garbage.extend_from_slice(&junk);
+                let _ = decode_table(&garbage, 0);
+                Ok(())
+            })
+            .unwrap();
+    }
+
     #[test]
     fn named_bad_inputs_give_named_errors() {
         assert!(matches!(decode_table(b"", 0), Err(TableError::Magic)));

@@ -157,9 +157,10 @@ fn order<const C: usize>() -> ([usize; C], [usize; C]) {
     (ch, class)
 }
 
-/// Codes (or decodes, into `out`) one level of `w × h` pixels. `parent` is the level above
-/// (`None` for the lowest stored level). `out` holds `w · h · C` samples on return: the level
-/// a decoder rebuilds (the source itself when lossless).
+/// Codes (or decodes, into `out`) one level of `w × h` pixels of `channels` channels
+/// (`shape`). `parent` is the level above (`None` for the lowest stored level). `out` holds
+/// `w · h · channels` samples on return: the level a decoder rebuilds (the source itself when
+/// lossless).
 pub(crate) fn level<I: Io>(
     io: &mut I,
     m: &mut Models,
@@ -167,19 +168,17 @@ pub(crate) fn level<I: Io>(
     src: Option<Source>,
     parent: Option<&Image>,
     out: &mut [u8],
-    w: u32,
-    h: u32,
-    channels: u8,
+    shape: (u32, u32, u8),
 ) -> Result<(), PtmError> {
+    let (w, h, channels) = shape;
     match channels {
-        1 => level_c::<I, 1>(io, m, p, src, parent, out, w, h),
-        2 => level_c::<I, 2>(io, m, p, src, parent, out, w, h),
-        3 => level_c::<I, 3>(io, m, p, src, parent, out, w, h),
-        _ => level_c::<I, 4>(io, m, p, src, parent, out, w, h),
+        1 => level_c::<I, 1>(io, m, p, src, parent, out, (w, h)),
+        2 => level_c::<I, 2>(io, m, p, src, parent, out, (w, h)),
+        3 => level_c::<I, 3>(io, m, p, src, parent, out, (w, h)),
+        _ => level_c::<I, 4>(io, m, p, src, parent, out, (w, h)),
     }
 }
 
-#[allow(clippy::too_many_arguments)]
 fn level_c<I: Io, const C: usize>(
     io: &mut I,
     m: &mut Models,
@@ -187,8 +186,7 @@ fn level_c<I: Io, const C: usize>(
     src: Option<Source>,
     parent: Option<&Image>,
     out: &mut [u8],
-    w: u32,
-    h: u32,
+    (w, h): (u32, u32),
 ) -> Result<(), PtmError> {
     let (wu, hu) = (w as usize, h as usize);
     let row = wu * C;

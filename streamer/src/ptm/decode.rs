@@ -399,9 +399,7 @@ impl Decoder {
                 None,
                 if g == 0 { None } else { self.levels.last() },
                 &mut out,
-                w,
-                hh,
-                c,
+                (w, hh, c),
             )?;
             return Ok(Image {
                 width: w,

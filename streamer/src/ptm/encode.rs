@@ -211,9 +211,7 @@ fn arith_groups(chain: &MipChain, within: bool, near: u8) -> Result<Vec<Vec<u8>>
             Some(src),
             parent.as_ref(),
             &mut out,
-            level.width,
-            level.height,
-            c,
+            (level.width, level.height, c),
         )?;
         debug_assert!(
             near > 0 || out == level.data,

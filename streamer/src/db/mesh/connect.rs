@@ -287,7 +287,7 @@ fn cap_box(a: Pt, b: Pt, c: Pt) -> Box {
     let (mut hi_x, mut hi_y) = (a.0.max(b.0) as f64, a.1.max(b.1) as f64);
     for (px, py) in [(ux + r, uy), (ux - r, uy), (ux, uy + r), (ux, uy - r)] {
         // On c's side of the chord, or near the chord (rounding): keep it.
-        if (bx * py - by * px) * side > -1.0 * (b2.sqrt() + 1.0) {
+        if (bx * py - by * px) * side > -(b2.sqrt() + 1.0) {
             let (x, y) = (a.0 as f64 + px, a.1 as f64 + py);
             lo_x = lo_x.min(x);
             lo_y = lo_y.min(y);

@@ -73,7 +73,7 @@ fn canonical(m: &MeshData) -> Canon {
         .collect();
     tris.sort_unstable();
     let mut verts: Vec<((u32, u32), f32)> = m.vertices.iter().map(|&v| (key(v), v[2])).collect();
-    verts.sort_by(|a, b| a.0.cmp(&b.0));
+    verts.sort_by_key(|a| a.0);
     (tris, verts)
 }
 
