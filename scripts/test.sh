@@ -1,35 +1,38 @@
 #!/usr/bin/env bash
 # Runs every test of railview on a fresh Debian machine: installs what the tests need
-# (POV-Ray and its scenes, Mesa's Vulkan driver for headless wgpu, Xvfb, Chromium for the
-# report test), then format check, lints and the whole test suite in the one build profile
-# (release) that the tools use too.
+# (POV-Ray and its scenes, Mesa's Vulkan and GL drivers for headless wgpu, Xvfb, Chromium for
+# the report test), then format check, lints and the whole test suite in the one build
+# profile (release) that the tools use too; then the viewer's GPU tests again on wgpu's GL
+# backend, and the README's first command end to end at a small size, with and without
+# Mesa's Vulkan driver.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-packages=(povray povray-includes povray-examples mesa-vulkan-drivers libvulkan1 xvfb chromium)
-missing=()
-for p in "${packages[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
-if [ ${#missing[@]} -gt 0 ]; then
-  if [ "$(id -u)" -ne 0 ]; then
-    echo "missing packages: ${missing[*]} (run as root, or: sudo apt-get install ${missing[*]})" >&2
-    exit 1
-  fi
-  echo "installing: ${missing[*]}"
-  for attempt in 1 2 3; do
-    if apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}"; then
-      break
-    fi
-    [ "$attempt" = 3 ] && { echo "apt-get install failed" >&2; exit 1; }
-    sleep 10
-  done
-fi
-
-# Mesa prints harmless warnings without a runtime dir.
-export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp/railview-xdg}"
-mkdir -p "$XDG_RUNTIME_DIR" && chmod 700 "$XDG_RUNTIME_DIR"
+# shellcheck source=scripts/packages.sh
+. scripts/packages.sh
+# POV-Ray and its scenes; Mesa's Vulkan and GL drivers (the renderer is tested on both);
+# Xvfb (and xauth, which xvfb-run needs) for the window; Chromium for the report page;
+# Slurm and munge for the batch-prerender test's single-node cluster.
+ensure_packages strict povray povray-includes povray-examples \
+  mesa-vulkan-drivers libvulkan1 libegl1 libegl-mesa0 libgl1-mesa-dri \
+  xvfb xauth chromium slurm-wlm munge
+ensure_runtime_dir
 
 cargo fmt --all --check
 cargo clippy --release --workspace --all-targets --locked -- -D warnings
 cargo test --release --workspace --locked
+
+# The renderer's GPU tests run on wgpu's default backend (Vulkan) above; once more on GL
+# (about 20 s; `--workspace` keeps the features of the build above, so nothing is rebuilt).
+# viewer/tests/backends.rs and tests/cli_backends.rs compare the two backends in every run.
+WGPU_BACKEND=gl cargo test --release --locked --workspace \
+  --test backends --test castle --test fused --test gpu --test overlays --test stream
+
+# The README's first command at a small size (15 to 20 s each once built): as it is, and on
+# a machine whose Vulkan loader finds no driver, where wgpu falls back to GL.
+demo_dir=$(mktemp -d)
+trap 'rm -rf "$demo_dir"' EXIT
+demo_args=(--no-window --face-size 16 --walk-speed 36)
+./scripts/demo.sh "${demo_args[@]}" --out "$demo_dir/default"
+VK_ICD_FILENAMES=/nonexistent VK_DRIVER_FILES=/nonexistent \
+  ./scripts/demo.sh "${demo_args[@]}" --out "$demo_dir/without-vulkan"

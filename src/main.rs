@@ -53,11 +53,17 @@ enum Command {
     Build(cmd::build::Args),
 }
 
+/// Log filter without `RUST_LOG`: warnings, except the lines wgpu logs for each error it
+/// reports on a device (a shader it cannot translate, "please report it") and eframe's line
+/// for the error that closes the window: the command's error says it once, naming the
+/// adapter, the backend and what failed. `RUST_LOG=warn` shows them as they happen.
+const DEFAULT_LOG: &str = "warn,wgpu::backend::wgpu_core=off,eframe::native::run=off";
+
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG)),
         )
         .with_writer(std::io::stderr)
         .init();

@@ -73,11 +73,24 @@ fn castle_short_track_with_slabs_resume_and_report() {
     assert!(std::fs::read_to_string(out.join("track.toml"))
         .unwrap()
         .contains("short"));
-    // Resume: everything is skipped.
+    // The run log holds the times the markers do not.
+    let sample = std::fs::read_to_string(out.join("samples/0000/sample.json")).unwrap();
+    assert!(!sample.contains("seconds"), "{sample}");
+    assert_eq!(r["shards"].as_array().map(Vec::len), Some(1), "{r}");
+    assert_eq!(r["shards"][0]["shard"], serde_json::Value::Null);
+    assert_eq!(r["shards"][0]["samples"], serde_json::json!([0, 1, 2]));
+    // Resume: everything is skipped, and the report still has the first run's times.
     let o = railview(&args);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert_eq!(report(&out)["extra"]["rendered_this_run"], 0);
-    assert_eq!(report(&out)["extra"]["skipped_this_run"], 3);
+    assert!(
+        stderr(&o).contains("0 rendered, 3 skipped"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(report(&out)["seconds"], r["seconds"]);
+    assert_eq!(report(&out)["shards"], r["shards"]);
+    let logs = std::fs::read_dir(out.join("runs")).unwrap().count();
+    assert_eq!(logs, 2, "one run log per run");
     // A rerun without --slabs keeps the slab layers in the report.
     let without: Vec<&str> = args
         .iter()
@@ -116,10 +129,85 @@ fn shards_fill_one_directory() {
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
     }
+    // Shards leave the report to the merge.
+    assert!(!out.join("prerender.json").exists());
+    let merge = |extra: &[&str]| {
+        let mut a = vec![
+            "prerender",
+            "--scene",
+            "nature",
+            "--track",
+            track.to_str().unwrap(),
+            "--face-size",
+            "8",
+            "--lowres-face-size",
+            "4",
+            "--out",
+            out.to_str().unwrap(),
+            "--merge",
+        ];
+        a.extend_from_slice(extra);
+        railview(&a)
+    };
+    // A missing sample is named, with the shard that renders it.
+    std::fs::remove_file(out.join("samples/0001/sample.json")).unwrap();
+    let o = merge(&[]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("1 of 3 samples") && e.contains(": 1.") && e.contains("shard 1/2"),
+        "{e}"
+    );
+    assert!(!out.join("prerender.json").exists());
+    let o = merge(&["--shard", "1/2"]);
+    assert!(!o.status.success(), "--merge and --shard conflict");
+    // The shard again, then the merge lists both shards' samples.
+    let o = railview(&[
+        "prerender",
+        "--scene",
+        "nature",
+        "--track",
+        track.to_str().unwrap(),
+        "--face-size",
+        "8",
+        "--lowres-face-size",
+        "4",
+        "--no-shadows",
+        "--shard",
+        "1/2",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = merge(&[]);
+    assert!(o.status.success(), "{}", stderr(&o));
     let r = report(&out);
     assert_eq!(r["extra"]["complete_samples"], 3);
-    assert_eq!(r["shard"], serde_json::json!([0, 2]));
-    assert_eq!(r["extra"]["rendered_this_run"], 2);
+    assert_eq!(r["shard"], serde_json::Value::Null);
+    let shards: Vec<_> = r["shards"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| (s["shard"].clone(), s["samples"].clone()))
+        .collect();
+    assert_eq!(
+        shards,
+        vec![
+            (serde_json::json!([0, 2]), serde_json::json!([0, 2])),
+            (serde_json::json!([1, 2]), serde_json::json!([1])),
+        ]
+    );
+    let summed: f64 = r["shards"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["render_seconds"].as_f64().unwrap())
+        .sum();
+    assert!(summed > 0.0);
+    assert!(
+        (r["seconds"].as_f64().unwrap() - summed).abs() < 1e-9,
+        "{r}"
+    );
     std::fs::remove_dir_all(&work).ok();
 }
 

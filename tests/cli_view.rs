@@ -1,7 +1,9 @@
 //! `railview view URL --frames N` under Xvfb: a small castle database built and served by the
 //! binary, the window streams from the server until every visible tile is shown, then closes.
-//! Needs `xvfb-run` and a Vulkan adapter (lavapipe); `RAILVIEW_SKIP_GPU_TESTS=1` switches it
-//! off.
+//! The window shows the headless render of the same camera on wgpu's default backend and on
+//! GL (`WGPU_BACKEND=gl`, llvmpipe), and without any adapter it exits saying what to
+//! install. Needs `xvfb-run` and Mesa's Vulkan and GL drivers; `RAILVIEW_SKIP_GPU_TESTS=1`
+//! switches it off.
 
 mod common;
 
@@ -135,8 +137,9 @@ struct Shot {
 }
 
 /// A window on a small castle database closed after `frames` frames at `--target-fps fps`,
-/// with a screenshot; `None` when GPU tests are switched off.
-fn window_shot(name: &str, frames: u32, fps: u32) -> Option<Shot> {
+/// with a screenshot, on `backend` (`WGPU_BACKEND`; `None`: wgpu's choice); `None` when GPU
+/// tests are switched off.
+fn window_shot(name: &str, frames: u32, fps: u32, backend: Option<&str>) -> Option<Shot> {
     if std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1") {
         eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
         return None;
@@ -147,8 +150,8 @@ fn window_shot(name: &str, frames: u32, fps: u32) -> Option<Shot> {
     let shot = work.join("window.png");
     let runtime = work.join("xdg");
     std::fs::create_dir_all(&runtime).unwrap();
-    let o = Command::new("xvfb-run")
-        .args(["-a", bin, "view"])
+    let mut cmd = Command::new("xvfb-run");
+    cmd.args(["-a", bin, "view"])
         .arg(&db)
         .args([
             "--frames",
@@ -158,9 +161,11 @@ fn window_shot(name: &str, frames: u32, fps: u32) -> Option<Shot> {
         ])
         .arg("--screenshot")
         .arg(&shot)
-        .env("XDG_RUNTIME_DIR", &runtime)
-        .output()
-        .expect("xvfb-run (apt-get install xvfb)");
+        .env("XDG_RUNTIME_DIR", &runtime);
+    if let Some(b) = backend {
+        cmd.env("WGPU_BACKEND", b);
+    }
+    let o = cmd.output().expect("xvfb-run (apt-get install xvfb)");
     let out = String::from_utf8_lossy(&o.stdout).into_owned();
     assert!(
         o.status.success(),
@@ -185,33 +190,45 @@ fn window_shot(name: &str, frames: u32, fps: u32) -> Option<Shot> {
 
 #[test]
 fn the_window_shows_the_headless_render_of_the_same_camera() {
+    same_picture("same-picture", None);
+}
+
+/// The machine of a fresh install with Mesa's GL but not its Vulkan driver: the window opens
+/// on wgpu's GL backend (its surface, no view formats: the copy encodes sRGB itself) and
+/// shows the same bytes.
+#[test]
+fn the_window_opens_on_the_gl_backend_and_shows_the_headless_render() {
+    same_picture("same-picture-gl", Some("gl"));
+}
+
+fn same_picture(name: &str, backend: Option<&str>) {
     // Standing at the track's start, the default view; a target rate no frame misses, so
     // the frame-time budget draws everything, as `railview render` does.
     let Some(Shot {
+        out,
         window,
         size,
         work,
         db,
-        ..
-    }) = window_shot("same-picture", 12, 1)
+    }) = window_shot(name, 12, 1, backend)
     else {
         return;
     };
+    if backend == Some("gl") {
+        assert!(out.contains("GL backend"), "{out}");
+    }
     let (w, h) = size.split_once('x').unwrap();
     let (w, h): (u32, u32) = (w.parse().unwrap(), h.parse().unwrap());
     let rendered = work.join("render.png");
-    let o = railview(&[
-        "render",
-        db.to_str().unwrap(),
-        "--at",
-        "0",
-        "--fov",
-        "90",
-        "--size",
-        &size,
-        "-o",
-        rendered.to_str().unwrap(),
-    ]);
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_railview"));
+    cmd.args(["render"])
+        .arg(&db)
+        .args(["--at", "0", "--fov", "90", "--size", &size, "-o"])
+        .arg(&rendered);
+    if let Some(b) = backend {
+        cmd.env("WGPU_BACKEND", b);
+    }
+    let o = cmd.output().unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
     let headless = image::open(&rendered).unwrap().to_rgb8();
     assert!(
@@ -241,7 +258,7 @@ fn a_rate_out_of_reach_draws_the_view_smaller_and_scales_it_up() {
         size,
         work,
         ..
-    }) = window_shot("scaled", 120, 1000)
+    }) = window_shot("scaled", 120, 1000, None)
     else {
         return;
     };
@@ -259,5 +276,38 @@ fn a_rate_out_of_reach_draws_the_view_smaller_and_scales_it_up() {
     ] {
         assert_ne!(*window.get_pixel(x, y), panel, "({x}, {y})");
     }
+    let _ = std::fs::remove_dir_all(work);
+}
+
+#[test]
+fn without_an_adapter_the_window_says_what_to_install() {
+    if std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1") {
+        eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
+        return;
+    }
+    let work = tmp("no-adapter");
+    let runtime = work.join("xdg");
+    std::fs::create_dir_all(&runtime).unwrap();
+    let o = Command::new("xvfb-run")
+        .args(["-a", env!("CARGO_BIN_EXE_railview"), "view", "synth:street"])
+        .args(["--frames", "3"])
+        .env("XDG_RUNTIME_DIR", &runtime)
+        .env("VK_ICD_FILENAMES", "/nonexistent")
+        .env("VK_DRIVER_FILES", "/nonexistent")
+        .env("WGPU_BACKEND", "vulkan")
+        .env("RUST_BACKTRACE", "1")
+        .output()
+        .expect("xvfb-run (apt-get install xvfb)");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        !err.contains("panicked") && !err.contains("backtrace"),
+        "{err}"
+    );
+    assert!(
+        err.contains("error: no GPU adapter found")
+            && err.contains("apt-get install mesa-vulkan-drivers"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(work);
 }

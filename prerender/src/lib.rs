@@ -5,7 +5,8 @@
 //! - [`scene`]: the scene model ([`scene::Scene`], [`scene::Shape`], materials, lights, sky)
 //!   with exact f64 ray queries ([`scene::Scene::first_hit`]).
 //! - [`parse`]: the TOML scene format (read and write).
-//! - [`job`]: rendering a track into a prerender directory (resume, shards, report).
+//! - [`job`]: rendering a track into a prerender directory (resume, shards, report, merge).
+//! - [`runlog`]: the run log (`runs/*.jsonl`): timings kept apart from the content.
 //! - [`scenes`]: built-in procedural scenes (`castle`, `nature`) with their tracks.
 //! - [`render`]: cube maps of colour + radial depth, slab layers in one pass, low-res depth,
 //!   perspective ground truth.
@@ -16,6 +17,7 @@ pub mod job;
 pub mod parse;
 pub mod pov;
 pub mod render;
+pub mod runlog;
 pub mod scene;
 pub mod scenes;
 mod shade;

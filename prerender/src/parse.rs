@@ -185,31 +185,61 @@ impl Scene {
     }
 }
 
+/// Largest image texture, pixels per side (the decoder refuses larger ones before
+/// allocating them; a texture is kept as linear f32 RGB, 768 MiB at this size).
+pub const MAX_TEXTURE_SIZE: u32 = 8192;
+
+/// An image texture's bytes as RGB, within [`MAX_TEXTURE_SIZE`] per side.
+fn decode_texture(bytes: &[u8]) -> Result<image::RgbImage, String> {
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_TEXTURE_SIZE);
+    limits.max_image_height = Some(MAX_TEXTURE_SIZE);
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| format!("not a readable image: {e}"))?;
+    reader.limits(limits);
+    Ok(reader
+        .decode()
+        .map_err(|e| format!("not a readable image (at most {MAX_TEXTURE_SIZE} px per side): {e}"))?
+        .to_rgb8())
+}
+
 /// The `[[track]]` tables of a scene file, if it has any.
 pub fn tracks_from_scene_toml(
     text: &str,
     source_name: &str,
 ) -> Result<Option<tracks::TrackSet>, SceneError> {
-    let table: toml::Table = toml::from_str(text).map_err(|e| syntax(text, source_name, &e))?;
-    let Some(track) = table.get("track") else {
-        return Ok(None);
-    };
-    let mut only = toml::Table::new();
-    only.insert("track".into(), track.clone());
-    let sub = toml::to_string(&only).map_err(|e| SceneError::Syntax {
-        source_name: source_name.to_string(),
-        line: 0,
-        message: e.to_string(),
-    })?;
-    tracks::TrackSet::parse(&sub, source_name)
-        .map(Some)
-        .map_err(|e| SceneError::Invalid {
+    tracks::TrackSet::parse_within(text, source_name).map_err(|e| match e {
+        tracks::TrackError::Syntax {
+            source_name,
+            line,
+            message,
+        } => SceneError::Syntax {
+            source_name,
+            line,
+            message,
+        },
+        tracks::TrackError::Invalid {
+            source_name,
+            line,
+            track,
+            field,
+            message,
+        } => SceneError::Invalid {
+            source_name,
+            line,
+            item: format!("track `{track}`"),
+            field: field.to_string(),
+            message,
+        },
+        other => SceneError::Invalid {
             source_name: source_name.to_string(),
             line: 0,
-            item: "track".into(),
+            item: "tracks".into(),
             field: "track".into(),
-            message: e.to_string(),
-        })
+            message: other.to_string(),
+        },
+    })
 }
 
 fn syntax(text: &str, source_name: &str, e: &toml::de::Error) -> SceneError {
@@ -347,9 +377,7 @@ fn parse_desc(
                     message,
                 };
                 let bytes = load(&path).map_err(asset)?;
-                let img = image::load_from_memory(&bytes)
-                    .map_err(|e| asset(format!("not a readable image: {e}")))?
-                    .to_rgb8();
+                let img = decode_texture(&bytes).map_err(asset)?;
                 if img.width() == 0 || img.height() == 0 {
                     return Err(asset("image is empty".into()));
                 }
@@ -840,6 +868,23 @@ normal = [0, 1, 0]
         assert!(e.to_string().contains("nope"), "{e}");
         let e = err("[[object]]\ntype='box'\nmin=[0,0,0]\nmax=[1,1,1]\ncolour=3\n");
         assert!(e.to_string().contains("colour"), "{e}");
+    }
+
+    /// Regression: a bad track in a scene file was reported at line 0 of a re-serialised
+    /// copy; it names the line of its `[[track]]` in the scene file.
+    #[test]
+    fn track_errors_in_a_scene_file_name_their_line() {
+        let text =
+            format!("{SMALL}\n[[track]]\nname='main'\npoints=[[0,1,0],[72,1,0]]\nspacing=1e-9\n");
+        let line = text.lines().position(|l| l == "[[track]]").unwrap() + 1;
+        let err = tracks_from_scene_toml(&text, "s.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with(&format!("s.toml:{line}: track `main`: field `spacing`")),
+            "{err}"
+        );
+        assert!(!err.contains(":0:"), "{err}");
     }
 
     #[test]

@@ -18,13 +18,13 @@ use crate::geom::Prim;
 #[derive(Debug, thiserror::Error, PartialEq)]
 #[non_exhaustive]
 pub enum SceneError {
-    #[error("{source_name}:{line}: {message}")]
+    #[error("{}: {message}", at(source_name, *line))]
     Syntax {
         source_name: String,
         line: usize,
         message: String,
     },
-    #[error("{source_name}:{line}: {item}: field `{field}`: {message}")]
+    #[error("{}: {item}: field `{field}`: {message}", at(source_name, *line))]
     Invalid {
         source_name: String,
         /// 1-based line of the item, 0 when not known (a scene built in code).
@@ -33,7 +33,7 @@ pub enum SceneError {
         field: String,
         message: String,
     },
-    #[error("{source_name}:{line}: {item}: cannot use `{path}`: {message}")]
+    #[error("{}: {item}: cannot use `{path}`: {message}", at(source_name, *line))]
     Asset {
         source_name: String,
         line: usize,
@@ -41,6 +41,15 @@ pub enum SceneError {
         path: String,
         message: String,
     },
+}
+
+/// `source:line`, or the source alone when the line is not known (0).
+fn at(source_name: &str, line: usize) -> String {
+    if line > 0 {
+        format!("{source_name}:{line}")
+    } else {
+        source_name.to_string()
+    }
 }
 
 /// A triangle mesh: positions and index triples.

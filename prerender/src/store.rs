@@ -13,14 +13,20 @@
 //!     slab_K/color.png          RGBA8; alpha is the slab's binary opacity mask (0 or 255)
 //!     slab_K/depth.exr          f32 "Z", +inf where the slab holds nothing
 //!     layers.json               LayersMeta, written after every slab_K (completion marker)
+//!
+//! DIR/runs/*.jsonl             the run log: timings of every run (crate::runlog)
 //! ```
 //!
-//! Every file is written to a temporary name in the same directory and renamed into place, so
-//! a killed run never leaves a file that looks complete; a sample counts as done only once its
-//! marker exists, which is what resume checks.
+//! Every file is written to a uniquely named temporary file in the same directory and renamed
+//! into place (`railview_files`), so a killed run never leaves a file that looks complete and
+//! shards writing into one shared directory never disturb each other; a sample counts as done
+//! only once its marker exists, which is what resume checks. Everything but the run log and
+//! the reports (`prerender.json` and `.md`: times, which shard rendered what) is the same bytes
+//! for the same inputs, whoever renders it: no timing in the markers, EXR tiles in a fixed
+//! order.
 
 use std::fs;
-use std::io::{self, Write};
+use std::io;
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
@@ -54,7 +60,9 @@ impl StoreError {
     }
 }
 
-/// Per-sample metadata (`sample.json`).
+/// Per-sample metadata (`sample.json`). Content only: the same inputs give the same bytes, on
+/// any machine; how long a sample took is in the run log ([`crate::runlog`]). (Markers
+/// written before carried `seconds`; it is ignored when read.)
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SampleMeta {
     pub index: usize,
@@ -63,20 +71,21 @@ pub struct SampleMeta {
     pub position: DVec3,
     pub face_size: u32,
     pub lowres_face_size: u32,
-    /// Wall time of this sample's colour + depth + low-res passes.
-    pub seconds: f64,
     /// Primary rays traced for this sample (all passes).
     pub primary_rays: u64,
 }
 
-/// Per-sample slab layers metadata (`layers.json`).
+/// Per-sample slab layers metadata (`layers.json`); timings are in the run log.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LayersMeta {
     pub slabs: Vec<SlabRange>,
-    pub seconds: f64,
 }
 
 /// The report scripts read (`prerender.json`). Keep field names stable.
+///
+/// Written by a run without `--shard` or by the merge (`--merge`), never by a shard: it covers
+/// every complete sample in the directory, and its times and [`ShardSummary`]s come from the
+/// run logs ([`crate::runlog`]) of whichever runs rendered them.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PrerenderReport {
     /// Scene name (`castle`, a TOML path, or a `.pov` path).
@@ -88,19 +97,39 @@ pub struct PrerenderReport {
     pub samples: usize,
     pub face_size: u32,
     pub lowres_face_size: u32,
-    /// Wall time of the run that wrote this report (resumed samples cost nothing).
+    /// Render time summed over the complete samples (base passes and slab layers), as their
+    /// runs logged it, whichever machine rendered them.
     pub seconds: f64,
     pub rays_per_second: f64,
     pub viewpoints: Vec<tracks::ReferenceViewpoint>,
     /// Slab layers rendered per sample, empty if none yet.
     #[serde(default)]
     pub slabs: Vec<SlabRange>,
-    /// Shard `K/N` this run covered, if sharded.
+    /// Always `null` now (the report covers the whole track; see `shards`). Reports of older
+    /// versions held the shard of the run that wrote them last.
     #[serde(default)]
     pub shard: Option<(usize, usize)>,
+    /// Which run rendered which complete sample, grouped by shard.
+    #[serde(default)]
+    pub shards: Vec<ShardSummary>,
     /// Renderer-specific extra numbers (POV-Ray parse/trace times, …).
     #[serde(default)]
     pub extra: serde_json::Value,
+}
+
+/// The complete samples one shard (or the unsharded runs) rendered, from the run logs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ShardSummary {
+    /// `[K, N]`; `null` for runs without `--shard`, and for samples no run log mentions
+    /// (rendered by an older version, or copied without their `runs/`).
+    pub shard: Option<(usize, usize)>,
+    pub samples: Vec<usize>,
+    /// Base-pass render time of these samples, summed.
+    pub render_seconds: f64,
+    pub primary_rays: u64,
+    /// Hosts that rendered them.
+    #[serde(default)]
+    pub hosts: Vec<String>,
 }
 
 /// Paths of one prerender directory.
@@ -171,35 +200,28 @@ impl PrerenderDir {
 
 /// Create `dir` and check that it is writable, with an error naming it.
 pub fn ensure_writable_dir(dir: &Path) -> Result<(), StoreError> {
-    fs::create_dir_all(dir).map_err(|e| StoreError::io(dir, e))?;
-    let probe = dir.join(format!(".write-test-{}", std::process::id()));
-    fs::write(&probe, b"").map_err(|e| StoreError::io(dir, e))?;
-    fs::remove_file(&probe).map_err(|e| StoreError::io(&probe, e))
+    railview_files::check_writable(dir).map_err(|e| StoreError::io(dir, e))
 }
 
-/// Write `bytes` to `path` atomically: temporary file in the same directory, fsync, rename.
+/// Write `bytes` to `path` whole: a uniquely named temporary file in the same directory,
+/// fsync, rename (`railview_files::write`). Safe with any number of writers at once, on one
+/// host or many sharing a file system.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), StoreError> {
-    let dir = path
-        .parent()
-        .ok_or_else(|| StoreError::format(path, "has no parent directory"))?;
-    fs::create_dir_all(dir).map_err(|e| StoreError::io(dir, e))?;
-    let name = path
-        .file_name()
-        .ok_or_else(|| StoreError::format(path, "has no file name"))?
-        .to_string_lossy();
-    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
-    let result = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        // Best effort: the temporary file never looks complete, so failing to remove it is harmless.
-        fs::remove_file(&tmp).ok();
-        return Err(StoreError::io(path, e));
-    }
-    Ok(())
+    railview_files::write(path, bytes).map_err(|e| StoreError::io(path, e))
+}
+
+/// [`write_atomic`] unless `path` already holds exactly `bytes` (files every shard of a
+/// sharded run writes with the same content, such as `track.toml`).
+pub fn write_if_changed(path: &Path, bytes: &[u8]) -> Result<bool, StoreError> {
+    railview_files::write_if_changed(path, bytes).map_err(|e| StoreError::io(path, e))
+}
+
+/// Remove the temporary files a killed writer left in `dir` (not below it), before
+/// rewriting what is there (`railview_files::remove_temporaries`).
+pub fn remove_temporaries(dir: &Path) -> Result<(), StoreError> {
+    railview_files::remove_temporaries(dir)
+        .map(|_| ())
+        .map_err(|e| StoreError::io(dir, e))
 }
 
 /// Serialise `value` as pretty JSON and write it atomically.
@@ -281,10 +303,17 @@ pub fn read_rgba_png(path: &Path) -> Result<CubeMap<[u8; 4]>, StoreError> {
 pub fn encode_depth_exr(map: &CubeMap<f32>) -> Result<Vec<u8>, String> {
     use exr::prelude::*;
     let n = map.face_size() as usize;
+    // Tiles in increasing order: the writer compresses them in parallel and, with the line
+    // order left unspecified, stores each as it finishes, so two writes of one map would
+    // differ in bytes. In order, the same map always gives the same file.
+    let encoding = Encoding {
+        line_order: LineOrder::Increasing,
+        ..Encoding::FAST_LOSSLESS
+    };
     let layer = Layer::new(
         (n, 6 * n),
         LayerAttributes::named("depth"),
-        Encoding::FAST_LOSSLESS,
+        encoding,
         AnyChannels::sort(SmallVec::from_vec(vec![AnyChannel::new(
             "Z",
             FlatSamples::F32(map.as_slice().to_vec()),
@@ -380,6 +409,49 @@ mod tests {
         let p = d.join("depth.exr");
         write_depth_exr(&p, &m).unwrap();
         assert_eq!(read_depth_exr(&p).unwrap(), m);
+    }
+
+    #[test]
+    fn depth_exr_bytes_depend_on_the_map_alone() {
+        // Face 200: 4 × 19 tiles of 64², compressed on every core. The same map must give the
+        // same bytes every time, and the bytes a one-thread writer gives.
+        let m = CubeMap::from_fn(200, |f, x, y| {
+            if (x / 7 + y / 5) % 3 == 0 {
+                f32::INFINITY
+            } else {
+                (f.index() * 1000 + y as usize * 3 + x as usize % 11) as f32 * 0.25
+            }
+        });
+        let a = encode_depth_exr(&m).unwrap();
+        for _ in 0..4 {
+            assert!(
+                encode_depth_exr(&m).unwrap() == a,
+                "EXR bytes differ between writes"
+            );
+        }
+        use exr::prelude::*;
+        let layer = Layer::new(
+            (200, 1200),
+            LayerAttributes::named("depth"),
+            Encoding {
+                line_order: LineOrder::Increasing,
+                ..Encoding::FAST_LOSSLESS
+            },
+            AnyChannels::sort(SmallVec::from_vec(vec![AnyChannel::new(
+                "Z",
+                FlatSamples::F32(m.as_slice().to_vec()),
+            )])),
+        );
+        let mut one = io::Cursor::new(Vec::new());
+        Image::from_layer(layer)
+            .write()
+            .non_parallel()
+            .to_buffered(&mut one)
+            .unwrap();
+        assert!(
+            one.into_inner() == a,
+            "parallel and sequential EXR bytes differ"
+        );
     }
 
     #[test]

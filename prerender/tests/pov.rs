@@ -419,7 +419,6 @@ fn timeout_kills_the_render_and_leaves_no_complete_sample() {
         position: DVec3::new(0.0, 1.2, 0.0),
         face_size: FACE,
         lowres_face_size: LOWRES,
-        seconds: 1.0,
         primary_rays: 1,
     };
     store::write_json(&dir.sample_json(0), &stale).unwrap();

@@ -5,7 +5,7 @@
 use std::time::Instant;
 
 use anyhow::Context;
-use viewer::gpu::{Gpu, Renderer};
+use viewer::gpu::{Gpu, GpuRequest, Renderer};
 use viewer::headless::{open, parse_size, synth_street, yaw_along};
 use viewer::source::LoadOptions;
 use viewer::{plan_frame, DrawBudget, MeshParams, RefView};
@@ -47,6 +47,11 @@ pub struct Args {
     /// Write the results as JSON here.
     #[arg(long)]
     pub json: Option<std::path::PathBuf>,
+    /// Compare wgpu backends instead (e.g. `vulkan,gl`): the main frame types drawn on a
+    /// renderer per backend, interleaved frame by frame in one run; medians per backend and
+    /// each backend's ratio to the first.
+    #[arg(long, value_delimiter = ',')]
+    pub backends: Vec<String>,
     /// Also count the full frame's mesh fragments per view pass on the CPU reference
     /// (`viewer::cpu`, same plan): rasterised, shaded after the depth test in drawing order
     /// (early depth testing), kept by the opacity mask, pixels covered (overdraw).
@@ -214,7 +219,10 @@ fn load_average() -> Option<f64> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (w, h) = parse_size(&args.size).map_err(anyhow::Error::msg)?;
-    anyhow::ensure!(args.frames >= 1, "--frames must be at least 1");
+    super::count("--frames", args.frames, 100_000)?;
+    super::count("--throughput-frames", args.throughput_frames, 100_000)?;
+    super::face_size("--face", args.face)?;
+    super::count("--mesh-step", args.mesh_step as usize, 4096)?;
     let mesh = MeshParams {
         step: args.mesh_step,
         adaptive: match args.mesh.as_str() {
@@ -270,9 +278,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &walk.views[0].flatten(),
     )];
     let pano_plan = plan_frame(&pano, &camera, s, DrawBudget::default())?;
-    let mut r = Renderer::new(Gpu::new()?);
+    if !args.backends.is_empty() {
+        let cameras = Cameras {
+            mid: (&camera, s),
+            near: (&camera_near, s_near),
+        };
+        return compare_backends(&args, &walk.views, &pano, &cameras);
+    }
+    let mut r = Renderer::new(Gpu::new()?)?;
     // A second renderer without the half-texel mesh skirts (what they cost).
-    let mut r_bare = Renderer::new(Gpu::new()?);
+    let mut r_bare = Renderer::new(Gpu::new()?)?;
     r_bare.set_skirts(false);
     // (name, budget, tile ids written); frames without overlays take the fused path (no
     // view targets, no composite pass), feedback frames (tile ids) add a depth + id pass per
@@ -575,6 +590,217 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("{}", serde_json::to_string_pretty(&res)?);
     if let Some(path) = &args.json {
         prerender::store::write_json(path, &res)?;
+    }
+    Ok(())
+}
+
+/// The cameras of the benchmark: between the first two samples, and near the first.
+struct Cameras<'a> {
+    mid: (&'a tracks::PerspectiveCamera, f64),
+    near: (&'a tracks::PerspectiveCamera, f64),
+}
+
+/// A frame type of `--backends`: budget, tile ids written, near a sample.
+type FrameKind = (DrawBudget, bool, bool);
+
+/// One backend of `--backends`: its adapter and, per frame type, median wall ms per frame
+/// drawn and waited for, throughput ms per frame, and the ratio of both to the first
+/// backend's.
+#[derive(serde::Serialize)]
+struct BackendResult {
+    backend: String,
+    adapter: String,
+    /// Capabilities the device lacks (fallback paths taken).
+    without: String,
+    variants: Vec<BackendVariant>,
+}
+
+#[derive(serde::Serialize)]
+struct BackendVariant {
+    name: String,
+    wall_ms: f64,
+    /// CPU time of all the process's threads while the frame was drawn (only that
+    /// backend's renderer works then; steadier than the wall clock on a loaded machine).
+    cpu_ms: Option<f64>,
+    throughput_ms: Option<f64>,
+    wall_ratio: f64,
+    cpu_ratio: Option<f64>,
+    throughput_ratio: Option<f64>,
+}
+
+/// `--backends`: the main frame types on a renderer per backend, frames interleaved across
+/// backends (one frame of each backend in turn), so a load change hits all alike.
+fn compare_backends(
+    args: &Args,
+    views: &[RefView],
+    pano: &[RefView],
+    cameras: &Cameras<'_>,
+) -> anyhow::Result<()> {
+    let mut renderers = Vec::new();
+    for name in &args.backends {
+        let request = GpuRequest::for_backend(name)
+            .with_context(|| format!("--backends {name}: expected vulkan, gl, metal or dx12"))?;
+        let gpu = Gpu::request(&request).with_context(|| format!("--backends {name}"))?;
+        renderers.push((name.clone(), Renderer::new(gpu)?));
+    }
+    // (name, (budget, tile ids, near a sample)); `None`: the plain panorama.
+    let kinds: Vec<(&str, Option<FrameKind>)> = vec![
+        ("plain single cube map", None),
+        (
+            "full without tile ids (fused)",
+            Some((DrawBudget::default(), false, false)),
+        ),
+        (
+            "full (2 views x all slabs, tile ids)",
+            Some((DrawBudget::default(), true, false)),
+        ),
+        (
+            "full, fused, near a sample (t = 0.02)",
+            Some((DrawBudget::default(), false, true)),
+        ),
+        (
+            "full, second view at half resolution",
+            Some((
+                DrawBudget {
+                    half_res_second: true,
+                    ..Default::default()
+                },
+                false,
+                false,
+            )),
+        ),
+        (
+            "1 view, all slabs, fused",
+            Some((
+                DrawBudget {
+                    blend: false,
+                    ..Default::default()
+                },
+                false,
+                false,
+            )),
+        ),
+    ];
+    let plan_of = |kind: &Option<FrameKind>| -> anyhow::Result<viewer::FramePlan> {
+        let (camera, s) = cameras.mid;
+        Ok(match kind {
+            None => plan_frame(pano, camera, s, DrawBudget::default())?,
+            Some((budget, ids, near)) => {
+                let (camera, s) = if *near { cameras.near } else { cameras.mid };
+                let mut p = plan_frame(views, camera, s, *budget)?;
+                p.tile_ids = *ids;
+                p
+            }
+        })
+    };
+    let plans: Vec<viewer::FramePlan> = kinds
+        .iter()
+        .map(|(_, k)| plan_of(k))
+        .collect::<anyhow::Result<_>>()?;
+    let draw = |r: &mut Renderer, k: usize| -> anyhow::Result<()> {
+        match kinds[k].1 {
+            None => r.draw_panorama(&plans[k], pano)?,
+            Some(_) => r.draw(&plans[k], views)?,
+        }
+        Ok(())
+    };
+    // Warm-up: uploads, pipelines, first use of every path.
+    for (_, r) in &mut renderers {
+        for k in 0..kinds.len() {
+            for _ in 0..2 {
+                draw(r, k)?;
+            }
+        }
+    }
+    // wall[frame type][backend], cpu likewise: ms per frame.
+    let mut wall = vec![vec![Vec::new(); renderers.len()]; kinds.len()];
+    let mut cpu = wall.clone();
+    for _ in 0..args.frames {
+        for (k, (per_backend, cpu_per_backend)) in wall.iter_mut().zip(&mut cpu).enumerate() {
+            for ((_, r), (times, cpu_times)) in renderers
+                .iter_mut()
+                .zip(per_backend.iter_mut().zip(cpu_per_backend.iter_mut()))
+            {
+                let (t, c) = (Instant::now(), cpu_ns());
+                draw(r, k)?;
+                times.push(t.elapsed().as_secs_f64() * 1e3);
+                if let (Some(a), Some(b)) = (c, cpu_ns()) {
+                    cpu_times.push(b.saturating_sub(a) as f64 / 1e6);
+                }
+            }
+        }
+    }
+    let mut through = vec![vec![None; kinds.len()]; renderers.len()];
+    if args.throughput_frames > 0 {
+        for (k, (plan, (_, kind))) in plans.iter().zip(&kinds).enumerate() {
+            for (b, (_, r)) in renderers.iter_mut().enumerate() {
+                let t = match kind {
+                    None => r.throughput_panorama(plan, pano, args.throughput_frames)?,
+                    Some(_) => r.throughput(plan, views, args.throughput_frames)?,
+                };
+                through[b][k] = Some(t.wall_ms);
+            }
+        }
+    }
+    // walls[backend][frame type]: median ms; cpus likewise where measured.
+    let walls: Vec<Vec<f64>> = (0..renderers.len())
+        .map(|b| wall.iter().map(|per| median(per[b].clone())).collect())
+        .collect();
+    let cpus: Vec<Vec<Option<f64>>> = (0..renderers.len())
+        .map(|b| {
+            cpu.iter()
+                .map(|per| (!per[b].is_empty()).then(|| median(per[b].clone())))
+                .collect()
+        })
+        .collect();
+    let results: Vec<BackendResult> = renderers
+        .iter()
+        .enumerate()
+        .map(|(b, (name, r))| BackendResult {
+            backend: name.clone(),
+            adapter: r.gpu.describe(),
+            without: r.gpu.caps.missing(),
+            variants: kinds
+                .iter()
+                .enumerate()
+                .map(|(k, (kind, _))| BackendVariant {
+                    name: kind.to_string(),
+                    wall_ms: walls[b][k],
+                    cpu_ms: cpus[b][k],
+                    throughput_ms: through[b][k],
+                    wall_ratio: walls[b][k] / walls[0][k],
+                    cpu_ratio: cpus[b][k].zip(cpus[0][k]).map(|(a, z)| a / z),
+                    throughput_ratio: through[b][k].zip(through[0][k]).map(|(a, z)| a / z),
+                })
+                .collect(),
+        })
+        .collect();
+    let (w, h) = (cameras.mid.0.width, cameras.mid.0.height);
+    eprintln!(
+        "{w}x{h}, {} frames per frame type and backend, interleaved; ratios to {}",
+        args.frames, results[0].backend
+    );
+    for res in &results {
+        eprintln!(
+            "{}: {} (without: {})",
+            res.backend, res.adapter, res.without
+        );
+        for v in &res.variants {
+            eprintln!(
+                "  {:<40} {:>8.1} ms wall ({:>4.2}x)  {:>8.1} ms cpu ({:>4.2}x)  throughput {:>7.2} ms ({:>4.2}x)",
+                v.name,
+                v.wall_ms,
+                v.wall_ratio,
+                v.cpu_ms.unwrap_or(f64::NAN),
+                v.cpu_ratio.unwrap_or(f64::NAN),
+                v.throughput_ms.unwrap_or(f64::NAN),
+                v.throughput_ratio.unwrap_or(f64::NAN),
+            );
+        }
+    }
+    println!("{}", serde_json::to_string_pretty(&results)?);
+    if let Some(path) = &args.json {
+        prerender::store::write_json(path, &results)?;
     }
     Ok(())
 }

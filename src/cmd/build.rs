@@ -20,6 +20,7 @@ use anyhow::{bail, Context};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use occlusion::report::TileDecisions;
+use prerender::runlog::RunLog;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
 use serde::{Deserialize, Serialize};
 use slabs::io as sio;
@@ -196,7 +197,34 @@ fn bar(n: u64, what: &str) -> ProgressBar {
     b
 }
 
+/// Every number of the command line against its limit, before any stage runs.
+fn check_args(args: &Args) -> anyhow::Result<()> {
+    use tracks::limits::check_f64;
+    super::face_size("--face-size", args.face_size)?;
+    if let Some(n) = args.lowres_face_size {
+        super::face_size("--lowres-face-size", n)?;
+    }
+    // α = 0 would keep nothing behind the first slab; the culling stage refuses it too.
+    anyhow::ensure!(
+        args.alpha.is_finite() && args.alpha > 0.0 && args.alpha <= 1.0,
+        "--alpha {}: must be a number in (0, 1]",
+        args.alpha
+    );
+    anyhow::ensure!(
+        (-7..=22).contains(&args.zstd_level),
+        "--zstd-level {}: must be from -7 to 22",
+        args.zstd_level
+    );
+    super::count("--ach-samples", args.ach_samples, 1024)?;
+    super::face_size("--ach-camera-size", args.ach_camera_size)?;
+    if let Some(t) = args.timeout_secs {
+        check_f64("--timeout-secs", t, 0.001, 1e6)?;
+    }
+    Ok(())
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
+    check_args(&args)?;
     let t_all = Instant::now();
     let work = args.work.clone().unwrap_or_else(|| {
         let mut w = args.out.clone().into_os_string();
@@ -217,6 +245,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ..BuildReport::default()
     };
     let p = |x: &Path| x.display().to_string();
+    let log = RunLog::create(&work, "build", None)?;
 
     // 1–3: the other stages, each resuming on its own.
     let t = Instant::now();
@@ -298,7 +327,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The tiles' own PTM and mesh objects, which the viewpoints' packs replace, stay in the
     // work directory: the database holds only what its manifest refers to.
     let staged_objects = work.join("encode");
-    let mut writer = DbWriter::create(&args.out)?.with_stage(&staged_objects);
     let method = match args.ptm_method.as_str() {
         "arith" => ptm::Method::Arith,
         "zstd" => ptm::Method::Zstd,
@@ -315,6 +343,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bail!(
             "--depth-error-px {}: expected 0.001 to 10 pixels of parallax",
             args.depth_error_px
+        );
+    }
+    let mut writer = DbWriter::create(&args.out)?.with_stage(&staged_objects)?;
+    if !writer.leftovers_removed.is_empty() {
+        eprintln!(
+            "      removed {} temporary file(s) of an interrupted build",
+            writer.leftovers_removed.len()
         );
     }
     let opts = EncodeOptions {
@@ -530,6 +565,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     report
         .seconds
         .push(("total".into(), t_all.elapsed().as_secs_f64()));
+    let stage_seconds: Vec<(&str, serde_json::Value)> = report
+        .seconds
+        .iter()
+        .map(|(name, secs)| (name.as_str(), (*secs).into()))
+        .collect();
+    log.end(&stage_seconds)?;
     store::write_json(&work.join("build.json"), &report)?;
     let md = markdown(&report);
     store::write_atomic(&work.join("build.md"), md.as_bytes())?;

@@ -29,6 +29,7 @@ use occlusion::{
     cull_viewpoint, mark_visible, raw_rgba_bytes, score, Cell, CullParams, MatchRule, SlabLayer,
     TileInfo, Variant, Visibility,
 };
+use prerender::runlog::RunLog;
 use prerender::scene::Scene;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
 use slabs::io::{self as sio, TilesFile};
@@ -71,6 +72,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let pre: PrerenderReport = dir
         .read_report()
         .context("reading the prerender report (run `railview prerender` first)")?;
+    let log = RunLog::create(&args.dir, "cull", None)?;
     let alphas = parse_alphas(&args.alpha)?;
     let variants = match args.variant.as_str() {
         "both" => vec![Variant::Conservative, Variant::Paper],
@@ -85,8 +87,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if pre.viewpoints.is_empty() {
         bail!("{}: no viewpoints", dir.report_json().display());
     }
-    if args.oracle && args.oracle_per_segment == 0 {
-        bail!("--oracle-per-segment must be at least 1");
+    if args.oracle {
+        super::count("--oracle-per-segment", args.oracle_per_segment, 10_000)?;
+    }
+    if let Some(n) = args.oracle_face_size {
+        super::face_size("--oracle-face-size", n)?;
     }
     let mut geometry = if args.oracle {
         Some(OracleSource::load(&dir, &pre, args.oracle_face_size)?)
@@ -235,6 +240,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             o.per_segment, o.face_size, o.seconds
         );
     }
+    log.end(&[
+        ("viewpoints", count.into()),
+        ("runs", report.runs.len().into()),
+        ("load_seconds", load_seconds.into()),
+        ("oracle_seconds", oracle_seconds.into()),
+    ])?;
     println!(
         "wrote {}, cull.md, cull_tiles.json, cull/*.png ({:.2} s)",
         args.dir.join("cull.json").display(),
@@ -426,12 +437,10 @@ fn load_geometry(pre: &PrerenderReport) -> anyhow::Result<Scene> {
         return Ok(b.scene);
     }
     let path = Path::new(&pre.scene);
-    let text = std::fs::read_to_string(path)
+    let text = super::read_text(path)
         .with_context(|| format!("--oracle: reading scene file {}", path.display()))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-    let loader = move |rel: &str| -> Result<Vec<u8>, String> {
-        std::fs::read(base.join(rel)).map_err(|e| format!("{}: {e}", base.join(rel).display()))
-    };
+    let loader = move |rel: &str| -> Result<Vec<u8>, String> { super::read_asset(&base.join(rel)) };
     Ok(Scene::parse_toml_with(&text, &pre.scene, &loader)?)
 }
 

@@ -187,13 +187,27 @@ fn run_stage(
             record.message = Some(format!("{e:#}"));
             eprintln!("[{step}/{steps}] {}: failed: {e:#}", stage.name);
         }
-        Err(_) => {
+        Err(payload) => {
+            // A bug, not an error the command reports: keep its message with the stage.
+            let what = panic_text(payload.as_ref());
             record.status = StageStatus::Failed;
-            record.message = Some("the command panicked (see the message above)".into());
-            eprintln!("[{step}/{steps}] {}: panicked", stage.name);
+            record.message = Some(format!("the command panicked: {what}"));
+            eprintln!(
+                "[{step}/{steps}] {}: failed, it panicked: {what}",
+                stage.name
+            );
         }
     }
     finish(layout, log, record)
+}
+
+/// The message of a panic's payload (`panic!` with a literal or a formatted message).
+fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "no message".into())
 }
 
 fn finish(layout: &Layout, log: &mut RunLog, record: StageRecord) -> StageStatus {
@@ -420,6 +434,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .filter(|s| s.status == StageStatus::Failed)
         .map(|s| s.name.as_str())
         .collect();
+    // Which stages could not run and why, each reason once (the GPU stages usually share
+    // theirs); everything else was written.
+    let mut reasons: Vec<(Vec<&str>, &str)> = Vec::new();
+    for s in log
+        .stages
+        .iter()
+        .filter(|s| s.status == StageStatus::Failed)
+    {
+        let why = s.message.as_deref().unwrap_or("no message");
+        match reasons.iter_mut().find(|(_, w)| *w == why) {
+            Some((names, _)) => names.push(&s.name),
+            None => reasons.push((vec![&s.name], why)),
+        }
+    }
+    for (names, why) in &reasons {
+        eprintln!(
+            "{} `{}` could not run: {why}",
+            if names.len() == 1 { "stage" } else { "stages" },
+            names.join("`, `")
+        );
+    }
     anyhow::ensure!(
         failed.is_empty(),
         "stages failed: {} (details in {} and the report)",
@@ -487,6 +522,14 @@ mod tests {
             command_line(&["cull".into(), "a/b".into(), "1.0,0.9".into()]),
             "railview cull a/b 1.0,0.9"
         );
+    }
+
+    #[test]
+    fn a_panic_is_recorded_with_its_message() {
+        let caught = std::panic::catch_unwind(|| panic!("out of {} apples", 3)).unwrap_err();
+        assert_eq!(panic_text(caught.as_ref()), "out of 3 apples");
+        let caught = std::panic::catch_unwind(|| std::panic::panic_any(7u8)).unwrap_err();
+        assert_eq!(panic_text(caught.as_ref()), "no message");
     }
 
     #[test]

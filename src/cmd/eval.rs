@@ -98,7 +98,8 @@ fn texture_coding(db: &str) -> anyhow::Result<String> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let size = parse_size(&args.size).map_err(anyhow::Error::msg)?;
-    anyhow::ensure!(args.segments >= 1, "--segments must be at least 1");
+    super::count("--segments", args.segments, 100_000)?;
+    super::count("--between", args.between.max(1), 10_000)?;
     let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
         .with_context(|| format!("opening {}", args.db))?;
     let truth = Truth::for_scene(&walk.scene).ok_or_else(|| {
@@ -108,7 +109,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )
     })?;
     prerender::store::ensure_writable_dir(&args.out)?;
-    let mut renderer = Renderer::new(Gpu::new()?);
+    let mut renderer = Renderer::new(Gpu::new()?)?;
     // Renderer budgets on the walkthrough as given; for the synthetic street also other
     // databases: one slab, a coarser mesh, twice the sample spacing.
     let mut runs: Vec<(

@@ -41,11 +41,11 @@ struct FrameInfo {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (w, h) = parse_size(&args.size).map_err(anyhow::Error::msg)?;
-    anyhow::ensure!(args.frames >= 1, "--frames must be at least 1");
+    super::count("--frames", args.frames, 100_000)?;
     let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
         .with_context(|| format!("opening {}", args.db))?;
     prerender::store::ensure_writable_dir(&args.output)?;
-    let mut renderer = Renderer::new(Gpu::new()?);
+    let mut renderer = Renderer::new(Gpu::new()?)?;
     let len = walk.track.length();
     let bar = indicatif::ProgressBar::new(args.frames as u64);
     let mut infos = Vec::new();
@@ -83,9 +83,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     prerender::store::write_json(&args.output.join("flythrough.json"), &infos)?;
     let mean = infos.iter().map(|f| f.frame_ms).sum::<f64>() / infos.len() as f64;
     eprintln!(
-        "{} frames in {}, mean frame {mean:.2} ms",
+        "{} frames in {}, mean frame {mean:.2} ms, adapter {}",
         infos.len(),
-        args.output.display()
+        args.output.display(),
+        renderer.gpu.describe()
     );
     Ok(())
 }

@@ -31,8 +31,17 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     anyhow::ensure!(
         args.seconds.is_finite() && args.seconds > 0.0 && args.seconds <= 3600.0,
-        "--seconds must be in (0, 3600]"
+        "--seconds {}: must be a number of seconds in (0, 3600]",
+        args.seconds
     );
+    tracks::limits::check_u64("--clients", args.clients as u64, 1, 10_000)?;
+    if let Some((scheme, _)) = args.db.split_once("://") {
+        anyhow::ensure!(
+            scheme.eq_ignore_ascii_case("http"),
+            "`{}`: only http:// URLs are supported",
+            args.db
+        );
+    }
     let config = ServerConfig {
         throttle_bps: match &args.throttle {
             Some(t) => parse_rate(t)
@@ -48,7 +57,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
     rt.block_on(async {
-        let (url, server) = if args.db.starts_with("http://") {
+        let (url, server) = if args.db.contains("://") {
             (ServerUrl::parse(&args.db)?, None)
         } else {
             let db = ServedDb::open(Path::new(&args.db))?;

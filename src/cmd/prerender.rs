@@ -1,13 +1,15 @@
 //! `railview prerender`: render the reference viewpoints of a track with the built-in ray
-//! tracer into a prerender directory (layout in `prerender::store`).
+//! tracer into a prerender directory (layout in `prerender::store`). `--shard K/N` renders
+//! one shard's samples and leaves the report to the merge; `--merge` renders nothing, checks
+//! that every sample is complete (naming those that are not) and writes the report.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use anyhow::{bail, Context};
 use indicatif::{ProgressBar, ProgressStyle};
 use prerender::job::{self, ReportInput, RunStats, Shard};
 use prerender::render::RenderOptions;
+use prerender::runlog::RunLog;
 use prerender::scene::Scene;
 use prerender::store::{self, PrerenderDir};
 use tracks::{SlabRange, Track, TrackSet};
@@ -39,9 +41,14 @@ pub struct Args {
     /// Also render slab layers for these depth ranges, e.g. `0-10,10-40,40-inf`.
     #[arg(long)]
     pub slabs: Option<String>,
-    /// Render only viewpoints with index % N == K (`K/N`).
-    #[arg(long)]
+    /// Render only viewpoints with index % N == K (`K/N`). Shards share one output directory;
+    /// none of them writes `prerender.json` (the merge does).
+    #[arg(long, conflicts_with = "merge")]
     pub shard: Option<String>,
+    /// After the shards: render nothing, fail naming every sample (and its shard) that is not
+    /// complete, else write `prerender.json` covering all shards.
+    #[arg(long)]
+    pub merge: bool,
 }
 
 /// The scene, its tracks (if it has any) and its display name.
@@ -56,12 +63,10 @@ fn load_scene(spec: &str) -> anyhow::Result<(Scene, Option<TrackSet>)> {
             prerender::scenes::NAMES.join(", ")
         );
     }
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("reading scene file {}", path.display()))?;
+    let text =
+        super::read_text(path).with_context(|| format!("reading scene file {}", path.display()))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-    let loader = move |rel: &str| -> Result<Vec<u8>, String> {
-        std::fs::read(base.join(rel)).map_err(|e| format!("{}: {e}", base.join(rel).display()))
-    };
+    let loader = move |rel: &str| -> Result<Vec<u8>, String> { super::read_asset(&base.join(rel)) };
     let scene = Scene::parse_toml_with(&text, spec, &loader)?;
     let tracks = prerender::parse::tracks_from_scene_toml(&text, spec)?;
     Ok((scene, tracks))
@@ -76,8 +81,8 @@ fn pick_track(spec: &str, scene_tracks: Option<&TrackSet>) -> anyhow::Result<Tra
         let names = scene_tracks.map_or(String::from("none"), |s| s.names().join(", "));
         bail!("track `{spec}` is neither a track of the scene (tracks: {names}) nor a track file");
     }
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("reading track file {}", path.display()))?;
+    let text =
+        super::read_text(path).with_context(|| format!("reading track file {}", path.display()))?;
     let set = TrackSet::parse(&text, spec)?;
     match set.tracks.as_slice() {
         [one] => Ok(one.clone()),
@@ -109,10 +114,8 @@ fn store_error(e: store::StoreError) -> anyhow::Error {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let started = Instant::now();
-    if args.face_size == 0 || args.lowres_face_size == 0 {
-        bail!("--face-size and --lowres-face-size must be at least 1");
-    }
+    super::face_size("--face-size", args.face_size)?;
+    super::face_size("--lowres-face-size", args.lowres_face_size)?;
     if args.supersample == 0 || args.supersample > 16 {
         bail!("--supersample must be between 1 and 16");
     }
@@ -133,8 +136,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map_err(store_error)
         .context("output directory")?;
     let dir = PrerenderDir::new(&args.out);
+    let viewpoints = track.viewpoints();
     // Without --slabs, a rerun keeps the slab layers an earlier run (or `railview slabs`)
-    // rendered at this face size, so the report never forgets them.
+    // rendered at this face size, so the report never forgets them: those of the report, or
+    // (before any report, as after shards run with --slabs) those of the first sample.
     let slabs: Vec<SlabRange> = match explicit_slabs {
         Some(s) => s,
         None => dir
@@ -142,14 +147,35 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .ok()
             .filter(|r| r.face_size == args.face_size)
             .map(|r| r.slabs)
+            .or_else(|| {
+                let first = viewpoints.first()?;
+                job::sample_is_complete(&dir, first, args.face_size, args.lowres_face_size)
+                    .then(|| dir.layers_meta(first.index).map(|m| m.slabs))
+                    .flatten()
+            })
             .unwrap_or_default(),
     };
     let one = TrackSet {
         tracks: vec![track.clone()],
     };
-    store::write_atomic(&dir.track_toml(), one.to_toml().as_bytes()).map_err(store_error)?;
+    // Every shard writes the same bytes here; written only when it differs, so a shard
+    // starting later never replaces the file under one already running.
+    store::write_if_changed(&dir.track_toml(), one.to_toml().as_bytes()).map_err(store_error)?;
 
-    let viewpoints = track.viewpoints();
+    let report_input = ReportInput {
+        scene: &args.scene,
+        renderer: "builtin",
+        track: &track.name,
+        viewpoints: &viewpoints,
+        face_size: args.face_size,
+        lowres_face_size: args.lowres_face_size,
+        slabs: &slabs,
+    };
+    if args.merge {
+        return merge(&dir, &report_input, &args.out);
+    }
+    let log =
+        RunLog::create(&args.out, "prerender", shard.map(|s| s.pair())).map_err(store_error)?;
     let mine: Vec<_> = viewpoints
         .iter()
         .copied()
@@ -160,6 +186,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         supersample: args.supersample,
         shadows: !args.no_shadows,
     };
+    // What the run will do, before it starts: a large face size is a long run.
+    let px = 6.0 * (args.face_size as f64).powi(2);
+    eprintln!(
+        "rendering {} of {} samples: 6 faces of {} px per side, {:.1} Mpx per sample \
+         (colour and depth ≈ {:.0} MiB per sample in memory); the bar's eta follows the first",
+        mine.len(),
+        viewpoints.len(),
+        args.face_size,
+        px / 1e6,
+        px * 7.0 / 1048576.0
+    );
     let pb = bar(mine.len(), "samples");
     let mut stats = job::render_track(
         &dir,
@@ -168,41 +205,121 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         opts,
         args.lowres_face_size,
         None,
+        Some(&log),
         &|_, _| pb.inc(1),
     )
     .map_err(store_error)?;
     pb.finish();
+    let mut layers = RunStats::default();
     if !slabs.is_empty() {
         let pb = bar(mine.len(), "slab layers");
-        let s: RunStats =
-            job::write_slab_layers_with(&dir, &scene, &mine, &slabs, opts, &|_, _| pb.inc(1))
-                .map_err(store_error)?;
+        layers =
+            job::write_slab_layers_with(&dir, &scene, &mine, &slabs, opts, Some(&log), &|_, _| {
+                pb.inc(1)
+            })
+            .map_err(store_error)?;
         pb.finish();
-        stats.render_seconds += s.render_seconds;
+        stats.render_seconds += layers.render_seconds;
     }
-    let report = job::write_report(
-        &dir,
-        &ReportInput {
-            scene: &args.scene,
-            track: &track.name,
-            viewpoints: &viewpoints,
-            face_size: args.face_size,
-            lowres_face_size: args.lowres_face_size,
-            slabs: &slabs,
-            shard,
-            seconds: started.elapsed().as_secs_f64(),
-            stats: &stats,
-        },
-    )
-    .map_err(store_error)?;
+    let wall = log
+        .end(&[
+            ("rendered", stats.rendered.into()),
+            ("skipped", stats.skipped.into()),
+            ("layers_rendered", layers.rendered.into()),
+            ("layers_skipped", layers.skipped.into()),
+            ("render_seconds", stats.render_seconds.into()),
+        ])
+        .map_err(store_error)?;
+    if let Some(s) = shard {
+        eprintln!(
+            "shard {}/{}: {} of {} samples rendered, {} already complete, in {wall:.1} s (log: {}). \
+             Once every shard has finished, `railview prerender … --merge` checks the track and \
+             writes prerender.json.",
+            s.index,
+            s.count,
+            stats.rendered,
+            mine.len(),
+            stats.skipped,
+            log.path().display()
+        );
+        return Ok(());
+    }
+    let report = job::write_report(&dir, &report_input).map_err(store_error)?;
     eprintln!(
-        "{} of {} samples complete in {} ({} rendered, {} skipped); {:.0} primary rays/s",
+        "{} of {} samples complete in {} ({} rendered, {} skipped, {wall:.1} s); {:.0} primary rays/s",
         report.extra["complete_samples"],
         report.samples,
         args.out.display(),
         stats.rendered,
         stats.skipped,
         report.rays_per_second
+    );
+    Ok(())
+}
+
+/// `--merge`: every sample (and, with slabs, every slab layer set) must be complete; then the
+/// report covering every shard.
+fn merge(dir: &PrerenderDir, input: &ReportInput<'_>, out: &Path) -> anyhow::Result<()> {
+    let (base, layers) = job::missing_samples(
+        dir,
+        input.viewpoints,
+        input.face_size,
+        input.lowres_face_size,
+        input.slabs,
+    );
+    let shards = job::logged_shard_count(dir);
+    let total = input.viewpoints.len();
+    if !base.is_empty() {
+        bail!(
+            "{}: {}",
+            out.display(),
+            job::missing_message(
+                &format!(
+                    "base pass at face size {} (low-res {})",
+                    input.face_size, input.lowres_face_size
+                ),
+                &base,
+                total,
+                shards
+            )
+        );
+    }
+    if !layers.is_empty() {
+        let labels: Vec<String> = input.slabs.iter().map(|s| s.label()).collect();
+        bail!(
+            "{}: {}",
+            out.display(),
+            job::missing_message(
+                &format!("slab layers {}", labels.join(",")),
+                &layers,
+                total,
+                shards
+            )
+        );
+    }
+    let report = job::write_report(dir, input).map_err(store_error)?;
+    let shard_list: Vec<String> = report
+        .shards
+        .iter()
+        .map(|s| {
+            format!(
+                "{} ({} samples)",
+                s.shard
+                    .map_or("unsharded runs".to_string(), |(k, n)| format!("{k}/{n}")),
+                s.samples.len()
+            )
+        })
+        .collect();
+    eprintln!(
+        "merged {}: all {} samples complete; rendered by {}; {:.1} s of rendering",
+        out.display(),
+        report.samples,
+        if shard_list.is_empty() {
+            "no logged run".to_string()
+        } else {
+            shard_list.join(", ")
+        },
+        report.seconds
     );
     Ok(())
 }

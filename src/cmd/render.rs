@@ -99,7 +99,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut plan = plan_frame(&walk.views, &camera, args.at, budget)?;
     // The frame as the window shows it between feedback frames (no tile ids: fused passes).
     plan.tile_ids = false;
-    let mut renderer = Renderer::new(Gpu::new()?);
+    let mut renderer = Renderer::new(Gpu::new()?)?;
     let frame = renderer.render(&plan, &walk.views)?;
     save_png(&args.output, &frame)?;
     if let Some(path) = &args.truth {
@@ -125,7 +125,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         h,
         args.at,
         frame.hole_fraction() * 100.0,
-        renderer.gpu.info.name
+        renderer.gpu.describe()
     );
     Ok(())
 }

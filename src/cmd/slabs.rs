@@ -4,10 +4,12 @@
 //! and the report.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
 use indicatif::{ProgressBar, ProgressStyle};
+use prerender::runlog::{LayersTiming, RunEvent, RunLog};
 use prerender::store::{self, LayersMeta, PrerenderDir, PrerenderReport};
 use slabs::boundaries::{self, ChooseParams, SlabChoice};
 use slabs::io as sio;
@@ -56,6 +58,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let pre: PrerenderReport = dir
         .read_report()
         .context("reading the prerender report (run `railview prerender` first)")?;
+    let log = Arc::new(RunLog::create(dir.root(), "slabs", None)?);
     let keep = match args.mesh.as_str() {
         "adaptive" => MeshKind::Adaptive,
         "grid" => MeshKind::Grid,
@@ -64,6 +67,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !args.tile_size.is_power_of_two() {
         bail!("--tile-size {}: must be a power of two", args.tile_size);
     }
+    super::face_size("--tile-size", args.tile_size)?;
+    super::count("--mesh-step", args.mesh_step as usize, 4096)?;
     let positive = |v: f64| v.is_finite() && v > 0.0;
     if args.mesh_step == 0 || !positive(args.mesh_error) || !positive(args.discontinuity) {
         bail!("--mesh-step, --mesh-error and --discontinuity must be positive");
@@ -131,7 +136,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|(&i, _)| i)
         .collect();
     if !missing.is_empty() && !choice.slabs.is_empty() {
-        render_layers(&dir, &pre, &choice.slabs, &missing)?;
+        render_layers(&dir, &pre, &choice.slabs, &missing, &log)?;
     }
 
     let mesh = MeshParams {
@@ -186,6 +191,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         eprintln!("{resumed} sample(s) already tiled with these parameters: kept");
     }
     report.seconds = t0.elapsed().as_secs_f64();
+    log.end(&[
+        ("samples", indices.len().into()),
+        ("layers_rendered", missing.len().into()),
+        ("tiled", (indices.len() - resumed).into()),
+        ("tiles_kept_from_before", resumed.into()),
+    ])?;
 
     let root = dir.root();
     store::write_json(&root.join("slabs.json"), &report)?;
@@ -243,9 +254,10 @@ fn render_layers(
     pre: &PrerenderReport,
     slabs: &[SlabRange],
     missing: &[usize],
+    log: &Arc<RunLog>,
 ) -> anyhow::Result<()> {
     if pre.renderer == "povray" {
-        return render_layers_pov(dir, pre, slabs, missing);
+        return render_layers_pov(dir, pre, slabs, missing, log);
     }
     if pre.renderer != "builtin" {
         bail!(
@@ -258,7 +270,7 @@ fn render_layers(
     let scene = match prerender::scenes::builtin(&pre.scene) {
         Some(b) => b.scene,
         None => {
-            let text = std::fs::read_to_string(&pre.scene)
+            let text = super::read_text(std::path::Path::new(&pre.scene))
                 .with_context(|| format!("reading scene `{}`", pre.scene))?;
             prerender::scene::Scene::parse_toml(&text, &pre.scene)?
         }
@@ -278,6 +290,10 @@ fn render_layers(
         let t = Instant::now();
         let layers = prerender::render::render_slabs(&scene, vp.position, slabs, opts);
         for (k, l) in layers.iter().enumerate() {
+            // Temporary files of a killed earlier run, before rewriting the layer.
+            if let Some(d) = dir.slab_color_png(i, k).parent() {
+                store::remove_temporaries(d)?;
+            }
             store::write_atomic(&dir.slab_color_png(i, k), &store::encode_rgba_png(&l.color))?;
             store::write_depth_exr(&dir.slab_depth_exr(i, k), &l.depth)?;
         }
@@ -285,9 +301,13 @@ fn render_layers(
             &dir.layers_json(i),
             &LayersMeta {
                 slabs: slabs.to_vec(),
-                seconds: t.elapsed().as_secs_f64(),
             },
         )?;
+        log.log(&RunEvent::Layers(LayersTiming {
+            index: i,
+            slabs: slabs.to_vec(),
+            seconds: t.elapsed().as_secs_f64(),
+        }))?;
         bar.inc(1);
     }
     bar.finish_and_clear();
@@ -359,8 +379,10 @@ fn render_layers_pov(
     pre: &PrerenderReport,
     slabs: &[SlabRange],
     missing: &[usize],
+    log: &Arc<RunLog>,
 ) -> anyhow::Result<()> {
     let mut import = pov_import_from_report(dir, pre)?;
+    import.set_run_log(log.clone());
     import.set_progress(|r| {
         eprintln!(
             "sample {:>4} {:<18} {:>8.2} s  (parse {:.2} s, trace {:.2} s)",

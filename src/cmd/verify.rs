@@ -17,11 +17,16 @@ pub struct Args {
     /// rely on). Reads and decodes everything: slower.
     #[arg(long)]
     pub decode: bool,
+    /// Remove the stray temporary files an interrupted write left (names with a leading
+    /// `.` and a `.tmp` marker in the database's directory, objects/ or objects/HH/).
+    #[arg(long)]
+    pub remove_temp: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let opts = streamer::db::VerifyOptions {
         decode: args.decode,
+        remove_temp: args.remove_temp,
     };
     let report = streamer::db::verify_with(&args.db, opts)
         .with_context(|| format!("verifying {}", args.db.display()))?;
@@ -46,12 +51,30 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         for n in &report.notes {
             println!("note: {}: {}", n.path.display(), n.what);
         }
+        for s in &report.stray {
+            let done = if report.removed.contains(&s.path) {
+                "removed"
+            } else {
+                "`--remove-temp` removes it"
+            };
+            println!("stray: {}: {} ({done})", s.path.display(), s.what);
+        }
         for p in &report.problems {
             println!("DAMAGED: {}: {}", p.path.display(), p.what);
         }
     }
     if report.is_intact() {
-        println!("intact");
+        let left = report.stray.len() - report.removed.len();
+        if !args.json {
+            match (left, report.removed.len()) {
+                (0, 0) => println!("intact"),
+                (0, n) => println!("intact ({n} stray temporary file(s) removed)"),
+                (n, _) => println!(
+                    "intact, but {n} stray temporary file(s) are not part of the database \
+                     (`railview verify --remove-temp` removes them)"
+                ),
+            }
+        }
         Ok(())
     } else {
         anyhow::bail!(
@@ -115,6 +138,7 @@ mod tests {
             db: dir.clone(),
             json: false,
             decode: true,
+            remove_temp: false,
         };
         run(args()).unwrap();
         let path = dir.join(obj.rel_path().unwrap());

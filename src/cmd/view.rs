@@ -57,11 +57,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )
     })?;
     anyhow::ensure!(
-        args.memory_mib.is_finite() && args.memory_mib > 0.0,
-        "--memory-mib {}: must be a positive number",
+        args.memory_mib.is_finite() && args.memory_mib > 0.0 && args.memory_mib <= 1048576.0,
+        "--memory-mib {}: must be a positive number of MiB, at most 1048576",
         args.memory_mib
     );
-    anyhow::ensure!(args.requests > 0, "--requests must be at least 1");
+    tracks::limits::check_u64("--requests", args.requests as u64, 1, 64)?;
     anyhow::ensure!(
         args.target_fps.is_finite() && (1.0..=1000.0).contains(&args.target_fps),
         "--target-fps {}: must be between 1 and 1000",
@@ -87,5 +87,5 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         started,
         target_fps: args.target_fps,
     };
-    viewer::app::run(source, opts).map_err(|e| anyhow::anyhow!("viewer window: {e}"))
+    viewer::app::run(source, opts).map_err(anyhow::Error::from)
 }

@@ -6,17 +6,19 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::time::Duration;
 
 use anyhow::Context;
-use streamer::client::{BudgetParams, ServerUrl};
+use streamer::client::{BudgetParams, RetryPolicy, ServerUrl};
 use streamer::server::{self, parse_duration, parse_rate, ServedDb, ServerConfig, ServerStats};
-use streamer::walk::{self, synth, Strategy, WalkConfig};
+use streamer::walk::{self, synth, Strategy, WalkConfig, WalkEvent};
+use tracks::limits::{check_f64, check_u64};
 
 #[derive(clap::Args)]
 pub struct Args {
     /// Database directory or server URL (http://HOST:PORT).
     pub db: String,
-    /// Walking speed, m/s.
+    /// Walking speed, m/s (0.01..=1000).
     #[arg(long, default_value_t = 1.5)]
     pub speed: f64,
     /// Bandwidths to simulate, comma separated (56kbit, 2mbit, unlimited, …).
@@ -50,7 +52,7 @@ pub struct Args {
     /// RAM cache budget, MiB.
     #[arg(long, default_value_t = 64.0)]
     pub cache_mb: f64,
-    /// Requests in flight at most.
+    /// Requests in flight at most (1..=64).
     #[arg(long, default_value_t = 6)]
     pub in_flight: usize,
     /// Prefetch: widen the view by this turn of the head, degrees each side.
@@ -63,7 +65,7 @@ pub struct Args {
     /// Prefetch (with live counts) the tiles covering this fraction of the predicted view.
     #[arg(long, default_value_t = 0.9)]
     pub prefetch_coverage: f64,
-    /// Seconds standing still at the end of the track.
+    /// Seconds standing still at the end of the track (0..=3600).
     #[arg(long, default_value_t = 3.0)]
     pub pause: f64,
     /// Write a synthetic corridor database into the DB directory first (tests and demos).
@@ -75,11 +77,91 @@ pub struct Args {
     /// Track length of the synthetic database, metres.
     #[arg(long, default_value_t = 12.0)]
     pub synthetic_length: f64,
+    /// Longest wait for a response head (and for a connection), e.g. 10s.
+    #[arg(long, default_value = "10s")]
+    pub response_timeout: String,
+    /// Longest gap between two pieces of a response body (a stalled transfer).
+    #[arg(long, default_value = "10s")]
+    pub stall_timeout: String,
+    /// A request that keeps failing (server unreachable) is given up after this long, and
+    /// the walk stops there (what it measured is written).
+    #[arg(long, default_value = "30s")]
+    pub give_up_after: String,
 }
 
 fn mib(x: f64, name: &str) -> anyhow::Result<u64> {
-    anyhow::ensure!(x.is_finite() && x > 0.0, "--{name} must be positive");
-    Ok((x * 1048576.0) as u64)
+    Ok((check_f64(&format!("--{name}"), x, 0.001, 1024.0 * 1024.0)? * 1048576.0) as u64)
+}
+
+/// A duration option that must be positive and at most an hour.
+fn timeout(text: &str, name: &str) -> anyhow::Result<Duration> {
+    let d = parse_duration(text)
+        .map_err(anyhow::Error::msg)
+        .with_context(|| format!("--{name}"))?;
+    anyhow::ensure!(!d.is_zero(), "--{name} {text}: must be longer than 0");
+    Ok(d)
+}
+
+/// The walk's settings from the command line, every number checked against its limit.
+fn config(args: &Args) -> anyhow::Result<WalkConfig> {
+    let paper = BudgetParams::default();
+    let seconds = |v: f64, name: &str, min: f64| check_f64(&format!("--{name}"), v, min, 3600.0);
+    let retry = RetryPolicy {
+        response_timeout: timeout(&args.response_timeout, "response-timeout")?,
+        stall_timeout: timeout(&args.stall_timeout, "stall-timeout")?,
+        connect_timeout: timeout(&args.response_timeout, "response-timeout")?,
+        give_up_after: timeout(&args.give_up_after, "give-up-after")?,
+        ..RetryPolicy::default()
+    };
+    Ok(WalkConfig {
+        speed_mps: check_f64("--speed (m/s)", args.speed, 0.01, 1000.0)?,
+        latency_s: parse_duration(&args.latency)
+            .map_err(anyhow::Error::msg)
+            .context("--latency")?
+            .as_secs_f64(),
+        pause_s: seconds(args.pause, "pause", 0.0)?,
+        budget: BudgetParams {
+            memory_bytes: args
+                .memory_mb
+                .map_or(Ok(paper.memory_bytes), |m| mib(m, "memory-mb"))?,
+            dt_max_s: seconds(args.dt_max, "dt-max", 0.001)?,
+            memory_static_bytes: args
+                .memory_static_mb
+                .map_or(Ok(paper.memory_static_bytes), |m| {
+                    mib(m, "memory-static-mb")
+                })?,
+            dt_static_s: seconds(args.dt_static, "dt-static", 0.001)?,
+            t_static_s: seconds(args.t_static, "t-static", 0.0)?,
+        },
+        // Given budgets are taken as they are; defaults grow with the database.
+        scale_budget: args.memory_mb.is_none() && args.memory_static_mb.is_none(),
+        cache_bytes: mib(args.cache_mb, "cache-mb")?,
+        max_in_flight: check_u64("--in-flight", args.in_flight as u64, 1, 64)? as usize,
+        prefetch_turn_deg: check_f64("--prefetch-turn (degrees)", args.prefetch_turn, 0.0, 90.0)?,
+        prefetch_horizon_s: check_f64("--prefetch-horizon (s)", args.prefetch_horizon, 0.0, 60.0)?,
+        prefetch_coverage: check_f64("--prefetch-coverage", args.prefetch_coverage, 0.0, 1.0)?,
+        retry,
+        ..WalkConfig::default()
+    })
+}
+
+/// The server a walk streams from: a URL, or a directory served in-process.
+enum Source {
+    Url(ServerUrl),
+    Dir(PathBuf),
+}
+
+fn source(db: &str) -> anyhow::Result<Source> {
+    if let Some((scheme, _)) = db.split_once("://") {
+        if scheme.eq_ignore_ascii_case("http") {
+            return Ok(Source::Url(ServerUrl::parse(db)?));
+        }
+        anyhow::bail!(
+            "`{db}`: only http:// URLs are supported (for {scheme}://, put a TLS proxy in front \
+             of `railview serve`, or walk the database directory)"
+        );
+    }
+    Ok(Source::Dir(PathBuf::from(db)))
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -97,98 +179,108 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .collect::<Result<Vec<_>, _>>()
         .map_err(anyhow::Error::msg)
         .context("--bandwidth")?;
-    anyhow::ensure!(
-        args.speed.is_finite() && args.speed > 0.0,
-        "--speed must be positive"
-    );
-    let paper = BudgetParams::default();
-    let config = WalkConfig {
-        speed_mps: args.speed,
-        latency_s: parse_duration(&args.latency)
-            .map_err(anyhow::Error::msg)
-            .context("--latency")?
-            .as_secs_f64(),
-        pause_s: args.pause.max(0.0),
-        budget: BudgetParams {
-            memory_bytes: args
-                .memory_mb
-                .map_or(Ok(paper.memory_bytes), |m| mib(m, "memory-mb"))?,
-            dt_max_s: args.dt_max,
-            memory_static_bytes: args
-                .memory_static_mb
-                .map_or(Ok(paper.memory_static_bytes), |m| {
-                    mib(m, "memory-static-mb")
-                })?,
-            dt_static_s: args.dt_static,
-            t_static_s: args.t_static,
-        },
-        // Given budgets are taken as they are; defaults grow with the database.
-        scale_budget: args.memory_mb.is_none() && args.memory_static_mb.is_none(),
-        cache_bytes: mib(args.cache_mb, "cache-mb")?,
-        max_in_flight: args.in_flight.max(1),
-        prefetch_turn_deg: args.prefetch_turn.clamp(0.0, 90.0),
-        prefetch_horizon_s: args.prefetch_horizon.clamp(0.0, 60.0),
-        prefetch_coverage: args.prefetch_coverage.clamp(0.0, 1.0),
-        ..WalkConfig::default()
-    };
+    let config = config(&args)?;
+    let source = source(&args.db)?;
     let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
-    rt.block_on(async {
-        let (url, server) = if args.db.starts_with("http://") {
-            (ServerUrl::parse(&args.db)?, None)
-        } else {
-            let dir = Path::new(&args.db);
-            if args.synthetic {
-                anyhow::ensure!(
-                    args.synthetic_face >= 8 && args.synthetic_face <= 4096,
-                    "--synthetic-face must be in 8..=4096"
-                );
-                anyhow::ensure!(
-                    args.synthetic_length > 0.0 && args.synthetic_length <= 1000.0,
-                    "--synthetic-length must be in (0, 1000]"
-                );
-                let params = synth::SynthParams {
-                    face_size: args.synthetic_face,
-                    tile_size: 1 << (args.synthetic_face / 4).ilog2(),
-                    levels: (args.synthetic_face / 4)
-                        .ilog2()
-                        .saturating_sub(1)
-                        .clamp(1, 4),
-                    length_m: args.synthetic_length,
-                    ..synth::SynthParams::default()
+    let result = rt.block_on(async {
+        let (url, server) = match source {
+            Source::Url(url) => (url, None),
+            Source::Dir(dir) => {
+                if args.synthetic {
+                    write_synthetic(&args, &dir)?;
+                }
+                let db = match ServedDb::open(&dir) {
+                    Ok(db) => db,
+                    Err(e) => {
+                        // Nothing measured, but walk.json says why.
+                        let report = walk::WalkReport {
+                            speed_mps: config.speed_mps,
+                            latency_s: config.latency_s,
+                            error: Some(e.to_string()),
+                            ..walk::WalkReport::default()
+                        };
+                        walk::write_outputs(&report, &args.out)?;
+                        return Err(e.into());
+                    }
                 };
-                synth::write_synthetic(dir, &params).with_context(|| {
-                    format!("writing a synthetic database to {}", dir.display())
-                })?;
+                let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+                let url = ServerUrl::parse(&format!("http://{}", listener.local_addr()?))?;
+                let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+                let task = tokio::spawn(server::run(
+                    listener,
+                    db,
+                    ServerConfig::default(),
+                    Arc::new(ServerStats::default()),
+                    async {
+                        let _ = stop_rx.await;
+                    },
+                ));
+                (url, Some((stop_tx, task)))
             }
-            let db = ServedDb::open(dir)?;
-            let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-            let url = ServerUrl::parse(&format!("http://{}", listener.local_addr()?))?;
-            let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-            let task = tokio::spawn(server::run(
-                listener,
-                db,
-                ServerConfig::default(),
-                Arc::new(ServerStats::default()),
-                async {
-                    let _ = stop_rx.await;
-                },
-            ));
-            (url, Some((stop_tx, task)))
         };
-        let total = strategies.len() * bandwidths.len();
-        let bar = indicatif::ProgressBar::new(total as u64);
-        let report = walk::run_walk(&url, &config, &strategies, &bandwidths, |r| {
-            bar.inc(1);
-            bar.set_message(r.strategy.clone());
+        let bar = indicatif::ProgressBar::hidden();
+        let result = walk::run_walk(&url, &config, &strategies, &bandwidths, |e| match e {
+            WalkEvent::Planned {
+                runs,
+                frames_per_run,
+            } => {
+                eprintln!(
+                    "walk: {runs} runs of {frames_per_run} frames each ({:.0} s of simulated walk per run)",
+                    frames_per_run as f64 * config.frame_dt_s
+                );
+                bar.set_length(runs as u64 * frames_per_run);
+                bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+                if let Ok(style) = indicatif::ProgressStyle::with_template(
+                    "{msg} {bar:40} {pos}/{len} frames, eta {eta}",
+                ) {
+                    bar.set_style(style);
+                }
+            }
+            WalkEvent::Frame { .. } => bar.inc(1),
+            WalkEvent::Finished(r) => bar.set_message(format!("{} done", r.strategy)),
         })
-        .await?;
+        .await;
         bar.finish_and_clear();
         if let Some((stop, task)) = server {
             let _ = stop.send(());
             task.await.context("server task")??;
         }
-        walk::write_outputs(&report, &args.out)?;
-        print!("{}", walk::summary_markdown(&report));
-        Ok(())
-    })
+        anyhow::Ok(result)
+    })?;
+    // walk.json is written whatever happened: the finished runs and what a failed one
+    // measured stay.
+    let (report, error) = match result {
+        Ok(r) => (r, None),
+        Err(failed) => (failed.report, Some(failed.error)),
+    };
+    walk::write_outputs(&report, &args.out)?;
+    print!("{}", walk::summary_markdown(&report));
+    match error {
+        None => Ok(()),
+        Some(e) => Err(anyhow::Error::new(e).context(format!(
+            "walk of {} stopped ({} of {} runs finished; what was measured is in {})",
+            args.db,
+            report.runs.iter().filter(|r| r.completed).count(),
+            strategies.len() * bandwidths.len(),
+            args.out.join("walk.json").display()
+        ))),
+    }
+}
+
+fn write_synthetic(args: &Args, dir: &Path) -> anyhow::Result<()> {
+    check_u64("--synthetic-face", args.synthetic_face as u64, 8, 4096)?;
+    check_f64("--synthetic-length (m)", args.synthetic_length, 0.1, 1000.0)?;
+    let params = synth::SynthParams {
+        face_size: args.synthetic_face,
+        tile_size: 1 << (args.synthetic_face / 4).ilog2(),
+        levels: (args.synthetic_face / 4)
+            .ilog2()
+            .saturating_sub(1)
+            .clamp(1, 4),
+        length_m: args.synthetic_length,
+        ..synth::SynthParams::default()
+    };
+    synth::write_synthetic(dir, &params)
+        .with_context(|| format!("writing a synthetic database to {}", dir.display()))?;
+    Ok(())
 }

@@ -17,10 +17,13 @@
 //!   needed levels per tile for a camera).
 //! - [`walk`]: the headless walk simulator, its report and plot, a synthetic test database and
 //!   the load generator.
+//! - [`hostile`]: slow header senders and stalled readers, for the server's tests and the
+//!   attack benchmark.
 
 pub mod client;
 pub mod db;
 pub mod entropy;
+pub mod hostile;
 pub mod ptm;
 pub mod server;
 pub mod visibility;

@@ -50,7 +50,8 @@ fn repeating_db(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&dir);
     let mut w = streamer::db::DbWriter::create(&dir)
         .unwrap()
-        .with_stage(&src);
+        .with_stage(&src)
+        .unwrap();
     w.finish(&m).unwrap();
     let _ = std::fs::remove_dir_all(&src);
     dir
@@ -252,6 +253,49 @@ fn a_session_survives_the_server_going_away_and_coming_back() {
     assert!(!arrivals.is_empty(), "nothing arrived after the restart");
     assert_eq!(session.stats().coarse_fraction, 1.0);
     assert!(session.stats().reconnects > 1);
+    // The outage shows: time without progress, and requests that failed or were retried.
+    let st = session.stats();
+    assert!(st.longest_stall_s >= 0.5, "{st:?}");
+    assert!(st.retries + st.failed_requests > 0, "{st:?}");
+    drop(session);
+    srv.stop();
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// A pack damaged on the server (after it opened the database) is a fault of the parts in
+/// it: counted, asked for again, given up; everything else keeps arriving.
+#[test]
+fn a_damaged_pack_is_given_up_part_by_part_and_the_rest_streams_on() {
+    let dir = temp_db("damaged");
+    let srv = Server::start(&dir, ServerConfig::default(), "127.0.0.1:0");
+    let db = streamer::db::Database::open(&dir).unwrap();
+    let pack = db.manifest().tracks[0].viewpoints[0]
+        .tiles
+        .iter()
+        .find_map(|t| t.ptm.as_ref())
+        .unwrap()
+        .object
+        .clone();
+    let path = dir.join(pack.rel_path().unwrap());
+    let mut bytes = std::fs::read(&path).unwrap();
+    for b in bytes.iter_mut().step_by(97) {
+        *b ^= 0x20;
+    }
+    std::fs::write(&path, &bytes).unwrap();
+    let mut config = LiveConfig::with_cache(64 << 20);
+    config.failures.first_retry_s = 0.2;
+    let mut session = LiveSession::connect(&srv.url(), None, config).unwrap();
+    let arrivals = run_until(&mut session, 0.0, Duration::from_secs(20), |s| {
+        s.stats().parts_given_up > 0
+    });
+    let st = session.stats().clone();
+    assert!(st.part_faults >= 3 && st.parts_given_up >= 1, "{st:?}");
+    assert!(st.checksum_failures > 0, "{st:?}");
+    assert!(!arrivals.is_empty(), "nothing else arrived");
+    assert_eq!(
+        st.failed_requests, 0,
+        "an object's fault is not the server's: {st:?}"
+    );
     drop(session);
     srv.stop();
     let _ = std::fs::remove_dir_all(dir);

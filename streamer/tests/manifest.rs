@@ -356,6 +356,7 @@ async fn the_walk_counts_the_manifest() {
         speed_mps: 1.0,
         latency_s: 0.05,
         runs: runs[0].clone(),
+        error: None,
     });
     assert!(md.contains("manifest bytes") && md.contains(&(gz_len + 65).to_string()));
     let json = serde_json::to_value(&runs[0][0]).unwrap();

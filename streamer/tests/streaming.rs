@@ -114,6 +114,10 @@ async fn hostile_requests_get_4xx_and_the_server_keeps_serving() {
         (b"POST /manifest.json HTTP/1.1\r\nHost: x\r\nContent-Length: 4\r\nConnection: close\r\n\r\nabcd".to_vec(), 405),
         (b"\x00\x01garbage\xff\xfe\r\n\r\n".to_vec(), 400),
         (b"GET http://evil/etc/passwd HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n".to_vec(), 404),
+        // HTTP/1.1 needs a Host header (RFC 9112 §3.2); HTTP/1.0 does not.
+        (b"GET /manifest.json HTTP/1.1\r\nConnection: close\r\n\r\n".to_vec(), 400),
+        (b"GET /manifest.json HTTP/1.0\r\n\r\n".to_vec(), 200),
+        (b"GET /manifest.json HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n4\r\nabcd\r\n0\r\n\r\n".to_vec(), 413),
     ];
     for (req, want) in &cases {
         let (status, text) = raw(srv.addr, req).await;
@@ -148,7 +152,7 @@ async fn hostile_requests_get_4xx_and_the_server_keeps_serving() {
     )
     .await;
     assert_eq!(status, 304);
-    assert!(srv.stats.client_errors.load(Ordering::Relaxed) >= cases.len() as u64 - 1);
+    assert!(srv.stats.client_errors.load(Ordering::Relaxed) >= cases.len() as u64 - 2);
     srv.stop().await;
     let _ = std::fs::remove_dir_all(dir);
 }

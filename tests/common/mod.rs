@@ -72,3 +72,98 @@ pub fn small_castle(dir: &std::path::Path, face: u32) -> PathBuf {
     assert!(o.status.success(), "{}", stderr(&o));
     db
 }
+
+/// The reports of a work directory: what they hold besides content (times, which shard
+/// rendered what).
+pub const REPORTS: &[&str] = &["prerender.json", "slabs.json", "cull.json", "build.json"];
+
+/// Whether a path (relative, `/`-separated) under a prerender or build work directory is
+/// content, i.e. must be the same bytes for the same inputs: everything but the run logs, the
+/// reports and the temporary files of killed writers.
+pub fn is_content(rel: &str) -> bool {
+    let name = rel.rsplit('/').next().unwrap_or(rel);
+    !(rel.starts_with("runs/")
+        || rel.contains("/runs/")
+        || name.ends_with(".md")
+        || REPORTS.contains(&name)
+        || (name.starts_with('.') && name.contains(".tmp.")))
+}
+
+/// Every file under `root` for which `keep(relative path)` holds, with its bytes.
+pub fn files_under(
+    root: &std::path::Path,
+    keep: &dyn Fn(&str) -> bool,
+) -> std::collections::BTreeMap<String, Vec<u8>> {
+    fn walk(
+        root: &std::path::Path,
+        dir: &std::path::Path,
+        keep: &dyn Fn(&str) -> bool,
+        out: &mut std::collections::BTreeMap<String, Vec<u8>>,
+    ) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let path = e.unwrap().path();
+            if path.is_dir() {
+                walk(root, &path, keep, out);
+                continue;
+            }
+            let rel = path
+                .strip_prefix(root)
+                .unwrap()
+                .to_string_lossy()
+                .replace('\\', "/");
+            if keep(&rel) {
+                out.insert(rel, std::fs::read(&path).unwrap());
+            }
+        }
+    }
+    let mut out = std::collections::BTreeMap::new();
+    walk(root, root, keep, &mut out);
+    out
+}
+
+/// Assert that two trees hold the same files with the same bytes; the message names every
+/// file that differs or exists on one side only.
+pub fn assert_same_files(
+    what: &str,
+    a: &std::collections::BTreeMap<String, Vec<u8>>,
+    b: &std::collections::BTreeMap<String, Vec<u8>>,
+) {
+    let mut diff: Vec<String> = Vec::new();
+    for (k, v) in a {
+        match b.get(k) {
+            None => diff.push(format!("only in the first: {k}")),
+            Some(w) if w != v => diff.push(format!("differs: {k}")),
+            Some(_) => {}
+        }
+    }
+    diff.extend(
+        b.keys()
+            .filter(|k| !a.contains_key(*k))
+            .map(|k| format!("only in the second: {k}")),
+    );
+    assert!(
+        diff.is_empty(),
+        "{what}: {} of {} files differ:\n{}",
+        diff.len(),
+        a.len().max(b.len()),
+        diff.join("\n")
+    );
+    assert!(!a.is_empty(), "{what}: no files compared");
+}
+
+/// A report with its times (keys holding `seconds`, and `rays_per_second`) and hosts taken
+/// out, at any depth.
+pub fn without_times(v: &serde_json::Value) -> serde_json::Value {
+    match v {
+        serde_json::Value::Object(m) => serde_json::Value::Object(
+            m.iter()
+                .filter(|(k, _)| {
+                    !(k.contains("seconds") || *k == "rays_per_second" || *k == "hosts")
+                })
+                .map(|(k, v)| (k.clone(), without_times(v)))
+                .collect(),
+        ),
+        serde_json::Value::Array(a) => a.iter().map(without_times).collect(),
+        other => other.clone(),
+    }
+}

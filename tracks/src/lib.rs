@@ -5,6 +5,8 @@
 //! - [`camera`]: the perspective camera (yaw/pitch/FOV convention) used everywhere.
 //! - [`manifest`]: the walkthrough database manifest (content-addressed objects, tiles, PTM
 //!   level ranges, ACH per segment).
+//! - [`limits`]: the stated limits on numbers from outside (face sizes, counts, lengths)
+//!   that every reader checks before allocating or looping.
 //! - [`track`]: named 3D polylines read from TOML, optionally Catmull-Rom smoothed, sampled
 //!   into [`ReferenceViewpoint`]s; consecutive viewpoints bound a segment.
 //!
@@ -27,6 +29,7 @@
 
 pub mod camera;
 pub mod cubemap;
+pub mod limits;
 pub mod manifest;
 pub mod slab;
 pub mod track;

@@ -17,6 +17,8 @@
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
+use crate::limits::{MAX_COORDINATE_M, MAX_TRACKS, MAX_TRACK_POINTS, MAX_VIEWPOINTS};
+
 /// Subdivisions per polyline segment when a track is smoothed.
 const SMOOTH_SUBDIVISIONS: usize = 32;
 
@@ -25,15 +27,18 @@ const SMOOTH_SUBDIVISIONS: usize = 32;
 #[derive(Debug, thiserror::Error, PartialEq)]
 #[non_exhaustive]
 pub enum TrackError {
-    #[error("{source_name}:{line}: {message}")]
+    /// `line` is 1-based; 0 when the TOML parser gave no position.
+    #[error("{}: {message}", at(source_name, *line))]
     Syntax {
         source_name: String,
         line: usize,
         message: String,
     },
-    #[error("{source_name}: track `{track}`: field `{field}`: {message}")]
+    /// `line` is the line of the track's `[[track]]` table; 0 for a track built in code.
+    #[error("{}: track `{track}`: field `{field}`: {message}", at(source_name, *line))]
     Invalid {
         source_name: String,
+        line: usize,
         track: String,
         field: &'static str,
         message: String,
@@ -43,6 +48,15 @@ pub enum TrackError {
         source_name: String,
         message: String,
     },
+}
+
+/// `source:line`, or the source alone when the line is not known (0).
+fn at(source_name: &str, line: usize) -> String {
+    if line > 0 {
+        format!("{source_name}:{line}")
+    } else {
+        source_name.to_string()
+    }
 }
 
 /// How a track's control points become a curve.
@@ -96,7 +110,14 @@ pub struct Track {
 #[serde(deny_unknown_fields)]
 struct TrackFile {
     #[serde(default)]
-    track: Vec<TrackToml>,
+    track: Vec<toml::Spanned<TrackToml>>,
+}
+
+/// The `[[track]]` tables of a file that holds other tables too (a scene file).
+#[derive(Deserialize)]
+struct TracksIn {
+    #[serde(default)]
+    track: Vec<toml::Spanned<TrackToml>>,
 }
 
 #[derive(Deserialize)]
@@ -119,12 +140,34 @@ impl Track {
         sampling: Sampling,
         source_name: &str,
     ) -> Result<Track, TrackError> {
+        Track::new_at(name, points, smooth, sampling, source_name, 0)
+    }
+
+    /// [`Track::new`] for a track whose `[[track]]` table starts at `line` of the source.
+    fn new_at(
+        name: &str,
+        points: Vec<DVec3>,
+        smooth: Smoothing,
+        sampling: Sampling,
+        source_name: &str,
+        line: usize,
+    ) -> Result<Track, TrackError> {
         let invalid = |field: &'static str, message: String| TrackError::Invalid {
             source_name: source_name.to_string(),
+            line,
             track: name.to_string(),
             field,
             message,
         };
+        if points.len() > MAX_TRACK_POINTS {
+            return Err(invalid(
+                "points",
+                format!(
+                    "{} points; at most {MAX_TRACK_POINTS} are read",
+                    points.len()
+                ),
+            ));
+        }
         if name.trim().is_empty() {
             return Err(invalid("name", "must not be empty".into()));
         }
@@ -135,8 +178,13 @@ impl Track {
             ));
         }
         for (i, p) in points.iter().enumerate() {
-            if !p.is_finite() {
-                return Err(invalid("points", format!("point {i} is not finite: {p}")));
+            if !p.is_finite() || p.abs().max_element() > MAX_COORDINATE_M {
+                return Err(invalid(
+                    "points",
+                    format!(
+                        "point {i} is {p}: coordinates must be finite and within ±{MAX_COORDINATE_M} m"
+                    ),
+                ));
             }
         }
         for (i, w) in points.windows(2).enumerate() {
@@ -154,8 +202,11 @@ impl Track {
                     format!("must be a positive number of metres, found {s}"),
                 ));
             }
-            Sampling::Count(0) => {
-                return Err(invalid("count", "must be at least 1".into()));
+            Sampling::Count(n) if n == 0 || n > MAX_VIEWPOINTS => {
+                return Err(invalid(
+                    "count",
+                    format!("{n} viewpoints; it must be from 1 to {MAX_VIEWPOINTS}"),
+                ));
             }
             _ => {}
         }
@@ -172,6 +223,19 @@ impl Track {
         }
         if !(s > 0.0 && s.is_finite()) {
             return Err(invalid("points", format!("track length is {s} m")));
+        }
+        if let Sampling::Spacing(d) = sampling {
+            let count = viewpoint_count(s, d);
+            if count > MAX_VIEWPOINTS as f64 {
+                return Err(invalid(
+                    "spacing",
+                    format!(
+                        "{d} m on a track of {s:.3} m gives {count:.3e} viewpoints; at most \
+                         {MAX_VIEWPOINTS} (a spacing of at least {:.3e} m)",
+                        s / (MAX_VIEWPOINTS - 1) as f64
+                    ),
+                ));
+            }
         }
         Ok(Track {
             name: name.to_string(),
@@ -222,7 +286,7 @@ impl Track {
         let len = self.length();
         let count = match self.sampling {
             Sampling::Count(n) => n,
-            Sampling::Spacing(d) => (len / d - 1e-9).ceil().max(1.0) as usize + 1,
+            Sampling::Spacing(d) => viewpoint_count(len, d) as usize,
         };
         if count == 1 {
             return vec![0.0];
@@ -250,6 +314,25 @@ impl Track {
             })
             .collect()
     }
+}
+
+/// 1-based line of byte `offset` in `text`.
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+fn syntax(text: &str, source_name: &str, e: &toml::de::Error) -> TrackError {
+    TrackError::Syntax {
+        source_name: source_name.to_string(),
+        line: e.span().map_or(0, |r| line_of(text, r.start)),
+        message: e.message().to_string(),
+    }
+}
+
+/// Viewpoints that `spacing` puts on a track of `len` metres (both ends included), as a
+/// float so that absurd spacings can be compared with the limit before anything is sized.
+fn viewpoint_count(len: f64, spacing: f64) -> f64 {
+    (len / spacing - 1e-9).ceil().max(1.0) + 1.0
 }
 
 /// Centripetal Catmull-Rom through `p`, densified; the ends are extended by reflection.
@@ -300,28 +383,47 @@ pub struct TrackSet {
 impl TrackSet {
     /// Parse TOML text; `source_name` (usually the file path) labels every error.
     pub fn parse(text: &str, source_name: &str) -> Result<TrackSet, TrackError> {
-        let file: TrackFile = toml::from_str(text).map_err(|e| {
-            let line = e
-                .span()
-                .map(|r| text[..r.start.min(text.len())].lines().count().max(1))
-                .unwrap_or(0);
-            TrackError::Syntax {
-                source_name: source_name.to_string(),
-                line,
-                message: e.message().to_string(),
-            }
-        })?;
+        let file: TrackFile = toml::from_str(text).map_err(|e| syntax(text, source_name, &e))?;
+        TrackSet::from_tables(text, source_name, file.track)
+    }
+
+    /// The `[[track]]` tables of a TOML file that also holds other tables (a scene file):
+    /// `None` when it has none. Errors name the lines of the whole file.
+    pub fn parse_within(text: &str, source_name: &str) -> Result<Option<TrackSet>, TrackError> {
+        let file: TracksIn = toml::from_str(text).map_err(|e| syntax(text, source_name, &e))?;
+        if file.track.is_empty() {
+            return Ok(None);
+        }
+        TrackSet::from_tables(text, source_name, file.track).map(Some)
+    }
+
+    fn from_tables(
+        text: &str,
+        source_name: &str,
+        tables: Vec<toml::Spanned<TrackToml>>,
+    ) -> Result<TrackSet, TrackError> {
+        let file = TracksIn { track: tables };
+        let line_of = |offset: usize| line_of(text, offset);
         if file.track.is_empty() {
             return Err(TrackError::File {
                 source_name: source_name.to_string(),
                 message: "no [[track]] tables: a track file needs at least one track".into(),
             });
         }
+        if file.track.len() > MAX_TRACKS {
+            return Err(TrackError::File {
+                source_name: source_name.to_string(),
+                message: format!("{} tracks; at most {MAX_TRACKS} are read", file.track.len()),
+            });
+        }
         let mut tracks: Vec<Track> = Vec::new();
-        for t in file.track {
+        for spanned in file.track {
+            let line = line_of(spanned.span().start);
+            let t = spanned.into_inner();
             if tracks.iter().any(|o| o.name == t.name) {
                 return Err(TrackError::Invalid {
                     source_name: source_name.to_string(),
+                    line,
                     track: t.name,
                     field: "name",
                     message: "another track has the same name".into(),
@@ -333,6 +435,7 @@ impl TrackSet {
                 (None, None) => {
                     return Err(TrackError::Invalid {
                         source_name: source_name.to_string(),
+                        line,
                         track: t.name,
                         field: "spacing",
                         message: "give either `spacing` (metres) or `count`".into(),
@@ -341,6 +444,7 @@ impl TrackSet {
                 (Some(_), Some(_)) => {
                     return Err(TrackError::Invalid {
                         source_name: source_name.to_string(),
+                        line,
                         track: t.name,
                         field: "count",
                         message: "give either `spacing` or `count`, not both".into(),
@@ -348,12 +452,13 @@ impl TrackSet {
                 }
             };
             let points = t.points.iter().map(|p| DVec3::from_array(*p)).collect();
-            tracks.push(Track::new(
+            tracks.push(Track::new_at(
                 &t.name,
                 points,
                 t.smooth,
                 sampling,
                 source_name,
+                line,
             )?);
         }
         Ok(TrackSet { tracks })
@@ -493,6 +598,19 @@ mod tests {
                 "count",
             ),
             ("[[track]]\nname='a'\npoints=[[0,0,0],[1,0,0]]", "spacing"),
+            // Absurd numbers are refused before anything is sized by them.
+            (
+                "[[track]]\nname='a'\npoints=[[0,0,0],[72,0,0]]\nspacing=1e-9",
+                "spacing",
+            ),
+            (
+                "[[track]]\nname='a'\npoints=[[0,0,0],[1,0,0]]\ncount=100001",
+                "count",
+            ),
+            (
+                "[[track]]\nname='a'\npoints=[[0,0,0],[1e300,0,0]]\ncount=2",
+                "points",
+            ),
         ];
         for (text, field) in cases {
             match TrackSet::parse(text, "f.toml") {
@@ -510,6 +628,28 @@ mod tests {
             TrackSet::parse("", "e.toml"),
             Err(TrackError::File { .. })
         ));
+    }
+
+    #[test]
+    fn errors_name_the_line_of_their_track() {
+        let text = "[[track]]\nname='a'\npoints=[[0,0,0],[1,0,0]]\ncount=2\n\n[[track]]\nname='b'\npoints=[[0,0,0],[72,0,0]]\nspacing=1e-9\n";
+        let err = TrackSet::parse(text, "f.toml").unwrap_err();
+        let msg = err.to_string();
+        assert!(
+            msg.starts_with("f.toml:6: track `b`: field `spacing`"),
+            "{msg}"
+        );
+        assert!(msg.contains("100000"), "{msg}");
+        // Built in code: no line to name, and no `:0`.
+        let err = Track::new(
+            "c",
+            vec![DVec3::ZERO, DVec3::X],
+            Smoothing::None,
+            Sampling::Count(0),
+            "code",
+        )
+        .unwrap_err();
+        assert!(err.to_string().starts_with("code: track `c`"), "{err}");
     }
 
     #[test]

@@ -18,7 +18,7 @@ use eframe::egui;
 use egui_plot::{Line, Plot, PlotPoints};
 use tracks::PerspectiveCamera;
 
-use crate::gpu::{Gpu, Renderer};
+use crate::gpu::{device_limits, DeviceLimits, Gpu, GpuError, Renderer};
 use crate::headless::yaw_along;
 use crate::plan::{plan_frame, BudgetController, DrawBudget, Overlays};
 use crate::source::Walkthrough;
@@ -142,6 +142,8 @@ pub struct ViewerApp {
     /// frames (for the summary it prints; an open-ended session keeps none).
     intervals_ms: Vec<f64>,
     error: Option<String>,
+    /// An error of the GPU while drawing: the window closes and [`run`] returns it.
+    failed: std::sync::Arc<std::sync::Mutex<Option<GpuError>>>,
     /// Close after this many frames (screenshots and smoke tests).
     pub quit_after: Option<u64>,
     /// Save a screenshot of the window here a few frames before closing.
@@ -149,20 +151,17 @@ pub struct ViewerApp {
 }
 
 impl ViewerApp {
-    /// Build from eframe's creation context; the renderer shares eframe's wgpu device.
-    pub fn new(cc: &eframe::CreationContext<'_>, source: Source) -> ViewerApp {
-        if let Some(rs) = &cc.wgpu_render_state {
-            blit::BlitResources::install(rs);
-        }
+    /// Build from eframe's creation context; the renderer shares eframe's wgpu device (and
+    /// reports its errors: wgpu's default would panic). Fails when the renderer cannot be
+    /// made on that device.
+    pub fn new(cc: &eframe::CreationContext<'_>, source: Source) -> Result<ViewerApp, GpuError> {
         let (renderer, error) = match &cc.wgpu_render_state {
-            Some(rs) => (
-                Some(Renderer::new(Gpu {
-                    device: rs.device.clone(),
-                    queue: rs.queue.clone(),
-                    info: rs.adapter.get_info(),
-                })),
-                None,
-            ),
+            Some(rs) => {
+                let gpu = Gpu::from_device(rs.device.clone(), rs.queue.clone(), &rs.adapter);
+                blit::BlitResources::install(rs, gpu.caps.view_formats);
+                gpu.check("making the window's copy of the view")?;
+                (Some(Renderer::new(gpu)?), None)
+            }
             None => (None, Some("eframe started without wgpu".to_string())),
         };
         let slabs = source.walk().views.first().map_or(1, |v| v.slab_count());
@@ -178,7 +177,7 @@ impl ViewerApp {
             Source::Stream(st) => st.session().config().prefetch,
             Source::Local(_) => true,
         };
-        ViewerApp {
+        Ok(ViewerApp {
             source,
             overlays: Overlays::default(),
             stream: StreamUi {
@@ -213,9 +212,10 @@ impl ViewerApp {
             last: Instant::now(),
             intervals_ms: Vec::new(),
             error,
+            failed: Default::default(),
             quit_after: None,
             screenshot: None,
-        }
+        })
     }
 
     /// Slabs of the walkthrough's views (at least 1).
@@ -293,38 +293,49 @@ impl ViewerApp {
             Source::Stream(st) => st.plan(&camera, self.s, self.budget),
             _ => plan_frame(&walk.views, &camera, self.s, self.budget),
         };
-        let result = planned.map_err(|e| e.to_string()).and_then(|mut plan| {
-            // Tile ids only on the frames whose feedback is read.
-            plan.tile_ids = feedback;
-            plan.overlays = overlays;
-            r.draw(&plan, &walk.views).map_err(|e| e.to_string())?;
-            Ok(plan)
-        });
-        let plan = match result {
+        let mut plan = match planned {
             Ok(p) => p,
             Err(e) => {
-                self.error = Some(e);
+                self.error = Some(e.to_string());
                 return;
             }
         };
+        // Tile ids only on the frames whose feedback is read.
+        plan.tile_ids = feedback;
+        plan.overlays = overlays;
+        // An error of the GPU ends the session: the window closes and `run` returns it.
+        let fail = |e: GpuError, ctx: &egui::Context| {
+            if let Ok(mut f) = self.failed.lock() {
+                f.get_or_insert(e);
+            }
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        };
+        if let Err(e) = r.draw(&plan, &walk.views) {
+            fail(e, ui.ctx());
+            return;
+        }
         if let (true, Source::Stream(st)) = (feedback, &self.source) {
             // The GPU's visible-pixel counts of this frame, for the next streaming step.
             match r.feedback(&plan, &st.walk.views) {
                 Ok(counts) => self.stream.live = Some(st.live_counts(&plan, &counts)),
-                Err(e) => self.error = Some(format!("feedback: {e}")),
+                Err(e) => {
+                    fail(e, ui.ctx());
+                    return;
+                }
             }
         }
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         Self::push(&mut self.frame_ms, ms);
-        let (Some(srgb), Some(unorm)) = (r.output_view(), r.output_view_unorm()) else {
+        let Some(srgb) = r.output_view() else {
             return;
         };
+        let unorm = r.output_view_unorm();
         ui.painter()
             .add(eframe::egui_wgpu::Callback::new_paint_callback(
                 rect,
                 blit::BlitCallback {
                     srgb: srgb.clone(),
-                    unorm: unorm.clone(),
+                    unorm: unorm.cloned(),
                     scaled: [w, h] != shown,
                 },
             ));
@@ -475,10 +486,23 @@ impl ViewerApp {
         if let Some(t) = self.stream.first_complete_s {
             ui.label(format!("every visible tile shown after {t:.2} s"));
         }
-        if stats.failed_requests > 0 || stats.checksum_failures > 0 {
+        if stats.failed_requests > 0 || stats.checksum_failures > 0 || stats.part_faults > 0 {
             ui.label(format!(
-                "{} failed downloads, {} checksum mismatches (re-fetched)",
-                stats.failed_requests, stats.checksum_failures
+                "{} failed downloads, {} checksum mismatches (re-fetched), {} damaged parts ({} given up)",
+                stats.failed_requests,
+                stats.checksum_failures,
+                stats.part_faults,
+                stats.parts_given_up
+            ));
+        }
+        if stats.retries > 0 || stats.longest_stall_s >= 1.0 {
+            ui.label(format!(
+                "waiting {:.1} s now, {:.1} s at most · {} retries, {} timeouts, server unreachable {:.1} s",
+                stats.stalled_s,
+                stats.longest_stall_s,
+                stats.retries,
+                stats.timeouts,
+                stats.outage_s
             ));
         }
         if let Some(e) = &stats.last_error {
@@ -572,7 +596,7 @@ impl ViewerApp {
                 r.uploaded_bytes() as f64 / 1048576.0,
                 self.source.walk().bytes as f64 / 1048576.0
             ));
-            ui.label(format!("adapter: {}", r.gpu.info.name));
+            ui.label(format!("adapter: {}", r.gpu.describe()));
         }
         let pts: PlotPoints<'_> = self
             .frame_ms
@@ -680,11 +704,14 @@ impl eframe::App for ViewerApp {
         if self.quit_after.is_some_and(|n| self.frames == n) {
             if let Some(line) = interval_summary(&self.intervals_ms) {
                 println!(
-                    "railview view: {line}; drawing at the end: {} (target {} fps); view {}x{} px",
+                    "railview view: {line}; drawing at the end: {} (target {} fps); view {}x{} px; adapter {}",
                     self.budget_text(),
                     self.target_fps,
                     self.shown_px[0],
-                    self.shown_px[1]
+                    self.shown_px[1],
+                    self.renderer
+                        .as_ref()
+                        .map_or_else(|| "none".to_string(), |r| r.gpu.describe())
                 );
             }
             if let Source::Stream(st) = &self.source {
@@ -761,18 +788,45 @@ impl Default for WindowOptions {
     }
 }
 
-/// Open a window on `source` (needs a display: X11, e.g. Xvfb).
-pub fn run(source: Source, opts: WindowOptions) -> Result<(), eframe::Error> {
+/// Errors of the window.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum WindowError {
+    /// No adapter, or the renderer failed on the window's device (before or while drawing).
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error("viewer window: {0}")]
+    Window(String),
+}
+
+/// Open a window on `source` (needs a display: X11, e.g. Xvfb). On any wgpu backend (`WGPU_BACKEND`
+/// chooses, as for the headless commands); an error of the GPU closes the window and is
+/// returned.
+pub fn run(source: Source, opts: WindowOptions) -> Result<(), WindowError> {
+    let mut wgpu_options = eframe::egui_wgpu::WgpuConfiguration::default();
+    if let eframe::egui_wgpu::WgpuSetup::CreateNew(create) = &mut wgpu_options.wgpu_setup {
+        // The renderer's limits: eframe asks a GL adapter for WebGL2-class ones (no compute)
+        // even where it has more.
+        create.device_descriptor = std::sync::Arc::new(|adapter| wgpu::DeviceDescriptor {
+            label: Some("railview window"),
+            required_limits: device_limits(adapter, DeviceLimits::Best),
+            ..Default::default()
+        });
+    }
     let options = eframe::NativeOptions {
         renderer: eframe::Renderer::Wgpu,
+        wgpu_options,
         viewport: egui::ViewportBuilder::default().with_inner_size([1100.0, 650.0]),
         ..Default::default()
     };
-    eframe::run_native(
+    let failed: std::sync::Arc<std::sync::Mutex<Option<GpuError>>> = Default::default();
+    let in_app = failed.clone();
+    let result = eframe::run_native(
         "railview",
         options,
         Box::new(move |cc| {
-            let mut app = ViewerApp::new(cc, source);
+            let mut app = ViewerApp::new(cc, source)?;
+            app.failed = in_app;
             app.quit_after = opts.quit_after;
             app.screenshot = opts.screenshot;
             app.playing = opts.play;
@@ -780,7 +834,27 @@ pub fn run(source: Source, opts: WindowOptions) -> Result<(), eframe::Error> {
             app.target_fps = opts.target_fps;
             Ok(Box::new(app))
         }),
-    )
+    );
+    if let Some(e) = failed.lock().ok().and_then(|mut f| f.take()) {
+        return Err(e.into());
+    }
+    match result {
+        Ok(()) => Ok(()),
+        Err(eframe::Error::AppCreation(e)) => match e.downcast::<GpuError>() {
+            Ok(e) => Err((*e).into()),
+            Err(e) => Err(WindowError::Window(e.to_string())),
+        },
+        // No driver: no adapter, or no backend could make a surface for the window.
+        Err(eframe::Error::Wgpu(
+            e @ (eframe::egui_wgpu::WgpuError::RequestAdapterError(_)
+            | eframe::egui_wgpu::WgpuError::CreateSurfaceError(_)),
+        )) => Err(crate::gpu::no_adapter(
+            wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY | wgpu::Backends::GL),
+            e.to_string().trim_end_matches(": {}"),
+        )
+        .into()),
+        Err(e) => Err(WindowError::Window(e.to_string())),
+    }
 }
 
 #[cfg(test)]

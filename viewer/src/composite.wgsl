@@ -25,17 +25,19 @@ const OVERLAY_HOLES: u32 = 8u;
 
 struct Composite {
     weights: vec4<f32>,  // w0, w1, number of views, log2(1 + pixels) of the frame
-    flags: vec4<u32>,    // overlay bits, unused, unused, unused
+    flags: vec4<u32>,    // overlay bits, tiles of view 0, tiles of view 1, unused
 };
 @group(0) @binding(0) var<uniform> comp: Composite;
 @group(0) @binding(1) var color0: texture_2d<f32>;
 @group(0) @binding(2) var color1: texture_2d<f32>;
 @group(0) @binding(3) var ids0: texture_2d<u32>;
 @group(0) @binding(4) var ids1: texture_2d<u32>;
-@group(0) @binding(5) var<storage, read> info0: array<vec4<u32>>;
-@group(0) @binding(6) var<storage, read> info1: array<vec4<u32>>;
-@group(0) @binding(7) var<storage, read> counts0: array<u32>;
-@group(0) @binding(8) var<storage, read> counts1: array<u32>;
+// Per tile (`tile_texel`): the views' tile info (render.wgsl's `tile_info`) and visible-pixel
+// counts.
+@group(0) @binding(5) var info0: texture_2d<u32>;
+@group(0) @binding(6) var info1: texture_2d<u32>;
+@group(0) @binding(7) var counts0: texture_2d<u32>;
+@group(0) @binding(8) var counts1: texture_2d<u32>;
 
 fn slab_color(slab: u32) -> vec3<f32> {
     switch slab % 4u {
@@ -135,13 +137,15 @@ fn fs_composite_overlays(in: FullOut) -> @location(0) vec4<f32> {
     if (comp.flags.x & (OVERLAY_HIGHLIGHT | OVERLAY_HEAT | OVERLAY_SLABS)) != 0u {
         if r.wa >= r.wb {
             let t = textureLoad(ids0, p, 0).x;
-            if t > 0u && t <= arrayLength(&info0) {
-                rgb = tint(rgb, info0[t - 1u], counts0[min(t - 1u, arrayLength(&counts0) - 1u)]);
+            if t > 0u && t <= comp.flags.y {
+                let at = tile_texel(t - 1u);
+                rgb = tint(rgb, textureLoad(info0, at, 0), textureLoad(counts0, at, 0).x);
             }
         } else {
             let t = textureLoad(ids1, p, 0).x;
-            if t > 0u && t <= arrayLength(&info1) {
-                rgb = tint(rgb, info1[t - 1u], counts1[min(t - 1u, arrayLength(&counts1) - 1u)]);
+            if t > 0u && t <= comp.flags.z {
+                let at = tile_texel(t - 1u);
+                rgb = tint(rgb, textureLoad(info1, at, 0), textureLoad(counts1, at, 0).x);
             }
         }
     }

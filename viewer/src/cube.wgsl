@@ -9,6 +9,15 @@ const SKY_DISTANCE: f32 = 60000.0;
 // render.wgsl): a view's weight is scaled by exp(-SHARPNESS (d / d_min - 1)).
 const SHARPNESS: f32 = 20.0;
 
+// Per-tile data (tile info, visible-pixel counts) lives in textures TILE_ROW texels wide,
+// tile t at texel (t % TILE_ROW, t / TILE_ROW): storage buffers are not available in the
+// vertex and fragment stages of every device (WebGL2-class GL has none).
+const TILE_ROW: u32 = 256u;
+
+fn tile_texel(t: u32) -> vec2<i32> {
+    return vec2<i32>(i32(t % TILE_ROW), i32(t / TILE_ROW));
+}
+
 struct View {
     clip_from_cam: mat4x4<f32>,
     origin_rel: vec4<f32>,   // ref - camera (xyz), w = face size

@@ -18,7 +18,7 @@
 //!     fov_deg: 90.0, width: 256, height: 128,
 //! };
 //! let plan = plan_frame(&views, &camera, 0.0, DrawBudget::default())?;
-//! let mut renderer = viewer::gpu::Renderer::new(viewer::gpu::Gpu::new()?);
+//! let mut renderer = viewer::gpu::Renderer::new(viewer::gpu::Gpu::new()?)?;
 //! let frame = renderer.render(&plan, &views)?;
 //! # Ok(()) }
 //! ```

@@ -6,15 +6,18 @@
 // `depth_scale` times farther than the first view's surface, where the blend would give it
 // a weight below exp(-SHARPNESS (depth_scale - 1))).
 override depth_scale: f32 = 1.0;
-// Reversed-Z depth the first view's sky writes in that mode: behind every mesh (10 km is
-// 1e-6), in front of the clear value 0.
-const SKY_DEPTH: f32 = 1e-20;
+// Reversed-Z depth the first view's sky writes in that mode: behind every mesh nearer than
+// NEAR_M / SKY_DEPTH = 42 km (10 km is 1e-6), in front of the clear value 0. 2^-22, not
+// smaller: wgpu's GL backend maps depth z to 2z - 1 in the vertex shader and GL maps it back,
+// which rounds anything below 2^-25 to the clear value.
+const SKY_DEPTH: f32 = 2.384185791015625e-7;
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var layers: texture_2d_array<f32>;
 @group(0) @binding(2) var samp: sampler;
-// Per tile: x = face | layer << 8, y = min level, z = highlight (f32 bits), w = slab.
-@group(0) @binding(3) var<storage, read> tile_info: array<vec4<u32>>;
+// Per tile (`tile_texel`): x = face | layer << 8, y = min level, z = highlight (f32 bits),
+// w = slab.
+@group(0) @binding(3) var tile_info: texture_2d<u32>;
 
 // The plain panorama (one cube map, no slabs, no blending): the baseline an ordinary
 // panorama viewer draws.
@@ -113,7 +116,7 @@ fn vs_mesh(v: MeshIn) -> MeshOut {
     let scale = v.depth_m / length(vec3<f32>(u, w, 1.0));
     let d = (face_forward(f) + u * face_right(f) + w * face_up(f)) * scale;
     let tile = v.packed >> 3u;
-    let info = tile_info[tile];
+    let info = textureLoad(tile_info, tile_texel(tile), 0);
     var out: MeshOut;
     out.pos = view.clip_from_cam * vec4<f32>(d + view.origin_rel.xyz, 1.0);
     out.pos.z = out.pos.z * depth_scale;
@@ -186,8 +189,23 @@ struct Blend {
 @group(1) @binding(0) var<uniform> blend: Blend;
 // The half-resolution second view (colour, alpha = distance; `blend_half`).
 @group(1) @binding(1) var half_second: texture_2d<f32>;
-// A copy of the first view's depth (`first_distance`).
-@group(1) @binding(2) var first_depth: texture_depth_2d;
+// A copy of the first view's depth (`first_distance`), read as a plain float texture (GLSL
+// has no texel loads from depth textures).
+@group(1) @binding(2) var first_depth: texture_2d<f32>;
+
+// Devices without depth copies (`Caps::depth_copy`; GL): the first view draws into the
+// depth texture bound here, and this full-screen pass, first in the second view's pass,
+// writes it into the depth the second view is drawn against (compare always).
+struct DepthOut {
+    @builtin(frag_depth) depth: f32,
+};
+
+@fragment
+fn fs_copy_depth(in: FullOut) -> DepthOut {
+    var out: DepthOut;
+    out.depth = textureLoad(first_depth, vec2<i32>(in.pos.xy), 0).x;
+    return out;
+}
 
 // The first view's meshes (and a one-view frame's sky below): the output alone.
 @fragment
@@ -207,7 +225,7 @@ fn fs_sky_first(in: FullOut) -> @location(0) vec4<f32> {
 // The first view's distance along the ray of the second view's fragment `in`, whose own
 // distance is `db`; 0 where the first view drew no mesh (cleared depth).
 fn first_distance(in: MeshOut, db: f32) -> f32 {
-    let za = textureLoad(first_depth, vec2<i32>(in.pos.xy), 0);
+    let za = textureLoad(first_depth, vec2<i32>(in.pos.xy), 0).x;
     let zb = in.pos.z / depth_scale;
     return select(0.0, clamp(db * zb / za, 1e-3, SKY_DISTANCE), za > 0.0);
 }
@@ -234,7 +252,7 @@ fn second_share(da: f32, db: f32) -> f32 {
 @fragment
 fn fs_mesh_second(in: MeshOut) -> @location(0) vec4<f32> {
     let c = mesh_color(in);
-    let za = textureLoad(first_depth, vec2<i32>(in.pos.xy), 0);
+    let za = textureLoad(first_depth, vec2<i32>(in.pos.xy), 0).x;
     let ratio = select(0.0, in.pos.z / depth_scale / za, za > 0.0);
     return vec4<f32>(c.rgb, second_share(ratio, 1.0));
 }

@@ -84,7 +84,7 @@ fn castle_between_samples_automatic_slabs_leave_fewer_holes_than_one_slab() {
         width: 128,
         height: 96,
     };
-    let mut r = Renderer::new(Gpu::new().expect("a GPU adapter (lavapipe)"));
+    let mut r = Renderer::new(Gpu::new().expect("a GPU adapter (lavapipe)")).unwrap();
     let budget = DrawBudget {
         blend: false,
         ..Default::default()

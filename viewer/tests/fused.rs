@@ -16,7 +16,7 @@ fn renderer() -> Option<Renderer> {
         return None;
     }
     let gpu = Gpu::new().expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)");
-    Some(Renderer::new(gpu))
+    Some(Renderer::new(gpu).expect("the renderer on this adapter"))
 }
 
 const EYE: f64 = 1.7;
@@ -253,6 +253,7 @@ fn tile_region_uploads_match_a_full_upload() {
     changed[v].layers[layer] = Layer::from_rgba(dilate_masked(&dense));
     let before = r.render(&p, &views).unwrap();
     let expected = Renderer::new(Gpu::new().unwrap())
+        .unwrap()
         .render(&p, &changed)
         .unwrap();
     assert_ne!(
@@ -277,7 +278,7 @@ fn tile_region_uploads_match_a_full_upload() {
     let mut missing = views.clone();
     let ti = p.passes[0].visible[0];
     missing[v].tiles.remove(ti);
-    let mut r2 = Renderer::new(Gpu::new().unwrap());
+    let mut r2 = Renderer::new(Gpu::new().unwrap()).unwrap();
     let pm = plan(&missing, s, DrawBudget::default(), false);
     let without = r2.render(&pm, &missing).unwrap();
     let with = r2.render(&p, &views).unwrap();

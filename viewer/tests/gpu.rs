@@ -17,7 +17,7 @@ fn renderer() -> Option<Renderer> {
         return None;
     }
     let gpu = Gpu::new().expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)");
-    Some(Renderer::new(gpu))
+    Some(Renderer::new(gpu).expect("the renderer on this adapter"))
 }
 
 const FACE: u32 = 48;

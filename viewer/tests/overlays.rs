@@ -15,7 +15,7 @@ fn renderer() -> Option<Renderer> {
         return None;
     }
     let gpu = Gpu::new().expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)");
-    Some(Renderer::new(gpu))
+    Some(Renderer::new(gpu).expect("the renderer on this adapter"))
 }
 
 const EYE: f64 = 1.7;

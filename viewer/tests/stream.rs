@@ -33,7 +33,7 @@ fn renderer() -> Option<Renderer> {
         return None;
     }
     let gpu = Gpu::new().expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)");
-    Some(Renderer::new(gpu))
+    Some(Renderer::new(gpu).expect("the renderer on this adapter"))
 }
 
 /// Write the synthetic street as a database: every tile a PTM (RGBA, all levels) and a mesh,

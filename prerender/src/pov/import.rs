@@ -3,6 +3,7 @@
 use std::collections::HashMap;
 use std::fs;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::DVec3;
@@ -13,10 +14,11 @@ use super::frame::{self, MeshLayout, NEAR_NAME};
 use super::runner::{OutputFormat, PovRay, RenderJob, RenderStats};
 use super::sdl::{self, names, PassKind, SceneInfo};
 use super::{PovError, PovOptions};
+use crate::runlog::{LayersTiming, RunEvent, RunLog, SampleTiming};
 use crate::store::{self, LayersMeta, PrerenderDir, SampleMeta};
 
 /// One finished POV-Ray render, for progress and the report.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RenderRecord {
     pub sample: usize,
     /// `lowres-fog`, `lowres-depth`, `depth`, `fog`, `color`, `slab2-depth`, …
@@ -64,6 +66,8 @@ pub struct PovImport {
     version: String,
     records: Vec<RenderRecord>,
     progress: Option<ProgressFn>,
+    /// Where every render, sample and layer set is logged with its time (`runs/`).
+    log: Option<Arc<RunLog>>,
     /// Whether the scene's own fog shows at a viewpoint (decided by a low-res fog-only pass).
     has_fog: HashMap<usize, bool>,
 }
@@ -125,11 +129,25 @@ impl PovImport {
             version,
             records: Vec::new(),
             progress: None,
+            log: None,
             has_fog: HashMap::new(),
         })
     }
 
     /// Call `f` after every finished POV-Ray render.
+    /// Log every render, and each sample's and layer set's time, to `log` (the content
+    /// files hold no timing).
+    pub fn set_run_log(&mut self, log: Arc<RunLog>) {
+        self.log = Some(log);
+    }
+
+    fn log(&self, event: RunEvent) -> Result<(), PovError> {
+        match &self.log {
+            Some(l) => Ok(l.log(&event)?),
+            None => Ok(()),
+        }
+    }
+
     pub fn set_progress(&mut self, f: impl FnMut(&RenderRecord) + 'static) {
         self.progress = Some(Box::new(f));
     }
@@ -267,6 +285,7 @@ impl PovImport {
         if let Some(p) = self.progress.as_mut() {
             p(&record);
         }
+        self.log(RunEvent::Povray(record.clone()))?;
         self.records.push(record);
         Ok(output)
     }
@@ -431,6 +450,7 @@ impl PovImport {
         let first_record = self.records.len();
         remove(&dir.sample_json(vp.index))?;
         store::ensure_writable_dir(&dir.sample_dir(vp.index))?;
+        store::remove_temporaries(&dir.sample_dir(vp.index))?;
         let view = View {
             pov: self.opts.up.pov_from_railview(vp.position),
             near: 0.0,
@@ -459,10 +479,16 @@ impl PovImport {
             position: vp.position,
             face_size: n,
             lowres_face_size: nl,
-            seconds: start.elapsed().as_secs_f64(),
             primary_rays: self.records[first_record..].iter().map(|r| r.pixels).sum(),
         };
         store::write_json(&dir.sample_json(vp.index), &meta)?;
+        self.log(RunEvent::Sample(SampleTiming {
+            index: vp.index,
+            face_size: n,
+            lowres_face_size: nl,
+            seconds: start.elapsed().as_secs_f64(),
+            primary_rays: meta.primary_rays,
+        }))?;
         Ok(meta)
     }
 
@@ -478,6 +504,12 @@ impl PovImport {
     ) -> Result<LayersMeta, PovError> {
         let start = Instant::now();
         remove(&dir.layers_json(vp.index))?;
+        store::remove_temporaries(&dir.sample_dir(vp.index))?;
+        for i in 0..slabs.len() {
+            if let Some(d) = dir.slab_color_png(vp.index, i).parent() {
+                store::remove_temporaries(d)?;
+            }
+        }
         let lowres = store::read_depth_exr(&dir.lowres_depth_exr(vp.index))?;
         let (min, max) = finite_range(
             &lowres
@@ -536,9 +568,13 @@ impl PovImport {
         }
         let meta = LayersMeta {
             slabs: slabs.to_vec(),
-            seconds: start.elapsed().as_secs_f64(),
         };
         store::write_json(&dir.layers_json(vp.index), &meta)?;
+        self.log(RunEvent::Layers(LayersTiming {
+            index: vp.index,
+            slabs: slabs.to_vec(),
+            seconds: start.elapsed().as_secs_f64(),
+        }))?;
         Ok(meta)
     }
 
@@ -593,6 +629,7 @@ impl PovImport {
         if let Some(p) = self.progress.as_mut() {
             p(&record);
         }
+        self.log(RunEvent::Povray(record.clone()))?;
         self.records.push(record);
         let bytes = fs::read(&output).map_err(|source| PovError::Io {
             path: output.clone(),

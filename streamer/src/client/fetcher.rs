@@ -30,6 +30,7 @@ use tokio::task::JoinHandle;
 
 use super::http::{
     BundlePiece, ClientError, ClientStats, Connection, FetchKey, KeyMap, RetryPolicy, ServerUrl,
+    TransferReport,
 };
 
 /// One download to make.
@@ -65,6 +66,10 @@ pub struct FetchOutcome {
     /// The request that carried the key: a link estimate should time `request.bytes` against
     /// `elapsed_s` once per request, not every key of a bundle.
     pub request: RequestInfo,
+    /// What the worker's requests for this job cost in attempts, retries, timeouts and
+    /// outage: carried by the first outcome of each job (the others hold zeros), so summing
+    /// over outcomes counts each once.
+    pub transfer: TransferReport,
 }
 
 struct Queued {
@@ -378,16 +383,6 @@ impl Drop for Fetcher {
     }
 }
 
-/// Whether a failed bundle is worth retrying key by key (the server refused or mangled this
-/// bundle) rather than reporting the error for every key (the server is unreachable).
-fn retry_singly(e: &ClientError) -> bool {
-    match e {
-        ClientError::Checksum { .. } | ClientError::Length { .. } => true,
-        ClientError::Status { status, .. } => (400..500).contains(status),
-        _ => false,
-    }
-}
-
 type KeyResult = (Result<(Bytes, RequestInfo), ClientError>, f64);
 
 /// Fetch one job: per key (in job order) its bytes with the request that carried them, and
@@ -437,7 +432,9 @@ async fn run_job(
             let t = start.elapsed().as_secs_f64();
             parts.into_iter().map(|b| (Ok((b, info)), t)).collect()
         }
-        Err(e) if retry_singly(&e) => {
+        // One object's fault (the server refused or mangled this bundle): key by key, so
+        // only the bad ones fail; an unreachable server fails every key at once.
+        Err(e) if e.is_object_fault() => {
             tracing::warn!(
                 "bundle of {} keys failed ({e}); fetching them one by one",
                 pieces.len()
@@ -485,6 +482,7 @@ async fn worker(
         }
         let start = Instant::now();
         let results = run_job(&shared, &mut conn, &job, start).await;
+        let mut transfer = Some(conn.take_report());
         if !conn.bundles_supported() {
             shared.no_bundles.store(true, Ordering::Relaxed);
         }
@@ -509,6 +507,7 @@ async fn worker(
                 result,
                 elapsed_s,
                 request,
+                transfer: transfer.take().unwrap_or_default(),
             };
             if tx.send(outcome).is_err() {
                 return;

@@ -3,10 +3,20 @@
 //! before anyone sees it. The manifest itself is asked for gzip-compressed
 //! ([`Connection::fetch_manifest`]), decompressed within a size limit and checked against
 //! `manifest.json.blake3`.
+//!
+//! Nothing waits forever ([`RetryPolicy`]): connecting, the response head and every gap
+//! between body bytes have their own timeout, and one request's retries (connection
+//! failures, timeouts, 5xx) stop after `give_up_after`. Failures fall in two kinds
+//! ([`ClientError::is_object_fault`]): the server is unreachable (retried here, then
+//! [`ClientError::GaveUp`]), or one object is damaged or missing (checksum mismatch, 404,
+//! a range outside the file: not retried here; a scheduler counts it per part, tries again
+//! later and gives up, [`super::failures`]). What the retries cost is kept per connection
+//! ([`Connection::take_report`]: attempts, retries, timeouts, time the server was
+//! unreachable) for the caller's report.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use bytes::{Bytes, BytesMut};
 use http_body_util::{BodyExt, Empty};
@@ -123,33 +133,73 @@ pub enum ClientError {
     /// A compressed body that would decompress to more than the limit (never held whole).
     #[error("{path}: decompresses to more than {limit} bytes")]
     DecodedTooLarge { path: String, limit: u64 },
+    /// No response head within the response timeout, or no body byte within the stall
+    /// timeout.
+    #[error("{path}: {what} within {:.1} s", after.as_secs_f64())]
+    Timeout {
+        path: String,
+        what: &'static str,
+        after: Duration,
+    },
     #[error("request cancelled")]
     Cancelled,
-    #[error("gave up after {attempts} attempts: {last}")]
+    #[error("gave up after {attempts} attempts in {seconds:.1} s: {last}")]
     GaveUp {
         attempts: u32,
+        seconds: f64,
         last: Box<ClientError>,
     },
 }
 
 impl ClientError {
-    /// Whether trying again (after reconnecting) may help.
-    fn is_retryable(&self) -> bool {
+    /// Whether trying again (after reconnecting) may help: the connection failed, timed out
+    /// or the server answered 5xx.
+    pub fn is_retryable(&self) -> bool {
         match self {
-            ClientError::Connect { .. } | ClientError::Transfer { .. } => true,
+            ClientError::Connect { .. }
+            | ClientError::Transfer { .. }
+            | ClientError::Timeout { .. } => true,
             ClientError::Status { status, .. } => *status >= 500,
             _ => false,
         }
     }
+
+    /// Whether the failure is the object's, not the server's: its bytes fail their checksum
+    /// or length, or the server refuses it with a 4xx (missing, range outside the file).
+    /// Other objects may still arrive; this one is counted and tried again later.
+    pub fn is_object_fault(&self) -> bool {
+        match self {
+            ClientError::Checksum { .. }
+            | ClientError::Length { .. }
+            | ClientError::BadObject(_)
+            | ClientError::DecodedTooLarge { .. } => true,
+            ClientError::Status { status, .. } => (400..500).contains(status),
+            _ => false,
+        }
+    }
+
+    /// Whether the server could not be reached within the retry policy (nothing else will
+    /// arrive from it now).
+    pub fn is_unreachable(&self) -> bool {
+        matches!(self, ClientError::GaveUp { .. }) || self.is_retryable()
+    }
 }
 
-/// Retry and back-off settings.
+/// Retry, back-off and timeout settings.
 #[derive(Clone, Debug)]
 pub struct RetryPolicy {
-    /// Attempts per request (connection failures and 5xx), at least 1.
+    /// Attempts per request (connection failures, timeouts and 5xx), at least 1.
     pub attempts: u32,
     pub backoff_start: Duration,
     pub backoff_max: Duration,
+    /// Retries of one request stop once this much time has passed since it started.
+    pub give_up_after: Duration,
+    /// Time to open a connection.
+    pub connect_timeout: Duration,
+    /// Time from sending a request to its response head.
+    pub response_timeout: Duration,
+    /// Longest gap between two pieces of a response body (a stalled transfer).
+    pub stall_timeout: Duration,
     /// Re-downloads after a checksum mismatch before giving up.
     pub checksum_attempts: u32,
     /// Longest body accepted, bytes.
@@ -162,6 +212,10 @@ impl Default for RetryPolicy {
             attempts: 12,
             backoff_start: Duration::from_millis(25),
             backoff_max: Duration::from_secs(1),
+            give_up_after: Duration::from_secs(30),
+            connect_timeout: Duration::from_secs(5),
+            response_timeout: Duration::from_secs(10),
+            stall_timeout: Duration::from_secs(10),
             checksum_attempts: 4,
             max_body: 256 << 20,
         }
@@ -175,6 +229,40 @@ pub struct ClientStats {
     pub bytes: AtomicU64,
     pub checksum_failures: AtomicU64,
     pub reconnects: AtomicU64,
+    /// Attempts retried after a connection failure, timeout or 5xx.
+    pub retries: AtomicU64,
+    /// Of those, timeouts (no response head, or a stalled body).
+    pub timeouts: AtomicU64,
+    /// Requests given up after the retry policy ran out.
+    pub gave_up: AtomicU64,
+    /// Milliseconds requests spent failing before they succeeded or gave up.
+    pub outage_ms: AtomicU64,
+}
+
+/// What the requests of a connection cost in retries since the last
+/// [`Connection::take_report`] (one fetch, for the caller that takes it after each).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TransferReport {
+    /// HTTP attempts made.
+    pub attempts: u32,
+    /// Attempts that failed (connection, timeout, 5xx) and were tried again.
+    pub retries: u32,
+    /// Of the failed attempts, timeouts.
+    pub timeouts: u32,
+    /// Wall-clock seconds from each request's first failed attempt to its success or
+    /// give-up, summed: how long the server was unreachable for these requests (0 when
+    /// nothing failed, so a healthy transfer adds nothing).
+    pub outage_s: f64,
+}
+
+impl TransferReport {
+    /// Both reports together.
+    pub fn add(&mut self, o: &TransferReport) {
+        self.attempts += o.attempts;
+        self.retries += o.retries;
+        self.timeouts += o.timeouts;
+        self.outage_s += o.outage_s;
+    }
 }
 
 /// One piece of a bundle: what to fetch, its exact length and the hash it must have.
@@ -212,6 +300,8 @@ pub struct Connection {
     stats: Arc<ClientStats>,
     /// The server answered `/bundle` with 404/405/501 (a static host): fetch piece by piece.
     no_bundles: bool,
+    /// Retries and outage since the last [`Connection::take_report`].
+    report: TransferReport,
 }
 
 impl Connection {
@@ -222,7 +312,19 @@ impl Connection {
             policy,
             stats,
             no_bundles: false,
+            report: TransferReport::default(),
         }
+    }
+
+    /// The retry policy (timeouts included).
+    pub fn policy(&self) -> &RetryPolicy {
+        &self.policy
+    }
+
+    /// What the requests since the last call cost in attempts, retries, timeouts and
+    /// outage, and start counting again.
+    pub fn take_report(&mut self) -> TransferReport {
+        std::mem::take(&mut self.report)
     }
 
     /// The counters this connection adds to.
@@ -249,14 +351,23 @@ impl Connection {
                 addr: addr.clone(),
                 message: e.to_string(),
             };
-            let stream = tokio::time::timeout(Duration::from_secs(5), TcpStream::connect(&addr))
+            let limit = self.policy.connect_timeout;
+            let timed_out = || ClientError::Connect {
+                addr: addr.clone(),
+                message: format!("no connection within {:.1} s", limit.as_secs_f64()),
+            };
+            let stream = tokio::time::timeout(limit, TcpStream::connect(&addr))
                 .await
-                .map_err(|e| err(&e))?
+                .map_err(|_| timed_out())?
                 .map_err(|e| err(&e))?;
             let _ = stream.set_nodelay(true);
-            let (sender, conn) = hyper::client::conn::http1::handshake(TokioIo::new(stream))
-                .await
-                .map_err(|e| err(&e))?;
+            let (sender, conn) = tokio::time::timeout(
+                limit,
+                hyper::client::conn::http1::handshake(TokioIo::new(stream)),
+            )
+            .await
+            .map_err(|_| timed_out())?
+            .map_err(|e| err(&e))?;
             tokio::spawn(async move {
                 if let Err(e) = conn.await {
                     tracing::debug!("client connection: {e}");
@@ -279,11 +390,15 @@ impl Connection {
     ) -> Result<(Bytes, bool), ClientError> {
         let max_body = self.policy.max_body;
         let host = self.url.host().to_string();
+        // Errors name the whole URL: which server, which object.
+        let url = format!("http://{host}{path}");
+        let path = url.as_str();
+        let request_path = &url[7 + host.len()..];
         let tr = |m: &dyn std::fmt::Display| ClientError::Transfer {
             path: path.to_string(),
             message: m.to_string(),
         };
-        let mut builder = Request::get(path).header(header::HOST, host);
+        let mut builder = Request::get(request_path).header(header::HOST, host.clone());
         if let Some((off, len)) = range {
             if len == 0 {
                 return Ok((Bytes::new(), false));
@@ -294,15 +409,31 @@ impl Connection {
             builder = builder.header(header::ACCEPT_ENCODING, "gzip");
         }
         let req = builder.body(Empty::new()).map_err(|e| tr(&e))?;
+        let response_timeout = self.policy.response_timeout;
+        let stall_timeout = self.policy.stall_timeout;
+        let timeout = |what: &'static str, after: Duration| ClientError::Timeout {
+            path: path.to_string(),
+            what,
+            after,
+        };
         let sender = self.connect().await?;
-        sender.ready().await.map_err(|e| tr(&e))?;
-        let resp = match sender.send_request(req).await {
-            Ok(r) => r,
-            Err(e) => {
+        let sent = tokio::time::timeout(response_timeout, async {
+            sender.ready().await?;
+            sender.send_request(req).await
+        })
+        .await;
+        let resp = match sent {
+            Ok(Ok(r)) => r,
+            Ok(Err(e)) => {
                 self.sender = None;
                 return Err(tr(&e));
             }
+            Err(_) => {
+                self.sender = None;
+                return Err(timeout("no response", response_timeout));
+            }
         };
+        let stalled = || timeout("transfer stalled: no bytes", stall_timeout);
         let status = resp.status();
         let encoding = resp.headers().get(header::CONTENT_ENCODING).map(|v| {
             String::from_utf8_lossy(v.as_bytes())
@@ -329,7 +460,7 @@ impl Connection {
         let mut body = resp.into_body();
         if !ok {
             let mut reason = Vec::new();
-            while let Some(f) = body.frame().await {
+            while let Ok(Some(f)) = tokio::time::timeout(stall_timeout, body.frame()).await {
                 match f {
                     Ok(f) => {
                         if let Some(d) = f.data_ref() {
@@ -343,6 +474,12 @@ impl Connection {
                     }
                 }
             }
+            {
+                use hyper::body::Body as _;
+                if !body.is_end_stream() {
+                    self.sender = None;
+                }
+            }
             return Err(ClientError::Status {
                 path: path.to_string(),
                 status: status.as_u16(),
@@ -350,7 +487,15 @@ impl Connection {
             });
         }
         let mut out = BytesMut::new();
-        while let Some(frame) = body.frame().await {
+        loop {
+            let frame = match tokio::time::timeout(stall_timeout, body.frame()).await {
+                Ok(Some(f)) => f,
+                Ok(None) => break,
+                Err(_) => {
+                    self.sender = None;
+                    return Err(stalled());
+                }
+            };
             if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
                 self.sender = None;
                 return Err(ClientError::Cancelled);
@@ -398,29 +543,51 @@ impl Connection {
         let full = format!("{}{}", self.url.prefix, path);
         let mut delay = self.policy.backoff_start;
         let attempts = self.policy.attempts.max(1);
+        let started = Instant::now();
+        // When the first attempt failed: the server unreachable from then on.
+        let mut failing_since: Option<Instant> = None;
         let mut attempt = 0;
-        loop {
+        let result = loop {
             attempt += 1;
+            self.report.attempts += 1;
             match self.get_once(&full, range, cancel, accept_gzip).await {
-                Ok(b) => return Ok(b),
-                Err(e) if e.is_retryable() && attempt < attempts => {
-                    tracing::debug!("{full}: {e}; retrying in {delay:?}");
+                Ok(b) => break Ok(b),
+                Err(e) if e.is_retryable() => {
+                    failing_since.get_or_insert_with(Instant::now);
+                    if matches!(e, ClientError::Timeout { .. }) {
+                        self.report.timeouts += 1;
+                        self.stats.timeouts.fetch_add(1, Ordering::Relaxed);
+                    }
                     self.sender = None;
+                    let out_of_time = started.elapsed() + delay > self.policy.give_up_after;
+                    if attempt >= attempts || out_of_time {
+                        self.stats.gave_up.fetch_add(1, Ordering::Relaxed);
+                        break Err(ClientError::GaveUp {
+                            attempts: attempt,
+                            seconds: started.elapsed().as_secs_f64(),
+                            last: Box::new(e),
+                        });
+                    }
+                    tracing::debug!("{full}: {e}; retrying in {delay:?}");
+                    self.report.retries += 1;
+                    self.stats.retries.fetch_add(1, Ordering::Relaxed);
                     tokio::time::sleep(delay).await;
                     delay = (delay * 2).min(self.policy.backoff_max);
                     if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
-                        return Err(ClientError::Cancelled);
+                        break Err(ClientError::Cancelled);
                     }
                 }
-                Err(e) if e.is_retryable() => {
-                    return Err(ClientError::GaveUp {
-                        attempts,
-                        last: Box::new(e),
-                    })
-                }
-                Err(e) => return Err(e),
+                Err(e) => break Err(e),
             }
+        };
+        if let Some(since) = failing_since {
+            let lost = since.elapsed();
+            self.report.outage_s += lost.as_secs_f64();
+            self.stats
+                .outage_ms
+                .fetch_add(lost.as_millis() as u64, Ordering::Relaxed);
         }
+        result
     }
 
     /// Download `key` and check it against `expected_hash`; a mismatch is re-downloaded
@@ -567,6 +734,45 @@ impl Connection {
             i = j;
         }
         Ok(out)
+    }
+
+    /// Each piece's own result, in order. One `/bundle` (or, on a static host, one request
+    /// per object or range run) when everything checks out; when that fails for one
+    /// object's fault (a checksum that keeps failing, a missing object, a range outside its
+    /// file), the pieces are fetched one by one so that only the damaged ones fail. Once the
+    /// server is unreachable, the pieces not yet fetched fail with the same error without
+    /// being tried each.
+    pub async fn fetch_pieces(
+        &mut self,
+        pieces: &[BundlePiece<'_>],
+        cancel: Option<&AtomicBool>,
+    ) -> Vec<Result<Bytes, ClientError>> {
+        match self.fetch_checked_bundle(pieces, cancel).await {
+            Ok(v) => v.into_iter().map(Ok).collect(),
+            Err(e) if e.is_object_fault() && pieces.len() > 1 => {
+                tracing::warn!(
+                    "{} pieces in one request failed ({e}); fetching them one by one",
+                    pieces.len()
+                );
+                let mut out = Vec::with_capacity(pieces.len());
+                let mut fatal: Option<ClientError> = None;
+                for p in pieces {
+                    if let Some(e) = &fatal {
+                        out.push(Err(e.clone()));
+                        continue;
+                    }
+                    let r = self.fetch_checked(p.key, p.hash, cancel).await;
+                    if let Err(e) = &r {
+                        if !e.is_object_fault() {
+                            fatal = Some(e.clone());
+                        }
+                    }
+                    out.push(r);
+                }
+                out
+            }
+            Err(e) => pieces.iter().map(|_| Err(e.clone())).collect(),
+        }
     }
 
     async fn bundle_once_checked(

@@ -21,8 +21,12 @@
 //!    the estimated bandwidth) and cancels queued or running ones the plan no longer wants;
 //! 4. returns the parts that arrived since the last call ([`Arrival`]: checked bytes only).
 //!
-//! When the server goes away, the connections retry with back-off; failed downloads are
-//! counted, new requests pause briefly, and what is cached stays available.
+//! When the server goes away, the connections retry with back-off (within the timeouts of
+//! [`super::RetryPolicy`]); failed downloads are counted, new requests pause briefly, and
+//! what is cached stays available. A part or table whose object is damaged or missing is a
+//! fault of that part alone ([`FailureBook`]): asked for again later, given up after
+//! repeated faults, while everything else streams on. [`LiveStats`] shows the outage: time
+//! without progress now and at its longest, retries, timeouts, faults.
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::Ordering;
@@ -38,6 +42,7 @@ use super::budget::{
     plan, BudgetParams, ItemInfo, LinkEstimate, LiveCount, PlanInput, PriorityMode,
 };
 use super::cache::Cache;
+use super::failures::{FailureBook, FailurePolicy, ProgressClock, Verdict};
 use super::fetcher::{FetchRequest, Fetcher, FetcherConfig};
 use super::http::{ClientError, Connection, FetchKey, KeyMap, KeySet, ServerUrl};
 use super::items::{ItemTable, Part};
@@ -69,6 +74,8 @@ pub struct LiveConfig {
     /// Parts with the same checksum and length fetched and cached once under one key
     /// ([`ItemTable::set_share_parts`]).
     pub share_parts: bool,
+    /// When a damaged or missing part is asked for again, and when it is given up.
+    pub failures: FailurePolicy,
 }
 
 impl LiveConfig {
@@ -92,6 +99,7 @@ impl LiveConfig {
             samples: (32, 18),
             error_pause: Duration::from_millis(500),
             share_parts: true,
+            failures: FailurePolicy::default(),
         }
     }
 }
@@ -148,9 +156,24 @@ pub struct LiveStats {
     pub requests: u64,
     /// Parts received (checked).
     pub parts: u64,
+    /// Downloads that failed because the server could not be reached (given up after
+    /// retries), not counting object faults.
     pub failed_requests: u64,
     pub checksum_failures: u64,
     pub reconnects: u64,
+    /// Attempts retried after a connection failure, timeout or 5xx, and of them timeouts.
+    pub retries: u64,
+    pub timeouts: u64,
+    /// Seconds requests spent failing before they succeeded or gave up (server
+    /// unreachable), summed over requests.
+    pub outage_s: f64,
+    /// Seconds with requests outstanding and nothing arriving: now, and at the longest.
+    pub stalled_s: f64,
+    pub longest_stall_s: f64,
+    /// Faults of parts or tables whose object is damaged or missing (each asked for again
+    /// later), and those given up after repeated faults.
+    pub part_faults: u64,
+    pub parts_given_up: u64,
     /// Link estimate `(bits/s, latency s)`.
     pub link: (f64, f64),
     /// Latest download error, cleared by the next success.
@@ -216,6 +239,9 @@ pub struct LiveSession {
     recent: VecDeque<(Instant, u64)>,
     /// Requests already fed to the link estimate (recent ids).
     timed: VecDeque<u64>,
+    /// Object faults per key (seconds since `start`), and the time without progress.
+    failures: FailureBook,
+    progress: ProgressClock,
     stats: LiveStats,
 }
 
@@ -305,7 +331,6 @@ impl LiveSession {
             infos,
             level_cap: None,
             index,
-            config,
             cache,
             link,
             motion: MotionTracker::new(),
@@ -319,6 +344,9 @@ impl LiveSession {
             paused_until: None,
             recent: VecDeque::new(),
             timed: VecDeque::new(),
+            failures: FailureBook::new(config.failures),
+            progress: ProgressClock::default(),
+            config,
             stats,
         })
     }
@@ -572,7 +600,7 @@ impl LiveSession {
             }
         }
         let paused = self.paused_until.is_some_and(|u| now < u);
-        let tables = self.request_tables(s);
+        let tables = self.request_tables(s, t);
         keep.extend(tables.iter().map(|(r, _)| r.key.clone()));
         if !paused {
             // Every missing table again: a queued one takes its new priority (a background
@@ -585,6 +613,11 @@ impl LiveSession {
                 let parts = &self.table.items[r.item].parts;
                 let end = (r.part + r.parts.max(1)).min(parts.len());
                 for (j, part) in parts[r.part..end].iter().enumerate() {
+                    // A part that failed waits for its retry time (or was given up): the
+                    // parts after it are of no use without it.
+                    if !self.failures.may_request(&part.key, t) {
+                        break;
+                    }
                     keep.insert(part.key.clone());
                     if self.cache.contains(&part.key) || self.requested.contains(&part.key) {
                         continue;
@@ -718,15 +751,23 @@ impl LiveSession {
         out
     }
 
-    /// Finished downloads: link estimate, cache, arrivals.
+    /// Finished downloads: link estimate, cache, arrivals, failures.
     fn take_finished(&mut self, now: Instant) -> Vec<Arrival> {
         let mut out = Vec::new();
         let mut stored_keys = Vec::new();
         let mut tables_changed = false;
+        let t = now.duration_since(self.start).as_secs_f64();
+        let waiting = self.fetcher.pending() > 0 || !self.requested.is_empty();
+        let mut arrived = false;
         while let Some(done) = self.fetcher.try_next() {
             self.requested.remove(&done.key);
+            self.stats.retries += done.transfer.retries as u64;
+            self.stats.timeouts += done.transfer.timeouts as u64;
+            self.stats.outage_s += done.transfer.outage_s;
             match done.result {
                 Ok(data) => {
+                    arrived = true;
+                    self.failures.succeeded(&done.key);
                     let len = data.len() as u64;
                     // One sample per HTTP request (a bundle's keys share theirs).
                     if !self.timed.contains(&done.request.id) {
@@ -768,6 +809,15 @@ impl LiveSession {
                     }
                 }
                 Err(ClientError::Cancelled) => {}
+                Err(e) if e.is_object_fault() => {
+                    // This object alone: asked for again later, given up after a few.
+                    self.table_keys.remove(&done.key);
+                    self.ach_keys.remove(&done.key);
+                    if self.failures.fault(&done.key, t) == Verdict::GivenUp {
+                        tracing::warn!("giving up {}: {e}", done.key.object);
+                    }
+                    self.stats.last_error = Some(e.to_string());
+                }
                 Err(e) => {
                     self.table_keys.remove(&done.key);
                     self.ach_keys.remove(&done.key);
@@ -777,6 +827,9 @@ impl LiveSession {
                 }
             }
         }
+        self.progress.observe(t, waiting, arrived);
+        self.stats.part_faults = self.failures.faults();
+        self.stats.parts_given_up = self.failures.given_up();
         if tables_changed {
             self.tables_changed();
         }
@@ -860,8 +913,16 @@ impl LiveSession {
         } else {
             showable.iter().filter(|&&b| b).count() as f64 / showable.len() as f64
         };
+        // Waiting from here on when requests are outstanding after this update.
+        self.progress.observe(
+            t,
+            self.fetcher.pending() > 0 || !self.requested.is_empty(),
+            false,
+        );
         self.stats = LiveStats {
             t_s: t,
+            stalled_s: self.progress.current_s(t),
+            longest_stall_s: self.progress.longest_s(),
             bytes_per_s: self.recent.iter().map(|r| r.1).sum::<u64>() as f64 / span,
             in_flight: running,
             queued: pending.saturating_sub(running),

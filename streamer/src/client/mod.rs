@@ -5,6 +5,8 @@
 //!   manifest, re-fetched on mismatch, never returned when wrong).
 //! - [`fetcher`]: [`Fetcher`] — a priority queue served by a fixed number of workers (the
 //!   limit on requests in flight), with cancellation of stale requests.
+//! - [`failures`]: [`FailureBook`] — per-key object faults (retried later, then given up)
+//!   and [`ProgressClock`] — time without progress, on any clock; what a scheduler keeps.
 //! - [`cache`]: [`Cache`] — checked bytes under a byte budget, evicted by distance along the
 //!   track, with reference counts for shared entries.
 //! - [`budget`]: [`plan`] — the PTM memory/time budget rules, live pixel counts, prefetch;
@@ -18,6 +20,7 @@
 
 pub mod budget;
 pub mod cache;
+pub mod failures;
 pub mod fetcher;
 pub mod http;
 pub mod items;
@@ -28,10 +31,11 @@ pub use budget::{
     plan, BudgetParams, ItemInfo, LinkEstimate, LiveCount, Plan, PlanInput, PriorityMode,
 };
 pub use cache::{Cache, CacheError};
+pub use failures::{FailureBook, FailurePolicy, ProgressClock, Verdict};
 pub use fetcher::{FetchOutcome, FetchRequest, Fetcher, FetcherConfig};
 pub use http::{
     BundlePiece, ClientError, ClientStats, Connection, FetchKey, ManifestFetch, RetryPolicy,
-    ServerUrl,
+    ServerUrl, TransferReport,
 };
 pub use items::{ItemTable, Part};
 pub use live::{Arrival, LiveConfig, LiveError, LiveSession, LiveStats};

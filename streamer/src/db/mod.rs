@@ -61,8 +61,9 @@ pub const MANIFEST_GZ_FILE: &str = "manifest.json.gz";
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum DbError {
-    #[error("{path}: {source}")]
-    Io { path: PathBuf, source: io::Error },
+    /// The I/O error is part of the message (not a separate source, so it prints once).
+    #[error("{path}: {error}")]
+    Io { path: PathBuf, error: io::Error },
     /// The file's content is wrong (bad JSON, wrong hash or size, unknown version, …).
     #[error("{path}: {message}")]
     Format { path: PathBuf, message: String },
@@ -72,10 +73,10 @@ pub enum DbError {
 }
 
 impl DbError {
-    fn io(path: &Path, source: io::Error) -> DbError {
+    fn io(path: &Path, error: io::Error) -> DbError {
         DbError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         }
     }
     fn format(path: &Path, message: impl Into<String>) -> DbError {
@@ -91,25 +92,72 @@ pub fn hash_hex(bytes: &[u8]) -> String {
     blake3::hash(bytes).to_hex().to_string()
 }
 
-/// Writes `bytes` to `path` through a temporary file in the same directory and a rename.
+/// Whether a file name is a temporary file of an interrupted write: a leading `.` and a
+/// `.tmp` marker (this writer's `.NAME.tmp.RANDOM`, the `tempfile` crate's `.tmpXXXXXX`).
+pub fn is_temp_name(name: &str) -> bool {
+    // A superset of `railview_files::is_temporary`, which marks `.NAME.tmp.RANDOM`.
+    name.starts_with('.') && name.contains(".tmp")
+}
+
+/// Removes every temporary file of an interrupted write from `root`, `root/objects/` and
+/// every `root/objects/HH/`; returns what it removed. Only for a writer that holds the
+/// directory's lock ([`DbWriter::create`]): no other writer can be running there, so every
+/// temporary file is a killed writer's leftover.
+fn remove_temp_files(root: &Path) -> Result<Vec<PathBuf>, DbError> {
+    let mut dirs = vec![root.to_path_buf(), root.join("objects")];
+    if let Ok(rd) = fs::read_dir(root.join("objects")) {
+        let mut subs: Vec<PathBuf> = rd
+            .filter_map(Result::ok)
+            .filter(|e| e.file_type().is_ok_and(|t| t.is_dir()))
+            .map(|e| e.path())
+            .collect();
+        subs.sort();
+        dirs.extend(subs);
+    }
+    let mut removed = Vec::new();
+    for dir in dirs {
+        let Ok(rd) = fs::read_dir(&dir) else {
+            continue;
+        };
+        for e in rd.filter_map(Result::ok) {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if is_temp_name(&name) && e.file_type().is_ok_and(|t| t.is_file()) {
+                let path = e.path();
+                match fs::remove_file(&path) {
+                    Ok(()) => removed.push(path),
+                    Err(err) if err.kind() == std::io::ErrorKind::NotFound => {}
+                    Err(err) => return Err(DbError::io(&path, err)),
+                }
+            }
+        }
+    }
+    removed.sort();
+    Ok(removed)
+}
+
+/// Takes the exclusive lock of a database (or stage) directory for one writer: an advisory
+/// lock on the directory itself, so nothing is added to what a host serves, released by the
+/// kernel when the writer exits or is killed.
+fn lock_dir(dir: &Path) -> Result<fs::File, DbError> {
+    let handle = fs::File::open(dir).map_err(|e| DbError::io(dir, e))?;
+    match handle.try_lock() {
+        Ok(()) => Ok(handle),
+        Err(fs::TryLockError::WouldBlock) => Err(DbError::io(
+            dir,
+            std::io::Error::new(
+                std::io::ErrorKind::WouldBlock,
+                "another build is writing this directory (wait for it to end)",
+            ),
+        )),
+        Err(fs::TryLockError::Error(e)) => Err(DbError::io(dir, e)),
+    }
+}
+
+/// Writes `bytes` to `path` whole: a uniquely named temporary file in the same directory
+/// (`.NAME.tmp.RANDOM`, which verify recognises as a leftover), fsync, rename. Safe with
+/// several writers at once, on one host or many sharing a file system.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DbError> {
-    let dir = path.parent().unwrap_or(Path::new("."));
-    fs::create_dir_all(dir).map_err(|e| DbError::io(dir, e))?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp.{}", std::process::id()));
-    let result = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    result.map_err(|e| {
-        fs::remove_file(&tmp).ok(); // best effort: the write error is what gets reported
-        DbError::io(path, e)
-    })
+    railview_files::write(path, bytes).map_err(|e| DbError::io(path, e))
 }
 
 /// Builds a database directory; objects first, the manifest last ([`DbWriter::finish`]).
@@ -128,14 +176,23 @@ pub struct DbWriter {
     /// (stored once, pointed at again).
     pub payloads_shared: u64,
     pub bytes_shared: u64,
+    /// Temporary files of an earlier, killed writer removed on opening.
+    pub leftovers_removed: Vec<PathBuf>,
+    /// The directory locks held while this writer lives ([`lock_dir`]).
+    _locks: Vec<fs::File>,
 }
 
 impl DbWriter {
-    /// Opens (creating if needed) a database directory for writing. An existing manifest is
-    /// left in place until [`DbWriter::finish`] replaces it.
+    /// Opens (creating if needed) a database directory for writing, and removes the
+    /// temporary files a killed writer left there. It holds the directory's lock while it
+    /// lives, so a second writer of the same database fails at once instead of removing the
+    /// first one's temporary files. An existing manifest is left in place until
+    /// [`DbWriter::finish`] replaces it.
     pub fn create(root: &Path) -> Result<DbWriter, DbError> {
         let objects = root.join("objects");
         fs::create_dir_all(&objects).map_err(|e| DbError::io(&objects, e))?;
+        let lock = lock_dir(root)?;
+        let leftovers_removed = remove_temp_files(root)?;
         Ok(DbWriter {
             root: root.to_path_buf(),
             stage: None,
@@ -144,6 +201,8 @@ impl DbWriter {
             objects_reused: 0,
             payloads_shared: 0,
             bytes_shared: 0,
+            leftovers_removed,
+            _locks: vec![lock],
         })
     }
 
@@ -151,9 +210,13 @@ impl DbWriter {
     /// [`DbWriter::finish`] copies into its viewpoint's pack) under `stage/objects/` instead
     /// of the database, so the database holds only what its manifest refers to while a
     /// resumed build still finds them.
-    pub fn with_stage(mut self, stage: &Path) -> DbWriter {
+    pub fn with_stage(mut self, stage: &Path) -> Result<DbWriter, DbError> {
+        if stage.is_dir() {
+            self._locks.push(lock_dir(stage)?);
+            self.leftovers_removed.extend(remove_temp_files(stage)?);
+        }
         self.stage = Some(stage.to_path_buf());
-        self
+        Ok(self)
     }
 
     pub fn root(&self) -> &Path {
@@ -601,7 +664,7 @@ pub fn read_tables(dir: &Path, top: &TopManifest) -> Result<Manifest, DbError> {
 /// its version.
 pub fn read_top(dir: &Path) -> Result<TopManifest, DbError> {
     let path = dir.join(MANIFEST_FILE);
-    let bytes = fs::read(&path).map_err(|e| DbError::io(&path, e))?;
+    let bytes = read_limited(&path, tracks::limits::MAX_MANIFEST_BYTES)?;
     let hash_path = dir.join(MANIFEST_HASH_FILE);
     match fs::read_to_string(&hash_path) {
         Ok(text) => {
@@ -617,6 +680,30 @@ pub fn read_top(dir: &Path) -> Result<TopManifest, DbError> {
         Err(e) => return Err(DbError::io(&hash_path, e)),
     }
     parse_top(&path, &bytes)
+}
+
+/// The bytes of `path`, refused unread when the file is larger than `limit`.
+pub fn read_limited(path: &Path, limit: u64) -> Result<Vec<u8>, DbError> {
+    let mut f = fs::File::open(path).map_err(|e| DbError::io(path, e))?;
+    let len = f.metadata().map_err(|e| DbError::io(path, e))?.len();
+    if len > limit {
+        return Err(DbError::format(
+            path,
+            format!("{len} bytes; at most {limit} are read"),
+        ));
+    }
+    let mut out = Vec::with_capacity(len as usize);
+    (&mut f)
+        .take(limit + 1)
+        .read_to_end(&mut out)
+        .map_err(|e| DbError::io(path, e))?;
+    if out.len() as u64 > limit {
+        return Err(DbError::format(
+            path,
+            format!("more than {limit} bytes; at most {limit} are read"),
+        ));
+    }
+    Ok(out)
 }
 
 /// Parses top-manifest bytes read from `path` and checks the version: format 6 is read;
@@ -649,8 +736,11 @@ pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
             ),
         ));
     }
-    serde_json::from_slice(bytes)
-        .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))
+    let top: TopManifest = serde_json::from_slice(bytes)
+        .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
+    top.check_limits()
+        .map_err(|e| DbError::format(path, format!("{e} (limits of this build)")))?;
+    Ok(top)
 }
 
 /// Clear the colour of every RGBA texel whose alpha is 0, as format 5 stores every PTM.

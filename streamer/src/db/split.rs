@@ -55,6 +55,76 @@ pub struct TopManifest {
 }
 
 impl TopManifest {
+    /// Every number that sizes what a reader allocates or loops over, against the stated
+    /// limits of [`tracks::limits`]: the grid, slab, track and viewpoint counts, text
+    /// lengths, positions. The message names the field (`tracks[0].viewpoints[3].s`) and the
+    /// limit. Checked by every reader of a manifest before it uses one.
+    pub fn check_limits(&self) -> Result<(), String> {
+        use tracks::limits::*;
+        check_grid(self.face_size as u64, self.tile_size as u64).map_err(|e| e.to_string())?;
+        let count = |name: &str, n: usize, max: usize| {
+            check_u64(name, n as u64, 0, max as u64).map_err(|e| e.to_string())
+        };
+        count("slabs (count)", self.slabs.len(), MAX_SLABS)?;
+        count("tracks (count)", self.tracks.len(), MAX_TRACKS)?;
+        count("scene (bytes)", self.scene.len(), MAX_TEXT_BYTES)?;
+        for (k, s) in self.slabs.iter().enumerate() {
+            if tracks::SlabRange::new(s.near, s.far).is_none() {
+                return Err(format!(
+                    "slabs[{k}] = {}..{} is not a depth range 0 ≤ near < far",
+                    s.near, s.far
+                ));
+            }
+        }
+        if let Some(a) = self.cull_alpha {
+            check_f64("cull_alpha", a, 0.0, 1.0).map_err(|e| e.to_string())?;
+        }
+        let per_side = self.face_size.div_ceil(self.tile_size.max(1)) as u64;
+        let grid = 6 * per_side * per_side * self.slabs.len().max(1) as u64;
+        for (ti, t) in self.tracks.iter().enumerate() {
+            let at = |f: &str| format!("tracks[{ti}].{f}");
+            count(
+                &at("viewpoints (count)"),
+                t.viewpoints.len(),
+                MAX_VIEWPOINTS,
+            )?;
+            count(&at("segments (count)"), t.segments.len(), MAX_VIEWPOINTS)?;
+            count(&at("name (bytes)"), t.name.len(), MAX_TEXT_BYTES)?;
+            count(
+                &at("track_toml (bytes)"),
+                t.track_toml.len(),
+                MAX_TEXT_BYTES,
+            )?;
+            check_f64(&at("length"), t.length, 0.0, MAX_COORDINATE_M).map_err(|e| e.to_string())?;
+            let cells = grid.saturating_mul(t.viewpoints.len() as u64);
+            if cells > MAX_GRID_CELLS {
+                return Err(format!(
+                    "{}: {} viewpoints × {grid} tile cells (faces of {} px in tiles of {} px, \
+                     {} slabs) = {cells} cells; at most {MAX_GRID_CELLS}",
+                    at("viewpoints"),
+                    t.viewpoints.len(),
+                    self.face_size,
+                    self.tile_size,
+                    self.slabs.len()
+                ));
+            }
+            for (vi, v) in t.viewpoints.iter().enumerate() {
+                let at = |f: &str| format!("tracks[{ti}].viewpoints[{vi}].{f}");
+                check_u64(&at("index"), v.index as u64, 0, MAX_VIEWPOINTS as u64 * 16)
+                    .map_err(|e| e.to_string())?;
+                check_f64(&at("s"), v.s, 0.0, MAX_COORDINATE_M).map_err(|e| e.to_string())?;
+                let p = v.position;
+                if !p.is_finite() || p.abs().max_element() > MAX_COORDINATE_M {
+                    return Err(format!(
+                        "{} = {p} is out of range: finite and within ±{MAX_COORDINATE_M} m",
+                        at("position")
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Whether every PTM's coarse levels hold colour × coverage ([`super::clear_masked`],
     /// format 5 on): then a reader recovers the covered texels' own mean colour with
     /// [`super::unpremultiply`]. In format 4 the colour under alpha 0 was whatever the

@@ -69,12 +69,18 @@ const HAS_PTM: u8 = 2;
 const HAS_MESH: u8 = 4;
 const USUAL_SHAPE: u8 = 8;
 
+impl From<super::GunzipError> for TableError {
+    fn from(e: super::GunzipError) -> TableError {
+        TableError::Gzip(e)
+    }
+}
+
 /// Why a table could not be encoded or decoded.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum TableError {
     #[error("table: {0}")]
-    Gzip(#[from] super::GunzipError),
+    Gzip(super::GunzipError),
     #[error("table: not a viewpoint table (no RVTB header)")]
     Magic,
     #[error("ACH lists: not an ACH object (no RVAC header)")]

@@ -140,6 +140,7 @@ fn write_open_read_levels() {
     // 4 tile PTMs, 2 background tiles, 4 meshes, 2 packs, 2 viewpoint tables and the ACH
     // object of viewpoint 0 (the one segment starts there), all distinct.
     assert_eq!(w.objects_written, 15);
+    drop(w); // a second writer waits for the first to end
     let db = Database::open(&dir).unwrap();
     assert_eq!(db.manifest(), &m);
     let tile = &m.tracks[0].viewpoints[1].tiles[0];
@@ -241,13 +242,35 @@ fn missing_truncated_and_stray_files() {
     assert_eq!(r.problems.len(), 1, "{r:?}");
     assert_eq!(r.problems[0].path, mesh_path);
     assert!(r.problems[0].what.contains("missing"));
-    // A leftover temporary file and an unreferenced object are notes, not damage.
-    fs::write(mesh_path.with_file_name(".x.tmp.1"), b"partial").unwrap();
+    // Leftover temporary files (this writer's, the `tempfile` crate's, anywhere in the
+    // database) are stray files, an unreferenced object a note; neither is damage.
+    let temps = [
+        mesh_path.with_file_name(".x.tmp.1"),
+        dir.join("objects").join(".tmpAbC123"),
+        dir.join(".manifest.json.tmp.77"),
+    ];
+    for t in &temps {
+        fs::write(t, b"partial").unwrap();
+    }
     let stray = dir.join(object_rel_path(&hash_hex(b"stray")).unwrap());
     write_atomic(&stray, b"stray").unwrap();
     let r = verify(&dir).unwrap();
     assert_eq!(r.problems.len(), 1);
-    assert_eq!(r.notes.len(), 2, "{:?}", r.notes);
+    assert_eq!(r.notes.len(), 1, "{:?}", r.notes);
+    let mut found: Vec<_> = r.stray.iter().map(|p| p.path.clone()).collect();
+    found.sort();
+    let mut want = temps.to_vec();
+    want.sort();
+    assert_eq!(found, want);
+    // On request they are removed, and only they.
+    let opts = VerifyOptions {
+        remove_temp: true,
+        ..Default::default()
+    };
+    let r = verify_with(&dir, opts).unwrap();
+    assert_eq!(r.removed.len(), 3);
+    assert!(temps.iter().all(|t| !t.exists()) && stray.exists());
+    assert!(verify(&dir).unwrap().stray.is_empty());
     // Truncating a pack: its hash, size and ranges are all reported on that file.
     let p = m.tracks[0].viewpoints[0].tiles[0].ptm.clone().unwrap();
     let pp = dir.join(p.object.rel_path().unwrap());
@@ -627,7 +650,14 @@ fn decoding_finds_colour_left_under_the_mask() {
     let dir = tmpdir("decode-rule");
     let (m, _) = build(&dir);
     assert!(verify(&dir).unwrap().is_intact());
-    let r = verify_with(&dir, VerifyOptions { decode: true }).unwrap();
+    let r = verify_with(
+        &dir,
+        VerifyOptions {
+            decode: true,
+            ..Default::default()
+        },
+    )
+    .unwrap();
     // 4 kept tiles and 2 backgrounds.
     assert_eq!(r.ptms_decoded, 6, "{r:?}");
     let stray: Vec<_> = r
@@ -652,4 +682,35 @@ fn decoding_finds_colour_left_under_the_mask() {
 fn colour_under_empty_texels_counts_only_alpha_zero_with_colour() {
     let px = [0, 0, 0, 0, 5, 0, 0, 0, 9, 9, 9, 255, 0, 0, 1, 0, 7, 7, 7, 1];
     assert_eq!(verify::colour_under_empty_texels(&px), 2);
+}
+
+/// Regression: a build killed while writing an object left `objects/HH/.HASH.tmp.RANDOM`
+/// behind for good. Opening the writer again removes every temporary file; a second writer of
+/// the same database, while the first holds it, is refused and removes nothing.
+#[test]
+fn a_resumed_writer_removes_the_leftovers_of_a_killed_one() {
+    let dir = tmpdir("leftovers");
+    drop(DbWriter::create(&dir).unwrap());
+    let sub = dir.join("objects").join("41");
+    fs::create_dir_all(&sub).unwrap();
+    let obj = sub.join(format!(".41{}.tmp.Ab3xYz", "a".repeat(62)));
+    let top = dir.join(".manifest.json.tmp.QwErTy");
+    let foreign = sub.join(".tmpXyZ123");
+    for f in [&obj, &top, &foreign] {
+        fs::write(f, b"partial").unwrap();
+    }
+    let w = DbWriter::create(&dir).unwrap();
+    let mut want = vec![top.clone(), obj.clone(), foreign.clone()];
+    want.sort();
+    assert_eq!(w.leftovers_removed, want);
+    fs::write(&obj, b"partial").unwrap();
+    let second = DbWriter::create(&dir)
+        .err()
+        .expect("a second writer is refused");
+    assert!(second.to_string().contains("another build"), "{second}");
+    assert!(obj.exists(), "the refused writer removed nothing");
+    drop(w);
+    assert_eq!(DbWriter::create(&dir).unwrap().leftovers_removed, vec![obj]);
+    assert!(is_temp_name(".tmpXyZ123") && is_temp_name(".a.tmp.3") && !is_temp_name("tmp"));
+    fs::remove_dir_all(&dir).unwrap();
 }

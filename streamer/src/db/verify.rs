@@ -39,8 +39,14 @@ pub struct Report {
     pub meshes_decoded: usize,
     /// Damage: the database is intact only when this is empty.
     pub problems: Vec<Problem>,
-    /// Harmless findings (leftover temporary files of a killed writer, unreferenced objects).
+    /// Harmless findings (unreferenced objects, files that are not part of a database).
     pub notes: Vec<Problem>,
+    /// Temporary files of interrupted writes (a leading `.` and a `.tmp` marker), in the
+    /// database's directory, `objects/` or `objects/HH/`: harmless to readers, but not part
+    /// of the database ([`VerifyOptions::remove_temp`] removes them).
+    pub stray: Vec<Problem>,
+    /// Stray temporary files removed ([`VerifyOptions::remove_temp`]).
+    pub removed: Vec<PathBuf>,
 }
 
 impl Report {
@@ -57,11 +63,14 @@ pub struct VerifyOptions {
     /// under every texel with alpha 0 ([`super::clear_masked`]; readers divide coarse levels
     /// by their alpha).
     pub decode: bool,
+    /// Remove the stray temporary files found ([`Report::stray`]).
+    pub remove_temp: bool,
 }
 
-/// Checks the manifest, its checksum, its gzip copy (when present: it must decompress to
-/// exactly manifest.json's bytes), every object's size and hash (referenced or not), and
-/// every PTM level range's hash. `Err` only when `dir` itself cannot be read.
+/// Checks the manifest (its values against the limits of [`tracks::limits`] too), its
+/// checksum, its gzip copy (when present: it must decompress to exactly manifest.json's
+/// bytes), every object's size and hash (referenced or not), and every PTM level range's
+/// hash; lists stray temporary files. `Err` only when `dir` itself cannot be read.
 pub fn verify(dir: &Path) -> Result<Report, DbError> {
     verify_with(dir, VerifyOptions::default())
 }
@@ -69,8 +78,28 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
 /// [`verify`], with the checks of `opts`.
 pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
     let mut report = Report::default();
-    fs::read_dir(dir).map_err(|e| DbError::io(dir, e))?;
+    let top_level = fs::read_dir(dir).map_err(|e| DbError::io(dir, e))?;
     let problem = |path: PathBuf, what: String| Problem { path, what };
+    // The database's own directory: the manifest's files and objects/, nothing else.
+    let mut entries: Vec<_> = top_level.filter_map(Result::ok).collect();
+    entries.sort_by_key(|e| e.file_name());
+    for e in entries {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if super::is_temp_name(&name) {
+            report.stray.push(problem(e.path(), TEMP_NOTE.into()));
+        } else if ![
+            MANIFEST_FILE,
+            MANIFEST_HASH_FILE,
+            MANIFEST_GZ_FILE,
+            "objects",
+        ]
+        .contains(&name.as_str())
+        {
+            report
+                .notes
+                .push(problem(e.path(), "not part of a database".into()));
+        }
+    }
 
     let manifest_path = dir.join(MANIFEST_FILE);
     let hash_path = dir.join(MANIFEST_HASH_FILE);
@@ -236,6 +265,10 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
             subdirs.sort_by_key(|e| e.file_name());
             for sub in subdirs {
                 let sub_path = sub.path();
+                if super::is_temp_name(&sub.file_name().to_string_lossy()) {
+                    report.stray.push(problem(sub_path, TEMP_NOTE.into()));
+                    continue;
+                }
                 let Ok(files) = fs::read_dir(&sub_path) else {
                     report
                         .notes
@@ -247,11 +280,8 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
                 for f in files {
                     let path = f.path();
                     let name = f.file_name().to_string_lossy().into_owned();
-                    if name.starts_with('.') && name.contains(".tmp.") {
-                        report.notes.push(problem(
-                            path,
-                            "temporary file of an interrupted write".into(),
-                        ));
+                    if super::is_temp_name(&name) {
+                        report.stray.push(problem(path, TEMP_NOTE.into()));
                         continue;
                     }
                     let Some(rel) = object_rel_path(&name) else {
@@ -340,8 +370,26 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
             ));
         }
     }
+    if opts.remove_temp {
+        for s in &report.stray {
+            let gone = if s.path.is_dir() {
+                fs::remove_dir_all(&s.path)
+            } else {
+                fs::remove_file(&s.path)
+            };
+            match gone {
+                Ok(()) => report.removed.push(s.path.clone()),
+                Err(e) => report.problems.push(problem(
+                    s.path.clone(),
+                    format!("stray temporary file could not be removed: {e}"),
+                )),
+            }
+        }
+    }
     Ok(report)
 }
+
+const TEMP_NOTE: &str = "temporary file of an interrupted write (not part of the database)";
 
 /// `manifest.json.gz` must decompress to exactly `manifest` (the bytes of manifest.json, when
 /// readable); a missing one is only a note (databases written before it existed).
@@ -630,7 +678,7 @@ fn for_each_object<'m>(
 /// The message of an error whose path is reported separately.
 fn strip_path(e: &DbError) -> String {
     match e {
-        DbError::Io { source, .. } => source.to_string(),
+        DbError::Io { error, .. } => error.to_string(),
         DbError::Format { message, .. } => message.clone(),
         DbError::Request(m) => m.clone(),
     }

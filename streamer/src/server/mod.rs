@@ -1,14 +1,13 @@
 //! The HTTP tile server: serves a database directory (`manifest.json`, `objects/HH/HASH`).
 //!
 //! [`run`] takes a bound listener, the database, a [`ServerConfig`] and a shutdown future, in
-//! the shape of a plain accept loop: a semaphore bounds the open connections, each
-//! connection runs in its own task (one connection's error never stops the server), and the
-//! shutdown future starts a graceful drain. Responses carry `ETag` = content hash and
-//! `Cache-Control: immutable`, so any static server can stand in for this one; this one adds
-//! per-connection bandwidth shaping and added latency for simulation. `/bundle?p=…`
-//! (see [`parse_bundle_query`]) serves many objects or ranges in one response (one round trip for a batch of
-//! small tiles); it is an optimisation only — a static host answers 404 and clients fall back
-//! to one request per object.
+//! the shape of a plain accept loop: each connection runs in its own task (one connection's
+//! error never stops the server), and the shutdown future starts a graceful drain. Responses
+//! carry `ETag` = content hash and `Cache-Control: immutable`, so any static server can stand
+//! in for this one; this one adds per-connection bandwidth shaping and added latency for
+//! simulation. `/bundle?p=…` (see [`parse_bundle_query`]) serves many objects or ranges in
+//! one response (one round trip for a batch of small tiles); it is an optimisation only — a
+//! static host answers 404 and clients fall back to one request per object.
 //!
 //! `GET /manifest.json` from a client whose `Accept-Encoding` allows gzip is answered with
 //! `manifest.json.gz` (`Content-Encoding: gzip`, its own ETag, `Vary: Accept-Encoding`), as
@@ -18,32 +17,49 @@
 //! Paths are never taken from the request: an object request names a hash, the hash is
 //! validated ([`tracks::manifest::object_rel_path`]) and must be one the manifest lists, and
 //! only then is `DB/objects/HH/HASH` opened.
+//!
+//! Hostile and broken peers are bounded ([`ServerConfig`] has every limit):
+//! - time: a request head must arrive within `header_timeout` of its first byte (a slow
+//!   sender cannot extend it), an idle connection is closed after `idle_timeout`, a peer that
+//!   stops reading after `write_timeout`, one that reads at less than `min_send_rate` once
+//!   its writes block is closed too; request bodies are never read (`413`, then the
+//!   connection closes);
+//! - memory: object and bundle bodies stream from the files, so a response holds at most
+//!   [`CHUNK_BYTES`] of file data whatever it asks for; a bundle names at most
+//!   `max_bundle_entries` entries and `max_bundle_bytes` bytes;
+//! - admission: the server never stops accepting. At `max_connections` (or a peer's
+//!   `max_connections_per_peer`) a new connection takes the place of the one doing least for
+//!   anyone — an idle one that never completed a request, then one whose peer stopped
+//!   reading, then an idle keep-alive one (module `admit`); with none of those, the newcomer
+//!   gets `503`. Idle or slow connections cannot starve live ones.
 
+mod admit;
+mod body;
 mod bundle;
+mod guard;
 mod range;
+mod routes;
 mod shape;
 
 use std::collections::HashSet;
 use std::convert::Infallible;
 use std::future::Future;
-use std::io::SeekFrom;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use bytes::Bytes;
-use http_body_util::Full;
-use hyper::body::Incoming;
-use hyper::header::{self, HeaderValue};
-use hyper::{Method, Request, Response, StatusCode};
 use hyper_util::rt::{TokioIo, TokioTimer};
-use tokio::io::{AsyncReadExt, AsyncSeekExt};
 use tokio::net::TcpListener;
-use tokio::sync::{watch, Semaphore};
+use tokio::sync::watch;
 use tokio::task::JoinSet;
 use tracks::manifest::{object_rel_path, Manifest};
 
+use admit::{Admission, Clock, CloseReason, Registry, TimeLimits};
+use guard::Guarded;
+
+pub use body::{ServeBody, CHUNK_BYTES};
 pub use bundle::{bundle_query, parse_bundle_query, BundleEntry, BundleError};
 pub use range::{parse_range, RangeError};
 pub use shape::{parse_duration, parse_rate, Shaped};
@@ -51,16 +67,30 @@ pub use shape::{parse_duration, parse_rate, Shaped};
 /// Server limits and simulation settings.
 #[derive(Clone, Debug)]
 pub struct ServerConfig {
-    /// Open connections at most; further clients wait in the listen backlog.
+    /// Open connections at most; at the limit a new connection takes the place of an idle or
+    /// stalled one, or gets `503`.
     pub max_connections: usize,
-    /// Time allowed to receive a request's headers.
+    /// Open connections from one IP address at most (the same rule within that address).
+    pub max_connections_per_peer: usize,
+    /// A request head must be complete this long after its first byte.
     pub header_timeout: Duration,
+    /// A connection waiting for a request (no byte of one yet) is closed after this long.
+    pub idle_timeout: Duration,
+    /// A connection whose peer does not read (writes blocked, no progress) is closed after
+    /// this long.
+    pub write_timeout: Duration,
+    /// Bytes per second a response must average once its writes block (measured over at
+    /// least `write_timeout`); 0 turns the check off. With `throttle_bps` below twice this,
+    /// half the throttle applies instead.
+    pub min_send_rate: u64,
     /// Largest request head (headers) accepted, bytes.
     pub max_header_bytes: usize,
-    /// Largest response body (one range, one whole object or one bundle), bytes.
-    pub max_range_bytes: u64,
+    /// Largest response for one object or byte range, bytes.
+    pub max_response_bytes: u64,
     /// Entries one `/bundle` request may name at most.
     pub max_bundle_entries: usize,
+    /// Bytes one `/bundle` response may carry at most.
+    pub max_bundle_bytes: u64,
     /// Serve `/bundle` (off: behave like a static file host, 404).
     pub bundles: bool,
     /// Per-connection write rate, bits per second (`None` = unlimited).
@@ -76,11 +106,16 @@ pub struct ServerConfig {
 impl Default for ServerConfig {
     fn default() -> Self {
         ServerConfig {
-            max_connections: 256,
+            max_connections: 512,
+            max_connections_per_peer: 128,
             header_timeout: Duration::from_secs(5),
+            idle_timeout: Duration::from_secs(30),
+            write_timeout: Duration::from_secs(10),
+            min_send_rate: 1024,
             max_header_bytes: 16 * 1024,
-            max_range_bytes: 64 << 20,
+            max_response_bytes: 64 << 20,
             max_bundle_entries: 256,
+            max_bundle_bytes: 16 << 20,
             bundles: true,
             throttle_bps: None,
             latency: Duration::ZERO,
@@ -90,19 +125,47 @@ impl Default for ServerConfig {
     }
 }
 
+impl ServerConfig {
+    /// The minimum send rate in force: `min_send_rate`, or half the throttle when that is
+    /// lower (the server's own shaping must not trip its own check).
+    pub fn effective_min_send_rate(&self) -> u64 {
+        match self.throttle_bps {
+            Some(bps) => self.min_send_rate.min(bps / 16),
+            None => self.min_send_rate,
+        }
+    }
+}
+
 /// Errors that stop the server from starting or accepting.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum ServerError {
-    #[error("reading {path}: {source}")]
+    #[error("{path}: {error}")]
     Io {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
-    #[error("{path}: not a database manifest: {message}")]
+    /// The database does not open (the message names the damaged file).
+    #[error("cannot serve {root}: {error}{}", verify_hint(error, root))]
+    Database {
+        root: PathBuf,
+        error: crate::db::DbError,
+    },
+    #[error("{path}: {message}")]
     Manifest { path: PathBuf, message: String },
     #[error("accepting connections: {0}")]
     Accept(std::io::Error),
+}
+
+/// For a database whose files are damaged: where to find every problem.
+fn verify_hint(e: &crate::db::DbError, root: &Path) -> String {
+    match e {
+        crate::db::DbError::Format { .. } => format!(
+            " (`railview verify {}` lists every problem)",
+            root.display()
+        ),
+        _ => String::new(),
+    }
 }
 
 /// Counters, readable while the server runs.
@@ -113,6 +176,51 @@ pub struct ServerStats {
     pub client_errors: AtomicU64,
     pub bytes_sent: AtomicU64,
     pub corrupted: AtomicU64,
+    /// Connections open now, and the most at once.
+    pub open: AtomicU64,
+    pub peak_open: AtomicU64,
+    /// New connections answered `503` (no room, nothing to evict).
+    pub refused: AtomicU64,
+    /// Connections closed to make room for a new one.
+    pub evicted: AtomicU64,
+    /// Connections closed idle, with an incomplete head, with blocked writes, too slow.
+    pub idle_timeouts: AtomicU64,
+    pub header_timeouts: AtomicU64,
+    pub write_timeouts: AtomicU64,
+    pub too_slow: AtomicU64,
+}
+
+impl ServerStats {
+    fn count_close(&self, reason: CloseReason) {
+        let c = match reason {
+            CloseReason::IdleTimeout => &self.idle_timeouts,
+            CloseReason::HeaderTimeout => &self.header_timeouts,
+            CloseReason::WriteTimeout => &self.write_timeouts,
+            CloseReason::TooSlow => &self.too_slow,
+            CloseReason::Evicted => &self.evicted,
+        };
+        c.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// One line for a log: connections, requests, closes by reason.
+    pub fn summary(&self) -> String {
+        let g = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        format!(
+            "{} connections (at most {} open), {} requests, {} client errors, {} bytes sent; \
+             closed: {} idle, {} slow heads, {} stalled readers, {} too slow, {} evicted; {} refused",
+            g(&self.connections),
+            g(&self.peak_open),
+            g(&self.requests),
+            g(&self.client_errors),
+            g(&self.bytes_sent),
+            g(&self.idle_timeouts),
+            g(&self.header_timeouts),
+            g(&self.write_timeouts),
+            g(&self.too_slow),
+            g(&self.evicted),
+            g(&self.refused),
+        )
+    }
 }
 
 /// A loaded database as the server sees it: the manifest bytes and the set of object hashes.
@@ -133,17 +241,15 @@ impl ServedDb {
     /// checksum file when present); remember every object hash it lists.
     pub fn open(root: &Path) -> Result<ServedDb, ServerError> {
         let path = root.join("manifest.json");
-        let err = |e: crate::db::DbError| ServerError::Manifest {
-            path: path.clone(),
-            message: e.to_string(),
+        let err = |error: crate::db::DbError| ServerError::Database {
+            root: root.to_path_buf(),
+            error,
         };
         let top = crate::db::read_top(root).map_err(err)?;
         let manifest: Manifest = crate::db::read_tables(root, &top).map_err(err)?;
         // The bytes served are the bytes checked (re-read: the reader does not return them).
-        let raw = std::fs::read(&path).map_err(|source| ServerError::Io {
-            path: path.clone(),
-            source,
-        })?;
+        let raw =
+            crate::db::read_limited(&path, tracks::limits::MAX_MANIFEST_BYTES).map_err(err)?;
         if crate::db::parse_top(&path, &raw).ok().as_ref() != Some(&top) {
             return Err(ServerError::Manifest {
                 path,
@@ -167,10 +273,17 @@ impl ServedDb {
         }
         let read_optional = |name: &str| -> Result<Option<Vec<u8>>, ServerError> {
             let path = root.join(name);
+            if std::fs::metadata(&path).is_ok_and(|m| m.len() > tracks::limits::MAX_MANIFEST_BYTES)
+            {
+                return Err(ServerError::Manifest {
+                    path,
+                    message: format!("larger than {} bytes", tracks::limits::MAX_MANIFEST_BYTES),
+                });
+            }
             match std::fs::read(&path) {
                 Ok(b) => Ok(Some(b)),
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-                Err(source) => Err(ServerError::Io { path, source }),
+                Err(error) => Err(ServerError::Io { path, error }),
             }
         };
         let manifest_hash = read_optional(crate::db::MANIFEST_HASH_FILE)?.map(Bytes::from);
@@ -258,14 +371,14 @@ pub fn manifest_objects(m: &Manifest) -> HashSet<String> {
     out
 }
 
-struct Shared {
-    db: ServedDb,
-    config: ServerConfig,
-    stats: Arc<ServerStats>,
+pub(crate) struct Shared {
+    pub(crate) db: ServedDb,
+    pub(crate) config: ServerConfig,
+    pub(crate) stats: Arc<ServerStats>,
 }
 
 /// Serve `db` on `listener` until `shutdown` completes, then drain open connections (up to
-/// `config.drain_timeout`). Returns the counters.
+/// `config.drain_timeout`). Counters go to `stats` as the server runs.
 pub async fn run(
     listener: TcpListener,
     db: ServedDb,
@@ -273,22 +386,45 @@ pub async fn run(
     stats: Arc<ServerStats>,
     shutdown: impl Future<Output = ()>,
 ) -> Result<(), ServerError> {
-    let limit = Arc::new(Semaphore::new(config.max_connections.max(1)));
     let drain = config.drain_timeout;
+    let limits = TimeLimits::new(
+        config.idle_timeout,
+        config.header_timeout,
+        config.write_timeout,
+        config.effective_min_send_rate(),
+    );
+    let clock = Clock::new();
+    let registry = Arc::new(Mutex::new(Registry::default()));
     let shared = Arc::new(Shared { db, config, stats });
     let (stop_tx, stop_rx) = watch::channel(false);
     let mut tasks = JoinSet::new();
+    // The sweeper: closes connections that ran out of time, several times per shortest limit.
+    let sweeper = {
+        let registry = registry.clone();
+        let shared = shared.clone();
+        let every = [limits.header_ms, limits.write_ms, limits.idle_ms]
+            .into_iter()
+            .min()
+            .unwrap_or(1000)
+            .div_ceil(8)
+            .clamp(10, 250);
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_millis(every));
+            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            loop {
+                tick.tick().await;
+                let expired = lock(&registry).sweep(clock.now_ms(), &limits);
+                for (conn, reason) in expired {
+                    shared.stats.count_close(reason);
+                    conn.close(reason);
+                }
+            }
+        })
+    };
     tokio::pin!(shutdown);
     loop {
         while tasks.try_join_next().is_some() {}
-        let permit = tokio::select! {
-            _ = &mut shutdown => break,
-            p = limit.clone().acquire_owned() => match p {
-                Ok(p) => p,
-                Err(_) => break,
-            },
-        };
-        let (stream, _peer) = tokio::select! {
+        let (stream, peer) = tokio::select! {
             _ = &mut shutdown => break,
             r = listener.accept() => match r {
                 Ok(c) => c,
@@ -297,25 +433,64 @@ pub async fn run(
                     tokio::time::sleep(Duration::from_millis(20)).await;
                     continue;
                 }
-                Err(e) => return Err(ServerError::Accept(e)),
+                Err(e) => {
+                    sweeper.abort();
+                    return Err(ServerError::Accept(e));
+                }
             },
         };
+        let admission = lock(&registry).admit(
+            peer.ip(),
+            clock.now_ms(),
+            shared.config.max_connections,
+            shared.config.max_connections_per_peer,
+        );
+        let (id, state) = match admission {
+            Admission::Refuse => {
+                shared.stats.refused.fetch_add(1, Ordering::Relaxed);
+                // Best effort, never waiting: the socket is closed right after.
+                let _ = stream.try_write(
+                    b"HTTP/1.1 503 Service Unavailable\r\nRetry-After: 1\r\n\
+                      Connection: close\r\nContent-Length: 0\r\n\r\n",
+                );
+                continue;
+            }
+            Admission::Admit { id, state, evicted } => {
+                if let Some(old) = evicted {
+                    shared.stats.count_close(CloseReason::Evicted);
+                    old.close(CloseReason::Evicted);
+                }
+                (id, state)
+            }
+        };
+        let open = lock(&registry).len() as u64;
+        shared.stats.open.store(open, Ordering::Relaxed);
+        shared.stats.peak_open.fetch_max(open, Ordering::Relaxed);
         let shared = shared.clone();
+        let registry = registry.clone();
         let mut stop = stop_rx.clone();
         tasks.spawn(async move {
-            let _permit = permit;
             shared.stats.connections.fetch_add(1, Ordering::Relaxed);
             let _ = stream.set_nodelay(true);
-            let io = TokioIo::new(Shaped::new(stream, shared.config.throttle_bps));
+            let guarded = Guarded::new(stream, state.clone(), clock);
+            let io = TokioIo::new(Shaped::new(guarded, shared.config.throttle_bps));
             let svc_shared = shared.clone();
+            let svc_state = state.clone();
             let service = hyper::service::service_fn(move |req| {
                 let s = svc_shared.clone();
-                async move { Ok::<_, Infallible>(handle(&s, req).await) }
+                let st = svc_state.clone();
+                async move {
+                    st.start_response();
+                    let resp = routes::handle(&s, req).await;
+                    Ok::<_, Infallible>(resp.map(|b| b.report_to(st, clock)))
+                }
             });
             let mut builder = hyper::server::conn::http1::Builder::new();
+            // hyper's own head timeout counts from when it starts waiting for a request:
+            // a backstop behind the sweeper's idle and header limits.
             builder
                 .timer(TokioTimer::new())
-                .header_read_timeout(shared.config.header_timeout)
+                .header_read_timeout(shared.config.idle_timeout + shared.config.header_timeout)
                 .max_buf_size(shared.config.max_header_bytes.max(8192));
             let conn = builder.serve_connection(io, service);
             tokio::pin!(conn);
@@ -323,11 +498,25 @@ pub async fn run(
                 r = conn.as_mut() => {
                     if let Err(e) = r { tracing::debug!("connection: {e}"); }
                 }
+                reason = state.closed() => {
+                    tracing::debug!("connection from {}: closed ({reason:?})", state.peer);
+                }
                 _ = async { let _ = stop.wait_for(|s| *s).await; } => {
                     conn.as_mut().graceful_shutdown();
-                    if let Err(e) = conn.as_mut().await { tracing::debug!("connection: {e}"); }
+                    tokio::select! {
+                        r = conn.as_mut() => {
+                            if let Err(e) = r { tracing::debug!("connection: {e}"); }
+                        }
+                        _ = state.closed() => {}
+                    }
                 }
             }
+            let open = {
+                let mut r = lock(&registry);
+                r.remove(id);
+                r.len() as u64
+            };
+            shared.stats.open.store(open, Ordering::Relaxed);
         });
     }
     drop(listener);
@@ -337,7 +526,13 @@ pub async fn run(
     if drained.is_err() {
         tasks.abort_all();
     }
+    sweeper.abort();
     Ok(())
+}
+
+fn lock(r: &Mutex<Registry>) -> MutexGuard<'_, Registry> {
+    // Nothing panics while holding it; recover the data if something did.
+    r.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 fn is_transient(e: &std::io::Error) -> bool {
@@ -346,328 +541,6 @@ fn is_transient(e: &std::io::Error) -> bool {
         e.kind(),
         ConnectionAborted | ConnectionReset | Interrupted | WouldBlock
     ) || e.raw_os_error() == Some(24) // EMFILE: out of descriptors, retry later
-}
-
-type Resp = Response<Full<Bytes>>;
-
-fn reply(status: StatusCode, reason: impl Into<String>) -> Resp {
-    let mut r = Response::new(Full::new(Bytes::from(reason.into() + "\n")));
-    *r.status_mut() = status;
-    r.headers_mut().insert(
-        header::CONTENT_TYPE,
-        HeaderValue::from_static("text/plain; charset=utf-8"),
-    );
-    r
-}
-
-async fn handle(s: &Shared, req: Request<Incoming>) -> Resp {
-    s.stats.requests.fetch_add(1, Ordering::Relaxed);
-    if !s.config.latency.is_zero() {
-        tokio::time::sleep(s.config.latency).await;
-    }
-    let resp = route(s, &req).await;
-    if resp.status().is_client_error() {
-        s.stats.client_errors.fetch_add(1, Ordering::Relaxed);
-    }
-    use hyper::body::Body;
-    let n = resp.body().size_hint().exact().unwrap_or(0);
-    s.stats.bytes_sent.fetch_add(n, Ordering::Relaxed);
-    resp
-}
-
-async fn route(s: &Shared, req: &Request<Incoming>) -> Resp {
-    let head_only = req.method() == Method::HEAD;
-    if req.method() != Method::GET && !head_only {
-        return reply(
-            StatusCode::METHOD_NOT_ALLOWED,
-            "only GET and HEAD are served",
-        );
-    }
-    let has_body = req
-        .headers()
-        .get(header::CONTENT_LENGTH)
-        .is_some_and(|v| v.as_bytes() != b"0")
-        || req.headers().contains_key(header::TRANSFER_ENCODING);
-    if has_body {
-        return reply(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            "request bodies are not accepted",
-        );
-    }
-    let path = req.uri().path();
-    if path.contains("..") || path.contains('\\') || path.contains("//") || path.contains('%') {
-        return reply(
-            StatusCode::BAD_REQUEST,
-            "path must be /manifest.json, /manifest.json.blake3 or /objects/HH/HASH",
-        );
-    }
-    let mut resp = if path == "/manifest.json" {
-        manifest(s, req)
-    } else if path == "/manifest.json.blake3" {
-        match &s.db.manifest_hash {
-            Some(b) => {
-                let mut r = Response::new(Full::new(b.clone()));
-                let h = r.headers_mut();
-                h.insert(
-                    header::CONTENT_TYPE,
-                    HeaderValue::from_static("text/plain; charset=utf-8"),
-                );
-                h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
-                r
-            }
-            None => reply(
-                StatusCode::NOT_FOUND,
-                "this database has no manifest.json.blake3",
-            ),
-        }
-    } else if let Some(rest) = path.strip_prefix("/objects/") {
-        match object(s, rest, req).await {
-            Ok(r) => r,
-            Err(r) => r,
-        }
-    } else if path == "/bundle" && s.config.bundles {
-        match bundle(s, req).await {
-            Ok(r) => r,
-            Err(r) => r,
-        }
-    } else {
-        reply(
-            StatusCode::NOT_FOUND,
-            "unknown path; served: /manifest.json, /manifest.json.blake3, /objects/HH/HASH, /bundle?p=…",
-        )
-    };
-    if head_only {
-        *resp.body_mut() = Full::new(Bytes::new());
-    }
-    resp
-}
-
-/// `/manifest.json`: the gzip copy when the client accepts it, else the identity bytes.
-fn manifest(s: &Shared, req: &Request<Incoming>) -> Resp {
-    let gzip_ok = req
-        .headers()
-        .get_all(header::ACCEPT_ENCODING)
-        .iter()
-        .any(|v| v.to_str().is_ok_and(accepts_gzip));
-    let (body, etag, gz) = match &s.db.manifest_gz {
-        Some((gz, etag)) if gzip_ok => (gz.clone(), etag.as_str(), true),
-        _ => (
-            s.db.manifest_bytes.clone(),
-            s.db.manifest_etag.as_str(),
-            false,
-        ),
-    };
-    let mut r = Response::new(Full::new(body));
-    let h = r.headers_mut();
-    h.insert(
-        header::CONTENT_TYPE,
-        HeaderValue::from_static("application/json"),
-    );
-    h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
-    if let Ok(v) = HeaderValue::from_str(etag) {
-        h.insert(header::ETAG, v);
-    }
-    if s.db.manifest_gz.is_some() {
-        h.insert(header::VARY, HeaderValue::from_static("Accept-Encoding"));
-    }
-    if gz {
-        h.insert(header::CONTENT_ENCODING, HeaderValue::from_static("gzip"));
-    }
-    r
-}
-
-async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp, Resp> {
-    let bad = || {
-        reply(
-            StatusCode::BAD_REQUEST,
-            "object id must be objects/HH/HASH with HASH 64 lowercase hex digits",
-        )
-    };
-    let (hh, hash) = rest.split_once('/').ok_or_else(bad)?;
-    let rel = object_rel_path(hash).ok_or_else(bad)?;
-    if hh != &hash[..2] {
-        return Err(bad());
-    }
-    if !s.db.objects.contains(hash) {
-        return Err(reply(
-            StatusCode::NOT_FOUND,
-            format!("object {hash} is not in this database"),
-        ));
-    }
-    let etag = format!("\"{hash}\"");
-    if req
-        .headers()
-        .get(header::IF_NONE_MATCH)
-        .is_some_and(|v| v.as_bytes() == etag.as_bytes() || v.as_bytes() == b"*")
-    {
-        let mut r = reply(StatusCode::NOT_MODIFIED, "");
-        *r.body_mut() = Full::new(Bytes::new());
-        add_object_headers(&mut r, &etag);
-        return Ok(r);
-    }
-    let path = s.db.root.join(rel);
-    let not_there = |e: std::io::Error| {
-        tracing::warn!("{}: {e}", path.display());
-        reply(
-            StatusCode::NOT_FOUND,
-            format!("object {hash} is listed but not readable"),
-        )
-    };
-    let mut file = tokio::fs::File::open(&path).await.map_err(not_there)?;
-    let size = file.metadata().await.map_err(not_there)?.len();
-    let range = match req.headers().get(header::RANGE) {
-        None => None,
-        Some(v) => {
-            let text = v
-                .to_str()
-                .map_err(|_| reply(StatusCode::BAD_REQUEST, "Range header is not ASCII"))?;
-            match parse_range(text, size, s.config.max_range_bytes) {
-                Ok(r) => Some(r),
-                Err(e @ RangeError::Unsatisfiable { .. }) => {
-                    let mut r = reply(StatusCode::RANGE_NOT_SATISFIABLE, e.to_string());
-                    if let Ok(v) = HeaderValue::from_str(&format!("bytes */{size}")) {
-                        r.headers_mut().insert(header::CONTENT_RANGE, v);
-                    }
-                    return Err(r);
-                }
-                Err(e @ RangeError::TooLarge { .. }) => {
-                    return Err(reply(StatusCode::RANGE_NOT_SATISFIABLE, e.to_string()))
-                }
-                Err(e) => return Err(reply(StatusCode::BAD_REQUEST, e.to_string())),
-            }
-        }
-    };
-    let (offset, len) = range.unwrap_or((0, size));
-    if len > s.config.max_range_bytes {
-        return Err(reply(
-            StatusCode::RANGE_NOT_SATISFIABLE,
-            format!("object of {len} bytes is larger than the limit; ask for ranges"),
-        ));
-    }
-    let mut data = vec![0u8; len as usize];
-    file.seek(SeekFrom::Start(offset))
-        .await
-        .map_err(not_there)?;
-    file.read_exact(&mut data).await.map_err(not_there)?;
-    maybe_corrupt(s, &mut data);
-    let mut r = Response::new(Full::new(Bytes::from(data)));
-    add_object_headers(&mut r, &etag);
-    if range.is_some() {
-        *r.status_mut() = StatusCode::PARTIAL_CONTENT;
-        let cr = format!("bytes {}-{}/{}", offset, offset + len - 1, size);
-        if let Ok(v) = HeaderValue::from_str(&cr) {
-            r.headers_mut().insert(header::CONTENT_RANGE, v);
-        }
-    }
-    Ok(r)
-}
-
-/// `/bundle?p=…`: the named objects and ranges concatenated (see [`bundle`]'s module docs).
-async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
-    let query = req.uri().query().unwrap_or_default();
-    let entries = parse_bundle_query(query, s.config.max_bundle_entries)
-        .map_err(|e| reply(StatusCode::BAD_REQUEST, e.to_string()))?;
-    let etag = format!("\"b3-{}\"", blake3::hash(query.as_bytes()).to_hex());
-    if req
-        .headers()
-        .get(header::IF_NONE_MATCH)
-        .is_some_and(|v| v.as_bytes() == etag.as_bytes() || v.as_bytes() == b"*")
-    {
-        let mut r = reply(StatusCode::NOT_MODIFIED, "");
-        *r.body_mut() = Full::new(Bytes::new());
-        add_object_headers(&mut r, &etag);
-        return Ok(r);
-    }
-    let mut body = Vec::new();
-    for (i, e) in entries.iter().enumerate() {
-        if !s.db.objects.contains(&e.object) {
-            return Err(reply(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                format!(
-                    "bundle entry {i}: object {} is not in this database",
-                    e.object
-                ),
-            ));
-        }
-        let Some(rel) = object_rel_path(&e.object) else {
-            return Err(reply(
-                StatusCode::BAD_REQUEST,
-                format!("bundle entry {i}: bad hash"),
-            ));
-        };
-        let path = s.db.root.join(rel);
-        let not_there = |err: std::io::Error| {
-            tracing::warn!("{}: {err}", path.display());
-            reply(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                format!(
-                    "bundle entry {i}: object {} is listed but not readable",
-                    e.object
-                ),
-            )
-        };
-        let mut file = tokio::fs::File::open(&path).await.map_err(not_there)?;
-        let size = file.metadata().await.map_err(not_there)?.len();
-        let (offset, len) = e.range.unwrap_or((0, size));
-        if offset.checked_add(len).is_none_or(|end| end > size) {
-            return Err(reply(
-                StatusCode::RANGE_NOT_SATISFIABLE,
-                format!(
-                    "bundle entry {i}: range {offset}+{len} is outside the object of {size} bytes"
-                ),
-            ));
-        }
-        if body.len() as u64 + len > s.config.max_range_bytes {
-            return Err(reply(
-                StatusCode::RANGE_NOT_SATISFIABLE,
-                format!(
-                    "bundle is larger than the limit of {} bytes; ask for fewer entries",
-                    s.config.max_range_bytes
-                ),
-            ));
-        }
-        let start = body.len();
-        body.resize(start + len as usize, 0);
-        file.seek(SeekFrom::Start(offset))
-            .await
-            .map_err(not_there)?;
-        file.read_exact(&mut body[start..])
-            .await
-            .map_err(not_there)?;
-    }
-    maybe_corrupt(s, &mut body);
-    let mut r = Response::new(Full::new(Bytes::from(body)));
-    add_object_headers(&mut r, &etag);
-    r.headers_mut().remove(header::ACCEPT_RANGES);
-    Ok(r)
-}
-
-/// Fault injection (`ServerConfig::corrupt_every`): flip one byte of every n-th response body.
-fn maybe_corrupt(s: &Shared, data: &mut [u8]) {
-    if let Some(n) = s.config.corrupt_every.filter(|&n| n > 0) {
-        let k = s.stats.requests.load(Ordering::Relaxed);
-        if k.is_multiple_of(n) && !data.is_empty() {
-            let i = (k as usize * 7919) % data.len();
-            data[i] ^= 0x5a;
-            s.stats.corrupted.fetch_add(1, Ordering::Relaxed);
-        }
-    }
-}
-
-fn add_object_headers(r: &mut Resp, etag: &str) {
-    let h = r.headers_mut();
-    h.insert(
-        header::CONTENT_TYPE,
-        HeaderValue::from_static("application/octet-stream"),
-    );
-    h.insert(
-        header::CACHE_CONTROL,
-        HeaderValue::from_static("public, max-age=31536000, immutable"),
-    );
-    h.insert(header::ACCEPT_RANGES, HeaderValue::from_static("bytes"));
-    if let Ok(v) = HeaderValue::from_str(etag) {
-        h.insert(header::ETAG, v);
-    }
 }
 
 #[cfg(test)]

@@ -20,6 +20,17 @@
 //! (`table_bytes` and `table_requests` per run; `bytes` includes them). Frame times and
 //! `time_to_first_frame_s` count from t = 0, so they include the manifest and the tables;
 //! the per-frame means are over the walk itself.
+//!
+//! Failures are measured, not fatal. A part or table whose object is damaged or missing is
+//! counted, asked for again later on the virtual clock and given up after repeated faults
+//! ([`crate::client::FailureBook`]); the walk goes on without it (`part_faults`,
+//! `parts_given_up`, `tables_given_up`). A server that stops answering for a while costs
+//! the requests retries; the wall-clock time they spent failing (`outage_s`) also holds the
+//! virtual link, so the outage shows in the frames and in `longest_wait_s` (the longest
+//! virtual time with requests outstanding and nothing arriving). A server gone for longer
+//! than the retry policy allows ([`crate::client::RetryPolicy::give_up_after`]) ends the
+//! run and the walk: the report keeps every finished run and what the failed one measured
+//! ([`WalkFailed`]), so `walk.json` is always written.
 
 pub mod load;
 mod plot;
@@ -35,8 +46,8 @@ use crate::db::split::{assemble, TopManifest, ViewTable};
 use tracks::TrackSet;
 
 use crate::client::{
-    BudgetParams, ClientError, ClientStats, Connection, ItemTable, PriorityMode, RetryPolicy,
-    ServerUrl,
+    BudgetParams, ClientError, ClientStats, Connection, FailurePolicy, ItemTable, PriorityMode,
+    RetryPolicy, ServerUrl,
 };
 use crate::visibility::SceneIndex;
 
@@ -139,6 +150,46 @@ pub struct WalkConfig {
     /// Pieces (meshes, PTM level groups) one bundled request carries at most.
     pub bundle_entries: usize,
     pub track: usize,
+    /// Timeouts and retries of the real transfers.
+    pub retry: RetryPolicy,
+    /// When a damaged or missing part or table is asked for again (virtual seconds), and
+    /// when it is given up.
+    pub failures: FailurePolicy,
+}
+
+/// Most frames one run may simulate (length / speed + pause, over the frame time): a limit
+/// on how long a walk can run, checked before it starts.
+pub const MAX_FRAMES_PER_RUN: u64 = 1_000_000;
+
+impl WalkConfig {
+    /// Frames one run simulates on a track of `length_m` metres, or an error naming the
+    /// values when that is over [`MAX_FRAMES_PER_RUN`] or a value is not a usable number.
+    pub fn frames_per_run(&self, length_m: f64) -> Result<u64, String> {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(self.speed_mps) || !positive(self.frame_dt_s) {
+            return Err(format!(
+                "speed {} m/s and frame time {} s must be positive numbers",
+                self.speed_mps, self.frame_dt_s
+            ));
+        }
+        if !(self.pause_s.is_finite() && self.pause_s >= 0.0 && length_m.is_finite()) {
+            return Err(format!(
+                "pause {} s and track length {length_m} m must be finite",
+                self.pause_s
+            ));
+        }
+        let seconds = length_m / self.speed_mps + self.pause_s;
+        let frames = (seconds / self.frame_dt_s).floor() + 1.0;
+        if frames > MAX_FRAMES_PER_RUN as f64 {
+            return Err(format!(
+                "a walk of {length_m:.1} m at {} m/s with a {} s pause is {seconds:.3e} s of \
+                 simulated time, {frames:.3e} frames of {} s; at most {MAX_FRAMES_PER_RUN} \
+                 frames per run (walk faster)",
+                self.speed_mps, self.pause_s, self.frame_dt_s
+            ));
+        }
+        Ok(frames as u64)
+    }
 }
 
 impl Default for WalkConfig {
@@ -162,6 +213,8 @@ impl Default for WalkConfig {
             prefetch_coverage: 0.9,
             bundle_entries: 64,
             track: 0,
+            retry: RetryPolicy::default(),
+            failures: FailurePolicy::default(),
         }
     }
 }
@@ -172,6 +225,8 @@ pub struct VirtualLink {
     pub bandwidth_bps: Option<f64>,
     pub latency_s: f64,
     free_at: f64,
+    /// Nothing gets through before this time (an outage).
+    down_until: f64,
 }
 
 impl VirtualLink {
@@ -180,6 +235,15 @@ impl VirtualLink {
             bandwidth_bps: bandwidth_bps.map(|b| b as f64),
             latency_s,
             free_at: 0.0,
+            down_until: 0.0,
+        }
+    }
+
+    /// The server is unreachable from `t` for `seconds`: requests issued before the end of
+    /// it start when it ends.
+    pub fn outage(&mut self, t: f64, seconds: f64) {
+        if seconds.is_finite() && seconds > 0.0 {
+            self.down_until = self.down_until.max(t + seconds);
         }
     }
 
@@ -192,6 +256,7 @@ impl VirtualLink {
 
     /// Arrival time of `bytes` requested at `t`.
     pub fn schedule(&mut self, t: f64, bytes: u64) -> f64 {
+        let t = t.max(self.down_until);
         match self.bandwidth_bps {
             None => t + self.latency_s,
             Some(bps) => {
@@ -259,12 +324,33 @@ pub struct RunReport {
     pub resident_within_budget: bool,
     /// `M` of the run (configured, or scaled to the database).
     pub memory_budget_bytes: u64,
+    /// Wall-clock seconds the run took (real transfers and simulation).
+    pub wall_s: f64,
+    /// Transfer attempts retried after a connection failure, timeout or 5xx, and of them
+    /// timeouts: the server was unreachable for a while.
+    pub retries: u64,
+    pub timeouts: u64,
+    /// Wall-clock seconds requests spent failing before they succeeded, in all and the
+    /// longest for one request; the virtual link is held for as long.
+    pub outage_s: f64,
+    pub longest_outage_s: f64,
+    /// Longest virtual time with requests outstanding and nothing arriving.
+    pub longest_wait_s: f64,
+    /// Faults of parts (checksum that keeps failing, missing object) and parts given up
+    /// after repeated faults; the same for viewpoint tables.
+    pub part_faults: u64,
+    pub parts_given_up: u64,
+    pub table_faults: u64,
+    pub tables_given_up: u64,
+    /// Whether the run reached its end; `error` says what stopped it.
+    pub completed: bool,
+    pub error: Option<String>,
     #[serde(skip)]
     pub frames: Vec<FrameRecord>,
 }
 
 /// All runs.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Default, Serialize)]
 pub struct WalkReport {
     pub scene: String,
     pub track: String,
@@ -272,6 +358,8 @@ pub struct WalkReport {
     pub speed_mps: f64,
     pub latency_s: f64,
     pub runs: Vec<RunReport>,
+    /// Why the walk stopped before every run finished (`null`: it did not).
+    pub error: Option<String>,
 }
 
 /// Errors of a walk.
@@ -280,10 +368,35 @@ pub struct WalkReport {
 pub enum WalkError {
     #[error(transparent)]
     Client(#[from] ClientError),
+    /// The server stopped answering within the retry policy during a run.
+    #[error("the server stopped answering: {0}")]
+    Unreachable(ClientError),
     #[error("database: {0}")]
     Database(String),
+    /// The walk's settings would make a run that does not end in reasonable time.
+    #[error("{0}")]
+    Config(String),
     #[error("writing {path}: {message}")]
     Output { path: String, message: String },
+}
+
+/// A walk that stopped early: what it measured (finished runs, the failed one's frames so
+/// far) and why it stopped.
+#[derive(Debug)]
+pub struct WalkFailed {
+    pub report: WalkReport,
+    pub error: WalkError,
+}
+
+/// What a walk tells its caller as it goes.
+#[derive(Clone, Copy, Debug)]
+pub enum WalkEvent<'a> {
+    /// Before the first run: how many runs, and how many frames each.
+    Planned { runs: usize, frames_per_run: u64 },
+    /// A frame of run `run` (0-based) was simulated.
+    Frame { run: usize, frame: u64 },
+    /// A run ended.
+    Finished(&'a RunReport),
 }
 
 /// What fetching the manifest cost: body bytes and requests.
@@ -342,16 +455,73 @@ fn load_scene(top: &TopManifest, manifest: Manifest, track: usize) -> Result<Sce
     })
 }
 
-/// Walk every (strategy, bandwidth) over the server at `url`.
+/// Walk every (strategy, bandwidth) over the server at `url`. When the server cannot be
+/// reached (at the start, or for longer than the retry policy allows during a run), the
+/// walk stops: [`WalkFailed`] holds every finished run and what the failed one measured.
 pub async fn run_walk(
     url: &ServerUrl,
     config: &WalkConfig,
     strategies: &[Strategy],
     bandwidths: &[Option<u64>],
-    mut progress: impl FnMut(&RunReport),
-) -> Result<WalkReport, WalkError> {
+    mut progress: impl FnMut(WalkEvent),
+) -> Result<WalkReport, Box<WalkFailed>> {
+    let mut report = WalkReport {
+        speed_mps: config.speed_mps,
+        latency_s: config.latency_s,
+        ..WalkReport::default()
+    };
+    let fail = |mut report: WalkReport, error: WalkError| {
+        report.error = Some(error.to_string());
+        Box::new(WalkFailed { report, error })
+    };
     let stats = std::sync::Arc::new(ClientStats::default());
-    let mut conn = Connection::new(url.clone(), RetryPolicy::default(), stats.clone());
+    let mut conn = Connection::new(url.clone(), config.retry.clone(), stats.clone());
+    let scene = match fetch_scene(&mut conn, config).await {
+        Ok(s) => s,
+        Err(e) => return Err(fail(report, e)),
+    };
+    let (scene, cost) = scene;
+    report.scene = scene.manifest.scene.clone();
+    report.track = scene.track.name.clone();
+    report.length_m = scene.track.length();
+    let frames_per_run = match config.frames_per_run(report.length_m) {
+        Ok(n) => n,
+        Err(e) => return Err(fail(report, WalkError::Config(e))),
+    };
+    progress(WalkEvent::Planned {
+        runs: strategies.len() * bandwidths.len(),
+        frames_per_run,
+    });
+    for &bw in bandwidths {
+        for &strategy in strategies {
+            let run = report.runs.len();
+            let mut on_frame = |frame| progress(WalkEvent::Frame { run, frame });
+            let (r, error) = sim::run_one(
+                &mut conn,
+                &stats,
+                &scene,
+                config,
+                (strategy, bw),
+                cost,
+                &mut on_frame,
+            )
+            .await;
+            progress(WalkEvent::Finished(&r));
+            report.runs.push(r);
+            if let Some(e) = error {
+                return Err(fail(report, e));
+            }
+        }
+    }
+    Ok(report)
+}
+
+/// The manifest and every table (the walker's eyes: what each frame needs), and what
+/// fetching the manifest cost.
+async fn fetch_scene(
+    conn: &mut Connection,
+    config: &WalkConfig,
+) -> Result<(Scene, ManifestCost), WalkError> {
     let fetched = conn.fetch_manifest().await?;
     let cost = ManifestCost {
         bytes: fetched.transferred_bytes,
@@ -360,40 +530,46 @@ pub async fn run_walk(
     };
     // The whole database, for what each frame needs (the walker's eyes, not its client: the
     // runs fetch the tables again, on their links, as a viewer would).
+    // A table that is damaged or missing on the server is one the walker cannot see either
+    // (its viewpoint shows nothing); the runs count it when they ask for it.
     let mut tables = Vec::new();
     for t in &fetched.top.tracks {
         let mut row = Vec::new();
         for v in &t.viewpoints {
-            let mut table = conn.fetch_table(&v.table, v.index).await?;
+            let mut table = match conn.fetch_table(&v.table, v.index).await {
+                Ok(t) => t,
+                Err(e) if e.is_object_fault() || matches!(e, ClientError::Manifest(_)) => {
+                    tracing::warn!("walk: viewpoint {}'s table unreadable: {e}", v.index);
+                    ViewTable {
+                        viewpoint: v.index,
+                        background: Vec::new(),
+                        tiles: Vec::new(),
+                        segments: Vec::new(),
+                    }
+                }
+                Err(e) => return Err(e.into()),
+            };
             if let Some(ach) = &v.ach {
-                table.segments = conn.fetch_ach(ach, v.index).await?;
+                match conn.fetch_ach(ach, v.index).await {
+                    Ok(seg) => table.segments = seg,
+                    Err(e) if e.is_object_fault() || matches!(e, ClientError::Manifest(_)) => {
+                        tracing::warn!("walk: viewpoint {}'s ACH lists unreadable: {e}", v.index)
+                    }
+                    Err(e) => return Err(e.into()),
+                }
             }
             row.push(table);
         }
         tables.push(row);
     }
+    conn.take_report();
     let refs: Vec<Vec<Option<&ViewTable>>> = tables
         .iter()
         .map(|row| row.iter().map(Some).collect())
         .collect();
     let manifest = assemble(&fetched.top, &refs);
     let scene = load_scene(&fetched.top, manifest, config.track)?;
-    let mut runs = Vec::new();
-    for &bw in bandwidths {
-        for &strategy in strategies {
-            let r = sim::run_one(&mut conn, &stats, &scene, config, strategy, bw, cost).await?;
-            progress(&r);
-            runs.push(r);
-        }
-    }
-    Ok(WalkReport {
-        scene: scene.manifest.scene.clone(),
-        track: scene.track.name.clone(),
-        length_m: scene.track.length(),
-        speed_mps: config.speed_mps,
-        latency_s: config.latency_s,
-        runs,
-    })
+    Ok((scene, cost))
 }
 
 /// Write `walk.json`, `walk.csv`, `walk.png` and `summary.md` into `dir`.
@@ -405,9 +581,7 @@ pub fn write_outputs(report: &WalkReport, dir: &Path) -> Result<(), WalkError> {
     std::fs::create_dir_all(dir).map_err(|e| err(dir, &e))?;
     let write = |name: &str, data: &[u8]| -> Result<(), WalkError> {
         let path = dir.join(name);
-        let tmp = dir.join(format!("{name}.tmp"));
-        std::fs::write(&tmp, data).map_err(|e| err(&tmp, &e))?;
-        std::fs::rename(&tmp, &path).map_err(|e| err(&path, &e))
+        railview_files::write(&path, data).map_err(|e| err(&path, &e))
     };
     let json = serde_json::to_vec_pretty(report).map_err(|e| err(dir, &e))?;
     write("walk.json", &json)?;
@@ -443,8 +617,8 @@ pub fn write_outputs(report: &WalkReport, dir: &Path) -> Result<(), WalkError> {
 pub fn summary_markdown(r: &WalkReport) -> String {
     let mut s = format!(
         "# Walk: {} / {} ({:.1} m at {} m/s, latency {} ms)\n\n\
-         | bandwidth | strategy | manifest bytes | manifest (s) | table bytes | first frame (s) | needed fraction | quality | bytes | bytes/m | checksum failures |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n",
+         | bandwidth | strategy | manifest bytes | manifest (s) | table bytes | first frame (s) | needed fraction | quality | bytes | bytes/m | checksum failures | part faults (given up) | retries | outage (s) | longest wait (s) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         r.scene,
         r.track,
         r.length_m,
@@ -453,7 +627,7 @@ pub fn summary_markdown(r: &WalkReport) -> String {
     );
     for run in &r.runs {
         s += &format!(
-            "| {} | {} | {} | {:.2} | {} | {} | {:.3} | {:.3} | {} | {:.0} | {} |\n",
+            "| {} | {} | {} | {:.2} | {} | {} | {:.3} | {:.3} | {} | {:.0} | {} | {} ({}) | {} | {:.1} | {:.2} |\n",
             run.bandwidth_bps.map_or("unlimited".into(), format_bps),
             run.strategy,
             run.manifest_bytes,
@@ -465,8 +639,23 @@ pub fn summary_markdown(r: &WalkReport) -> String {
             run.mean_quality,
             run.bytes,
             run.bytes_per_m,
-            run.checksum_failures
+            run.checksum_failures,
+            run.part_faults + run.table_faults,
+            run.parts_given_up + run.tables_given_up,
+            run.retries,
+            run.outage_s,
+            run.longest_wait_s,
         );
+        if let Some(e) = &run.error {
+            s += &format!(
+                "\n**{} at {} stopped early:** {e}\n\n",
+                run.strategy,
+                run.bandwidth_bps.map_or("unlimited".into(), format_bps)
+            );
+        }
+    }
+    if let Some(e) = &r.error {
+        s += &format!("\n**The walk stopped early:** {e}\n");
     }
     s += "\nPlot colours (walk.png, one panel per bandwidth; solid = quality, dotted = needed fraction): ";
     let names: Vec<String> = plot::legend(r);

@@ -10,9 +10,9 @@ use super::{
     WalkError,
 };
 use crate::client::{
-    next_segment, plan, segment_at, BudgetParams, BundlePiece, Cache, ClientStats, Connection,
-    FetchKey, ItemInfo, ItemTable, LinkEstimate, LiveCount, MotionTracker, Part, PlanInput,
-    PriorityMode,
+    next_segment, plan, segment_at, BudgetParams, BundlePiece, Cache, ClientError, ClientStats,
+    Connection, FailureBook, FetchKey, ItemInfo, ItemTable, LinkEstimate, LiveCount, MotionTracker,
+    Part, PlanInput, PriorityMode, ProgressClock, TransferReport, Verdict,
 };
 use crate::db::split::ViewTable;
 use crate::visibility::{blend_weights, frustum_half_angle, Surface, SurfaceCount};
@@ -96,6 +96,15 @@ struct Sim<'a> {
     /// Budgets in force (the configured ones, or scaled to the database).
     budget: BudgetParams,
     s: f64,
+    /// Object faults of parts and of viewpoint tables (virtual clock): retried later, then
+    /// given up; the walk goes on without them.
+    failures: FailureBook,
+    table_failures: FailureBook,
+    /// Time without progress on the virtual clock.
+    progress: ProgressClock,
+    /// Retries the real transfers took, and the longest outage one request met (wall clock).
+    transfer: TransferReport,
+    longest_outage_s: f64,
 }
 
 impl Sim<'_> {
@@ -103,12 +112,29 @@ impl Sim<'_> {
         &self.table
     }
 
+    /// What the last real fetch cost in retries: an outage (wall-clock time its requests
+    /// spent failing) holds the virtual link for as long, from `t` on, so requests issued
+    /// during it arrive after it, as they would on a real link.
+    fn note_transfer(&mut self, conn: &mut Connection, t: f64) {
+        let r = conn.take_report();
+        if r.outage_s > 0.0 {
+            self.link.outage(t, r.outage_s);
+            self.longest_outage_s = self.longest_outage_s.max(r.outage_s);
+        }
+        self.transfer.add(&r);
+    }
+
     /// Deliver everything that has arrived by `t`.
     fn deliver(&mut self, t: f64) {
+        let waiting = !self.in_flight.is_empty();
         let (arrived, pending): (Vec<_>, Vec<_>) = std::mem::take(&mut self.in_flight)
             .into_iter()
             .partition(|f| f.arrives <= t + 1e-9);
         self.in_flight = pending;
+        self.progress.observe(t, waiting, !arrived.is_empty());
+        if self.in_flight.is_empty() {
+            self.progress.observe(t, false, false);
+        }
         for f in arrived {
             self.delivered_bytes += f.bytes;
             if !f.tables.is_empty() {
@@ -317,6 +343,14 @@ impl Sim<'_> {
                     k -= 1;
                     let i = self.naive_order[k];
                     let it = &self.table.items[i];
+                    // A tile with a part that failed waits for its retry time.
+                    if !it
+                        .parts
+                        .iter()
+                        .all(|p| self.failures.may_request(&p.key, t))
+                    {
+                        continue;
+                    }
                     // The whole tile: its mesh and every level range (contiguous in the
                     // viewpoint's pack, so they travel together).
                     wanted.push((i, it.parts.clone()));
@@ -394,8 +428,12 @@ impl Sim<'_> {
                             end = end.min(self.items[r.item].parts_for_level(l));
                         }
                     }
+                    // Up to the first part that failed and waits (or was given up): the
+                    // parts after it are of no use without it.
+                    let failures = &self.failures;
                     let todo: Vec<Part> = parts[r.part..end.max(r.part)]
                         .iter()
+                        .take_while(|p| failures.may_request(&p.key, t))
                         .filter(|p| on_way.insert(&p.key))
                         .cloned()
                         .collect();
@@ -480,7 +518,12 @@ impl Sim<'_> {
                     hash: &p.hash,
                 })
                 .collect();
-            let data = conn.fetch_checked_bundle(&pieces, None).await?;
+            let data = conn.fetch_pieces(&pieces, None).await;
+            self.note_transfer(conn, t);
+            // A server that stopped answering ends the run (its measures so far are kept).
+            if let Some(e) = first_unreachable(&data) {
+                return Err(WalkError::Unreachable(e));
+            }
             // One request per bundle; a static host answers one object (or range run) per
             // request (re-fetches after a checksum failure are not counted: they cost real
             // time, not virtual time, so a corrupting server changes no frame).
@@ -490,7 +533,11 @@ impl Sim<'_> {
                 request_runs(&flat)
             };
             self.requests += requests;
-            let size: u64 = data.iter().map(|d| d.len() as u64).sum();
+            let size: u64 = data
+                .iter()
+                .filter_map(|d| d.as_ref().ok())
+                .map(|d| d.len() as u64)
+                .sum();
             let mut data = data.into_iter();
             let mut items = Vec::with_capacity(b.len());
             let mut keys = Vec::with_capacity(flat.len());
@@ -499,12 +546,36 @@ impl Sim<'_> {
                 items.push(*item);
                 let s_item = self.table.items[*item].s;
                 let background = self.table.items[*item].tile.is_none();
+                let mut failed = false;
                 for part in parts {
-                    if let Some(d) = data.next() {
-                        if background {
-                            self.background_bytes += d.len() as u64;
+                    match data.next() {
+                        Some(Ok(d)) => {
+                            if background {
+                                self.background_bytes += d.len() as u64;
+                            }
+                            self.failures.succeeded(&part.key);
+                            keys.push((part.key.clone(), d, s_item));
                         }
-                        keys.push((part.key.clone(), d, s_item));
+                        Some(Err(e)) => {
+                            failed = true;
+                            match self.failures.fault(&part.key, t) {
+                                Verdict::GivenUp => tracing::warn!(
+                                    "walk: giving up {:?} of {}: {e}",
+                                    part.key.range,
+                                    part.key.object
+                                ),
+                                Verdict::RetryAt(_) => tracing::info!("walk: {e}"),
+                            }
+                        }
+                        None => {}
+                    }
+                }
+                // Naive asks for a failed tile again (whole) once its parts may be retried.
+                if failed && self.strategy == Strategy::Naive {
+                    let failures = &self.failures;
+                    if !parts.iter().any(|p| failures.is_given_up(&p.key)) {
+                        self.naive_requested[*item] = false;
+                        self.naive_order.insert(0, *item);
                     }
                 }
             }
@@ -529,8 +600,18 @@ impl Sim<'_> {
         if !holes && around {
             self.issue_background_table(conn, t).await?;
         }
+        self.progress.observe(t, !self.in_flight.is_empty(), false);
         Ok(())
     }
+}
+
+/// The first error in `results` that is the server's (unreachable), not one object's.
+pub(super) fn first_unreachable(results: &[Result<Bytes, ClientError>]) -> Option<ClientError> {
+    results
+        .iter()
+        .filter_map(|r| r.as_ref().err())
+        .find(|e| !e.is_object_fault() && !matches!(e, ClientError::Cancelled))
+        .cloned()
 }
 
 /// Requests needed for `parts` one object at a time: consecutive ranges of one object
@@ -558,10 +639,11 @@ pub(crate) async fn run_one(
     stats: &ClientStats,
     scene: &Scene,
     cfg: &WalkConfig,
-    strategy: Strategy,
-    bandwidth: Option<u64>,
+    (strategy, bandwidth): (Strategy, Option<u64>),
     manifest: ManifestCost,
-) -> Result<RunReport, WalkError> {
+    on_frame: &mut dyn FnMut(u64),
+) -> (RunReport, Option<WalkError>) {
+    let wall = std::time::Instant::now();
     // The manifest comes first, alone on the link from t = 0; the walk (and every tile
     // request) starts when it has arrived, `t0` later.
     let t0 = VirtualLink::new(bandwidth, cfg.latency_s).schedule_requests(
@@ -615,8 +697,14 @@ pub(crate) async fn run_one(
             cfg.budget
         },
         s: 0.0,
+        failures: FailureBook::new(cfg.failures),
+        table_failures: FailureBook::new(cfg.failures),
+        progress: ProgressClock::default(),
+        transfer: TransferReport::default(),
+        longest_outage_s: 0.0,
     };
     let failures_before = stats.checksum_failures.load(Ordering::Relaxed);
+    let mut error = None;
     let length = scene.track.length();
     let walk_s = if cfg.speed_mps > 0.0 {
         length / cfg.speed_mps
@@ -724,8 +812,11 @@ pub(crate) async fn run_one(
                 sim.delivered_table_bytes,
             ));
         }
-        sim.issue(conn, t).await?;
+        if let Err(e) = sim.issue(conn, t).await {
+            error = Some(e);
+        }
         max_cache = max_cache.max(sim.cache.used());
+        on_frame(k);
         frames.push(FrameRecord {
             t_s: t0 + t,
             s_m: s,
@@ -735,6 +826,9 @@ pub(crate) async fn run_one(
             bytes: sim.bytes,
             cache_bytes: sim.cache.used(),
         });
+        if error.is_some() {
+            break;
+        }
         // Between frames: each arrival frees a slot and triggers the next decision at once.
         let t_next = (k + 1) as f64 * dt;
         while let Some(te) = sim
@@ -745,15 +839,21 @@ pub(crate) async fn run_one(
             .min_by(f64::total_cmp)
         {
             sim.deliver(te);
-            sim.issue(conn, te).await?;
+            if let Err(e) = sim.issue(conn, te).await {
+                error = Some(e);
+                break;
+            }
             max_cache = max_cache.max(sim.cache.used());
+        }
+        if error.is_some() {
+            break;
         }
         k += 1;
     }
     let mean = |f: &dyn Fn(&FrameRecord) -> f64| {
         frames.iter().map(f).sum::<f64>() / frames.len().max(1) as f64
     };
-    Ok(RunReport {
+    let report = RunReport {
         strategy: strategy.name(),
         bandwidth_bps: bandwidth,
         time_to_first_frame_s: first_frame,
@@ -779,8 +879,21 @@ pub(crate) async fn run_one(
         max_resident_bytes: sim.max_resident,
         resident_within_budget: !sim.over_budget,
         memory_budget_bytes: sim.budget.memory_bytes,
+        wall_s: wall.elapsed().as_secs_f64(),
+        retries: sim.transfer.retries as u64,
+        timeouts: sim.transfer.timeouts as u64,
+        outage_s: sim.transfer.outage_s,
+        longest_outage_s: sim.longest_outage_s,
+        longest_wait_s: sim.progress.longest_s(),
+        part_faults: sim.failures.faults(),
+        parts_given_up: sim.failures.given_up(),
+        table_faults: sim.table_failures.faults(),
+        tables_given_up: sim.table_failures.given_up(),
+        completed: error.is_none(),
+        error: error.as_ref().map(|e| e.to_string()),
         frames,
-    })
+    };
+    (report, error)
 }
 
 fn surface_item(table: &ItemTable, c: &SurfaceCount) -> Option<usize> {

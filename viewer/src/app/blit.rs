@@ -20,9 +20,10 @@ pub struct BlitResources {
     scale_up: wgpu::RenderPipeline,
     sampler: wgpu::Sampler,
     layout: wgpu::BindGroupLayout,
-    /// The window's colour target is sRGB-encoding: bind the output's sRGB view (decoded on
-    /// load, encoded on store: the same bytes). Otherwise its plain view (the stored bytes).
-    srgb_target: bool,
+    /// Bind the output's sRGB view: the window's colour target is sRGB-encoding (decoded on
+    /// load, encoded on store: the same bytes), or the device has no plain view of it and
+    /// the pipelines encode. Otherwise its plain view (the stored bytes).
+    bind_srgb: bool,
     /// This frame's output and whether it is scaled up (set by `prepare`).
     bind_group: Option<(wgpu::BindGroup, bool)>,
 }
@@ -46,23 +47,50 @@ fn vs(@builtin(vertex_index) i: u32) -> Out {
     return o;
 }
 
+fn texel(uv: vec2<f32>) -> vec3<f32> {
+    let size = vec2<i32>(textureDimensions(view_image));
+    let at = clamp(vec2<i32>(uv * vec2<f32>(size)), vec2<i32>(0), size - vec2<i32>(1));
+    return textureLoad(view_image, at, 0).rgb;
+}
+
+fn bilinear(uv: vec2<f32>) -> vec3<f32> {
+    return textureSampleLevel(view_image, view_sampler, uv, 0.0).rgb;
+}
+
 @fragment
 fn fs(in: Out) -> @location(0) vec4<f32> {
-    let size = vec2<i32>(textureDimensions(view_image));
-    let texel = clamp(vec2<i32>(in.uv * vec2<f32>(size)), vec2<i32>(0), size - vec2<i32>(1));
-    return vec4<f32>(textureLoad(view_image, texel, 0).rgb, 1.0);
+    return vec4<f32>(texel(in.uv), 1.0);
 }
 
 @fragment
 fn fs_scaled(in: Out) -> @location(0) vec4<f32> {
-    return vec4<f32>(textureSampleLevel(view_image, view_sampler, in.uv, 0.0).rgb, 1.0);
+    return vec4<f32>(bilinear(in.uv), 1.0);
+}
+
+// A plain (not sRGB-encoding) window target on a device without view formats: the output's
+// sRGB view decodes on load, so encode again here (the same bytes up to rounding).
+fn encode_srgb(c: vec3<f32>) -> vec3<f32> {
+    let lo = c * 12.92;
+    let hi = 1.055 * pow(c, vec3<f32>(1.0 / 2.4)) - 0.055;
+    return select(hi, lo, c <= vec3<f32>(0.0031308));
+}
+
+@fragment
+fn fs_encode(in: Out) -> @location(0) vec4<f32> {
+    return vec4<f32>(encode_srgb(texel(in.uv)), 1.0);
+}
+
+@fragment
+fn fs_scaled_encode(in: Out) -> @location(0) vec4<f32> {
+    return vec4<f32>(encode_srgb(bilinear(in.uv)), 1.0);
 }
 "#;
 
 impl BlitResources {
     /// Build the pipeline for the window's colour target and keep it in egui's callback
-    /// resources.
-    pub fn install(rs: &egui_wgpu::RenderState) {
+    /// resources; `view_formats`: whether the renderer's output has a plain UNORM view
+    /// ([`crate::gpu::Caps::view_formats`]).
+    pub fn install(rs: &egui_wgpu::RenderState, view_formats: bool) {
         let device = &rs.device;
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("view blit"),
@@ -123,8 +151,14 @@ impl BlitResources {
                 cache: None,
             })
         };
-        let copy = pipeline("fs");
-        let scale_up = pipeline("fs_scaled");
+        let srgb_target = rs.target_format.is_srgb();
+        let encode = !srgb_target && !view_formats;
+        let copy = pipeline(if encode { "fs_encode" } else { "fs" });
+        let scale_up = pipeline(if encode {
+            "fs_scaled_encode"
+        } else {
+            "fs_scaled"
+        });
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("view blit"),
             mag_filter: wgpu::FilterMode::Linear,
@@ -139,18 +173,18 @@ impl BlitResources {
                 scale_up,
                 sampler,
                 layout,
-                srgb_target: rs.target_format.is_srgb(),
+                bind_srgb: srgb_target || !view_formats,
                 bind_group: None,
             });
     }
 }
 
 /// This frame's copy of the view: the renderer's output in its sRGB view (`srgb`) and its
-/// plain view (`unorm`), the one matching the window's target is bound; `scaled` where the
-/// output is smaller than the viewport.
+/// plain view (`unorm`, where the device has one), the one matching the window's target is
+/// bound; `scaled` where the output is smaller than the viewport.
 pub struct BlitCallback {
     pub srgb: wgpu::TextureView,
-    pub unorm: wgpu::TextureView,
+    pub unorm: Option<wgpu::TextureView>,
     pub scaled: bool,
 }
 
@@ -164,10 +198,9 @@ impl egui_wgpu::CallbackTrait for BlitCallback {
         resources: &mut egui_wgpu::CallbackResources,
     ) -> Vec<wgpu::CommandBuffer> {
         if let Some(r) = resources.get_mut::<BlitResources>() {
-            let view = if r.srgb_target {
-                &self.srgb
-            } else {
-                &self.unorm
+            let view = match &self.unorm {
+                Some(unorm) if !r.bind_srgb => unorm,
+                _ => &self.srgb,
             };
             let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("view blit"),

@@ -45,7 +45,7 @@ impl Renderer {
                 },
             })
         };
-        if plan.half_res_second && passes.len() == 2 {
+        if plan.half_res_second && passes.len() == 2 && self.gpu.caps.float_targets {
             self.encode_half(enc, targets, plan, &passes);
             return;
         }
@@ -66,7 +66,11 @@ impl Renderer {
                 .queue
                 .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
             let first_targets = [clear(&targets.output_view)];
-            if slot == 1 {
+            // The second view reads the first view's depth from `depth_copy` while drawn
+            // against `depth`: copied there, or, without depth copies, drawn there by the
+            // first view and written into `depth` by a shader (below).
+            let copies = self.gpu.caps.depth_copy;
+            if slot == 1 && copies {
                 // The second view's weights need the first view's depth where it is itself
                 // depth-tested against (and writes) the same attachment: a copy.
                 let copy = |texture| wgpu::TexelCopyTextureInfo {
@@ -102,9 +106,14 @@ impl Renderer {
                     &second_targets[..]
                 },
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &targets.depth_view,
+                    view: if slot == 0 && passes.len() > 1 && !copies {
+                        &targets.depth_copy_view
+                    } else {
+                        &targets.depth_view
+                    },
                     depth_ops: Some(wgpu::Operations {
-                        load: if slot == 0 {
+                        // The shader copy writes every pixel.
+                        load: if slot == 0 || !copies {
                             wgpu::LoadOp::Clear(0.0)
                         } else {
                             wgpu::LoadOp::Load
@@ -126,6 +135,10 @@ impl Renderer {
                 rp.set_bind_group(1, &targets.second_group, &[]);
                 // The other view (the first): its sky, for the second view near a sample.
                 rp.set_bind_group(2, &passes[0].1.bind_group, &[]);
+                if !copies {
+                    rp.set_pipeline(&self.copy_depth);
+                    rp.draw(0..3, 0..1);
+                }
             }
             if !pass.runs.is_empty() {
                 rp.set_pipeline(if slot == 0 {

@@ -46,12 +46,27 @@ use std::collections::HashMap;
 use crate::plan::{FramePlan, Overlays};
 use crate::refview::RefView;
 
+pub use device::{
+    describe_adapter, device_limits, no_adapter, Caps, DeviceLimits, Gpu, GpuRequest,
+};
+
+mod device;
 mod fused;
 mod pipelines;
 mod readback;
 mod upload;
 
+/// Colour + distance of a view pass; where the device cannot render to it
+/// ([`Caps::float_targets`]) the paths that need it are not taken, and their targets are made
+/// in `FALLBACK_VIEW_FORMAT` only to keep every pipeline and bind group valid.
 const VIEW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
+const FALLBACK_VIEW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+/// Texels per row of the per-tile textures (`TILE_ROW` in cube.wgsl): tile info
+/// (`Rgba32Uint`) and visible-pixel counts (`R32Uint`, 1 KiB a row, a multiple of the
+/// buffer-to-texture copy alignment).
+const TILE_ROW: u32 = 256;
+const TILE_INFO_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Uint;
+const COUNTS_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Tile-id target of a view pass: tile index + 1, 0 = no tile.
 const ID_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
@@ -75,20 +90,51 @@ const TIMESTAMPS: wgpu::Features =
 /// Format of the final image (sRGB-encoded RGBA8, alpha 0 = hole).
 pub const OUTPUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
 
-/// Errors of the GPU path.
+/// Errors of the GPU path. Every message names what failed; those from the device also name
+/// the adapter and the backend.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum GpuError {
-    #[error("no GPU adapter (wgpu found none; install mesa-vulkan-drivers for lavapipe): {0}")]
-    NoAdapter(String),
-    #[error("requesting a device failed: {0}")]
-    Device(String),
+    #[error(
+        "no GPU adapter found ({backends}{}): {detail}. railview draws with wgpu, which needs a \
+         Vulkan or OpenGL ES driver; without a GPU, Mesa's software drivers do: on Debian or \
+         Ubuntu run `apt-get install mesa-vulkan-drivers libvulkan1` (Vulkan) or `apt-get \
+         install libegl1 libegl-mesa0 libgl1-mesa-dri` (OpenGL ES), as root",
+        forced_note(forced)
+    )]
+    NoAdapter {
+        /// The backends searched (`Vulkan and GL`).
+        backends: String,
+        /// wgpu's reason.
+        detail: String,
+        /// `WGPU_BACKEND` when set.
+        forced: Option<String>,
+    },
+    #[error("requesting a device from {adapter} failed: {message}")]
+    Device { adapter: String, message: String },
+    /// An error wgpu reported on the device (validation, a shader the backend cannot
+    /// translate, out of memory, device loss).
+    #[error("{what} failed on {adapter}: {message}")]
+    Wgpu {
+        what: String,
+        adapter: String,
+        message: String,
+    },
     #[error("reading the frame back failed: {0}")]
     Readback(String),
     #[error("plan refers to view {0}, but only {1} views were given")]
     MissingView(usize, usize),
     #[error("image {width}x{height} exceeds the device limit {limit}")]
     TooLarge { width: u32, height: u32, limit: u32 },
+    #[error("{0}")]
+    Limit(String),
+}
+
+fn forced_note(forced: &Option<String>) -> String {
+    match forced {
+        Some(v) => format!("; WGPU_BACKEND={v} limits the search, unset it to try every backend"),
+        None => String::new(),
+    }
 }
 
 /// A rendered frame: sRGB RGBA8, rows from the top; alpha 0 marks hole pixels.
@@ -117,43 +163,6 @@ pub struct Throughput {
     pub gpu_ms: Option<f64>,
 }
 
-/// Device and queue.
-pub struct Gpu {
-    pub device: wgpu::Device,
-    pub queue: wgpu::Queue,
-    pub info: wgpu::AdapterInfo,
-}
-
-impl Gpu {
-    /// The default adapter (`WGPU_BACKEND` may force `vulkan` or `gl`); lavapipe on machines
-    /// without a GPU.
-    pub fn new() -> Result<Gpu, GpuError> {
-        let instance =
-            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::HighPerformance,
-            force_fallback_adapter: false,
-            compatible_surface: None,
-            apply_limit_buckets: false,
-        }))
-        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
-        let info = adapter.get_info();
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("railview"),
-            required_limits: wgpu::Limits::default().using_resolution(adapter.limits()),
-            // Timestamps around frames for `Renderer::throughput`, where the adapter has them.
-            required_features: adapter.features() & TIMESTAMPS,
-            ..Default::default()
-        }))
-        .map_err(|e| GpuError::Device(e.to_string()))?;
-        Ok(Gpu {
-            device,
-            queue,
-            info,
-        })
-    }
-}
-
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct GpuVertex {
@@ -167,7 +176,7 @@ struct GpuVertex {
 struct CompositeUniforms {
     /// w0, w1, number of views, log2(1 + pixels) (heat-map scale).
     weights: [f32; 4],
-    /// Overlay bits, unused.
+    /// Overlay bits, tiles of view 0, tiles of view 1, unused.
     flags: [u32; 4],
 }
 
@@ -180,7 +189,22 @@ fn tex(v: &wgpu::TextureView) -> wgpu::BindingResource<'_> {
     wgpu::BindingResource::TextureView(v)
 }
 
-/// One tile's entry of the tile-info storage buffer (`tile_info` in `render.wgsl`).
+/// Rows of a per-tile texture for `tiles` tiles (at least one).
+fn tile_rows(tiles: usize) -> u32 {
+    (tiles.max(1) as u32).div_ceil(TILE_ROW)
+}
+
+/// Width and height of a per-tile texture for `tiles` tiles: `TILE_ROW` wide, or as wide as
+/// the tiles where there are fewer (a view with nothing yet holds one texel).
+fn tile_extent(tiles: usize) -> wgpu::Extent3d {
+    wgpu::Extent3d {
+        width: (tiles as u32).clamp(1, TILE_ROW),
+        height: tile_rows(tiles),
+        depth_or_array_layers: 1,
+    }
+}
+
+/// One tile's entry of the tile-info texture (`tile_info` in `render.wgsl`).
 fn tile_info(face_layer: u32, min_level: u32, tile: &crate::refview::ViewTile) -> [u32; 4] {
     let highlight = if tile.highlight.is_finite() {
         tile.highlight.clamp(0.0, 1.0)
@@ -195,11 +219,17 @@ pub struct GpuView {
     texture: wgpu::Texture,
     vertices: wgpu::Buffer,
     indices: wgpu::Buffer,
-    tile_info: wgpu::Buffer,
+    /// Per-tile info (`TILE_ROW` texels a row).
+    tile_info: wgpu::Texture,
+    tile_info_view: wgpu::TextureView,
     /// What `tile_info` holds now (rewritten only when a level or highlight changes).
     info: Vec<[u32; 4]>,
-    /// Visible pixels per tile (feedback and the heat-map overlay).
-    counts: wgpu::Buffer,
+    /// Visible pixels per tile, counted by the compute pass (devices with
+    /// [`Caps::compute`]), `TILE_ROW` a row.
+    counts: Option<wgpu::Buffer>,
+    /// The same counts as a texture, for the heat-map overlay.
+    counts_tex: wgpu::Texture,
+    counts_view: wgpu::TextureView,
     uniforms: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     /// First index of every tile, plus the end.
@@ -227,8 +257,10 @@ struct Targets {
     depth_view: wgpu::TextureView,
     /// Fused two-view frames: the first view's depth copied before the second view is drawn
     /// against it, and the second view's bind group 1 (composite uniforms, the half-resolution
-    /// target unused, that copy).
+    /// target unused, that copy). Without depth copies ([`Caps::depth_copy`]) the first view
+    /// draws into this texture and a shader pass writes it into `depth`.
     depth_copy: wgpu::Texture,
+    depth_copy_view: wgpu::TextureView,
     second_group: wgpu::BindGroup,
     /// Half-resolution second view: colour + distance, its depth, and the bind group 1 of
     /// the first view drawn over it.
@@ -237,8 +269,9 @@ struct Targets {
     half_group: wgpu::BindGroup,
     output: wgpu::Texture,
     output_view: wgpu::TextureView,
-    /// The same texels as plain UNORM (sRGB-encoded bytes), for UIs that expect them.
-    output_view_unorm: wgpu::TextureView,
+    /// The same texels as plain UNORM (sRGB-encoded bytes), for UIs that expect them;
+    /// `None` without [`Caps::view_formats`].
+    output_view_unorm: Option<wgpu::TextureView>,
     /// Reduced-resolution tile ids (feedback frames without overlays): the scale, the id
     /// targets and their depth (the full-resolution ones when the scale is 1).
     id_scale: u32,
@@ -305,7 +338,14 @@ pub struct Renderer {
     panorama: wgpu::RenderPipeline,
     composite: wgpu::RenderPipeline,
     composite_overlays: wgpu::RenderPipeline,
-    feedback: wgpu::ComputePipeline,
+    /// Devices without depth copies: the first view's depth written into the depth the
+    /// second view is drawn against (`fs_copy_depth`).
+    copy_depth: wgpu::RenderPipeline,
+    /// The visible-pixel count (devices with [`Caps::compute`]).
+    feedback: Option<wgpu::ComputePipeline>,
+    /// Colour + distance targets of view passes (`VIEW_FORMAT`, or a stand-in where the
+    /// device cannot render to it and those passes are never drawn).
+    view_format: wgpu::TextureFormat,
     sampler: wgpu::Sampler,
     composite_uniforms: wgpu::Buffer,
     views: HashMap<usize, GpuView>,
@@ -355,7 +395,7 @@ impl Renderer {
             let v = views
                 .get(p.view)
                 .ok_or(GpuError::MissingView(p.view, views.len()))?;
-            self.ensure_view(v);
+            self.ensure_view(v)?;
         }
         self.ensure_targets(plan.width, plan.height, plan.id_scale)?;
         for p in &plan.passes {
@@ -363,6 +403,12 @@ impl Renderer {
         }
         self.prepare_composite(plan, views);
         Ok(())
+    }
+
+    /// Whether `plan` is drawn through view targets and the composite pass (frames with
+    /// overlays, on devices that render to float targets); otherwise fused.
+    fn composite_path(&self, plan: &FramePlan) -> bool {
+        plan.overlays != Overlays::default() && self.gpu.caps.float_targets
     }
 
     /// Record and submit the frame into the internal output target; waits for the GPU.
@@ -374,20 +420,67 @@ impl Renderer {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("frame"),
             });
-        self.encode(&mut enc, plan, views);
-        self.gpu.queue.submit([enc.finish()]);
+        if self.composite_path(plan) && plan.overlays.heat && !self.gpu.caps.compute {
+            // No compute: the heat map's counts come from the tile ids read back.
+            self.draw_heat_on_cpu(enc, plan, views)?;
+        } else {
+            self.encode(&mut enc, plan, views);
+            self.gpu.queue.submit([enc.finish()]);
+        }
         let ids = plan.tile_ids || plan.overlays.needs_tile_ids();
         self.ids_valid = [ids && !plan.passes.is_empty(), ids && plan.passes.len() > 1];
-        self.ids_scale = if plan.overlays == Overlays::default() {
-            plan.id_scale.max(1)
-        } else {
+        self.ids_scale = if self.composite_path(plan) {
             1
+        } else {
+            plan.id_scale.max(1)
         };
-        self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.gpu.wait("drawing a frame")?;
+        self.gpu.check("drawing a frame")
+    }
+
+    /// A composite frame with the heat map on a device without compute: the view passes,
+    /// then the visible pixels per tile counted on the CPU from the tile ids read back, then
+    /// the composite with them.
+    fn draw_heat_on_cpu(
+        &self,
+        mut enc: wgpu::CommandEncoder,
+        plan: &FramePlan,
+        views: &[RefView],
+    ) -> Result<(), GpuError> {
+        let Some(targets) = &self.targets else {
+            return Ok(());
+        };
+        let drawn = self.encode_view_passes(&mut enc, targets, plan, views, true, false);
+        self.gpu.queue.submit([enc.finish()]);
+        for (slot, g) in drawn.iter().enumerate() {
+            let ids = self.read_ids(targets.id_views[slot].texture())?;
+            let counts = count_ids(&ids, g.face_layer.len());
+            self.write_counts(g, &counts);
+        }
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        if !drawn.is_empty() {
+            self.encode_composite(&mut enc, targets, plan, views, drawn.len());
+        }
+        self.gpu.queue.submit([enc.finish()]);
         Ok(())
+    }
+
+    /// Write a view's visible-pixel counts into its counts texture (the heat map's input).
+    fn write_counts(&self, g: &GpuView, counts: &[u32]) {
+        let rows = g.counts_tex.height();
+        let mut data = vec![0u32; (rows * TILE_ROW) as usize];
+        let n = counts.len().min(data.len());
+        data[..n].copy_from_slice(&counts[..n]);
+        self.gpu.queue.write_texture(
+            g.counts_tex.as_image_copy(),
+            bytemuck::cast_slice(&data),
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(4 * TILE_ROW),
+                rows_per_image: Some(rows),
+            },
+            g.counts_tex.size(),
+        );
     }
 
     /// Rewrite a view's per-tile info (face, layer, min level, highlight, slab) when it changed
@@ -412,11 +505,20 @@ impl Renderer {
             .zip(&view.tiles)
             .map(|((&fl, &lvl), t)| tile_info(fl, lvl, t))
             .collect();
-        if !g.info.is_empty() {
-            self.gpu
-                .queue
-                .write_buffer(&g.tile_info, 0, bytemuck::cast_slice(&g.info));
-        }
+        let rows = g.tile_info.height();
+        let mut data = vec![[0u32; 4]; (rows * TILE_ROW) as usize];
+        let n = g.info.len().min(data.len());
+        data[..n].copy_from_slice(&g.info[..n]);
+        self.gpu.queue.write_texture(
+            g.tile_info.as_image_copy(),
+            bytemuck::cast_slice(&data),
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(16 * TILE_ROW),
+                rows_per_image: Some(rows),
+            },
+            g.tile_info.size(),
+        );
     }
 
     /// Make (once) the composite bind group of the views drawn by `plan`.
@@ -450,10 +552,10 @@ impl Renderer {
             tex(&targets.view_views[1]),
             tex(&targets.id_views[0]),
             tex(&targets.id_views[1]),
-            g0.tile_info.as_entire_binding(),
-            g1.tile_info.as_entire_binding(),
-            g0.counts.as_entire_binding(),
-            g1.counts.as_entire_binding(),
+            tex(&g0.tile_info_view),
+            tex(&g1.tile_info_view),
+            tex(&g0.counts_view),
+            tex(&g1.counts_view),
         ];
         let entries: Vec<wgpu::BindGroupEntry<'_>> = resources
             .into_iter()
@@ -481,10 +583,11 @@ impl Renderer {
             return;
         };
         let ids = plan.tile_ids || plan.overlays.needs_tile_ids();
-        if plan.overlays == Overlays::default() {
+        if !self.composite_path(plan) {
             // The picture as on frames without tile ids (no change every few frames), and
             // for feedback frames the tile ids in a cheap pass of their own, at
-            // `1 / id_scale` resolution.
+            // `1 / id_scale` resolution. Devices without float targets draw overlays' frames
+            // so too, without the overlays.
             self.encode_fused(enc, targets, plan, views);
             if ids {
                 self.encode_id_passes(enc, targets, plan, views);
@@ -498,20 +601,52 @@ impl Renderer {
         if drawn.is_empty() {
             return;
         }
-        if plan.overlays.heat {
+        if plan.overlays.heat && self.gpu.caps.compute {
             for (slot, g) in drawn.iter().enumerate() {
                 self.encode_counts(enc, &targets.id_views[slot], g);
+                if let Some(counts) = &g.counts {
+                    enc.copy_buffer_to_texture(
+                        wgpu::TexelCopyBufferInfo {
+                            buffer: counts,
+                            layout: wgpu::TexelCopyBufferLayout {
+                                offset: 0,
+                                bytes_per_row: Some(4 * TILE_ROW),
+                                rows_per_image: Some(g.counts_tex.height()),
+                            },
+                        },
+                        g.counts_tex.as_image_copy(),
+                        g.counts_tex.size(),
+                    );
+                }
             }
         }
+        self.encode_composite(enc, targets, plan, views, drawn.len());
+    }
+
+    /// The composite pass of a frame whose `drawn` view passes are encoded.
+    fn encode_composite(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        targets: &Targets,
+        plan: &FramePlan,
+        views: &[RefView],
+        drawn: usize,
+    ) {
+        let tiles = |slot: usize| {
+            plan.passes
+                .get(slot)
+                .and_then(|p| views.get(p.view))
+                .map_or(0, |v| v.tiles.len() as u32)
+        };
         let pixels = plan.width as f32 * plan.height as f32;
         let uniforms = CompositeUniforms {
             weights: [
                 plan.passes.first().map_or(0.0, |p| p.weight as f32),
                 plan.passes.get(1).map_or(0.0, |p| p.weight as f32),
-                drawn.len() as f32,
+                drawn as f32,
                 (1.0 + pixels).log2(),
             ],
-            flags: [plan.overlays.bits(), 0, 0, 0],
+            flags: [plan.overlays.bits(), tiles(0), tiles(1), 0],
         };
         self.gpu
             .queue
@@ -632,15 +767,19 @@ impl Renderer {
     }
 
     /// Encode the feedback count of one view pass: zero the view's counts, then count the
-    /// visible pixels of every tile in its tile-id target.
+    /// visible pixels of every tile in its tile-id target (devices with [`Caps::compute`];
+    /// nothing elsewhere).
     fn encode_counts(&self, enc: &mut wgpu::CommandEncoder, ids: &wgpu::TextureView, g: &GpuView) {
-        enc.clear_buffer(&g.counts, 0, None);
+        let (Some(feedback), Some(counts)) = (&self.feedback, &g.counts) else {
+            return;
+        };
+        enc.clear_buffer(counts, 0, None);
         let bg = self
             .gpu
             .device
             .create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("feedback"),
-                layout: &self.feedback.get_bind_group_layout(0),
+                layout: &feedback.get_bind_group_layout(0),
                 entries: &[
                     wgpu::BindGroupEntry {
                         binding: 0,
@@ -648,13 +787,13 @@ impl Renderer {
                     },
                     wgpu::BindGroupEntry {
                         binding: 1,
-                        resource: g.counts.as_entire_binding(),
+                        resource: counts.as_entire_binding(),
                     },
                 ],
             });
         let (w, h) = (ids.texture().width(), ids.texture().height());
         let mut cp = enc.begin_compute_pass(&Default::default());
-        cp.set_pipeline(&self.feedback);
+        cp.set_pipeline(feedback);
         cp.set_bind_group(0, &bg, &[]);
         cp.dispatch_workgroups(w.div_ceil(8), h.div_ceil(8), 1);
     }
@@ -671,11 +810,8 @@ impl Renderer {
             });
         self.encode_panorama(&mut enc, plan, views);
         self.gpu.queue.submit([enc.finish()]);
-        self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        Ok(())
+        self.gpu.wait("drawing a panorama")?;
+        self.gpu.check("drawing a panorama")
     }
 
     fn prepare_panorama(&mut self, plan: &FramePlan, views: &[RefView]) -> Result<(), GpuError> {
@@ -683,7 +819,7 @@ impl Renderer {
         let v = views
             .get(pass.view)
             .ok_or(GpuError::MissingView(pass.view, views.len()))?;
-        self.ensure_view(v);
+        self.ensure_view(v)?;
         self.ensure_targets(plan.width, plan.height, plan.id_scale)
     }
 
@@ -729,14 +865,48 @@ impl Renderer {
     }
 
     /// The output target viewed as plain `Rgba8Unorm` (the sRGB-encoded bytes undecoded):
-    /// what egui's renderer expects of a user texture.
+    /// what egui's renderer expects of a user texture. `None` before the first draw and on
+    /// devices without [`Caps::view_formats`].
     pub fn output_view_unorm(&self) -> Option<&wgpu::TextureView> {
-        self.targets.as_ref().map(|t| &t.output_view_unorm)
+        self.targets.as_ref()?.output_view_unorm.as_ref()
     }
 
     /// Draw a plan and read it back.
     pub fn render(&mut self, plan: &FramePlan, views: &[RefView]) -> Result<Frame, GpuError> {
         self.draw(plan, views)?;
         self.read_output()
+    }
+}
+
+/// Visible pixels per tile from a tile-id image (tile index + 1 per pixel, 0 = none): the
+/// compute pass's count (`feedback.wgsl`) done on the CPU.
+fn count_ids(ids: &[u32], tiles: usize) -> Vec<u32> {
+    let mut counts = vec![0u32; tiles];
+    for &t in ids {
+        if let Some(c) = (t as usize).checked_sub(1).and_then(|i| counts.get_mut(i)) {
+            *c += 1;
+        }
+    }
+    counts
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ids_are_counted_per_tile_and_unknown_ids_ignored() {
+        assert_eq!(count_ids(&[0, 1, 1, 3, 9, 0], 3), vec![2, 0, 1]);
+        assert_eq!(count_ids(&[], 2), vec![0, 0]);
+    }
+
+    #[test]
+    fn per_tile_textures_have_a_row_per_256_tiles() {
+        assert_eq!(tile_rows(0), 1);
+        assert_eq!(tile_rows(256), 1);
+        assert_eq!(tile_rows(257), 2);
+        assert_eq!((tile_extent(0).width, tile_extent(0).height), (1, 1));
+        assert_eq!((tile_extent(7).width, tile_extent(7).height), (7, 1));
+        assert_eq!((tile_extent(300).width, tile_extent(300).height), (256, 2));
     }
 }

@@ -3,12 +3,24 @@
 use std::collections::HashMap;
 
 use super::{
-    shader_source, CompositeUniforms, Gpu, GpuVertex, Renderer, DEPTH_FORMAT, ID_FORMAT,
-    NEARER_ONLY, OUTPUT_FORMAT, SECOND_VIEW_DEPTH_SCALE, VIEW_FORMAT,
+    shader_source, CompositeUniforms, Gpu, GpuError, GpuVertex, Renderer, DEPTH_FORMAT,
+    FALLBACK_VIEW_FORMAT, ID_FORMAT, NEARER_ONLY, OUTPUT_FORMAT, SECOND_VIEW_DEPTH_SCALE,
+    VIEW_FORMAT,
 };
 
 impl Renderer {
-    pub fn new(gpu: Gpu) -> Renderer {
+    /// The renderer's pipelines on `gpu`, for what the device can do ([`super::Caps`]). An
+    /// error wgpu reports while they are made (a shader the backend cannot translate, a
+    /// limit) comes back as [`GpuError::Wgpu`] naming the adapter, the backend and the
+    /// pipeline.
+    pub fn new(gpu: Gpu) -> Result<Renderer, GpuError> {
+        // Errors of an earlier user of the device are not ours.
+        gpu.check("work on this device before the renderer")?;
+        let view_format = if gpu.caps.float_targets {
+            VIEW_FORMAT
+        } else {
+            FALLBACK_VIEW_FORMAT
+        };
         let device = &gpu.device;
         let view_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("view"),
@@ -21,7 +33,11 @@ impl Renderer {
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                     count: None,
                 },
-                storage_entry(3),
+                // Per-tile info, read per vertex.
+                wgpu::BindGroupLayoutEntry {
+                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    ..uint_texture_entry(3)
+                },
             ],
         });
         let composite_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -32,10 +48,10 @@ impl Renderer {
                 texture_entry(2, wgpu::TextureViewDimension::D2),
                 uint_texture_entry(3),
                 uint_texture_entry(4),
-                storage_entry(5),
-                storage_entry(6),
-                storage_entry(7),
-                storage_entry(8),
+                uint_texture_entry(5),
+                uint_texture_entry(6),
+                uint_texture_entry(7),
+                uint_texture_entry(8),
             ],
         });
         let second_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -43,12 +59,13 @@ impl Renderer {
             entries: &[
                 uniform_entry(0),
                 texture_entry(1, wgpu::TextureViewDimension::D2),
-                // The first view's depth (a copy), for the second view's blend weights.
+                // The first view's depth (a copy), for the second view's blend weights: a
+                // depth texture read as unfilterable float (texel loads only).
                 wgpu::BindGroupLayoutEntry {
                     binding: 2,
                     visibility: wgpu::ShaderStages::FRAGMENT,
                     ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Depth,
+                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
                         view_dimension: wgpu::TextureViewDimension::D2,
                         multisampled: false,
                     },
@@ -97,8 +114,8 @@ impl Renderer {
                 write_mask: wgpu::ColorWrites::ALL,
             })
         };
-        let id_targets = [target(VIEW_FORMAT), target(ID_FORMAT)];
-        let color_targets = [target(VIEW_FORMAT)];
+        let id_targets = [target(view_format), target(ID_FORMAT)];
+        let color_targets = [target(view_format)];
         let output_target = [target(OUTPUT_FORMAT)];
         let vertex_attrs = wgpu::vertex_attr_array![0 => Float32x2, 1 => Float32, 2 => Uint32];
         let mk = |label: &str,
@@ -393,17 +410,37 @@ impl Renderer {
             None,
             &[],
         );
-        let feedback_src = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("feedback.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("../feedback.wgsl").into()),
-        });
-        let feedback = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("feedback"),
-            layout: None,
-            module: &feedback_src,
-            entry_point: Some("count"),
-            compilation_options: Default::default(),
-            cache: None,
+        // Devices without depth copies: the first view's depth (bound as in the second
+        // view's pass) written into the attached depth, every pixel; the output untouched.
+        let depth_only = [Some(wgpu::ColorTargetState {
+            format: OUTPUT_FORMAT,
+            blend: None,
+            write_mask: wgpu::ColorWrites::empty(),
+        })];
+        let copy_depth = mk(
+            "first view's depth, copied by a shader",
+            &render,
+            &second_layout,
+            "vs_full",
+            "fs_copy_depth",
+            &[],
+            &depth_only,
+            depth(wgpu::CompareFunction::Always, true),
+            &[],
+        );
+        let feedback = gpu.caps.compute.then(|| {
+            let feedback_src = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some("feedback.wgsl"),
+                source: wgpu::ShaderSource::Wgsl(include_str!("../feedback.wgsl").into()),
+            });
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("feedback"),
+                layout: None,
+                module: &feedback_src,
+                entry_point: Some("count"),
+                compilation_options: Default::default(),
+                cache: None,
+            })
         });
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("layers"),
@@ -418,7 +455,8 @@ impl Renderer {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        Renderer {
+        gpu.check("creating the renderer's pipelines")?;
+        Ok(Renderer {
             gpu,
             view_bgl,
             composite_bgl,
@@ -442,7 +480,9 @@ impl Renderer {
             background,
             sky_depth,
             mesh_behind,
+            copy_depth,
             feedback,
+            view_format,
             sampler,
             composite_uniforms,
             views: HashMap::new(),
@@ -451,19 +491,8 @@ impl Renderer {
             ids_scale: 1,
             skirts: true,
             composite_groups: HashMap::new(),
-        }
+        })
     }
-}
-
-fn storage_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
-    bgl_entry(
-        binding,
-        wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only: true },
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-    )
 }
 
 fn bgl_entry(binding: u32, ty: wgpu::BindingType) -> wgpu::BindGroupLayoutEntry {

@@ -1,6 +1,6 @@
 //! Reading results back: the output image, tile ids, feedback counts, throughput timings.
 
-use super::{Frame, GpuError, Renderer, Throughput, TIMESTAMPS};
+use super::{count_ids, Frame, GpuError, Renderer, Throughput, TIMESTAMPS};
 use crate::plan::FramePlan;
 use crate::refview::RefView;
 
@@ -16,7 +16,9 @@ impl Renderer {
         frames: usize,
     ) -> Result<Throughput, GpuError> {
         self.prepare(plan, views)?;
-        self.timed_frames(frames, |enc| self.encode(enc, plan, views))
+        let t = self.timed_frames(frames, |enc| self.encode(enc, plan, views))?;
+        self.gpu.check("timing frames")?;
+        Ok(t)
     }
 
     /// `frames` frames recorded by `encode`, submitted back to back, one wait; timestamps
@@ -47,9 +49,7 @@ impl Renderer {
             }
             self.gpu.queue.submit([enc.finish()]);
         }
-        device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.gpu.wait("timing frames")?;
         let wall_ms = t0.elapsed().as_secs_f64() * 1e3 / frames as f64;
         let gpu_ms = match &queries {
             Some(q) => {
@@ -87,7 +87,9 @@ impl Renderer {
         frames: usize,
     ) -> Result<Throughput, GpuError> {
         self.prepare_panorama(plan, views)?;
-        self.timed_frames(frames, |enc| self.encode_panorama(enc, plan, views))
+        let t = self.timed_frames(frames, |enc| self.encode_panorama(enc, plan, views))?;
+        self.gpu.check("timing panorama frames")?;
+        Ok(t)
     }
 
     /// Copy the internal output target to the CPU.
@@ -105,6 +107,7 @@ impl Renderer {
             let start = row * bpr as usize;
             rgba.extend_from_slice(&data[start..start + 4 * w as usize]);
         }
+        self.gpu.check("reading the frame back")?;
         Ok(Frame {
             width: w,
             height: h,
@@ -113,7 +116,8 @@ impl Renderer {
     }
 
     /// Visible pixels per tile of every view pass of the last [`Renderer::draw`] (tile-id
-    /// targets counted by a compute pass with atomics); `plan` must be the plan drawn, with
+    /// targets counted by a compute pass with atomics, or, on devices without compute
+    /// ([`super::Caps::compute`]), read back and counted on the CPU); `plan` must be the plan drawn, with
     /// [`FramePlan::tile_ids`] set. Where the ids were drawn at reduced resolution
     /// ([`FramePlan::id_scale`] > 1, frames without overlays) each id texel's count is
     /// scaled by the area factor (frame pixels / id texels, about `id_scale²`), rounded: an
@@ -141,10 +145,15 @@ impl Renderer {
             else {
                 return Err(GpuError::MissingView(pass.view, views.len()));
             };
-            let mut enc = self.gpu.device.create_command_encoder(&Default::default());
             let ids = t.ids_of(slot, self.ids_scale);
-            self.encode_counts(&mut enc, ids, g);
-            let mut pixels: Vec<u32> = self.read_buffer(enc, &g.counts)?;
+            let mut pixels: Vec<u32> = match &g.counts {
+                Some(counts) => {
+                    let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+                    self.encode_counts(&mut enc, ids, g);
+                    self.read_buffer(enc, counts)?
+                }
+                None => count_ids(&self.read_ids(ids.texture())?, v.tiles.len()),
+            };
             pixels.truncate(v.tiles.len());
             let (iw, ih) = (ids.texture().width(), ids.texture().height());
             if (iw, ih) != (t.width, t.height) {
@@ -158,6 +167,7 @@ impl Renderer {
                 pixels,
             });
         }
+        self.gpu.check("counting visible pixels per tile")?;
         Ok(out)
     }
 
@@ -177,9 +187,8 @@ impl Renderer {
             )));
         }
         let texture = t.ids_of(slot, self.ids_scale).texture();
-        let (enc, buf, bpr) = self.copy_for_readback(texture, "ids readback");
-        let rows: Vec<u32> = self.map_read(enc, &buf)?;
-        let stride = (bpr / 4) as usize;
+        let rows = self.read_ids(texture)?;
+        let stride = texture.width() as usize;
         let s = self.ids_scale.max(1) as usize;
         let (fw, fh) = (t.width as usize, t.height as usize);
         Ok((0..fh)
@@ -188,6 +197,20 @@ impl Renderer {
                 (0..fw).map(move |x| row[x / s])
             })
             .collect())
+    }
+
+    /// The texels of a tile-id texture, row-major from the top, rows unpadded.
+    pub(super) fn read_ids(&self, texture: &wgpu::Texture) -> Result<Vec<u32>, GpuError> {
+        let (enc, buf, bpr) = self.copy_for_readback(texture, "ids readback");
+        let padded: Vec<u32> = self.map_read(enc, &buf)?;
+        let (w, stride) = (texture.width() as usize, (bpr / 4) as usize);
+        let ids: Vec<u32> = padded
+            .chunks(stride)
+            .flat_map(|row| &row[..w.min(row.len())])
+            .copied()
+            .collect();
+        self.gpu.check("reading tile ids back")?;
+        Ok(ids)
     }
 
     /// Copy a storage buffer out (after the commands in `enc`) and read it as `u32`s.
@@ -261,10 +284,7 @@ impl Renderer {
             // The receiver outlives the poll below; a send error cannot happen.
             tx.send(r).ok();
         });
-        self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.gpu.wait("reading back")?;
         rx.recv()
             .map_err(|e| GpuError::Readback(e.to_string()))?
             .map_err(|e| GpuError::Readback(e.to_string()))?;

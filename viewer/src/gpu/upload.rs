@@ -4,8 +4,8 @@ use rayon::prelude::*;
 use wgpu::util::DeviceExt;
 
 use super::{
-    GpuError, GpuVertex, GpuView, Renderer, Targets, DEPTH_FORMAT, ID_FORMAT, OUTPUT_FORMAT,
-    VIEW_FORMAT,
+    tile_extent, tile_rows, GpuError, GpuVertex, GpuView, Renderer, Targets, COUNTS_FORMAT,
+    DEPTH_FORMAT, ID_FORMAT, OUTPUT_FORMAT, TILE_INFO_FORMAT, TILE_ROW,
 };
 use crate::plan::ViewUniforms;
 use crate::refview::{decimated_indices, mesh_cell, RefView, MESH_LEVELS};
@@ -22,7 +22,7 @@ impl Renderer {
     pub(super) fn upload_texture(&self, view: &RefView) -> (wgpu::Texture, u64) {
         let device = &self.gpu.device;
         let n = texture_face_size(view);
-        let layers = view.layers.len().max(1) as u32;
+        let layers = texture_layers(view);
         let mips = view.layers.first().map_or(1, |l| l.levels.len()) as u32;
         let texture = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("view layers"),
@@ -181,20 +181,43 @@ impl Renderer {
             usage: wgpu::BufferUsages::INDEX,
         });
         bytes += (verts.len() * std::mem::size_of::<GpuVertex>() + idx.len() * 4) as u64;
-        let tile_info = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("tile info"),
-            size: (16 * face_layer.len().max(1)) as u64,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
+        // Per-tile textures, `TILE_ROW` tiles a row (`ensure_view` checked the rows fit).
+        let rows = tile_rows(face_layer.len());
+        let extent = tile_extent(face_layer.len());
+        let per_tile = |label, format, usage| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: extent,
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage,
+                view_formats: &[],
+            })
+        };
+        let tile_info = per_tile(
+            "tile info",
+            TILE_INFO_FORMAT,
+            wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        );
+        let counts_tex = per_tile(
+            "tile counts",
+            COUNTS_FORMAT,
+            wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        );
+        bytes += u64::from(extent.width * extent.height) * 20;
+        let counts = self.gpu.caps.compute.then(|| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("tile counts"),
+                size: u64::from(4 * rows * TILE_ROW),
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_SRC
+                    | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
         });
-        let counts = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("tile counts"),
-            size: (4 * face_layer.len().max(1)) as u64,
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_SRC
-                | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let tile_info_view = tile_info.create_view(&Default::default());
         let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("view uniforms"),
             size: std::mem::size_of::<ViewUniforms>() as u64,
@@ -223,7 +246,7 @@ impl Renderer {
                 },
                 wgpu::BindGroupEntry {
                     binding: 3,
-                    resource: tile_info.as_entire_binding(),
+                    resource: wgpu::BindingResource::TextureView(&tile_info_view),
                 },
             ],
         });
@@ -232,8 +255,11 @@ impl Renderer {
             vertices,
             indices,
             tile_info,
+            tile_info_view,
             info: Vec::new(),
             counts,
+            counts_view: counts_tex.create_view(&Default::default()),
+            counts_tex,
             uniforms,
             bind_group,
             index_start,
@@ -249,12 +275,57 @@ impl Renderer {
     pub(super) fn texture_fits(g: &GpuView, view: &RefView) -> bool {
         let size = g.texture.size();
         size.width == texture_face_size(view)
-            && size.depth_or_array_layers == view.layers.len().max(1) as u32
+            && size.depth_or_array_layers == texture_layers(view)
             && g.texture.mip_level_count()
                 == view.layers.first().map_or(1, |l| l.levels.len()) as u32
     }
 
-    pub(super) fn ensure_view(&mut self, view: &RefView) {
+    /// What a view needs of the device's limits: its texture array's size and layers, the
+    /// rows of its per-tile textures.
+    fn check_view_limits(&self, view: &RefView) -> Result<(), GpuError> {
+        let l = self.gpu.device.limits();
+        let n = texture_face_size(view);
+        let layers = texture_layers(view);
+        let rows = tile_rows(view.tiles.len());
+        let over = |what: String, value: u64, limit: u32, name: &str| {
+            GpuError::Limit(format!(
+                "view {}: {what} ({value}) exceeds this device's limit {limit} ({name}) on {}",
+                view.index,
+                self.gpu.describe()
+            ))
+        };
+        if u64::from(n) * 6 > u64::from(l.max_texture_dimension_2d) {
+            return Err(over(
+                format!(
+                    "a texture of {n}×{} texels for its cube faces",
+                    6 * u64::from(n)
+                ),
+                6 * u64::from(n),
+                l.max_texture_dimension_2d,
+                "max_texture_dimension_2d",
+            ));
+        }
+        if layers > l.max_texture_array_layers {
+            return Err(over(
+                "texture layers (one per slab and the background)".into(),
+                layers.into(),
+                l.max_texture_array_layers,
+                "max_texture_array_layers",
+            ));
+        }
+        if rows > l.max_texture_dimension_2d {
+            return Err(over(
+                format!("{} tiles", view.tiles.len()),
+                rows.into(),
+                l.max_texture_dimension_2d,
+                "max_texture_dimension_2d, rows of 256 tiles",
+            ));
+        }
+        Ok(())
+    }
+
+    pub(super) fn ensure_view(&mut self, view: &RefView) -> Result<(), GpuError> {
+        self.check_view_limits(view)?;
         let state = self.views.get(&view.index).map(|g| {
             (
                 Self::texture_fits(g, view),
@@ -262,12 +333,12 @@ impl Renderer {
             )
         });
         match state {
-            Some((true, true)) => return,
+            Some((true, true)) => return Ok(()),
             // Tiles joined (or left): new meshes over the same texture, whose changed
             // regions the caller wrote with `update_layer_region`.
             Some((true, false)) => {
                 let Some(old) = self.views.remove(&view.index) else {
-                    return;
+                    return Ok(());
                 };
                 let tex_bytes = old.bytes - old.mesh_bytes;
                 let mut g = self.upload_meshes(view, old.texture, tex_bytes);
@@ -280,6 +351,7 @@ impl Renderer {
             }
         }
         self.composite_groups.clear();
+        Ok(())
     }
 
     /// Write the texels of `rects` (per mip level, as [`crate::texture::Layer::update_region`]
@@ -363,8 +435,10 @@ impl Renderer {
             height,
             depth_or_array_layers: 1,
         };
+        // The output also as plain UNORM where the device has view formats.
+        let unorm = [wgpu::TextureFormat::Rgba8Unorm];
+        let view_formats = self.gpu.caps.view_formats;
         let tex = |label, format, usage| {
-            let unorm = [wgpu::TextureFormat::Rgba8Unorm];
             device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
                 size,
@@ -373,24 +447,32 @@ impl Renderer {
                 dimension: wgpu::TextureDimension::D2,
                 format,
                 usage,
-                view_formats: if format == OUTPUT_FORMAT { &unorm } else { &[] },
+                view_formats: if format == OUTPUT_FORMAT && view_formats {
+                    &unorm
+                } else {
+                    &[]
+                },
             })
         };
+        let view_format = self.view_format;
         let view_usage =
             wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
         let views = [
-            tex("view 0", VIEW_FORMAT, view_usage),
-            tex("view 1", VIEW_FORMAT, view_usage),
+            tex("view 0", view_format, view_usage),
+            tex("view 1", view_format, view_usage),
         ];
         let depth = tex(
             "depth",
             DEPTH_FORMAT,
             wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
         );
+        // Written by a copy, or (without depth copies) drawn into by the first view.
         let depth_copy = tex(
             "first view depth (copy)",
             DEPTH_FORMAT,
-            wgpu::TextureUsages::COPY_DST | wgpu::TextureUsages::TEXTURE_BINDING,
+            wgpu::TextureUsages::COPY_DST
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::RENDER_ATTACHMENT,
         );
         let depth_copy_view = depth_copy.create_view(&Default::default());
         let output = tex(
@@ -449,7 +531,7 @@ impl Renderer {
                 })
                 .create_view(&Default::default())
         };
-        let half_view = half_tex("second view (half resolution)", VIEW_FORMAT, view_usage);
+        let half_view = half_tex("second view (half resolution)", view_format, view_usage);
         let half_depth = half_tex(
             "depth (half resolution)",
             DEPTH_FORMAT,
@@ -494,6 +576,7 @@ impl Renderer {
             width,
             height,
             depth_copy,
+            depth_copy_view,
             second_group,
             half_view,
             half_depth,
@@ -501,9 +584,11 @@ impl Renderer {
             depth_view: depth.create_view(&Default::default()),
             depth,
             output_view: output.create_view(&Default::default()),
-            output_view_unorm: output.create_view(&wgpu::TextureViewDescriptor {
-                format: Some(wgpu::TextureFormat::Rgba8Unorm),
-                ..Default::default()
+            output_view_unorm: view_formats.then(|| {
+                output.create_view(&wgpu::TextureViewDescriptor {
+                    format: Some(wgpu::TextureFormat::Rgba8Unorm),
+                    ..Default::default()
+                })
             }),
             view_views,
             id_views,
@@ -513,6 +598,14 @@ impl Renderer {
         });
         Ok(())
     }
+}
+
+/// Layers of a view's texture array: one per layer, at least two. wgpu's GL backend makes a
+/// 2D texture of one layer a plain `TEXTURE_2D`, which a `texture_2d_array` binding cannot
+/// sample (it reads black); a view with its background alone (the sky, or a streamed view
+/// not laid out yet) gets an empty second layer.
+fn texture_layers(view: &RefView) -> u32 {
+    (view.layers.len() as u32).max(2)
 }
 
 /// Face size of a view's texture: its layers' (a streamed view not laid out yet has 1×1

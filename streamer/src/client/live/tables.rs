@@ -16,7 +16,11 @@ impl LiveSession {
     /// Tables of the viewpoints around `s` (and, with prefetch, of the predicted next
     /// segment) at the top priority, every other missing one at the lowest, nearest first;
     /// returns the table keys to keep.
-    pub(super) fn request_tables(&mut self, s: f64) -> Vec<(FetchRequest, Option<u64>)> {
+    pub(super) fn request_tables(
+        &mut self,
+        s: f64,
+        t_now: f64,
+    ) -> Vec<(FetchRequest, Option<u64>)> {
         let vp_s = &self.table.vp_s;
         let mut urgent: Vec<usize> = blend_weights(vp_s, s).iter().map(|w| w.0).collect();
         if let Some(seg) = segment_at(vp_s, s) {
@@ -49,6 +53,10 @@ impl LiveSession {
                     object: a.hash.as_str().into(),
                     range: None,
                 };
+                // One that failed waits for its retry time, or was given up.
+                if !self.failures.may_request(&key, t_now) {
+                    continue;
+                }
                 self.ach_keys.insert(key.clone(), vi);
                 out.push((
                     FetchRequest {
@@ -66,6 +74,9 @@ impl LiveSession {
                 object: v.table.hash.as_str().into(),
                 range: None,
             };
+            if !self.failures.may_request(&key, t_now) {
+                continue;
+            }
             self.table_keys.insert(key.clone(), vi);
             out.push((
                 FetchRequest {
@@ -90,7 +101,12 @@ impl LiveSession {
         let mut vt = match decode_table(data, v.index) {
             Ok(vt) => vt,
             Err(e) => {
-                self.stats.failed_requests += 1;
+                // Intact (its hash matched) but unusable: the database is broken there.
+                let key = FetchKey {
+                    object: v.table.hash.as_str().into(),
+                    range: None,
+                };
+                self.failures.give_up(&key);
                 self.stats.last_error = Some(format!("table of viewpoint {}: {e}", v.index));
                 return false;
             }
@@ -142,7 +158,13 @@ impl LiveSession {
         let segments = match decode_ach(data, v.index) {
             Ok(s) => s,
             Err(e) => {
-                self.stats.failed_requests += 1;
+                if let Some(a) = &v.ach {
+                    let key = FetchKey {
+                        object: a.hash.as_str().into(),
+                        range: None,
+                    };
+                    self.failures.give_up(&key);
+                }
                 self.stats.last_error = Some(format!("ACH lists of viewpoint {}: {e}", v.index));
                 return false;
             }

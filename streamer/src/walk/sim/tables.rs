@@ -1,8 +1,8 @@
 //! Viewpoint tables in the walk: which to ask for when, fetched over HTTP and put on the
 //! virtual link like any response.
 
-use super::{InFlight, Sim, Strategy, WalkError};
-use crate::client::{next_segment, segment_at, BundlePiece, Connection, FetchKey};
+use super::{first_unreachable, InFlight, Sim, Strategy, WalkError};
+use crate::client::{next_segment, segment_at, BundlePiece, Connection, FetchKey, Verdict};
 use crate::db::split::{decode_ach, decode_table};
 use tracks::manifest::ObjectRef;
 
@@ -61,7 +61,7 @@ impl Sim<'_> {
                 }
             }
         }
-        want.retain(|&v| v < vp_s.len() && !self.table_requested[v]);
+        want.retain(|&v| v < vp_s.len() && !self.table_requested[v] && self.table_ready(v, t));
         want.sort_by(|&a, &b| {
             (vp_s[a] - self.s)
                 .abs()
@@ -91,7 +91,7 @@ impl Sim<'_> {
         }
         let vp_s = &self.table.vp_s;
         let next = (0..vp_s.len())
-            .filter(|&v| !self.table_requested[v])
+            .filter(|&v| !self.table_requested[v] && self.table_ready(v, t))
             .min_by(|&a, &b| {
                 (vp_s[a] - self.s)
                     .abs()
@@ -102,6 +102,20 @@ impl Sim<'_> {
             self.fetch_tables(conn, t, &[v], true).await?;
         }
         Ok(next.is_some())
+    }
+
+    /// Whether viewpoint `v`'s objects may be asked for at `t` (none failed and waits for its
+    /// retry time, or was given up).
+    fn table_ready(&self, v: usize, t: f64) -> bool {
+        self.table_objects(v).all(|o| {
+            self.table_failures.may_request(
+                &FetchKey {
+                    object: o.hash.as_str().into(),
+                    range: None,
+                },
+                t,
+            )
+        })
     }
 
     /// The objects the walk fetches for viewpoint `v`: its table, and its ACH object when the
@@ -142,29 +156,78 @@ impl Sim<'_> {
                 hash: &r.hash,
             })
             .collect();
-        let data = conn.fetch_checked_bundle(&pieces, None).await?;
-        let size: u64 = data.iter().map(|b| b.len() as u64).sum();
-        let mut data = data.iter().zip(&refs);
+        let data = conn.fetch_pieces(&pieces, None).await;
+        self.note_transfer(conn, t);
+        if let Some(e) = first_unreachable(&data) {
+            return Err(WalkError::Unreachable(e));
+        }
+        let size: u64 = data
+            .iter()
+            .filter_map(|d| d.as_ref().ok())
+            .map(|b| b.len() as u64)
+            .sum();
+        let mut data = data.into_iter().zip(&refs).zip(&keys);
         let mut tables = Vec::with_capacity(vps.len());
         for &v in vps {
             let index = self.scene.tables[v].2;
             let with_ach = self.table_objects(v).count() == 2;
-            let Some((bytes, r)) = data.next() else { break };
-            let mut vt = decode_table(bytes, index).map_err(|e| {
-                WalkError::Database(format!("table {} of viewpoint {index}: {e}", r.hash))
-            })?;
-            if with_ach {
-                if let Some((bytes, r)) = data.next() {
-                    vt.segments = decode_ach(bytes, index).map_err(|e| {
-                        WalkError::Database(format!(
-                            "ACH object {} of viewpoint {index}: {e}",
-                            r.hash
-                        ))
-                    })?;
+            let mut got = Vec::new();
+            for _ in 0..1 + usize::from(with_ach) {
+                if let Some(((bytes, r), key)) = data.next() {
+                    got.push((bytes, r, key));
                 }
             }
-            tables.push((v, vt));
-            self.table_requested[v] = true;
+            // A viewpoint whose table (or ACH object) failed is asked for again later, and
+            // given up after repeated faults; a table that arrives intact but does not decode
+            // is given up at once (the database itself is broken there).
+            let mut vt = None;
+            let mut bad: Option<(&FetchKey, String, bool)> = None;
+            for (k, (bytes, r, key)) in got.into_iter().enumerate() {
+                let bytes = match bytes {
+                    Ok(b) => b,
+                    Err(e) => {
+                        bad.get_or_insert((key, e.to_string(), false));
+                        continue;
+                    }
+                };
+                if k == 0 {
+                    match decode_table(&bytes, index) {
+                        Ok(t) => vt = Some(t),
+                        Err(e) => {
+                            let what = format!("table {} of viewpoint {index}: {e}", r.hash);
+                            bad.get_or_insert((key, what, true));
+                        }
+                    }
+                } else if let Some(t) = vt.as_mut() {
+                    match decode_ach(&bytes, index) {
+                        Ok(seg) => t.segments = seg,
+                        Err(e) => {
+                            let what = format!("ACH object {} of viewpoint {index}: {e}", r.hash);
+                            bad.get_or_insert((key, what, true));
+                        }
+                    }
+                }
+            }
+            match (vt, bad) {
+                (Some(vt), None) => {
+                    tables.push((v, vt));
+                    self.table_requested[v] = true;
+                }
+                (_, bad) => {
+                    let (key, what, broken) =
+                        bad.unwrap_or((&keys[0], "no bytes".to_string(), false));
+                    let mut verdict = self.table_failures.fault(key, t);
+                    while broken && verdict != Verdict::GivenUp {
+                        verdict = self.table_failures.fault(key, t);
+                    }
+                    match verdict {
+                        Verdict::GivenUp => {
+                            tracing::warn!("walk: giving up viewpoint {index}'s table: {what}")
+                        }
+                        Verdict::RetryAt(_) => tracing::info!("walk: {what}"),
+                    }
+                }
+            }
         }
         let requests = if conn.bundles_supported() {
             1

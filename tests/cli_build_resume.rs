@@ -1,0 +1,165 @@
+//! `railview build` killed with SIGKILL at several moments, then run again: the database
+//! is byte for byte the one an uninterrupted build writes, with no stray temporary file
+//! (property-style: the kill points are drawn from a seeded generator over the whole build,
+//! one per fifth of its duration, so every stage is hit across the cases).
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::Instant;
+
+use common::{railview, scratch_dir, stderr};
+
+const FACE: &str = "32";
+
+fn build_args(track: &Path, out: &Path, work: &Path) -> Vec<String> {
+    [
+        "build",
+        "--scene",
+        "castle",
+        "--track",
+        track.to_str().unwrap(),
+        "--face-size",
+        FACE,
+        "--zstd-level",
+        "3",
+        "--ach-samples",
+        "2",
+        "--ach-camera-size",
+        "16",
+        "--out",
+        out.to_str().unwrap(),
+        "--work",
+        work.to_str().unwrap(),
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect()
+}
+
+/// Every file under `dir` (relative path → bytes).
+fn files(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<PathBuf, Vec<u8>>) {
+        let mut entries: Vec<_> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap())
+            .collect();
+        entries.sort_by_key(|e| e.file_name());
+        for e in entries {
+            let p = e.path();
+            if p.is_dir() {
+                walk(root, &p, out);
+            } else {
+                out.insert(
+                    p.strip_prefix(root).unwrap().to_path_buf(),
+                    std::fs::read(&p).unwrap(),
+                );
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    walk(dir, dir, &mut out);
+    out
+}
+
+/// A small deterministic generator (the kill points must repeat from run to run).
+struct Lcg(u64);
+
+impl Lcg {
+    fn unit(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+#[test]
+fn a_build_killed_at_random_moments_resumes_to_identical_bytes_and_no_stray_files() {
+    let dir = scratch_dir("resume", "kill");
+    let track = dir.join("short.toml");
+    std::fs::write(
+        &track,
+        "[[track]]\nname = \"short\"\npoints = [[0, 1.7, 42], [0, 1.7, 36]]\ncount = 3\n",
+    )
+    .unwrap();
+    // The uninterrupted build, and how long it takes.
+    let reference = dir.join("ref");
+    let args = build_args(&track, &reference, &dir.join("ref.work"));
+    let t0 = Instant::now();
+    let argv: Vec<&str> = args.iter().map(String::as_str).collect();
+    let o = railview(&argv);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let whole = t0.elapsed();
+    let want = files(&reference);
+    let mut rng = Lcg(0x5eed_1234);
+    let mut killed_midway = 0;
+    for case in 0..5 {
+        let out = dir.join(format!("db{case}"));
+        let work = dir.join(format!("db{case}.work"));
+        let args = build_args(&track, &out, &work);
+        // One kill point in each fifth of the build.
+        let at = whole.mul_f64((case as f64 + rng.unit()) / 5.0);
+        let mut child = Command::new(env!("CARGO_BIN_EXE_railview"))
+            .args(&args)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(at);
+        let finished = child.try_wait().unwrap().is_some();
+        child.kill().unwrap(); // SIGKILL: no chance to clean up
+        child.wait().unwrap();
+        killed_midway += usize::from(!finished);
+        if case == 0 {
+            // What a kill during an object's write leaves (one of this writer's temporary
+            // names, of a process that is gone): the resumed build removes it.
+            let objects = out.join("objects").join("41");
+            std::fs::create_dir_all(&objects).unwrap();
+            std::fs::write(
+                objects.join(format!(".41{}.tmp.999999999", "0".repeat(62))),
+                b"half an object",
+            )
+            .unwrap();
+        }
+        let argv: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = railview(&argv);
+        assert!(
+            o.status.success(),
+            "case {case} (killed at {at:?}): {}",
+            stderr(&o)
+        );
+        let got = files(&out);
+        let stray: Vec<&PathBuf> = got
+            .keys()
+            .filter(|p| {
+                p.file_name()
+                    .is_some_and(|n| streamer::db::is_temp_name(&n.to_string_lossy()))
+            })
+            .collect();
+        assert!(stray.is_empty(), "case {case}: stray files {stray:?}");
+        assert_eq!(
+            got.keys().collect::<Vec<_>>(),
+            want.keys().collect::<Vec<_>>(),
+            "case {case} (killed at {at:?}): different files"
+        );
+        for (path, bytes) in &want {
+            assert!(
+                got[path] == *bytes,
+                "case {case} (killed at {at:?}): {} differs",
+                path.display()
+            );
+        }
+        // Empty directories a killed build left are not files: verify says intact.
+        let v = streamer::db::verify(&out).unwrap();
+        assert!(v.is_intact() && v.stray.is_empty(), "{:?}", v.problems);
+    }
+    assert!(
+        killed_midway >= 3,
+        "only {killed_midway} of 5 kills landed mid-build"
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
