@@ -163,3 +163,36 @@ fn a_build_killed_at_random_moments_resumes_to_identical_bytes_and_no_stray_file
     );
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[test]
+fn a_work_directory_built_at_another_face_size_is_tiled_and_encoded_again() {
+    let dir = scratch_dir("resume", "face");
+    let track = dir.join("short.toml");
+    std::fs::write(
+        &track,
+        "[[track]]\nname = \"short\"\npoints = [[0, 1.7, 42], [0, 1.7, 38]]\ncount = 2\n",
+    )
+    .unwrap();
+    let work = dir.join("shared.work");
+    for (face, out) in [("32", "db32"), ("48", "db48")] {
+        let out = dir.join(out);
+        let mut args = build_args(&track, &out, &work);
+        let at = args.iter().position(|a| a == "--face-size").unwrap();
+        args[at + 1] = face.into();
+        let argv: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = railview(&argv);
+        assert!(o.status.success(), "face {face}: {}", stderr(&o));
+        let db = streamer::db::Database::open(&out).unwrap();
+        assert_eq!(db.top().face_size.to_string(), face);
+        let v = streamer::db::verify_with(
+            &out,
+            streamer::db::VerifyOptions {
+                decode: true,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert!(v.is_intact(), "face {face}: {:?}", v.problems);
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -367,7 +367,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // under the mask) re-encodes samples encoded under another; so does any other knob, and
     // tiles meshed with other parameters.
     let key = format!(
-        "ptm-v{} db{} {:?} zstd{} near{} mesh-v{} depth{} tiles:{}/{:?}/{:?} cull:{}",
+        "ptm-v{} db{} {:?} zstd{} near{} mesh-v{} depth{} tiles:{}/{}/{:?}/{:?} cull:{}",
         ptm::FORMAT_VERSION,
         streamer::db::TOP_VERSION,
         method,
@@ -375,6 +375,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.lossy_near,
         streamer::db::mesh::MESH_VERSION,
         args.depth_error_px,
+        tiling.face_size,
         tiling.tile_size,
         tiling.mesh_kind,
         tiling.mesh_params,
@@ -641,6 +642,7 @@ fn prerender_argv(args: &Args, pre_root: &Path) -> anyhow::Result<Vec<String>> {
 
 /// The tiling a build asks of the slabs stage: its options, or the stage's defaults.
 struct TilingWanted {
+    face_size: u32,
     tile_size: u32,
     mesh: slabs::tiles::MeshKind,
     step: u32,
@@ -656,6 +658,7 @@ impl TilingWanted {
             other => bail!("--mesh `{other}`: expected `adaptive` or `grid`"),
         };
         Ok(TilingWanted {
+            face_size: args.face_size,
             tile_size: args.tile_size.unwrap_or(s::DEFAULT_TILE_SIZE),
             mesh,
             step: args.mesh_step.unwrap_or(s::DEFAULT_MESH_STEP),
@@ -663,9 +666,11 @@ impl TilingWanted {
         })
     }
 
-    /// Whether a slabs report was made with these parameters.
+    /// Whether a slabs report was made with these parameters, on panoramas of this size (a
+    /// work directory prerendered again at another `--face-size` holds stale tiles).
     fn matches(&self, r: &slabs::report::SlabsReport) -> bool {
-        r.tile_size == self.tile_size
+        r.face_size == self.face_size
+            && r.tile_size == self.tile_size
             && r.mesh_kind == self.mesh
             && r.mesh_params.step == self.step
             && r.mesh_params.max_error_px == self.error
