@@ -1,5 +1,6 @@
-//! Test switches: `RAILVIEW_SKIP_SLURM_TESTS=1` and `RAILVIEW_SKIP_NAMESPACE_TESTS=1` mark the
-//! tests that need a Slurm cluster or PID namespaces (root and packages that
+//! Test switches: `RAILVIEW_SKIP_SLURM_TESTS=1`, `RAILVIEW_SKIP_NAMESPACE_TESTS=1`,
+//! `RAILVIEW_SKIP_GPU_TESTS=1` and `RAILVIEW_SKIP_BROWSER=1` mark the tests that need a Slurm
+//! cluster, PID namespaces, a GPU adapter or Chromium (root and packages that
 //! `scripts/test.sh` installs) as ignored, with the reason, instead of failing them. Nothing
 //! else is built here.
 
@@ -7,6 +8,8 @@ fn main() {
     for (var, cfg) in [
         ("RAILVIEW_SKIP_SLURM_TESTS", "railview_skip_slurm"),
         ("RAILVIEW_SKIP_NAMESPACE_TESTS", "railview_skip_namespaces"),
+        ("RAILVIEW_SKIP_GPU_TESTS", "railview_skip_gpu"),
+        ("RAILVIEW_SKIP_BROWSER", "railview_skip_browser"),
     ] {
         println!("cargo::rustc-check-cfg=cfg({cfg})");
         println!("cargo::rerun-if-env-changed={var}");

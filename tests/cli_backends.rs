@@ -6,7 +6,7 @@
 //! panic and no backtrace, and writes nothing.
 //!
 //! CI installs both drivers; a missing one fails these tests with the message of what to
-//! install. `RAILVIEW_SKIP_GPU_TESTS=1` switches the GPU parts off explicitly.
+//! install. `RAILVIEW_SKIP_GPU_TESTS=1` marks the GPU parts as ignored.
 
 mod common;
 
@@ -14,14 +14,6 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use common::{scratch_dir, small_castle, stderr};
-
-fn skip() -> bool {
-    let off = std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1");
-    if off {
-        eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
-    }
-    off
-}
 
 /// `railview args…` with `env` set, `RUST_BACKTRACE=1` (a panic would print a backtrace).
 fn railview_with(env: &[(&str, &str)], args: &[&str]) -> Output {
@@ -60,10 +52,11 @@ fn assert_close(what: &str, a: &Path, b: &Path) {
 }
 
 #[test]
+#[cfg_attr(
+    railview_skip_gpu,
+    ignore = "GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1"
+)]
 fn render_eval_and_flythrough_agree_on_vulkan_and_gl() {
-    if skip() {
-        return;
-    }
     let d = scratch_dir("cli-backends", "agree");
     let db = small_castle(&d, 32);
     let db = db.to_str().unwrap();
@@ -223,6 +216,10 @@ fn without_an_adapter_every_gpu_command_says_what_to_install() {
 /// install, the report says so, and the demo exits non-zero saying which stages could not
 /// run and why. With a driver back, the next run reuses the CPU stages and completes.
 #[test]
+#[cfg_attr(
+    railview_skip_gpu,
+    ignore = "GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1"
+)]
 fn the_demo_without_an_adapter_runs_its_cpu_stages_and_says_what_is_missing() {
     let d = scratch_dir("cli-backends", "demo");
     let out = d.join("demo");
@@ -277,9 +274,6 @@ fn the_demo_without_an_adapter_runs_its_cpu_stages_and_says_what_is_missing() {
     assert!(out.join("db/manifest.json").exists());
     assert!(out.join("walk/walk.json").exists());
 
-    if skip() {
-        return;
-    }
     // A driver there: the CPU stages are reused, the GPU ones run.
     let o = railview_with(&[], &args);
     let err = stderr(&o);

@@ -3,7 +3,7 @@
 //! The window shows the headless render of the same camera on wgpu's default backend and on
 //! GL (`WGPU_BACKEND=gl`, llvmpipe), and without any adapter it exits saying what to
 //! install. Needs `xvfb-run` and Mesa's Vulkan and GL drivers; `RAILVIEW_SKIP_GPU_TESTS=1`
-//! switches it off.
+//! marks the GPU tests as ignored.
 
 mod common;
 
@@ -52,11 +52,11 @@ fn a_target_rate_out_of_range_is_refused_before_any_window_opens() {
 }
 
 #[test]
+#[cfg_attr(
+    railview_skip_gpu,
+    ignore = "GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1"
+)]
 fn view_streams_from_a_served_database_and_closes_after_its_frames() {
-    if std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1") {
-        eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
-        return;
-    }
     let bin = env!("CARGO_BIN_EXE_railview");
     let work = tmp("castle");
     let db = small_castle(&work, 16);
@@ -137,13 +137,8 @@ struct Shot {
 }
 
 /// A window on a small castle database closed after `frames` frames at `--target-fps fps`,
-/// with a screenshot, on `backend` (`WGPU_BACKEND`; `None`: wgpu's choice); `None` when GPU
-/// tests are switched off.
-fn window_shot(name: &str, frames: u32, fps: u32, backend: Option<&str>) -> Option<Shot> {
-    if std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1") {
-        eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
-        return None;
-    }
+/// with a screenshot, on `backend` (`WGPU_BACKEND`; `None`: wgpu's choice).
+fn window_shot(name: &str, frames: u32, fps: u32, backend: Option<&str>) -> Shot {
     let bin = env!("CARGO_BIN_EXE_railview");
     let work = tmp(name);
     let db = small_castle(&work, 16);
@@ -179,16 +174,20 @@ fn window_shot(name: &str, frames: u32, fps: u32, backend: Option<&str>) -> Opti
         .unwrap_or_else(|| panic!("no view size in {out}"))
         .to_string();
     let window = image::open(&shot).unwrap().to_rgb8();
-    Some(Shot {
+    Shot {
         out,
         window,
         size,
         work,
         db,
-    })
+    }
 }
 
 #[test]
+#[cfg_attr(
+    railview_skip_gpu,
+    ignore = "GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1"
+)]
 fn the_window_shows_the_headless_render_of_the_same_camera() {
     same_picture("same-picture", None);
 }
@@ -197,6 +196,10 @@ fn the_window_shows_the_headless_render_of_the_same_camera() {
 /// on wgpu's GL backend (its surface, no view formats: the copy encodes sRGB itself) and
 /// shows the same bytes.
 #[test]
+#[cfg_attr(
+    railview_skip_gpu,
+    ignore = "GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1"
+)]
 fn the_window_opens_on_the_gl_backend_and_shows_the_headless_render() {
     same_picture("same-picture-gl", Some("gl"));
 }
@@ -204,16 +207,13 @@ fn the_window_opens_on_the_gl_backend_and_shows_the_headless_render() {
 fn same_picture(name: &str, backend: Option<&str>) {
     // Standing at the track's start, the default view; a target rate no frame misses, so
     // the frame-time budget draws everything, as `railview render` does.
-    let Some(Shot {
+    let Shot {
         out,
         window,
         size,
         work,
         db,
-    }) = window_shot(name, 12, 1, backend)
-    else {
-        return;
-    };
+    } = window_shot(name, 12, 1, backend);
     if backend == Some("gl") {
         assert!(out.contains("GL backend"), "{out}");
     }
@@ -249,19 +249,20 @@ fn same_picture(name: &str, backend: Option<&str>) {
 }
 
 #[test]
+#[cfg_attr(
+    railview_skip_gpu,
+    ignore = "GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1"
+)]
 fn a_rate_out_of_reach_draws_the_view_smaller_and_scales_it_up() {
     // 1000 fps: every step of the budget is too slow, so it walks down the whole ladder
     // (one step per eight frames), the view's size included.
-    let Some(Shot {
+    let Shot {
         out,
         window,
         size,
         work,
         ..
-    }) = window_shot("scaled", 120, 1000, None)
-    else {
-        return;
-    };
+    } = window_shot("scaled", 120, 1000, None);
     assert!(out.contains("drawn at 50 % of the view's size"), "{out}");
     // The smaller picture fills the view's whole rectangle: its corners are scene, not the
     // panels' colour.
@@ -280,11 +281,11 @@ fn a_rate_out_of_reach_draws_the_view_smaller_and_scales_it_up() {
 }
 
 #[test]
+#[cfg_attr(
+    railview_skip_gpu,
+    ignore = "GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1"
+)]
 fn without_an_adapter_the_window_says_what_to_install() {
-    if std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1") {
-        eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
-        return;
-    }
     let work = tmp("no-adapter");
     let runtime = work.join("xdg");
     std::fs::create_dir_all(&runtime).unwrap();

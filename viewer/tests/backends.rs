@@ -17,7 +17,7 @@
 //!
 //! A backend that is missing fails the test with the message of what to install (CI
 //! installs Mesa's Vulkan driver; GL comes with Mesa's EGL); `RAILVIEW_SKIP_GPU_TESTS=1`
-//! switches GPU tests off explicitly.
+//! marks GPU tests as ignored.
 
 use std::path::PathBuf;
 
@@ -43,14 +43,6 @@ struct Tolerance {
 const TOLERANCE: Tolerance = Tolerance { max: 4, mean: 0.05 };
 
 const EYE: f64 = 1.7;
-
-fn skip() -> bool {
-    let off = std::env::var("RAILVIEW_SKIP_GPU_TESTS").is_ok_and(|v| v == "1");
-    if off {
-        eprintln!("GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1");
-    }
-    off
-}
 
 /// The configurations, `vulkan` (the reference) first.
 fn configurations() -> Vec<(&'static str, Renderer)> {
@@ -224,10 +216,11 @@ fn counts(r: &mut Renderer, views: &[RefView], s: f64) -> Vec<ViewCounts> {
 }
 
 #[test]
+#[cfg_attr(
+    railview_skip_gpu,
+    ignore = "GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1"
+)]
 fn every_backend_draws_the_golden_frames() {
-    if skip() {
-        return;
-    }
     let views = views();
     let frames = frames(&views);
     let mut configs = configurations();
@@ -286,10 +279,11 @@ fn every_backend_draws_the_golden_frames() {
 }
 
 #[test]
+#[cfg_attr(
+    railview_skip_gpu,
+    ignore = "GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1"
+)]
 fn without_float_targets_overlay_frames_are_drawn_whole_without_overlays() {
-    if skip() {
-        return;
-    }
     let views = views();
     let mut gpu = Gpu::new().expect("a GPU adapter");
     gpu.caps.float_targets = false;
@@ -305,10 +299,11 @@ fn without_float_targets_overlay_frames_are_drawn_whole_without_overlays() {
 }
 
 #[test]
+#[cfg_attr(
+    railview_skip_gpu,
+    ignore = "GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1"
+)]
 fn a_wgpu_error_becomes_a_message_naming_the_adapter_not_a_panic() {
-    if skip() {
-        return;
-    }
     let gpu = Gpu::new().expect("a GPU adapter");
     // Invalid: mapped at creation needs a size that is a multiple of 4.
     let _ = gpu.device.create_buffer(&wgpu::BufferDescriptor {

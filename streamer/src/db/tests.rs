@@ -704,11 +704,23 @@ fn a_resumed_writer_removes_the_leftovers_of_a_killed_one() {
     want.sort();
     assert_eq!(w.leftovers_removed, want);
     fs::write(&obj, b"partial").unwrap();
-    let second = DbWriter::create(&dir)
-        .err()
-        .expect("a second writer is refused");
+    let second = DbWriter::create(&dir).expect_err("a second writer is refused");
     assert!(second.to_string().contains("another build"), "{second}");
     assert!(obj.exists(), "the refused writer removed nothing");
+    // Nor does verify remove a running writer's files.
+    let opts = VerifyOptions {
+        remove_temp: true,
+        ..Default::default()
+    };
+    let r = verify_with(&dir, opts).unwrap();
+    assert!(r.removed.is_empty() && obj.exists(), "{r:?}");
+    assert!(
+        r.problems
+            .iter()
+            .any(|p| p.what.contains("not removed") && p.what.contains("another build")),
+        "{:?}",
+        r.problems
+    );
     drop(w);
     assert_eq!(DbWriter::create(&dir).unwrap().leftovers_removed, vec![obj]);
     assert!(is_temp_name(".tmpXyZ123") && is_temp_name(".a.tmp.3") && !is_temp_name("tmp"));

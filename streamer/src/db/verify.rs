@@ -370,7 +370,23 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
             ));
         }
     }
-    if opts.remove_temp {
+    // Only the holder of the directory's lock may remove temporary files: a build that is
+    // writing holds it, and its files in flight are not leftovers.
+    let lock = if opts.remove_temp && !report.stray.is_empty() {
+        match super::lock_dir(dir) {
+            Ok(lock) => Some(lock),
+            Err(e) => {
+                report.problems.push(problem(
+                    dir.to_path_buf(),
+                    format!("stray temporary files not removed: {e}"),
+                ));
+                None
+            }
+        }
+    } else {
+        None
+    };
+    if lock.is_some() {
         for s in &report.stray {
             let gone = if s.path.is_dir() {
                 fs::remove_dir_all(&s.path)
