@@ -32,6 +32,31 @@ fn renderer() -> Renderer {
     Renderer::new(gpu).expect("the renderer on this adapter")
 }
 
+/// The mesh with every vertex at an earlier vertex's position replaced by that one. The
+/// database's mesh format keeps one vertex per position (the adaptive meshes `railview build`
+/// stores have no others); the synthetic street's grid mesher gives a cell across a depth
+/// jump corners of its own, which this merges. Both sides of every comparison here read the
+/// meshes from the database.
+fn one_vertex_per_position(m: MeshData) -> MeshData {
+    let mut first = std::collections::HashMap::new();
+    let mut vertices = Vec::new();
+    let remap: Vec<u32> = m
+        .vertices
+        .iter()
+        .map(|v| {
+            let key = (v[0].to_bits(), v[1].to_bits());
+            *first.entry(key).or_insert_with(|| {
+                vertices.push(*v);
+                (vertices.len() - 1) as u32
+            })
+        })
+        .collect();
+    MeshData {
+        vertices,
+        indices: m.indices.iter().map(|&i| remap[i as usize]).collect(),
+    }
+}
+
 /// Write the synthetic street as a database: every tile a PTM (RGBA, all levels) and a mesh,
 /// a background per viewpoint, each segment's ACH list holding the tiles of its two ends.
 fn write_db(walk: &Walkthrough, dir: &Path) {
@@ -60,7 +85,7 @@ fn write_db(walk: &Walkthrough, dir: &Path) {
             streamer::db::clear_masked(&mut px);
             let img = Image::new(x1 - x0, y1 - y0, 4, px).unwrap();
             let ptm = w.put_ptm(&encode(&img, &opts).unwrap(), 4).unwrap();
-            let mesh = MeshData {
+            let mesh = one_vertex_per_position(MeshData {
                 vertices: t
                     .mesh
                     .vertices
@@ -68,7 +93,7 @@ fn write_db(walk: &Walkthrough, dir: &Path) {
                     .map(|m| [m.pos_in_face[0], m.pos_in_face[1], m.depth_m])
                     .collect(),
                 indices: t.mesh.indices.clone(),
-            };
+            });
             let depths = t.mesh.vertices.iter().map(|m| m.depth_m as f64);
             let depth_min = depths.clone().fold(f64::INFINITY, f64::min);
             let depth_max = depths.fold(0.0, f64::max);
