@@ -1,8 +1,8 @@
 //! Test switches: `RAILVIEW_SKIP_SLURM_TESTS=1`, `RAILVIEW_SKIP_NAMESPACE_TESTS=1`,
-//! `RAILVIEW_SKIP_GPU_TESTS=1` and `RAILVIEW_SKIP_BROWSER=1` mark the tests that need a Slurm
-//! cluster, PID namespaces, a GPU adapter or Chromium (root and packages that
-//! `scripts/test.sh` installs) as ignored, with the reason, instead of failing them. Nothing
-//! else is built here.
+//! `RAILVIEW_SKIP_NGINX_TESTS=1`, `RAILVIEW_SKIP_GPU_TESTS=1` and `RAILVIEW_SKIP_BROWSER=1`
+//! mark the tests that need a Slurm cluster, PID namespaces, nginx, a GPU adapter or
+//! Chromium (root and packages that `scripts/test.sh` installs) as ignored, with the reason,
+//! instead of failing them. Nothing else is built here.
 
 fn main() {
     for (var, cfg) in [
@@ -10,6 +10,7 @@ fn main() {
         ("RAILVIEW_SKIP_NAMESPACE_TESTS", "railview_skip_namespaces"),
         ("RAILVIEW_SKIP_GPU_TESTS", "railview_skip_gpu"),
         ("RAILVIEW_SKIP_BROWSER", "railview_skip_browser"),
+        ("RAILVIEW_SKIP_NGINX_TESTS", "railview_skip_nginx"),
     ] {
         println!("cargo::rustc-check-cfg=cfg({cfg})");
         println!("cargo::rerun-if-env-changed={var}");

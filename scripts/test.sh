@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # Runs every test of railview on a fresh Debian machine: installs what the tests need
 # (POV-Ray and its scenes, Mesa's Vulkan and GL drivers for headless wgpu, Xvfb, Chromium for
-# the report test), then format check, lints and the whole test suite in the one build
-# profile (release) that the tools use too; then the viewer's GPU tests again on wgpu's GL
-# backend, and the README's first command end to end at a small size, with and without
-# Mesa's Vulkan driver.
+# the report test, nginx for the static-host tests), then format check, lints and the whole
+# test suite in the one build profile (release) that the tools use too; then the viewer's
+# GPU tests again on wgpu's GL backend, and the README's first command end to end at a small
+# size, with and without Mesa's Vulkan driver.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -12,10 +12,11 @@ cd "$(dirname "$0")/.."
 . scripts/packages.sh
 # POV-Ray and its scenes; Mesa's Vulkan and GL drivers (the renderer is tested on both);
 # Xvfb (and xauth, which xvfb-run needs) for the window; Chromium for the report page;
-# Slurm and munge for the batch-prerender test's single-node cluster.
+# Slurm and munge for the batch-prerender test's single-node cluster; nginx for the static
+# host and caching proxy tests (started by the tests themselves on loopback, unprivileged).
 ensure_packages strict povray povray-includes povray-examples \
   mesa-vulkan-drivers libvulkan1 libegl1 libegl-mesa0 libgl1-mesa-dri \
-  xvfb xauth chromium slurm-wlm munge
+  xvfb xauth chromium slurm-wlm munge nginx
 ensure_runtime_dir
 
 cargo fmt --all --check

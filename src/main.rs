@@ -14,13 +14,13 @@ mod report;
     version,
     about = "Image-based panoramic walkthroughs along tracks"
 )]
-struct Cli {
+pub(crate) struct Cli {
     #[command(subcommand)]
     command: Command,
 }
 
 #[derive(Subcommand)]
-enum Command {
+pub(crate) enum Command {
     /// The whole system on the built-in castle scene in one command, then a report.
     Demo(cmd::demo::Args),
     /// Render cube-map colour, depth (and optionally slab layers) at the reference viewpoints of a track.
@@ -51,6 +51,9 @@ enum Command {
     Verify(cmd::verify::Args),
     /// The whole pipeline into a database: prerender → slabs → cull → encode → ACH, one report.
     Build(cmd::build::Args),
+    /// Error against cost over the build's knobs (a sweep of databases), Pareto fronts, and
+    /// the cheapest configuration for a PSNR target.
+    Tune(cmd::tune::Args),
 }
 
 /// Log filter without `RUST_LOG`: warnings, except the lines wgpu logs for each error it
@@ -95,5 +98,6 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::View(a) => cmd::view::run(a),
         Command::Verify(a) => cmd::verify::run(a),
         Command::Build(a) => cmd::build::run(a),
+        Command::Tune(a) => cmd::tune::run(a),
     }
 }

@@ -212,7 +212,7 @@ fn without_an_adapter_every_gpu_command_says_what_to_install() {
 }
 
 /// The demo on a machine without any GPU driver: the CPU stages (build, cull, walk) complete,
-/// the GPU stages (eval, flythrough) are recorded as failed with the message of what to
+/// the GPU stages (eval, tune, flythrough) are recorded as failed with the message of what to
 /// install, the report says so, and the demo exits non-zero saying which stages could not
 /// run and why. With a driver back, the next run reuses the CPU stages and completes.
 #[test]
@@ -238,7 +238,7 @@ fn the_demo_without_an_adapter_runs_its_cpu_stages_and_says_what_is_missing() {
     assert!(!o.status.success(), "{err}");
     assert!(!err.contains("panicked"), "{err}");
     assert!(
-        err.contains("stages `eval`, `flythrough` could not run: no GPU adapter found"),
+        err.contains("stages `eval`, `tune`, `flythrough` could not run: no GPU adapter found"),
         "{err}"
     );
     let log: serde_json::Value =
@@ -258,7 +258,7 @@ fn the_demo_without_an_adapter_runs_its_cpu_stages_and_says_what_is_missing() {
     for cpu in ["build", "cull", "walk"] {
         assert_eq!(status(cpu).0, "done", "{cpu}: {log}");
     }
-    for gpu in ["eval", "flythrough"] {
+    for gpu in ["eval", "tune", "flythrough"] {
         let (st, message) = status(gpu);
         assert_eq!(st, "failed", "{gpu}");
         assert!(
@@ -273,6 +273,8 @@ fn the_demo_without_an_adapter_runs_its_cpu_stages_and_says_what_is_missing() {
     );
     assert!(out.join("db/manifest.json").exists());
     assert!(out.join("walk/walk.json").exists());
+    // The sweep stopped before building anything it could not evaluate.
+    assert!(!out.join("tune/nodes").exists());
 
     // A driver there: the CPU stages are reused, the GPU ones run.
     let o = railview_with(&[], &args);
@@ -281,7 +283,7 @@ fn the_demo_without_an_adapter_runs_its_cpu_stages_and_says_what_is_missing() {
     for cpu in ["build", "cull", "walk"] {
         assert!(err.contains(&format!("] {cpu}: reused")), "{cpu}: {err}");
     }
-    for gpu in ["eval", "flythrough"] {
+    for gpu in ["eval", "tune", "flythrough"] {
         assert!(err.contains(&format!("] {gpu}: done")), "{gpu}: {err}");
     }
     std::fs::remove_dir_all(&d).ok();

@@ -73,5 +73,13 @@ fn oracle_renders_depth_with_povray() {
     }
     // The scratch renders are gone.
     assert!(!dir.join("cull-oracle").exists());
+    // An import has no solids for the shrunk variant: asked for by name, it is refused.
+    let o = railview(&["cull", d, "--variant", "shrunk"]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("needs the exact geometry"),
+        "{}",
+        text(&o)
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

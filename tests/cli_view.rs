@@ -32,7 +32,7 @@ fn a_negative_cache_budget_is_refused_before_any_window_opens() {
     let o = railview(&["view", "synth:street", "--memory-mib", "-1"]);
     assert!(!o.status.success());
     assert!(
-        stderr(&o).contains("--memory-mib -1: must be a positive number"),
+        stderr(&o).contains("--memory-mib -1: must be between 1 and 1048576"),
         "{}",
         stderr(&o)
     );

@@ -36,6 +36,19 @@ fn plot(path: &Path, w: u32, h: u32) {
         .unwrap();
 }
 
+/// A plot as the stages write it: PNG and, beside it, SVG (which the HTML page shows).
+fn plot_both(png: &Path, w: u32, h: u32) {
+    plot(png, w, h);
+    std::fs::write(
+        png.with_extension("svg"),
+        format!(
+            "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\">\
+             <rect width=\"{w}\" height=\"{h}\" fill=\"#8ab\"/></svg>"
+        ),
+    )
+    .unwrap();
+}
+
 /// A demo directory as the stages would leave it, at 8² faces and 3 samples.
 fn fixture(root: &Path) {
     let work = root.join("work/prerender");
@@ -101,7 +114,7 @@ fn fixture(root: &Path) {
                 "criterion": {"max_spacing_m": 2.5, "parallax_px": [3.1, 0.8],
                               "summary": "3 slab(s) from 2 candidate valley(s)"}}),
     );
-    plot(&work.join("histogram.png"), 60, 30);
+    plot_both(&work.join("histogram.png"), 60, 30);
     let run = |alpha: f64, variant: &str, oracle: bool| {
         let rows: Vec<Value> = (0..3)
             .map(|k| {
@@ -149,17 +162,65 @@ fn fixture(root: &Path) {
                     {"strategy": "ach+prefetch", "bandwidth_bps": null, "time_to_first_frame_s": null,
                      "mean_needed_fraction": 0.95, "mean_quality": 0.9, "bytes": 9000, "bytes_per_m": 1800.0}]}),
     );
-    plot(&root.join("walk/walk.png"), 80, 40);
-    let rows: Vec<Value> = (0..4)
-        .map(|i| {
-            json!({"config": if i < 2 { "slabs=auto" } else { "slabs=1" }, "position": i as f64,
-                   "at_reference": i % 2 == 0, "psnr_db": 30.0 + i as f64, "ssim": 0.9,
-                   "hole_fraction": 0.01, "frame_ms": 4.0})
-        })
-        .collect();
-    write_json(&root.join("eval/eval.json"), &json!({ "rows": rows }));
-    plot(&root.join("eval/psnr_vs_frame_ms.png"), 50, 40);
-    plot(&root.join("eval/psnr_vs_bytes.png"), 50, 40);
+    plot_both(&root.join("walk/walk.png"), 80, 40);
+    let stats = |mean: f64| {
+        json!({"views": 2, "psnr_mean_db": mean, "psnr_worst5_db": mean - 1.0,
+               "psnr_min_db": mean - 1.0, "ssim_mean": 0.9, "ssim_worst5": 0.85,
+               "holes_mean": 0.001, "holes_worst5": 0.002, "holes_max": 0.002})
+    };
+    write_json(
+        &root.join("eval/eval.json"),
+        &json!({"db": "db", "scene": "castle", "truth": "the built-in ray tracer, 3×3 rays per pixel",
+                "width": 8, "height": 6, "fov_deg": 90.0, "face_size": 8, "resolution_ratio": 1.0,
+                "views": {"per_segment": 1, "directions": 2, "pitches_deg": [0.0], "max_segments": null},
+                "adapter": "llvmpipe",
+                "summary": [{"config": "full", "at_samples": stats(40.0), "between": stats(31.0),
+                             "frame_ms": 4.0, "db_bytes": 3000}],
+                "worst": [{"config": "full", "s": 1.25, "segment": 0, "yaw_deg": 90.0,
+                           "yaw_from_track_deg": 90.0, "pitch_deg": 0.0, "at_reference": false,
+                           "position": [1.25, 1.7, 0.0], "psnr_db": 30.0, "ssim": 0.85,
+                           "hole_fraction": 0.002, "frame_ms": 4.0, "db_bytes": 3000}],
+                "rows": []}),
+    );
+    plot(&root.join("eval/worst-1.png"), 30, 6);
+    plot(&root.join("eval/worst-at-sample.png"), 30, 6);
+    for stem in ["psnr_along_track", "psnr_vs_frame_ms", "psnr_vs_bytes"] {
+        plot_both(&root.join(format!("eval/{stem}.png")), 50, 40);
+    }
+    let knobs = json!({"every": 1, "face_size": 64, "supersample": 1, "slabs": "auto",
+                       "tile_size": 32, "mesh_error_px": 0.5, "cull_variant": "conservative",
+                       "alpha": 1.0, "drop_levels": 0});
+    let record = |label: &str, knobs: Value, bytes: u64| {
+        json!({"label": label, "knobs": knobs, "samples": 3, "spacing_m": 2.5, "slab_count": 3,
+               "resolution_ratio": 1.0,
+               "error": {"views": 4, "psnr_mean_db": 30.0, "psnr_worst5_db": 27.5,
+                         "psnr_min_db": 27.0, "ssim_mean": 0.9, "ssim_worst5": 0.85,
+                         "holes_mean": 0.001, "holes_worst5": 0.002, "psnr_at_samples_db": 40.0},
+               "costs": {"prerender_cpu_s": 1.0, "build_cpu_s": 2.0, "db_bytes": bytes,
+                         "walk_bytes": bytes / 2, "frame_ms": 3.0},
+               "dir": "nodes/db-x"})
+    };
+    let mut dropped = knobs.clone();
+    dropped["drop_levels"] = json!(1);
+    write_json(
+        &root.join("tune/sweep.json"),
+        &json!({"scene": "castle", "track": "main", "base": knobs,
+                "views": "4 views between the samples.",
+                "records": [record("base", knobs.clone(), 4000),
+                            record("finest texture level left out", dropped, 3000)],
+                "fronts": [["db-bytes", ["finest texture level left out"]]],
+                "selections": [{"target_psnr_db": 27.0, "cost": "db-bytes", "chosen": 1,
+                                "meets": [true, true], "front": [false, true]}]}),
+    );
+    for stem in [
+        "pareto_prerender_cpu",
+        "pareto_build_cpu",
+        "pareto_db_bytes",
+        "pareto_walk_bytes",
+        "pareto_frame_ms",
+    ] {
+        plot_both(&root.join(format!("tune/{stem}.png")), 50, 40);
+    }
     for i in 0..5 {
         plot(&root.join(format!("frames/frame_{i:04}.png")), 16, 9);
     }
@@ -325,8 +386,17 @@ fn full_report_loads_every_image_and_table_in_chromium() {
         ("![viewpoint 1 at s = 2.50 m", "a viewpoint image"),
         ("(histogram.png)", "the depth histogram"),
         (
-            "| slabs=auto | 1 | 30.000 | 31.000 |",
-            "eval means at and between references",
+            "| full | 2 | 31.00 | 30.00 | 30.00 | 0.9000 | 0.100 | 40.00 | 4.00 | 3000 |",
+            "eval: mean, worst 5 %, worst, floor",
+        ),
+        ("(eval-worst-1.png)", "the worst view beside its truth"),
+        (
+            "| finest texture level left out | 3 (2.50 m) | 3 | 30.00 | 27.50 |",
+            "the sweep's table",
+        ),
+        (
+            "cheapest by db-bytes: **finest texture level left out**",
+            "the choice for the target",
         ),
     ] {
         assert!(
@@ -338,8 +408,15 @@ fn full_report_loads_every_image_and_table_in_chromium() {
     let bad: Vec<&(String, u64)> = checked.images.iter().filter(|(_, w)| *w == 0).collect();
     assert!(bad.is_empty(), "images that did not load: {bad:?}");
     // 3 viewpoints, histogram, full view + 3 slab strips + 3 slab faces, a culling atlas,
-    // walk plot, 2 eval plots, 3 flythrough frames.
-    assert_eq!(checked.images.len(), 18, "{:?}", checked.images);
+    // walk plot, 2 worst views and 3 eval plots, 5 Pareto plots, 3 flythrough frames.
+    assert_eq!(checked.images.len(), 26, "{:?}", checked.images);
+    // Plots are SVG in the page.
+    let svgs = checked
+        .images
+        .iter()
+        .filter(|(s, _)| s.ends_with(".svg"))
+        .count();
+    assert_eq!(svgs, 10, "{:?}", checked.images);
     for id in [
         "stages",
         "prerender",
@@ -352,6 +429,8 @@ fn full_report_loads_every_image_and_table_in_chromium() {
         "build-seconds",
         "walk",
         "eval",
+        "eval-worst",
+        "tune",
     ] {
         assert!(
             checked.tables.contains(&id.to_string()),
@@ -488,7 +567,7 @@ fn demo_end_to_end_at_a_tiny_size_reuses_and_recovers() {
             other => panic!("stage {name} {other}: {s}"),
         }
     }
-    for must in ["build", "cull"] {
+    for must in ["build", "cull", "eval", "tune"] {
         let s = stages.iter().find(|s| s["name"] == must).unwrap();
         assert_eq!(s["status"], "done", "{must}: {s}");
     }

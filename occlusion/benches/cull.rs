@@ -1,5 +1,6 @@
 //! Culling time for a 20-sample track with 6 × 1024² faces and 3 slabs (goal: < 3 s on two
-//! cores), and the oracle's cost per position, on the synthetic courtyard.
+//! cores; the shrunk variant within 3× the conservative one), and the oracle's cost per
+//! position, on the synthetic courtyard.
 //!
 //! `cargo bench -p occlusion --bench cull`
 
@@ -8,7 +9,10 @@ use std::time::Duration;
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::DVec3;
 use occlusion::synth::{render_layers, BoxScene};
-use occlusion::{cull_viewpoint, mark_visible, Cell, CullParams, MatchRule, Variant, Visibility};
+use occlusion::{
+    cull_viewpoint, cull_viewpoint_shrunk, mark_visible, Cell, CullParams, MatchRule, SceneSolids,
+    Variant, Visibility,
+};
 use tracks::{SlabRange, TileGrid};
 
 const SAMPLES: usize = 20;
@@ -25,7 +29,8 @@ fn bench(c: &mut Criterion) {
     let layers = render_layers(&scene, track[SAMPLES / 2], &grid, &ranges).expect("layers");
     let mut g = c.benchmark_group("cull");
     g.sample_size(10).measurement_time(Duration::from_secs(30));
-    for variant in [Variant::Conservative, Variant::Paper] {
+    let solids = SceneSolids::boxes(&scene);
+    for variant in [Variant::Shrunk, Variant::Conservative, Variant::Paper] {
         let p = CullParams::new(1.0, variant).expect("valid alpha");
         g.bench_function(format!("track20_1024_3slabs_{}", variant.name()), |b| {
             b.iter(|| {
@@ -40,7 +45,14 @@ fn bench(c: &mut Criterion) {
                             *x += shift;
                         }
                     }
-                    let r = cull_viewpoint(&cell, &grid, &layers, &p).expect("cull");
+                    let r = match variant {
+                        Variant::Shrunk => {
+                            cull_viewpoint_shrunk(&cell, &grid, &layers, &p.shrunk, &solids)
+                                .expect("cull")
+                                .0
+                        }
+                        _ => cull_viewpoint(&cell, &grid, &layers, &p).expect("cull"),
+                    };
                     kept += r.slabs.iter().map(|s| s.kept.len()).sum::<usize>();
                 }
                 kept

@@ -67,6 +67,11 @@ pub enum Variant {
     /// The paper's simplification: every occluder at the slab boundary, the occludee flat at
     /// its farthest depth (Figure 4c), opacity taken as is.
     Paper,
+    /// Occluder shrinking along the segment against the scene's exact solids, refined where
+    /// visibility changes ([`crate::shrunk`]): conservative for every point of the cell,
+    /// including openings and occluders finer than a pixel. Needs the scene's geometry
+    /// ([`crate::shrunk::cull_viewpoint_shrunk`]); α does not apply (always 1).
+    Shrunk,
 }
 
 impl Variant {
@@ -74,14 +79,19 @@ impl Variant {
         match self {
             Variant::Conservative => "conservative",
             Variant::Paper => "paper",
+            Variant::Shrunk => "shrunk",
         }
     }
 
-    /// Parse `conservative` or `paper`.
+    /// Every variant, in the order reports show them.
+    pub const ALL: [Variant; 3] = [Variant::Shrunk, Variant::Conservative, Variant::Paper];
+
+    /// Parse `shrunk`, `conservative` or `paper`.
     pub fn parse(s: &str) -> Option<Variant> {
         match s.trim() {
             "conservative" => Some(Variant::Conservative),
             "paper" => Some(Variant::Paper),
+            "shrunk" => Some(Variant::Shrunk),
             _ => None,
         }
     }
@@ -107,6 +117,8 @@ pub struct CullParams {
     /// split them into quadrants this many times (each part is tested with its own pixels'
     /// bounding box and depth range; all must be hidden).
     pub subdivisions: u32,
+    /// Shrunk variant: sampling and refinement.
+    pub shrunk: crate::shrunk::ShrunkParams,
 }
 
 impl CullParams {
@@ -125,6 +137,7 @@ impl CullParams {
             max_iterations: 8,
             motion_steps: 4,
             subdivisions: 2,
+            shrunk: crate::shrunk::ShrunkParams::default(),
         })
     }
 }
@@ -169,6 +182,12 @@ pub fn cull_viewpoint(
     params: &CullParams,
 ) -> Result<ViewpointCull, OcclusionError> {
     check_inputs(cell, grid, layers)?;
+    if params.variant == Variant::Shrunk {
+        return Err(OcclusionError::Parameter {
+            name: "variant",
+            message: "the shrunk variant needs the scene's solids (cull_viewpoint_shrunk)".into(),
+        });
+    }
     let n = grid.face_size;
     let offsets = cell.offsets();
     let offsets_face: Vec<Vec<_>> = Face::ALL
@@ -205,7 +224,7 @@ pub fn cull_viewpoint(
             vec![true; layer.tiles.len()]
         } else {
             let q = match params.variant {
-                Variant::Conservative => {
+                Variant::Conservative | Variant::Shrunk => {
                     match punch_buf {
                         Some(p) if punched => p.update(map, &joined),
                         Some(p) => p.rebuild(map, params.discontinuity, radius),
@@ -247,7 +266,7 @@ pub fn cull_viewpoint(
                 .tiles
                 .par_iter()
                 .map(|t| match params.variant {
-                    Variant::Conservative => ctx.keep_conservative(t),
+                    Variant::Conservative | Variant::Shrunk => ctx.keep_conservative(t),
                     Variant::Paper => ctx.keep_paper(t),
                 })
                 .collect()
@@ -293,7 +312,11 @@ thread_local! {
     static SCRATCH: std::cell::Cell<Option<Box<Scratch>>> = const { std::cell::Cell::new(None) };
 }
 
-fn check_inputs(cell: &Cell, grid: &TileGrid, layers: &[SlabLayer]) -> Result<(), OcclusionError> {
+pub(crate) fn check_inputs(
+    cell: &Cell,
+    grid: &TileGrid,
+    layers: &[SlabLayer],
+) -> Result<(), OcclusionError> {
     let bad = |message: String| OcclusionError::Input {
         what: "culling input".into(),
         message,

@@ -128,7 +128,7 @@ impl Cell {
     /// `arc`, given the viewpoints' arc lengths `sample_arcs`: the curve's vertices between
     /// the neighbours (a smoothed track is followed, not cut short).
     pub fn along_curve(curve: &[DVec3], arc: &[f64], sample_arcs: &[f64], i: usize) -> Cell {
-        let pos = |s: f64| point_at(curve, arc, s);
+        let pos = |s: f64| tracks::segment::point_at(curve, arc, s);
         let s = sample_arcs[i];
         let mut paths = Vec::new();
         if i > 0 {
@@ -201,33 +201,6 @@ impl Cell {
             .map(|b| b.length())
             .fold(0.0, f64::max)
     }
-}
-
-/// Position at arc length `s` on a polyline with cumulative arc lengths `arc`.
-pub fn point_at(curve: &[DVec3], arc: &[f64], s: f64) -> DVec3 {
-    if curve.len() < 2 {
-        return curve.first().copied().unwrap_or(DVec3::ZERO);
-    }
-    let i = match arc.partition_point(|&a| a <= s) {
-        0 => 0,
-        k => (k - 1).min(curve.len() - 2),
-    };
-    let (a0, a1) = (arc[i], arc[i + 1]);
-    let t = if a1 > a0 { (s - a0) / (a1 - a0) } else { 0.0 };
-    curve[i].lerp(curve[i + 1], t.clamp(0.0, 1.0))
-}
-
-/// Cumulative arc lengths of a polyline.
-pub fn arc_lengths(curve: &[DVec3]) -> Vec<f64> {
-    let mut arc = Vec::with_capacity(curve.len());
-    let mut s = 0.0;
-    for (i, p) in curve.iter().enumerate() {
-        if i > 0 {
-            s += curve[i - 1].distance(*p);
-        }
-        arc.push(s);
-    }
-    arc
 }
 
 #[cfg(test)]
@@ -312,7 +285,7 @@ mod tests {
         );
         // Along a bent curve the cell follows the bend.
         let curve = [DVec3::ZERO, DVec3::X, DVec3::new(1.0, 0.0, 1.0)];
-        let arc = arc_lengths(&curve);
+        let arc = tracks::segment::arc_lengths(&curve);
         let c = Cell::along_curve(&curve, &arc, &[0.0, 2.0], 0);
         assert_eq!(c.paths[0], vec![DVec3::X, DVec3::new(1.0, 0.0, 1.0)]);
     }

@@ -11,9 +11,13 @@
 //!   its extended projection for every cell point ([`window`]: the paper's equations 1–5 in
 //!   vector form on cube faces); the mean opacity of the kept earlier tiles over the window
 //!   comes from summed-area tables ([`maps`]); mean ≥ α culls.
+//! - [`shrunk`]: the third variant, [`cull_viewpoint_shrunk`] with the scene's [`Solids`]
+//!   ([`SceneSolids`]): occluder shrinking against exact solids along the track, refined where
+//!   visibility changes; conservative for every point of the cell, openings and occluders
+//!   finer than a pixel included (the argument is in its module docs).
 //! - [`oracle`]: [`Geometry`] (exact first hits) or depth renders ([`DepthSource`]) at dense
-//!   positions along each segment → [`Visibility`] of every layer pixel → [`score`]: false
-//!   culls and tightness per slab.
+//!   positions along each segment (offset from where the shrunk variant samples) →
+//!   [`Visibility`] of every layer pixel → [`score`]: false culls and tightness per slab.
 //! - [`report`]: the `cull.json` / `cull.md` report, the per-tile decision file and the
 //!   kept/culled atlas image.
 //! - [`synth`]: analytic box scenes and layers rendered from them, for tests and benches.
@@ -32,6 +36,18 @@
 //! let cull = cull_viewpoint(&Cell::straight(&track, 0), &grid, &layers, &params).unwrap();
 //! assert_eq!(cull.slabs[0].culled.len(), 0); // the nearest slab is never culled
 //! assert!(cull.slabs[1].culled.len() > 0);   // most of the courtyard is behind the wall
+//!
+//! // The shrunk variant asks the scene's solids instead of the earlier slabs' depth. What a
+//! // pixel holds grows with its size, so it needs finer layers to prove as much behind the
+//! // courtyard's 0.4 m walls.
+//! let grid = TileGrid::new(128, 16).unwrap();
+//! let layers = synth::render_layers(&scene, track[0], &grid, &ranges).unwrap();
+//! let solids = occlusion::SceneSolids::boxes(&scene);
+//! let params = CullParams::new(1.0, Variant::Shrunk).unwrap();
+//! let (shrunk, _) = occlusion::cull_viewpoint_shrunk(
+//!     &Cell::straight(&track, 0), &grid, &layers, &params.shrunk, &solids,
+//! ).unwrap();
+//! assert!(shrunk.slabs[1].culled.len() > 0);
 //! ```
 
 pub mod cull;
@@ -39,6 +55,7 @@ pub mod input;
 pub mod maps;
 pub mod oracle;
 pub mod report;
+pub mod shrunk;
 pub mod synth;
 pub mod window;
 
@@ -49,6 +66,7 @@ pub use oracle::{
     mark_visible, oracle_track, score, DepthRenders, DepthSource, Geometry, MatchRule, RayCast,
     SlabScore, Visibility,
 };
+pub use shrunk::{cull_viewpoint_shrunk, SceneSolids, ShrunkParams, ShrunkStats, Solids};
 
 /// Errors of the culling library, by who is at fault.
 #[derive(Debug, thiserror::Error)]

@@ -250,16 +250,38 @@ pub fn segment_samples(path: &[DVec3], per_segment: usize) -> Vec<DVec3> {
     if path.len() < 2 || per_segment == 0 {
         return path.first().copied().into_iter().collect();
     }
-    let arc = crate::input::arc_lengths(path);
+    let arc = tracks::segment::arc_lengths(path);
     let len = *arc.last().unwrap_or(&0.0);
     (0..=per_segment)
-        .map(|j| crate::input::point_at(path, &arc, len * j as f64 / per_segment as f64))
+        .map(|j| tracks::segment::point_at(path, &arc, len * j as f64 / per_segment as f64))
         .collect()
+}
+
+/// Where the oracle looks from along a polyline: both ends (the reference viewpoints, where
+/// a viewer stops) and `per_segment` positions at arc-length fractions `(j + φ)/per_segment`,
+/// `φ = (√5 − 1)/2`. The offset keeps them off every dyadic fraction of the segment — the
+/// centres of the intervals the shrunk variant tests — so the oracle never looks from where
+/// the method looked; with `per_segment` at least twice the method's base intervals per
+/// segment it is also twice as dense as the method's base sampling.
+pub fn oracle_positions(path: &[DVec3], per_segment: usize) -> Vec<DVec3> {
+    const PHI: f64 = 0.618_033_988_749_894_8;
+    if path.len() < 2 {
+        return path.first().copied().into_iter().collect();
+    }
+    let arc = tracks::segment::arc_lengths(path);
+    let len = *arc.last().unwrap_or(&0.0);
+    let mut out = vec![path[0]];
+    out.extend((0..per_segment).map(|j| {
+        tracks::segment::point_at(path, &arc, len * (j as f64 + PHI) / per_segment as f64)
+    }));
+    out.extend(path.last().copied());
+    out
 }
 
 /// Run the oracle over a whole track held in memory. `refs[i]` is reference viewpoint `i`
 /// (position and layers); `between[i]` is the polyline from viewpoint `i` to `i + 1`
-/// (both ends included). Returns one [`Visibility`] per viewpoint.
+/// (both ends included), looked at from [`oracle_positions`]. Returns one [`Visibility`]
+/// per viewpoint.
 pub fn oracle_track(
     refs: &[(DVec3, &[SlabLayer])],
     between: &[Vec<DVec3>],
@@ -282,7 +304,7 @@ pub fn oracle_track(
         mark_visible(p, &source.depth_from(p)?, p, l, rule, &vis[0]);
     }
     for (i, path) in between.iter().enumerate() {
-        for x in segment_samples(path, per_segment) {
+        for x in oracle_positions(path, per_segment) {
             let depth = source.depth_from(x)?;
             for j in [i, i + 1] {
                 let (p, l) = refs[j];

@@ -12,6 +12,7 @@ use tracks::{SlabRange, TileGrid};
 
 use crate::cull::{Variant, ViewpointCull};
 use crate::oracle::{SlabScore, Visibility};
+use crate::shrunk::ShrunkStats;
 
 /// One slab's row in a run (summed over every viewpoint).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -53,6 +54,12 @@ impl SlabRow {
     pub fn byte_reduction_percent(&self) -> f64 {
         reduction(self.bytes_before, self.bytes_after)
     }
+    /// With the oracle: kept tiles per tile seen (1 = exact; the shrunk variant's goal is
+    /// ≤ 1.2 on the later slabs).
+    pub fn kept_per_seen(&self) -> Option<f64> {
+        self.visible_tiles
+            .map(|v| self.tiles_after as f64 / v.max(1) as f64)
+    }
     /// With the oracle: the tile reduction of a perfect zero-false-cull method.
     pub fn ceiling_percent(&self) -> Option<f64> {
         self.never_visible.map(|n| {
@@ -72,6 +79,9 @@ pub struct RunReport {
     pub slabs: Vec<SlabRow>,
     /// Culling wall time summed over viewpoints (oracle excluded).
     pub seconds: f64,
+    /// The shrunk variant: how its tiles were decided and the tests it cast.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shrunk: Option<ShrunkStats>,
 }
 
 impl RunReport {
@@ -86,7 +96,33 @@ impl RunReport {
                 })
                 .collect(),
             seconds: 0.0,
+            shrunk: None,
         }
+    }
+
+    /// The later slabs (all but the nearest) summed into one row (`slab` 1).
+    pub fn later_slabs(&self) -> SlabRow {
+        let mut t = SlabRow {
+            slab: 1,
+            ..SlabRow::default()
+        };
+        let add = |a: &mut Option<u64>, b: Option<u64>| {
+            if let Some(b) = b {
+                *a.get_or_insert(0) += b;
+            }
+        };
+        for r in self.slabs.iter().skip(1) {
+            t.tiles_before += r.tiles_before;
+            t.tiles_after += r.tiles_after;
+            t.bytes_before += r.bytes_before;
+            t.bytes_after += r.bytes_after;
+            add(&mut t.false_culls, r.false_culls);
+            add(&mut t.false_cull_pixels, r.false_cull_pixels);
+            add(&mut t.kept_never_visible, r.kept_never_visible);
+            add(&mut t.visible_tiles, r.visible_tiles);
+            add(&mut t.never_visible, r.never_visible);
+        }
+        t
     }
 
     /// Add one viewpoint's decision and, when the oracle ran, its scores.
@@ -184,6 +220,16 @@ pub fn paper_table(runs: &[&RunReport]) -> String {
                 );
             }
             s.push('\n');
+            s += "|  | Seen (oracle) → kept, kept ÷ seen |";
+            for row in &r.slabs {
+                s += &format!(
+                    " {} | {} | {:.2}× |",
+                    row.visible_tiles.unwrap_or(0),
+                    row.tiles_after,
+                    row.kept_per_seen().unwrap_or(0.0)
+                );
+            }
+            s.push('\n');
             s += "|  | Never seen (oracle ceiling) |";
             for row in &r.slabs {
                 s += &format!(
@@ -214,28 +260,50 @@ pub fn markdown(report: &CullReport) -> String {
             .collect::<Vec<_>>()
             .join(", ")
     );
-    for v in [Variant::Conservative, Variant::Paper] {
+    for v in Variant::ALL {
         let runs: Vec<&RunReport> = report.runs.iter().filter(|r| r.variant == v).collect();
         if runs.is_empty() {
             continue;
         }
         s += &format!("\n## Variant `{}`\n\n", v.name());
         s += &paper_table(&runs);
+        for st in runs.iter().filter_map(|r| r.shrunk) {
+            s += &format!(
+                "\nLater-slab tiles: {} kept as seen from the reference viewpoint, {} kept as \
+                 seen from a track point, {} kept without a proof either way, {} culled; {} \
+                 shrunk-segment tests and {} free-segment tests.\n",
+                st.kept_direct,
+                st.kept_seen,
+                st.kept_undecided,
+                st.culled,
+                st.block_tests,
+                st.see_tests
+            );
+        }
     }
-    s += "\n## Time\n\n| α | variant | culling s |\n|---|---|---:|\n";
+    s += "\n## Time and tightness\n\n| α | variant | culling s | later slabs: tiles kept | seen by the oracle | kept ÷ seen | false culls |\n|---|---|---:|---:|---:|---:|---:|\n";
     for r in &report.runs {
+        let later = r.later_slabs();
+        let cell = |x: Option<u64>| x.map_or("–".to_string(), |v| v.to_string());
         s += &format!(
-            "| {} | {} | {:.3} |\n",
+            "| {} | {} | {:.3} | {} | {} | {} | {} |\n",
             r.alpha,
             r.variant.name(),
-            r.seconds
+            r.seconds,
+            later.tiles_after,
+            cell(later.visible_tiles),
+            later
+                .kept_per_seen()
+                .map_or("–".to_string(), |x| format!("{x:.2}×")),
+            cell(later.false_culls)
         );
     }
     s += &format!("\nLoading inputs: {:.3} s.\n", report.load_seconds);
     if let Some(o) = &report.oracle {
         s += &format!(
-            "Oracle: {} positions per segment, {}² per face, from {}: {:.3} s. A false cull is a \
-             culled tile with a pixel seen from some oracle position.\n",
+            "Oracle: both ends and {} positions per segment at offset fractions (j + 0.618…)/n of \
+             its length (never where the shrunk variant samples), {}² per face, from {}: {:.3} s. \
+             A false cull is a culled tile with a pixel seen from some oracle position.\n",
             o.per_segment, o.face_size, o.source, o.seconds
         );
     }

@@ -242,6 +242,44 @@ impl Accel {
         })
     }
 
+    /// Whether the segment from `o` to `p` passes through a solid primitive's interior at
+    /// inside distance above `e0 + (e1 − e0)·t` at its point of parameter `t ∈ (0, 1)`,
+    /// leaving out the primitives (by index in this accelerator) that `excluded` names.
+    /// Triangles and planes have no interior and never count.
+    pub fn solid_blocks(
+        &self,
+        o: DVec3,
+        p: DVec3,
+        e0: f64,
+        e1: f64,
+        excluded: impl Fn(usize) -> bool,
+    ) -> bool {
+        let v = p - o;
+        let len = v.length();
+        if !(len > 0.0 && len.is_finite() && e0.is_finite() && e1.is_finite()) {
+            return false;
+        }
+        let d = v / len;
+        let g = (e1 - e0) / len;
+        // Unbounded primitives are planes: never solid.
+        let Some(bvh) = &self.bvh else { return false };
+        let Some((mut ray, shift)) = self.f32_ray(o, d) else {
+            return false;
+        };
+        ray.tmax = self.bound32(len, shift);
+        !bvh.ray_traverse_miss(ray, |_, id| {
+            if self.prims[id]
+                .eroded_span(o, d, (0.0, len), e0, g)
+                .is_some()
+                && !excluded(id)
+            {
+                0.0
+            } else {
+                f32::INFINITY
+            }
+        })
+    }
+
     /// For each interval `[ranges[k].0, ranges[k].1)`, the first hit in it, in one traversal.
     /// `ranges` must be sorted and not overlap.
     pub fn first_in_each(

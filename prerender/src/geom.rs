@@ -218,6 +218,32 @@ impl Prim {
         }
     }
 
+    /// The part of `o + s·d`, `s ∈ span`, inside this primitive with inside distance above
+    /// `e0 + g·s` ([`crate::erode`]). Only solids have an inside: triangles and planes (no
+    /// volume) give `None` for every erosion.
+    pub fn eroded_span(
+        &self,
+        o: DVec3,
+        d: DVec3,
+        span: crate::erode::Span,
+        e0: f64,
+        g: f64,
+    ) -> Option<crate::erode::Span> {
+        use crate::erode::{box_span, cone_span, sphere_span};
+        match *self {
+            Prim::Sphere { center, radius } => sphere_span(center, radius, o, d, span, e0, g),
+            Prim::Box { min, max } => box_span(min, max, o, d, span, e0, g),
+            Prim::Cone {
+                base,
+                axis,
+                height,
+                r0,
+                r1,
+            } => cone_span(base, axis, height, r0, r1, o, d, span, e0, g),
+            Prim::Triangle { .. } | Prim::Plane { .. } => None,
+        }
+    }
+
     /// Outward (geometric) unit normal at point `p` on the part `part` of the surface.
     pub fn normal(&self, p: DVec3, part: u8) -> DVec3 {
         match *self {

@@ -8,10 +8,14 @@
 //! - [`job`]: rendering a track into a prerender directory (resume, shards, report, merge).
 //! - [`runlog`]: the run log (`runs/*.jsonl`): timings kept apart from the content.
 //! - [`scenes`]: built-in procedural scenes (`castle`, `nature`) with their tracks.
+//! - [`erode`]: segments against solids shrunk by a distance (occluder shrinking for culling).
 //! - [`render`]: cube maps of colour + radial depth, slab layers in one pass, low-res depth,
-//!   perspective ground truth.
+//!   perspective views.
+//! - [`truth`]: anti-aliased ground truth of any scene kind (built-in, TOML, POV-Ray import)
+//!   from any camera, by the renderer that made the panoramas.
 
 mod accel;
+pub mod erode;
 mod geom;
 pub mod job;
 pub mod parse;
@@ -22,5 +26,6 @@ pub mod scene;
 pub mod scenes;
 mod shade;
 pub mod store;
+pub mod truth;
 
 pub use accel::Hit;

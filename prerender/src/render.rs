@@ -196,8 +196,11 @@ pub fn render_sky(scene: &Scene, face_size: u32, supersample: u32) -> CubeMap<[u
 /// Render one layer per slab in a single traversal per ray: layer `k` holds the first
 /// surface whose radial distance lies in `slabs[k]` (nearer surfaces removed, lighting and
 /// shadows from the whole scene). `slabs` must be sorted and not overlap (as
-/// [`SlabRange::parse_list`] returns them). Mask and depth come from the pixel-centre ray;
-/// with `supersample > 1` colour averages the subsample rays whose hit falls in the slab.
+/// [`SlabRange::parse_list`] returns them). Mask and depth come from the pixel-centre ray.
+/// With `supersample > 1`, the layer that the pixel-centre ray sees first holds the
+/// anti-aliased colour of the whole pixel (every subsample ray's first surface, or sky), so
+/// the layers composited front to back give the anti-aliased panorama; a layer hidden behind
+/// it averages the subsample rays whose hit falls in its slab.
 pub fn render_slabs(
     scene: &Scene,
     position: DVec3,
@@ -220,24 +223,39 @@ pub fn render_slabs(
             for x in 0..n {
                 let d = subpixel_dir(face, x as f64 + 0.5, y as f64 + 0.5, n);
                 scene.hits_in_ranges(position, d, &ranges, &mut hits);
+                // The pixel's anti-aliased colour: each subsample ray's first surface in any
+                // slab (or the sky), averaged.
+                let mut seen = DVec3::ZERO;
                 if offs.len() > 1 {
                     sums.iter_mut().for_each(|s| *s = (DVec3::ZERO, 0));
                     for &(dx, dy) in &offs {
                         let ds = subpixel_dir(face, x as f64 + dx, y as f64 + dy, n);
                         scene.hits_in_ranges(position, ds, &ranges, &mut sub);
+                        let mut first = true;
                         for (s, h) in sums.iter_mut().zip(&sub) {
                             if let Some(h) = h {
-                                s.0 += shade(scene, position, ds, h, opts.shadows);
+                                let c = shade(scene, position, ds, h, opts.shadows);
+                                s.0 += c;
                                 s.1 += 1;
+                                if first {
+                                    seen += c;
+                                    first = false;
+                                }
                             }
+                        }
+                        if first {
+                            seen += sky_color(scene, ds);
                         }
                     }
                 }
+                let front = hits.iter().position(Option::is_some);
                 for (i, h) in hits.iter().enumerate() {
                     out.push(match h {
                         None => ([0, 0, 0, 0], f32::INFINITY),
                         Some(h) => {
-                            let c = if offs.len() > 1 && sums[i].1 > 0 {
+                            let c = if offs.len() > 1 && front == Some(i) {
+                                seen / offs.len() as f64
+                            } else if offs.len() > 1 && sums[i].1 > 0 {
                                 sums[i].0 / sums[i].1 as f64
                             } else {
                                 shade(scene, position, d, h, opts.shadows)

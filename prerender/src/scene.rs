@@ -209,7 +209,7 @@ impl Shape {
         }
     }
 
-    fn push_prims(&self, out: &mut Vec<Prim>) -> usize {
+    pub(crate) fn push_prims(&self, out: &mut Vec<Prim>) -> usize {
         let before = out.len();
         match self {
             Shape::Sphere { center, radius } => out.push(Prim::Sphere {

@@ -454,6 +454,112 @@ pub fn manual(
     c
 }
 
+/// The automatic choice with `delta` boundaries fewer (`delta < 0`) or more (`delta > 0`):
+/// what `--slabs fewer` / `more` build, to measure what the parallax criterion's choice is
+/// worth. Fewer drops the placed boundaries that reveal the least (smallest revealed fraction,
+/// then smallest parallax); more places the rejected candidates that would reveal the most,
+/// and when none is left splits the slab holding the most surface at its median log depth.
+/// Never fewer than one slab while there is finite depth.
+pub fn adjust(choice: &SlabChoice, delta: i32) -> Vec<SlabRange> {
+    let mut bounds: Vec<f64> = choice
+        .slabs
+        .iter()
+        .skip(1)
+        .map(|s| s.near)
+        .filter(|d| d.is_finite() && *d > 0.0)
+        .collect();
+    let cands = &choice.criterion.candidates;
+    let rank = |c: &&Candidate| (c.edge_fraction, c.parallax_px);
+    let by_need = |a: &&Candidate, b: &&Candidate| {
+        let (x, y) = (rank(a), rank(b));
+        x.0.total_cmp(&y.0).then(x.1.total_cmp(&y.1))
+    };
+    if delta < 0 {
+        let mut placed: Vec<&Candidate> = cands
+            .iter()
+            .filter(|c| c.accepted && bounds.contains(&c.depth_m))
+            .collect();
+        placed.sort_by(by_need);
+        for c in placed.iter().take(delta.unsigned_abs() as usize) {
+            bounds.retain(|d| *d != c.depth_m);
+        }
+        // Boundaries without a candidate record (none in an automatic choice) go last.
+        let extra = (delta.unsigned_abs() as usize).saturating_sub(placed.len());
+        for _ in 0..extra {
+            bounds.pop();
+        }
+    } else if delta > 0 {
+        let mut rejected: Vec<&Candidate> = cands
+            .iter()
+            .filter(|c| !c.accepted && !bounds.contains(&c.depth_m))
+            .collect();
+        rejected.sort_by(|a, b| by_need(b, a));
+        for k in 0..delta as usize {
+            match rejected.get(k) {
+                Some(c) => bounds.push(c.depth_m),
+                None => {
+                    if let Some(d) = split_depth(&choice.histogram, &bounds) {
+                        bounds.push(d);
+                    }
+                }
+            }
+        }
+    }
+    bounds.sort_by(f64::total_cmp);
+    bounds.dedup();
+    if choice.slabs.is_empty() {
+        return Vec::new();
+    }
+    let mut slabs = Vec::new();
+    let mut near = 0.0;
+    for d in bounds {
+        if let Some(r) = SlabRange::new(near, d) {
+            slabs.push(r);
+            near = d;
+        }
+    }
+    slabs.extend(SlabRange::new(near, f64::INFINITY));
+    slabs
+}
+
+/// A new boundary: the median log depth of the slab (between `bounds`) that holds the most
+/// binned surface, if that median lies strictly inside it.
+fn split_depth(hist: &DepthHistogram, bounds: &[f64]) -> Option<f64> {
+    let mut edges = vec![0.0];
+    let mut sorted = bounds.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    edges.extend(sorted);
+    edges.push(f64::INFINITY);
+    let bins_in = |lo: f64, hi: f64| -> Vec<usize> {
+        (0..hist.bins())
+            .filter(|&i| {
+                let c = hist.centre_m(i);
+                c > lo && c < hi
+            })
+            .collect()
+    };
+    let (lo, hi) = edges.windows(2).map(|w| (w[0], w[1])).max_by(|a, b| {
+        let w = |r: &(f64, f64)| {
+            bins_in(r.0, r.1)
+                .iter()
+                .map(|&i| hist.weights[i])
+                .sum::<f64>()
+        };
+        w(a).total_cmp(&w(b))
+    })?;
+    let bins = bins_in(lo, hi);
+    let total: f64 = bins.iter().map(|&i| hist.weights[i]).sum();
+    let mut acc = 0.0;
+    for &i in &bins {
+        acc += hist.weights[i];
+        if acc >= total / 2.0 {
+            let d = hist.centre_m(i);
+            return (d > lo && d < hi && total > 0.0).then_some(d);
+        }
+    }
+    None
+}
+
 fn find_candidates(hist: &DepthHistogram, smooth: &[f64], valley_ratio: f64) -> Vec<Cand> {
     let n = hist.bins();
     let w = &hist.weights;
@@ -552,6 +658,31 @@ mod tests {
             &ChooseParams::default(),
         );
         assert_eq!(single.slabs.len(), 1);
+    }
+
+    #[test]
+    fn fewer_and_more_move_one_boundary() {
+        // Three depth clusters, two boundaries between them.
+        let m = CubeMap::from_fn(24, |_, x, _| match x {
+            0..8 => 2.0,
+            8..16 => 12.0,
+            _ => 200.0,
+        });
+        let c = choose(&[m], 4.0, 512, &ChooseParams::default());
+        assert_eq!(c.slabs.len(), 3, "{:#?}", c.criterion);
+        let fewer = adjust(&c, -1);
+        assert_eq!(fewer.len(), 2);
+        assert!(fewer
+            .iter()
+            .all(|s| c.slabs.iter().any(|t| t.near == s.near)));
+        let more = adjust(&c, 1);
+        assert_eq!(more.len(), 4, "{more:?}");
+        for w in more.windows(2) {
+            assert_eq!(w[0].far, w[1].near);
+        }
+        assert_eq!(adjust(&c, 0), c.slabs);
+        // Never below one slab.
+        assert_eq!(adjust(&c, -5).len(), 1);
     }
 
     #[test]

@@ -831,15 +831,88 @@ pub fn mesh_tile(
         adaptive: TileMesh::default(),
         adaptive_stats: MeshStats::default(),
     };
+    let rect = grid.pixel_rect(tile);
     if only != Some(MeshKind::Adaptive) {
         out.grid = grid_mesh(&f, params.step);
+        cover_lone_pixels(&mut out.grid, depth, mask, tile.face, rect);
         out.grid_stats = mesh_stats(&f, &out.grid);
     }
     if only != Some(MeshKind::Grid) {
         out.adaptive = adaptive_mesh(&f, params.max_error_px);
+        cover_lone_pixels(&mut out.adaptive, depth, mask, tile.face, rect);
         out.adaptive_stats = mesh_stats(&f, &out.adaptive);
     }
     out
+}
+
+/// Give every opaque pixel of the tile (`rect` on `face`) that no triangle covers a quad of
+/// its own, corner to corner at its depth. A surface one or two pixels thin between two
+/// depth discontinuities (a pole, a window frame, a roof edge seen end on) has vertices but
+/// no triangle, since none may span a discontinuity; without the quad the slab behind showed
+/// through it even at the reference viewpoint. Pixel centres on an edge or vertex of a
+/// triangle count as covered (skirts reach half a texel past outlines).
+pub fn cover_lone_pixels(
+    mesh: &mut TileMesh,
+    depth: &CubeMap<f32>,
+    mask: &CubeMap<bool>,
+    face: Face,
+    (x0, y0, x1, y1): (u32, u32, u32, u32),
+) {
+    let (w, h) = ((x1 - x0) as usize, (y1 - y0) as usize);
+    let mut covered = vec![false; w * h];
+    for tri in mesh.indices.chunks_exact(3) {
+        let p: Vec<[f64; 2]> = tri
+            .iter()
+            .map(|&i| {
+                let v = mesh.vertices[i as usize];
+                [v[0] as f64, v[1] as f64]
+            })
+            .collect();
+        let area =
+            (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
+        if area.abs() < 1e-9 {
+            continue;
+        }
+        let lo = |k: usize| p.iter().map(|q| q[k]).fold(f64::INFINITY, f64::min);
+        let hi = |k: usize| p.iter().map(|q| q[k]).fold(f64::NEG_INFINITY, f64::max);
+        let xs = (lo(0) - 0.5).floor().max(x0 as f64) as u32
+            ..((hi(0) - 0.5).ceil() + 1.0).min(x1 as f64) as u32;
+        let ys = (lo(1) - 0.5).floor().max(y0 as f64) as u32
+            ..((hi(1) - 0.5).ceil() + 1.0).min(y1 as f64) as u32;
+        for y in ys {
+            for x in xs.clone() {
+                let c = [x as f64 + 0.5, y as f64 + 0.5];
+                let edge = |a: [f64; 2], b: [f64; 2]| {
+                    ((b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1])) * area.signum()
+                };
+                let eps = -1e-6;
+                if edge(p[0], p[1]) >= eps && edge(p[1], p[2]) >= eps && edge(p[2], p[0]) >= eps {
+                    covered[(y - y0) as usize * w + (x - x0) as usize] = true;
+                }
+            }
+        }
+    }
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let d = *depth.get(face, x, y);
+            if covered[(y - y0) as usize * w + (x - x0) as usize]
+                || !*mask.get(face, x, y)
+                || !(d.is_finite() && d > 0.0)
+            {
+                continue;
+            }
+            let base = mesh.vertices.len() as u32;
+            let (fx, fy) = (x as f32, y as f32);
+            mesh.vertices.extend([
+                [fx, fy, d],
+                [fx + 1.0, fy, d],
+                [fx + 1.0, fy + 1.0, d],
+                [fx, fy + 1.0, d],
+            ]);
+            mesh.indices
+                .extend([base, base + 1, base + 2, base, base + 2, base + 3]);
+        }
+    }
 }
 
 #[cfg(test)]

@@ -182,7 +182,7 @@ fn tile_one(
     if count == 0 {
         return None;
     }
-    let m = mesh_tile(
+    let mut m = mesh_tile(
         layer.depth,
         layer.mask,
         grid,
@@ -194,6 +194,17 @@ fn tile_one(
             Some(params.keep)
         },
     );
+    // Vertices stay within the depths of the tile's own opaque pixels, so within its slab:
+    // an error-bounded or extrapolated vertex (the band past the outline) can then never put
+    // a deeper slab's surface in front of a nearer slab's.
+    for v in m
+        .grid
+        .vertices
+        .iter_mut()
+        .chain(m.adaptive.vertices.iter_mut())
+    {
+        v[2] = v[2].clamp(lo, hi);
+    }
     Some(SlabTile {
         viewpoint,
         slab,
@@ -269,4 +280,70 @@ pub fn tile_sample(
         grid,
         layers,
     })
+}
+
+/// Leave out the `levels` finest texture levels of a tile's colour: every block of
+/// `2^levels × 2^levels` texels takes the mean colour of its opaque texels (alpha > 0), so
+/// the colour holds no more than a tile at `1/2^levels` of the resolution would; the alpha
+/// (the slab's opacity mask) stays at full resolution. A PTM codes the repeated texels of
+/// such blocks from their parent level almost for free. `rgba` is `width × height` RGBA8.
+pub fn coarsen_colour(rgba: &mut [u8], width: u32, height: u32, levels: u32) {
+    if levels == 0 {
+        return;
+    }
+    let b = 1usize << levels.min(15);
+    let (w, h) = (width as usize, height as usize);
+    if rgba.len() < w * h * 4 {
+        return;
+    }
+    for by in (0..h).step_by(b) {
+        for bx in (0..w).step_by(b) {
+            let (mut sum, mut n) = ([0u64; 3], 0u64);
+            for y in by..(by + b).min(h) {
+                for x in bx..(bx + b).min(w) {
+                    let p = &rgba[(y * w + x) * 4..][..4];
+                    if p[3] > 0 {
+                        for (s, &v) in sum.iter_mut().zip(&p[..3]) {
+                            *s += v as u64;
+                        }
+                        n += 1;
+                    }
+                }
+            }
+            if n == 0 {
+                continue;
+            }
+            let mean = sum.map(|s| ((s + n / 2) / n) as u8);
+            for y in by..(by + b).min(h) {
+                for x in bx..(bx + b).min(w) {
+                    let p = &mut rgba[(y * w + x) * 4..][..4];
+                    if p[3] > 0 {
+                        p[..3].copy_from_slice(&mean);
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod coarsen_tests {
+    use super::*;
+
+    #[test]
+    fn coarsened_colour_is_one_mean_per_block_under_the_same_mask() {
+        // 4×2 RGBA: a 2×2 block with one empty texel, and one fully opaque.
+        let mut px = vec![
+            10, 0, 0, 255, 20, 0, 0, 255, 100, 0, 0, 255, 100, 0, 0, 255, //
+            30, 0, 0, 255, 0, 0, 0, 0, 100, 0, 0, 255, 104, 0, 0, 255,
+        ];
+        let alpha: Vec<u8> = px.chunks(4).map(|p| p[3]).collect();
+        coarsen_colour(&mut px, 4, 2, 1);
+        let r: Vec<u8> = px.chunks(4).map(|p| p[0]).collect();
+        assert_eq!(r, [20, 20, 101, 101, 20, 0, 101, 101]);
+        assert_eq!(px.chunks(4).map(|p| p[3]).collect::<Vec<_>>(), alpha);
+        let before = px.clone();
+        coarsen_colour(&mut px, 4, 2, 0);
+        assert_eq!(px, before);
+    }
 }

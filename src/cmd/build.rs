@@ -1,5 +1,7 @@
 //! `railview build --scene NAME --track NAME --face-size N --out DB`: the whole pipeline —
 //! prerender → slabs → cull → encode (PTM + meshes) → ACH → manifest — with one report.
+//! Culling uses the shrunk variant at α = 1 for built-in and TOML scenes (provably
+//! conservative for every track point) and the conservative one otherwise (`--cull-variant`).
 //! `railview build --pov SCENE.pov --track TRACK.toml [--up y|z] …` runs the same pipeline on
 //! a POV-Ray scene: `import-pov` renders the base passes, `slabs` chooses the boundaries from
 //! the low-resolution depth and renders the layers with POV-Ray; culling, encoding and ACH
@@ -20,6 +22,7 @@ use anyhow::{bail, Context};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use occlusion::report::TileDecisions;
+use occlusion::Variant;
 use prerender::runlog::RunLog;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
 use serde::{Deserialize, Serialize};
@@ -73,6 +76,28 @@ pub struct Args {
     /// at an existing prerender directory's parent layout to reuse its stages.
     #[arg(long)]
     pub work: Option<PathBuf>,
+    /// Reference viewpoints: exactly N, evenly spread along the track (default: the track's
+    /// own sampling).
+    #[arg(long, conflicts_with = "spacing")]
+    pub samples: Option<usize>,
+    /// Reference viewpoints at most this many metres apart, evenly spread (default: the
+    /// track's own sampling).
+    #[arg(long)]
+    pub spacing: Option<f64>,
+    /// Colour rays per pixel along each axis of the panoramas, averaged in linear light
+    /// (anti-aliasing). Built-in and scene-file scenes; with --pov, 2 is --aa.
+    #[arg(long, default_value_t = 1)]
+    pub supersample: u32,
+    /// Slab boundaries: `auto`, `fewer`, `more`, `auto-N`, `auto+N`, or ranges
+    /// `0-10,10-inf` (see `railview slabs --slabs`).
+    #[arg(long, default_value = "auto")]
+    pub slabs: String,
+    /// Tile side, pixels (a power of two).
+    #[arg(long, default_value_t = 32)]
+    pub tile_size: u32,
+    /// Error bound of the tiles' depth meshes: parallax pixels at the track's longest segment.
+    #[arg(long, default_value_t = 0.5)]
+    pub mesh_error: f64,
     /// Occlusion culling α used for the database (a run with this α is used or made).
     #[arg(long, default_value_t = 1.0)]
     pub alpha: f64,
@@ -80,7 +105,18 @@ pub struct Args {
     /// or `zstd` (faster to decode, larger).
     #[arg(long, default_value = "arith")]
     pub ptm_method: String,
-    /// zstd level of the PTM groups with `--ptm-method zstd` (19 = smallest practical).
+    /// Culling variant for the database: `shrunk` (conservative for every track point,
+    /// against the scene's solids), `conservative`, `paper`, `none` (keep every non-empty
+    /// tile), or `auto`: shrunk at α = 1 for built-in and TOML scenes, conservative otherwise
+    /// (POV-Ray imports, α < 1).
+    #[arg(long, default_value = "auto")]
+    pub cull_variant: String,
+    /// Leave out the N finest texture levels: each tile's colour is kept at 1/2^N of its
+    /// resolution (opacity masks and meshes stay whole).
+    #[arg(long, default_value_t = 0)]
+    pub drop_levels: u32,
+    /// zstd level of the PTM groups with `--ptm-method zstd` (19 = smallest practical;
+    /// lower encodes faster).
     #[arg(long, default_value_t = 19)]
     pub zstd_level: i32,
     /// Lossy textures: the largest error of a colour sample at every PTM level (0 =
@@ -91,9 +127,6 @@ pub struct Args {
     /// baseline (0.001 to 10).
     #[arg(long, default_value_t = 0.05)]
     pub depth_error_px: f64,
-    /// Tile side in pixels, a power of two (the slabs stage's; default: its 32).
-    #[arg(long)]
-    pub tile_size: Option<u32>,
     /// Which mesh tiles carry: `adaptive` (error-bounded) or `grid` (a vertex every
     /// `--mesh-step` pixels); default: the slabs stage's `adaptive`.
     #[arg(long)]
@@ -101,15 +134,37 @@ pub struct Args {
     /// Grid step of `--mesh grid`, pixels (default: the slabs stage's 4).
     #[arg(long)]
     pub mesh_step: Option<u32>,
-    /// Error bound of the adaptive mesh, pixels of parallax (default: the slabs stage's 0.5).
-    #[arg(long)]
-    pub mesh_error: Option<f64>,
     /// ACH: viewpoints sampled per track segment.
     #[arg(long, default_value_t = 8)]
     pub ach_samples: usize,
     /// ACH: pixels per side of each of the six cameras at a sampled viewpoint.
     #[arg(long, default_value_t = 64)]
     pub ach_camera_size: u32,
+    /// Leave out what the scene does not need: sweep the build's knobs around the settings
+    /// given (as `railview tune` does by default), and build the cheapest configuration (by
+    /// --cost) whose worst 5 % of views reach this PSNR in dB. The sweep is kept in
+    /// --tune-dir and reused; the choice and its evidence go into the build report.
+    #[arg(long)]
+    pub target_psnr: Option<f64>,
+    /// With --target-psnr: the cost to minimise: db-bytes, walk-bytes, prerender-cpu,
+    /// build-cpu or frame-ms.
+    #[arg(long, default_value = "db-bytes")]
+    pub cost: String,
+    /// With --target-psnr: the sweep's directory (default: WORK/tune).
+    #[arg(long)]
+    pub tune_dir: Option<PathBuf>,
+    /// With --target-psnr: evaluation views per segment and directions per position.
+    #[arg(long, default_value_t = 2)]
+    pub per_segment: usize,
+    #[arg(long, default_value_t = 4)]
+    pub directions: usize,
+    /// Where the report goes when not into the work directory (the choice of --target-psnr
+    /// builds in the sweep's directory and reports beside the database).
+    #[arg(skip)]
+    pub report_dir: Option<PathBuf>,
+    /// What --target-psnr chose and why, for the report.
+    #[arg(skip)]
+    pub evidence: Option<serde_json::Value>,
 }
 
 /// Bytes at each stage (raw RGBA8 unless stated), and the baseline they are weighed against.
@@ -151,6 +206,40 @@ struct SlabRow {
     ptm_kept: u64,
 }
 
+/// The knobs a database was built with (`build.json`'s `config`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct BuildConfig {
+    pub samples: Option<usize>,
+    pub spacing_m: Option<f64>,
+    pub face_size: u32,
+    pub supersample: u32,
+    pub slabs: String,
+    pub tile_size: u32,
+    pub mesh_error_px: f64,
+    pub cull_variant: String,
+    pub alpha: f64,
+    pub drop_levels: u32,
+    pub zstd_level: i32,
+}
+
+impl BuildConfig {
+    fn of(a: &Args) -> BuildConfig {
+        BuildConfig {
+            samples: a.samples,
+            spacing_m: a.spacing,
+            face_size: a.face_size,
+            supersample: a.supersample,
+            slabs: a.slabs.clone(),
+            tile_size: a.tile_size,
+            mesh_error_px: a.mesh_error,
+            cull_variant: a.cull_variant.clone(),
+            alpha: a.alpha,
+            drop_levels: a.drop_levels,
+            zstd_level: a.zstd_level,
+        }
+    }
+}
+
 #[derive(Clone, Debug, Default, Serialize)]
 struct BuildReport {
     scene: String,
@@ -159,11 +248,27 @@ struct BuildReport {
     tile_size: u32,
     samples: usize,
     culling: String,
+    config: BuildConfig,
     sizes: Sizes,
     slabs: Vec<SlabRow>,
+    /// Wall seconds per stage.
     seconds: Vec<(String, f64)>,
+    /// CPU seconds per stage (this process's threads and the POV-Ray renders it waited
+    /// for); a stage that found its outputs already there costs next to nothing.
+    cpu_seconds: Vec<(String, f64)>,
     objects_written: u64,
     objects_reused: u64,
+    /// With --target-psnr: the target, the choice, what it left out and saved, the sweep.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    target: Option<serde_json::Value>,
+}
+
+impl BuildReport {
+    fn stage_done(&mut self, name: &str, meter: tune::cost::Meter) {
+        let (cpu, wall) = meter.stop();
+        self.seconds.push((name.into(), wall));
+        self.cpu_seconds.push((name.into(), cpu));
+    }
 }
 
 /// What `encode/NNNN.json` holds: a finished viewpoint and what produced it.
@@ -180,7 +285,7 @@ fn stage(n: usize, what: &str) {
     eprintln!("[{n}/6] {what}");
 }
 
-fn run_sub(argv: &[String]) -> anyhow::Result<()> {
+pub(crate) fn run_sub(argv: &[String]) -> anyhow::Result<()> {
     let mut full = vec!["railview".to_string()];
     full.extend_from_slice(argv);
     let cli = crate::Cli::try_parse_from(&full)
@@ -199,16 +304,51 @@ fn bar(n: u64, what: &str) -> ProgressBar {
 
 /// Every number of the command line against its limit, before any stage runs.
 fn check_args(args: &Args) -> anyhow::Result<()> {
-    use tracks::limits::check_f64;
+    use tracks::limits::{check_f64, MAX_VIEWPOINTS};
     super::face_size("--face-size", args.face_size)?;
     if let Some(n) = args.lowres_face_size {
         super::face_size("--lowres-face-size", n)?;
     }
+    if let Some(n) = args.samples {
+        super::count("--samples", n, MAX_VIEWPOINTS)?;
+    }
+    if let Some(d) = args.spacing {
+        anyhow::ensure!(
+            d.is_finite() && d > 0.0,
+            "--spacing {d}: must be a positive number of metres"
+        );
+    }
+    anyhow::ensure!(
+        (1..=16).contains(&args.supersample),
+        "--supersample {}: must be from 1 to 16",
+        args.supersample
+    );
+    anyhow::ensure!(
+        args.pov.is_none() || args.supersample <= 2,
+        "--supersample {} with --pov: POV-Ray imports anti-alias 2×2 (--supersample 2 or --aa) or not at all",
+        args.supersample
+    );
+    anyhow::ensure!(
+        args.tile_size.is_power_of_two() && (4..=1024).contains(&args.tile_size),
+        "--tile-size {}: a power of two from 4 to 1024",
+        args.tile_size
+    );
+    anyhow::ensure!(
+        args.mesh_error.is_finite() && args.mesh_error > 0.0,
+        "--mesh-error {}: must be a positive number of pixels",
+        args.mesh_error
+    );
+    cull_variant(args)?;
     // α = 0 would keep nothing behind the first slab; the culling stage refuses it too.
     anyhow::ensure!(
         args.alpha.is_finite() && args.alpha > 0.0 && args.alpha <= 1.0,
         "--alpha {}: must be a number in (0, 1]",
         args.alpha
+    );
+    anyhow::ensure!(
+        args.drop_levels <= 8,
+        "--drop-levels {}: must be at most 8",
+        args.drop_levels
     );
     anyhow::ensure!(
         (-7..=22).contains(&args.zstd_level),
@@ -223,14 +363,111 @@ fn check_args(args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The track `track` names: a track file (its track `track_name`, `main` or its only one),
+/// or a track of the scene (built-in or scene file).
+pub(crate) fn resolve_track(
+    scene: Option<&str>,
+    track: &str,
+    track_name: Option<&str>,
+) -> anyhow::Result<tracks::Track> {
+    let from_file = |path: &Path| -> anyhow::Result<TrackSet> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("reading track file {}", path.display()))?;
+        Ok(TrackSet::parse(&text, &path.display().to_string())?)
+    };
+    let set = if Path::new(track).is_file() {
+        from_file(Path::new(track))?
+    } else if let Some(b) = scene.and_then(prerender::scenes::builtin) {
+        b.tracks
+    } else if let Some(scene) = scene.filter(|s| Path::new(s).is_file()) {
+        let text = std::fs::read_to_string(scene)
+            .with_context(|| format!("reading scene file {scene}"))?;
+        prerender::parse::tracks_from_scene_toml(&text, scene)?
+            .with_context(|| format!("{scene} has no [[track]]"))?
+    } else {
+        bail!("track `{track}` is neither a track file nor a track of the scene");
+    };
+    let name = track_name.unwrap_or(track);
+    Ok(match set.get(name) {
+        Some(t) => t.clone(),
+        None if set.tracks.len() == 1 => set.tracks[0].clone(),
+        None => set.get("main").cloned().with_context(|| {
+            format!(
+                "no track `{name}` or `main` among {}",
+                set.names().join(", ")
+            )
+        })?,
+    })
+}
+
+/// The track file the first stage renders: the track as given, or resampled to `--samples`
+/// or `--spacing` (written to `WORK/track-resampled.toml`).
+fn track_arg(args: &Args, work: &Path) -> anyhow::Result<String> {
+    use tracks::Sampling;
+    let sampling = match (args.samples, args.spacing) {
+        (Some(n), _) => Sampling::Count(n),
+        (None, Some(d)) => Sampling::Spacing(d),
+        (None, None) => return Ok(args.track.clone()),
+    };
+    let mut track = resolve_track(
+        args.scene.as_deref(),
+        &args.track,
+        args.track_name.as_deref(),
+    )
+    .context("--samples/--spacing")?;
+    track.sampling = sampling;
+    let path = work.join("track-resampled.toml");
+    let one = TrackSet {
+        tracks: vec![track],
+    };
+    store::write_atomic(&path, one.to_toml().as_bytes())?;
+    Ok(path.display().to_string())
+}
+
+/// Panoramas are reused only when rendered with the same anti-aliasing: the samples do not
+/// record it, so `WORK/panoramas.json` does.
+fn check_panoramas(work: &Path, args: &Args) -> anyhow::Result<()> {
+    #[derive(Serialize, Deserialize, PartialEq)]
+    struct Panoramas {
+        supersample: u32,
+        aa: bool,
+    }
+    let want = Panoramas {
+        supersample: args.supersample,
+        aa: args.aa || (args.pov.is_some() && args.supersample == 2),
+    };
+    let path = work.join("panoramas.json");
+    if let Ok(had) = store::read_json::<Panoramas>(&path) {
+        if had != want && work.join("prerender").join("prerender.json").is_file() {
+            bail!(
+                "{} holds panoramas rendered with {}×{} rays per pixel; give another --work (or remove it) to render them with {}×{}",
+                work.display(),
+                had.supersample,
+                had.supersample,
+                want.supersample,
+                want.supersample
+            );
+        }
+    }
+    store::write_json(&path, &want)?;
+    Ok(())
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     check_args(&args)?;
+    if let Some(target) = args.target_psnr {
+        return build_for_target(args, target);
+    }
     let t_all = Instant::now();
+    let cpu_all = tune::cost::Meter::start();
     let work = args.work.clone().unwrap_or_else(|| {
         let mut w = args.out.clone().into_os_string();
         w.push(".work");
         PathBuf::from(w)
     });
+    store::ensure_writable_dir(&work)?;
+    check_panoramas(&work, &args)?;
+    let track = track_arg(&args, &work)?;
     let pre_root = work.join("prerender");
     let dir = PrerenderDir::new(&pre_root);
     let scene_name = match (&args.scene, &args.pov) {
@@ -242,69 +479,67 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         scene: scene_name,
         track: args.track.clone(),
         face_size: args.face_size,
+        config: BuildConfig::of(&args),
         ..BuildReport::default()
     };
     let p = |x: &Path| x.display().to_string();
     let log = RunLog::create(&work, "build", None)?;
 
     // 1–3: the other stages, each resuming on its own.
-    let t = Instant::now();
+    let m = tune::cost::Meter::start();
     stage(1, "prerender");
-    run_sub(&prerender_argv(&args, &pre_root)?)?;
-    report
-        .seconds
-        .push(("prerender".into(), t.elapsed().as_secs_f64()));
-    let t = Instant::now();
+    run_sub(&prerender_argv(&args, &track, &pre_root)?)?;
+    report.stage_done("prerender", m);
+    let m = tune::cost::Meter::start();
     stage(2, "slabs");
-    let wanted = TilingWanted::from_args(&args)?;
-    let slabs_path = pre_root.join("slabs.json");
-    match store::read_json::<slabs::report::SlabsReport>(&slabs_path) {
-        Ok(r) if wanted.matches(&r) => eprintln!("      slabs.json present: reusing the tiles"),
-        _ => {
-            let mut argv = vec!["slabs".into(), p(&pre_root)];
-            argv.extend(wanted.argv());
-            run_sub(&argv)?;
-        }
-    }
-    let tiling: slabs::report::SlabsReport =
-        store::read_json(&slabs_path).context("reading the slabs stage's report")?;
-    report
-        .seconds
-        .push(("slabs".into(), t.elapsed().as_secs_f64()));
-    let t = Instant::now();
+    // Each sample whose tiles were made with these parameters is kept as it is.
+    let mut argv = vec![
+        "slabs".into(),
+        p(&pre_root),
+        "--slabs".into(),
+        args.slabs.clone(),
+    ];
+    argv.extend(TilingWanted::from_args(&args)?.argv());
+    run_sub(&argv)?;
+    let tiling: slabs::report::SlabsReport = store::read_json(&pre_root.join("slabs.json"))
+        .context("reading the slabs stage's report")?;
+    report.stage_done("slabs", m);
+    let m = tune::cost::Meter::start();
     stage(3, "cull");
+    let variant = cull_variant(&args)?;
     // Decisions made on another tile grid (a rebuild with another --tile-size) are stale.
-    let decisions = cull_decisions(&pre_root, args.alpha)
-        .filter(|d| d.grid.tile_size == tiling.tile_size && d.grid.face_size == tiling.face_size);
-    let decisions = match decisions {
-        Some(d) => Some(d),
-        None => match run_sub(&[
-            "cull".into(),
-            p(&pre_root),
-            "--alpha".into(),
-            args.alpha.to_string(),
-            "--variant".into(),
-            "conservative".into(),
-        ]) {
-            Ok(()) => cull_decisions(&pre_root, args.alpha).filter(|d| {
-                d.grid.tile_size == tiling.tile_size && d.grid.face_size == tiling.face_size
-            }),
-            Err(e) => {
-                eprintln!("      culling unavailable ({e:#}): every non-empty tile is kept");
-                None
-            }
+    let fits = |d: &TileDecisions| {
+        d.grid.tile_size == tiling.tile_size && d.grid.face_size == tiling.face_size
+    };
+    let decisions = match variant {
+        None => None,
+        Some(v) => match cull_decisions(&pre_root, args.alpha, v).filter(fits) {
+            Some(d) => Some(d),
+            None => match run_sub(&[
+                "cull".into(),
+                p(&pre_root),
+                "--alpha".into(),
+                args.alpha.to_string(),
+                "--variant".into(),
+                v.name().into(),
+            ]) {
+                Ok(()) => cull_decisions(&pre_root, args.alpha, v).filter(fits),
+                Err(e) => {
+                    eprintln!("      culling unavailable ({e:#}): every non-empty tile is kept");
+                    None
+                }
+            },
         },
     };
-    report.culling = match &decisions {
-        Some(_) => format!("conservative, α = {}", args.alpha),
-        None => "none (cull stage unavailable): every non-empty tile kept".into(),
+    report.culling = match (&decisions, variant) {
+        (Some(_), Some(v)) => format!("{}, α = {}", v.name(), args.alpha),
+        (_, None) => "none (--cull-variant none): every non-empty tile kept".into(),
+        (None, Some(_)) => "none (cull stage unavailable): every non-empty tile kept".into(),
     };
-    report
-        .seconds
-        .push(("cull".into(), t.elapsed().as_secs_f64()));
+    report.stage_done("cull", m);
 
     // 4: encode every sample's tiles and background into the database.
-    let t = Instant::now();
+    let m = tune::cost::Meter::start();
     stage(4, "encode (PTM + meshes)");
     let mut pre: PrerenderReport = dir.read_report().context("reading the prerender report")?;
     report.track = pre.track.clone();
@@ -367,7 +602,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // under the mask) re-encodes samples encoded under another; so does any other knob, and
     // tiles meshed with other parameters.
     let key = format!(
-        "ptm-v{} db{} {:?} zstd{} near{} mesh-v{} depth{} tiles:{}/{}/{:?}/{:?} cull:{}",
+        "ptm-v{} db{} {:?} zstd{} near{} mesh-v{} depth{} tiles:{}/{}/{:?}/{:?} cull:{} drop:{}",
         ptm::FORMAT_VERSION,
         streamer::db::TOP_VERSION,
         method,
@@ -379,7 +614,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tiling.tile_size,
         tiling.mesh_kind,
         tiling.mesh_params,
-        report.culling
+        report.culling,
+        args.drop_levels
     );
     let enc_dir = work.join("encode");
     let mut viewpoints = Vec::new();
@@ -394,6 +630,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let b = bar(pre.viewpoints.len() as u64, "encoding");
     for vp in &pre.viewpoints {
         let path = enc_dir.join(format!("{:04}.json", vp.index));
+        let tiles_bytes = std::fs::read(sio::tiles_json(&dir, vp.index))
+            .with_context(|| format!("sample {}: reading its tiles file", vp.index))?;
+        let key = format!("{key} tiles:{:016x}", fnv64(&tiles_bytes));
         let cached: Option<EncodedSample> = store::read_json(&path)
             .ok()
             .filter(|c: &EncodedSample| c.key == key && all_present(writer.stage_root(), &c.entry));
@@ -406,6 +645,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     &pre,
                     decisions.as_ref(),
                     (&opts, &mesh_coding),
+                    args.drop_levels,
                     &mut writer,
                     &key,
                 )?;
@@ -452,12 +692,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     report.sizes.kept_tiles_rgba = rows.iter().map(|r| r.rgba_kept).sum();
     report.sizes.kept_tiles_ptm = rows.iter().map(|r| r.ptm_kept).sum();
     report.slabs = rows;
-    report
-        .seconds
-        .push(("encode".into(), t.elapsed().as_secs_f64()));
+    report.stage_done("encode", m);
 
     // 5: ACH per segment.
-    let t = Instant::now();
+    let m = tune::cost::Meter::start();
     stage(5, "ACH per segment");
     let params = AchParams {
         samples: args.ach_samples,
@@ -518,9 +756,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         b.inc(1);
     }
     b.finish_and_clear();
-    report
-        .seconds
-        .push(("ach".into(), t.elapsed().as_secs_f64()));
+    report.stage_done("ach", m);
 
     // 6: the manifest, last.
     stage(6, "manifest");
@@ -536,7 +772,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tile_size: grid.tile_size,
         slabs: pre.slabs.clone(),
         cull_alpha: decisions.as_ref().map(|_| args.alpha),
-        cull_variant: decisions.as_ref().map(|_| "conservative".to_string()),
+        cull_variant: decisions
+            .as_ref()
+            .and(variant)
+            .map(|v| v.name().to_string()),
         tracks: vec![TrackEntry {
             name: pre.track.clone(),
             track_toml,
@@ -566,27 +805,157 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     report
         .seconds
         .push(("total".into(), t_all.elapsed().as_secs_f64()));
+    report.cpu_seconds.push(("total".into(), cpu_all.stop().0));
+    report.target = args.evidence.clone();
     let stage_seconds: Vec<(&str, serde_json::Value)> = report
         .seconds
         .iter()
         .map(|(name, secs)| (name.as_str(), (*secs).into()))
         .collect();
     log.end(&stage_seconds)?;
-    store::write_json(&work.join("build.json"), &report)?;
+    let report_dir = args.report_dir.clone().unwrap_or(work);
+    store::write_json(&report_dir.join("build.json"), &report)?;
     let md = markdown(&report);
-    store::write_atomic(&work.join("build.md"), md.as_bytes())?;
+    store::write_atomic(&report_dir.join("build.md"), md.as_bytes())?;
     println!("{md}");
     eprintln!(
         "wrote {} (report: {})",
         args.out.join("manifest.json").display(),
-        work.join("build.md").display()
+        report_dir.join("build.md").display()
     );
     Ok(())
 }
 
+/// `--target-psnr`: sweep the knobs around the settings given (`railview tune`'s lists),
+/// choose the cheapest configuration reaching the target on the worst 5 % of views, and
+/// build it into `--out` from the sweep's own stages (nothing is rendered or encoded again),
+/// with the choice and its evidence in the report.
+fn build_for_target(args: Args, target: f64) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        target.is_finite() && target > 0.0,
+        "--target-psnr must be a positive number of dB"
+    );
+    let work = args.work.clone().unwrap_or_else(|| {
+        let mut w = args.out.clone().into_os_string();
+        w.push(".work");
+        PathBuf::from(w)
+    });
+    store::ensure_writable_dir(&work)?;
+    let tune_dir = args.tune_dir.clone().unwrap_or_else(|| work.join("tune"));
+    let track = track_arg(&args, &work)?;
+    let mut argv: Vec<String> = vec!["railview".into(), "tune".into()];
+    match (&args.scene, &args.pov) {
+        (Some(s), _) => argv.extend(["--scene".into(), s.clone()]),
+        (None, Some(p)) => {
+            argv.extend(["--pov".into(), p.display().to_string()]);
+            if let Some(up) = &args.up {
+                argv.extend(["--up".into(), up.clone()]);
+            }
+        }
+        (None, None) => bail!("give --scene NAME or --pov SCENE.pov"),
+    }
+    let cull = match cull_variant(&args)? {
+        None => "none".to_string(),
+        Some(v) => format!("{}:{}", v.name(), args.alpha),
+    };
+    argv.extend([
+        "--track".into(),
+        track,
+        "--out".into(),
+        tune_dir.display().to_string(),
+        "--face-size".into(),
+        args.face_size.to_string(),
+        "--supersample".into(),
+        args.supersample.to_string(),
+        "--slabs".into(),
+        args.slabs.clone(),
+        "--tile-size".into(),
+        args.tile_size.to_string(),
+        "--mesh-error".into(),
+        args.mesh_error.to_string(),
+        "--cull".into(),
+        cull,
+        "--target-psnr".into(),
+        target.to_string(),
+        "--cost".into(),
+        args.cost.clone(),
+        "--combine".into(),
+        "--per-segment".into(),
+        args.per_segment.to_string(),
+        "--directions".into(),
+        args.directions.to_string(),
+        "--zstd-level".into(),
+        args.zstd_level.to_string(),
+        "--ach-samples".into(),
+        args.ach_samples.to_string(),
+        "--ach-camera-size".into(),
+        args.ach_camera_size.to_string(),
+    ]);
+    if args.pov.is_some() && args.supersample > 2 {
+        bail!("--supersample with --pov: 1 or 2");
+    }
+    if let Some(n) = args.lowres_face_size {
+        argv.extend(["--lowres-face-size".into(), n.to_string()]);
+    }
+    let cli = crate::Cli::try_parse_from(&argv).context("the sweep's arguments")?;
+    let crate::Command::Tune(tune_args) = cli.command else {
+        bail!("the sweep's arguments did not parse as `railview tune`");
+    };
+    let mut sweep = super::tune::Sweep::new(tune_args)?;
+    let report = sweep.run()?;
+    let selection = report
+        .selections
+        .first()
+        .context("the sweep made no choice")?;
+    let text = tune::report::selection_text(&report, selection);
+    let Some(i) = selection.chosen else {
+        bail!("{text} (the sweep is in {})", tune_dir.display());
+    };
+    let chosen = &report.records[i];
+    eprintln!("{text}");
+    let node = tune_dir.join(&chosen.dir);
+    let k = &chosen.knobs;
+    let evidence = serde_json::json!({
+        "target_psnr_db": target,
+        "judged_on": "PSNR of the worst 5 % of views between samples",
+        "cost": selection.cost,
+        "chosen": chosen,
+        "left_out": k.differences(&report.base),
+        "summary": text,
+        "sweep": tune_dir.display().to_string(),
+        "table": tune::report::table(&report),
+        "configurations": report.records.len(),
+    });
+    let chosen_args = Args {
+        track: node
+            .join("prerender")
+            .join("track.toml")
+            .display()
+            .to_string(),
+        track_name: None,
+        samples: None,
+        spacing: None,
+        face_size: k.face_size,
+        supersample: k.supersample,
+        aa: args.aa || (args.pov.is_some() && k.supersample == 2),
+        slabs: k.slabs.clone(),
+        tile_size: k.tile_size,
+        mesh_error: k.mesh_error_px,
+        cull_variant: k.cull_variant.clone(),
+        alpha: k.alpha,
+        drop_levels: k.drop_levels,
+        work: Some(node),
+        target_psnr: None,
+        report_dir: Some(work),
+        evidence: Some(evidence),
+        ..args
+    };
+    run(chosen_args)
+}
+
 /// The first stage's command line: `prerender` for built-in and TOML scenes, `import-pov`
 /// (base pass only; the slabs stage renders the layers it chooses) for POV-Ray scenes.
-fn prerender_argv(args: &Args, pre_root: &Path) -> anyhow::Result<Vec<String>> {
+fn prerender_argv(args: &Args, track: &str, pre_root: &Path) -> anyhow::Result<Vec<String>> {
     let p = |x: &Path| x.display().to_string();
     let mut argv: Vec<String> = match (&args.scene, &args.pov) {
         (Some(scene), _) => vec![
@@ -594,7 +963,9 @@ fn prerender_argv(args: &Args, pre_root: &Path) -> anyhow::Result<Vec<String>> {
             "--scene".into(),
             scene.clone(),
             "--track".into(),
-            args.track.clone(),
+            track.to_string(),
+            "--supersample".into(),
+            args.supersample.to_string(),
         ],
         (None, Some(pov)) => {
             if !Path::new(&args.track).is_file() {
@@ -603,19 +974,20 @@ fn prerender_argv(args: &Args, pre_root: &Path) -> anyhow::Result<Vec<String>> {
                     args.track
                 );
             }
+            let resampled = track != args.track;
             let mut v = vec![
                 "import-pov".into(),
                 p(pov),
                 "--track".into(),
-                args.track.clone(),
+                track.to_string(),
             ];
-            if let Some(name) = &args.track_name {
+            if let Some(name) = args.track_name.as_ref().filter(|_| !resampled) {
                 v.extend(["--track-name".into(), name.clone()]);
             }
             if let Some(up) = &args.up {
                 v.extend(["--up".into(), up.clone()]);
             }
-            if args.aa {
+            if args.aa || args.supersample == 2 {
                 v.push("--aa".into());
             }
             if let Some(b) = &args.povray {
@@ -642,7 +1014,6 @@ fn prerender_argv(args: &Args, pre_root: &Path) -> anyhow::Result<Vec<String>> {
 
 /// The tiling a build asks of the slabs stage: its options, or the stage's defaults.
 struct TilingWanted {
-    face_size: u32,
     tile_size: u32,
     mesh: slabs::tiles::MeshKind,
     step: u32,
@@ -658,22 +1029,11 @@ impl TilingWanted {
             other => bail!("--mesh `{other}`: expected `adaptive` or `grid`"),
         };
         Ok(TilingWanted {
-            face_size: args.face_size,
-            tile_size: args.tile_size.unwrap_or(s::DEFAULT_TILE_SIZE),
+            tile_size: args.tile_size,
             mesh,
             step: args.mesh_step.unwrap_or(s::DEFAULT_MESH_STEP),
-            error: args.mesh_error.unwrap_or(s::DEFAULT_MESH_ERROR),
+            error: args.mesh_error,
         })
-    }
-
-    /// Whether a slabs report was made with these parameters, on panoramas of this size (a
-    /// work directory prerendered again at another `--face-size` holds stale tiles).
-    fn matches(&self, r: &slabs::report::SlabsReport) -> bool {
-        r.face_size == self.face_size
-            && r.tile_size == self.tile_size
-            && r.mesh_kind == self.mesh
-            && r.mesh_params.step == self.step
-            && r.mesh_params.max_error_px == self.error
     }
 
     fn argv(&self) -> Vec<String> {
@@ -694,13 +1054,42 @@ impl TilingWanted {
     }
 }
 
-/// Kept/culled decisions of the conservative run with this α, by viewpoint and slab.
-fn cull_decisions(pre_root: &Path, alpha: f64) -> Option<TileDecisions> {
+/// The culling variant of the database: `--cull-variant`, where `auto` is the shrunk
+/// variant at α = 1 for scenes whose solids the tracer has, else the conservative one, and
+/// `none` keeps every non-empty tile.
+fn cull_variant(args: &Args) -> anyhow::Result<Option<Variant>> {
+    match args.cull_variant.trim() {
+        "none" => Ok(None),
+        "auto" => Ok(Some(if args.pov.is_none() && args.alpha == 1.0 {
+            Variant::Shrunk
+        } else {
+            Variant::Conservative
+        })),
+        s => {
+            let v = Variant::parse(s).with_context(|| {
+                format!("--cull-variant `{s}`: expected auto, shrunk, conservative, paper or none")
+            })?;
+            if v == Variant::Shrunk && args.alpha != 1.0 {
+                bail!(
+                    "--cull-variant shrunk runs at α = 1 only (found --alpha {})",
+                    args.alpha
+                );
+            }
+            if v == Variant::Shrunk && args.pov.is_some() {
+                bail!("--cull-variant shrunk needs the scene's solids: not with --pov");
+            }
+            Ok(Some(v))
+        }
+    }
+}
+
+/// Kept/culled decisions of the run with this α and variant, by viewpoint and slab.
+fn cull_decisions(pre_root: &Path, alpha: f64, variant: Variant) -> Option<TileDecisions> {
     let d: TileDecisions = store::read_json(&pre_root.join("cull_tiles.json")).ok()?;
     let run = d
         .runs
         .iter()
-        .find(|r| (r.alpha - alpha).abs() < 1e-9 && r.variant.name() == "conservative")?
+        .find(|r| (r.alpha - alpha).abs() < 1e-9 && r.variant == variant)?
         .clone();
     Some(TileDecisions {
         grid: d.grid,
@@ -744,12 +1133,24 @@ fn crop<T: Copy>(map: &CubeMap<T>, grid: &TileGrid, t: tracks::TileId) -> Vec<T>
     out
 }
 
+/// FNV-1a, 64 bits: a short stable digest (not a security hash).
+fn fnv64(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
+#[expect(
+    clippy::too_many_arguments,
+    reason = "one sample's inputs, each from a different stage"
+)]
 fn encode_sample(
     dir: &PrerenderDir,
     vp: &tracks::ReferenceViewpoint,
     pre: &PrerenderReport,
     decisions: Option<&TileDecisions>,
     (opts, mesh_coding): (&EncodeOptions, &MeshCoding),
+    drop_levels: u32,
     writer: &mut DbWriter,
     key: &str,
 ) -> anyhow::Result<EncodedSample> {
@@ -775,6 +1176,7 @@ fn encode_sample(
                     .into_iter()
                     .flatten()
                     .collect();
+                slabs::tiles::coarsen_colour(&mut px, x1 - x0, y1 - y0, drop_levels);
                 // Colour 0 under the mask (format 5): coarse levels are colour × coverage.
                 streamer::db::clear_masked(&mut px);
                 let img = Image::new(x1 - x0, y1 - y0, 4, px)?;
@@ -842,7 +1244,9 @@ fn encode_sample(
                     continue;
                 }
                 let (x0, y0, x1, y1) = grid.pixel_rect(tile);
-                let img = Image::new(x1 - x0, y1 - y0, 4, px.into_iter().flatten().collect())?;
+                let mut px: Vec<u8> = px.into_iter().flatten().collect();
+                slabs::tiles::coarsen_colour(&mut px, x1 - x0, y1 - y0, drop_levels);
+                let img = Image::new(x1 - x0, y1 - y0, 4, px)?;
                 let enc = ptm::encode(&img, opts)?;
                 background.push(BackgroundTile {
                     tile,
@@ -996,14 +1400,44 @@ fn markdown(r: &BuildReport) -> String {
             mib(row.ptm_kept)
         );
     }
-    m += "\n## Timings\n\n| stage | seconds |\n|---|---|\n";
+    m += "\n## Timings\n\n| stage | wall seconds | CPU seconds |\n|---|---|---|\n";
     for (name, secs) in &r.seconds {
-        m += &format!("| {name} | {secs:.1} |\n");
+        let cpu = r
+            .cpu_seconds
+            .iter()
+            .find(|(n, _)| n == name)
+            .map_or("–".to_string(), |(_, c)| format!("{c:.1}"));
+        m += &format!("| {name} | {secs:.1} | {cpu} |\n");
     }
+    let c = &r.config;
+    m += &format!(
+        "\nConfiguration: samples {}, spacing {}, faces {} px at {}×{} rays per pixel, slabs {}, tiles {} px, mesh error {} px, culling {} α {}, finest texture levels left out {}, zstd {}.\n",
+        c.samples.map_or("as the track".into(), |n| n.to_string()),
+        c.spacing_m.map_or("as the track".into(), |d| format!("{d} m")),
+        c.face_size,
+        c.supersample,
+        c.supersample,
+        c.slabs,
+        c.tile_size,
+        c.mesh_error_px,
+        c.cull_variant,
+        c.alpha,
+        c.drop_levels,
+        c.zstd_level
+    );
     m += &format!(
         "\nObjects written {}, reused {} (a rebuild reuses everything already written).\n",
         r.objects_written, r.objects_reused
     );
+    if let Some(t) = &r.target {
+        m += &format!(
+            "\n## Chosen for a PSNR target\n\n{}\n\nThe sweep ({} configurations, in {}):\n\n{}",
+            t["summary"].as_str().unwrap_or(""),
+            t["configurations"],
+            t["sweep"].as_str().unwrap_or(""),
+            t["table"].as_str().unwrap_or("")
+        );
+    }
     m
 }
 
@@ -1031,15 +1465,28 @@ mod tests {
             face_size: 32,
             out: out.clone(),
             work: Some(work.clone()),
+            samples: None,
+            spacing: None,
+            supersample: 1,
+            slabs: "auto".into(),
+            tile_size: 32,
+            mesh_error: 0.5,
+            drop_levels: 0,
+            target_psnr: None,
+            cost: "db-bytes".into(),
+            tune_dir: None,
+            per_segment: 2,
+            directions: 4,
+            report_dir: None,
+            evidence: None,
             alpha: 1.0,
+            cull_variant: "auto".into(),
             ptm_method: "arith".into(),
             zstd_level: 3,
             lossy_near: 0,
             depth_error_px: 0.05,
-            tile_size: None,
             mesh: None,
             mesh_step: None,
-            mesh_error: None,
             ach_samples: 2,
             ach_camera_size: 16,
         };
@@ -1050,6 +1497,8 @@ mod tests {
         assert!(v.notes.is_empty(), "{:?}", v.notes);
         let db = streamer::db::Database::open(&out).unwrap();
         let m = db.manifest();
+        // A built-in scene: the shrunk variant by default.
+        assert_eq!(m.cull_variant.as_deref(), Some("shrunk"));
         let track = &m.tracks[0];
         assert!(track.viewpoints.len() > 1);
         assert_eq!(track.segments.len(), track.viewpoints.len() - 1);

@@ -1,6 +1,10 @@
 //! `railview cull DIR`: track-dependent occlusion culling of the slab tiles that
 //! `railview slabs DIR` wrote, for every α and variant, optionally judged by the exact oracle.
 //!
+//! Variants: `shrunk` (occluder shrinking against the scene's exact solids, α = 1 only; it
+//! needs the geometry of a built-in or TOML scene and is left out for POV-Ray imports),
+//! `conservative` and `paper` (both on the slab layers alone, every α).
+//!
 //! Writes (each atomically):
 //! - `DIR/cull.json`: `runs`, one per (α, variant), each with `alpha`, `variant` and per slab
 //!   `tiles_before`, `tiles_after`, `bytes_before`, `bytes_after` (raw RGBA8 tile sizes) and,
@@ -20,14 +24,14 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use glam::DVec3;
 use indicatif::{ProgressBar, ProgressStyle};
-use occlusion::oracle::segment_samples;
+use occlusion::oracle::oracle_positions;
 use occlusion::report::{
     atlas_png, markdown, paper_table, CullReport, OracleInfo, RunDecisions, RunReport,
     TileDecisions, ViewpointDecisions,
 };
 use occlusion::{
-    cull_viewpoint, mark_visible, raw_rgba_bytes, score, Cell, CullParams, MatchRule, SlabLayer,
-    TileInfo, Variant, Visibility,
+    cull_viewpoint, cull_viewpoint_shrunk, mark_visible, raw_rgba_bytes, score, Cell, CullParams,
+    MatchRule, SceneSolids, SlabLayer, TileInfo, Variant, Visibility,
 };
 use prerender::runlog::RunLog;
 use prerender::scene::Scene;
@@ -43,15 +47,17 @@ pub struct Args {
     /// Opacity thresholds α, comma-separated (1 = fully opaque windows only).
     #[arg(long, default_value = "1.0,0.9,0.8")]
     pub alpha: String,
-    /// `conservative`, `paper` or `both`.
-    #[arg(long, default_value = "both")]
+    /// Variants, comma-separated: `shrunk`, `conservative`, `paper`; `all` for the three
+    /// (`shrunk` only where the scene's geometry is at hand), `both` for the last two.
+    #[arg(long, default_value = "all")]
     pub variant: String,
     /// Also run the exact oracle: built-in or TOML scenes cast rays through the geometry;
     /// POV-Ray imports render depth with POV-Ray at every oracle position (use a small
     /// `--oracle-face-size`: each position is one POV-Ray base pass).
     #[arg(long)]
     pub oracle: bool,
-    /// Oracle positions per track segment (both ends included).
+    /// Oracle positions per track segment besides its two ends, at offset fractions of its
+    /// length that the shrunk variant never samples (at least twice its base sampling).
     #[arg(long, default_value_t = 16)]
     pub oracle_per_segment: usize,
     /// Oracle rays per face side (default: the layers' face size).
@@ -74,14 +80,40 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .context("reading the prerender report (run `railview prerender` first)")?;
     let log = RunLog::create(&args.dir, "cull", None)?;
     let alphas = parse_alphas(&args.alpha)?;
-    let variants = match args.variant.as_str() {
-        "both" => vec![Variant::Conservative, Variant::Paper],
-        s => vec![Variant::parse(s)
-            .with_context(|| format!("--variant `{s}`: expected conservative, paper or both"))?],
+    let (variants, explicit) = parse_variants(&args.variant)?;
+    // The shrunk variant needs the scene's solids: built-in and TOML scenes only.
+    let solids: Option<Box<Scene>> = if variants.contains(&Variant::Shrunk) {
+        if pre.renderer == "builtin" {
+            Some(Box::new(load_geometry(&pre).context("the shrunk variant")?))
+        } else if explicit {
+            bail!(
+                "--variant shrunk: scene `{}` was rendered by `{}`; the shrunk variant needs the \
+                 exact geometry of a built-in or TOML scene (use conservative or paper)",
+                pre.scene,
+                pre.renderer
+            );
+        } else {
+            eprintln!(
+                "note: no shrunk variant for `{}` (rendered by {}: no scene geometry)",
+                pre.scene, pre.renderer
+            );
+            None
+        }
+    } else {
+        None
     };
+    let variants: Vec<Variant> = variants
+        .into_iter()
+        .filter(|v| *v != Variant::Shrunk || solids.is_some())
+        .collect();
+    let solids = solids.as_deref().map(SceneSolids::new);
+    // α-acceleration is a threshold on window opacity; the shrunk variant runs at α = 1.
     let params: Vec<CullParams> = variants
         .iter()
-        .flat_map(|&v| alphas.iter().map(move |&a| (a, v)))
+        .flat_map(|&v| match v {
+            Variant::Shrunk => vec![(1.0, v)],
+            _ => alphas.iter().map(|&a| (a, v)).collect(),
+        })
         .map(|(a, v)| CullParams::new(a, v))
         .collect::<Result<_, _>>()?;
     if pre.viewpoints.is_empty() {
@@ -129,6 +161,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let t = Instant::now();
         let cur = load_viewpoint(&dir, vp.index)?;
         load_seconds += t.elapsed().as_secs_f64();
+        if let Some(s) = &solids {
+            same_geometry(s.scene(), vp.position, &cur.layers).with_context(|| {
+                format!(
+                    "viewpoint {}: the shrunk variant needs scene `{}`",
+                    vp.index, pre.scene
+                )
+            })?;
+        }
         match &first {
             None => first = Some((cur.grid, cur.layers.iter().map(|l| l.range).collect())),
             Some((g, r)) => {
@@ -149,7 +189,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let t = Instant::now();
             let n = oracle_n.unwrap_or(cur.grid.face_size);
             let positions = match &prev {
-                Some(_) => segment_samples(&path.between(k - 1), args.oracle_per_segment),
+                Some(_) => oracle_positions(&path.between(k - 1), args.oracle_per_segment),
                 None if count == 1 => vec![vp.position],
                 None => Vec::new(),
             };
@@ -170,6 +210,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 k - 1,
                 &path,
                 &params,
+                solids.as_ref(),
                 &mut runs,
                 &mut decisions,
                 pv.as_ref(),
@@ -187,6 +228,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             count - 1,
             &path,
             &params,
+            solids.as_ref(),
             &mut runs,
             &mut decisions,
             pv.as_ref(),
@@ -234,9 +276,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let rs: Vec<&RunReport> = report.runs.iter().filter(|r| r.variant == *v).collect();
         println!("variant {}:\n{}", v.name(), paper_table(&rs));
     }
+    for r in &report.runs {
+        println!(
+            "{} α = {}: {:.2} s culling{}",
+            r.variant.name(),
+            r.alpha,
+            r.seconds,
+            r.later_slabs()
+                .kept_per_seen()
+                .map_or(String::new(), |x| format!(
+                    ", later slabs kept ÷ seen {x:.2}×"
+                ))
+        );
+    }
     if let Some(o) = &report.oracle {
         println!(
-            "oracle: {} positions per segment, {}² per face, {:.2} s",
+            "oracle: both ends and {} offset positions per segment, {}² per face, {:.2} s",
             o.per_segment, o.face_size, o.seconds
         );
     }
@@ -255,11 +310,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 /// Run every (α, variant) on one loaded viewpoint and record the results.
+#[allow(clippy::too_many_arguments)]
 fn finish(
     l: &Loaded,
     k: usize,
     path: &TrackPath,
     params: &[CullParams],
+    solids: Option<&SceneSolids<Scene>>,
     runs: &mut Vec<RunReport>,
     decisions: &mut [RunDecisions],
     vis: Option<&Visibility>,
@@ -267,11 +324,24 @@ fn finish(
     let cell = path.cell(k);
     for (j, p) in params.iter().enumerate() {
         let t = Instant::now();
-        let c = cull_viewpoint(&cell, &l.grid, &l.layers, p)
-            .with_context(|| format!("culling viewpoint {}", l.index))?;
+        let (c, stats) = match (p.variant, solids) {
+            (Variant::Shrunk, Some(scene)) => {
+                let (c, s) = cull_viewpoint_shrunk(&cell, &l.grid, &l.layers, &p.shrunk, scene)
+                    .with_context(|| format!("culling viewpoint {}", l.index))?;
+                (c, Some(s))
+            }
+            _ => (
+                cull_viewpoint(&cell, &l.grid, &l.layers, p)
+                    .with_context(|| format!("culling viewpoint {}", l.index))?,
+                None,
+            ),
+        };
         let secs = t.elapsed().as_secs_f64();
         if runs.len() <= j {
             runs.push(RunReport::new(p.alpha, p.variant, l.layers.len()));
+        }
+        if let Some(s) = stats {
+            runs[j].shrunk.get_or_insert_with(Default::default).add(&s);
         }
         let scores = vis.map(|v| score(&c, &l.grid, v));
         runs[j].add(&c, scores.as_deref());
@@ -281,6 +351,26 @@ fn finish(
             .push(ViewpointDecisions::new(l.index, &l.grid, &c));
     }
     Ok(())
+}
+
+/// `--variant`: the variants and whether they were named one by one (`all` and `both` are
+/// not: a variant they name that cannot run here is left out with a note, not an error).
+fn parse_variants(s: &str) -> anyhow::Result<(Vec<Variant>, bool)> {
+    match s.trim() {
+        "all" => return Ok((Variant::ALL.to_vec(), false)),
+        "both" => return Ok((vec![Variant::Conservative, Variant::Paper], false)),
+        _ => {}
+    }
+    let mut out = Vec::new();
+    for part in s.split(',') {
+        let v = Variant::parse(part).with_context(|| {
+            format!("--variant `{part}`: expected shrunk, conservative, paper, all or both")
+        })?;
+        if !out.contains(&v) {
+            out.push(v);
+        }
+    }
+    Ok((out, true))
 }
 
 fn parse_alphas(s: &str) -> anyhow::Result<Vec<f64>> {
@@ -423,6 +513,49 @@ impl Drop for OracleSource {
     }
 }
 
+/// Whether `scene` is the geometry the layers were rendered from: its first hit from the
+/// viewpoint along each pixel centre of a grid of about 4 000 pixels is the depth of the
+/// nearest layer opaque there, and lies in no slab's range where every layer is empty (a few
+/// per cent may differ where an edge splits a pixel). The shrunk variant's guarantee is
+/// about the solids it is given, so a scene file edited since `prerender` must not be used.
+fn same_geometry(scene: &Scene, position: DVec3, layers: &[SlabLayer]) -> anyhow::Result<()> {
+    let Some(l0) = layers.first() else {
+        return Ok(());
+    };
+    let n = l0.depth.face_size();
+    let stride = ((6 * n * n) as f64 / 4000.0).sqrt().ceil().max(1.0) as usize;
+    let (mut checked, mut differ) = (0u32, 0u32);
+    for face in tracks::Face::ALL {
+        for y in (0..n).step_by(stride) {
+            for x in (0..n).step_by(stride) {
+                let stored = layers
+                    .iter()
+                    .find(|l| *l.alpha.get(face, x, y) >= 128)
+                    .map(|l| *l.depth.get(face, x, y) as f64);
+                let dir = tracks::cubemap::pixel_dir(face, x, y, n);
+                let hit = scene.first_hit(position, dir, f64::INFINITY);
+                checked += 1;
+                let same = match (stored, hit) {
+                    (Some(d), Some(h)) => (h - d).abs() <= 1e-3 * d + 1e-4,
+                    (Some(_), None) => false,
+                    (None, Some(h)) => !layers.iter().any(|l| h >= l.range.near && h < l.range.far),
+                    (None, None) => true,
+                };
+                if !same {
+                    differ += 1;
+                }
+            }
+        }
+    }
+    if checked > 0 && differ as f64 > 0.05 * checked as f64 {
+        bail!(
+            "its first hits differ from the stored depth at {differ} of {checked} pixels: \
+             the scene changed since `railview prerender` (render again)"
+        );
+    }
+    Ok(())
+}
+
 /// Exact geometry of a built-in or TOML scene for the oracle.
 fn load_geometry(pre: &PrerenderReport) -> anyhow::Result<Scene> {
     if pre.renderer != "builtin" {
@@ -462,10 +595,10 @@ impl TrackPath {
             .and_then(|set| {
                 let t = set.get(&pre.track).or_else(|| set.tracks.first())?.clone();
                 let c = t.curve().to_vec();
-                let a = occlusion::input::arc_lengths(&c);
+                let a = tracks::segment::arc_lengths(&c);
                 // Use the curve only if it reproduces the viewpoints.
                 let ok = positions.iter().zip(&arcs).all(|(p, &s)| {
-                    occlusion::input::point_at(&c, &a, s).distance(*p) <= 1e-6 * (1.0 + p.length())
+                    tracks::segment::point_at(&c, &a, s).distance(*p) <= 1e-6 * (1.0 + p.length())
                 });
                 ok.then_some((c, a))
             });

@@ -220,9 +220,9 @@ fn finish(layout: &Layout, log: &mut RunLog, record: StageRecord) -> StageStatus
 }
 
 /// The stages that make the database, in order: `build` runs prerender → slabs → cull
-/// (conservative, α = 1) → encode → ACH, each resuming; then `cull` runs again over every α
-/// and both variants with the oracle, for the report's tables (it rewrites the same decisions
-/// for the run `build` used).
+/// (shrunk, α = 1) → encode → ACH, each resuming; then `cull` runs again over every α and
+/// every variant with the oracle, for the report's tables (it rewrites the same decisions for
+/// the run `build` used).
 fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
     let work = layout.prerender();
     let db = layout.db();
@@ -262,6 +262,9 @@ fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
     ]
 }
 
+/// The PSNR (worst 5 % of views) the demo's small sweep chooses the smallest database for.
+const TUNE_TARGET_DB: &str = "24";
+
 /// The stages that use the database. The flythrough always runs (the report shows its
 /// frames); with a display the viewer window comes after the report.
 fn use_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
@@ -293,13 +296,62 @@ fn use_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
                 path_arg(&db),
                 "--out".into(),
                 path_arg(&layout.eval()),
-                "--size".into(),
-                "160x120".into(),
-                "--segments".into(),
+                "--per-segment".into(),
+                "1".into(),
+                "--directions".into(),
                 "2".into(),
+                "--timed-draws".into(),
+                "1".into(),
             ],
             outputs: vec![layout.eval().join("eval.json")],
             requires: vec!["build"],
+        },
+        // A small sweep over the build's knobs at faces of at most 64 px (the full-size one
+        // is `railview tune`, as long as a build per configuration): error against cost,
+        // Pareto fronts and the choice for a target.
+        Stage {
+            name: "tune",
+            argv: [
+                "tune",
+                "--scene",
+                &args.scene,
+                "--track",
+                &args.track,
+                "--out",
+                &path_arg(&layout.tune()),
+                "--face-size",
+                &args.face_size.min(64).to_string(),
+                "--every",
+                "2",
+                "--supersamples",
+                "2",
+                "--slab-counts",
+                "",
+                "--tile-sizes",
+                "",
+                "--mesh-errors",
+                "",
+                "--culls",
+                "none",
+                "--drop-levels",
+                "1",
+                "--per-segment",
+                "1",
+                "--directions",
+                "2",
+                "--truth-supersample",
+                "2",
+                "--zstd-level",
+                "9",
+                "--walk-speed",
+                &args.walk_speed.to_string(),
+                "--target-psnr",
+                TUNE_TARGET_DB,
+            ]
+            .map(String::from)
+            .to_vec(),
+            outputs: vec![layout.tune().join("sweep.json")],
+            requires: vec![],
         },
         Stage {
             name: "flythrough",

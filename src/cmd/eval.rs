@@ -1,37 +1,69 @@
-//! `railview eval`: reconstructed views at and between reference samples against the ground
-//! truth from the same camera (PSNR, SSIM, hole fraction, frame time) over configurations.
+//! `railview eval`: reconstructed views over the whole track against the anti-aliased ground
+//! truth from the same camera (PSNR, SSIM, holes, frame time) for several renderer budgets,
+//! and for a database also as a client shows it before the finer levels arrive.
 
-use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use viewer::gpu::{Gpu, Renderer};
-use viewer::headless::{
-    default_configs, eval_positions, evaluate, open, parse_size, summarize, EvalRow, Truth,
+use viewer::eval::report::{self, EvalReport};
+use viewer::eval::{
+    self, default_configs, evaluate, mark_references, matched_size, resolution_ratio,
+    views_at_samples, views_between, EvalConfig, EvalInput, EvalRow, EvalView, Truth, TruthCache,
+    ViewSpec,
 };
-use viewer::plot::{ranges, scatter, SERIES_COLORS};
-use viewer::source::LoadOptions;
+use viewer::gpu::{Gpu, Renderer};
+use viewer::headless::{open, parse_size};
+use viewer::source::{LoadOptions, Walkthrough};
 
 /// Arguments of `railview eval`.
-#[derive(clap::Args)]
+#[derive(clap::Args, Clone)]
 pub struct Args {
-    /// Database or prerender directory of a built-in scene, or `synth:street`.
+    /// Database or prerender directory (any scene: built-in, scene file, POV-Ray import), or
+    /// `synth:street`.
     pub db: String,
-    /// Output directory: eval.json, eval.csv, eval.md, psnr_vs_frame_ms.png, psnr_vs_bytes.png.
+    /// Output directory: eval.json, eval.csv, eval.md, figures (SVG and PNG), worst-N.png,
+    /// truth/ (the ground-truth pictures, reused by later runs).
     #[arg(long)]
     pub out: PathBuf,
-    /// Image size WxH.
-    #[arg(long, default_value = "256x192")]
+    /// View size WxH, or `matched`: pixels as wide as the panorama's at the view centre
+    /// (4:3).
+    #[arg(long, default_value = "matched")]
     pub size: String,
     /// Horizontal field of view, degrees.
     #[arg(long, default_value_t = 90.0)]
     pub fov: f64,
-    /// Segments evaluated from the start of the track (at least 1).
+    /// Positions evaluated inside every segment.
     #[arg(long, default_value_t = 3)]
-    pub segments: usize,
-    /// Positions evaluated inside each segment.
-    #[arg(long, default_value_t = 1)]
-    pub between: usize,
+    pub per_segment: usize,
+    /// Directions per position, evenly spaced from the direction of travel.
+    #[arg(long, default_value_t = 4)]
+    pub directions: usize,
+    /// Pitches of every direction, degrees, comma separated.
+    #[arg(long, default_value = "0")]
+    pub pitch: String,
+    /// Evaluate only the first N segments (default: all).
+    #[arg(long)]
+    pub segments: Option<usize>,
+    /// Ground truth rays per pixel along each axis (box filter over the pixel).
+    #[arg(long, default_value_t = 3)]
+    pub truth_supersample: u32,
+    /// Where ground-truth pictures are kept between runs (default: OUT/truth).
+    #[arg(long)]
+    pub truth_cache: Option<PathBuf>,
+    /// The prerender directory the database was built from (default: DB.work/prerender when
+    /// it made this database; needed for POV-Ray imports built elsewhere).
+    #[arg(long)]
+    pub prerender: Option<PathBuf>,
+    /// Renderer budgets: `all` (full, one slab, one view, coarser textures, second view at half
+    /// resolution) or `full`.
+    #[arg(long, default_value = "all")]
+    pub configs: String,
+    /// Worst views pictured beside their truth (worst-1.png, …).
+    #[arg(long, default_value_t = 3)]
+    pub worst: usize,
+    /// Timed draws per view and configuration (after one untimed draw).
+    #[arg(long, default_value_t = 3)]
+    pub timed_draws: usize,
     /// Track name (default: the first).
     #[arg(long)]
     pub track: Option<String>,
@@ -42,22 +74,59 @@ pub struct Args {
     pub also: Vec<String>,
 }
 
-#[derive(serde::Serialize)]
-struct EvalJson<'a> {
-    db: &'a str,
-    scene: &'a str,
-    width: u32,
-    height: u32,
-    fov_deg: f64,
-    adapter: String,
-    rows: &'a [EvalRow],
-    summary: Vec<viewer::headless::EvalSummary>,
+/// Refuse nonsense before anything is rendered or written.
+fn check(args: &Args) -> anyhow::Result<()> {
+    if let Some(n) = args.segments {
+        super::count("--segments", n, 100_000)?;
+    }
+    anyhow::ensure!(
+        args.fov.is_finite() && args.fov > 0.0 && args.fov < 180.0,
+        "--fov must be in (0, 180) degrees"
+    );
+    anyhow::ensure!(
+        (1..=64).contains(&args.per_segment),
+        "--per-segment must be in 1..=64"
+    );
+    anyhow::ensure!(
+        (1..=64).contains(&args.directions),
+        "--directions must be in 1..=64"
+    );
+    anyhow::ensure!(
+        (1..=16).contains(&args.truth_supersample),
+        "--truth-supersample must be in 1..=16"
+    );
+    anyhow::ensure!(
+        (1..=100).contains(&args.timed_draws),
+        "--timed-draws must be in 1..=100"
+    );
+    anyhow::ensure!(
+        matches!(args.configs.as_str(), "all" | "full"),
+        "--configs `{}`: expected `all` or `full`",
+        args.configs
+    );
+    pitches(&args.pitch)?;
+    if args.size != "matched" {
+        parse_size(&args.size).map_err(anyhow::Error::msg)?;
+    }
+    Ok(())
+}
+
+fn pitches(text: &str) -> anyhow::Result<Vec<f64>> {
+    text.split(',')
+        .map(|p| {
+            p.trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|v| (-89.0..=89.0).contains(v))
+                .ok_or_else(|| anyhow::anyhow!("--pitch `{p}`: expected degrees in -89..=89"))
+        })
+        .collect()
 }
 
 /// For a database directory, the level-group counts (1, 2) below the most any tile's PTM has:
 /// the partial loads worth evaluating. Nothing for other sources.
 fn coarse_level_groups(db: &str) -> anyhow::Result<Vec<usize>> {
-    let dir = std::path::Path::new(db);
+    let dir = Path::new(db);
     if !dir.join(streamer::db::MANIFEST_FILE).is_file() {
         return Ok(Vec::new());
     }
@@ -96,66 +165,59 @@ fn texture_coding(db: &str) -> anyhow::Result<String> {
     })
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
-    let size = parse_size(&args.size).map_err(anyhow::Error::msg)?;
-    super::count("--segments", args.segments, 100_000)?;
-    super::count("--between", args.between.max(1), 10_000)?;
-    let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
-        .with_context(|| format!("opening {}", args.db))?;
-    let truth = Truth::for_scene(&walk.scene).ok_or_else(|| {
-        anyhow::anyhow!(
-            "no ground truth for scene `{}` (needs a built-in scene or synth:street)",
-            walk.scene
-        )
-    })?;
-    prerender::store::ensure_writable_dir(&args.out)?;
-    let mut renderer = Renderer::new(Gpu::new()?)?;
-    // Renderer budgets on the walkthrough as given; for the synthetic street also other
-    // databases: one slab, a coarser mesh, twice the sample spacing.
-    let mut runs: Vec<(
-        String,
-        viewer::source::Walkthrough,
-        Vec<viewer::headless::EvalConfig>,
-    )> = Vec::new();
+/// One walkthrough to evaluate with its renderer budgets.
+struct Run {
+    walk: Walkthrough,
+    configs: Vec<EvalConfig>,
+}
+
+fn full(name: &str) -> Vec<EvalConfig> {
+    vec![EvalConfig {
+        name: name.to_string(),
+        budget: viewer::DrawBudget::default(),
+    }]
+}
+
+/// The walkthroughs: the one given, then for the synthetic street other databases (one
+/// slab, a coarser mesh, wider spacing), for a database its first level groups.
+fn runs(args: &Args, walk: Walkthrough) -> anyhow::Result<Vec<Run>> {
+    let mut runs = vec![Run {
+        walk,
+        configs: if args.configs == "full" {
+            full("full")
+        } else {
+            default_configs()
+        },
+    }];
     if args.db == "synth:street" {
+        use viewer::headless::synth_street_spaced;
         use viewer::synth::Scene;
         let one = [tracks::SlabRange {
             near: 0.0,
             far: f64::INFINITY,
         }];
-        let step4 = viewer::MeshParams {
-            step: 4,
-            ..Default::default()
-        };
         let base = viewer::MeshParams::default();
+        let step4 = viewer::MeshParams { step: 4, ..base };
         let slabs3 = Scene::street_slabs();
-        let full = |name: &str| {
-            vec![viewer::headless::EvalConfig {
-                name: name.to_string(),
-                budget: viewer::DrawBudget::default(),
-            }]
-        };
-        runs.push((
-            "db slabs=1".into(),
-            viewer::headless::synth_street_spaced(64, &one, base, 1.5)?,
-            full("db slabs=1"),
-        ));
-        runs.push((
-            "db step=4".into(),
-            viewer::headless::synth_street_spaced(64, &slabs3, step4, 1.5)?,
-            full("db step=4"),
-        ));
-        runs.push((
-            "db spacing=2.25".into(),
-            viewer::headless::synth_street_spaced(64, &slabs3, base, 2.25)?,
-            full("db spacing=2.25"),
-        ));
+        for (name, walk) in [
+            ("db slabs=1", synth_street_spaced(64, &one, base, 1.5)?),
+            ("db step=4", synth_street_spaced(64, &slabs3, step4, 1.5)?),
+            (
+                "db spacing=2.25",
+                synth_street_spaced(64, &slabs3, base, 2.25)?,
+            ),
+        ] {
+            runs.push(Run {
+                walk,
+                configs: full(name),
+            });
+        }
     }
     // A database: also what a client shows before the finer texture levels arrive (the first
     // level groups of every PTM), whose bytes are what those groups cost.
     for groups in coarse_level_groups(&args.db)? {
         let name = format!("db level groups={groups}");
-        let w = open(
+        let walk = open(
             &args.db,
             args.track.as_deref(),
             LoadOptions {
@@ -164,154 +226,171 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             },
         )
         .with_context(|| format!("opening {} with {groups} level groups", args.db))?;
-        let configs = vec![viewer::headless::EvalConfig {
-            name: name.clone(),
-            budget: viewer::DrawBudget::default(),
-        }];
-        runs.push((name, w, configs));
+        runs.push(Run {
+            walk,
+            configs: full(&name),
+        });
     }
+    let scene = runs[0].walk.scene.clone();
     for other in &args.also {
         let name = format!("also {other} ({})", texture_coding(other)?);
-        let w = open(other, args.track.as_deref(), LoadOptions::default())
+        let walk = open(other, args.track.as_deref(), LoadOptions::default())
             .with_context(|| format!("opening {other}"))?;
         anyhow::ensure!(
-            w.scene == walk.scene,
+            walk.scene == scene,
             "--also {other}: scene `{}`, not `{}`",
-            w.scene,
-            walk.scene
+            walk.scene,
+            scene
         );
-        let configs = vec![viewer::headless::EvalConfig {
-            name: name.clone(),
-            budget: viewer::DrawBudget::default(),
-        }];
-        runs.push((name, w, configs));
+        runs.push(Run {
+            walk,
+            configs: full(&name),
+        });
     }
-    runs.insert(0, (args.db.clone(), walk, default_configs()));
+    Ok(runs)
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    check(&args)?;
+    let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
+        .with_context(|| format!("opening {}", args.db))?;
+    let face = walk.views.first().map_or(0, |v| v.face_size);
+    anyhow::ensure!(face > 0, "{}: no reference views", args.db);
+    let size = if args.size == "matched" {
+        matched_size(face, args.fov, 0.75)
+    } else {
+        parse_size(&args.size).map_err(anyhow::Error::msg)?
+    };
+    prerender::store::ensure_writable_dir(&args.out)?;
+    let mut truth = Truth::for_walkthrough(
+        &args.db,
+        &walk,
+        args.prerender.as_deref(),
+        args.truth_supersample,
+        &args.out.join("pov-truth"),
+    )?;
+    let cache = TruthCache {
+        dir: Some(
+            args.truth_cache
+                .clone()
+                .unwrap_or_else(|| args.out.join("truth")),
+        ),
+    };
+    let spec = ViewSpec {
+        per_segment: args.per_segment,
+        directions: args.directions,
+        pitches_deg: pitches(&args.pitch)?,
+        max_segments: args.segments,
+    };
+    let arcs: Vec<f64> = walk.views.iter().map(|v| v.s).collect();
+    let between = views_between(&walk, &arcs, &spec);
+    let runs = runs(&args, walk)?;
+    let views_of = |w: &Walkthrough| -> Vec<EvalView> {
+        let mut v = views_at_samples(w, &spec);
+        let mut b = between.clone();
+        mark_references(w, &mut b);
+        v.extend(b);
+        v
+    };
     let total: usize = runs
         .iter()
-        .map(|(_, w, c)| eval_positions(w, args.segments, args.between).len() * c.len())
+        .map(|r| views_of(&r.walk).len() * r.configs.len())
         .sum();
+    let mut renderer = Renderer::new(Gpu::new()?)?;
     let bar = indicatif::ProgressBar::new(total as u64);
-    let mut rows = Vec::new();
-    for (_, w, configs) in &runs {
-        let positions = eval_positions(w, args.segments, args.between);
+    let mut rows: Vec<EvalRow> = Vec::new();
+    for r in &runs {
+        let views = views_of(&r.walk);
         rows.extend(evaluate(
             &mut renderer,
-            w,
-            &truth,
-            configs,
-            &positions,
-            size,
-            args.fov,
+            EvalInput {
+                walk: &r.walk,
+                truth: &mut truth,
+                cache: &cache,
+                configs: &r.configs,
+                views: &views,
+                size,
+                fov_deg: args.fov,
+                timed_draws: args.timed_draws,
+            },
             |_| bar.inc(1),
         )?);
     }
     bar.finish_and_clear();
-    let walk = &runs[0].1;
-    let summary = summarize(&rows);
-    let json = EvalJson {
-        db: &args.db,
-        scene: &walk.scene,
+
+    let summary = eval::summarize(&rows);
+    let first = &runs[0];
+    let worst: Vec<EvalRow> = eval::worst_views(&rows, &first.configs[0].name, args.worst)
+        .into_iter()
+        .cloned()
+        .collect();
+    // Pictures of the worst views, beside their truth and the difference; and of the worst
+    // view at a reference sample (what limits the floor).
+    renderer.forget_views();
+    let at_sample = rows
+        .iter()
+        .filter(|r| r.config == first.configs[0].name && r.view.at_reference)
+        .min_by(|a, b| a.psnr_db.total_cmp(&b.psnr_db))
+        .cloned();
+    let named: Vec<(String, &EvalRow)> = worst
+        .iter()
+        .enumerate()
+        .map(|(i, w)| (format!("worst-{}.png", i + 1), w))
+        .chain(
+            at_sample
+                .as_ref()
+                .map(|w| ("worst-at-sample.png".to_string(), w)),
+        )
+        .collect();
+    for (file, w) in named {
+        let cam = eval::camera(&first.walk, &w.view, size, args.fov);
+        let gt = cache.get(&first.walk.scene, &cam, &mut truth)?;
+        let rgba = eval::draw(
+            &mut renderer,
+            &first.walk,
+            &cam,
+            w.view.s,
+            first.configs[0].budget,
+        )?;
+        let (rgb, _) = viewer::metrics::split_rgba(&rgba);
+        let img = eval::triptych(&rgb, &gt, size.0, size.1);
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut bytes, image::ImageFormat::Png)?;
+        prerender::store::write_atomic(&args.out.join(file), bytes.get_ref())?;
+    }
+    let rep = EvalReport {
+        db: args.db.clone(),
+        scene: first.walk.scene.clone(),
+        truth: truth.describe(),
         width: size.0,
         height: size.1,
         fov_deg: args.fov,
+        face_size: face,
+        resolution_ratio: resolution_ratio(face, args.fov, size.0),
+        views: spec,
         adapter: format!(
             "{} ({:?})",
             renderer.gpu.info.name, renderer.gpu.info.backend
         ),
-        rows: &rows,
-        summary: summary.clone(),
+        summary,
+        worst,
+        rows,
     };
-    prerender::store::write_json(&args.out.join("eval.json"), &json)?;
-
-    let mut csv =
-        String::from("config,position,at_reference,psnr_db,ssim,hole_fraction,frame_ms,db_bytes\n");
-    for r in &rows {
-        writeln!(
-            csv,
-            "{},{},{},{:.3},{:.4},{:.6},{:.3},{}",
-            r.config,
-            r.position,
-            r.at_reference,
-            r.psnr_db,
-            r.ssim,
-            r.hole_fraction,
-            r.frame_ms,
-            r.db_bytes
-        )?;
-    }
-    prerender::store::write_atomic(&args.out.join("eval.csv"), csv.as_bytes())?;
-
-    // Plots: one series per configuration.
-    let series = |x: fn(&EvalRow) -> f64| -> Vec<Vec<(f64, f64)>> {
-        summary
-            .iter()
-            .map(|s| {
-                rows.iter()
-                    .filter(|r| r.config == s.config)
-                    .map(|r| (x(r), r.psnr_db))
-                    .collect()
-            })
-            .collect()
-    };
-    let by_time = series(|r| r.frame_ms);
-    let by_bytes = series(|r| r.db_bytes as f64);
-    for (name, s) in [
-        ("psnr_vs_frame_ms.png", &by_time),
-        ("psnr_vs_bytes.png", &by_bytes),
-    ] {
-        let mut bytes = Vec::new();
-        scatter(s).write_to(
-            &mut std::io::Cursor::new(&mut bytes),
-            image::ImageFormat::Png,
-        )?;
-        prerender::store::write_atomic(&args.out.join(name), &bytes)?;
-    }
-
-    let mut md = format!(
-        "# Viewer evaluation: {}\n\nScene `{}`, {}x{} px, FOV {}°, adapter {}. Ground truth: the \
-         scene's ray tracer from the same camera. The resampling floor is the error at the \
-         reference samples; interpolation error is measured between them.\n\n",
-        args.db, walk.scene, size.0, size.1, args.fov, json.adapter
-    );
-    md.push_str("| config | floor PSNR dB | floor SSIM | between PSNR dB | between SSIM | between holes % | frame ms | DB bytes |\n|---|---|---|---|---|---|---|---|\n");
-    for s in &summary {
-        writeln!(
-            md,
-            "| {} | {:.2} | {:.4} | {:.2} | {:.4} | {:.3} | {:.2} | {} |",
-            s.config,
-            s.floor_psnr_db,
-            s.floor_ssim,
-            s.between_psnr_db,
-            s.between_ssim,
-            s.between_hole_fraction * 100.0,
-            s.frame_ms,
-            s.db_bytes
-        )?;
-    }
-    let legend: Vec<String> = summary
-        .iter()
-        .enumerate()
-        .map(|(i, s)| {
-            format!(
-                "{} = {}",
-                SERIES_COLORS[i % SERIES_COLORS.len()].1,
-                s.config
-            )
-        })
-        .collect();
-    let (x0, x1, y0, y1) = ranges(&by_time);
-    writeln!(
-        md,
-        "\n![PSNR against frame time](psnr_vs_frame_ms.png)\n\nx: frame time {x0:.2}–{x1:.2} ms, y: PSNR {y0:.1}–{y1:.1} dB; {}.\n",
-        legend.join(", ")
+    prerender::store::write_json(&args.out.join("eval.json"), &rep)?;
+    prerender::store::write_atomic(
+        &args.out.join("eval.csv"),
+        report::csv(&rep.rows).as_bytes(),
     )?;
-    let (x0, x1, y0, y1) = ranges(&by_bytes);
-    writeln!(
-        md,
-        "![PSNR against database bytes](psnr_vs_bytes.png)\n\nx: database bytes {x0:.0}–{x1:.0}, y: PSNR {y0:.1}–{y1:.1} dB; {}.",
-        legend.join(", ")
-    )?;
+    let mut listed = Vec::new();
+    for (stem, title, fig) in report::figures(&rep) {
+        prerender::store::write_atomic(
+            &args.out.join(format!("{stem}.svg")),
+            charts::svg(&fig)?.as_bytes(),
+        )?;
+        prerender::store::write_atomic(&args.out.join(format!("{stem}.png")), &charts::png(&fig)?)?;
+        listed.push((format!("{stem}.svg"), title));
+    }
+    let md = report::markdown(&rep, &listed);
     prerender::store::write_atomic(&args.out.join("eval.md"), md.as_bytes())?;
     eprint!("{md}");
     Ok(())

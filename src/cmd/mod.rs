@@ -12,6 +12,7 @@ pub mod prerender;
 pub mod render;
 pub mod serve;
 pub mod slabs;
+pub mod tune;
 pub mod verify;
 pub mod view;
 pub mod walk;

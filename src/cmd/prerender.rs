@@ -11,7 +11,7 @@ use prerender::job::{self, ReportInput, RunStats, Shard};
 use prerender::render::RenderOptions;
 use prerender::runlog::RunLog;
 use prerender::scene::Scene;
-use prerender::store::{self, PrerenderDir};
+use prerender::store::{self, PrerenderDir, PrerenderReport};
 use tracks::{SlabRange, Track, TrackSet};
 
 /// Arguments of `railview prerender`.
@@ -171,8 +171,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         lowres_face_size: args.lowres_face_size,
         slabs: &slabs,
     };
+    let opts = RenderOptions {
+        face_size: args.face_size,
+        supersample: args.supersample,
+        shadows: !args.no_shadows,
+    };
     if args.merge {
-        return merge(&dir, &report_input, &args.out);
+        return merge(&dir, &report_input, &opts, &args.out);
     }
     let log =
         RunLog::create(&args.out, "prerender", shard.map(|s| s.pair())).map_err(store_error)?;
@@ -181,11 +186,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .copied()
         .filter(|v| shard.is_none_or(|s| s.covers(v.index)))
         .collect();
-    let opts = RenderOptions {
-        face_size: args.face_size,
-        supersample: args.supersample,
-        shadows: !args.no_shadows,
-    };
     // What the run will do, before it starts: a large face size is a long run.
     let px = 6.0 * (args.face_size as f64).powi(2);
     eprintln!(
@@ -245,6 +245,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Ok(());
     }
     let report = job::write_report(&dir, &report_input).map_err(store_error)?;
+    let report = record_render_options(&dir, report, &opts)?;
     eprintln!(
         "{} of {} samples complete in {} ({} rendered, {} skipped, {wall:.1} s); {:.0} primary rays/s",
         report.extra["complete_samples"],
@@ -257,9 +258,29 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Later stages render slab layers the way the panoramas were rendered: the report records
+/// the rays per pixel and whether shadows were traced.
+fn record_render_options(
+    dir: &PrerenderDir,
+    mut report: PrerenderReport,
+    opts: &RenderOptions,
+) -> anyhow::Result<PrerenderReport> {
+    if let Some(extra) = report.extra.as_object_mut() {
+        extra.insert("supersample".into(), opts.supersample.into());
+        extra.insert("shadows".into(), opts.shadows.into());
+    }
+    store::write_json(&dir.report_json(), &report).map_err(store_error)?;
+    Ok(report)
+}
+
 /// `--merge`: every sample (and, with slabs, every slab layer set) must be complete; then the
 /// report covering every shard.
-fn merge(dir: &PrerenderDir, input: &ReportInput<'_>, out: &Path) -> anyhow::Result<()> {
+fn merge(
+    dir: &PrerenderDir,
+    input: &ReportInput<'_>,
+    opts: &RenderOptions,
+    out: &Path,
+) -> anyhow::Result<()> {
     let (base, layers) = job::missing_samples(
         dir,
         input.viewpoints,
@@ -298,6 +319,7 @@ fn merge(dir: &PrerenderDir, input: &ReportInput<'_>, out: &Path) -> anyhow::Res
         );
     }
     let report = job::write_report(dir, input).map_err(store_error)?;
+    let report = record_render_options(dir, report, opts)?;
     let shard_list: Vec<String> = report
         .shards
         .iter()

@@ -40,9 +40,17 @@ pub struct Args {
     /// Draw only the nearer reference view.
     #[arg(long)]
     pub no_blend: bool,
-    /// Also write the ground truth from the same camera here (built-in scenes, synth:street).
+    /// Also write the ground truth from the same camera here (any scene: built-in, scene
+    /// file, POV-Ray import; see `railview eval --prerender`).
     #[arg(long)]
     pub truth: Option<PathBuf>,
+    /// Ground truth rays per pixel along each axis (box filter over the pixel).
+    #[arg(long, default_value_t = 3)]
+    pub truth_supersample: u32,
+    /// The prerender directory the database was built from, for its ground truth (default:
+    /// DB.work/prerender when it made this database).
+    #[arg(long)]
+    pub prerender: Option<PathBuf>,
     /// Draw from the first N level groups of every tile's PTM only (coarsest first): what a
     /// streaming client shows before the finer levels arrive. Databases only; default: all.
     #[arg(long)]
@@ -103,9 +111,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let frame = renderer.render(&plan, &walk.views)?;
     save_png(&args.output, &frame)?;
     if let Some(path) = &args.truth {
-        let truth = viewer::headless::Truth::for_scene(&walk.scene)
-            .with_context(|| format!("no ground truth for scene `{}`", walk.scene))?;
+        anyhow::ensure!(
+            (1..=16).contains(&args.truth_supersample),
+            "--truth-supersample must be in 1..=16"
+        );
+        let work = std::env::temp_dir().join(format!("railview-truth-{}", std::process::id()));
+        let mut truth = viewer::eval::Truth::for_walkthrough(
+            &args.db,
+            &walk,
+            args.prerender.as_deref(),
+            args.truth_supersample,
+            &work,
+        )?;
         let rgb = truth.render(&camera);
+        // Only POV-Ray writes there (wrapper, log): nothing worth keeping once it succeeded.
+        std::fs::remove_dir_all(&work).ok();
+        let rgb = rgb?;
         let gt = viewer::gpu::Frame {
             width: w,
             height: h,

@@ -44,9 +44,13 @@ pub struct Args {
     /// Parallax (pixels at the largest baseline) that makes neighbouring pixels a discontinuity.
     #[arg(long, default_value_t = 1.0)]
     pub discontinuity: f64,
-    /// `auto`, or slab ranges `0-1000,1000-10000,10000-inf` (metres).
+    /// `auto`; `fewer` / `more` (the automatic choice with one boundary fewer or more;
+    /// `auto-N`, `auto+N` for N); or slab ranges `0-1000,1000-10000,10000-inf` (metres).
     #[arg(long, default_value = "auto")]
     pub slabs: String,
+    /// Choose the boundaries and render the missing layers, but do not tile them.
+    #[arg(long)]
+    pub layers_only: bool,
     /// Pixels of parallax above which a histogram valley becomes a boundary.
     #[arg(long, default_value_t = 1.0)]
     pub threshold_px: f64,
@@ -96,34 +100,46 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let existing: Vec<Option<LayersMeta>> = indices.iter().map(|&i| dir.layers_meta(i)).collect();
     let rendered: Option<Vec<SlabRange>> =
         existing.iter().flatten().next().map(|m| m.slabs.clone());
-    let choice: SlabChoice = if let Some(slabs) = &rendered {
-        if args.slabs != "auto" {
-            let want =
-                SlabRange::parse_list(&args.slabs).map_err(|e| anyhow::anyhow!("--slabs: {e}"))?;
-            if &want != slabs {
+    let auto = boundaries::choose(&lowres, max_spacing, pre.face_size, &params);
+    let want: Option<Vec<SlabRange>> = match parse_spec(&args.slabs)? {
+        Spec::Auto(0) => None,
+        Spec::Auto(d) => Some(boundaries::adjust(&auto, d)),
+        Spec::List(l) => Some(l),
+    };
+    let given = |slabs: Vec<SlabRange>, auto: SlabChoice| {
+        let mut c = auto;
+        c.criterion.manual = true;
+        c.criterion.summary = format!(
+            "{} slab(s) from --slabs {}; the automatic choice is {} ({})",
+            slabs.len(),
+            args.slabs,
+            c.slabs.len(),
+            c.criterion.summary
+        );
+        c.slabs = slabs;
+        c
+    };
+    let choice: SlabChoice = match (&rendered, want) {
+        (Some(slabs), want) => {
+            if let Some(want) = want.filter(|w| !same_ranges(w, slabs)) {
                 bail!(
                     "the samples already have slab layers {}; remove the slab_K directories and layers.json to render {}",
                     labels(slabs),
                     labels(&want)
                 );
             }
-        }
-        // Layers rendered from the automatic choice keep its numbers in the report.
-        let auto = boundaries::choose(&lowres, max_spacing, pre.face_size, &params);
-        if same_ranges(&auto.slabs, slabs) {
-            SlabChoice {
-                slabs: slabs.clone(),
-                ..auto
+            // Layers rendered from the automatic choice keep its numbers in the report.
+            if same_ranges(&auto.slabs, slabs) {
+                SlabChoice {
+                    slabs: slabs.clone(),
+                    ..auto
+                }
+            } else {
+                given(slabs.clone(), auto)
             }
-        } else {
-            boundaries::manual(slabs.clone(), &lowres, max_spacing, pre.face_size, &params)
         }
-    } else if args.slabs == "auto" {
-        boundaries::choose(&lowres, max_spacing, pre.face_size, &params)
-    } else {
-        let want =
-            SlabRange::parse_list(&args.slabs).map_err(|e| anyhow::anyhow!("--slabs: {e}"))?;
-        boundaries::manual(want, &lowres, max_spacing, pre.face_size, &params)
+        (None, None) => auto,
+        (None, Some(want)) => given(want, auto),
     };
     drop(lowres);
     eprintln!("{}", choice.criterion.summary);
@@ -137,6 +153,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .collect();
     if !missing.is_empty() && !choice.slabs.is_empty() {
         render_layers(&dir, &pre, &choice.slabs, &missing, &log)?;
+    }
+
+    if args.layers_only {
+        eprintln!(
+            "layers {} rendered; tiles left to a later run",
+            labels(&choice.slabs)
+        );
+        return Ok(());
     }
 
     let mesh = MeshParams {
@@ -157,7 +181,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for &i in &indices {
         // Resume: a sample whose tiles files match these parameters is not tiled again.
         if let Ok((file, _)) = sio::read_tiles(&dir, i) {
+            // Tiles cut from panoramas of another face size (a work directory prerendered
+            // again) are stale.
             let same = file.grid.tile_size == args.tile_size
+                && file.grid.face_size == pre.face_size
                 && file.mesh_params == mesh
                 && file.mesh_kind == keep
                 && file
@@ -208,8 +235,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .filter(|c| !c.accepted)
         .map(|c| c.depth_m)
         .collect();
-    let img = slabs::plot::plot_histogram(&choice.histogram, &choice.slabs, &rejected, 800, 300);
-    store::write_atomic(&root.join("histogram.png"), &slabs::plot::encode_png(&img))?;
+    let fig = slabs::plot::histogram_figure(&choice.histogram, &choice.slabs, &rejected);
+    store::write_atomic(&root.join("histogram.svg"), charts::svg(&fig)?.as_bytes())?;
+    store::write_atomic(&root.join("histogram.png"), &charts::png(&fig)?)?;
     for (k, s) in report.slabs.iter().enumerate() {
         eprintln!(
             "slab {k} {}: tiles {} -> {}, adaptive mesh {} triangles (max {:.3} px), grid {} triangles (max {:.3} px)",
@@ -224,6 +252,31 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     eprintln!("wrote {}", root.join("slabs.json").display());
     Ok(())
+}
+
+/// What `--slabs` asks for: the automatic choice moved by a number of boundaries, or a list.
+enum Spec {
+    Auto(i32),
+    List(Vec<SlabRange>),
+}
+
+fn parse_spec(text: &str) -> anyhow::Result<Spec> {
+    let bad = || {
+        anyhow::anyhow!("--slabs `{text}`: expected auto, fewer, more, auto-N, auto+N or ranges like 0-10,10-inf")
+    };
+    Ok(match text {
+        "auto" => Spec::Auto(0),
+        "fewer" => Spec::Auto(-1),
+        "more" => Spec::Auto(1),
+        t if t.starts_with("auto") => {
+            let d: i32 = t["auto".len()..].parse().map_err(|_| bad())?;
+            if !(-16..=16).contains(&d) {
+                return Err(bad());
+            }
+            Spec::Auto(d)
+        }
+        t => Spec::List(SlabRange::parse_list(t).map_err(|e| anyhow::anyhow!("--slabs: {e}"))?),
+    })
 }
 
 /// Equal up to JSON round-off (ranges read back from `layers.json`).
@@ -275,10 +328,13 @@ fn render_layers(
             prerender::scene::Scene::parse_toml(&text, &pre.scene)?
         }
     };
+    // As the panoramas were rendered (`prerender` records it; 1 ray, shadows if not).
     let opts = prerender::render::RenderOptions {
         face_size: pre.face_size,
-        supersample: 1,
-        shadows: true,
+        supersample: pre.extra["supersample"]
+            .as_u64()
+            .map_or(1, |s| s.clamp(1, 16) as u32),
+        shadows: pre.extra["shadows"].as_bool().unwrap_or(true),
     };
     let bar = progress(missing.len() as u64, "rendering slab layers");
     for &i in missing {
@@ -317,60 +373,21 @@ fn render_layers(
     Ok(())
 }
 
-/// The POV-Ray import that wrote `pre`, re-created from `prerender.json` (scene path, up axis,
-/// face sizes, anti-aliasing, gamma, binary, threads and timeout as `import-pov` recorded them).
+/// The POV-Ray import that wrote `pre`, re-created from what `import-pov` recorded in
+/// `prerender.json`, with its generated files in `DIR/pov-work`.
 pub(crate) fn pov_import_from_report(
     dir: &PrerenderDir,
     pre: &PrerenderReport,
 ) -> anyhow::Result<prerender::pov::PovImport> {
-    use prerender::pov::{PovImport, PovOptions, UpAxis};
-    let report = dir.report_json();
-    let field = |name: &str| {
-        let v = &pre.extra[name];
-        if v.is_null() {
-            None
-        } else {
-            Some(v)
-        }
-    };
-    let up: UpAxis = match field("up").map(|v| v.as_str()) {
-        None => UpAxis::Y,
-        Some(Some(s)) => s
-            .parse()
-            .map_err(|e| anyhow::anyhow!("{}: extra.up `{s}`: {e}", report.display()))?,
-        Some(None) => bail!("{}: extra.up is not a string", report.display()),
-    };
-    let mut opts = PovOptions::new(pre.face_size, dir.root().join("pov-work"));
-    opts.lowres_face_size = pre.lowres_face_size;
-    opts.up = up;
-    opts.antialias = field("antialias")
-        .and_then(|v| v.as_bool())
-        .unwrap_or(false);
-    if let Some(p) = field("povray").and_then(|v| v.as_str()) {
-        opts.povray = PathBuf::from(p);
-    }
-    if let Some(t) = field("threads").and_then(|v| v.as_u64()) {
-        opts.threads = (t as usize).max(1);
-    }
-    if let Some(t) = field("timeout_secs").and_then(|v| v.as_f64()) {
-        if !(t.is_finite() && t > 0.0) {
-            bail!(
-                "{}: extra.timeout_secs {t} is not a positive number",
-                report.display()
-            );
-        }
-        opts.timeout = Some(std::time::Duration::from_secs_f64(t));
-    }
-    opts.file_gamma = field("gamma")
-        .or_else(|| field("file_gamma"))
-        .and_then(|v| v.as_f64());
-    PovImport::new(&pre.scene, opts).with_context(|| {
-        format!(
-            "re-creating the POV-Ray import of `{}` recorded in {}",
-            pre.scene,
-            report.display()
-        )
-    })
+    prerender::pov::PovImport::from_report(dir, pre, &dir.root().join("pov-work")).with_context(
+        || {
+            format!(
+                "re-creating the POV-Ray import of `{}` recorded in {}",
+                pre.scene,
+                dir.report_json().display()
+            )
+        },
+    )
 }
 
 /// Render slab layers of `missing` samples of a POV-Ray import with POV-Ray.

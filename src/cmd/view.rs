@@ -1,5 +1,6 @@
-//! `railview view SOURCE`: the interactive viewer window, on a directory (decoded up front) or
-//! on `railview serve`'s URL (streamed while shown).
+//! `railview view SOURCE`: the interactive viewer window, streamed while shown from a server
+//! URL or a database directory (the same client over local files, within the same memory
+//! budget); a prerender directory or `synth:street` is decoded up front.
 
 use anyhow::Context;
 use streamer::client::LiveConfig;
@@ -35,8 +36,10 @@ pub struct Args {
     /// Streaming: do not prefetch the next segment.
     #[arg(long)]
     pub no_prefetch: bool,
-    /// Streaming: cache budget for downloaded bytes, MiB.
-    #[arg(long, default_value_t = 64.0, allow_negative_numbers = true)]
+    /// Memory budget of a streamed database (URL or directory), MiB: a quarter for the
+    /// downloaded bytes, the rest for the decoded views (laid out coarser when four of them
+    /// do not fit at full resolution).
+    #[arg(long, default_value_t = 512.0, allow_negative_numbers = true)]
     pub memory_mib: f64,
     /// Streaming: downloads in flight at most.
     #[arg(long, default_value_t = 6)]
@@ -57,8 +60,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )
     })?;
     anyhow::ensure!(
-        args.memory_mib.is_finite() && args.memory_mib > 0.0 && args.memory_mib <= 1048576.0,
-        "--memory-mib {}: must be a positive number of MiB, at most 1048576",
+        args.memory_mib.is_finite() && args.memory_mib >= 1.0 && args.memory_mib <= 1048576.0,
+        "--memory-mib {}: must be between 1 and 1048576 (1 TiB)",
         args.memory_mib
     );
     tracks::limits::check_u64("--requests", args.requests as u64, 1, 64)?;
@@ -67,13 +70,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "--target-fps {}: must be between 1 and 1000",
         args.target_fps
     );
-    let source = if args.db.starts_with("http://") || args.db.starts_with("https://") {
-        let mut config = LiveConfig::with_cache((args.memory_mib * 1048576.0) as u64);
-        config.mode = strategy.mode();
-        config.prefetch = !args.no_prefetch;
-        config.fetcher.max_in_flight = args.requests;
-        let stream = StreamedWalkthrough::connect(&args.db, args.track.as_deref(), config)
-            .with_context(|| format!("connecting to {}", args.db))?;
+    let streamed = args.db.starts_with("http://")
+        || args.db.starts_with("https://")
+        || streamer::client::Source::is_database_dir(&args.db);
+    let source = if streamed {
+        let budget = (args.memory_mib * 1048576.0) as u64;
+        let mut config = LiveConfig::with_cache(budget / 4);
+        config.schedule.strategy = streamer::client::Strategy::Budget {
+            mode: strategy.mode(),
+            prefetch: !args.no_prefetch,
+        };
+        config.schedule.max_in_flight = args.requests;
+        let mut stream = StreamedWalkthrough::connect(&args.db, args.track.as_deref(), config)
+            .with_context(|| format!("opening {}", args.db))?;
+        let level = stream.set_memory_budget(budget - budget / 4);
+        if level > 0 {
+            eprintln!(
+                "railview view: views laid out at PTM level {level} (faces of {} px) to hold \
+                 them in --memory-mib {}",
+                stream.walk.views.first().map_or(0, |v| v.face_size),
+                args.memory_mib
+            );
+        }
         Source::Stream(Box::new(stream))
     } else {
         let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())

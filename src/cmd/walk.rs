@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::Context;
-use streamer::client::{BudgetParams, RetryPolicy, ServerUrl};
+use streamer::client::{BudgetParams, RetryPolicy, SchedulerConfig, ServerUrl};
 use streamer::server::{self, parse_duration, parse_rate, ServedDb, ServerConfig, ServerStats};
 use streamer::walk::{self, synth, Strategy, WalkConfig, WalkEvent};
 use tracks::limits::{check_f64, check_u64};
@@ -104,7 +104,8 @@ fn timeout(text: &str, name: &str) -> anyhow::Result<Duration> {
 
 /// The walk's settings from the command line, every number checked against its limit.
 fn config(args: &Args) -> anyhow::Result<WalkConfig> {
-    let paper = BudgetParams::default();
+    let defaults = SchedulerConfig::default();
+    let paper = defaults.budget;
     let seconds = |v: f64, name: &str, min: f64| check_f64(&format!("--{name}"), v, min, 3600.0);
     let retry = RetryPolicy {
         response_timeout: timeout(&args.response_timeout, "response-timeout")?,
@@ -120,26 +121,39 @@ fn config(args: &Args) -> anyhow::Result<WalkConfig> {
             .context("--latency")?
             .as_secs_f64(),
         pause_s: seconds(args.pause, "pause", 0.0)?,
-        budget: BudgetParams {
-            memory_bytes: args
-                .memory_mb
-                .map_or(Ok(paper.memory_bytes), |m| mib(m, "memory-mb"))?,
-            dt_max_s: seconds(args.dt_max, "dt-max", 0.001)?,
-            memory_static_bytes: args
-                .memory_static_mb
-                .map_or(Ok(paper.memory_static_bytes), |m| {
-                    mib(m, "memory-static-mb")
-                })?,
-            dt_static_s: seconds(args.dt_static, "dt-static", 0.001)?,
-            t_static_s: seconds(args.t_static, "t-static", 0.0)?,
+        schedule: SchedulerConfig {
+            budget: BudgetParams {
+                memory_bytes: args
+                    .memory_mb
+                    .map_or(Ok(paper.memory_bytes), |m| mib(m, "memory-mb"))?,
+                dt_max_s: seconds(args.dt_max, "dt-max", 0.001)?,
+                memory_static_bytes: args
+                    .memory_static_mb
+                    .map_or(Ok(paper.memory_static_bytes), |m| {
+                        mib(m, "memory-static-mb")
+                    })?,
+                dt_static_s: seconds(args.dt_static, "dt-static", 0.001)?,
+                t_static_s: seconds(args.t_static, "t-static", 0.0)?,
+            },
+            // Given budgets are taken as they are; defaults grow with the database.
+            scale_budget: args.memory_mb.is_none() && args.memory_static_mb.is_none(),
+            cache_bytes: mib(args.cache_mb, "cache-mb")?,
+            max_in_flight: check_u64("--in-flight", args.in_flight as u64, 1, 64)? as usize,
+            prefetch_turn_deg: check_f64(
+                "--prefetch-turn (degrees)",
+                args.prefetch_turn,
+                0.0,
+                90.0,
+            )?,
+            prefetch_horizon_s: check_f64(
+                "--prefetch-horizon (s)",
+                args.prefetch_horizon,
+                0.0,
+                60.0,
+            )?,
+            prefetch_coverage: check_f64("--prefetch-coverage", args.prefetch_coverage, 0.0, 1.0)?,
+            ..defaults
         },
-        // Given budgets are taken as they are; defaults grow with the database.
-        scale_budget: args.memory_mb.is_none() && args.memory_static_mb.is_none(),
-        cache_bytes: mib(args.cache_mb, "cache-mb")?,
-        max_in_flight: check_u64("--in-flight", args.in_flight as u64, 1, 64)? as usize,
-        prefetch_turn_deg: check_f64("--prefetch-turn (degrees)", args.prefetch_turn, 0.0, 90.0)?,
-        prefetch_horizon_s: check_f64("--prefetch-horizon (s)", args.prefetch_horizon, 0.0, 60.0)?,
-        prefetch_coverage: check_f64("--prefetch-coverage", args.prefetch_coverage, 0.0, 1.0)?,
         retry,
         ..WalkConfig::default()
     })

@@ -6,10 +6,13 @@ use std::fmt::Write as _;
 /// One image of a figure row; `src` is relative to the report directory.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Figure {
+    /// The picture (PNG), relative to the report directory: what the Markdown page shows.
     pub src: String,
     pub caption: String,
     /// Draw a checkerboard behind the image (layers with transparent pixels).
     pub checker: bool,
+    /// The same picture as SVG (plots), which the HTML page shows instead.
+    pub vector: Option<String>,
 }
 
 /// A table with a stable `id` (the browser test looks tables up by it).
@@ -100,7 +103,8 @@ p.unavailable{background:#fff6e5;border-left:3px solid #d99a1e;padding:.4rem .6r
 div.figs{display:flex;flex-wrap:wrap;gap:1rem;align-items:flex-start}\
 figure{margin:0;max-width:100%}figure img{max-width:100%;min-width:min(100%,24rem);height:auto;\
 border:1px solid #ccd2d8;image-rendering:pixelated}figcaption{font-size:.85rem;color:#4a5560}\
-img.checker{background:repeating-conic-gradient(#d0d0d0 0% 25%,#fff 0% 50%) 50%/16px 16px}";
+img.checker{background:repeating-conic-gradient(#d0d0d0 0% 25%,#fff 0% 50%) 50%/16px 16px}\
+img.plot{image-rendering:auto;width:45rem}";
 
 /// The whole page.
 pub fn to_html(title: &str, blocks: &[Block]) -> String {
@@ -171,11 +175,17 @@ pub fn to_html(title: &str, blocks: &[Block]) -> String {
             Block::Figures(figs) => {
                 h += "<div class=\"figs\">\n";
                 for f in figs {
-                    let class = if f.checker { " class=\"checker\"" } else { "" };
+                    let class = if f.vector.is_some() {
+                        " class=\"plot\""
+                    } else if f.checker {
+                        " class=\"checker\""
+                    } else {
+                        ""
+                    };
                     let _ = writeln!(
                         h,
                         "<figure><img{class} src=\"{}\" alt=\"{}\"><figcaption>{}</figcaption></figure>",
-                        escape_html(&encode_src(&f.src)),
+                        escape_html(&encode_src(f.vector.as_deref().unwrap_or(&f.src))),
                         escape_html(&f.caption),
                         escape_html(&f.caption)
                     );
@@ -251,11 +261,20 @@ mod tests {
                 header: vec!["a|b".into(), "c".into()],
                 rows: vec![vec!["1".into(), "<2>".into()]],
             }),
-            Block::Figures(vec![Figure {
-                src: "view 1.png".into(),
-                caption: "a \"view\"".into(),
-                checker: true,
-            }]),
+            Block::Figures(vec![
+                Figure {
+                    src: "view 1.png".into(),
+                    caption: "a \"view\"".into(),
+                    checker: true,
+                    vector: None,
+                },
+                Figure {
+                    src: "plot.png".into(),
+                    caption: "a plot".into(),
+                    checker: false,
+                    vector: Some("plot.svg".into()),
+                },
+            ]),
             Block::Unavailable("`cull` is missing".into()),
         ]
     }
@@ -271,6 +290,9 @@ mod tests {
         assert!(h.contains("src=\"view%201.png\""));
         assert!(h.contains("alt=\"a &quot;view&quot;\""));
         assert!(h.contains("class=\"checker\""));
+        // A plot: the SVG in the page, the PNG in the Markdown.
+        assert!(h.contains("<img class=\"plot\" src=\"plot.svg\""));
+        assert!(to_markdown("R", &sample()).contains("(plot.png)"));
         assert!(h.contains("<a href=\"#culling\">"));
         assert!(!h.contains("http://") && !h.contains("https://"));
     }

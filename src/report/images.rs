@@ -114,6 +114,25 @@ pub fn copy_checked(src: &Path, dst: &Path) -> anyhow::Result<()> {
         .with_context(|| format!("writing {}", dst.display()))
 }
 
+/// Copy a plot's SVG into the report directory if there is one (`Ok(false)` if not), after
+/// checking that it is an SVG document.
+pub fn copy_svg(src: &Path, dst: &Path) -> anyhow::Result<bool> {
+    let bytes = match std::fs::read(src) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
+        Err(e) => return Err(e).with_context(|| format!("reading {}", src.display())),
+    };
+    let head = String::from_utf8_lossy(&bytes[..bytes.len().min(256)]).to_string();
+    anyhow::ensure!(
+        head.trim_start().starts_with("<svg") || head.trim_start().starts_with("<?xml"),
+        "{} is not an SVG document",
+        src.display()
+    );
+    prerender::store::write_atomic(dst, &bytes)
+        .with_context(|| format!("writing {}", dst.display()))?;
+    Ok(true)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

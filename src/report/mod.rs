@@ -59,6 +59,10 @@ impl Layout {
     pub fn eval(&self) -> PathBuf {
         self.root.join("eval")
     }
+    /// The small sweep over the build's knobs.
+    pub fn tune(&self) -> PathBuf {
+        self.root.join("tune")
+    }
     /// Headless flythrough frames.
     pub fn frames(&self) -> PathBuf {
         self.root.join("frames")

@@ -386,27 +386,10 @@ fn tile_cone(grid: TileGrid, t: tracks::TileId, depth_min: f64) -> (DVec3, f64, 
     (centre, radius, depth_min)
 }
 
-/// Blend weights of the two viewpoints bounding the segment that holds arc length `s`
-/// (`vp_s` sorted): `[(i, 1 − f), (i + 1, f)]`, or the single viewpoint of a one-point track.
-pub fn blend_weights(vp_s: &[f64], s: f64) -> Vec<(usize, f64)> {
-    match vp_s.len() {
-        0 => Vec::new(),
-        1 => vec![(0, 1.0)],
-        n => {
-            let i = vp_s
-                .partition_point(|&v| v <= s)
-                .saturating_sub(1)
-                .min(n - 2);
-            let len = vp_s[i + 1] - vp_s[i];
-            let f = if len > 0.0 {
-                ((s - vp_s[i]) / len).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            vec![(i, 1.0 - f), (i + 1, f)]
-        }
-    }
-}
+/// Blend weights of the two viewpoints around arc length `s`: the renderer's rule
+/// ([`tracks::segment::blend_weights`], smoothstep across the segment), so the pixels a
+/// sample counts for each view are weighted as the renderer blends them.
+pub use tracks::segment::blend_weights;
 
 #[cfg(test)]
 mod tests {
@@ -511,10 +494,11 @@ mod tests {
     }
 
     #[test]
-    fn blend_weights_follow_the_segment() {
+    fn blend_weights_follow_the_segment_as_the_renderer_blends() {
+        // A quarter along the segment: smoothstep gives the second view 0.15625, not 0.25.
         assert_eq!(
             blend_weights(&[0.0, 4.0, 8.0], 5.0),
-            vec![(1, 0.75), (2, 0.25)]
+            vec![(1, 0.84375), (2, 0.15625)]
         );
         assert_eq!(blend_weights(&[0.0, 4.0], 9.0), vec![(0, 0.0), (1, 1.0)]);
         assert_eq!(blend_weights(&[3.0], 9.0), vec![(0, 1.0)]);

@@ -283,7 +283,7 @@ fn a_damaged_pack_is_given_up_part_by_part_and_the_rest_streams_on() {
     }
     std::fs::write(&path, &bytes).unwrap();
     let mut config = LiveConfig::with_cache(64 << 20);
-    config.failures.first_retry_s = 0.2;
+    config.schedule.failures.first_retry_s = 0.2;
     let mut session = LiveSession::connect(&srv.url(), None, config).unwrap();
     let arrivals = run_until(&mut session, 0.0, Duration::from_secs(20), |s| {
         s.stats().parts_given_up > 0
@@ -414,8 +414,8 @@ fn identical_parts_are_fetched_once_and_handed_to_every_tile() {
     };
     let srv = Server::start(&dir, slow, "127.0.0.1:0");
     let mut config = LiveConfig::with_cache(64 << 20);
-    config.fetcher.max_in_flight = 1;
-    config.fetcher.bundle_max_entries = 1;
+    config.schedule.max_in_flight = 1;
+    config.schedule.max_pieces = 1;
     let mut session = LiveSession::connect(&srv.url(), None, config).unwrap();
     let arrivals = run_until(&mut session, 0.5, Duration::from_secs(20), |s| {
         s.stats().coarse_fraction >= 1.0
@@ -447,6 +447,80 @@ fn identical_parts_are_fetched_once_and_handed_to_every_tile() {
     );
     assert_every_held_part_handed_out(&session, &arrivals);
     drop(session);
+    srv.stop();
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// One client: a recorded walk replayed through the live session on a hand-set clock (each
+/// frame at its time, every request answered before the next frame, as the simulator's
+/// unlimited link answers at once) asks for exactly the requests the walk simulator asks for,
+/// in the same order. One request in flight, so the order does not depend on which of several
+/// connections answers first.
+#[test]
+fn a_replayed_walk_asks_for_what_the_simulator_asks_for() {
+    use streamer::client::{ManualClock, SchedulerConfig, Strategy};
+    use streamer::walk::{self, WalkConfig};
+    let dir = temp_db("replay");
+    let srv = Server::start(&dir, ServerConfig::default(), "127.0.0.1:0");
+    for strategy in ["visibility+prefetch", "ach+visibility+prefetch"] {
+        let strategy = Strategy::parse(strategy).unwrap();
+        let cfg = WalkConfig {
+            speed_mps: 3.0,
+            latency_s: 0.0,
+            frame_dt_s: 0.1,
+            pause_s: 1.5,
+            screen_width: 320,
+            screen_height: 180,
+            samples_x: 16,
+            samples_y: 9,
+            schedule: SchedulerConfig {
+                max_in_flight: 1,
+                cache_bytes: total_bytes(&dir) / 2,
+                ..SchedulerConfig::default()
+            },
+            record_requests: true,
+            ..WalkConfig::default()
+        };
+        let url = streamer::client::ServerUrl::parse(&srv.url()).unwrap();
+        let rt = tokio::runtime::Runtime::new().unwrap();
+        let report = rt
+            .block_on(walk::run_walk(&url, &cfg, &[strategy], &[None], |_| {}))
+            .unwrap();
+        let simulated = &report.runs[0].request_log;
+        assert!(simulated.len() > 10, "{} requests", simulated.len());
+
+        let clock = Arc::new(ManualClock::new(0.0));
+        let config = LiveConfig {
+            schedule: SchedulerConfig {
+                strategy,
+                ..cfg.schedule.clone()
+            },
+            ..LiveConfig::with_cache(1)
+        };
+        let mut session =
+            LiveSession::connect_with_clock(&srv.url(), None, config, clock.clone()).unwrap();
+        session.record_requests();
+        let t = &session.manifest().tracks[0];
+        let track = TrackSet::parse(&t.track_toml, "manifest").unwrap().tracks[0].clone();
+        for f in walk::walk_frames(&track, &cfg) {
+            clock.set(f.t_s);
+            let arrivals = session.update(f.s_m, &f.camera, None);
+            check(&session, &arrivals);
+            let start = Instant::now();
+            while !session.idle() {
+                assert!(
+                    start.elapsed() < Duration::from_secs(20),
+                    "requests never finished"
+                );
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+        let live = session.take_request_log();
+        assert_eq!(live.len(), simulated.len(), "{}: requests", strategy.name());
+        for (k, (a, b)) in live.iter().zip(simulated).enumerate() {
+            assert_eq!(a, b, "{}: request {k}", strategy.name());
+        }
+    }
     srv.stop();
     let _ = std::fs::remove_dir_all(dir);
 }

@@ -4,6 +4,8 @@
 // Each test file uses some of them.
 #![allow(dead_code)]
 
+pub mod nginx;
+
 use std::path::PathBuf;
 use std::process::{Command, Output};
 

@@ -5,6 +5,9 @@
 //! - [`camera`]: the perspective camera (yaw/pitch/FOV convention) used everywhere.
 //! - [`manifest`]: the walkthrough database manifest (content-addressed objects, tiles, PTM
 //!   level ranges, ACH per segment).
+//! - [`segment`]: where an arc length falls between reference viewpoints and how the two
+//!   views around it blend (smoothstep): the one rule of the renderer, the client and the
+//!   walk simulator.
 //! - [`limits`]: the stated limits on numbers from outside (face sizes, counts, lengths)
 //!   that every reader checks before allocating or looping.
 //! - [`track`]: named 3D polylines read from TOML, optionally Catmull-Rom smoothed, sampled
@@ -31,6 +34,7 @@ pub mod camera;
 pub mod cubemap;
 pub mod limits;
 pub mod manifest;
+pub mod segment;
 pub mod slab;
 pub mod track;
 

@@ -214,13 +214,8 @@ impl Track {
             Smoothing::None => points.clone(),
             Smoothing::CatmullRom => catmull_rom(&points),
         };
-        let mut arc = Vec::with_capacity(curve.len());
-        let mut s = 0.0;
-        arc.push(0.0);
-        for w in curve.windows(2) {
-            s += w[0].distance(w[1]);
-            arc.push(s);
-        }
+        let arc = crate::segment::arc_lengths(&curve);
+        let s = arc.last().copied().unwrap_or(0.0);
         if !(s > 0.0 && s.is_finite()) {
             return Err(invalid("points", format!("track length is {s} m")));
         }
@@ -257,20 +252,9 @@ impl Track {
         &self.curve
     }
 
-    /// Position at arc length `s` (clamped to the track).
+    /// Position at arc length `s` (clamped to the track; [`crate::segment::point_at`]).
     pub fn position_at(&self, s: f64) -> DVec3 {
-        let s = if s.is_nan() {
-            0.0
-        } else {
-            s.clamp(0.0, self.length())
-        };
-        let i = match self.arc.partition_point(|&a| a <= s) {
-            0 => 0,
-            k => (k - 1).min(self.curve.len() - 2),
-        };
-        let (a0, a1) = (self.arc[i], self.arc[i + 1]);
-        let t = if a1 > a0 { (s - a0) / (a1 - a0) } else { 0.0 };
-        self.curve[i].lerp(self.curve[i + 1], t.clamp(0.0, 1.0))
+        crate::segment::point_at(&self.curve, &self.arc, s)
     }
 
     /// Unit tangent at arc length `s` (direction of travel).

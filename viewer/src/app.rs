@@ -166,15 +166,15 @@ impl ViewerApp {
         };
         let slabs = source.walk().views.first().map_or(1, |v| v.slab_count());
         let strategy = match &source {
-            Source::Stream(st) => match st.session().config().mode {
-                PriorityMode::Ach => Strategy::Ach,
-                PriorityMode::Visibility => Strategy::Visibility,
-                PriorityMode::Combined { .. } => Strategy::Both,
+            Source::Stream(st) => match st.session().mode() {
+                Some(PriorityMode::Ach) => Strategy::Ach,
+                Some(PriorityMode::Visibility) => Strategy::Visibility,
+                Some(PriorityMode::Combined { .. }) | None => Strategy::Both,
             },
             Source::Local(_) => Strategy::Both,
         };
         let prefetch = match &source {
-            Source::Stream(st) => st.session().config().prefetch,
+            Source::Stream(st) => st.session().prefetch(),
             Source::Local(_) => true,
         };
         Ok(ViewerApp {
@@ -717,13 +717,16 @@ impl eframe::App for ViewerApp {
             if let Source::Stream(st) = &self.source {
                 let stats = st.session().stats();
                 println!(
-                    "railview view: {} frames in {:.2} s, {} bytes fetched in {} requests, cache peak {} of {} bytes, visible shown {:.0} %",
+                    "railview view: {} frames in {:.2} s, {} bytes fetched in {} requests, cache peak {} of {} bytes, decoded views peak {} of {} bytes at PTM level {}, visible shown {:.0} %",
                     self.frames,
                     self.started.elapsed().as_secs_f64(),
                     stats.bytes,
                     stats.requests,
                     stats.cache_peak,
                     stats.cache_budget,
+                    st.decoded_peak(),
+                    st.decoded_budget_bytes,
+                    st.layout_level(),
                     stats.visible_fraction * 100.0
                 );
             }

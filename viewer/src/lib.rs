@@ -25,12 +25,12 @@
 
 pub mod app;
 pub mod cpu;
+pub mod eval;
 pub mod feedback;
 pub mod gpu;
 pub mod headless;
 pub mod metrics;
 pub mod plan;
-pub mod plot;
 pub mod refview;
 pub mod source;
 pub mod stream;

@@ -173,42 +173,7 @@ pub struct FramePlan {
 /// `reduced_resolution_feedback_counts_estimate_full_resolution_counts`).
 pub const DEFAULT_ID_SCALE: u32 = 4;
 
-/// The smooth blend weight of the second view at fraction `t ∈ [0, 1]` of a segment:
-/// `3t² − 2t³` (smoothstep). It is exactly 0 and 1 at the reference samples, so a reference
-/// sample is reproduced by its own view alone; its slope vanishes there, so the image changes
-/// slowly near samples, where the reference view is most accurate, and the weights are C¹
-/// across samples (no visible kink when a segment ends and the next begins). A linear ramp
-/// would be exact at samples too but kinks there; a nearest-view switch would pop.
-pub fn smooth_weight(t: f64) -> f64 {
-    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
-    t * t * (3.0 - 2.0 * t)
-}
-
-/// The two views around arc length `s` and the weight of the second:
-/// `(a, b, w_b)` with `a ≤ b`. Outside the track, at a sample, or on a zero-length segment the
-/// weight is 0 (view `a` alone).
-pub fn blend_pair(arcs: &[f64], s: f64) -> Option<(usize, usize, f64)> {
-    let n = arcs.len();
-    if n == 0 {
-        return None;
-    }
-    if n == 1 || s.is_nan() || s <= arcs[0] {
-        return Some((0, (n > 1) as usize, 0.0));
-    }
-    if s >= arcs[n - 1] {
-        return Some((n - 1, n - 2, 0.0));
-    }
-    // Last sample with arc ≤ s.
-    let a = arcs.partition_point(|&x| x <= s) - 1;
-    let b = (a + 1).min(n - 1);
-    let len = arcs[b] - arcs[a];
-    let w = if len > 0.0 {
-        smooth_weight((s - arcs[a]) / len)
-    } else {
-        0.0
-    };
-    Some((a, b, w))
-}
+pub use tracks::segment::{blend_pair, smooth_weight};
 
 /// [`blend_pair`] among the views for which `usable` holds (positions in `arcs`): the pair
 /// around `s` when both can be drawn, else the nearest usable views on either side of it

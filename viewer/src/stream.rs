@@ -17,6 +17,8 @@
 //! [`crate::refview::ViewTile::highlight`] is 1 when a level of it arrives and fades to 0 over
 //! [`HIGHLIGHT`], for the renderer's highlight overlay.
 //!
+//! A session may read a server or a database directory alike ([`streamer::client::Source`]).
+//!
 //! Decoded memory is bounded too (the session's cache bounds downloaded bytes only). A view
 //! is laid out lazily: until its first background or tile level is consumed its layers are
 //! 1×1-face transparent placeholders and it holds no dense maps, so it draws as nothing yet.
@@ -199,7 +201,16 @@ pub struct RecentTile {
 pub struct StreamedWalkthrough {
     pub walk: Walkthrough,
     session: LiveSession,
+    /// The tile grid of the views as laid out: the database's, `layout_level` levels
+    /// coarser when the memory budget asks for it.
     grid: TileGrid,
+    /// The database's face and tile sizes.
+    db_grid: TileGrid,
+    /// PTM level the views are laid out at (0: full resolution; see
+    /// [`StreamedWalkthrough::set_memory_budget`]).
+    layout_level: u32,
+    /// Largest [`StepReport::decoded_bytes`] so far.
+    decoded_peak: u64,
     items: Vec<ItemState>,
     /// Per view: level-0 RGBA of every layer (background, then one per slab); empty while
     /// the view is not laid out (placeholder layers).
@@ -211,8 +222,9 @@ pub struct StreamedWalkthrough {
     /// Layers per view (background + slabs).
     layer_count: usize,
     /// Decoded bytes above which the farthest views are dropped (see the module docs).
-    /// Defaults to [`StreamedWalkthrough::full_view_bytes`] × 4: the two views drawn, the
-    /// predicted next one and one more.
+    /// Defaults to [`StreamedWalkthrough::full_view_bytes`] × 4: the two views drawn and the
+    /// predicted next two; [`StreamedWalkthrough::set_memory_budget`] sets it and lays the
+    /// views out coarser when four do not fit.
     pub decoded_budget_bytes: u64,
     /// Decoded bytes of parts taken from the session's cache per step (see the module docs
     /// and [`StreamedWalkthrough::set_redecode_budget`]).
@@ -341,6 +353,9 @@ impl StreamedWalkthrough {
             walk,
             session,
             grid,
+            db_grid: grid,
+            layout_level: 0,
+            decoded_peak: 0,
             items,
             dense,
             tile_items,
@@ -364,6 +379,46 @@ impl StreamedWalkthrough {
 
     pub fn session_mut(&mut self) -> &mut LiveSession {
         &mut self.session
+    }
+
+    /// Hold the decoded views within `bytes` (decoded layers, dense maps, meshes and the
+    /// renderer's copy of the layers): the views are laid out at the finest resolution at
+    /// which the views that must be held — the pair drawn and the predicted next pair, four
+    /// views — fit, and the session fetches no finer PTM level. The same rule for every
+    /// database, so memory follows the budget, not the database: a face-512 database laid out
+    /// in 96 MiB is drawn from its level 1 (faces of 256), one at face 192 at full
+    /// resolution. Views already laid out start over. Returns the layout level.
+    pub fn set_memory_budget(&mut self, bytes: u64) -> u32 {
+        let (n, t) = (self.db_grid.face_size, self.db_grid.tile_size);
+        let max_k = t.max(1).ilog2().min(n.trailing_zeros());
+        let k = (0..=max_k)
+            .find(|&k| 4 * full_view_bytes(n >> k, self.layer_count) <= bytes)
+            .unwrap_or(max_k);
+        self.decoded_budget_bytes = bytes;
+        if k != self.layout_level {
+            for v in 0..self.walk.views.len() {
+                self.evict(v);
+                self.fresh.insert(v);
+            }
+            self.layout_level = k;
+            self.grid = TileGrid::new(n >> k, t >> k).unwrap_or(self.db_grid);
+            for v in &mut self.walk.views {
+                v.face_size = self.grid.face_size;
+                v.tile_size = self.grid.tile_size;
+            }
+            self.session.set_finest_level((k > 0).then_some(k));
+        }
+        k
+    }
+
+    /// Largest decoded state of a step so far (see [`StreamedWalkthrough::decoded_bytes`]).
+    pub fn decoded_peak(&self) -> u64 {
+        self.decoded_peak
+    }
+
+    /// The PTM level the views are laid out at (0: full resolution).
+    pub fn layout_level(&self) -> u32 {
+        self.layout_level
     }
 
     /// One frame: update the session at `s` / `camera` (with the GPU's counts when given)
@@ -482,10 +537,11 @@ impl StreamedWalkthrough {
             }
         }
         let premultiplied = self.premultiplied;
+        let k = self.layout_level;
         let decoded: Vec<(usize, String, Result<Option<Decoded>, SourceError>)> = jobs
             .into_par_iter()
             .map(|(i, it, parts, what)| {
-                let d = decode_parts(it, parts, &what, premultiplied);
+                let d = decode_parts(it, parts, &what, premultiplied, k);
                 (i, what, d)
             })
             .collect();
@@ -552,6 +608,7 @@ impl StreamedWalkthrough {
         self.protected = protected;
         report.changed_views = views.into_iter().collect();
         report.decoded_bytes = per_view.iter().sum();
+        self.decoded_peak = self.decoded_peak.max(report.decoded_bytes);
         self.fade_highlights(now);
         report
     }
@@ -624,9 +681,9 @@ impl StreamedWalkthrough {
         self.motion.observe(t, s);
         let vp_s: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
         let mut out = drawn.clone();
-        let config = self.session.config();
-        if config.prefetch {
-            if let Some(next) = next_segment(&self.motion, &vp_s, s, config.prefetch_horizon_s) {
+        if self.session.prefetch() {
+            let horizon = self.session.config().schedule.prefetch_horizon_s;
+            if let Some(next) = next_segment(&self.motion, &vp_s, s, horizon) {
                 out.extend([next, next + 1]);
             }
         }
@@ -700,8 +757,9 @@ impl StreamedWalkthrough {
         }
     }
 
-    /// Decoded bytes held for view `v`: its layers (all mip levels) and dense maps when laid
-    /// out, its tiles' meshes, and its items' decoders, meshes and parts waiting.
+    /// Decoded bytes held for view `v`: its layers (all mip levels; counted twice, for the
+    /// renderer's copy) and dense maps when laid out, its tiles' meshes, and its items'
+    /// decoders, meshes and parts waiting.
     pub fn view_decoded_bytes(&self, v: usize) -> u64 {
         let Some(view) = self.walk.views.get(v) else {
             return 0;
@@ -713,7 +771,9 @@ impl StreamedWalkthrough {
                 .flat_map(|l| &l.levels)
                 .map(map_bytes)
                 .sum();
-            layers + self.dense[v].iter().map(map_bytes).sum::<u64>()
+            // The layers twice: here and in the renderer's textures (which a software
+            // rasteriser keeps in main memory too).
+            2 * layers + self.dense[v].iter().map(map_bytes).sum::<u64>()
         } else {
             0
         };
@@ -732,8 +792,8 @@ impl StreamedWalkthrough {
             .sum()
     }
 
-    /// Bytes of one laid-out view's layers (with mips) and dense maps: what a view costs
-    /// once anything of it arrived (decoders and meshes come on top).
+    /// Bytes of one laid-out view's layers (with mips, here and in the renderer) and dense
+    /// maps: what a view costs once anything of it arrived (decoders and meshes come on top).
     pub fn full_view_bytes(&self) -> u64 {
         full_view_bytes(self.grid.face_size, self.layer_count)
     }
@@ -793,7 +853,9 @@ impl StreamedWalkthrough {
     ) -> Result<Option<(usize, FaceRect)>, SourceError> {
         let it = &self.items[item];
         let view = it.view;
-        let pixels = (&d.rgba[..], d.width, d.height, d.level);
+        // Levels of the views as laid out.
+        let view_level = d.level.saturating_sub(self.layout_level);
+        let pixels = (&d.rgba[..], d.width, d.height, view_level);
         match it.kind {
             Kind::Unusable => Ok(None),
             Kind::Background { tile } => {
@@ -817,12 +879,12 @@ impl StreamedWalkthrough {
                 it.loaded_at = Some(now);
                 let v = &mut self.walk.views[view];
                 match joined {
-                    Some(slot) => v.tiles[slot].finest_level = d.level,
+                    Some(slot) => v.tiles[slot].finest_level = view_level,
                     None => {
                         // The view's tile holds the mesh from now on.
                         let mesh = it.mesh.take().unwrap_or_default();
                         let mut vt = ViewTile::new(tile, slab, mesh, v.face_size);
-                        vt.finest_level = d.level;
+                        vt.finest_level = view_level;
                         let key = |t: &ViewTile| (t.slab, self.grid.tile_index(t.tile));
                         let slot = v.tiles.partition_point(|t| key(t) < key(&vt));
                         v.tiles.insert(slot, vt);
@@ -869,15 +931,17 @@ impl StreamedWalkthrough {
                 continue;
             };
             let needed = pass.uniforms.params[0].max(0.0).floor() as u32;
+            // The session counts levels of the database; the views may be laid out coarser.
+            let needed_db = needed + self.layout_level;
             let mut add = |slot: usize, px: f64| {
                 if let Some(item) = self.tile_item(c.view, slot) {
                     let e = by_item.entry(item).or_insert(LiveCount {
                         item,
                         pixels: 0.0,
-                        needed_level: needed,
+                        needed_level: needed_db,
                     });
                     e.pixels += px;
-                    e.needed_level = e.needed_level.min(needed);
+                    e.needed_level = e.needed_level.min(needed_db);
                 }
             };
             for (slot, &px) in c.pixels.iter().enumerate() {
@@ -953,17 +1017,26 @@ struct Decoded {
 
 /// Feed `parts` (the item's next parts, in order) to its mesh and decoder; its finest level
 /// when that became finer than the one shown (a coarse level divided by its coverage when
-/// `premultiplied`, see [`streamer::db::clear_masked`]). Items are independent, so a step
-/// decodes them in parallel.
+/// `premultiplied`, see [`streamer::db::clear_masked`]). Views laid out `k` levels coarser
+/// than the database take level `k` where a finer one arrived, and meshes scaled to them.
+/// Items are independent, so a step decodes them in parallel.
 fn decode_parts(
     it: &mut ItemState,
     parts: Vec<Bytes>,
     what: &str,
     premultiplied: bool,
+    k: u32,
 ) -> Result<Option<Decoded>, SourceError> {
     for data in parts {
         if it.next < it.first_level_part {
-            it.mesh = Some(tile_mesh_from_bytes(&data, what)?);
+            let mut mesh = tile_mesh_from_bytes(&data, what)?;
+            if k > 0 {
+                let scale = 1.0 / (1u32 << k) as f32;
+                for v in &mut mesh.vertices {
+                    v.pos_in_face = [v.pos_in_face[0] * scale, v.pos_in_face[1] * scale];
+                }
+            }
+            it.mesh = Some(mesh);
         } else {
             it.decoder.push(&data).map_err(|e| SourceError::Format {
                 what: what.to_string(),
@@ -972,14 +1045,14 @@ fn decode_parts(
         }
         it.next += 1;
     }
-    let level = it.decoder.finest_level();
+    let level = it.decoder.finest_level().map(|l| l.max(k));
     if level == it.level || level.is_none() {
         return Ok(None);
     }
-    let Some(img) = it.decoder.finest() else {
+    let level = level.unwrap_or(k);
+    let Some(img) = it.decoder.level(level) else {
         return Ok(None);
     };
-    let level = level.unwrap_or(0);
     let mut rgba = image_rgba(img);
     if premultiplied && level > 0 {
         streamer::db::unpremultiply(&mut rgba);
@@ -990,9 +1063,9 @@ fn decode_parts(
         width: img.width(),
         height: img.height(),
     };
-    // The full level decoded: nothing more will come for this item, its decoder's levels
-    // are no longer needed.
-    if level == 0 {
+    // The finest level the views take decoded: nothing more will come for this item, its
+    // decoder's levels are no longer needed.
+    if level == k {
         it.decoder = Decoder::new(it.limits);
     }
     Ok(Some(d))
@@ -1017,7 +1090,7 @@ fn empty_layer(n: u32) -> Layer {
 }
 
 /// Bytes of one laid-out view of face size `n` with `layers` layers: each layer's mip chain
-/// and its dense level-0 map.
+/// (twice: decoded here and uploaded to the renderer) and its dense level-0 map.
 fn full_view_bytes(n: u32, layers: usize) -> u64 {
     // 6 faces × 4 bytes per texel, halving as `Layer::from_rgba` does.
     let face = |m: u32| 24 * u64::from(m).pow(2);
@@ -1028,7 +1101,7 @@ fn full_view_bytes(n: u32, layers: usize) -> u64 {
         layer += face(m);
     }
     let dense = face(n);
-    layers as u64 * (layer + dense)
+    layers as u64 * (2 * layer + dense)
 }
 
 fn map_bytes(m: &CubeMap<[u8; 4]>) -> u64 {
@@ -1060,7 +1133,7 @@ mod tests {
             let built = Layer::from_rgba(CubeMap::filled(n, [0u8; 4]));
             assert_eq!(empty_layer(n), built, "face {n}");
             let bytes: u64 =
-                built.levels.iter().map(map_bytes).sum::<u64>() + map_bytes(&built.levels[0]);
+                2 * built.levels.iter().map(map_bytes).sum::<u64>() + map_bytes(&built.levels[0]);
             assert_eq!(full_view_bytes(n, 3), 3 * bytes, "face {n}");
         }
     }
@@ -1078,8 +1151,8 @@ mod tests {
 
     #[test]
     fn a_face_1024_view_with_two_slabs() {
-        // Layer with mips 33.5 MB, dense map 25.2 MB, three layers.
+        // Layer with mips 33.5 MB (here and in the renderer), dense map 25.2 MB, three layers.
         let b = full_view_bytes(1024, 3);
-        assert_eq!(b, 3 * (33_554_424 + 25_165_824));
+        assert_eq!(b, 3 * (2 * 33_554_424 + 25_165_824));
     }
 }

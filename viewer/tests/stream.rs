@@ -641,9 +641,10 @@ fn evicted_views_whose_bytes_left_the_cache_are_downloaded_again() {
     // A cache of three fifths of the database: the first views' bytes leave it at the far end.
     // Identical parts are not shared here: the street repeats so many that, shared, every
     // part of it fits in half the database and nothing would leave the cache.
-    let config = |dir: &Path| LiveConfig {
-        share_parts: false,
-        ..LiveConfig::with_cache(dir_bytes(dir) * 12 / 20)
+    let config = |dir: &Path| {
+        let mut c = LiveConfig::with_cache(dir_bytes(dir) * 12 / 20);
+        c.schedule.share_parts = false;
+        c
     };
     let (dropped, diff) = there_and_back(config, None, "evict-refetch");
     assert!(dropped, "parts of the first view left the cache");
@@ -686,11 +687,12 @@ fn walking_on_after_the_server_is_gone_draws_the_views_that_arrived() {
     let (url, stop, thread) = serve(&dir);
     // No prefetch: only the first segment's views (at 0 and 0.5 m) receive anything; nor
     // identical parts shared (the street repeats, so later views would find theirs).
-    let config = LiveConfig {
+    let mut config = LiveConfig::with_cache(64 << 20);
+    config.schedule.strategy = streamer::client::Strategy::Budget {
+        mode: streamer::client::PriorityMode::Combined { ach_weight: 0.5 },
         prefetch: false,
-        share_parts: false,
-        ..LiveConfig::with_cache(64 << 20)
     };
+    config.schedule.share_parts = false;
     let mut st = StreamedWalkthrough::connect(&url, None, config).unwrap();
     let cam = camera(&st.walk, 0.25, 0.0);
     settle(&mut st, &mut r, 0.25, &cam);
@@ -974,4 +976,67 @@ fn a_burst_of_arrivals_is_consumed_a_budget_per_step() {
     drop(stop);
     thread.join().unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A database directory is streamed like a server, and a memory budget too small for four
+/// views at full resolution lays them out a level coarser: half the faces, no finer level
+/// fetched, the decoded state within the budget, and a picture that is the full database's
+/// slightly blurred.
+#[test]
+#[cfg_attr(
+    railview_skip_gpu,
+    ignore = "GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1"
+)]
+fn a_directory_streams_within_a_memory_budget_at_a_coarser_layout() {
+    let mut r = renderer();
+    let street = synth_street(FACE, &Scene::street_slabs(), MeshParams::default()).unwrap();
+    let dir: PathBuf = std::env::temp_dir().join(format!(
+        "railview-viewer-stream-budget-{}",
+        std::process::id()
+    ));
+    write_db(&street, &dir);
+    let full_ref = open(&dir, None, LoadOptions::default()).unwrap();
+    let mut st = StreamedWalkthrough::connect(
+        dir.to_str().unwrap(),
+        None,
+        LiveConfig::with_cache(64 << 20),
+    )
+    .unwrap();
+    // Four full-resolution views fit: level 0. Half of that does not: level 1.
+    assert_eq!(st.set_memory_budget(u64::MAX / 8), 0);
+    let full_view = st.full_view_bytes();
+    let budget = 2 * full_view;
+    assert_eq!(st.set_memory_budget(budget), 1);
+    assert!(st.walk.views.iter().all(|v| v.face_size == FACE / 2));
+    assert!(4 * st.full_view_bytes() <= budget);
+    let s = 0.75;
+    let cam = camera(&st.walk, s, 0.0);
+    settle(&mut st, &mut r, s, &cam);
+    // No level finer than 1 was fetched.
+    let table = st.session().table();
+    for (i, it) in table.items.iter().enumerate() {
+        let held = st.session().held()[i];
+        assert!(
+            held <= it.info.parts_for_level(1),
+            "item {i}: {held} parts held"
+        );
+    }
+    assert!(
+        st.decoded_bytes() <= budget,
+        "{} > {budget}",
+        st.decoded_bytes()
+    );
+    let coarse = render(&mut r, &st.walk, &cam, s);
+    r.forget_views();
+    let full = render(&mut r, &full_ref, &cam, s);
+    r.forget_views();
+    let d = mean_abs_diff(&coarse, &full);
+    assert!(d > 0.0 && d < 12.0, "mean |diff| to the full database {d}");
+    assert!(
+        coarse.hole_fraction() <= full.hole_fraction() + 0.02,
+        "holes {} vs {}",
+        coarse.hole_fraction(),
+        full.hole_fraction()
+    );
+    let _ = std::fs::remove_dir_all(dir);
 }

@@ -242,6 +242,29 @@ fn linear_to_srgb(l: f64) -> u8 {
     (c.clamp(0.0, 1.0) * 255.0).round() as u8
 }
 
+/// Average `ss × ss` blocks of an sRGB8 image of `(w·ss) × (h·ss)` pixels (RGB, rows from
+/// the top) into one of `w × h`, in linear light.
+pub fn box_filter(fine: &[u8], w: u32, h: u32, ss: u32) -> Vec<[u8; 3]> {
+    let (w, h, ss) = (w as usize, h as usize, ss.max(1) as usize);
+    let stride = w * ss;
+    let n = (ss * ss) as f64;
+    (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let mut acc = [0.0f64; 3];
+            for dy in 0..ss {
+                for dx in 0..ss {
+                    let i = 3 * ((y * ss + dy) * stride + x * ss + dx);
+                    for (c, a) in acc.iter_mut().enumerate() {
+                        *a += srgb_to_linear(fine.get(i + c).copied().unwrap_or(0));
+                    }
+                }
+            }
+            acc.map(|a| linear_to_srgb(a / n))
+        })
+        .collect()
+}
+
 /// Average 2×2 blocks of a cube map of `2N` into one of `N`, in linear light.
 pub fn downsample_2x(fine: &CubeMap<[u8; 3]>) -> CubeMap<[u8; 3]> {
     let n = fine.face_size() / 2;

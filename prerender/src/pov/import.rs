@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use glam::DVec3;
-use tracks::{CubeMap, ReferenceViewpoint, SlabRange};
+use tracks::{CubeMap, PerspectiveCamera, ReferenceViewpoint, SlabRange};
 
 use super::decode::{self, FogDepth, FogScales};
 use super::frame::{self, MeshLayout, NEAR_NAME};
@@ -70,6 +70,8 @@ pub struct PovImport {
     log: Option<Arc<RunLog>>,
     /// Whether the scene's own fog shows at a viewpoint (decided by a low-res fog-only pass).
     has_fog: HashMap<usize, bool>,
+    /// Perspective views rendered so far (names their temporary files).
+    truth_renders: u64,
 }
 
 /// Camera position and ray range of one mesh-camera render.
@@ -131,7 +133,55 @@ impl PovImport {
             progress: None,
             log: None,
             has_fog: HashMap::new(),
+            truth_renders: 0,
         })
+    }
+
+    /// The import that wrote the prerender directory `dir` (report `pre`), re-created from
+    /// what `import-pov` recorded in `prerender.json` (scene path, up axis, face sizes,
+    /// anti-aliasing, gamma, binary, threads and timeout), with generated files in
+    /// `work_dir`.
+    pub fn from_report(
+        dir: &PrerenderDir,
+        pre: &store::PrerenderReport,
+        work_dir: &Path,
+    ) -> Result<PovImport, PovError> {
+        let report = dir.report_json();
+        let bad = |field: &str, message: String| PovError::Parameter {
+            name: "prerender.json",
+            message: format!("{}: extra.{field} {message}", report.display()),
+        };
+        let field = |name: &str| {
+            let v = &pre.extra[name];
+            (!v.is_null()).then_some(v)
+        };
+        let up = match field("up").map(|v| v.as_str()) {
+            None => frame::UpAxis::Y,
+            Some(Some(s)) => s.parse().map_err(|e| bad("up", format!("`{s}`: {e}")))?,
+            Some(None) => return Err(bad("up", "is not a string".into())),
+        };
+        let mut opts = PovOptions::new(pre.face_size, work_dir);
+        opts.lowres_face_size = pre.lowres_face_size;
+        opts.up = up;
+        opts.antialias = field("antialias")
+            .and_then(|v| v.as_bool())
+            .unwrap_or(false);
+        if let Some(p) = field("povray").and_then(|v| v.as_str()) {
+            opts.povray = PathBuf::from(p);
+        }
+        if let Some(t) = field("threads").and_then(|v| v.as_u64()) {
+            opts.threads = (t as usize).max(1);
+        }
+        if let Some(t) = field("timeout_secs").and_then(|v| v.as_f64()) {
+            if !(t.is_finite() && t > 0.0) {
+                return Err(bad("timeout_secs", format!("{t} is not a positive number")));
+            }
+            opts.timeout = Some(std::time::Duration::from_secs_f64(t));
+        }
+        opts.file_gamma = field("gamma")
+            .or_else(|| field("file_gamma"))
+            .and_then(|v| v.as_f64());
+        PovImport::new(&pre.scene, opts)
     }
 
     /// Call `f` after every finished POV-Ray render.
@@ -637,6 +687,102 @@ impl PovImport {
         })?;
         store::write_atomic(out, &bytes)?;
         remove(&output)
+    }
+
+    /// A perspective colour view through POV-Ray's own perspective camera (the ground truth
+    /// of an import): rendered at `supersample`× the camera's size, so each pixel holds
+    /// `supersample²` stratified rays at the offsets the built-in tracer uses, then averaged
+    /// in linear light (a box filter). Rows from the top, sRGB.
+    pub fn render_perspective(
+        &mut self,
+        camera: &PerspectiveCamera,
+        supersample: u32,
+    ) -> Result<Vec<[u8; 3]>, PovError> {
+        let ss = supersample.clamp(1, 16);
+        let (w, h) = (camera.width.max(1), camera.height.max(1));
+        if !(camera.fov_deg > 0.0 && camera.fov_deg < 180.0) {
+            return Err(PovError::Parameter {
+                name: "fov",
+                message: format!("must be in (0, 180) degrees, found {}", camera.fov_deg),
+            });
+        }
+        let wrapper = self
+            .opts
+            .work_dir
+            .join(format!("wrap_perspective_{}.pov", self.opts.up.name()));
+        store::write_atomic(
+            &wrapper,
+            sdl::perspective_wrapper(&self.scene_sdl).as_bytes(),
+        )?;
+        // ray(x, y) = f + (2x/w − 1)·t·r + (1 − 2y/h)·t·(h/w)·u, x and y in pixels.
+        let (r, u, f) = camera.basis();
+        let t = (camera.fov_deg.to_radians() * 0.5).tan();
+        let up = self.opts.up;
+        let dir = up.pov_from_railview(f);
+        let right = up.pov_from_railview(r * (2.0 * t));
+        let upv = up.pov_from_railview(u * (2.0 * t * h as f64 / w as f64));
+        let pos = up.pov_from_railview(camera.position);
+        let mut declares = vec![
+            (names::CAM_X, pos.x),
+            (names::CAM_Y, pos.y),
+            (names::CAM_Z, pos.z),
+        ];
+        for (n, v) in [(names::DIR, dir), (names::RIGHT, right), (names::UP, upv)] {
+            declares.extend([(n[0], v.x), (n[1], v.y), (n[2], v.z)]);
+        }
+        self.truth_renders += 1;
+        let stem = format!("truth_{:05}", self.truth_renders);
+        let output = self.opts.work_dir.join(format!("{stem}.png"));
+        let job = RenderJob {
+            name: format!("ground truth view ({})", self.scene.display()),
+            wrapper,
+            output: output.clone(),
+            log: self.opts.work_dir.join("logs").join(format!("{stem}.log")),
+            width: w * ss,
+            height: h * ss,
+            format: OutputFormat::Png8,
+            block_size: 32,
+            library_dirs: self
+                .scene
+                .parent()
+                .map(Path::to_path_buf)
+                .into_iter()
+                .collect(),
+            declares,
+        };
+        let stats = self.povray.run(&job)?;
+        let record = RenderRecord {
+            sample: 0,
+            pass: "truth".into(),
+            face_size: 0,
+            pixels: (w * ss) as u64 * (h * ss) as u64,
+            stats,
+            depth: None,
+        };
+        if let Some(p) = self.progress.as_mut() {
+            p(&record);
+        }
+        self.records.push(record);
+        let fine = image::open(&output)
+            .map_err(|e| PovError::Output {
+                path: output.clone(),
+                message: e.to_string(),
+            })?
+            .to_rgb8();
+        remove(&output)?;
+        if fine.dimensions() != (w * ss, h * ss) {
+            return Err(PovError::Output {
+                path: output,
+                message: format!(
+                    "{}×{} pixels, expected {}×{}",
+                    fine.width(),
+                    fine.height(),
+                    w * ss,
+                    h * ss
+                ),
+            });
+        }
+        Ok(decode::box_filter(fine.as_raw(), w, h, ss))
     }
 
     /// Delete the generated mesh includes (tens of MB at large face sizes); logs and

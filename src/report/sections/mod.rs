@@ -10,7 +10,7 @@ mod results;
 mod scene;
 mod tables;
 
-use super::doc::{Block, Table};
+use super::doc::{Block, Figure, Table};
 use super::images;
 use super::{Layout, RunLog, StageStatus};
 
@@ -104,6 +104,26 @@ impl Ctx<'_> {
                 None
             }
         }
+    }
+    /// A plot: its PNG (for the Markdown page) and, when the stage wrote one beside it, its
+    /// SVG (for the HTML page), copied as `NAME.png` / `NAME.svg`.
+    fn plot(&mut self, png: &Path, name: &str, caption: &str) -> Option<Figure> {
+        let src = self.copy(png, &format!("{name}.png"))?;
+        let svg = png.with_extension("svg");
+        let vector = match images::copy_svg(&svg, &self.dir.join(format!("{name}.svg"))) {
+            Ok(true) => Some(format!("{name}.svg")),
+            Ok(false) => None,
+            Err(e) => {
+                self.missing(format!("{e:#}"));
+                None
+            }
+        };
+        Some(Figure {
+            src,
+            caption: caption.to_string(),
+            checker: false,
+            vector,
+        })
     }
     fn copy(&mut self, src: &Path, name: &str) -> Option<String> {
         match images::copy_checked(src, &self.dir.join(name)) {
@@ -206,6 +226,7 @@ pub fn build(layout: &Layout, log: &RunLog, dir: &Path) -> Built {
     tables::sizes(&mut c, prerender.as_ref(), slabs.as_ref(), cull.as_ref());
     results::streaming(&mut c);
     results::evaluation(&mut c);
+    results::tuning(&mut c);
     results::frames(&mut c);
     results::later(&mut c);
     Built {

@@ -36,12 +36,12 @@ pub(super) fn streaming(c: &mut Ctx) {
     )));
     let png = dir.join("walk.png");
     if png.is_file() {
-        if let Some(name) = c.copy(&png, "walk.png") {
-            c.push(Block::Figures(vec![Figure {
-                src: name,
-                caption: "quality (solid) and needed fraction (dotted) over time, one panel per bandwidth".into(),
-                checker: false,
-            }]));
+        if let Some(fig) = c.plot(
+            &png,
+            "walk",
+            "quality (solid) and the fraction at the level needed (dashed) over time, one panel per bandwidth",
+        ) {
+            c.push(Block::Figures(vec![fig]));
         }
     } else {
         c.missing("the walk wrote no walk.png".into());
@@ -107,83 +107,50 @@ pub(super) fn evaluation(c: &mut Ctx) {
         return;
     };
     c.push(Block::Command(cmd));
-    c.push(Block::Para(
-        "Reconstructed views compared with the ray tracer's ground truth from the same camera. \
-         At the reference samples the error is the resampling floor; between them it adds the \
-         interpolation error."
-            .into(),
-    ));
-    let mut figs = Vec::new();
-    for p in pngs_in(&dir).into_iter().take(8) {
-        let file = p
-            .file_name()
-            .and_then(|n| n.to_str())
-            .unwrap_or("eval.png")
-            .to_string();
-        if let Some(name) = c.copy(&p, &format!("eval-{file}")) {
-            figs.push(Figure {
-                src: name,
-                caption: file,
-                checker: false,
-            });
-        }
-    }
-    if figs.is_empty() {
-        c.missing("the evaluation wrote no plots".into());
-    } else {
-        c.push(Block::Figures(figs));
-    }
-    // Mean per configuration, the reference samples apart from the rest.
-    let mut groups: Vec<(String, [Acc; 2])> = Vec::new();
-    for row in report
-        .get("rows")
+    let views = &report["views"];
+    c.push(Block::Para(format!(
+        "Reconstructed views against the ground truth from the same camera ({}): {} positions          inside every segment of the track, {} directions each, at {}×{} px and {}° (resolution          ratio {}: a view pixel over a panorama pixel at their centres; 1 is matched). At the          reference samples the error is the resampling floor; between them it adds the          interpolation. \"Worst 5 %\" is the PSNR that 95 % of the views meet or beat.",
+        report["truth"].as_str().unwrap_or("?"),
+        fmt_int(num(views, "per_segment")),
+        fmt_int(num(views, "directions")),
+        fmt_int(num(&report, "width")),
+        fmt_int(num(&report, "height")),
+        fmt_num(num(&report, "fov_deg"), 0),
+        fmt_num(num(&report, "resolution_ratio"), 2),
+    )));
+    let rows: Vec<Vec<String>> = report
+        .get("summary")
         .and_then(Value::as_array)
         .into_iter()
         .flatten()
-    {
-        let config = match row.get("config") {
-            Some(Value::String(s)) => s.clone(),
-            Some(v) => v.to_string(),
-            None => "?".into(),
-        };
-        let at_ref = row
-            .get("at_reference")
-            .and_then(Value::as_bool)
-            .unwrap_or(false);
-        let g = match groups.iter().position(|(k, _)| *k == config) {
-            Some(i) => i,
-            None => {
-                groups.push((config, [Acc::default(), Acc::default()]));
-                groups.len() - 1
-            }
-        };
-        groups[g].1[usize::from(!at_ref)].add(row);
-    }
-    let rows = groups
-        .iter()
-        .map(|(config, [at, between])| {
+        .map(|s| {
+            let b = &s["between"];
             vec![
-                config.clone(),
-                between.n.to_string(),
-                at.mean(0),
-                between.mean(0),
-                between.mean(1),
-                between.mean(2),
-                between.mean(3),
-                between.mean(4),
+                s["config"].as_str().unwrap_or("?").to_string(),
+                fmt_int(num(b, "views")),
+                fmt_num(num(b, "psnr_mean_db"), 2),
+                fmt_num(num(b, "psnr_worst5_db"), 2),
+                fmt_num(num(b, "psnr_min_db"), 2),
+                fmt_num(num(b, "ssim_mean"), 4),
+                fmt_num(num(b, "holes_mean").map(|h| h * 100.0), 3),
+                fmt_num(num(&s["at_samples"], "psnr_mean_db"), 2),
+                fmt_num(num(s, "frame_ms"), 2),
+                fmt_int(num(s, "db_bytes")),
             ]
         })
         .collect();
     c.push(Block::Table(Table {
         id: "eval".into(),
-        caption: "Mean per configuration (PSNR at the reference samples = resampling floor)".into(),
+        caption: "Per configuration, between the samples (and the floor at them)".into(),
         header: [
             "config",
-            "views between",
-            "PSNR at refs (dB)",
-            "PSNR between (dB)",
-            "SSIM between",
-            "hole fraction between",
+            "views",
+            "PSNR mean (dB)",
+            "PSNR worst 5 % (dB)",
+            "PSNR worst (dB)",
+            "SSIM mean",
+            "holes mean %",
+            "PSNR at samples (dB)",
             "frame ms",
             "database bytes",
         ]
@@ -191,38 +158,185 @@ pub(super) fn evaluation(c: &mut Ctx) {
         .to_vec(),
         rows,
     }));
-}
-
-/// Sums of `psnr_db`, `ssim`, `hole_fraction`, `frame_ms`, `db_bytes`.
-#[derive(Default)]
-struct Acc {
-    n: usize,
-    sums: [f64; 5],
-    counts: [usize; 5],
-}
-
-impl Acc {
-    fn add(&mut self, row: &Value) {
-        self.n += 1;
-        for (i, key) in ["psnr_db", "ssim", "hole_fraction", "frame_ms", "db_bytes"]
-            .iter()
-            .enumerate()
-        {
-            if let Some(x) = num(row, key).filter(|x| x.is_finite()) {
-                self.sums[i] += x;
-                self.counts[i] += 1;
+    let worst: Vec<Vec<String>> = report
+        .get("worst")
+        .and_then(Value::as_array)
+        .into_iter()
+        .flatten()
+        .enumerate()
+        .map(|(i, w)| {
+            let p = w["position"].as_array();
+            let at = |k: usize| p.and_then(|p| p.get(k)).and_then(Value::as_f64);
+            vec![
+                (i + 1).to_string(),
+                fmt_num(num(w, "s"), 2),
+                format!(
+                    "({}, {}, {})",
+                    fmt_num(at(0), 1),
+                    fmt_num(at(1), 1),
+                    fmt_num(at(2), 1)
+                ),
+                fmt_num(num(w, "yaw_deg"), 0),
+                fmt_num(num(w, "pitch_deg"), 0),
+                fmt_num(num(w, "psnr_db"), 2),
+            ]
+        })
+        .collect();
+    if !worst.is_empty() {
+        c.push(Block::Table(Table {
+            id: "eval-worst".into(),
+            caption: "Where the worst views between samples are".into(),
+            header: [
+                "rank",
+                "s (m)",
+                "position (m)",
+                "yaw (°)",
+                "pitch (°)",
+                "PSNR (dB)",
+            ]
+            .map(String::from)
+            .to_vec(),
+            rows: worst,
+        }));
+    }
+    let mut figs = Vec::new();
+    for (file, caption) in [
+        (
+            "worst-1.png",
+            "the worst view between samples: reconstruction, ground truth, |difference| × 4",
+        ),
+        (
+            "worst-at-sample.png",
+            "the worst view at a reference sample (the floor): reconstruction, truth, difference",
+        ),
+    ] {
+        if dir.join(file).is_file() {
+            if let Some(name) = c.copy(&dir.join(file), &format!("eval-{file}")) {
+                figs.push(Figure {
+                    src: name,
+                    caption: caption.into(),
+                    checker: false,
+                    vector: None,
+                });
             }
         }
     }
-    fn mean(&self, i: usize) -> String {
-        if self.counts[i] == 0 {
-            "–".into()
-        } else if i == 4 {
-            // Bytes: the same for every row of a configuration.
-            format!("{:.0}", self.sums[i] / self.counts[i] as f64)
-        } else {
-            format!("{:.3}", self.sums[i] / self.counts[i] as f64)
+    for (stem, caption) in [
+        ("psnr_along_track", "PSNR of every view along the track"),
+        ("psnr_vs_frame_ms", "PSNR against frame time"),
+        ("psnr_vs_bytes", "PSNR against the bytes read"),
+    ] {
+        let png = dir.join(format!("{stem}.png"));
+        if png.is_file() {
+            if let Some(f) = c.plot(&png, &format!("eval-{stem}"), caption) {
+                figs.push(f);
+            }
         }
+    }
+    if figs.is_empty() {
+        c.missing("the evaluation wrote no pictures".into());
+    } else {
+        c.push(Block::Figures(figs));
+    }
+}
+
+pub(super) fn tuning(c: &mut Ctx) {
+    c.section("tune", "Error against cost over the build's knobs");
+    let dir = c.layout.tune();
+    let cmd = c.command(
+        "tune",
+        format!(
+            "railview tune --scene {} --track {} --out {}",
+            c.log.scene,
+            c.log.track,
+            dir.display()
+        ),
+    );
+    let Some((path, report)) =
+        c.stage_report(Some(dir.join("sweep.json")), "tune", "tune/sweep.json")
+    else {
+        return;
+    };
+    c.push(Block::Command(cmd));
+    let sweep: tune::report::SweepReport = match serde_json::from_value(report) {
+        Ok(s) => s,
+        Err(e) => {
+            c.missing(format!("{}: {e}", path.display()));
+            return;
+        }
+    };
+    c.push(Block::Para(format!(
+        "A small sweep: the databases of this scene with one build knob changed at a time          around a base configuration ({}), each evaluated on the same views. {} The table          marks which configurations lie on the Pareto front of each cost against the PSNR of          the worst 5 % of views.",
+        tune::report::describe(&sweep.base),
+        sweep.views
+    )));
+    let fronts = |label: &str| -> String {
+        sweep
+            .fronts
+            .iter()
+            .filter(|(_, l)| l.iter().any(|x| x == label))
+            .map(|(c, _)| c.name())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let rows = sweep
+        .records
+        .iter()
+        .map(|m| {
+            vec![
+                m.label.clone(),
+                format!("{} ({:.2} m)", m.samples, m.spacing_m),
+                m.slab_count.to_string(),
+                format!("{:.2}", m.error.psnr_mean_db),
+                format!("{:.2}", m.error.psnr_worst5_db),
+                format!("{:.1}", m.costs.prerender_cpu_s),
+                format!("{:.1}", m.costs.build_cpu_s),
+                format!("{:.3}", m.costs.db_bytes as f64 / 1e6),
+                format!("{:.3}", m.costs.walk_bytes as f64 / 1e6),
+                format!("{:.1}", m.costs.frame_ms),
+                fronts(&m.label),
+            ]
+        })
+        .collect();
+    c.push(Block::Table(Table {
+        id: "tune".into(),
+        caption: "Configurations: error between samples and costs".into(),
+        header: [
+            "configuration",
+            "samples (spacing)",
+            "slabs",
+            "PSNR mean (dB)",
+            "PSNR worst 5 % (dB)",
+            "prerender CPU (s)",
+            "build CPU (s)",
+            "database (MB)",
+            "walk streams (MB)",
+            "frame (ms)",
+            "on the front of",
+        ]
+        .map(String::from)
+        .to_vec(),
+        rows,
+    }));
+    for s in &sweep.selections {
+        c.push(Block::Para(tune::report::selection_text(&sweep, s)));
+    }
+    let mut figs = Vec::new();
+    for cost in tune::Cost::ALL {
+        let stem = format!("pareto_{}", cost.name().replace('-', "_"));
+        let png = dir.join(format!("{stem}.png"));
+        if png.is_file() {
+            if let Some(f) = c.plot(
+                &png,
+                &format!("tune-{stem}"),
+                &format!("PSNR against {}, Pareto front marked", cost.axis()),
+            ) {
+                figs.push(f);
+            }
+        }
+    }
+    if !figs.is_empty() {
+        c.push(Block::Figures(figs));
     }
 }
 
@@ -262,6 +376,7 @@ pub(super) fn frames(c: &mut Ctx) {
                 src: name,
                 caption: format!("frame {} of {}", i + 1, all.len()),
                 checker: false,
+                vector: None,
             });
         }
     }

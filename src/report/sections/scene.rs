@@ -63,6 +63,7 @@ pub(super) fn viewpoints(c: &mut Ctx) -> Option<Value> {
                 src: name,
                 caption: format!("viewpoint {i}{at}: +x, +z, −x, −z faces (360° around)"),
                 checker: false,
+                vector: None,
             });
         }
     }
@@ -90,13 +91,12 @@ pub(super) fn histogram(c: &mut Ctx) -> Option<Value> {
         .map(|d| d.join("histogram.png"))
         .filter(|p| p.is_file())
     {
-        if let Some(name) = c.copy(&hist, "histogram.png") {
-            c.push(Block::Figures(vec![Figure {
-                src: name,
-                caption: "depth histogram of the whole track with the chosen slab boundaries"
-                    .into(),
-                checker: false,
-            }]));
+        if let Some(fig) = c.plot(
+            &hist,
+            "histogram",
+            "depth histogram of the whole track with the chosen slab boundaries",
+        ) {
+            c.push(Block::Figures(vec![fig]));
         }
     } else {
         c.missing("the slab stage wrote no histogram.png".into());
@@ -241,6 +241,7 @@ pub(super) fn layers(c: &mut Ctx) {
             src: name,
             caption: "all slabs (the panorama)".into(),
             checker: false,
+            vector: None,
         });
     }
     for (k, range) in meta.slabs.iter().enumerate() {
@@ -255,6 +256,7 @@ pub(super) fn layers(c: &mut Ctx) {
                 src: name,
                 caption: format!("slab {k}: [{:.1} m, {far})", range.near),
                 checker: true,
+                vector: None,
             });
         }
     }
@@ -272,6 +274,7 @@ pub(super) fn layers(c: &mut Ctx) {
                 src: name,
                 caption: format!("slab {k}, face {}", face.short_name()),
                 checker: true,
+                vector: None,
             }),
             Err(e) => c.missing(format!("{e:#}")),
         }

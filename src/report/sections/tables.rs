@@ -141,13 +141,13 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
         }));
     }
     // The culling stage's atlases (`cull/<variant>-a<alpha>.png`: kept and culled tiles).
-    // The conservative run at α = 1 and the most aggressive paper run say the most; other
-    // atlases are in the culling directory.
+    // The shrunk and conservative runs at α = 1 and the most aggressive paper run say the
+    // most; other atlases are in the culling directory.
     let all: Vec<PathBuf> = path
         .parent()
         .map(|d| pngs_in(&d.join("cull")))
         .unwrap_or_default();
-    let preferred: Vec<PathBuf> = ["conservative-a1.png", "paper-a0.8.png"]
+    let preferred: Vec<PathBuf> = ["shrunk-a1.png", "conservative-a1.png", "paper-a0.8.png"]
         .iter()
         .filter_map(|n| all.iter().find(|p| p.file_name().is_some_and(|f| f == *n)))
         .cloned()
@@ -169,6 +169,7 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
                 src: name,
                 caption: format!("kept and culled tiles, {}", file.trim_end_matches(".png")),
                 checker: false,
+                vector: None,
             });
         }
     }
@@ -388,17 +389,23 @@ fn estimated_sizes(c: &mut Ctx, pre: Option<&Value>, slabs: Option<&Value>, cull
             );
         }
     }
-    let conservative = cull
+    // The database's culling: the shrunk run (α = 1) where there is one, else the
+    // conservative one at α = 1.
+    let used = cull
         .and_then(|v| v.get("runs"))
         .and_then(Value::as_array)
         .and_then(|runs| {
-            runs.iter()
-                .filter(|r| r.get("variant").and_then(Value::as_str) == Some("conservative"))
+            let of = |name: &'static str| {
+                runs.iter()
+                    .filter(move |r| r.get("variant").and_then(Value::as_str) == Some(name))
+            };
+            of("shrunk")
+                .chain(of("conservative"))
                 .chain(runs.iter())
                 .find(|r| num(r, "alpha") == Some(1.0))
                 .or(runs.first())
         });
-    if let Some(run) = conservative {
+    if let Some(run) = used {
         let list = run
             .get("slabs")
             .and_then(Value::as_array)

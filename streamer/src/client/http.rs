@@ -29,6 +29,26 @@ use tracks::manifest::{object_rel_path, Manifest, ObjectRef};
 use crate::db::hash_matches;
 use crate::db::split::{assemble, decode_table, TopManifest, ViewTable};
 
+mod ranges;
+pub use ranges::{RangePiece, MULTI_GAP_BYTES, SINGLE_GAP_BYTES};
+
+/// What one GET asks for: the whole object, one byte range `(offset, len)`, or a `Range:`
+/// header of several ranges.
+#[derive(Clone, Copy, Debug)]
+enum Ask<'a> {
+    Whole,
+    One((u64, u64)),
+    Ranges(&'a str),
+}
+
+/// The head of an answer: its status and the headers a range answer is read by.
+#[derive(Clone, Debug, Default)]
+struct Head {
+    status: u16,
+    content_type: Option<String>,
+    content_range: Option<String>,
+}
+
 /// Where a database is served: `http://HOST:PORT[/PREFIX]`.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ServerUrl {
@@ -300,6 +320,8 @@ pub struct Connection {
     stats: Arc<ClientStats>,
     /// The server answered `/bundle` with 404/405/501 (a static host): fetch piece by piece.
     no_bundles: bool,
+    /// Whether the server answers several ranges in one request (`None`: not tried yet).
+    multi_ranges: Option<bool>,
     /// Retries and outage since the last [`Connection::take_report`].
     report: TransferReport,
 }
@@ -312,6 +334,7 @@ impl Connection {
             policy,
             stats,
             no_bundles: false,
+            multi_ranges: None,
             report: TransferReport::default(),
         }
     }
@@ -379,15 +402,16 @@ impl Connection {
         self.sender.as_mut().ok_or(ClientError::Cancelled)
     }
 
-    /// One GET, no retry. `cancel` is checked between body chunks; a cancelled transfer
-    /// drops the connection (the rest of the body would otherwise block it).
+    /// One GET, no retry: the body, whether it is gzip-encoded, and the head. `cancel` is
+    /// checked between body chunks; a cancelled transfer drops the connection (the rest of
+    /// the body would otherwise block it).
     async fn get_once(
         &mut self,
         path: &str,
-        range: Option<(u64, u64)>,
+        ask: Ask<'_>,
         cancel: Option<&AtomicBool>,
         accept_gzip: bool,
-    ) -> Result<(Bytes, bool), ClientError> {
+    ) -> Result<(Bytes, bool, Head), ClientError> {
         let max_body = self.policy.max_body;
         let host = self.url.host().to_string();
         // Errors name the whole URL: which server, which object.
@@ -399,11 +423,13 @@ impl Connection {
             message: m.to_string(),
         };
         let mut builder = Request::get(request_path).header(header::HOST, host.clone());
-        if let Some((off, len)) = range {
-            if len == 0 {
-                return Ok((Bytes::new(), false));
+        match ask {
+            Ask::Whole => {}
+            Ask::One((_, 0)) => return Ok((Bytes::new(), false, Head::default())),
+            Ask::One((off, len)) => {
+                builder = builder.header(header::RANGE, format!("bytes={}-{}", off, off + len - 1))
             }
-            builder = builder.header(header::RANGE, format!("bytes={}-{}", off, off + len - 1));
+            Ask::Ranges(text) => builder = builder.header(header::RANGE, text),
         }
         if accept_gzip {
             builder = builder.header(header::ACCEPT_ENCODING, "gzip");
@@ -452,10 +478,24 @@ impl Connection {
             }
             Some(_) => false,
         };
-        let ok = if range.is_some() {
-            status == StatusCode::PARTIAL_CONTENT
-        } else {
-            status == StatusCode::OK
+        let ok = match ask {
+            Ask::Whole => status == StatusCode::OK,
+            Ask::One(_) => status == StatusCode::PARTIAL_CONTENT,
+            // Several ranges may come back as one, as several, or as the whole object.
+            Ask::Ranges(_) => matches!(status, StatusCode::OK | StatusCode::PARTIAL_CONTENT),
+        };
+        let text = |name: header::HeaderName| {
+            resp.headers().get(name).map(|v| {
+                String::from_utf8_lossy(v.as_bytes())
+                    .chars()
+                    .take(256)
+                    .collect()
+            })
+        };
+        let head = Head {
+            status: status.as_u16(),
+            content_type: text(header::CONTENT_TYPE),
+            content_range: text(header::CONTENT_RANGE),
         };
         let mut body = resp.into_body();
         if !ok {
@@ -519,7 +559,7 @@ impl Connection {
         self.stats
             .bytes
             .fetch_add(out.len() as u64, Ordering::Relaxed);
-        Ok((out.freeze(), gzip))
+        Ok((out.freeze(), gzip, head))
     }
 
     /// GET with reconnect and exponential back-off on connection errors and 5xx.
@@ -529,17 +569,18 @@ impl Connection {
         range: Option<(u64, u64)>,
         cancel: Option<&AtomicBool>,
     ) -> Result<Bytes, ClientError> {
-        Ok(self.get_retrying(path, range, cancel, false).await?.0)
+        let ask = range.map_or(Ask::Whole, Ask::One);
+        Ok(self.get_retrying(path, ask, cancel, false).await?.0)
     }
 
     /// [`Connection::get`], optionally accepting a gzip body: `(body as sent, gzip-encoded)`.
     async fn get_retrying(
         &mut self,
         path: &str,
-        range: Option<(u64, u64)>,
+        ask: Ask<'_>,
         cancel: Option<&AtomicBool>,
         accept_gzip: bool,
-    ) -> Result<(Bytes, bool), ClientError> {
+    ) -> Result<(Bytes, bool, Head), ClientError> {
         let full = format!("{}{}", self.url.prefix, path);
         let mut delay = self.policy.backoff_start;
         let attempts = self.policy.attempts.max(1);
@@ -550,7 +591,7 @@ impl Connection {
         let result = loop {
             attempt += 1;
             self.report.attempts += 1;
-            match self.get_once(&full, range, cancel, accept_gzip).await {
+            match self.get_once(&full, ask, cancel, accept_gzip).await {
                 Ok(b) => break Ok(b),
                 Err(e) if e.is_retryable() => {
                     failing_since.get_or_insert_with(Instant::now);
@@ -676,7 +717,9 @@ impl Connection {
     /// as one entry. A mismatch anywhere (or a body of the wrong length) re-downloads the
     /// bundle, up to `checksum_attempts` times; nothing that failed its check is returned.
     /// A server without `/bundle` (a static host: 404, 405 or 501) is remembered, and the
-    /// pieces are then fetched one object (or consecutive range run) at a time.
+    /// pieces are then fetched one object at a time, an object's ranges together
+    /// ([`Connection::fetch_checked_ranges`]: several per request where the server answers
+    /// them as `multipart/byteranges`).
     pub async fn fetch_checked_bundle(
         &mut self,
         pieces: &[BundlePiece<'_>],
@@ -705,35 +748,39 @@ impl Connection {
                 other => return other,
             }
         }
-        let mut out = Vec::with_capacity(pieces.len());
-        let mut i = 0;
-        while i < pieces.len() {
-            // The longest run of consecutive ranges of one object from `i`.
-            let mut j = i + 1;
-            while j < pieces.len() && consecutive(&pieces[j - 1], &pieces[j]) {
-                j += 1;
+        // One object at a time: whole objects alone, an object's ranges together (several
+        // ranges per request where the server answers them, else runs merged across small
+        // gaps: [`Connection::fetch_checked_ranges`]).
+        let mut out: Vec<Option<Bytes>> = vec![None; pieces.len()];
+        let mut objects: Vec<&str> = Vec::new();
+        for p in pieces {
+            if !objects.contains(&&*p.key.object) {
+                objects.push(&p.key.object);
             }
-            if j - i > 1 {
-                let run: Vec<(u64, u64, &str)> = pieces[i..j]
-                    .iter()
-                    .map(|p| {
-                        let (off, len) = p.key.range.unwrap_or((0, p.len));
-                        (off, len, p.hash)
-                    })
-                    .collect();
-                out.extend(
-                    self.fetch_checked_run(&pieces[i].key.object, &run, cancel)
-                        .await?,
-                );
-            } else {
-                out.push(
-                    self.fetch_checked(pieces[i].key, pieces[i].hash, cancel)
-                        .await?,
-                );
-            }
-            i = j;
         }
-        Ok(out)
+        for object in objects {
+            let mut ranged = Vec::new();
+            for (i, p) in pieces.iter().enumerate() {
+                if &*p.key.object != object {
+                    continue;
+                }
+                match p.key.range {
+                    None => out[i] = Some(self.fetch_checked(p.key, p.hash, cancel).await?),
+                    Some((off, len)) => ranged.push((i, (off, len, p.hash))),
+                }
+            }
+            if ranged.is_empty() {
+                continue;
+            }
+            let run: Vec<RangePiece> = ranged.iter().map(|r| r.1).collect();
+            let got = self
+                .fetch_checked_ranges(object, None, &run, cancel)
+                .await?;
+            for ((i, _), b) in ranged.into_iter().zip(got) {
+                out[i] = Some(b);
+            }
+        }
+        Ok(out.into_iter().flatten().collect())
     }
 
     /// Each piece's own result, in order. One `/bundle` (or, on a static host, one request
@@ -904,7 +951,7 @@ impl Connection {
         let mut side = Connection::new(self.url.clone(), self.policy.clone(), self.stats.clone());
         let (hash_res, first) = tokio::join!(
             side.get("/manifest.json.blake3", None, None),
-            self.get_retrying(PATH, None, None, true)
+            self.get_retrying(PATH, Ask::Whole, None, true)
         );
         let mut first = Some(first?);
         let mut round_trips = 1u64;
@@ -932,10 +979,13 @@ impl Connection {
         let mut gzip_failed = false;
         for _ in 0..attempts {
             let (body, gzip) = match first.take() {
-                Some(b) => b,
+                Some((b, gzip, _)) => (b, gzip),
                 None => {
                     round_trips += 1;
-                    self.get_retrying(PATH, None, None, !gzip_failed).await?
+                    let (b, gzip, _) = self
+                        .get_retrying(PATH, Ask::Whole, None, !gzip_failed)
+                        .await?;
+                    (b, gzip)
                 }
             };
             transferred += body.len() as u64;

@@ -65,15 +65,7 @@ impl MotionTracker {
     }
 }
 
-/// Index of the segment containing arc length `s` for viewpoints at arcs `vp_s` (sorted):
-/// segment `i` spans `[vp_s[i], vp_s[i + 1]]`. `None` when there is no segment.
-pub fn segment_at(vp_s: &[f64], s: f64) -> Option<usize> {
-    if vp_s.len() < 2 {
-        return None;
-    }
-    let i = vp_s.partition_point(|&v| v <= s);
-    Some(i.saturating_sub(1).min(vp_s.len() - 2))
-}
+pub use tracks::segment::segment_at;
 
 /// The segment to prefetch: the one the predicted motion enters next within `horizon_s`
 /// (forward or backward), if it differs from the current one.

@@ -27,18 +27,44 @@ use super::admit::{Clock, ConnState};
 /// File data a response holds at most while it streams.
 pub const CHUNK_BYTES: usize = 32 * 1024;
 
-/// A byte range of a file.
+/// A byte range of a file, or (with `text`) a few bytes of the response itself (the part
+/// headers of a `multipart/byteranges` answer; `path` and `offset` unused, `len` their
+/// length).
 #[derive(Clone, Debug)]
 pub(crate) struct Segment {
     pub path: PathBuf,
     pub offset: u64,
     pub len: u64,
+    pub text: Option<Bytes>,
+}
+
+impl Segment {
+    pub(crate) fn file(path: PathBuf, offset: u64, len: u64) -> Segment {
+        Segment {
+            path,
+            offset,
+            len,
+            text: None,
+        }
+    }
+
+    pub(crate) fn text(text: impl Into<Bytes>) -> Segment {
+        let text = text.into();
+        Segment {
+            path: PathBuf::new(),
+            offset: 0,
+            len: text.len() as u64,
+            text: Some(text),
+        }
+    }
 }
 
 /// Reads segments one after another, keeping one file open.
 struct Reader {
     segments: VecDeque<Segment>,
     file: Option<std::fs::File>,
+    /// The front segment's bytes when it is text, not a file.
+    text: Option<Bytes>,
     /// Bytes left in the front segment once `file` is open at its position.
     left: u64,
     /// Bytes produced so far, and the byte to flip (fault injection), if any.
@@ -51,6 +77,7 @@ impl Reader {
         Reader {
             segments: segments.into(),
             file: None,
+            text: None,
             left: 0,
             produced: 0,
             corrupt_at,
@@ -61,23 +88,33 @@ impl Reader {
     fn next_chunk(&mut self, max: usize) -> io::Result<Vec<u8>> {
         let mut out = Vec::new();
         while out.len() < max {
-            if self.file.is_none() || self.left == 0 {
+            if (self.file.is_none() && self.text.is_none()) || self.left == 0 {
                 let Some(seg) = self.segments.pop_front() else {
                     break;
                 };
-                let mut f = std::fs::File::open(&seg.path)?;
-                f.seek(SeekFrom::Start(seg.offset))?;
-                self.file = Some(f);
-                self.left = seg.len;
-                if seg.len == 0 {
+                self.file = None;
+                self.text = None;
+                if let Some(t) = seg.text {
+                    self.left = t.len() as u64;
+                    self.text = Some(t);
+                } else {
+                    let mut f = std::fs::File::open(&seg.path)?;
+                    f.seek(SeekFrom::Start(seg.offset))?;
+                    self.file = Some(f);
+                    self.left = seg.len;
+                }
+                if self.left == 0 {
                     continue;
                 }
             }
             let want = (max - out.len()).min(self.left as usize);
             let start = out.len();
             out.reserve(want);
-            // Into the spare capacity, no zeroing first.
-            if let Some(f) = self.file.as_mut() {
+            if let Some(t) = &self.text {
+                let at = t.len() - self.left as usize;
+                out.extend_from_slice(&t[at..at + want]);
+            } else if let Some(f) = self.file.as_mut() {
+                // Into the spare capacity, no zeroing first.
                 f.take(want as u64).read_to_end(&mut out)?;
             }
             if out.len() - start < want {
@@ -86,6 +123,7 @@ impl Reader {
             self.left -= want as u64;
             if self.left == 0 {
                 self.file = None;
+                self.text = None;
             }
         }
         if let Some(i) = self.corrupt_at {
@@ -267,23 +305,13 @@ mod tests {
         std::fs::write(dir.join("a"), &a).unwrap();
         std::fs::write(dir.join("b"), &b).unwrap();
         let segs = vec![
-            Segment {
-                path: dir.join("a"),
-                offset: 10,
-                len: 70_000,
-            },
-            Segment {
-                path: dir.join("b"),
-                offset: 0,
-                len: 5_000,
-            },
-            Segment {
-                path: dir.join("a"),
-                offset: 99_990,
-                len: 10,
-            },
+            Segment::file(dir.join("a"), 10, 70_000),
+            Segment::text(&b"--text--"[..]),
+            Segment::file(dir.join("b"), 0, 5_000),
+            Segment::file(dir.join("a"), 99_990, 10),
         ];
         let mut want = a[10..70_010].to_vec();
+        want.extend_from_slice(b"--text--");
         want.extend_from_slice(&b);
         want.extend_from_slice(&a[99_990..]);
         let mut body = ServeBody::files(FileStream::new(segs.clone(), None));
@@ -303,11 +331,7 @@ mod tests {
         let bad = read_small(segs.clone(), Some(40_000)).unwrap();
         assert_eq!(bad.iter().zip(&want).filter(|(x, y)| x != y).count(), 1);
         // A file shorter than its segment ends the body with an error, not a short body.
-        let short = vec![Segment {
-            path: dir.join("b"),
-            offset: 4_000,
-            len: 60_000,
-        }];
+        let short = vec![Segment::file(dir.join("b"), 4_000, 60_000)];
         let mut body = ServeBody::files(FileStream::new(short, None));
         let mut failed = false;
         while let Some(f) = body.frame().await {

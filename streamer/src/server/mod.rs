@@ -61,7 +61,8 @@ use guard::Guarded;
 
 pub use body::{ServeBody, CHUNK_BYTES};
 pub use bundle::{bundle_query, parse_bundle_query, BundleEntry, BundleError};
-pub use range::{parse_range, RangeError};
+pub use range::{multipart_body, parse_range, parse_ranges, RangeError};
+pub use routes::MAX_RANGES;
 pub use shape::{parse_duration, parse_rate, Shaped};
 
 /// Server limits and simulation settings.

@@ -12,7 +12,8 @@ use hyper::{Method, Request, Response, StatusCode, Version};
 use tracks::manifest::object_rel_path;
 
 use super::body::{read_small, FileStream, Segment, ServeBody, CHUNK_BYTES};
-use super::{accepts_gzip, parse_bundle_query, parse_range, RangeError, Shared};
+use super::range::{close_delimiter, part_head};
+use super::{accepts_gzip, parse_bundle_query, parse_range, parse_ranges, RangeError, Shared};
 
 pub(crate) type Resp = Response<ServeBody>;
 
@@ -252,7 +253,7 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
     let limit = s.config.max_response_bytes;
     let not_readable = format!("object {hash} is listed but not readable");
     let unreadable = (StatusCode::NOT_FOUND, not_readable.clone());
-    let (body, (size, offset, len, ranged)) = file_body(
+    let (body, (size, offset, len, ranged, boundary)) = file_body(
         s,
         vec![path.clone()],
         flip_for(s),
@@ -266,6 +267,27 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
                 }
                 None => return Err(refuse(StatusCode::NOT_FOUND, not_readable)),
             };
+            // Several ranges: one multipart answer streamed from the file, their total
+            // within the response limit.
+            if let Some(text) = range_text.as_deref().filter(|t| t.contains(',')) {
+                let ranges = parse_ranges(text, size, limit, MAX_RANGES)
+                    .map_err(|e| range_refusal(e, size))?;
+                if let [(offset, len)] = ranges[..] {
+                    let seg = Segment::file(path, offset, len);
+                    return Ok((vec![seg], (size, offset, len, true, None)));
+                }
+                // A boundary that names the object and the ranges: the same answer, byte
+                // for byte, to the same request (caches may compare them).
+                let boundary =
+                    blake3::hash(format!("{hash}{text}").as_bytes()).to_hex()[..24].to_string();
+                let mut segments = Vec::with_capacity(2 * ranges.len() + 1);
+                for &(off, len) in &ranges {
+                    segments.push(Segment::text(part_head(&boundary, off, len, size)));
+                    segments.push(Segment::file(path.clone(), off, len));
+                }
+                segments.push(Segment::text(close_delimiter(&boundary)));
+                return Ok((segments, (size, 0, 0, true, Some(boundary))));
+            }
             let range = match range_text {
                 None => None,
                 Some(text) => match parse_range(&text, size, limit) {
@@ -293,14 +315,19 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
                     ),
                 ));
             }
-            let seg = Segment { path, offset, len };
-            Ok((vec![seg], (size, offset, len, range.is_some())))
+            let seg = Segment::file(path, offset, len);
+            Ok((vec![seg], (size, offset, len, range.is_some(), None)))
         },
     )
     .map_err(|r| *r)?;
     let mut r = Response::new(body);
     add_object_headers(&mut r, &etag);
-    if ranged {
+    if let Some(b) = boundary {
+        *r.status_mut() = StatusCode::PARTIAL_CONTENT;
+        if let Ok(v) = HeaderValue::from_str(&format!("multipart/byteranges; boundary={b}")) {
+            r.headers_mut().insert(header::CONTENT_TYPE, v);
+        }
+    } else if ranged {
         *r.status_mut() = StatusCode::PARTIAL_CONTENT;
         let cr = format!("bytes {}-{}/{}", offset, offset + len - 1, size);
         if let Ok(v) = HeaderValue::from_str(&cr) {
@@ -387,11 +414,7 @@ async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
                     ),
                 ));
             }
-            segments.push(Segment {
-                path: files[k].clone(),
-                offset,
-                len,
-            });
+            segments.push(Segment::file(files[k].clone(), offset, len));
         }
         Ok((segments, ()))
     })
@@ -400,6 +423,28 @@ async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
     add_object_headers(&mut r, &etag);
     r.headers_mut().remove(header::ACCEPT_RANGES);
     Ok(r)
+}
+
+/// Ranges one request may name at most (nginx's `max_ranges` is unlimited by default; a
+/// client of ours sends at most 64).
+pub const MAX_RANGES: usize = 256;
+
+/// The answer to ranges that cannot be served: 416 (with `Content-Range: bytes */SIZE` when
+/// none lies in the object), or 400 for a malformed header.
+fn range_refusal(e: RangeError, size: u64) -> Box<Resp> {
+    match e {
+        RangeError::Unsatisfiable { .. } => {
+            let mut r = reply(StatusCode::RANGE_NOT_SATISFIABLE, e.to_string());
+            if let Ok(v) = HeaderValue::from_str(&format!("bytes */{size}")) {
+                r.headers_mut().insert(header::CONTENT_RANGE, v);
+            }
+            Box::new(r)
+        }
+        RangeError::TooLarge { .. } | RangeError::TooMany(_) => {
+            refuse(StatusCode::RANGE_NOT_SATISFIABLE, e.to_string())
+        }
+        e => refuse(StatusCode::BAD_REQUEST, e.to_string()),
+    }
 }
 
 fn add_object_headers(r: &mut Resp, etag: &str) {

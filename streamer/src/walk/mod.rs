@@ -2,35 +2,41 @@
 //!
 //! [`run_walk`] walks track 0 of the database served at a URL at a given speed, looking
 //! around like a person (a scripted yaw/pitch path, [`look_at`]), once per
-//! ([`Strategy`], bandwidth). Time is virtual: every download really goes over HTTP (and is
-//! checked), but its arrival time comes from a [`VirtualLink`] (latency + bytes / bandwidth,
-//! one transfer at a time on the link, up to `max_in_flight` requests outstanding), so runs
-//! at 56 kbit/s take seconds, not minutes, and repeat exactly. Per frame it records the PTM
-//! paper's *progressive downloading quality* (downloaded levels / levels, averaged over the
-//! current segment's ACH tiles) and the fraction of needed pixels present at their needed
-//! level ([`crate::visibility`]). [`write_outputs`] writes `walk.json`, a CSV, a PNG plot
-//! and a Markdown summary.
+//! ([`Strategy`], bandwidth). The client is the viewer's: the same [`crate::client::Scheduler`]
+//! decides every request, and its requests go out by the same [`crate::client::Dispatcher`]
+//! rule as the viewer's worker pool, so a walk measures what `railview view URL` does (the
+//! GPU's visible-pixel counts are the one thing a walk cannot have; the scheduler's CPU
+//! estimate of the same pass stands in). Time is virtual: every request really goes over
+//! HTTP (and is checked), but its arrival time comes from a [`VirtualLink`] (latency per HTTP
+//! request + body bytes / bandwidth, one transfer at a time on the link, up to the client's
+//! requests in flight), so runs at 56 kbit/s take seconds, not minutes, and repeat exactly.
+//! The scheduler ticks once per frame; between frames each arrival frees a slot, and the next
+//! request the dispatcher gives goes out at once, as in the viewer. Per frame it records the
+//! PTM paper's *progressive downloading quality* (downloaded levels / levels, averaged over
+//! the current segment's ACH tiles) and the fraction of needed pixels present at their needed
+//! level ([`crate::visibility`], over the whole database: the walker's eyes, not its client).
+//! [`write_outputs`] writes `walk.json`, a CSV, a PNG plot and a Markdown summary.
 //!
 //! The manifest is charged too: the top manifest's transferred bytes (gzip when the server
 //! offers it, plus the checksum file) occupy each run's link from t = 0, and the walk starts
 //! when it has arrived (`manifest_s`). Viewpoint tables are fetched during the walk like any
-//! response (really over HTTP, checked, their bytes on the link): the current segment's two
-//! (and, with prefetch, the next segment's) before any tile, the others one at a time in the
-//! background, nearest first; a tile whose table has not arrived cannot be requested
-//! (`table_bytes` and `table_requests` per run; `bytes` includes them). Frame times and
-//! `time_to_first_frame_s` count from t = 0, so they include the manifest and the tables;
-//! the per-frame means are over the walk itself.
+//! response (`table_bytes` and `table_requests` per run; `bytes` includes them). Frame times
+//! and `time_to_first_frame_s` count from t = 0, so they include the manifest and the tables;
+//! the per-frame means are over the walk itself. `requests` counts HTTP requests (a request
+//! the client sends as one batch may take several on a server without `/bundle` or
+//! multi-range answers), `bytes` their body bytes.
 //!
 //! Failures are measured, not fatal. A part or table whose object is damaged or missing is
 //! counted, asked for again later on the virtual clock and given up after repeated faults
-//! ([`crate::client::FailureBook`]); the walk goes on without it (`part_faults`,
-//! `parts_given_up`, `tables_given_up`). A server that stops answering for a while costs
-//! the requests retries; the wall-clock time they spent failing (`outage_s`) also holds the
-//! virtual link, so the outage shows in the frames and in `longest_wait_s` (the longest
-//! virtual time with requests outstanding and nothing arriving). A server gone for longer
-//! than the retry policy allows ([`crate::client::RetryPolicy::give_up_after`]) ends the
-//! run and the walk: the report keeps every finished run and what the failed one measured
-//! ([`WalkFailed`]), so `walk.json` is always written.
+//! (the scheduler's [`crate::client::FailureBook`], the same as the viewer's); the walk goes
+//! on without it (`part_faults`, `parts_given_up`, `tables_given_up`). A server that stops
+//! answering for a while costs the requests retries; the wall-clock time they spent failing
+//! (`outage_s`) also holds the virtual link, so the outage shows in the frames and in
+//! `longest_wait_s` (the longest virtual time with requests outstanding and nothing
+//! arriving). A server gone for longer than the retry policy allows
+//! ([`crate::client::RetryPolicy::give_up_after`]) ends the run and the walk: the report
+//! keeps every finished run and what the failed one measured ([`WalkFailed`]), so
+//! `walk.json` is always written.
 
 pub mod load;
 mod plot;
@@ -40,88 +46,21 @@ pub mod synth;
 use std::path::Path;
 
 use serde::Serialize;
-use tracks::manifest::{Manifest, ObjectRef};
+use tracks::manifest::Manifest;
 
 use crate::db::split::{assemble, TopManifest, ViewTable};
-use tracks::TrackSet;
+use tracks::{PerspectiveCamera, TrackSet};
 
 use crate::client::{
-    BudgetParams, ClientError, ClientStats, Connection, FailurePolicy, ItemTable, PriorityMode,
-    RetryPolicy, ServerUrl,
+    ClientError, ClientStats, Connection, FetchKey, ItemTable, RetryPolicy, SchedulerConfig,
+    ServerUrl, Source,
 };
 use crate::visibility::SceneIndex;
 
-/// How a run chooses what to download.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Strategy {
-    /// Whole full-resolution tiles in manifest order.
-    Naive,
-    /// Budget rules with a priority source, optionally prefetching the next segment.
-    Budget { mode: PriorityMode, prefetch: bool },
-}
+pub use crate::client::Strategy;
 
-impl Strategy {
-    /// Whether the strategy ranks tiles by the segments' ACH lists (and so fetches them).
-    pub fn uses_ach(&self) -> bool {
-        matches!(
-            self,
-            Strategy::Budget {
-                mode: PriorityMode::Ach | PriorityMode::Combined { .. },
-                ..
-            }
-        )
-    }
-
-    /// `naive`, `ach`, `visibility`, `ach+visibility`, each of the last three `+prefetch`.
-    pub fn parse(text: &str) -> Result<Strategy, String> {
-        let t = text.trim().to_ascii_lowercase();
-        if t == "naive" {
-            return Ok(Strategy::Naive);
-        }
-        let mut ach = false;
-        let mut vis = false;
-        let mut prefetch = false;
-        for part in t.split('+') {
-            match part {
-                "ach" => ach = true,
-                "visibility" | "vis" => vis = true,
-                "prefetch" => prefetch = true,
-                _ => {
-                    return Err(format!(
-                        "strategy `{text}`: use naive, ach, visibility, ach+visibility, with optional +prefetch"
-                    ))
-                }
-            }
-        }
-        let mode = match (ach, vis) {
-            (true, false) => PriorityMode::Ach,
-            (false, true) => PriorityMode::Visibility,
-            (true, true) => PriorityMode::Combined { ach_weight: 0.5 },
-            (false, false) => return Err(format!("strategy `{text}`: no priority source")),
-        };
-        Ok(Strategy::Budget { mode, prefetch })
-    }
-
-    pub fn name(&self) -> String {
-        match self {
-            Strategy::Naive => "naive".into(),
-            Strategy::Budget { mode, prefetch } => {
-                let m = match mode {
-                    PriorityMode::Ach => "ach",
-                    PriorityMode::Visibility => "visibility",
-                    PriorityMode::Combined { .. } => "ach+visibility",
-                };
-                if *prefetch {
-                    format!("{m}+prefetch")
-                } else {
-                    m.into()
-                }
-            }
-        }
-    }
-}
-
-/// Walk settings.
+/// Walk settings: the walker (speed, camera, frames), the simulated link, and the client's
+/// own settings ([`SchedulerConfig`], the viewer's defaults; its strategy is set per run).
 #[derive(Clone, Debug)]
 pub struct WalkConfig {
     pub speed_mps: f64,
@@ -129,32 +68,20 @@ pub struct WalkConfig {
     pub frame_dt_s: f64,
     /// Standing still at the end of the track (the static budgets apply).
     pub pause_s: f64,
-    /// Memory/time budgets (the paper's values by default).
-    pub budget: BudgetParams,
-    /// Raise `M` and `M_static` to fit the database ([`BudgetParams::scaled_to`]).
-    pub scale_budget: bool,
-    pub cache_bytes: u64,
-    pub max_in_flight: usize,
+    /// The client: budgets, cache, requests in flight, prefetch (the viewer's defaults).
+    pub schedule: SchedulerConfig,
     pub screen_width: u32,
     pub screen_height: u32,
     pub fov_deg: f64,
-    /// Visibility samples per frame.
+    /// Samples per frame of the visibility pass that measures what the frame needs (the
+    /// walker's eyes, over the whole database; the client counts with its own).
     pub samples_x: u32,
     pub samples_y: u32,
-    pub prefetch_horizon_s: f64,
-    /// Prefetch widens the view frustum by this turn of the head (degrees, each side).
-    pub prefetch_turn_deg: f64,
-    /// Prefetch with live counts takes the tiles covering this fraction of the predicted
-    /// view's pixels (largest first).
-    pub prefetch_coverage: f64,
-    /// Pieces (meshes, PTM level groups) one bundled request carries at most.
-    pub bundle_entries: usize,
     pub track: usize,
+    /// Keep every run's requests, in the order they went out ([`RunReport::request_log`]).
+    pub record_requests: bool,
     /// Timeouts and retries of the real transfers.
     pub retry: RetryPolicy,
-    /// When a damaged or missing part or table is asked for again (virtual seconds), and
-    /// when it is given up.
-    pub failures: FailurePolicy,
 }
 
 /// Most frames one run may simulate (length / speed + pause, over the frame time): a limit
@@ -199,22 +126,15 @@ impl Default for WalkConfig {
             latency_s: 0.05,
             frame_dt_s: 0.05,
             pause_s: 3.0,
-            budget: BudgetParams::default(),
-            scale_budget: true,
-            cache_bytes: 64 << 20,
-            max_in_flight: 6,
+            schedule: SchedulerConfig::default(),
             screen_width: 1280,
             screen_height: 720,
             fov_deg: 90.0,
             samples_x: 64,
             samples_y: 36,
-            prefetch_horizon_s: 1.0,
-            prefetch_turn_deg: 10.0,
-            prefetch_coverage: 0.9,
-            bundle_entries: 64,
             track: 0,
+            record_requests: false,
             retry: RetryPolicy::default(),
-            failures: FailurePolicy::default(),
         }
     }
 }
@@ -276,6 +196,52 @@ pub fn look_at(heading_yaw_deg: f64, t: f64) -> (f64, f64) {
     (yaw, pitch)
 }
 
+/// One frame of the scripted walk: its time (from the start of the walk), arc length and
+/// camera.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WalkFrame {
+    pub t_s: f64,
+    pub s_m: f64,
+    pub camera: PerspectiveCamera,
+}
+
+/// The frames of the scripted walk along `track`: every `frame_dt_s` from 0 to the end of
+/// the track at `speed_mps` and `pause_s` beyond, the camera on the track looking around the
+/// way of travel ([`look_at`]). The walk simulator runs these; a replay runs them through a
+/// live session.
+pub fn walk_frames(track: &tracks::Track, cfg: &WalkConfig) -> Vec<WalkFrame> {
+    let length = track.length();
+    let walk_s = if cfg.speed_mps > 0.0 {
+        length / cfg.speed_mps
+    } else {
+        0.0
+    };
+    let end_t = walk_s + cfg.pause_s.max(0.0);
+    let dt = cfg.frame_dt_s.max(1e-3);
+    (0u64..)
+        .map(|k| k as f64 * dt)
+        .take_while(|&t| t <= end_t + 1e-9)
+        .map(|t| {
+            let s = (t * cfg.speed_mps).min(length);
+            let tan = track.tangent_at(s);
+            let heading = tan.x.atan2(-tan.z).to_degrees();
+            let (yaw, pitch) = look_at(heading, t);
+            WalkFrame {
+                t_s: t,
+                s_m: s,
+                camera: PerspectiveCamera {
+                    position: track.position_at(s),
+                    yaw_deg: yaw,
+                    pitch_deg: pitch,
+                    fov_deg: cfg.fov_deg,
+                    width: cfg.screen_width,
+                    height: cfg.screen_height,
+                },
+            }
+        })
+        .collect()
+}
+
 /// One frame of a run.
 #[derive(Clone, Debug, Serialize)]
 pub struct FrameRecord {
@@ -289,7 +255,7 @@ pub struct FrameRecord {
 }
 
 /// One (strategy, bandwidth) run.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Default, Serialize)]
 pub struct RunReport {
     pub strategy: String,
     pub bandwidth_bps: Option<u64>,
@@ -313,7 +279,9 @@ pub struct RunReport {
     pub mean_quality: f64,
     pub bytes: u64,
     pub bytes_per_m: f64,
+    /// HTTP requests (retries included), and per metre of track.
     pub requests: u64,
+    pub requests_per_m: f64,
     pub checksum_failures: u64,
     /// `null` = unlimited (naive keeps everything).
     pub cache_budget_bytes: Option<u64>,
@@ -322,7 +290,7 @@ pub struct RunReport {
     pub max_resident_bytes: u64,
     /// Whether the resident set always fit the memory budget in force (`M` or `M_static`).
     pub resident_within_budget: bool,
-    /// `M` of the run (configured, or scaled to the database).
+    /// `M` of the run at its end (configured, or scaled to what the client knew).
     pub memory_budget_bytes: u64,
     /// Wall-clock seconds the run took (real transfers and simulation).
     pub wall_s: f64,
@@ -347,6 +315,10 @@ pub struct RunReport {
     pub error: Option<String>,
     #[serde(skip)]
     pub frames: Vec<FrameRecord>,
+    /// With [`WalkConfig::record_requests`]: the keys of every request, in the order they
+    /// went out.
+    #[serde(skip)]
+    pub request_log: Vec<Vec<FetchKey>>,
 }
 
 /// All runs.
@@ -410,13 +382,10 @@ pub struct ManifestCost {
 
 pub(crate) struct Scene {
     manifest: Manifest,
-    /// Every item (what the budgets are scaled to).
+    /// The top manifest the clients start from.
+    top: TopManifest,
+    /// Every item of the track (what each frame's needs are measured against).
     table: ItemTable,
-    /// What a client knows from the top manifest alone (backgrounds).
-    empty: ItemTable,
-    /// Per viewpoint of the track: its table object, its ACH object (if a segment starts
-    /// there) and its index.
-    tables: Vec<(ObjectRef, Option<ObjectRef>, usize)>,
     /// Where the walk's needs come from: the whole database.
     index: SceneIndex,
     track: tracks::Track,
@@ -424,17 +393,6 @@ pub(crate) struct Scene {
 
 fn load_scene(top: &TopManifest, manifest: Manifest, track: usize) -> Result<Scene, WalkError> {
     let table = ItemTable::new(&manifest, track)?;
-    let empty = ItemTable::empty(&manifest, track)?;
-    let tables = top
-        .tracks
-        .get(track)
-        .map(|t| {
-            t.viewpoints
-                .iter()
-                .map(|v| (v.table.clone(), v.ach.clone(), v.index))
-                .collect()
-        })
-        .unwrap_or_default();
     let index = SceneIndex::new(&manifest, track)
         .ok_or_else(|| WalkError::Database("face/tile sizes or track invalid".into()))?;
     let entry = &manifest.tracks[track];
@@ -446,10 +404,9 @@ fn load_scene(top: &TopManifest, manifest: Manifest, track: usize) -> Result<Sce
         .cloned()
         .ok_or_else(|| WalkError::Database("track_toml holds no track".into()))?;
     Ok(Scene {
+        top: top.clone(),
         manifest,
         table,
-        empty,
-        tables,
         index,
         track: t,
     })
@@ -492,20 +449,13 @@ pub async fn run_walk(
         runs: strategies.len() * bandwidths.len(),
         frames_per_run,
     });
+    let source = Source::Http(url.clone());
     for &bw in bandwidths {
         for &strategy in strategies {
             let run = report.runs.len();
             let mut on_frame = |frame| progress(WalkEvent::Frame { run, frame });
-            let (r, error) = sim::run_one(
-                &mut conn,
-                &stats,
-                &scene,
-                config,
-                (strategy, bw),
-                cost,
-                &mut on_frame,
-            )
-            .await;
+            let (r, error) =
+                sim::run_one(&source, &scene, config, (strategy, bw), cost, &mut on_frame).await;
             progress(WalkEvent::Finished(&r));
             report.runs.push(r);
             if let Some(e) = error {
@@ -608,7 +558,10 @@ pub fn write_outputs(report: &WalkReport, dir: &Path) -> Result<(), WalkError> {
         }
     }
     write("walk.csv", csv.as_bytes())?;
-    let png = plot::plot_png(report).map_err(|e| err(&dir.join("walk.png"), &e))?;
+    let fig = plot::figure(report);
+    let svg = charts::svg(&fig).map_err(|e| err(&dir.join("walk.svg"), &e))?;
+    write("walk.svg", svg.as_bytes())?;
+    let png = charts::png(&fig).map_err(|e| err(&dir.join("walk.png"), &e))?;
     write("walk.png", &png)?;
     write("summary.md", summary_markdown(report).as_bytes())
 }
@@ -617,8 +570,8 @@ pub fn write_outputs(report: &WalkReport, dir: &Path) -> Result<(), WalkError> {
 pub fn summary_markdown(r: &WalkReport) -> String {
     let mut s = format!(
         "# Walk: {} / {} ({:.1} m at {} m/s, latency {} ms)\n\n\
-         | bandwidth | strategy | manifest bytes | manifest (s) | table bytes | first frame (s) | needed fraction | quality | bytes | bytes/m | checksum failures | part faults (given up) | retries | outage (s) | longest wait (s) |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+         | bandwidth | strategy | manifest bytes | manifest (s) | table bytes | first frame (s) | needed fraction | quality | bytes | bytes/m | requests | requests/m | checksum failures | part faults (given up) | retries | outage (s) | longest wait (s) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         r.scene,
         r.track,
         r.length_m,
@@ -627,7 +580,7 @@ pub fn summary_markdown(r: &WalkReport) -> String {
     );
     for run in &r.runs {
         s += &format!(
-            "| {} | {} | {} | {:.2} | {} | {} | {:.3} | {:.3} | {} | {:.0} | {} | {} ({}) | {} | {:.1} | {:.2} |\n",
+            "| {} | {} | {} | {:.2} | {} | {} | {:.3} | {:.3} | {} | {:.0} | {} | {:.1} | {} | {} ({}) | {} | {:.1} | {:.2} |\n",
             run.bandwidth_bps.map_or("unlimited".into(), format_bps),
             run.strategy,
             run.manifest_bytes,
@@ -639,6 +592,8 @@ pub fn summary_markdown(r: &WalkReport) -> String {
             run.mean_quality,
             run.bytes,
             run.bytes_per_m,
+            run.requests,
+            run.requests_per_m,
             run.checksum_failures,
             run.part_faults + run.table_faults,
             run.parts_given_up + run.tables_given_up,
@@ -657,10 +612,7 @@ pub fn summary_markdown(r: &WalkReport) -> String {
     if let Some(e) = &r.error {
         s += &format!("\n**The walk stopped early:** {e}\n");
     }
-    s += "\nPlot colours (walk.png, one panel per bandwidth; solid = quality, dotted = needed fraction): ";
-    let names: Vec<String> = plot::legend(r);
-    s += &names.join(", ");
-    s += "\n";
+    s += "\n![Quality over time, one panel per bandwidth](walk.svg)\n";
     s
 }
 

@@ -1,23 +1,10 @@
-//! The quality-over-time plot of a walk (PNG, drawn directly with `image`).
+//! The quality-over-time figure of a walk, drawn with [`charts`]: one panel per bandwidth,
+//! time on x, a solid line per strategy for the progressive downloading quality and a dashed
+//! one in the same colour for the needed fraction.
 
-use image::{Rgb, RgbImage};
+use charts::{Axis, Chart, Figure, Series};
 
-use super::WalkReport;
-
-const W: u32 = 720;
-const PANEL_H: u32 = 180;
-const MARGIN: u32 = 12;
-
-const COLOURS: [([u8; 3], &str); 8] = [
-    ([200, 40, 40], "red"),
-    ([40, 110, 220], "blue"),
-    ([30, 150, 60], "green"),
-    ([230, 140, 20], "orange"),
-    ([140, 60, 180], "purple"),
-    ([20, 160, 170], "teal"),
-    ([120, 120, 120], "grey"),
-    ([0, 0, 0], "black"),
-];
+use super::{format_bps, WalkReport};
 
 fn strategies(r: &WalkReport) -> Vec<String> {
     let mut v: Vec<String> = Vec::new();
@@ -39,87 +26,116 @@ fn bandwidths(r: &WalkReport) -> Vec<Option<u64>> {
     v
 }
 
-/// `strategy = colour` pairs, in plot order.
-pub fn legend(r: &WalkReport) -> Vec<String> {
-    strategies(r)
-        .iter()
-        .enumerate()
-        .map(|(i, s)| format!("{s} = {}", COLOURS[i % COLOURS.len()].1))
-        .collect()
-}
-
-fn line(img: &mut RgbImage, a: (f64, f64), b: (f64, f64), c: Rgb<u8>, dotted: bool) {
-    let steps = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).max(1);
-    for k in 0..=steps {
-        if dotted && (k / 3) % 2 == 1 {
-            continue;
-        }
-        let f = k as f64 / steps as f64;
-        let x = a.0 + (b.0 - a.0) * f;
-        let y = a.1 + (b.1 - a.1) * f;
-        if x >= 0.0 && y >= 0.0 && (x as u32) < img.width() && (y as u32) < img.height() {
-            img.put_pixel(x as u32, y as u32, c);
-        }
-    }
-}
-
-/// One panel per bandwidth (top to bottom in report order), time on x, 0..1 on y; a solid
-/// line per strategy for the progressive downloading quality and a dotted one for the
-/// needed fraction.
-pub fn plot_png(r: &WalkReport) -> Result<Vec<u8>, image::ImageError> {
-    let bws = bandwidths(r);
+/// One panel per bandwidth, in report order.
+pub fn figure(r: &WalkReport) -> Figure {
     let names = strategies(r);
-    let h = PANEL_H * bws.len().max(1) as u32;
-    let mut img = RgbImage::from_pixel(W, h, Rgb([255, 255, 255]));
-    let t_max = r
-        .runs
-        .iter()
-        .flat_map(|run| run.frames.last().map(|f| f.t_s))
-        .fold(1e-9, f64::max);
-    for (p, bw) in bws.iter().enumerate() {
-        let top = p as u32 * PANEL_H + MARGIN;
-        let bottom = (p as u32 + 1) * PANEL_H - MARGIN;
-        let (left, right) = (MARGIN as f64, (W - MARGIN) as f64);
-        let grey = Rgb([180, 180, 180]);
-        for frac in [0.0, 0.5, 1.0] {
-            let y = bottom as f64 - frac * (bottom - top) as f64;
-            line(&mut img, (left, y), (right, y), grey, frac == 0.5);
-        }
-        line(
-            &mut img,
-            (left, top as f64),
-            (left, bottom as f64),
-            grey,
-            false,
-        );
-        for run in r.runs.iter().filter(|run| run.bandwidth_bps == *bw) {
-            let ci = names.iter().position(|n| *n == run.strategy).unwrap_or(0);
-            let c = Rgb(COLOURS[ci % COLOURS.len()].0);
-            let to_xy = |t: f64, v: f64| {
-                (
-                    left + (right - left) * t / t_max,
-                    bottom as f64 - v.clamp(0.0, 1.0) * (bottom - top) as f64,
-                )
-            };
-            for w in run.frames.windows(2) {
-                line(
-                    &mut img,
-                    to_xy(w[0].t_s, w[0].quality),
-                    to_xy(w[1].t_s, w[1].quality),
-                    c,
-                    false,
-                );
-                line(
-                    &mut img,
-                    to_xy(w[0].t_s, w[0].needed_fraction),
-                    to_xy(w[1].t_s, w[1].needed_fraction),
-                    c,
-                    true,
-                );
+    let panels = bandwidths(r)
+        .into_iter()
+        .map(|bw| {
+            let label = bw.map_or("unlimited bandwidth".to_string(), format_bps);
+            let mut chart = Chart::new(format!("{} / {}: streaming at {label}", r.scene, r.track))
+                .x(Axis::linear("time since the walk started (s)"))
+                .y(Axis::linear("fraction of visible pixels").range(0.0, 1.02));
+            for run in r.runs.iter().filter(|run| run.bandwidth_bps == bw) {
+                let ci = names.iter().position(|n| *n == run.strategy).unwrap_or(0);
+                let q = run.frames.iter().map(|f| (f.t_s, f.quality)).collect();
+                let n = run
+                    .frames
+                    .iter()
+                    .map(|f| (f.t_s, f.needed_fraction))
+                    .collect();
+                chart = chart
+                    .series(Series::line(format!("{}: quality", run.strategy), q).color(ci))
+                    .series(
+                        Series::dashed(format!("{}: at the level needed", run.strategy), n)
+                            .color(ci),
+                    );
             }
-        }
+            chart
+        })
+        .collect();
+    Figure::stacked(panels, 360)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::walk::{FrameRecord, RunReport};
+
+    #[test]
+    fn a_panel_per_bandwidth_and_two_lines_per_strategy() {
+        let frames = |q: f64| {
+            (0..5)
+                .map(|i| FrameRecord {
+                    t_s: i as f64,
+                    s_m: i as f64,
+                    quality: q * i as f64 / 4.0,
+                    needed_fraction: 0.5,
+                    complete: true,
+                    bytes: 0,
+                    cache_bytes: 0,
+                })
+                .collect::<Vec<_>>()
+        };
+        let run = |strategy: &str, bw: Option<u64>| RunReport {
+            strategy: strategy.into(),
+            bandwidth_bps: bw,
+            time_to_first_frame_s: None,
+            manifest_bytes: 0,
+            manifest_s: 0.0,
+            table_bytes: 0,
+            table_requests: 0,
+            background_bytes: 0,
+            first_frame_bytes: None,
+            first_frame_table_bytes: None,
+            mean_needed_fraction: 0.5,
+            mean_quality: 0.5,
+            bytes: 0,
+            bytes_per_m: 0.0,
+            requests: 0,
+            requests_per_m: 0.0,
+            checksum_failures: 0,
+            cache_budget_bytes: None,
+            max_cache_bytes: 0,
+            max_resident_bytes: 0,
+            resident_within_budget: true,
+            memory_budget_bytes: 0,
+            wall_s: 0.0,
+            retries: 0,
+            timeouts: 0,
+            outage_s: 0.0,
+            longest_outage_s: 0.0,
+            longest_wait_s: 0.0,
+            part_faults: 0,
+            parts_given_up: 0,
+            table_faults: 0,
+            tables_given_up: 0,
+            completed: true,
+            error: None,
+            frames: frames(1.0),
+            request_log: Vec::new(),
+        };
+        let r = WalkReport {
+            scene: "castle".into(),
+            track: "main".into(),
+            length_m: 10.0,
+            speed_mps: 1.0,
+            latency_s: 0.05,
+            runs: vec![
+                run("naive", Some(56_000)),
+                run("ach", Some(56_000)),
+                run("naive", None),
+            ],
+            error: None,
+        };
+        let fig = figure(&r);
+        assert_eq!(fig.panels.len(), 2);
+        assert_eq!(fig.panels[0].series.len(), 4);
+        assert_eq!(fig.panels[1].series.len(), 2);
+        // A strategy keeps its colour in every panel and for both of its lines.
+        assert_eq!(fig.panels[0].series[0].color, fig.panels[1].series[0].color);
+        assert_eq!(fig.panels[0].series[2].color, fig.panels[0].series[3].color);
+        let svg = charts::svg(&fig).unwrap();
+        assert!(svg.contains("56 kbit/s") && svg.contains("naive: quality"));
     }
-    let mut out = Vec::new();
-    img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)?;
-    Ok(out)
 }

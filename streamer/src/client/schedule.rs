@@ -1,0 +1,884 @@
+//! The request policy of the streaming client, without I/O: one [`Scheduler`] that the
+//! viewer's [`super::LiveSession`] drives on the wall clock and the walk simulator on a
+//! virtual clock and link, so a walk's numbers are the viewer's.
+//!
+//! Inputs: the top manifest (at [`Scheduler::new`]); per tick ([`Scheduler::tick`]) the time,
+//! the position along the track, the camera, optional live visible-pixel counts (the GPU's;
+//! the scheduler's own CPU estimate of the same pass, [`crate::visibility`], is merged with
+//! them) and the keys on the wire; finished downloads as they are taken
+//! ([`Scheduler::arrive`]: checked bytes or an error, with the request that carried them, which
+//! feeds the link estimate). Outputs ([`Actions`]): the requests it wants, in priority order
+//! ([`Want`]s, which replace what has not gone out yet, with the [`DispatchLimits`] under which
+//! a [`Dispatcher`] sends them), the running downloads it no longer wants (cancels), and pins:
+//! what the plan keeps resident and the current segment's coarsest levels are held in its
+//! [`Cache`] against eviction. It keeps the checked bytes (the cache), the tables that
+//! arrived, the item table they grow, and hands out what arrived per item and part
+//! ([`Scheduler::take_arrivals`]).
+//!
+//! The policy: the two tables of the segment around the walker before any tile (with prefetch,
+//! the predicted next segment's once nothing in view is missing; the viewpoint after the
+//! segment once the walker would reach it before its table arrives), other tables one at a
+//! time nearest first while the view has no holes; tiles by the PTM budget rules
+//! ([`super::plan`]) in the strategy's priority mode — the segment's ACH cut to the view
+//! frustum, live counts, or both — and, with prefetch, the tiles covering most of the view
+//! predicted at the middle of the next segment, looking the same way, within the frustum
+//! widened by a turn of the head ([`SchedulerConfig::prefetch_turn_deg`]). Requests carry about
+//! one latency's worth of bytes at the estimated bandwidth, about two latencies' worth stay
+//! on the link, prefetch takes at most a third of the request slots and none while the view
+//! has holes. `naive` streams every tile whole in manifest order instead.
+//!
+//! A part or table whose object is damaged or missing is a fault of that object alone
+//! ([`FailureBook`], on the driver's clock): it is asked for again after a wait and given
+//! up after repeated faults, while everything else streams on. Only a server that cannot be
+//! reached pauses new requests.
+
+use std::collections::{HashMap, VecDeque};
+
+use bytes::Bytes;
+use tracks::manifest::{Manifest, SegmentEntry};
+use tracks::PerspectiveCamera;
+
+use super::budget::{
+    plan, BudgetParams, ItemInfo, LinkEstimate, LiveCount, PlanInput, PriorityMode,
+};
+use super::cache::Cache;
+use super::failures::{FailureBook, Verdict};
+use super::http::{ClientError, FetchKey, KeyMap, KeySet};
+use super::items::{ItemTable, Part};
+use super::pool::Completion;
+use super::predict::{next_segment, segment_at, MotionTracker};
+use crate::db::split::{assemble, TopManifest, ViewTable};
+use crate::visibility::{blend_weights, SceneIndex, Surface, SurfaceCount};
+
+mod config;
+mod dispatch;
+mod prefetch;
+mod tables;
+mod view;
+
+pub use config::{SchedulerConfig, Strategy};
+pub use dispatch::{Batch, DispatchLimits, Dispatcher, Piece, Want, WantClass};
+
+/// One part of an item that arrived (checked against the manifest's hash).
+#[derive(Clone, Debug)]
+pub struct Arrival {
+    pub item: usize,
+    /// Part index within the item (mesh first when it has one, then PTM groups coarse→fine).
+    pub part: usize,
+    pub data: Bytes,
+}
+
+/// What a tick decided.
+#[derive(Clone, Debug, Default)]
+pub struct Actions {
+    /// The requests wanted, in priority order (they replace what has not gone out yet).
+    pub wants: Vec<Want>,
+    pub limits: DispatchLimits,
+    /// Keys on the wire that are no longer wanted.
+    pub cancel: Vec<FetchKey>,
+}
+
+/// Figures of the latest tick, for a UI and the walk's report.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ViewStats {
+    /// Progressive downloading quality: mean over the current segment's ACH tiles of the
+    /// fraction of level groups held.
+    pub quality: f64,
+    /// Fraction of the current segment's items showable (mesh and coarsest level held).
+    pub coarse_fraction: f64,
+    /// Fraction of the visible pixels (live counts) whose tile or background is showable.
+    pub visible_fraction: f64,
+    /// Bytes pinned (resident parts and the current segment's coarsest levels).
+    pub pinned_bytes: u64,
+    /// Largest texture memory the plan held resident, and whether it ever exceeded the
+    /// budget in force.
+    pub max_resident_bytes: u64,
+    pub over_budget: bool,
+    /// `M` in force (configured, or scaled to what is known).
+    pub memory_budget_bytes: u64,
+    /// Downloads that failed (cancellations not counted), and the latest error.
+    pub failed: u64,
+    pub last_error: Option<String>,
+    /// Faults of parts whose object is damaged or missing (each asked for again later), and
+    /// parts given up after repeated faults; the same for viewpoint tables and ACH objects.
+    pub part_faults: u64,
+    pub parts_given_up: u64,
+    pub table_faults: u64,
+    pub tables_given_up: u64,
+}
+
+/// The CPU visibility counts of one camera and pair of blend weights, per item.
+struct CpuCounts {
+    camera: PerspectiveCamera,
+    weights: Vec<(usize, f64)>,
+    counts: Vec<LiveCount>,
+}
+
+/// A prefetch list and what it was computed for: (segment, yaw and pitch in 10° steps).
+type PrefetchMemo = ((usize, i64, i64), Vec<(usize, f64)>);
+
+/// The request policy (see the module docs).
+pub struct Scheduler {
+    config: SchedulerConfig,
+    top: TopManifest,
+    track: usize,
+    /// The track's curve (positions of predicted cameras).
+    path: tracks::Track,
+    /// The manifest as far as the tables go.
+    manifest: Manifest,
+    /// Tables that have arrived, per viewpoint of the track.
+    tables: Vec<Option<ViewTable>>,
+    /// ACH lists that have arrived, per viewpoint.
+    achs: Vec<Option<Vec<SegmentEntry>>>,
+    /// Table and ACH object keys → viewpoint.
+    table_keys: KeyMap<usize>,
+    ach_keys: KeyMap<usize>,
+    table: ItemTable,
+    infos: Vec<ItemInfo>,
+    /// `infos` cut to the level cap (what [`plan`] sees).
+    plan_infos: Vec<ItemInfo>,
+    level_cap: Option<usize>,
+    /// Finest PTM level fetched (`None`: level 0).
+    finest_level: Option<u32>,
+    index: Option<SceneIndex>,
+    cache: Cache,
+    link: LinkEstimate,
+    /// Requests already fed to the link estimate (recent ids).
+    timed: VecDeque<u64>,
+    motion: MotionTracker,
+    /// Every (item, part) that uses a key.
+    users: KeyMap<Vec<(usize, usize)>>,
+    /// Parts held per item (the prefix in the cache), kept by arrivals and evictions.
+    held: Vec<usize>,
+    pinned: KeySet,
+    /// What `pinned` was made from, and whether the cache held all of it.
+    pin_spec: (Vec<(usize, usize)>, bool),
+    cpu_counts: Option<CpuCounts>,
+    prefetch_memo: Option<PrefetchMemo>,
+    /// Per prefetched item, the level the predicted view needs it at.
+    prefetch_need: HashMap<usize, u32>,
+    arrivals: Vec<Arrival>,
+    /// Keys cancelled while on the wire: their bytes are dropped when they come.
+    cancelled: KeySet,
+    paused_until: Option<f64>,
+    /// Budgets in force.
+    budget: BudgetParams,
+    /// Whether the server answers `/bundle` (as far as seen).
+    bundles: bool,
+    /// Tables arrived since the manifest and index were rebuilt.
+    tables_dirty: bool,
+    /// Live counts of the latest tick (CPU estimate merged with the caller's).
+    live: Vec<LiveCount>,
+    /// Object faults of parts, and of tables and ACH objects (driver's clock).
+    failures: FailureBook,
+    table_failures: FailureBook,
+    /// Time of the latest tick or arrival.
+    now: f64,
+    stats: ViewStats,
+}
+
+impl Scheduler {
+    /// A scheduler for track `track` of `top` (no table yet: they come as requests).
+    pub fn new(
+        top: TopManifest,
+        track: usize,
+        config: SchedulerConfig,
+    ) -> Result<Scheduler, ClientError> {
+        let manifest = assemble(&top, &[]);
+        let entry = top
+            .tracks
+            .get(track)
+            .ok_or_else(|| ClientError::Manifest(format!("no track {track}")))?;
+        let path = track_path(&entry.track_toml, &entry.name)
+            .map_err(|e| ClientError::Manifest(format!("track `{}`: {e}", entry.name)))?;
+        let naive = config.strategy == Strategy::Naive;
+        let mut table = ItemTable::empty(&manifest, track)?;
+        table.set_share_parts(config.share_parts && !naive);
+        let infos = table.infos();
+        let mut users: KeyMap<Vec<(usize, usize)>> = KeyMap::default();
+        for (i, it) in table.items.iter().enumerate() {
+            for (p, part) in it.parts.iter().enumerate() {
+                users.entry(part.key.clone()).or_default().push((i, p));
+            }
+        }
+        let n_vp = entry.viewpoints.len();
+        let mut table_keys = KeyMap::default();
+        let mut ach_keys = KeyMap::default();
+        for (vi, v) in entry.viewpoints.iter().enumerate() {
+            table_keys.insert(whole(&v.table.hash), vi);
+            if let Some(a) = &v.ach {
+                ach_keys.insert(whole(&a.hash), vi);
+            }
+        }
+        let mut cache = Cache::new(if naive { u64::MAX } else { config.cache_bytes });
+        cache.record_evictions();
+        let index = SceneIndex::new(&manifest, track);
+        let held = vec![0; table.items.len()];
+        let link = LinkEstimate::new(config.prior_bps, config.prior_latency_s);
+        let config_failures = config.failures;
+        Ok(Scheduler {
+            budget: config.budget,
+            config,
+            top,
+            track,
+            path,
+            manifest,
+            tables: vec![None; n_vp],
+            achs: vec![None; n_vp],
+            table_keys,
+            ach_keys,
+            plan_infos: infos.clone(),
+            infos,
+            table,
+            level_cap: None,
+            finest_level: None,
+            index,
+            cache,
+            link,
+            timed: VecDeque::new(),
+            motion: MotionTracker::new(),
+            users,
+            held,
+            pinned: KeySet::default(),
+            pin_spec: (Vec::new(), true),
+            cpu_counts: None,
+            prefetch_memo: None,
+            prefetch_need: HashMap::new(),
+            arrivals: Vec::new(),
+            cancelled: KeySet::default(),
+            paused_until: None,
+            bundles: true,
+            tables_dirty: false,
+            live: Vec::new(),
+            failures: FailureBook::new(config_failures),
+            table_failures: FailureBook::new(config_failures),
+            now: 0.0,
+            stats: ViewStats::default(),
+        })
+    }
+
+    pub fn config(&self) -> &SchedulerConfig {
+        &self.config
+    }
+
+    pub fn top(&self) -> &TopManifest {
+        &self.top
+    }
+
+    /// Position of the scheduler's track in the manifest.
+    pub fn track(&self) -> usize {
+        self.track
+    }
+
+    /// The manifest as far as the tables go (it grows as they arrive).
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    pub fn table(&self) -> &ItemTable {
+        &self.table
+    }
+
+    pub fn cache(&self) -> &Cache {
+        &self.cache
+    }
+
+    pub fn link(&self) -> &LinkEstimate {
+        &self.link
+    }
+
+    pub fn stats(&self) -> &ViewStats {
+        &self.stats
+    }
+
+    /// The live counts of the latest tick, per item.
+    pub fn live_counts(&self) -> &[LiveCount] {
+        &self.live
+    }
+
+    /// Parts held per item, as the scheduler keeps them from tick to tick.
+    pub fn held(&self) -> &[usize] {
+        &self.held
+    }
+
+    /// `(tables arrived, viewpoints)` of the track.
+    pub fn tables_loaded(&self) -> (usize, usize) {
+        (
+            self.tables.iter().filter(|t| t.is_some()).count(),
+            self.tables.len(),
+        )
+    }
+
+    /// Whether viewpoint `vp`'s table has arrived (position in the track).
+    pub fn has_table(&self, vp: usize) -> bool {
+        self.tables.get(vp).is_some_and(|t| t.is_some())
+    }
+
+    pub fn set_strategy(&mut self, strategy: Strategy) {
+        self.config.strategy = strategy;
+        self.prefetch_memo = None;
+    }
+
+    /// Download at most the first `groups` PTM level groups of every item (`None`: all);
+    /// downloads beyond the cap on the wire are cancelled at the next tick.
+    pub fn set_level_cap(&mut self, groups: Option<usize>) {
+        self.level_cap = groups.map(|g| g.max(1));
+        self.refresh_plan_infos();
+    }
+
+    pub fn level_cap(&self) -> Option<usize> {
+        self.level_cap
+    }
+
+    /// Fetch no PTM level finer than `level` (`None`: every level): a viewer that lays its
+    /// views out at a reduced resolution to stay within its memory needs no finer one.
+    pub fn set_finest_level(&mut self, level: Option<u32>) {
+        self.finest_level = level.filter(|&l| l > 0);
+        self.refresh_plan_infos();
+    }
+
+    pub fn finest_level(&self) -> u32 {
+        self.finest_level.unwrap_or(0)
+    }
+
+    /// Cached bytes of one part, if held.
+    pub fn part_bytes(&self, item: usize, part: usize) -> Option<&Bytes> {
+        let key = &self.table.items.get(item)?.parts.get(part)?.key;
+        self.cache.get(key)
+    }
+
+    /// Parts that arrived since the last call (every item that uses a part gets it).
+    pub fn take_arrivals(&mut self) -> Vec<Arrival> {
+        std::mem::take(&mut self.arrivals)
+    }
+
+    fn refresh_plan_infos(&mut self) {
+        self.plan_infos = self
+            .infos
+            .iter()
+            .map(|info| {
+                let mut parts = info.parts();
+                if let Some(g) = self.level_cap {
+                    parts = parts.min(info.first_level_part + g);
+                }
+                if let Some(l) = self.finest_level {
+                    parts = parts.min(info.parts_for_level(l));
+                }
+                if parts == info.parts() {
+                    return info.clone();
+                }
+                ItemInfo {
+                    part_bytes: info.part_bytes[..parts].to_vec(),
+                    part_mem: info.part_mem[..parts].to_vec(),
+                    first_level_part: info.first_level_part,
+                    levels: info.levels[..parts - info.first_level_part.min(parts)].to_vec(),
+                }
+            })
+            .collect();
+    }
+
+    /// A finished download: the link estimate (once per request), tables, the cache,
+    /// arrivals. Feed the downloads of a tick in request order (`request`), as both
+    /// drivers do.
+    pub fn arrive(&mut self, now: f64, done: Completion) {
+        self.now = self.now.max(now);
+        match done.result {
+            Ok(data) => {
+                self.failures.succeeded(&done.key);
+                self.table_failures.succeeded(&done.key);
+                if done.request != 0 && !self.timed.contains(&done.request) {
+                    self.link.observe(done.request_bytes, done.elapsed_s);
+                    if self.timed.len() == 64 {
+                        self.timed.pop_front();
+                    }
+                    self.timed.push_back(done.request);
+                }
+                if self.cancelled.remove(&done.key) {
+                    return;
+                }
+                if let Some(&vi) = self.table_keys.get(&done.key) {
+                    if self.tables[vi].is_none() && self.table_arrived(vi, &data) {
+                        self.tables_dirty = true;
+                    }
+                    return;
+                }
+                if let Some(&vi) = self.ach_keys.get(&done.key) {
+                    if self.achs[vi].is_none() && self.ach_arrived(vi, &data) {
+                        self.tables_dirty = true;
+                    }
+                    return;
+                }
+                let users = self.users.get(&done.key).cloned().unwrap_or_default();
+                let fresh = !self.cache.contains(&done.key);
+                let mut stored = !fresh;
+                for &(item, _) in &users {
+                    let s_item = self.table.items[item].s;
+                    stored |= self
+                        .cache
+                        .insert(done.key.clone(), data.clone(), s_item)
+                        .is_ok();
+                }
+                if fresh && stored {
+                    self.arrivals
+                        .extend(users.iter().map(|&(item, part)| Arrival {
+                            item,
+                            part,
+                            data: data.clone(),
+                        }));
+                }
+                self.update_held(if fresh && stored {
+                    Some(&done.key)
+                } else {
+                    None
+                });
+            }
+            Err(ClientError::Cancelled) => {
+                self.cancelled.remove(&done.key);
+            }
+            Err(e) if e.is_object_fault() => {
+                // This object alone: asked for again later, given up after a few faults.
+                self.cancelled.remove(&done.key);
+                let table = self.table_keys.contains_key(&done.key)
+                    || self.ach_keys.contains_key(&done.key);
+                let book = if table {
+                    &mut self.table_failures
+                } else {
+                    &mut self.failures
+                };
+                if book.fault(&done.key, now) == Verdict::GivenUp {
+                    tracing::warn!("giving up {}: {e}", done.key.object);
+                }
+                self.stats.last_error = Some(e.to_string());
+                self.fault_stats();
+            }
+            Err(e) => {
+                self.cancelled.remove(&done.key);
+                self.stats.failed += 1;
+                self.stats.last_error = Some(e.to_string());
+                self.paused_until = Some(now + self.config.error_pause_s.max(0.0));
+            }
+        }
+    }
+
+    /// The fault counters of [`ViewStats`] from the failure books.
+    fn fault_stats(&mut self) {
+        self.stats.part_faults = self.failures.faults();
+        self.stats.parts_given_up = self.failures.given_up();
+        self.stats.table_faults = self.table_failures.faults();
+        self.stats.tables_given_up = self.table_failures.given_up();
+    }
+
+    /// Whether part `key` may be asked for now (none of its faults waits for its retry
+    /// time, and it was not given up).
+    fn part_ready(&self, key: &FetchKey) -> bool {
+        self.failures.may_request(key, self.now)
+    }
+
+    /// Every (item, part) that uses `key`.
+    pub fn users(&self, key: &FetchKey) -> &[(usize, usize)] {
+        self.users.get(key).map_or(&[], |v| v.as_slice())
+    }
+
+    /// Whether the server answers `/bundle` (false once a request found it does not): one
+    /// object per request then.
+    pub fn set_bundles(&mut self, on: bool) {
+        self.bundles = on;
+    }
+
+    /// Keeps `held` true after `stored` was stored and others were evicted to make room.
+    fn update_held(&mut self, stored: Option<&FetchKey>) {
+        for k in self.cache.take_evicted() {
+            for &(item, part) in self.users.get(&k).map_or(&[][..], |v| v.as_slice()) {
+                self.held[item] = self.held[item].min(part);
+            }
+        }
+        if let Some(k) = stored {
+            for &(item, part) in self.users.get(k).map_or(&[][..], |v| v.as_slice()) {
+                if self.held[item] == part {
+                    self.held[item] = held_from(&self.table.items[item].parts, part, &self.cache);
+                }
+            }
+        }
+    }
+
+    /// One tick at time `now`: position `s`, `camera`, the caller's live counts (merged with
+    /// the CPU estimate) and the keys on the wire; returns what to request and cancel.
+    pub fn tick(
+        &mut self,
+        now: f64,
+        s: f64,
+        camera: &PerspectiveCamera,
+        live: Option<&[LiveCount]>,
+        running: &KeySet,
+    ) -> Actions {
+        let s = if s.is_finite() { s } else { 0.0 };
+        self.now = self.now.max(now);
+        if std::mem::take(&mut self.tables_dirty) {
+            // Once for all the tables of the tick (castle 256's 37 tables, rebuilt one by
+            // one, cost 0.66 s in one frame).
+            self.tables_changed();
+        }
+        self.motion.observe(now, s);
+        self.cache.set_position(s);
+        self.live = self.count(s, camera, live);
+        let have = self.held.clone();
+        let mut downloading = vec![false; self.table.items.len()];
+        for k in running {
+            for &(i, _) in self.users.get(k).map_or(&[][..], |v| v.as_slice()) {
+                downloading[i] = true;
+            }
+        }
+        let seg = segment_at(&self.table.vp_s, s).unwrap_or(0);
+        let seg_ach: Vec<(usize, f64)> =
+            self.table.segment_ach.get(seg).cloned().unwrap_or_default();
+        let backgrounds: Vec<usize> = blend_weights(&self.table.vp_s, s)
+            .iter()
+            .flat_map(|&(vi, _)| self.table.background_items(vi))
+            .collect();
+        let holes = self
+            .live
+            .iter()
+            .any(|c| have[c.item] < self.infos[c.item].min_parts());
+        let paused = self.paused_until.is_some_and(|u| now < u);
+        let mut wants = Vec::new();
+        let mut wanted_keys = KeySet::default();
+        if !paused {
+            wants.extend(self.urgent_tables(s, holes, running));
+        }
+        let mut tile_wants = Vec::new();
+        let mut background_table = None;
+        match self.config.strategy {
+            Strategy::Naive => {
+                self.pin(&[], &[], &have);
+                if !paused {
+                    background_table = self.background_table(s, running);
+                    tile_wants = self.naive_wants(&have, running, &mut wanted_keys);
+                }
+            }
+            Strategy::Budget { mode, prefetch } => {
+                let (ach, wide) = self.frustum_ach(camera, &seg_ach, &backgrounds);
+                let next = if prefetch {
+                    next_segment(
+                        &self.motion,
+                        &self.table.vp_s,
+                        s,
+                        self.config.prefetch_horizon_s,
+                    )
+                } else {
+                    None
+                };
+                let pre = match next {
+                    Some(k) => self.prefetch_list(camera, k, mode),
+                    None => Vec::new(),
+                };
+                let counts = if matches!(mode, PriorityMode::Ach) {
+                    Vec::new()
+                } else {
+                    self.live.clone()
+                };
+                let (memory, dt_max) = self.budget.current(self.motion.still_s());
+                let still = self.motion.still_s() >= self.budget.t_static_s;
+                let mut seg_all = seg_ach.clone();
+                let top = seg_ach.iter().map(|a| a.1).fold(0.0f64, f64::max);
+                let top = if top > 0.0 { top } else { 1.0 };
+                seg_all.extend(backgrounds.iter().map(|&b| (b, top)));
+                let p = plan(&PlanInput {
+                    items: &self.plan_infos,
+                    have: &have,
+                    downloading: &downloading,
+                    // Combined: the ACH list broadens (coarsest levels ready for a turn of
+                    // the head) within the widened frustum while moving, to the whole
+                    // segment once still (the static budgets apply).
+                    ach: match mode {
+                        PriorityMode::Combined { .. } if still => &seg_all,
+                        PriorityMode::Combined { .. } => &wide,
+                        _ => &ach,
+                    },
+                    live: &counts,
+                    prefetch: &pre,
+                    mode,
+                    memory_bytes: memory,
+                    dt_max_s: dt_max,
+                    link: &self.link,
+                });
+                self.stats.max_resident_bytes = self.stats.max_resident_bytes.max(p.resident_bytes);
+                self.stats.over_budget |= p.resident_bytes > memory;
+                let pin: Vec<(usize, usize)> = p.targets.iter().map(|&(i, _, r)| (i, r)).collect();
+                let coarse: Vec<usize> = seg_ach
+                    .iter()
+                    .map(|a| a.0)
+                    .chain(backgrounds.iter().copied())
+                    .collect();
+                self.pin(&pin, &coarse, &have);
+                // What the plan still wants (on the wire: not cancelled).
+                for &(i, target, _) in &p.targets {
+                    for part in self.table.items[i].parts.iter().take(target) {
+                        wanted_keys.insert(part.key.clone());
+                    }
+                }
+                for &(i, _) in &pre {
+                    let parts = &self.table.items[i].parts;
+                    let end = self
+                        .prefetch_need
+                        .get(&i)
+                        .map_or(parts.len(), |&l| self.infos[i].parts_for_level(l));
+                    let end = self.capped(i, end);
+                    for part in &parts[..end] {
+                        wanted_keys.insert(part.key.clone());
+                    }
+                }
+                if !paused {
+                    let mut seen = KeySet::default();
+                    for r in &p.requests {
+                        let parts = &self.table.items[r.item].parts;
+                        let mut end = (r.part + r.parts.max(1)).min(parts.len());
+                        if r.priority < 1.0 {
+                            if let Some(&l) = self.prefetch_need.get(&r.item) {
+                                end = end.min(self.infos[r.item].parts_for_level(l));
+                            }
+                        }
+                        let class = if r.priority < 1.0 {
+                            WantClass::Prefetch
+                        } else {
+                            WantClass::Current
+                        };
+                        // A part that failed waits for its retry time (or was given up): the
+                        // parts after it are of no use without it.
+                        let todo: Vec<&Part> = parts[r.part..end.max(r.part)]
+                            .iter()
+                            .take_while(|p| self.part_ready(&p.key))
+                            .filter(|p| !running.contains(&p.key) && seen.insert(p.key.clone()))
+                            .collect();
+                        push_wants(&mut tile_wants, class, &todo);
+                    }
+                    let around = blend_weights(&self.table.vp_s, s)
+                        .iter()
+                        .all(|w| self.table.has_viewpoint(w.0));
+                    if !holes && around {
+                        background_table = self.background_table(s, running);
+                    }
+                }
+            }
+        }
+        let naive = self.config.strategy == Strategy::Naive;
+        if naive {
+            wants.extend(background_table.take().into_iter().flatten());
+        }
+        wants.extend(tile_wants);
+        wants.extend(background_table.into_iter().flatten());
+        for w in &wants {
+            for p in &w.pieces {
+                wanted_keys.insert(p.key.clone());
+            }
+        }
+        // Tables on the wire are always wanted; tile parts no longer wanted are cancelled
+        // (naive wants everything).
+        let cancel: Vec<FetchKey> = running
+            .iter()
+            .filter(|_| !naive)
+            .filter(|k| {
+                !wanted_keys.contains(*k)
+                    && !self.table_keys.contains_key(*k)
+                    && !self.ach_keys.contains_key(*k)
+                    && self.users.contains_key(*k)
+            })
+            .cloned()
+            .collect();
+        self.cancelled.extend(cancel.iter().cloned());
+        self.update_stats(s, &have, &seg_ach, &backgrounds);
+        Actions {
+            wants,
+            limits: self.limits(holes),
+            cancel,
+        }
+    }
+
+    /// `end` (a count of parts of item `i`) within the level cap.
+    fn capped(&self, i: usize, end: usize) -> usize {
+        end.min(self.plan_infos[i].parts())
+    }
+
+    /// The dispatch limits of the moment (see [`DispatchLimits`]): requests of about one
+    /// latency's worth at the estimated bandwidth, two on the link.
+    fn limits(&self, holes: bool) -> DispatchLimits {
+        let (bps, latency) = self.link.get();
+        let bdp = bps / 8.0 * latency.max(0.05);
+        let floor = self.config.min_request_bytes.max(1);
+        let request_bytes = if bdp.is_finite() && bdp > 0.0 {
+            (bdp as u64).clamp(floor, self.config.max_request_bytes.max(floor))
+        } else {
+            self.config.max_request_bytes.max(floor)
+        };
+        let naive = self.config.strategy == Strategy::Naive;
+        DispatchLimits {
+            max_in_flight: self.config.max_in_flight.max(1),
+            max_pieces: self.config.max_pieces.max(1),
+            request_bytes,
+            in_flight_bytes: if naive {
+                u64::MAX
+            } else {
+                request_bytes.saturating_mul(2)
+            },
+            prefetch_slots: if holes {
+                0
+            } else {
+                (self.config.max_in_flight / 3).max(1)
+            },
+            one_object: !self.bundles,
+        }
+    }
+
+    /// Whole tiles in manifest order (by viewpoint, its tiles, then its background) that
+    /// are neither held nor on the wire, as many as the request slots can carry.
+    fn naive_wants(&self, have: &[usize], running: &KeySet, wanted: &mut KeySet) -> Vec<Want> {
+        let items = &self.table.items;
+        let mut order: Vec<usize> = (0..items.len())
+            .filter(|&i| have[i] < items[i].parts.len())
+            .filter(|&i| !items[i].parts.iter().any(|p| running.contains(&p.key)))
+            .filter(|&i| items[i].parts.iter().all(|p| self.part_ready(&p.key)))
+            .collect();
+        order.sort_by_key(|&i| (items[i].viewpoint, items[i].tile.is_none(), i));
+        let limit = self.config.max_in_flight.max(1) * self.config.max_pieces.max(1);
+        let mut out = Vec::new();
+        for i in order.into_iter().take(limit) {
+            let parts: Vec<&Part> = items[i].parts.iter().collect();
+            for p in &parts {
+                wanted.insert(p.key.clone());
+            }
+            push_wants(&mut out, WantClass::Current, &parts);
+        }
+        out
+    }
+
+    /// Pins what the plan keeps resident (`resident`: item, parts) and the coarsest levels
+    /// of `coarse`; a key is pinned once however many items use it, and only the keys that
+    /// join or leave the set touch the cache.
+    fn pin(&mut self, resident: &[(usize, usize)], coarse: &[usize], have: &[usize]) {
+        let mut spec: Vec<(usize, usize)> = resident
+            .iter()
+            .copied()
+            .chain(coarse.iter().map(|&i| (i, self.infos[i].min_parts())))
+            .map(|(i, n)| (i, n.min(have[i])))
+            .filter(|&(_, n)| n > 0)
+            .collect();
+        spec.sort_unstable_by_key(|&(i, n)| (i, std::cmp::Reverse(n)));
+        spec.dedup_by_key(|a| a.0);
+        if spec == self.pin_spec.0 && self.pin_spec.1 {
+            return;
+        }
+        let mut pins = KeySet::default();
+        for &(i, n) in &spec {
+            for part in &self.table.items[i].parts[..n] {
+                pins.insert(part.key.clone());
+            }
+        }
+        for k in self.pinned.iter().filter(|k| !pins.contains(*k)) {
+            self.stats.pinned_bytes = self
+                .stats
+                .pinned_bytes
+                .saturating_sub(self.cache.get(k).map_or(0, |b| b.len() as u64));
+            self.cache.release(k);
+        }
+        let cache = &mut self.cache;
+        let (mut added, mut complete) = (0, true);
+        pins.retain(|k| {
+            if self.pinned.contains(k) {
+                return true;
+            }
+            let held = cache.acquire(k);
+            if held {
+                added += cache.get(k).map_or(0, |b| b.len() as u64);
+            }
+            complete &= held;
+            held
+        });
+        self.stats.pinned_bytes += added;
+        self.pinned = pins;
+        self.pin_spec = (spec, complete);
+    }
+}
+
+/// A whole object as a key.
+fn whole(hash: &str) -> FetchKey {
+    FetchKey {
+        object: hash.into(),
+        range: None,
+    }
+}
+
+/// A whole object of `size` bytes as a piece.
+fn whole_piece(hash: &str, size: u64) -> Piece {
+    Piece {
+        key: whole(hash),
+        hash: hash.to_string(),
+        len: size,
+    }
+}
+
+/// The track of a manifest's `track_toml`.
+fn track_path(toml: &str, name: &str) -> Result<tracks::Track, String> {
+    let set = tracks::TrackSet::parse(toml, "manifest track_toml").map_err(|e| e.to_string())?;
+    set.get(name)
+        .or(set.tracks.first())
+        .cloned()
+        .ok_or_else(|| "track_toml holds no track".to_string())
+}
+
+/// `parts` (of one item, in order) as wants of `class`, one per run of parts in one object.
+fn push_wants(out: &mut Vec<Want>, class: WantClass, parts: &[&Part]) {
+    let mut i = 0;
+    while i < parts.len() {
+        let object = &parts[i].key.object;
+        let mut j = i + 1;
+        while j < parts.len() && parts[j].key.object == *object {
+            j += 1;
+        }
+        out.push(Want {
+            class,
+            pieces: parts[i..j]
+                .iter()
+                .map(|p| Piece {
+                    key: p.key.clone(),
+                    hash: p.hash.clone(),
+                    len: p.bytes,
+                })
+                .collect(),
+        });
+        i = j;
+    }
+}
+
+/// The client's item shown by a surface of the visibility pass (`None`: not known yet).
+pub fn surface_item(table: &ItemTable, c: &SurfaceCount) -> Option<usize> {
+    match c.surface {
+        Surface::Tile { viewpoint, tile } => table.tile_item(viewpoint, tile),
+        Surface::Background { viewpoint, tile } => table.background_item(viewpoint, tile),
+    }
+}
+
+/// End of the prefix of `parts` the cache holds, looking from part `from` on.
+fn held_from(parts: &[Part], from: usize, cache: &Cache) -> usize {
+    from + parts[from.min(parts.len())..]
+        .iter()
+        .take_while(|p| cache.contains(&p.key))
+        .count()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn strategies_parse_and_name() {
+        for s in [
+            "naive",
+            "ach",
+            "visibility+prefetch",
+            "ach+visibility+prefetch",
+        ] {
+            assert_eq!(Strategy::parse(s).unwrap().name(), s);
+        }
+        assert!(Strategy::parse("fast").is_err());
+        assert!(Strategy::parse("prefetch").is_err());
+    }
+}
