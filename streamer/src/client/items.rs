@@ -132,12 +132,14 @@ impl ItemTable {
 
     /// Whether parts with the same checksum and length share one fetch key — the first one
     /// added — so identical bytes are fetched and cached once (on by default; it applies to
-    /// viewpoints added afterwards). Each viewpoint's pack holds its own copy of every
-    /// payload, and many are alike from one viewpoint to the next: on castle 128 meshes above
-    /// all (flat or distant surfaces; 69 % of the meshes a walk needs repeat another
-    /// viewpoint's) and some level groups. Bytes fetched under the shared key are checked
-    /// against that part's checksum, which is the other part's too, so nothing unchecked is
-    /// ever shown.
+    /// viewpoints added afterwards). Many payloads are alike from one viewpoint to the next:
+    /// on castle 128 meshes above all (flat or distant surfaces; 69 % of the meshes a walk
+    /// needs repeat another viewpoint's) and some level groups. A database writes each of
+    /// them once (the later tiles point at the same range of an earlier pack, so they share
+    /// one key whatever this says); this also joins copies a database stores in several
+    /// packs (`DbWriter::share_across_viewpoints` off). Bytes fetched under the shared key
+    /// are checked against that part's checksum, which is the other part's too, so nothing
+    /// unchecked is ever shown.
     pub fn set_share_parts(&mut self, on: bool) {
         self.share_parts = on;
     }

@@ -176,6 +176,11 @@ pub struct DbWriter {
     /// (stored once, pointed at again).
     pub payloads_shared: u64,
     pub bytes_shared: u64,
+    /// Whether a payload already in an earlier viewpoint's pack is pointed at there (the
+    /// default, the smaller database) or stored again in each pack that needs it, so that
+    /// every viewpoint's payloads lie in its own pack (and no two viewpoints' tiles share a
+    /// byte range a client could tell apart only by its checksum).
+    pub share_across_viewpoints: bool,
     /// Temporary files of an earlier, killed writer removed on opening.
     pub leftovers_removed: Vec<PathBuf>,
     /// The directory locks held while this writer lives ([`lock_dir`]).
@@ -200,6 +205,7 @@ impl DbWriter {
             bytes_written: 0,
             objects_reused: 0,
             payloads_shared: 0,
+            share_across_viewpoints: true,
             bytes_shared: 0,
             leftovers_removed,
             _locks: vec![lock],
@@ -289,6 +295,9 @@ impl DbWriter {
         let mut payloads = pack::Payloads::default();
         for t in &mut packed.tracks {
             for v in &mut t.viewpoints {
+                if !self.share_across_viewpoints {
+                    payloads.forget_placed();
+                }
                 let mut cache: HashMap<String, Vec<u8>> = HashMap::new();
                 let roots = [self.stage_root().to_path_buf(), self.root.clone()];
                 let mut read = |o: &ObjectRef, offset: u64, len: u64| {

@@ -50,6 +50,14 @@ pub struct Payloads {
     pub shared: u64,
 }
 
+impl Payloads {
+    /// Forgets where the payloads stored so far lie (the counters stay): the next pack
+    /// stores its own copy of each.
+    pub fn forget_placed(&mut self) {
+        self.placed.clear();
+    }
+}
+
 /// The own pack before its hash is known (replaced once the pack is complete).
 fn pending() -> ObjectRef {
     ObjectRef {
