@@ -25,7 +25,15 @@
 //!               an earlier edge's ends, else an earlier neighbour, else the previous vertex
 //! ```
 //!
-//! A decoder returns the vertices in lattice raster order and every triangle's indices
+//! A mesh the lattice cannot hold (two vertices at one lattice position, as where a pixel no
+//! triangle covers gets a quad of its own at its depth, or triangles that are not part of a
+//! planar triangulation) is stored plain, lattice unit 0:
+//!
+//! ```text
+//! 6  …  varint face size N; varint V; varint T; V × (x, y, r) f32; T × 3 u32 (little endian)
+//! ```
+//!
+//! A decoder returns the vertices of a lattice mesh in lattice raster order and every triangle's indices
 //! sorted (the renderer draws both sides, so the winding is not kept). Depth error: the
 //! decoded `1/r` is within `δ/2` of the encoded one (δ for depths beyond `2/δ` metres, where
 //! Q would round to 0), so `δ = 2 e θ / B` bounds the parallax error at baseline `B` to `e`
@@ -251,8 +259,9 @@ fn adjacency(vertices: usize, tris: &[[u32; 3]]) -> Adjacency {
     }
 }
 
-/// Encodes a mesh. Vertices must be finite with depth > 0, no two at one lattice position,
-/// triangles neither degenerate nor overlapping (any planar triangulation, or part of one).
+/// Encodes a mesh: vertices finite with depth > 0, indices in range. On the lattice when no
+/// two vertices share a lattice position and the triangles are part of a planar
+/// triangulation; plain (exact, larger) otherwise.
 pub fn encode_mesh(mesh: &MeshData, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
     if !mesh.indices.len().is_multiple_of(3) {
         return Err(MeshError::Ragged(mesh.indices.len()));
@@ -283,6 +292,99 @@ pub fn encode_mesh(mesh: &MeshData, coding: &MeshCoding) -> Result<Vec<u8>, Mesh
             });
         }
     }
+    encode_lattice(mesh, coding).or_else(|_| encode_plain(mesh, coding))
+}
+
+/// The plain layout (lattice unit 0), exact: for meshes the lattice cannot hold.
+fn encode_plain(mesh: &MeshData, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
+    let (n, tris) = (mesh.vertices.len() as u64, mesh.indices.len() as u64 / 3);
+    check_plain_counts(n, tris).map_err(MeshError::Coding)?;
+    let mut out = Vec::with_capacity(32 + 12 * (n + tris) as usize);
+    out.extend_from_slice(&MAGIC);
+    out.push(MESH_VERSION);
+    out.push(0);
+    put_varint(&mut out, coding.face_size as u64);
+    put_varint(&mut out, n);
+    put_varint(&mut out, tris);
+    for v in &mesh.vertices {
+        for c in v {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for i in &mesh.indices {
+        out.extend_from_slice(&i.to_le_bytes());
+    }
+    Ok(out)
+}
+
+/// The plain layout's counts against the limits.
+fn check_plain_counts(vertices: u64, triangles: u64) -> Result<(), String> {
+    if vertices > MAX_CELLS || triangles > 2 * MAX_CELLS {
+        return Err(format!(
+            "{vertices} vertices and {triangles} triangles (at most {MAX_CELLS} and {})",
+            2 * MAX_CELLS
+        ));
+    }
+    Ok(())
+}
+
+/// Decodes the plain layout after its first 6 bytes.
+fn decode_plain(b: &[u8]) -> Result<MeshData, MeshError> {
+    let fmt = |m: String| MeshError::Format(m);
+    let mut hd = Header { b, at: 6 };
+    let face_size = hd.varint("face size")?;
+    let n = hd.varint("vertex count")?;
+    let tris = hd.varint("triangle count")?;
+    if face_size == 0 || face_size > MAX_SIDE {
+        return Err(fmt(format!("face size {face_size}")));
+    }
+    check_plain_counts(n, tris).map_err(fmt)?;
+    let body = &b[hd.at..];
+    let want = 12 * (n + tris);
+    if body.len() as u64 != want {
+        return Err(fmt(format!(
+            "{} bytes after the header of a plain mesh of {n} vertices and {tris} triangles \
+             (needs {want})",
+            body.len()
+        )));
+    }
+    let word = |k: usize| {
+        [
+            body[4 * k],
+            body[4 * k + 1],
+            body[4 * k + 2],
+            body[4 * k + 3],
+        ]
+    };
+    let n = n as usize;
+    let mut vertices = Vec::with_capacity(n);
+    for k in 0..n {
+        let v = [0, 1, 2].map(|c| f32::from_le_bytes(word(3 * k + c)));
+        if !(v.iter().all(|c| c.is_finite()) && v[2] > 0.0) {
+            return Err(fmt(format!(
+                "vertex {k}: {v:?} (needs finite x, y and depth > 0)"
+            )));
+        }
+        vertices.push(v);
+    }
+    let indices: Vec<u32> = (0..3 * tris as usize)
+        .map(|k| u32::from_le_bytes(word(3 * n + k)))
+        .collect();
+    if let Some((at, &i)) = indices.iter().enumerate().find(|(_, &i)| i as usize >= n) {
+        return Err(MeshError::BadIndex {
+            at,
+            index: i,
+            count: n,
+        });
+    }
+    Ok(MeshData { vertices, indices })
+}
+
+/// The lattice layout: compact, for vertices on distinct lattice positions of a planar
+/// triangulation (what `slabs` meshes are, apart from the quads of uncovered pixels).
+fn encode_lattice(mesh: &MeshData, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
+    let n = mesh.vertices.len();
+    let step = coding.depth_step;
     // The lattice: pixel centres when every vertex is on one, else eighths of a pixel.
     let on_centres = mesh
         .vertices
@@ -460,8 +562,9 @@ pub fn decode_mesh(b: &[u8]) -> Result<MeshData, MeshError> {
         )));
     }
     let unit = match b[5] {
+        0 => return decode_plain(b),
         u @ (1 | 8) => u as i64,
-        u => return Err(fmt(format!("lattice unit {u} (1 or 8)"))),
+        u => return Err(fmt(format!("lattice unit {u} (0, 1 or 8)"))),
     };
     let mut hd = Header { b, at: 6 };
     let face_size = hd.varint("face size")?;

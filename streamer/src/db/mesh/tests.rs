@@ -179,22 +179,40 @@ fn bad_meshes_are_refused() {
         encode_mesh(&m, &c),
         Err(MeshError::BadVertex { index: 1, .. })
     ));
-    let mut m = grid(2, 2, |_, _| 1.0);
-    m.vertices[1] = m.vertices[0];
-    assert!(matches!(
-        encode_mesh(&m, &c),
-        Err(MeshError::BadVertex { .. })
-    ));
-    // Degenerate: three corners on a line.
+    // What the lattice cannot hold is stored plain, exactly: two vertices at one position
+    // (the quad of a pixel no triangle covers, at that pixel's depth), three corners on a
+    // line, two triangles on the same side of an edge.
+    let mut shared = grid(2, 2, |_, _| 1.0);
+    shared
+        .vertices
+        .push([shared.vertices[0][0], shared.vertices[0][1], 2.5]);
+    shared.indices.extend_from_slice(&[4, 1, 2]);
     let line = MeshData {
         vertices: vec![[0.5, 0.5, 1.0], [1.5, 0.5, 1.0], [2.5, 0.5, 1.0]],
         indices: vec![0, 1, 2],
     };
-    assert!(matches!(encode_mesh(&line, &c), Err(MeshError::Format(_))));
-    // Two triangles on the same side of an edge.
     let mut twice = grid(2, 2, |_, _| 1.0);
     twice.indices.extend_from_slice(&[0, 1, 2]);
-    assert!(matches!(encode_mesh(&twice, &c), Err(MeshError::Format(_))));
+    for m in [&shared, &line, &twice] {
+        let b = encode_mesh(m, &c).unwrap();
+        assert_eq!(b[5], 0, "stored plain");
+        assert_eq!(&decode_mesh(&b).unwrap(), m);
+        // Every shorter prefix, and one byte more, is refused.
+        for cut in 0..b.len() {
+            assert!(decode_mesh(&b[..cut]).is_err(), "prefix of {cut} bytes");
+        }
+        let mut longer = b.clone();
+        longer.push(0);
+        assert!(decode_mesh(&longer).is_err());
+    }
+    // A plain mesh naming a vertex it does not have, or a negative depth, is refused.
+    let mut b = encode_mesh(&line, &c).unwrap();
+    let last = b.len() - 4;
+    b[last..].copy_from_slice(&7u32.to_le_bytes());
+    assert!(matches!(
+        decode_mesh(&b),
+        Err(MeshError::BadIndex { index: 7, .. })
+    ));
     assert!(matches!(
         encode_mesh(&grid(2, 2, |_, _| 1.0), &coding(0.0)),
         Err(MeshError::Coding(_))
