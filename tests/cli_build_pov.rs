@@ -107,13 +107,12 @@ fn build_pov_analytic_end_to_end_and_verify() {
     assert!(v.status.success(), "{}", text(&v));
     let out = String::from_utf8_lossy(&v.stdout);
     assert!(out.contains("intact"), "{out}");
-    let decoded: usize = out
+    let (ptms, meshes) = out
         .lines()
-        .find_map(|l| l.strip_suffix(" PTMs decoded"))
-        .unwrap_or_else(|| panic!("no count in {out}"))
-        .parse()
-        .unwrap();
-    assert!(decoded > 0, "{out}");
+        .find_map(|l| l.strip_suffix(" meshes decoded")?.split_once(" PTMs and "))
+        .unwrap_or_else(|| panic!("no count in {out}"));
+    let (ptms, meshes): (usize, usize) = (ptms.parse().unwrap(), meshes.parse().unwrap());
+    assert!(ptms > 0 && meshes > 0, "{out}");
 
     // A second build resumes every stage: nothing rendered or written again, same manifest.
     let first = std::fs::read(db.join("manifest.json")).unwrap();

@@ -15,6 +15,10 @@ use common::{railview, scratch_dir, stderr};
 
 const FACE: &str = "32";
 
+/// The kill test times a whole build and kills later ones at fractions of that time, so the
+/// tests here run one at a time (another build beside it would skew the timing).
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 fn build_args(track: &Path, out: &Path, work: &Path) -> Vec<String> {
     [
         "build",
@@ -97,6 +101,7 @@ impl Lcg {
 
 #[test]
 fn a_build_killed_at_random_moments_resumes_to_identical_bytes_and_no_stray_files() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let dir = scratch_dir("resume", "kill");
     let track = dir.join("short.toml");
     std::fs::write(
@@ -189,5 +194,45 @@ fn a_build_killed_at_random_moments_resumes_to_identical_bytes_and_no_stray_file
         killed_midway >= 3,
         "only {killed_midway} of 5 kills landed mid-build"
     );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn a_work_directory_built_at_another_face_size_is_tiled_and_encoded_again() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = scratch_dir("resume", "face");
+    let track = dir.join("short.toml");
+    std::fs::write(
+        &track,
+        "[[track]]\nname = \"short\"\npoints = [[0, 1.7, 42], [0, 1.7, 38]]\ncount = 2\n",
+    )
+    .unwrap();
+    let work = dir.join("shared.work");
+    for (face, out) in [("32", "db32"), ("48", "db48")] {
+        let out = dir.join(out);
+        let mut args = build_args(&track, &out, &work);
+        let at = args.iter().position(|a| a == "--face-size").unwrap();
+        args[at + 1] = face.into();
+        let argv: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = railview(&argv);
+        assert!(o.status.success(), "face {face}: {}", stderr(&o));
+        let db = streamer::db::Database::open(&out).unwrap();
+        assert_eq!(db.top().face_size.to_string(), face);
+        // The tiles were cut again from the new panoramas, not reused from the old ones.
+        let slabs: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(work.join("prerender").join("slabs.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(slabs["face_size"].to_string(), face, "stale tiling reused");
+        let v = streamer::db::verify_with(
+            &out,
+            streamer::db::VerifyOptions {
+                decode: true,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert!(v.is_intact(), "face {face}: {:?}", v.problems);
+    }
     let _ = std::fs::remove_dir_all(dir);
 }

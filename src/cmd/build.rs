@@ -28,7 +28,7 @@ use prerender::store::{self, PrerenderDir, PrerenderReport};
 use serde::{Deserialize, Serialize};
 use slabs::io as sio;
 use streamer::db::ach::{segment_ach, AchParams, AchTile, SegmentEnd};
-use streamer::db::mesh::{encode_mesh, MeshData};
+use streamer::db::mesh::{encode_mesh, MeshCoding, MeshData};
 use streamer::db::DbWriter;
 use streamer::ptm::{self, EncodeOptions, Image};
 use tracks::manifest::{
@@ -101,6 +101,10 @@ pub struct Args {
     /// Occlusion culling α used for the database (a run with this α is used or made).
     #[arg(long, default_value_t = 1.0)]
     pub alpha: f64,
+    /// How PTM level groups are coded: `arith` (context-modelled range coding, the smallest)
+    /// or `zstd` (faster to decode, larger).
+    #[arg(long, default_value = "arith")]
+    pub ptm_method: String,
     /// Culling variant for the database: `shrunk` (conservative for every track point,
     /// against the scene's solids), `conservative`, `paper`, `none` (keep every non-empty
     /// tile), or `auto`: shrunk at α = 1 for built-in and TOML scenes, conservative otherwise
@@ -111,9 +115,25 @@ pub struct Args {
     /// resolution (opacity masks and meshes stay whole).
     #[arg(long, default_value_t = 0)]
     pub drop_levels: u32,
-    /// zstd level of the PTM groups (19 = smallest practical; lower encodes faster).
+    /// zstd level of the PTM groups with `--ptm-method zstd` (19 = smallest practical;
+    /// lower encodes faster).
     #[arg(long, default_value_t = 19)]
     pub zstd_level: i32,
+    /// Lossy textures: the largest error of a colour sample at every PTM level (0 =
+    /// lossless, the default; at most 32; needs `--ptm-method arith`). Alpha stays exact.
+    #[arg(long, default_value_t = 0)]
+    pub lossy_near: u8,
+    /// Bound on the meshes' depth quantisation, pixels of parallax at the track's largest
+    /// baseline (0.001 to 10).
+    #[arg(long, default_value_t = 0.05)]
+    pub depth_error_px: f64,
+    /// Which mesh tiles carry: `adaptive` (error-bounded) or `grid` (a vertex every
+    /// `--mesh-step` pixels); default: the slabs stage's `adaptive`.
+    #[arg(long)]
+    pub mesh: Option<String>,
+    /// Grid step of `--mesh grid`, pixels (default: the slabs stage's 4).
+    #[arg(long)]
+    pub mesh_step: Option<u32>,
     /// ACH: viewpoints sampled per track segment.
     #[arg(long, default_value_t = 8)]
     pub ach_samples: usize,
@@ -147,17 +167,33 @@ pub struct Args {
     pub evidence: Option<serde_json::Value>,
 }
 
-/// Bytes at each stage (raw RGBA8 unless stated).
+/// Bytes at each stage (raw RGBA8 unless stated), and the baseline they are weighed against.
 #[derive(Clone, Debug, Default, Serialize)]
 struct Sizes {
     panoramas_rgba: u64,
     slab_layers_rgba: u64,
     nonempty_tiles_rgba: u64,
     kept_tiles_rgba: u64,
+    /// The kept tiles' PTMs and meshes as encoded, each tile counted (before payloads
+    /// repeated across tiles are stored once).
     kept_tiles_ptm: u64,
     meshes: u64,
     backgrounds_ptm: u64,
+    /// Kept tiles, and those with a mesh.
+    kept_tiles: u64,
+    meshes_count: u64,
+    /// Payloads found already stored (in an earlier pack, or earlier in the same one), and
+    /// their bytes, not stored again.
+    payloads_shared: u64,
+    bytes_shared: u64,
     database_objects: u64,
+    /// The baseline: every reference panorama as a PNG of its colour and a 16-bit PNG of
+    /// its disparity-quantised depth (`streamer::db::baseline`).
+    baseline_colour_png: u64,
+    baseline_depth_png16: u64,
+    baseline: u64,
+    /// `database_objects / baseline`.
+    db_over_baseline: f64,
 }
 
 #[derive(Clone, Debug, Default, Serialize)]
@@ -457,23 +493,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let m = tune::cost::Meter::start();
     stage(2, "slabs");
     // Each sample whose tiles were made with these parameters is kept as it is.
-    run_sub(&[
+    let mut argv = vec![
         "slabs".into(),
         p(&pre_root),
         "--slabs".into(),
         args.slabs.clone(),
-        "--tile-size".into(),
-        args.tile_size.to_string(),
-        "--mesh-error".into(),
-        args.mesh_error.to_string(),
-    ])?;
+    ];
+    argv.extend(TilingWanted::from_args(&args)?.argv());
+    run_sub(&argv)?;
+    let tiling: slabs::report::SlabsReport = store::read_json(&pre_root.join("slabs.json"))
+        .context("reading the slabs stage's report")?;
     report.stage_done("slabs", m);
     let m = tune::cost::Meter::start();
     stage(3, "cull");
     let variant = cull_variant(&args)?;
+    // Decisions made on another tile grid (a rebuild with another --tile-size) are stale.
+    let fits = |d: &TileDecisions| {
+        d.grid.tile_size == tiling.tile_size && d.grid.face_size == tiling.face_size
+    };
     let decisions = match variant {
         None => None,
-        Some(v) => match cull_decisions(&pre_root, args.alpha, v) {
+        Some(v) => match cull_decisions(&pre_root, args.alpha, v).filter(fits) {
             Some(d) => Some(d),
             None => match run_sub(&[
                 "cull".into(),
@@ -483,7 +523,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 "--variant".into(),
                 v.name().into(),
             ]) {
-                Ok(()) => cull_decisions(&pre_root, args.alpha, v),
+                Ok(()) => cull_decisions(&pre_root, args.alpha, v).filter(fits),
                 Err(e) => {
                     eprintln!("      culling unavailable ({e:#}): every non-empty tile is kept");
                     None
@@ -522,6 +562,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The tiles' own PTM and mesh objects, which the viewpoints' packs replace, stay in the
     // work directory: the database holds only what its manifest refers to.
     let staged_objects = work.join("encode");
+    let method = match args.ptm_method.as_str() {
+        "arith" => ptm::Method::Arith,
+        "zstd" => ptm::Method::Zstd,
+        other => bail!("--ptm-method `{other}`: expected `arith` or `zstd`"),
+    };
+    if args.lossy_near > ptm::MAX_NEAR || (args.lossy_near > 0 && method != ptm::Method::Arith) {
+        bail!(
+            "--lossy-near {}: at most {} and only with --ptm-method arith",
+            args.lossy_near,
+            ptm::MAX_NEAR
+        );
+    }
+    if !(0.001..=10.0).contains(&args.depth_error_px) {
+        bail!(
+            "--depth-error-px {}: expected 0.001 to 10 pixels of parallax",
+            args.depth_error_px
+        );
+    }
     let mut writer = DbWriter::create(&args.out)?.with_stage(&staged_objects)?;
     if !writer.leftovers_removed.is_empty() {
         eprintln!(
@@ -530,17 +588,32 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     let opts = EncodeOptions {
+        method,
         zstd_level: args.zstd_level,
+        near: args.lossy_near,
         ..EncodeOptions::default()
     };
+    let mesh_coding = MeshCoding::for_parallax(
+        tiling.face_size,
+        tiling.mesh_params.baseline_m,
+        args.depth_error_px,
+    );
     // `db{TOP_VERSION}`: a format's rule on the PTMs' content (format 5 clears the colour
-    // under the mask) re-encodes samples encoded under another. Each sample's key also holds
-    // a digest of its tiles file, so tiles made with other parameters are encoded again.
+    // under the mask) re-encodes samples encoded under another; so does any other knob, and
+    // tiles meshed with other parameters.
     let key = format!(
-        "ptm-v{} db{} zstd{} cull:{} drop:{}",
+        "ptm-v{} db{} {:?} zstd{} near{} mesh-v{} depth{} tiles:{}/{}/{:?}/{:?} cull:{} drop:{}",
         ptm::FORMAT_VERSION,
         streamer::db::TOP_VERSION,
+        method,
         args.zstd_level,
+        args.lossy_near,
+        streamer::db::mesh::MESH_VERSION,
+        args.depth_error_px,
+        tiling.face_size,
+        tiling.tile_size,
+        tiling.mesh_kind,
+        tiling.mesh_params,
         report.culling,
         args.drop_levels
     );
@@ -571,7 +644,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     vp,
                     &pre,
                     decisions.as_ref(),
-                    &opts,
+                    (&opts, &mesh_coding),
                     args.drop_levels,
                     &mut writer,
                     &key,
@@ -595,6 +668,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 row.tiles_kept += 1;
                 row.ptm_kept += tile.ptm.as_ref().map_or(0, |p| p.object.size);
                 report.sizes.meshes += tile.mesh.as_ref().map_or(0, |m| m.size);
+                report.sizes.kept_tiles += 1;
+                report.sizes.meshes_count += u64::from(tile.mesh.is_some());
             }
         }
         report.sizes.backgrounds_ptm += sample
@@ -712,7 +787,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     writer.finish(&manifest)?;
     report.objects_written = writer.objects_written;
     report.objects_reused = writer.objects_reused;
+    report.sizes.payloads_shared = writer.payloads_shared;
+    report.sizes.bytes_shared = writer.bytes_shared;
     report.sizes.database_objects = walk_size(&args.out.join("objects"));
+
+    // The baseline, from the same prerender directory.
+    let t = Instant::now();
+    let base = baseline(&dir, &pre, &work)?;
+    let sizes = &mut report.sizes;
+    sizes.baseline_colour_png = base.iter().map(|b| b.colour_png).sum();
+    sizes.baseline_depth_png16 = base.iter().map(|b| b.depth_png16).sum();
+    sizes.baseline = sizes.baseline_colour_png + sizes.baseline_depth_png16;
+    sizes.db_over_baseline = sizes.database_objects as f64 / sizes.baseline.max(1) as f64;
+    report
+        .seconds
+        .push(("baseline".into(), t.elapsed().as_secs_f64()));
     report
         .seconds
         .push(("total".into(), t_all.elapsed().as_secs_f64()));
@@ -923,6 +1012,48 @@ fn prerender_argv(args: &Args, track: &str, pre_root: &Path) -> anyhow::Result<V
     Ok(argv)
 }
 
+/// The tiling a build asks of the slabs stage: its options, or the stage's defaults.
+struct TilingWanted {
+    tile_size: u32,
+    mesh: slabs::tiles::MeshKind,
+    step: u32,
+    error: f64,
+}
+
+impl TilingWanted {
+    fn from_args(args: &Args) -> anyhow::Result<TilingWanted> {
+        use super::slabs as s;
+        let mesh = match args.mesh.as_deref().unwrap_or(s::DEFAULT_MESH) {
+            "adaptive" => slabs::tiles::MeshKind::Adaptive,
+            "grid" => slabs::tiles::MeshKind::Grid,
+            other => bail!("--mesh `{other}`: expected `adaptive` or `grid`"),
+        };
+        Ok(TilingWanted {
+            tile_size: args.tile_size,
+            mesh,
+            step: args.mesh_step.unwrap_or(s::DEFAULT_MESH_STEP),
+            error: args.mesh_error,
+        })
+    }
+
+    fn argv(&self) -> Vec<String> {
+        let mesh = match self.mesh {
+            slabs::tiles::MeshKind::Adaptive => "adaptive",
+            slabs::tiles::MeshKind::Grid => "grid",
+        };
+        vec![
+            "--tile-size".into(),
+            self.tile_size.to_string(),
+            "--mesh".into(),
+            mesh.into(),
+            "--mesh-step".into(),
+            self.step.to_string(),
+            "--mesh-error".into(),
+            self.error.to_string(),
+        ]
+    }
+}
+
 /// The culling variant of the database: `--cull-variant`, where `auto` is the shrunk
 /// variant at α = 1 for scenes whose solids the tracer has, else the conservative one, and
 /// `none` keeps every non-empty tile.
@@ -1018,7 +1149,7 @@ fn encode_sample(
     vp: &tracks::ReferenceViewpoint,
     pre: &PrerenderReport,
     decisions: Option<&TileDecisions>,
-    opts: &EncodeOptions,
+    (opts, mesh_coding): (&EncodeOptions, &MeshCoding),
     drop_levels: u32,
     writer: &mut DbWriter,
     key: &str,
@@ -1058,9 +1189,11 @@ fn encode_sample(
                 let mesh_ref = if data.indices.is_empty() {
                     None
                 } else {
-                    Some(writer.put_staged(&encode_mesh(&data).with_context(|| {
-                        format!("sample {i} slab {k} tile {:?}: mesh", rec.tile)
-                    })?)?)
+                    Some(
+                        writer.put_staged(&encode_mesh(&data, mesh_coding).with_context(
+                            || format!("sample {i} slab {k} tile {:?}: mesh", rec.tile),
+                        )?)?,
+                    )
                 };
                 (Some(ptm), mesh_ref)
             };
@@ -1137,6 +1270,52 @@ fn encode_sample(
     })
 }
 
+/// What `WORK/baseline.json` keeps: the baseline per viewpoint and the BLAKE3 of the files it
+/// was measured from.
+#[derive(Serialize, Deserialize)]
+struct BaselineCache {
+    key: String,
+    panoramas: Vec<streamer::db::baseline::PanoramaBaseline>,
+}
+
+/// The baseline of every reference panorama of the prerender directory: measured on every
+/// core, kept in `WORK/baseline.json` while the colour and depth files stay the same.
+fn baseline(
+    dir: &PrerenderDir,
+    pre: &PrerenderReport,
+    work: &Path,
+) -> anyhow::Result<Vec<streamer::db::baseline::PanoramaBaseline>> {
+    let mut h = blake3::Hasher::new();
+    for vp in &pre.viewpoints {
+        for path in [dir.color_png(vp.index), dir.depth_exr(vp.index)] {
+            let bytes =
+                std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+            h.update(&bytes);
+        }
+    }
+    let key = format!("baseline-v1 {}", h.finalize().to_hex());
+    let path = work.join("baseline.json");
+    if let Ok(c) = store::read_json::<BaselineCache>(&path) {
+        if c.key == key && c.panoramas.len() == pre.viewpoints.len() {
+            return Ok(c.panoramas);
+        }
+    }
+    let panoramas = streamer::db::baseline::measure(pre.viewpoints.len(), |k| {
+        let i = pre.viewpoints[k].index;
+        let colour = store::read_rgb_png(&dir.color_png(i))?;
+        let depth = store::read_depth_exr(&dir.depth_exr(i))?;
+        anyhow::Ok((colour, depth))
+    })?;
+    store::write_json(
+        &path,
+        &BaselineCache {
+            key,
+            panoramas: panoramas.clone(),
+        },
+    )?;
+    Ok(panoramas)
+}
+
 fn walk_size(dir: &Path) -> u64 {
     let Ok(rd) = std::fs::read_dir(dir) else {
         return 0;
@@ -1160,10 +1339,24 @@ fn mib(b: u64) -> String {
 fn markdown(r: &BuildReport) -> String {
     let s = &r.sizes;
     let mut m = format!(
-        "# railview build: {} / {}\n\n{} reference viewpoints, faces {} px, tiles {} px. Culling: {}.\n\n## Sizes per stage\n\n| stage | bytes | |\n|---|---|---|\n",
-        r.scene, r.track, r.samples, r.face_size, r.tile_size, r.culling
+        "# railview build: {} / {}\n\n{} reference viewpoints, faces {} px, tiles {} px. Culling: {}.\n\n\
+         **Database {} = {:.2}× the baseline** ({}: every reference panorama as a PNG of its colour, {}, \
+         and a 16-bit PNG of its disparity-quantised depth, {}).\n\n## Sizes per stage\n\n\
+         | stage | bytes | of raw panoramas | ÷ baseline |\n|---|---|---|---|\n",
+        r.scene,
+        r.track,
+        r.samples,
+        r.face_size,
+        r.tile_size,
+        r.culling,
+        mib(s.database_objects),
+        s.db_over_baseline,
+        mib(s.baseline),
+        mib(s.baseline_colour_png),
+        mib(s.baseline_depth_png16),
     );
     let base = s.panoramas_rgba.max(1) as f64;
+    let baseline = s.baseline.max(1) as f64;
     for (name, b) in [
         ("raw panoramas (RGBA8)", s.panoramas_rgba),
         ("slab layers (RGBA8)", s.slab_layers_rgba),
@@ -1172,14 +1365,29 @@ fn markdown(r: &BuildReport) -> String {
         ("PTM compressed (kept tiles)", s.kept_tiles_ptm),
         ("meshes (compact binary)", s.meshes),
         ("backgrounds (PTM)", s.backgrounds_ptm),
+        ("repeated payloads stored once (saved)", s.bytes_shared),
         ("database objects on disk", s.database_objects),
+        ("baseline: PNG colour", s.baseline_colour_png),
+        ("baseline: PNG16 disparity", s.baseline_depth_png16),
+        ("baseline", s.baseline),
     ] {
         m += &format!(
-            "| {name} | {} | {:.1} % of panoramas |\n",
+            "| {name} | {} | {:.1} % | {:.2}× |\n",
             mib(b),
-            100.0 * b as f64 / base
+            100.0 * b as f64 / base,
+            b as f64 / baseline
         );
     }
+    let per = |b: u64, n: u64| b as f64 / n.max(1) as f64;
+    m += &format!(
+        "\nPer kept tile: texture {:.0} bytes, mesh {:.0} bytes ({} tiles, {} meshes); {} payloads \
+         repeated across tiles stored once.\n",
+        per(s.kept_tiles_ptm, s.kept_tiles),
+        per(s.meshes, s.meshes_count),
+        s.kept_tiles,
+        s.meshes_count,
+        s.payloads_shared
+    );
     m += "\n## Culling table\n\n| slab | tiles non-empty | kept | RGBA8 non-empty | RGBA8 kept | PTM kept |\n|---|---|---|---|---|---|\n";
     for row in &r.slabs {
         m += &format!(
@@ -1273,7 +1481,12 @@ mod tests {
             evidence: None,
             alpha: 1.0,
             cull_variant: "auto".into(),
+            ptm_method: "arith".into(),
             zstd_level: 3,
+            lossy_near: 0,
+            depth_error_px: 0.05,
+            mesh: None,
+            mesh_step: None,
             ach_samples: 2,
             ach_camera_size: 16,
         };
@@ -1309,6 +1522,21 @@ mod tests {
         let report: serde_json::Value =
             serde_json::from_slice(&std::fs::read(work.join("build.json")).unwrap()).unwrap();
         assert_eq!(report["objects_written"], 0);
+        // The baseline and the ratio, from the same prerender directory.
+        let sizes = &report["sizes"];
+        let base = sizes["baseline"].as_u64().unwrap();
+        assert!(base > 0);
+        assert_eq!(
+            base,
+            sizes["baseline_colour_png"].as_u64().unwrap()
+                + sizes["baseline_depth_png16"].as_u64().unwrap()
+        );
+        let ratio = sizes["db_over_baseline"].as_f64().unwrap();
+        let db = sizes["database_objects"].as_u64().unwrap();
+        assert!((ratio - db as f64 / base as f64).abs() < 1e-9);
+        assert!(std::fs::read_to_string(work.join("build.md"))
+            .unwrap()
+            .contains("× the baseline"));
         std::fs::remove_dir_all(&out).unwrap();
         std::fs::remove_dir_all(&work).unwrap();
     }

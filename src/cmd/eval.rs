@@ -67,6 +67,11 @@ pub struct Args {
     /// Track name (default: the first).
     #[arg(long)]
     pub track: Option<String>,
+    /// Other databases of the same scene and track (other build options: a lossy build,
+    /// another depth bound, another tile size), evaluated beside it as configurations named
+    /// after their directory and texture coding, so their points share the plots.
+    #[arg(long)]
+    pub also: Vec<String>,
 }
 
 /// Refuse nonsense before anything is rendered or written.
@@ -138,6 +143,28 @@ fn coarse_level_groups(db: &str) -> anyhow::Result<Vec<usize>> {
     Ok((1..=2).filter(|&g| g < most).collect())
 }
 
+/// How a database codes its textures, read from its first PTM's header: `lossless` or
+/// `lossy near=N`.
+fn texture_coding(db: &str) -> anyhow::Result<String> {
+    let db = streamer::db::Database::open(std::path::Path::new(db))?;
+    let first = db
+        .manifest()
+        .tracks
+        .iter()
+        .flat_map(|t| &t.viewpoints)
+        .flat_map(|v| v.tiles.iter().filter_map(|t| t.ptm.as_ref()))
+        .next();
+    let Some(p) = first else {
+        return Ok("no textures".into());
+    };
+    let mut dec = streamer::ptm::Decoder::new(streamer::ptm::Limits::default());
+    dec.push(&db.read_level(p, 0)?)?;
+    Ok(match dec.header().map_or(0, |h| h.near) {
+        0 => "lossless".into(),
+        n => format!("lossy near={n}"),
+    })
+}
+
 /// One walkthrough to evaluate with its renderer budgets.
 struct Run {
     walk: Walkthrough,
@@ -199,6 +226,22 @@ fn runs(args: &Args, walk: Walkthrough) -> anyhow::Result<Vec<Run>> {
             },
         )
         .with_context(|| format!("opening {} with {groups} level groups", args.db))?;
+        runs.push(Run {
+            walk,
+            configs: full(&name),
+        });
+    }
+    let scene = runs[0].walk.scene.clone();
+    for other in &args.also {
+        let name = format!("also {other} ({})", texture_coding(other)?);
+        let walk = open(other, args.track.as_deref(), LoadOptions::default())
+            .with_context(|| format!("opening {other}"))?;
+        anyhow::ensure!(
+            walk.scene == scene,
+            "--also {other}: scene `{}`, not `{}`",
+            walk.scene,
+            scene
+        );
         runs.push(Run {
             walk,
             configs: full(&name),

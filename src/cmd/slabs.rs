@@ -18,22 +18,28 @@ use slabs::report::SlabsReport;
 use slabs::tiles::{tile_sample, LayerInput, MeshKind, TileParams};
 use tracks::{CubeMap, SlabRange};
 
+/// The stage's defaults (`railview build` compares a work directory's tiles with them).
+pub const DEFAULT_TILE_SIZE: u32 = 32;
+pub const DEFAULT_MESH_STEP: u32 = 4;
+pub const DEFAULT_MESH_ERROR: f64 = 0.5;
+pub const DEFAULT_MESH: &str = "adaptive";
+
 /// Arguments of `railview slabs`.
 #[derive(clap::Args)]
 pub struct Args {
     /// Prerender directory (written by `railview prerender` or `import-pov`).
     pub dir: PathBuf,
     /// Tile side in pixels (a power of two).
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = DEFAULT_TILE_SIZE)]
     pub tile_size: u32,
     /// Grid step of the regular mesh, pixels.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = DEFAULT_MESH_STEP)]
     pub mesh_step: u32,
     /// Error bound of the adaptive mesh: parallax pixels at the track's largest baseline.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = DEFAULT_MESH_ERROR)]
     pub mesh_error: f64,
     /// Which mesh tiles.bin stores: `adaptive` or `grid` (both are measured).
-    #[arg(long, default_value = "adaptive")]
+    #[arg(long, default_value = DEFAULT_MESH)]
     pub mesh: String,
     /// Parallax (pixels at the largest baseline) that makes neighbouring pixels a discontinuity.
     #[arg(long, default_value_t = 1.0)]
@@ -175,7 +181,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for &i in &indices {
         // Resume: a sample whose tiles files match these parameters is not tiled again.
         if let Ok((file, _)) = sio::read_tiles(&dir, i) {
+            // Tiles cut from panoramas of another face size (a work directory prerendered
+            // again) are stale.
             let same = file.grid.tile_size == args.tile_size
+                && file.grid.face_size == pre.face_size
                 && file.mesh_params == mesh
                 && file.mesh_kind == keep
                 && file

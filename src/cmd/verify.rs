@@ -1,5 +1,5 @@
-//! `railview verify DB`: checks every file of a database (with `--decode`, every PTM's
-//! content too); exit status 0 only when intact.
+//! `railview verify DB`: checks every file of a database (with `--decode`, every PTM's and
+//! mesh's content too); exit status 0 only when intact.
 
 use std::path::PathBuf;
 
@@ -12,8 +12,8 @@ pub struct Args {
     /// Print the report as JSON instead of text.
     #[arg(long)]
     pub json: bool,
-    /// Also decode every PTM to its finest level and, in a format-5 database, check that
-    /// texels with alpha 0 hold colour 0 (what readers that divide coarse levels by alpha
+    /// Also decode every PTM to its finest level and every mesh, and check that every PTM
+    /// texel with alpha 0 holds colour 0 (what readers dividing coarse levels by their alpha
     /// rely on). Reads and decodes everything: slower.
     #[arg(long)]
     pub decode: bool,
@@ -43,7 +43,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             report.level_ranges_checked
         );
         if args.decode {
-            println!("{} PTMs decoded", report.ptms_decoded);
+            println!(
+                "{} PTMs and {} meshes decoded",
+                report.ptms_decoded, report.meshes_decoded
+            );
         }
         for n in &report.notes {
             println!("note: {}: {}", n.path.display(), n.what);

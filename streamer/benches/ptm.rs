@@ -4,9 +4,11 @@
 //! viewpoint of track `main` (alpha = 255 on geometry, 0 on sky, as a near slab's mask), plus
 //! one deterministic synthetic texture for comparison. Measures encode and decode throughput
 //! (MB/s of RGBA pixels), PNG decode of the same tile with the `image` crate, and prints sizes:
-//! PTM (zstd) against PNG of the base level and against the raw mip chain, then a decode
-//! ratio that holds on a loaded machine (PTM and PNG alternate tile by tile over the six
-//! castle tiles, each keeps its fastest pass), with zstd alone and partial decodes.
+//! PTM (method 2, range-coded, the default; and method 1, zstd) against PNG of the base level
+//! and against the raw mip chain, then a decode ratio that holds on a loaded machine (PTM and
+//! PNG alternate tile by tile over the six castle tiles, each keeps its fastest pass), with
+//! the zstd method and partial decodes. Database tiles (32² slab tiles with masks) and meshes
+//! are measured by the `codec` bench.
 //!
 //! `cargo bench -p streamer --bench ptm` (sizes and ratio only: `… -- nomatch`)
 
@@ -97,38 +99,45 @@ fn bench(c: &mut Criterion) {
         method: Method::Raw,
         ..opts
     };
+    let zstd_opts = EncodeOptions {
+        method: Method::Zstd,
+        ..opts
+    };
     println!(
-        "\n{:<12} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8}",
-        "tile", "rgba", "mipchain", "ptm-raw", "png", "ptm-zstd", "vs png", "vs mips"
+        "\n{:<12} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8}",
+        "tile", "rgba", "mipchain", "ptm-raw", "png", "ptm-zstd", "ptm", "vs png", "vs mips"
     );
-    let (mut sum_png, mut sum_ptm, mut sum_mips, mut sum_raw) = (0u64, 0u64, 0u64, 0u64);
+    let mut sum = [0u64; 5];
     for (name, img) in &tiles {
         let png = png_bytes(img).len() as u64;
         let ptm = encode(img, &opts).unwrap().bytes.len() as u64;
+        let zstd = encode(img, &zstd_opts).unwrap().bytes.len() as u64;
         let raw = encode(img, &raw_opts).unwrap().bytes.len() as u64;
         let mips = raw_mip_chain_bytes(img);
         if name.starts_with("castle") {
-            sum_png += png;
-            sum_ptm += ptm;
-            sum_mips += mips;
-            sum_raw += raw;
+            for (s, v) in sum.iter_mut().zip([png, ptm, mips, raw, zstd]) {
+                *s += v;
+            }
         }
         println!(
-            "{name:<12} {:>9} {mips:>9} {raw:>9} {png:>9} {ptm:>9} {:>8.3} {:>8.3}",
+            "{name:<12} {:>9} {mips:>9} {raw:>9} {png:>9} {zstd:>9} {ptm:>9} {:>8.3} {:>8.3}",
             img.data().len(),
             ptm as f64 / png as f64,
             ptm as f64 / mips as f64
         );
     }
+    let [png, ptm, mips, raw, zstd] = sum.map(|v| v as f64);
     println!(
-        "castle total: ptm/png {:.3}, ptm/mipchain {:.3}, ptm-raw/base {:.4}, mipchain/ptm {:.2}:1\n",
-        sum_ptm as f64 / sum_png as f64,
-        sum_ptm as f64 / sum_mips as f64,
-        sum_raw as f64 / (6 * N * N * 4) as f64,
-        sum_mips as f64 / sum_ptm as f64
+        "castle total: ptm/png {:.3} (zstd method {:.3}), ptm/mipchain {:.3}, ptm-raw/base {:.4}, \
+         mipchain/ptm {:.2}:1\n",
+        ptm / png,
+        zstd / png,
+        ptm / mips,
+        raw / (6 * N * N * 4) as f64,
+        mips / ptm
     );
 
-    decode_ratio(&tiles[..6], &opts);
+    decode_ratio(&tiles[..6], &opts, &zstd_opts);
 
     let mut g = c.benchmark_group("ptm-256-rgba");
     g.throughput(Throughput::Bytes((N * N * 4) as u64));
@@ -154,14 +163,18 @@ fn bench(c: &mut Criterion) {
 }
 
 /// Decode time of PTM against PNG over the castle tiles, robust to the load of a shared
-/// machine: the two decoders alternate tile by tile, and each keeps its fastest of `ROUNDS`
+/// machine: the decoders alternate tile by tile, and each keeps its fastest of `ROUNDS`
 /// passes (load only ever adds time). Also the time to decode only the coarser levels (what a
-/// client asking for level 1 or 2 pays).
-fn decode_ratio(tiles: &[(String, Image)], opts: &EncodeOptions) {
-    const ROUNDS: usize = 60;
+/// client asking for level 1 or 2 pays) and the zstd method's.
+fn decode_ratio(tiles: &[(String, Image)], opts: &EncodeOptions, zstd_opts: &EncodeOptions) {
+    const ROUNDS: usize = 40;
     let encoded: Vec<Vec<u8>> = tiles
         .iter()
         .map(|(_, img)| encode(img, opts).unwrap().bytes)
+        .collect();
+    let zstd: Vec<Vec<u8>> = tiles
+        .iter()
+        .map(|(_, img)| encode(img, zstd_opts).unwrap().bytes)
         .collect();
     let pngs: Vec<Vec<u8>> = tiles.iter().map(|(_, img)| png_bytes(img)).collect();
     let time = |f: &mut dyn FnMut()| {
@@ -169,26 +182,9 @@ fn decode_ratio(tiles: &[(String, Image)], opts: &EncodeOptions) {
         f();
         t.elapsed().as_secs_f64()
     };
-    // The zstd frames of every group (after the header and each group's mode byte).
-    let frames: Vec<Vec<&[u8]>> = tiles
-        .iter()
-        .zip(&encoded)
-        .map(|((_, img), bytes)| {
-            let enc = encode(img, opts).unwrap();
-            let header = 16 + 4 * enc.groups.len();
-            enc.groups
-                .iter()
-                .enumerate()
-                .map(|(g, span)| {
-                    let start = if g == 0 { header } else { span.offset as usize };
-                    &bytes[start + 1..(span.offset + span.len) as usize]
-                })
-                .collect()
-        })
-        .collect();
     let mut best = [[f64::INFINITY; 5]; 6];
     for _ in 0..ROUNDS {
-        for (i, (ptm, png)) in encoded.iter().zip(&pngs).enumerate() {
+        for (i, ((ptm, png), z)) in encoded.iter().zip(&pngs).zip(&zstd).enumerate() {
             let b = &mut best[i];
             b[0] = b[0].min(time(&mut || {
                 black_box(decode(black_box(ptm), Limits::default()).unwrap());
@@ -199,11 +195,8 @@ fn decode_ratio(tiles: &[(String, Image)], opts: &EncodeOptions) {
                         .unwrap(),
                 );
             }));
-            let mut z = zstd::bulk::Decompressor::new().unwrap();
             b[4] = b[4].min(time(&mut || {
-                for f in &frames[i] {
-                    black_box(z.decompress(black_box(f), 1 << 20).unwrap());
-                }
+                black_box(decode(black_box(z), Limits::default()).unwrap());
             }));
             for (slot, level) in [(2, 1), (3, 2)] {
                 b[slot] = b[slot].min(time(&mut || {
@@ -214,7 +207,7 @@ fn decode_ratio(tiles: &[(String, Image)], opts: &EncodeOptions) {
     }
     for ((name, _), b) in tiles.iter().zip(&best) {
         println!(
-            "  {name:<10} decode ms: ptm {:.3}, png {:.3}, zstd alone {:.3}",
+            "  {name:<10} decode ms: ptm {:.3}, png {:.3}, zstd method {:.3}",
             b[0] * 1e3,
             b[1] * 1e3,
             b[4] * 1e3
@@ -222,10 +215,12 @@ fn decode_ratio(tiles: &[(String, Image)], opts: &EncodeOptions) {
     }
     let sum = |k: usize| best.iter().map(|b| b[k]).sum::<f64>() * 1e3;
     let (ptm, png, l1, l2, zs) = (sum(0), sum(1), sum(2), sum(3), sum(4));
+    let bytes: usize = encoded.iter().map(Vec::len).sum();
     println!(
-        "decode, 6 castle tiles, fastest of {ROUNDS} (ms): ptm {ptm:.3}, png {png:.3}, \
-         ptm/png {:.2}x the time; up to level 1 {l1:.3} ({:.2}x png), level 2 {l2:.3} ({:.2}x png); \
-         zstd alone {zs:.3} ({:.2}x png)\n",
+        "decode, 6 castle tiles, fastest of {ROUNDS} (ms): ptm {ptm:.3} ({:.1} MB/s of its bytes), \
+         png {png:.3}, ptm/png {:.2}x the time; up to level 1 {l1:.3} ({:.2}x png), level 2 \
+         {l2:.3} ({:.2}x png); zstd method {zs:.3} ({:.2}x png)\n",
+        bytes as f64 / ptm / 1e3,
         ptm / png,
         l1 / png,
         l2 / png,

@@ -2,6 +2,8 @@
 //! client, and the walk simulator.
 //!
 //! - [`ptm`]: progressive texture maps — lossless mip levels sent coarse to fine.
+//! - [`entropy`]: the adaptive binary range coder under the PTM's context-modelled levels
+//!   and the compact meshes.
 //! - [`db`]: the content-addressed database directory (writer, reader, `verify`), the split
 //!   manifest (a small top plus one binary tile table per viewpoint, [`db::split`],
 //!   [`db::table`], and one pack of its tiles' payloads, [`db::pack`]), the compact mesh
@@ -20,6 +22,7 @@
 
 pub mod client;
 pub mod db;
+pub mod entropy;
 pub mod hostile;
 pub mod ptm;
 pub mod server;

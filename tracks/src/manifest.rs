@@ -93,12 +93,24 @@ pub struct TileEntry {
     /// False when occlusion culling dropped the tile (its payload is then absent).
     pub kept: bool,
     pub ptm: Option<PtmRef>,
-    /// Depth mesh (compact binary, quantised depth) as an object of its own.
+    /// Depth mesh (compact binary, quantised depth): the object holding it — the whole
+    /// object, or with `mesh_range` the range of it — when that is not `ptm.object`.
     pub mesh: Option<ObjectRef>,
-    /// Depth mesh packed with other payloads: its byte range inside `ptm.object` (the
-    /// viewpoint's pack) and that range's checksum; `mesh` is then `None`.
+    /// Depth mesh packed with other payloads: its byte range and that range's checksum,
+    /// inside `mesh` when given, else inside `ptm.object` (the pack that holds the PTM).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mesh_range: Option<PackRange>,
+}
+
+impl TileEntry {
+    /// Where the tile's mesh lies: the object and, when it is a range of it, the range.
+    pub fn mesh_at(&self) -> Option<(&ObjectRef, Option<&PackRange>)> {
+        match (&self.mesh, &self.mesh_range, &self.ptm) {
+            (Some(o), r, _) => Some((o, r.as_ref())),
+            (None, Some(r), Some(p)) => Some((&p.object, Some(r))),
+            _ => None,
+        }
+    }
 }
 
 /// A byte range inside a pack object, checked by its own (short) checksum.

@@ -47,7 +47,8 @@ pub struct Walkthrough {
     pub track: Track,
     pub views: Vec<RefView>,
     pub slabs: Vec<SlabRange>,
-    /// Bytes of payload read (database objects, or prerender files' decoded size).
+    /// Bytes of payload read (database payloads, each stored payload once however many tiles
+    /// use it; or prerender files' decoded size).
     pub bytes: u64,
 }
 
@@ -244,16 +245,27 @@ pub fn from_database(
         .ok_or_else(|| format_err("manifest.json tile_size", m.tile_size))?;
     // Viewpoints on every core (each decodes its own tiles and builds its own layers); the
     // first error in viewpoint order is the one reported.
-    let loaded: Vec<Result<(RefView, u64), SourceError>> = entry
+    // Bytes are counted once per stored payload (a payload may serve several tiles): the
+    // ranges read, by object and offset.
+    type Read = Vec<(String, u64, u64)>;
+    let loaded: Vec<Result<(RefView, Read), SourceError>> = entry
         .viewpoints
         .par_iter()
-        .map(|vp| -> Result<(RefView, u64), SourceError> {
-            let mut bytes = 0u64;
+        .map(|vp| -> Result<(RefView, Read), SourceError> {
+            let mut read: Read = Vec::new();
+            let ptm_read = |p: &PtmRef| {
+                let first = p.levels.first().map_or(0, |l| l.offset);
+                (
+                    p.object.hash.clone(),
+                    first,
+                    group_bytes(p, opts.level_groups),
+                )
+            };
             let what = format!("viewpoint {}", vp.index);
             let mut background = CubeMap::filled(n, [0, 0, 0, 0]);
             for (bi, bg) in vp.background.iter().enumerate() {
                 let key = format!("{what} background tile {bi}");
-                bytes += group_bytes(&bg.ptm, opts.level_groups);
+                read.push(ptm_read(&bg.ptm));
                 let (rgba, w, h, level) = decode_ptm(db, &bg.ptm, opts.level_groups, &key)?;
                 paste_tile(&mut background, grid, bg.tile, (&rgba, w, h, level), &key)?;
             }
@@ -264,16 +276,19 @@ pub fn from_database(
                 let Some(ptm) = &t.ptm else {
                     continue;
                 };
-                let mesh_bytes = match (&t.mesh, &t.mesh_range) {
-                    (Some(m), _) => db.read_object(m)?,
-                    (None, Some(r)) => db.read_checked_range(&ptm.object, r)?,
-                    (None, None) => continue,
+                let (mesh_bytes, mesh_at) = match t.mesh_at() {
+                    Some((m, None)) => (db.read_object(m)?, (m.hash.clone(), 0)),
+                    Some((o, Some(r))) => {
+                        (db.read_checked_range(o, r)?, (o.hash.clone(), r.offset))
+                    }
+                    None => continue,
                 };
                 let key = tracks::manifest::tile_key(vp.index, t.slab, t.tile);
                 let layer = layers.get_mut(t.slab as usize).ok_or_else(|| {
                     format_err(&key, format!("slab {} beyond the manifest's slabs", t.slab))
                 })?;
-                bytes += group_bytes(ptm, opts.level_groups) + mesh_bytes.len() as u64;
+                read.push(ptm_read(ptm));
+                read.push((mesh_at.0, mesh_at.1, mesh_bytes.len() as u64));
                 let (rgba, w, h, level) = decode_ptm(db, ptm, opts.level_groups, &key)?;
                 paste_tile(layer, grid, t.tile, (&rgba, w, h, level), &key)?;
                 let mesh = tile_mesh_from_bytes(&mesh_bytes, &key)?;
@@ -293,14 +308,19 @@ pub fn from_database(
                 layers: all,
                 tiles,
             };
-            Ok((view, bytes))
+            Ok((view, read))
         })
         .collect();
     let mut bytes = 0u64;
+    let mut seen = std::collections::HashSet::new();
     let mut views = Vec::with_capacity(loaded.len());
     for r in loaded {
-        let (view, b) = r?;
-        bytes += b;
+        let (view, read) = r?;
+        for (object, offset, len) in read {
+            if seen.insert((object, offset)) {
+                bytes += len;
+            }
+        }
         views.push(view);
     }
     Ok(Walkthrough {

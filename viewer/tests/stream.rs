@@ -9,9 +9,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use streamer::client::LiveConfig;
-use streamer::db::mesh::{encode_mesh, MeshData};
+use streamer::db::mesh::{encode_mesh, MeshCoding, MeshData};
 use streamer::db::DbWriter;
-use streamer::ptm::{encode, EncodeOptions, Image};
+use streamer::ptm::{encode, EncodeOptions, Image, Method};
 use streamer::server::{self, ServedDb, ServerConfig, ServerStats};
 use tracks::manifest::{
     AchEntry, BackgroundTile, Manifest, SegmentEntry, TileEntry, TrackEntry, ViewpointEntry,
@@ -32,15 +32,43 @@ fn renderer() -> Renderer {
     Renderer::new(gpu).expect("the renderer on this adapter")
 }
 
+/// The mesh with every vertex at an earlier vertex's position replaced by that one. The
+/// database's mesh format keeps one vertex per position (the adaptive meshes `railview build`
+/// stores have no others); the synthetic street's grid mesher gives a cell across a depth
+/// jump corners of its own, which this merges. Both sides of every comparison here read the
+/// meshes from the database.
+fn one_vertex_per_position(m: MeshData) -> MeshData {
+    let mut first = std::collections::HashMap::new();
+    let mut vertices = Vec::new();
+    let remap: Vec<u32> = m
+        .vertices
+        .iter()
+        .map(|v| {
+            let key = (v[0].to_bits(), v[1].to_bits());
+            *first.entry(key).or_insert_with(|| {
+                vertices.push(*v);
+                (vertices.len() - 1) as u32
+            })
+        })
+        .collect();
+    MeshData {
+        vertices,
+        indices: m.indices.iter().map(|&i| remap[i as usize]).collect(),
+    }
+}
+
 /// Write the synthetic street as a database: every tile a PTM (RGBA, all levels) and a mesh,
 /// a background per viewpoint, each segment's ACH list holding the tiles of its two ends.
 fn write_db(walk: &Walkthrough, dir: &Path) {
+    write_db_with(walk, dir, EncodeOptions::default(), true)
+}
+
+/// [`write_db`] with these PTM options, and payloads alike from one viewpoint to another
+/// stored in each viewpoint's pack (`share` false) or once.
+fn write_db_with(walk: &Walkthrough, dir: &Path, opts: EncodeOptions, share: bool) {
     let _ = std::fs::remove_dir_all(dir);
     let mut w = DbWriter::create(dir).unwrap();
-    let opts = EncodeOptions {
-        zstd_level: 3,
-        ..Default::default()
-    };
+    w.share_across_viewpoints = share;
     let tile_size = walk.views[0].tile_size;
     let face = walk.views[0].face_size;
     let grid = TileGrid::new(face, tile_size).unwrap();
@@ -63,7 +91,7 @@ fn write_db(walk: &Walkthrough, dir: &Path) {
             streamer::db::clear_masked(&mut px);
             let img = Image::new(x1 - x0, y1 - y0, 4, px).unwrap();
             let ptm = w.put_ptm(&encode(&img, &opts).unwrap(), 4).unwrap();
-            let mesh = MeshData {
+            let mesh = one_vertex_per_position(MeshData {
                 vertices: t
                     .mesh
                     .vertices
@@ -71,7 +99,7 @@ fn write_db(walk: &Walkthrough, dir: &Path) {
                     .map(|m| [m.pos_in_face[0], m.pos_in_face[1], m.depth_m])
                     .collect(),
                 indices: t.mesh.indices.clone(),
-            };
+            });
             let depths = t.mesh.vertices.iter().map(|m| m.depth_m as f64);
             let depth_min = depths.clone().fold(f64::INFINITY, f64::min);
             let depth_max = depths.fold(0.0, f64::max);
@@ -83,7 +111,10 @@ fn write_db(walk: &Walkthrough, dir: &Path) {
                 opaque_pixels: opaque.max(1),
                 kept: true,
                 ptm: Some(ptm),
-                mesh: Some(w.put(&encode_mesh(&mesh).unwrap()).unwrap()),
+                mesh: Some(
+                    w.put(&encode_mesh(&mesh, &MeshCoding::for_parallax(face, 1.0, 0.05)).unwrap())
+                        .unwrap(),
+                ),
                 mesh_range: None,
             });
         }
@@ -287,10 +318,31 @@ fn lit(st: &StreamedWalkthrough) -> usize {
 )]
 fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
     let mut r = renderer();
-    let street = synth_street(FACE, &Scene::street_slabs(), MeshParams::default()).unwrap();
+    let street = synth_street(2 * FACE, &Scene::street_slabs(), MeshParams::default()).unwrap();
     let dir: PathBuf =
         std::env::temp_dir().join(format!("railview-viewer-stream-{}", std::process::id()));
-    write_db(&street, &dir);
+    // Range-coded (or zstd-coded), every PTM of this small street is under
+    // `pack::MERGE_UP_TO` bytes, so the pack merges its level groups into one range and it
+    // travels whole: nothing finer could arrive later. Stored raw (the paper's layout) on
+    // faces twice as large, the finest level of a tile is a range of its own.
+    let opts = EncodeOptions {
+        method: Method::Raw,
+        ..EncodeOptions::default()
+    };
+    write_db_with(&street, &dir, opts, true);
+    {
+        // The premise: some tiles come in more than one range.
+        let db = streamer::db::Database::open(&dir).unwrap();
+        let progressive = db
+            .manifest()
+            .tracks
+            .iter()
+            .flat_map(|t| &t.viewpoints)
+            .flat_map(|v| &v.tiles)
+            .filter(|t| t.ptm.as_ref().is_some_and(|p| p.levels.len() > 1))
+            .count();
+        assert!(progressive > 0, "no tile with finer level groups");
+    }
     let mut coarse_ref = open(
         &dir,
         None,
@@ -402,17 +454,34 @@ fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
 }
 
 /// Bytes of the files under `dir` (the database's objects).
-fn dir_bytes(dir: &Path) -> u64 {
-    let mut total = 0;
-    for e in std::fs::read_dir(dir).unwrap().flatten() {
-        let meta = e.metadata().unwrap();
-        total += if meta.is_dir() {
-            dir_bytes(&e.path())
-        } else {
-            meta.len()
-        };
-    }
-    total
+/// Bytes of every part a client can fetch from the database at `dir` (every tile's mesh and
+/// level groups, every background tile's level groups), a range pointed at twice counted
+/// twice.
+fn part_bytes(dir: &Path) -> u64 {
+    let db = streamer::db::Database::open(dir).unwrap();
+    let ptm = |p: &tracks::manifest::PtmRef| p.levels.iter().map(|l| l.len).sum::<u64>();
+    db.manifest()
+        .tracks
+        .iter()
+        .flat_map(|t| &t.viewpoints)
+        .map(|v| {
+            let tiles: u64 = v
+                .tiles
+                .iter()
+                .filter(|t| t.kept)
+                .filter_map(|t| {
+                    let p = t.ptm.as_ref()?;
+                    let mesh = match t.mesh_at() {
+                        Some((_, Some(r))) => r.len,
+                        Some((o, None)) => o.size,
+                        None => 0,
+                    };
+                    Some(ptm(p) + mesh)
+                })
+                .sum();
+            tiles + v.background.iter().map(|b| ptm(&b.ptm)).sum::<u64>()
+        })
+        .sum()
 }
 
 /// Walk the street from its first segment to its last and back with a decoded budget of one
@@ -435,6 +504,11 @@ fn there_and_back(
         std::process::id()
     ));
     write_db(&street, &dir);
+    if !config(&dir).schedule.share_parts {
+        // Parts kept apart in the client are kept apart in the database too: each view's
+        // payloads in its own pack.
+        write_db_with(&street, &dir, EncodeOptions::default(), false);
+    }
     let full_ref = open(&dir, None, LoadOptions::default()).unwrap();
     let (url, stop, thread) = serve(&dir);
     let mut st = StreamedWalkthrough::connect(&url, None, config(&dir)).unwrap();
@@ -613,11 +687,11 @@ fn evicted_views_come_back_from_the_session_cache() {
     ignore = "GPU tests switched off by RAILVIEW_SKIP_GPU_TESTS=1"
 )]
 fn evicted_views_whose_bytes_left_the_cache_are_downloaded_again() {
-    // A cache of three fifths of the database: the first views' bytes leave it at the far end.
-    // Identical parts are not shared here: the street repeats so many that, shared, every
-    // part of it fits in half the database and nothing would leave the cache.
+    // A cache of three fifths of the bytes a client can fetch: the first views' bytes leave
+    // it at the far end. Identical parts are not shared here: the street repeats so many
+    // that, shared, every part of it fits in half of them and nothing would leave the cache.
     let config = |dir: &Path| {
-        let mut c = LiveConfig::with_cache(dir_bytes(dir) * 12 / 20);
+        let mut c = LiveConfig::with_cache(part_bytes(dir) * 12 / 20);
         c.schedule.share_parts = false;
         c
     };
@@ -658,7 +732,9 @@ fn walking_on_after_the_server_is_gone_draws_the_views_that_arrived() {
         "railview-viewer-stream-gone-{}",
         std::process::id()
     ));
-    write_db(&street, &dir);
+    // Each view's payloads in its own pack, not shared with another view's (the street
+    // repeats, so later views would find theirs among the first views' parts).
+    write_db_with(&street, &dir, EncodeOptions::default(), false);
     let (url, stop, thread) = serve(&dir);
     // No prefetch: only the first segment's views (at 0 and 0.5 m) receive anything; nor
     // identical parts shared (the street repeats, so later views would find theirs).

@@ -240,11 +240,25 @@ fn build_sizes(c: &mut Ctx, build: &Value) {
         .to_string();
     c.push(Block::Para(format!(
         "Colour as raw RGBA8 (4 bytes per pixel, the paper's Size unit) up to culling ({culling}), \
-         then as stored: PTM levels compressed, meshes in their compact binary form, and \
-         every object of the database on disk."
+         then as stored: PTM levels range-coded, meshes in their compact coded form, and \
+         every object of the database on disk (each payload once, however many tiles point at \
+         it). Each stage is also weighed against the baseline: every reference panorama as a \
+         PNG of its colour plus a 16-bit PNG of its disparity-quantised depth, what a viewer \
+         with one depth map per panorama ships, measured on the same prerender directory."
     )));
     let sizes = build.get("sizes").cloned().unwrap_or(Value::Null);
     let raw = num(&sizes, "panoramas_rgba").filter(|r| *r > 0.0);
+    let baseline = num(&sizes, "baseline").filter(|b| *b > 0.0);
+    if let (Some(db), Some(b)) = (num(&sizes, "database_objects"), baseline) {
+        c.push(Block::Para(format!(
+            "Database {} MB = {:.2}× the baseline of {} MB (PNG colour {} MB, PNG16 depth {} MB).",
+            fmt_mb(db),
+            db / b,
+            fmt_mb(b),
+            num(&sizes, "baseline_colour_png").map_or("–".into(), fmt_mb),
+            num(&sizes, "baseline_depth_png16").map_or("–".into(), fmt_mb),
+        )));
+    }
     let rows: Vec<Vec<String>> = [
         ("raw panoramas", "panoramas_rgba"),
         ("slab layers", "slab_layers_rgba"),
@@ -253,13 +267,18 @@ fn build_sizes(c: &mut Ctx, build: &Value) {
         ("PTM compressed (kept tiles)", "kept_tiles_ptm"),
         ("meshes", "meshes"),
         ("backgrounds (PTM)", "backgrounds_ptm"),
+        ("repeated payloads stored once (saved)", "bytes_shared"),
         ("database objects on disk", "database_objects"),
+        ("baseline: PNG colour", "baseline_colour_png"),
+        ("baseline: PNG16 disparity", "baseline_depth_png16"),
+        ("baseline", "baseline"),
     ]
     .iter()
     .filter_map(|(label, key)| {
         let b = num(&sizes, key)?;
         let rel = raw.map_or("–".into(), |r| format!("{:.1}%", 100.0 * b / r));
-        Some(vec![label.to_string(), fmt_mb(b), rel])
+        let ratio = baseline.map_or("–".into(), |r| format!("{:.2}×", b / r));
+        Some(vec![label.to_string(), fmt_mb(b), rel, ratio])
     })
     .collect();
     if rows.is_empty() {
@@ -268,8 +287,8 @@ fn build_sizes(c: &mut Ctx, build: &Value) {
     }
     c.push(Block::Table(Table {
         id: "db-sizes".into(),
-        caption: "Size per stage (MB; share of the raw panoramas)".into(),
-        header: ["stage", "MB", "of raw panoramas"]
+        caption: "Size per stage (MB; share of the raw panoramas; ÷ the baseline)".into(),
+        header: ["stage", "MB", "of raw panoramas", "÷ baseline"]
             .map(String::from)
             .to_vec(),
         rows,

@@ -132,12 +132,14 @@ impl ItemTable {
 
     /// Whether parts with the same checksum and length share one fetch key — the first one
     /// added — so identical bytes are fetched and cached once (on by default; it applies to
-    /// viewpoints added afterwards). Each viewpoint's pack holds its own copy of every
-    /// payload, and many are alike from one viewpoint to the next: on castle 128 meshes above
-    /// all (flat or distant surfaces; 69 % of the meshes a walk needs repeat another
-    /// viewpoint's) and some level groups. Bytes fetched under the shared key are checked
-    /// against that part's checksum, which is the other part's too, so nothing unchecked is
-    /// ever shown.
+    /// viewpoints added afterwards). Many payloads are alike from one viewpoint to the next:
+    /// on castle 128 meshes above all (flat or distant surfaces; 69 % of the meshes a walk
+    /// needs repeat another viewpoint's) and some level groups. A database writes each of
+    /// them once (the later tiles point at the same range of an earlier pack, so they share
+    /// one key whatever this says); this also joins copies a database stores in several
+    /// packs (`DbWriter::share_across_viewpoints` off). Bytes fetched under the shared key
+    /// are checked against that part's checksum, which is the other part's too, so nothing
+    /// unchecked is ever shown.
     pub fn set_share_parts(&mut self, on: bool) {
         self.share_parts = on;
     }
@@ -194,8 +196,8 @@ impl ItemTable {
             let field = || format!("tracks[{track}].viewpoints[{vi}].tiles[{ti}]");
             let (mut parts, levels) = ptm_parts(ptm, &|| format!("{}.ptm", field()))?;
             let mut first = 0;
-            let mesh = match (&tile.mesh, &tile.mesh_range) {
-                (Some(mesh), _) => {
+            let mesh = match tile.mesh_at() {
+                Some((mesh, None)) => {
                     check_hash(&mesh.hash, || format!("{}.mesh.hash", field()))?;
                     Some(Part {
                         key: FetchKey {
@@ -207,12 +209,12 @@ impl ItemTable {
                         mem: mesh.size,
                     })
                 }
-                (None, Some(r)) => {
+                Some((object, Some(r))) => {
                     let f = || format!("{}.mesh_range", field());
-                    check_range(&ptm.object, r.offset, r.len, &r.hash, f)?;
+                    check_range(object, r.offset, r.len, &r.hash, f)?;
                     Some(Part {
                         key: FetchKey {
-                            object: ptm.object.hash.as_str().into(),
+                            object: object.hash.as_str().into(),
                             range: Some((r.offset, r.len)),
                         },
                         hash: r.hash.clone(),
@@ -220,7 +222,7 @@ impl ItemTable {
                         mem: r.len,
                     })
                 }
-                (None, None) => None,
+                None => None,
             };
             if let Some(m) = mesh {
                 parts.insert(0, m);

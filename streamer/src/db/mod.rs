@@ -31,6 +31,7 @@
 //! right size are not rewritten, which is what makes `build` resumable.
 
 pub mod ach;
+pub mod baseline;
 pub mod mesh;
 pub mod pack;
 pub mod split;
@@ -171,6 +172,15 @@ pub struct DbWriter {
     pub bytes_written: u64,
     /// Objects that were already present (resumed or shared content).
     pub objects_reused: u64,
+    /// Payloads that [`DbWriter::finish`] found already in an earlier pack, and their bytes
+    /// (stored once, pointed at again).
+    pub payloads_shared: u64,
+    pub bytes_shared: u64,
+    /// Whether a payload already in an earlier viewpoint's pack is pointed at there (the
+    /// default, the smaller database) or stored again in each pack that needs it, so that
+    /// every viewpoint's payloads lie in its own pack (and no two viewpoints' tiles share a
+    /// byte range a client could tell apart only by its checksum).
+    pub share_across_viewpoints: bool,
     /// Temporary files of an earlier, killed writer removed on opening.
     pub leftovers_removed: Vec<PathBuf>,
     /// The directory locks held while this writer lives ([`lock_dir`]).
@@ -194,6 +204,9 @@ impl DbWriter {
             objects_written: 0,
             bytes_written: 0,
             objects_reused: 0,
+            payloads_shared: 0,
+            share_across_viewpoints: true,
+            bytes_shared: 0,
             leftovers_removed,
             _locks: vec![lock],
         })
@@ -269,7 +282,8 @@ impl DbWriter {
 
     /// Packs each viewpoint's background tiles and tiles ([`pack::pack_viewpoint`]: their
     /// payloads read back from the objects [`DbWriter::put`] stored, or from an earlier
-    /// pack) into one object, splits the
+    /// pack; a payload an earlier viewpoint's pack holds is not stored again) into one
+    /// object, splits the
     /// packed manifest ([`split::split`]) and stores each viewpoint's table as an object,
     /// then writes the top manifest (compact JSON, atomically), its checksum file and its
     /// gzip copy: the database is complete. The tiles' own objects stay where they are (a
@@ -278,22 +292,28 @@ impl DbWriter {
     /// as [`Database::open`] reads it back.
     pub fn finish(&mut self, manifest: &Manifest) -> Result<Manifest, DbError> {
         let mut packed = manifest.clone();
+        let mut payloads = pack::Payloads::default();
         for t in &mut packed.tracks {
             for v in &mut t.viewpoints {
+                if !self.share_across_viewpoints {
+                    payloads.forget_placed();
+                }
                 let mut cache: HashMap<String, Vec<u8>> = HashMap::new();
                 let roots = [self.stage_root().to_path_buf(), self.root.clone()];
                 let mut read = |o: &ObjectRef, offset: u64, len: u64| {
                     read_stored(&roots, &mut cache, o, offset, len)
                 };
                 let (bytes, background, tiles) =
-                    pack::pack_viewpoint(&v.background, &v.tiles, &mut read)?;
-                if !background.is_empty() || tiles.iter().any(|t| t.ptm.is_some()) {
+                    pack::pack_viewpoint(&v.background, &v.tiles, &mut read, &mut payloads)?;
+                if !bytes.is_empty() {
                     self.put(&bytes)?;
                 }
                 v.background = background;
                 v.tiles = tiles;
             }
         }
+        self.payloads_shared = payloads.shared;
+        self.bytes_shared = payloads.bytes_shared;
         let path = self.root.join(MANIFEST_FILE);
         let (top, tables) =
             split::split(&packed).map_err(|e| DbError::format(&path, e.to_string()))?;
@@ -695,8 +715,8 @@ pub fn read_limited(path: &Path, limit: u64) -> Result<Vec<u8>, DbError> {
     Ok(out)
 }
 
-/// Parses top-manifest bytes read from `path` and checks the version: formats 4 and 5 are
-/// read; older ones are refused with a request to rebuild the database.
+/// Parses top-manifest bytes read from `path` and checks the version: format 6 is read;
+/// older ones are refused with a request to rebuild the database.
 pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
     #[derive(serde::Deserialize)]
     struct Version {
@@ -706,16 +726,21 @@ pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
         .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
     if !(OLDEST_READ_VERSION..=TOP_VERSION).contains(&v.version) {
         let hint = if v.version < OLDEST_READ_VERSION {
-            " (format 4 packs each viewpoint's tiles into one object and lists them in a \
-             column-wise binary table with 32-bit range checksums): rebuild the database with `railview \
-             build` (it resumes from its work directory)"
+            " (format 6 codes textures and meshes several times smaller and stores each \
+             payload once): rebuild the database with `railview build` (it resumes from its \
+             work directory and re-encodes only)"
         } else {
             ""
+        };
+        let reads = if OLDEST_READ_VERSION == TOP_VERSION {
+            format!("format {TOP_VERSION}")
+        } else {
+            format!("formats {OLDEST_READ_VERSION} to {TOP_VERSION}")
         };
         return Err(DbError::format(
             path,
             format!(
-                "manifest format {}{hint}; this build reads formats {OLDEST_READ_VERSION} to {TOP_VERSION}",
+                "manifest format {}{hint}; this build reads {reads}",
                 v.version
             ),
         ));

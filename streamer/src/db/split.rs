@@ -28,12 +28,14 @@ use tracks::SlabRange;
 /// Version of the split manifest written by this crate (3: binary tables, one pack object
 /// per viewpoint, 64-bit range checksums; 4: column-wise tables, 32-bit range checksums;
 /// 5: the layout of 4, and every PTM's colour is 0 wherever its alpha is 0, see
-/// [`super::clear_masked`]).
-pub const TOP_VERSION: u32 = 5;
+/// [`super::clear_masked`]; 6: PTMs of format 3 (range-coded levels, a compact header),
+/// meshes of format 2 (range-coded, depth within a parallax bound), every payload stored
+/// once — a table may name ranges of earlier viewpoints' packs).
+pub const TOP_VERSION: u32 = 6;
 
-/// The oldest format this crate reads (format 4 differs from 5 only in what its PTMs hold
-/// under alpha 0, which [`TopManifest::coarse_levels_premultiplied`] tells readers).
-pub const OLDEST_READ_VERSION: u32 = 4;
+/// The oldest format this crate reads: the PTM and mesh formats of format 6 are new, so
+/// older databases are refused with a request to rebuild them.
+pub const OLDEST_READ_VERSION: u32 = 6;
 
 pub use super::table::{
     decode_ach, decode_table, encode_ach, encode_table, TableError, MAX_TABLE_BYTES,
@@ -191,17 +193,34 @@ pub fn split(m: &Manifest) -> Result<(TopManifest, TableBytes), TableError> {
         .iter()
         .map(|t| {
             let mut bytes = Vec::new();
+            // Each viewpoint's own pack: the one object its payloads lie in that no earlier
+            // viewpoint owns (payloads lie in their viewpoint's pack or an earlier one).
+            let mut owned: std::collections::HashSet<&str> = std::collections::HashSet::new();
             let viewpoints = t
                 .viewpoints
                 .iter()
                 .map(|v| {
-                    let pack = v
+                    let objects = v
                         .background
                         .iter()
-                        .map(|b| &b.ptm)
-                        .chain(v.tiles.iter().filter_map(|t| t.ptm.as_ref()))
-                        .map(|p| &p.object)
-                        .next();
+                        .map(|b| &b.ptm.object)
+                        .chain(
+                            v.tiles
+                                .iter()
+                                .filter_map(|t| t.ptm.as_ref())
+                                .map(|p| &p.object),
+                        )
+                        .chain(v.tiles.iter().filter_map(|t| t.mesh_at()).map(|(o, _)| o));
+                    let mut pack = None;
+                    for o in objects {
+                        if !owned.contains(o.hash.as_str()) {
+                            pack = Some(o);
+                            break;
+                        }
+                    }
+                    if let Some(p) = pack {
+                        owned.insert(p.hash.as_str());
+                    }
                     let table = ViewTable {
                         viewpoint: v.index,
                         background: v.background.clone(),

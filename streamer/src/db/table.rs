@@ -3,10 +3,11 @@
 //! segments starting there, which only clients that rank tiles by ACH fetch.
 //!
 //! ```text
-//! "RVTB" u8 version=4 u8 coding (0 plain, 1 gzip of the body)    header, never compressed
+//! "RVTB" u8 version=5 u8 coding (0 plain, 1 gzip of the body)    header, never compressed
 //! body:
 //!   varint viewpoint
 //!   u8 has_pack [32 B pack BLAKE3, varint pack size]             the pack, named once
+//!   varint k, k × (32 B BLAKE3, varint size)                     earlier packs it points into
 //!   u8 checksum bytes (4 or 8), varint grid side n
 //!   the background tiles, then the tiles, each list as:
 //!   u8 depth coding (0 f32, 1 f16), u8 position coding (0 ascending gaps, 1 explicit),
@@ -19,6 +20,10 @@
 //!     PTM shapes  per PTM tile: varint width, varint height, u8 channels, varint ranges,
 //!                 unless flag 8: per range varint level, varint width, varint height
 //!     lengths     per tile: varint mesh length, varint length of each PTM range
+//!     sources     per tile: varint where its mesh lies, then where its PTM's ranges lie
+//!                 (one after another): 0 next in the pack, 1 an earlier range of the pack,
+//!                 2 + i the i-th earlier pack
+//!     offsets     per payload whose source is not 0: varint offset of its first byte
 //!     checksums   per tile: mesh, then each PTM range
 //!   (a background tile is a kept PTM without mesh in slab 0 at infinite depth)
 //!
@@ -31,10 +36,10 @@
 //!
 //! Integers are LEB128 varints, floats little-endian. Columns rather than records: gzip finds
 //! the repeats of a column (flags, shapes, depths of neighbouring tiles) where interleaved
-//! fields hide them. Offsets are not stored: a viewpoint's pack holds its background tiles'
-//! payloads, then its tiles' (each tile's mesh, then its PTM ranges) in table order, so every
-//! offset is the sum of the lengths before it, and the lengths must add up to the pack's
-//! size. The usual shape of a PTM's ranges (flag 8) is ranges of consecutive levels ending at
+//! fields hide them. Offsets are stored only for payloads stored once elsewhere (see
+//! [`super::pack`]): a viewpoint's pack holds its background tiles' payloads, then its
+//! tiles' (each tile's mesh, then its PTM ranges) in table order, so every other offset is
+//! the sum of the lengths before it, and those lengths must add up to the pack's size. The usual shape of a PTM's ranges (flag 8) is ranges of consecutive levels ending at
 //! level 0, each `level_dims` of the PTM's size, so neither levels nor sizes are written.
 //! Checksums are the first 32 (or 64) bits of the range's BLAKE3 ([`super::range_hash32`]).
 //! Depths are stored as f16 when every finite depth of the list stays finite and
@@ -52,8 +57,10 @@ use super::split::ViewTable;
 
 /// First bytes of every table.
 pub const MAGIC: &[u8; 4] = b"RVTB";
-/// Table format written and read by this crate.
-pub const TABLE_VERSION: u8 = 4;
+/// Table format written and read by this crate (5: payloads may lie in earlier packs).
+pub const TABLE_VERSION: u8 = 5;
+/// Most earlier packs a table may point into.
+pub const MAX_OTHER_PACKS: usize = 1 << 16;
 /// Longest decoded table body accepted (a table of a face-4096 viewpoint is far below it).
 pub const MAX_TABLE_BYTES: u64 = 64 << 20;
 
@@ -211,11 +218,53 @@ struct Enc<'a> {
     n: u64,
     hash_bytes: usize,
     pack: Option<&'a ObjectRef>,
+    /// Earlier packs the tiles point into.
+    others: Vec<&'a ObjectRef>,
     /// Bytes of the pack taken by the payloads written so far.
     cursor: u64,
 }
 
 impl Enc<'_> {
+    /// The source code (see the module docs) and explicit offset of a payload of `len`
+    /// bytes at `offset` of `o`; advances the pack's cursor for the next payload in it.
+    fn source(
+        &mut self,
+        o: &ObjectRef,
+        offset: u64,
+        len: u64,
+        what: impl Fn() -> String,
+    ) -> Result<(u64, Option<u64>), TableError> {
+        let end = offset.checked_add(len);
+        if Some(o) == self.pack {
+            if offset == self.cursor {
+                self.cursor += len;
+                return Ok((0, None));
+            }
+            if end.is_some_and(|e| e <= self.cursor) {
+                return Ok((1, Some(offset)));
+            }
+            return Err(TableError::Layout(format!(
+                "{}: at offset {offset}, expected {} (payloads in table order)",
+                what(),
+                self.cursor
+            )));
+        }
+        match self.others.iter().position(|&x| x == o) {
+            Some(i) if end.is_some_and(|e| e <= o.size) => Ok((2 + i as u64, Some(offset))),
+            Some(_) => Err(TableError::Layout(format!(
+                "{}: range {offset}+{len} outside object {} of {} bytes",
+                what(),
+                o.hash,
+                o.size
+            ))),
+            None => Err(TableError::Layout(format!(
+                "{}: in object {}, neither the viewpoint's pack nor one the table names",
+                what(),
+                o.hash
+            ))),
+        }
+    }
+
     fn index(&self, slab: u32, t: TileId) -> Result<u64, TableError> {
         tile_index(self.n, slab, t).ok_or_else(|| {
             TableError::Layout(format!(
@@ -267,15 +316,9 @@ impl Enc<'_> {
                 b.push(if t.kept { KEPT } else { 0 });
                 continue;
             };
-            if Some(&ptm.object) != self.pack {
+            if t.mesh.is_some() && t.mesh_range.is_none() {
                 return Err(TableError::Layout(format!(
-                    "{what} {i}: PTM in object {}, not in the viewpoint's pack",
-                    ptm.object.hash
-                )));
-            }
-            if t.mesh.is_some() {
-                return Err(TableError::Layout(format!(
-                    "{what} {i}: mesh is an object of its own, not a range of the pack"
+                    "{what} {i}: mesh is an object of its own, not a range of a pack"
                 )));
             }
             let mut flags = HAS_PTM;
@@ -321,27 +364,45 @@ impl Enc<'_> {
                 }
             }
         }
-        // Lengths, in pack order.
-        let cursor = &mut self.cursor;
-        for (i, t) in tiles.iter().enumerate() {
-            let mut take = |offset: u64, len: u64, part: &str| {
-                if offset != *cursor {
-                    return Err(TableError::Layout(format!(
-                        "{what} {i}: {part} at offset {offset}, expected {cursor} (payloads in table order)"
-                    )));
-                }
-                *cursor += len;
-                Ok(())
-            };
+        // Lengths.
+        for t in tiles {
             if let Some(m) = &t.mesh_range {
-                take(m.offset, m.len, "mesh")?;
-                put_varint(b, m.len);
+                put_varint(&mut self.b, m.len);
             }
             for l in t.ptm.iter().flat_map(|p| &p.levels) {
-                take(l.offset, l.len, "PTM range")?;
-                put_varint(b, l.len);
+                put_varint(&mut self.b, l.len);
             }
         }
+        // Sources and offsets: the pack in table order, or where a payload already lies.
+        let mut offsets = Vec::new();
+        for (i, t) in tiles.iter().enumerate() {
+            if let Some((o, Some(m))) = t.mesh_at() {
+                let (code, at) = self.source(o, m.offset, m.len, || format!("{what} {i}: mesh"))?;
+                put_varint(&mut self.b, code);
+                offsets.extend(at);
+            }
+            if let Some(p) = &t.ptm {
+                let first = p.levels.first().map_or(0, |l| l.offset);
+                let mut end = first;
+                for l in &p.levels {
+                    if l.offset != end {
+                        return Err(TableError::Layout(format!(
+                            "{what} {i}: PTM ranges not one after another (at {}, expected {end})",
+                            l.offset
+                        )));
+                    }
+                    end += l.len;
+                }
+                let (code, at) =
+                    self.source(&p.object, first, end - first, || format!("{what} {i}: PTM"))?;
+                put_varint(&mut self.b, code);
+                offsets.extend(at);
+            }
+        }
+        for o in offsets {
+            put_varint(&mut self.b, o);
+        }
+        let b = &mut self.b;
         // Checksums.
         for t in tiles {
             if let Some(m) = &t.mesh_range {
@@ -355,10 +416,12 @@ impl Enc<'_> {
     }
 }
 
-/// The bytes of a viewpoint's table. Every background tile and every tile with a PTM must
-/// have its payloads in `pack` (its `ptm.object`) in table order — the background tiles' PTM
-/// ranges, then each tile's mesh range and PTM ranges — from offset 0 up to the pack's size; a
-/// tile without a PTM carries no payload. Checksums must all be 8 or all be 16 hex digits.
+/// The bytes of a viewpoint's table. The payloads in `pack` lie in table order — the
+/// background tiles' PTM ranges, then each tile's mesh range and PTM ranges — from offset 0
+/// up to the pack's size, except those that point back at an earlier range of it; any other
+/// payload lies in another object (an earlier viewpoint's pack), which the table names. A
+/// PTM's ranges lie one after another; a tile without a PTM carries no payload. Checksums
+/// must all be 8 or all be 16 hex digits.
 pub fn encode_table(table: &ViewTable, pack: Option<&ObjectRef>) -> Result<Vec<u8>, TableError> {
     let background: Vec<TileEntry> = table.background.iter().map(background_entry).collect();
     let tiles = &table.tiles;
@@ -392,11 +455,32 @@ pub fn encode_table(table: &ViewTable, pack: Option<&ObjectRef>) -> Result<Vec<u
         .map(|t| t.tx.max(t.ty) as u64 + 1)
         .max()
         .unwrap_or(0);
+    // Earlier packs, in the order the tiles first point into them.
+    let mut others: Vec<&ObjectRef> = Vec::new();
+    for t in background.iter().chain(tiles) {
+        let objects = t
+            .mesh_at()
+            .map(|(o, _)| o)
+            .into_iter()
+            .chain(t.ptm.as_ref().map(|p| &p.object));
+        for o in objects {
+            if Some(o) != pack && !others.contains(&o) {
+                others.push(o);
+            }
+        }
+    }
+    if others.len() > MAX_OTHER_PACKS {
+        return Err(TableError::Layout(format!(
+            "{} earlier packs (at most {MAX_OTHER_PACKS})",
+            others.len()
+        )));
+    }
     let mut e = Enc {
         b: Vec::with_capacity(64 + (background.len() + tiles.len()) * 24),
         n,
         hash_bytes,
         pack,
+        others: Vec::new(),
         cursor: 0,
     };
     put_varint(&mut e.b, table.viewpoint as u64);
@@ -408,6 +492,12 @@ pub fn encode_table(table: &ViewTable, pack: Option<&ObjectRef>) -> Result<Vec<u
         }
         None => e.b.push(0),
     }
+    put_varint(&mut e.b, others.len() as u64);
+    for o in &others {
+        put_hash(&mut e.b, &o.hash, 32, "earlier pack hash")?;
+        put_varint(&mut e.b, o.size);
+    }
+    e.others = others;
     e.b.push(hash_bytes as u8);
     put_varint(&mut e.b, n);
     e.tiles(&background, "background tile")?;
@@ -530,10 +620,66 @@ struct Dec {
     n: u64,
     hash_bytes: usize,
     pack: Option<ObjectRef>,
+    /// Earlier packs the table names.
+    others: Vec<ObjectRef>,
     cursor: u64,
 }
 
 impl Dec {
+    /// The object and offset of a payload of `len` bytes from its source `code` (checked
+    /// against the table's objects): the next bytes of the pack, or an offset read from the
+    /// offsets column, inside the pack's bytes so far or another object.
+    fn place(
+        &mut self,
+        r: &mut Reader,
+        code: u64,
+        len: u64,
+        what: &'static str,
+    ) -> Result<(ObjectRef, u64), TableError> {
+        let pack = self.pack.clone().unwrap_or(ObjectRef {
+            hash: String::new(),
+            size: 0,
+        });
+        if code == 0 {
+            let offset = self.cursor;
+            self.cursor = offset
+                .checked_add(len)
+                .ok_or_else(|| r.invalid(what, r.at, "lengths overflow"))?;
+            return Ok((pack, offset));
+        }
+        let at = r.at;
+        let offset = r.varint("payload offset")?;
+        let end = offset
+            .checked_add(len)
+            .ok_or_else(|| r.invalid("payload offset", at, "offset overflows"))?;
+        if code == 1 {
+            // Only an earlier range of the pack; the pack's size is checked at the end.
+            if end > self.cursor {
+                return Err(r.invalid(
+                    "payload offset",
+                    at,
+                    format!(
+                        "{what} at {offset}+{len}, beyond the {} bytes of the pack before it",
+                        self.cursor
+                    ),
+                ));
+            }
+            return Ok((pack, offset));
+        }
+        let o = &self.others[(code - 2) as usize];
+        if end > o.size {
+            return Err(r.invalid(
+                "payload offset",
+                at,
+                format!(
+                    "{what} at {offset}+{len}, outside an earlier pack of {} bytes",
+                    o.size
+                ),
+            ));
+        }
+        Ok((o.clone(), offset))
+    }
+
     fn position(
         &self,
         r: &Reader,
@@ -608,11 +754,11 @@ impl Dec {
             {
                 return Err(r.invalid("tile flags", at, format!("{f:#04x}")));
             }
-            if f & HAS_PTM != 0 && self.pack.is_none() {
+            if f & HAS_PTM != 0 && self.pack.is_none() && self.others.is_empty() {
                 return Err(r.invalid(
                     "tile flags",
                     at,
-                    "a tile with a PTM in a table without a pack",
+                    "a tile with a PTM in a table that names no pack",
                 ));
             }
             t.kept = f & KEPT != 0;
@@ -630,10 +776,15 @@ impl Dec {
                 t.depth_max = r.f32("depth_max")? as f64;
             }
         }
+        let placeholder = ObjectRef {
+            hash: String::new(),
+            size: 0,
+        };
         for (t, &f) in tiles.iter_mut().zip(&flags) {
-            let Some(pack) = self.pack.as_ref().filter(|_| f & HAS_PTM != 0) else {
+            if f & HAS_PTM == 0 {
                 continue;
-            };
+            }
+            let pack = &placeholder;
             let width = r.u32("PTM width")?;
             let height = r.u32("PTM height")?;
             let channels = r.u8("PTM channels")?;
@@ -672,28 +823,67 @@ impl Dec {
                 levels,
             });
         }
-        let cursor = &mut self.cursor;
-        let mut place = |r: &mut Reader, what: &'static str| {
-            let len = r.varint(what)?;
-            let offset = *cursor;
-            *cursor = cursor
-                .checked_add(len)
-                .ok_or_else(|| r.invalid(what, r.at, "lengths overflow"))?;
-            Ok::<(u64, u64), TableError>((offset, len))
-        };
+        // Lengths.
         for (t, &f) in tiles.iter_mut().zip(&flags) {
             if f & HAS_MESH != 0 {
-                let (offset, len) = place(r, "mesh length")?;
                 t.mesh_range = Some(PackRange {
-                    offset,
-                    len,
+                    offset: 0,
+                    len: r.varint("mesh length")?,
                     hash: String::new(),
                 });
             }
             if let Some(p) = &mut t.ptm {
                 for l in &mut p.levels {
-                    (l.offset, l.len) = place(r, "PTM range length")?;
+                    l.len = r.varint("PTM range length")?;
                 }
+            }
+        }
+        // Sources, then the offsets of those not next in the pack.
+        let mut sources = Vec::new();
+        for t in &tiles {
+            for _ in 0..usize::from(t.mesh_range.is_some()) + usize::from(t.ptm.is_some()) {
+                let at = r.at;
+                let code = r.varint("payload source")?;
+                if code >= 2 + self.others.len() as u64 || (code < 2 && self.pack.is_none()) {
+                    return Err(r.invalid(
+                        "payload source",
+                        at,
+                        format!(
+                            "{code}, but the table names {} earlier packs",
+                            self.others.len()
+                        ),
+                    ));
+                }
+                sources.push(code);
+            }
+        }
+        let mut sources = sources.into_iter();
+        for t in &mut tiles {
+            let mesh_len = t.mesh_range.as_ref().map(|m| m.len);
+            if let Some(len) = mesh_len {
+                let code = sources.next().unwrap_or(0);
+                let (object, offset) = self.place(r, code, len, "mesh")?;
+                let m = t.mesh_range.as_mut().expect("mesh present");
+                m.offset = offset;
+                t.mesh = Some(object);
+            }
+            if let Some(p) = &mut t.ptm {
+                let len = p
+                    .levels
+                    .iter()
+                    .try_fold(0u64, |a, l| a.checked_add(l.len))
+                    .ok_or_else(|| r.invalid("PTM range length", r.at, "lengths overflow"))?;
+                let code = sources.next().unwrap_or(0);
+                let (object, mut offset) = self.place(r, code, len, "PTM")?;
+                for l in &mut p.levels {
+                    l.offset = offset;
+                    offset += l.len;
+                }
+                p.object = object;
+            }
+            // A mesh in the PTM's object is named by the PTM alone.
+            if t.mesh.is_some() && t.mesh.as_ref() == t.ptm.as_ref().map(|p| &p.object) {
+                t.mesh = None;
             }
         }
         for t in &mut tiles {
@@ -723,6 +913,22 @@ pub fn decode_table(bytes: &[u8], want: usize) -> Result<ViewTable, TableError> 
         }),
         f => return Err(r.invalid("pack flag", r.at - 1, format!("{f} (0 or 1)"))),
     };
+    // Each earlier pack: a 32-byte hash and a varint size.
+    let count = r.count("earlier pack count", 33)?;
+    if count > MAX_OTHER_PACKS {
+        return Err(r.invalid(
+            "earlier pack count",
+            r.at,
+            format!("{count} (at most {MAX_OTHER_PACKS})"),
+        ));
+    }
+    let mut others = Vec::with_capacity(count);
+    for _ in 0..count {
+        others.push(ObjectRef {
+            hash: r.hex(32, "earlier pack hash")?,
+            size: r.varint("earlier pack size")?,
+        });
+    }
     let hash_bytes = match r.u8("checksum bytes")? {
         c @ (4 | 8) => c as usize,
         c => return Err(r.invalid("checksum bytes", r.at - 1, format!("{c} (4 or 8)"))),
@@ -732,6 +938,7 @@ pub fn decode_table(bytes: &[u8], want: usize) -> Result<ViewTable, TableError> 
         n,
         hash_bytes,
         pack,
+        others,
         cursor: 0,
     };
     let at = r.at;
@@ -896,6 +1103,7 @@ pub fn decode_ach(bytes: &[u8], want: usize) -> Result<Vec<SegmentEntry>, TableE
         n: r.varint("grid side")?,
         hash_bytes: 4,
         pack: None,
+        others: Vec::new(),
         cursor: 0,
     };
     let ns = r.count("segment count", 2)?;
@@ -1015,6 +1223,72 @@ mod tests {
         pack
     }
 
+    /// [`lay_out`] with some payloads elsewhere: by `choices` per tile (mesh, then PTM) in the
+    /// pack in order, pointing back at the pack's first bytes, or in one of two earlier packs.
+    /// A mesh names its object only when the PTM's object is another one.
+    fn lay_out_shared(tiles: &mut [TileEntry], choices: &[u8], seed: u64) -> Option<ObjectRef> {
+        let others = [1u64, 2].map(|k| ObjectRef {
+            hash: hex(64, seed.wrapping_add(k)),
+            size: 1 << 30,
+        });
+        let own = ObjectRef {
+            hash: hex(64, seed),
+            size: 0,
+        };
+        let mut cursor = 0;
+        let mut place = |len: u64, c: u8| -> (ObjectRef, u64) {
+            match c % 4 {
+                2 => (others[0].clone(), u64::from(c) * 1000),
+                3 if len <= cursor => (own.clone(), 0),
+                3 => (others[1].clone(), 7),
+                _ => {
+                    cursor += len;
+                    (own.clone(), cursor - len)
+                }
+            }
+        };
+        for (t, &c) in tiles.iter_mut().zip(choices.iter().cycle()) {
+            let mut mesh_obj = None;
+            if let Some(m) = &mut t.mesh_range {
+                let (o, at) = place(m.len, c);
+                m.offset = at;
+                mesh_obj = Some(o);
+            }
+            if let Some(p) = &mut t.ptm {
+                let len: u64 = p.levels.iter().map(|l| l.len).sum();
+                let (o, mut at) = place(len, c / 4);
+                for l in &mut p.levels {
+                    l.offset = at;
+                    at += l.len;
+                }
+                p.object = o;
+            }
+            t.mesh = mesh_obj.filter(|o| Some(o) != t.ptm.as_ref().map(|p| &p.object));
+        }
+        let used = tiles.iter().any(|t| {
+            t.ptm.as_ref().is_some_and(|p| p.object == own)
+                || t.mesh_at().is_some_and(|(o, _)| *o == own)
+        });
+        let pack = used.then(|| ObjectRef {
+            hash: own.hash.clone(),
+            size: cursor,
+        });
+        for t in tiles.iter_mut() {
+            for o in t
+                .ptm
+                .as_mut()
+                .map(|p| &mut p.object)
+                .into_iter()
+                .chain(t.mesh.as_mut())
+            {
+                if *o == own {
+                    *o = pack.clone().unwrap();
+                }
+            }
+        }
+        pack
+    }
+
     /// What a table keeps of a tile: depths as f16 bounds when all fit, else f32; ACH as f32.
     fn as_stored(mut t: ViewTable) -> ViewTable {
         let f16 = |x: f64, up: bool| f16_bound(x, up).map(|b| half::f16::from_bits(b).to_f64());
@@ -1129,6 +1403,70 @@ mod tests {
             prop_assert!(matches!(decode_ach(&bytes, viewpoint), Err(TableError::AchMagic)));
         }
 
+        /// Payloads stored once: some in earlier packs at any offset, some pointing back at an
+        /// earlier range of the pack; the rest in the pack in table order.
+        #[test]
+        fn payloads_stored_elsewhere_round_trip(tiles in proptest::collection::vec(tile(), 0..30),
+                                                 choices in proptest::collection::vec(0u8..16, 30),
+                                                 seed in any::<u64>()) {
+            let (mut table, _) = sample(9, tiles, seed);
+            let pack = lay_out_shared(&mut table.tiles, &choices, seed);
+            // Background tiles stay in the pack, first.
+            let mut all: Vec<TileEntry> = table.background.iter().map(background_entry).collect();
+            let mut cursor = 0;
+            for t in &mut all {
+                let p = t.ptm.as_mut().unwrap();
+                for l in &mut p.levels {
+                    l.offset = cursor;
+                    cursor += l.len;
+                }
+            }
+            // Shift the tiles' own-pack payloads past the background.
+            let own = pack.as_ref().map(|p| p.hash.clone());
+            let mut size = pack.as_ref().map_or(0, |p| p.size) + cursor;
+            let any_background = !all.is_empty();
+            if own.is_none() && any_background {
+                size = cursor;
+            }
+            let pack = (own.is_some() || any_background).then(|| ObjectRef {
+                hash: own.clone().unwrap_or_else(|| hex(64, seed.wrapping_add(7))),
+                size,
+            });
+            for t in &mut table.tiles {
+                let in_pack = |o: &ObjectRef| Some(&o.hash) == own.as_ref();
+                if let Some(p) = &mut t.ptm {
+                    if in_pack(&p.object) {
+                        for l in &mut p.levels {
+                            l.offset += cursor;
+                        }
+                    }
+                }
+                let mesh_in_pack = t.mesh_at().is_some_and(|(o, _)| in_pack(o));
+                if let (true, Some(m)) = (mesh_in_pack, &mut t.mesh_range) {
+                    m.offset += cursor;
+                }
+                let objects = t.ptm.as_mut().map(|p| &mut p.object).into_iter().chain(t.mesh.as_mut());
+                for o in objects {
+                    if in_pack(o) {
+                        *o = pack.clone().unwrap();
+                    }
+                }
+            }
+            table.background = all
+                .into_iter()
+                .map(|t| BackgroundTile {
+                    tile: t.tile,
+                    ptm: PtmRef {
+                        object: pack.clone().unwrap(),
+                        ..t.ptm.unwrap()
+                    },
+                })
+                .collect();
+            let bytes = encode_table(&table, pack.as_ref()).unwrap();
+            let got = decode_table(&bytes, 9).unwrap();
+            prop_assert_eq!(&got, &as_stored(table.clone()));
+        }
+
         /// Tiles in grid order (as `railview build` writes them) take the gap coding of
         /// positions; checksums of 32 bits; depths beyond f16 fall back to f32.
         #[test]
@@ -1172,7 +1510,7 @@ mod tests {
         #[test]
         fn garbage_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
             let _ = decode_table(&bytes, 0);
-            let mut with_header = b"RVTB\x04\x00".to_vec();
+            let mut with_header = b"RVTB\x05\x00".to_vec();
             with_header.extend_from_slice(&bytes);
             let _ = decode_table(&with_header, 0);
             let _ = decode_ach(&bytes, 0);
@@ -1230,6 +1568,52 @@ mod tests {
         encode_table(&table, pack.as_ref()).unwrap()
     }
 
+    /// The long fuzz run of the table decoder (tables whose payloads lie in the pack, earlier
+    /// in it, or in earlier packs; damaged, cut or garbage):
+    /// `TABLE_FUZZ_CASES=1000000 cargo test --release -p streamer table_long_fuzz -- --ignored`.
+    #[test]
+    #[ignore = "long fuzz run; set TABLE_FUZZ_CASES"]
+    fn table_long_fuzz() {
+        use proptest::test_runner::{Config, TestRunner};
+        let cases = std::env::var("TABLE_FUZZ_CASES")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(20_000);
+        let mut runner = TestRunner::new(Config {
+            cases,
+            failure_persistence: None,
+            ..Config::default()
+        });
+        let strategy = (
+            proptest::collection::vec(tile(), 0..10),
+            proptest::collection::vec(0u8..16, 10),
+            any::<u64>(),
+            proptest::collection::vec((any::<usize>(), any::<u8>()), 0..4),
+            any::<usize>(),
+            proptest::collection::vec(any::<u8>(), 0..64),
+        );
+        runner
+            .run(&strategy, |(tiles, choices, seed, flips, cut, junk)| {
+                let (mut table, _) = sample(4, tiles, seed);
+                table.background.clear();
+                let pack = lay_out_shared(&mut table.tiles, &choices, seed);
+                let bytes = encode_table(&table, pack.as_ref()).unwrap();
+                prop_assert_eq!(decode_table(&bytes, 4).unwrap(), as_stored(table));
+                let mut damaged = bytes.clone();
+                for (at, x) in flips {
+                    let i = at % damaged.len();
+                    damaged[i] ^= x.max(1);
+                }
+                damaged.truncate(cut % (damaged.len() + 1));
+                let _ = decode_table(&damaged, 4);
+                let mut garbage = b"RVTB\x05\x00".to_vec();
+                garbage.extend_from_slice(&junk);
+                let _ = decode_table(&garbage, 0);
+                Ok(())
+            })
+            .unwrap();
+    }
+
     #[test]
     fn named_bad_inputs_give_named_errors() {
         assert!(matches!(decode_table(b"", 0), Err(TableError::Magic)));
@@ -1242,17 +1626,17 @@ mod tests {
             Err(TableError::Version { got: 2 })
         ));
         assert!(matches!(
-            decode_table(b"RVTB\x04\x07xx", 0),
+            decode_table(b"RVTB\x05\x07xx", 0),
             Err(TableError::Coding(7))
         ));
         assert!(matches!(
-            decode_table(b"RVTB\x04\x00", 0),
+            decode_table(b"RVTB\x05\x00", 0),
             Err(TableError::Truncated { .. })
         ));
         // A varint that never ends.
         assert!(matches!(
             decode_table(
-                b"RVTB\x04\x00\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff",
+                b"RVTB\x05\x00\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff",
                 0
             ),
             Err(TableError::Invalid {
@@ -1261,7 +1645,7 @@ mod tests {
             })
         ));
         // A tile count far beyond the bytes that follow: refused before any allocation.
-        let mut b = b"RVTB\x04\x00\x00\x00\x04\x00\x00\x00".to_vec();
+        let mut b = b"RVTB\x05\x00\x00\x00\x00\x04\x00\x00\x00".to_vec();
         b.extend_from_slice(&[0xff, 0xff, 0xff, 0xff, 0x0f]);
         assert!(matches!(
             decode_table(&b, 0),
@@ -1328,7 +1712,7 @@ mod tests {
     #[test]
     fn a_huge_table_is_refused_within_the_limit() {
         let zeros = vec![0u8; (MAX_TABLE_BYTES + 10) as usize];
-        let mut b = b"RVTB\x04\x01".to_vec();
+        let mut b = b"RVTB\x05\x01".to_vec();
         b.extend_from_slice(&crate::db::gzip(&zeros).unwrap());
         assert!(matches!(
             decode_table(&b, 0),

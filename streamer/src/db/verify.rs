@@ -35,6 +35,8 @@ pub struct Report {
     pub tables_checked: usize,
     /// PTMs decoded to their finest level ([`VerifyOptions::decode`]; 0 otherwise).
     pub ptms_decoded: usize,
+    /// Meshes decoded ([`VerifyOptions::decode`]; 0 otherwise).
+    pub meshes_decoded: usize,
     /// Damage: the database is intact only when this is empty.
     pub problems: Vec<Problem>,
     /// Harmless findings (unreferenced objects, files that are not part of a database).
@@ -56,10 +58,10 @@ impl Report {
 /// What [`verify_with`] checks beyond the files.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct VerifyOptions {
-    /// Decode every PTM to its finest level (the hashes say the bytes are the ones written,
-    /// not that they decode), and in a format-5 database check its rule: colour 0 under
-    /// every texel with alpha 0 ([`super::clear_masked`]; readers divide coarse levels by
-    /// their alpha).
+    /// Decode every PTM to its finest level and every mesh (the hashes say the bytes are the
+    /// ones written, not that they decode), and check the rule of formats 5 on: colour 0
+    /// under every texel with alpha 0 ([`super::clear_masked`]; readers divide coarse levels
+    /// by their alpha).
     pub decode: bool,
     /// Remove the stray temporary files found ([`Report::stray`]).
     pub remove_temp: bool,
@@ -228,11 +230,16 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
                     obj.hash, e.0, obj.size
                 ));
             }
+            // A payload stored once is checked once, however many tiles point at it.
             if let Some(p) = ptm {
-                e.1.push(p);
+                if !e.1.iter().any(|q| q.levels == p.levels) {
+                    e.1.push(p);
+                }
             }
             if let Some(r) = mesh {
-                e.2.push(r);
+                if !e.2.contains(&r) {
+                    e.2.push(r);
+                }
             }
         });
     }
@@ -322,7 +329,11 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
                                 }
                             }
                             for r in meshes {
-                                check_mesh_range(&path, &bytes, r, &mut report);
+                                if check_mesh_range(&path, &bytes, r, &mut report)
+                                    && decode.is_some()
+                                {
+                                    decode_mesh_range(&path, &bytes, r, &mut report);
+                                }
                             }
                         }
                     }
@@ -564,8 +575,21 @@ pub(super) fn colour_under_empty_texels(rgba: &[u8]) -> usize {
         .count()
 }
 
-/// A mesh's range inside its pack must lie in the file and match its checksum.
-fn check_mesh_range(path: &Path, bytes: &[u8], r: &PackRange, report: &mut Report) {
+/// Decodes a mesh whose range was checked.
+fn decode_mesh_range(path: &Path, bytes: &[u8], r: &PackRange, report: &mut Report) {
+    let b = &bytes[r.offset as usize..(r.offset + r.len) as usize];
+    match super::mesh::decode_mesh(b) {
+        Ok(_) => report.meshes_decoded += 1,
+        Err(e) => report.problems.push(Problem {
+            path: path.to_path_buf(),
+            what: format!("mesh at bytes {}+{} does not decode: {e}", r.offset, r.len),
+        }),
+    }
+}
+
+/// A mesh's range inside its pack must lie in the file and match its checksum (true when it
+/// does).
+fn check_mesh_range(path: &Path, bytes: &[u8], r: &PackRange, report: &mut Report) -> bool {
     let what = match r
         .offset
         .checked_add(r.len)
@@ -580,13 +604,14 @@ fn check_mesh_range(path: &Path, bytes: &[u8], r: &PackRange, report: &mut Repor
         }
         Some(_) => {
             report.level_ranges_checked += 1;
-            return;
+            return true;
         }
     };
     report.problems.push(Problem {
         path: path.to_path_buf(),
         what,
     });
+    false
 }
 
 /// Reads, hash-checks and decodes one table: its path and the table or what is wrong.
@@ -656,10 +681,10 @@ fn for_each_object<'m>(
             }
             for tile in &v.tiles {
                 if let Some(p) = &tile.ptm {
-                    f(&p.object, Some(p), tile.mesh_range.as_ref());
+                    f(&p.object, Some(p), None);
                 }
-                if let Some(mesh) = &tile.mesh {
-                    f(mesh, None, None);
+                if let Some((o, r)) = tile.mesh_at() {
+                    f(o, None, r);
                 }
             }
         }

@@ -4,10 +4,13 @@
 
 use std::borrow::Cow;
 
-use super::encode::Method;
+use super::arith;
+use super::encode::{Method, MAX_NEAR};
 use super::layout::{is_identity, merge, mode_allowed};
 use super::pyramid::{is_rebuilt, level_dims, max_levels, stored_count};
-use super::{Header, Image, Limits, PtmError, FIXED_HEADER_LEN, FORMAT_VERSION, MAGIC};
+use super::{
+    Header, Image, Limits, PtmError, FIXED_HEADER_LEN, FLAG_COLOUR_WITHIN_ALPHA, FORMAT_VERSION,
+};
 
 /// What the decoder needs next.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -20,8 +23,7 @@ pub enum Status {
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Stage {
-    Fixed,
-    Table,
+    Header,
     Group(usize),
     Done,
     Failed,
@@ -32,8 +34,9 @@ pub struct Decoder {
     limits: Limits,
     stage: Stage,
     pending: Vec<u8>,
-    fixed: Option<(Method, u8, u8, u32, u32)>,
     header: Option<Header>,
+    /// Method 2's models, carried from group to group.
+    models: Option<Box<arith::Models>>,
     /// Decoded levels, lowest stored level first.
     levels: Vec<Image>,
     /// Decompressed group payload, reused from group to group.
@@ -70,17 +73,10 @@ pub fn decode(bytes: &[u8], limits: Limits) -> Result<Image, PtmError> {
 /// further: only the groups up to that level are read and decoded; the bytes after them may
 /// be absent. A level coarser than the lowest stored one gives the lowest stored level.
 pub fn decode_up_to(bytes: &[u8], level: u32, limits: Limits) -> Result<Image, PtmError> {
-    let mut dec = Decoder::new(limits);
-    let fixed = bytes.len().min(FIXED_HEADER_LEN);
-    dec.push(&bytes[..fixed])?;
-    let table_end = dec
-        .fixed
-        .map_or(FIXED_HEADER_LEN, |f| FIXED_HEADER_LEN + 4 * f.2 as usize);
-    dec.push(&bytes[fixed..bytes.len().min(table_end)])?;
-    let Some(h) = dec.header().cloned() else {
+    let Some(h) = parse_header(bytes, &limits)? else {
         return Err(PtmError::Truncated {
             have: bytes.len() as u64,
-            needed: table_end as u64,
+            needed: (bytes.len() + 1).max(FIXED_HEADER_LEN) as u64,
         });
     };
     let groups = (h.levels as u32).saturating_sub(level).max(1) as usize;
@@ -89,8 +85,166 @@ pub fn decode_up_to(bytes: &[u8], level: u32, limits: Limits) -> Result<Image, P
     if have < end {
         return Err(PtmError::Truncated { have, needed: end });
     }
-    dec.push(&bytes[table_end..end as usize])?;
+    let mut dec = Decoder::new(limits);
+    dec.push(&bytes[..end as usize])?;
     Ok(dec.into_finest().expect("groups decoded"))
+}
+
+/// The header at the start of `b`: `None` while incomplete. Every field is checked against
+/// the format and `limits`.
+pub(super) fn parse_header(b: &[u8], limits: &Limits) -> Result<Option<Header>, PtmError> {
+    if b.len() < FIXED_HEADER_LEN {
+        return Ok(None);
+    }
+    if b[0] != FORMAT_VERSION {
+        return Err(PtmError::UnsupportedVersion(b[0]));
+    }
+    let method = Method::from_byte(b[1]).ok_or(PtmError::UnknownMethod(b[1]))?;
+    let bad = |field, value: u64, reason| PtmError::BadHeader {
+        field,
+        value,
+        reason,
+    };
+    let flags = b[2] & !7;
+    let channels = b[2] & 7;
+    let levels = b[3];
+    let near = b[4];
+    if flags & !FLAG_COLOUR_WITHIN_ALPHA != 0 {
+        return Err(bad("flags", flags as u64, "unknown flag bits"));
+    }
+    if !(1..=4).contains(&channels) {
+        return Err(bad("channels", channels as u64, "must be 1 to 4"));
+    }
+    if flags != 0 && (method != Method::Arith || (channels != 2 && channels != 4)) {
+        return Err(bad(
+            "flags",
+            flags as u64,
+            "colour within alpha needs method 2 and an alpha channel",
+        ));
+    }
+    if near > MAX_NEAR || (near > 0 && method != Method::Arith) {
+        return Err(bad(
+            "near",
+            near as u64,
+            "at most 32, and only with method 2",
+        ));
+    }
+    // The varints: width, height and one length per level, each at most 5 bytes; the sizes
+    // are checked as soon as they are read.
+    let mut vals = Vec::with_capacity(2 + levels as usize);
+    let mut at = FIXED_HEADER_LEN;
+    while vals.len() < 2 + levels as usize {
+        let mut v = 0u64;
+        let mut k = 0;
+        loop {
+            let Some(&byte) = b.get(at) else {
+                return Ok(None);
+            };
+            at += 1;
+            v |= ((byte & 0x7f) as u64) << (7 * k);
+            k += 1;
+            if byte & 0x80 == 0 {
+                break;
+            }
+            if k == 5 {
+                return Err(bad("size", v, "varint longer than 5 bytes"));
+            }
+        }
+        if v > u32::MAX as u64 {
+            return Err(bad("size", v, "larger than 32 bits"));
+        }
+        vals.push(v as u32);
+        if vals.len() == 2 {
+            check_sizes(vals[0], vals[1], channels, levels, limits)?;
+        }
+    }
+    let (width, height) = (vals[0], vals[1]);
+    let h = Header {
+        method,
+        channels,
+        colour_within_alpha: flags & FLAG_COLOUR_WITHIN_ALPHA != 0,
+        near,
+        width,
+        height,
+        levels,
+        group_lens: vals[2..].to_vec(),
+        header_len: at,
+    };
+    for (g, &len) in h.group_lens.iter().enumerate() {
+        let plain = plain_len(&h, g);
+        let len = len as u64;
+        let err = |reason| PtmError::GroupLength {
+            group: g,
+            level: h.level_of_group(g),
+            len,
+            reason,
+        };
+        match method {
+            Method::Raw if len != plain => {
+                return Err(err("raw groups hold exactly their level"));
+            }
+            Method::Zstd if len > plain + plain / 128 + 1025 => {
+                return Err(err("larger than zstd can make the level"));
+            }
+            Method::Zstd if len < 2 => return Err(err("no mode byte and zstd frame")),
+            Method::Arith if len > 4 * plain + 1024 => {
+                return Err(err("larger than method 2 makes a level"));
+            }
+            _ => {}
+        }
+    }
+    Ok(Some(h))
+}
+
+/// Width, height and level count against the format and the limits.
+fn check_sizes(
+    width: u32,
+    height: u32,
+    channels: u8,
+    levels: u8,
+    limits: &Limits,
+) -> Result<(), PtmError> {
+    let bad = |field, value: u64, reason| PtmError::BadHeader {
+        field,
+        value,
+        reason,
+    };
+    if width == 0 {
+        return Err(bad("width", 0, "must be positive"));
+    }
+    if height == 0 {
+        return Err(bad("height", 0, "must be positive"));
+    }
+    for (what, v) in [("width", width), ("height", height)] {
+        if v > limits.max_side {
+            return Err(PtmError::LimitsExceeded {
+                what,
+                value: v as u64,
+                limit: limits.max_side as u64,
+            });
+        }
+    }
+    if levels == 0 || levels > max_levels(width, height) {
+        return Err(bad(
+            "levels",
+            levels as u64,
+            "must be 1 to 1 + ceil(log2(max(width, height)))",
+        ));
+    }
+    let decoded: u64 = (0..levels as u32)
+        .map(|l| {
+            let (w, h) = level_dims(width, height, l);
+            w as u64 * h as u64 * channels as u64
+        })
+        .sum();
+    if decoded > limits.max_decoded_bytes {
+        return Err(PtmError::LimitsExceeded {
+            what: "decoded bytes",
+            value: decoded,
+            limit: limits.max_decoded_bytes,
+        });
+    }
+    Ok(())
 }
 
 /// Length of a group payload before compression.
@@ -104,7 +258,7 @@ fn plain_len(h: &Header, g: usize) -> u64 {
         let (pw, ph) = level_dims(h.width, h.height, level + 1);
         let residuals = match h.method {
             Method::Raw => (pw as u64 * ph as u64 * c).div_ceil(4),
-            Method::Zstd => pw as u64 * ph as u64 * c,
+            Method::Zstd | Method::Arith => pw as u64 * ph as u64 * c,
         };
         residuals + stored_count(w, h2) as u64 * c
     }
@@ -114,10 +268,10 @@ impl Decoder {
     pub fn new(limits: Limits) -> Decoder {
         Decoder {
             limits,
-            stage: Stage::Fixed,
+            stage: Stage::Header,
             pending: Vec::new(),
-            fixed: None,
             header: None,
+            models: None,
             levels: Vec::new(),
             scratch: Vec::new(),
             merged: Vec::new(),
@@ -178,8 +332,21 @@ impl Decoder {
                 Stage::Failed => return Err(PtmError::Poisoned),
                 Stage::Done if input.is_empty() => return Ok(Status::Done),
                 Stage::Done => return Err(PtmError::TrailingBytes(input.len() as u64)),
-                Stage::Fixed => FIXED_HEADER_LEN,
-                Stage::Table => 4 * self.fixed.map_or(0, |f| f.2 as usize),
+                Stage::Header => {
+                    // A byte at a time (a header is at most a few hundred bytes), so that no
+                    // byte of group 0 is taken for it.
+                    let Some((&b, rest)) = input.split_first() else {
+                        return Ok(Status::NeedMore);
+                    };
+                    input = rest;
+                    self.pending.push(b);
+                    if let Some(h) = parse_header(&self.pending, &self.limits)? {
+                        self.header = Some(h);
+                        self.pending.clear();
+                        self.stage = Stage::Group(0);
+                    }
+                    continue;
+                }
                 Stage::Group(g) => self.header.as_ref().map_or(0, |h| h.group_lens[g] as usize),
             };
             let chunk: Cow<[u8]> = if self.pending.is_empty() && input.len() >= need {
@@ -195,126 +362,17 @@ impl Decoder {
                 }
                 Cow::Owned(std::mem::take(&mut self.pending))
             };
-            match self.stage {
-                Stage::Fixed => {
-                    self.fixed = Some(self.parse_fixed(&chunk)?);
-                    self.stage = Stage::Table;
-                }
-                Stage::Table => {
-                    let h = self.parse_table(&chunk)?;
-                    self.header = Some(h);
-                    self.stage = Stage::Group(0);
-                }
-                Stage::Group(g) => {
-                    let img = self.decode_group(g, &chunk)?;
-                    self.levels.push(img);
-                    let total = self.header.as_ref().map_or(0, |h| h.levels as usize);
-                    self.stage = if g + 1 == total {
-                        Stage::Done
-                    } else {
-                        Stage::Group(g + 1)
-                    };
-                }
-                Stage::Done | Stage::Failed => unreachable!("handled above"),
+            if let Stage::Group(g) = self.stage {
+                let img = self.decode_group(g, &chunk)?;
+                self.levels.push(img);
+                let total = self.header.as_ref().map_or(0, |h| h.levels as usize);
+                self.stage = if g + 1 == total {
+                    Stage::Done
+                } else {
+                    Stage::Group(g + 1)
+                };
             }
         }
-    }
-
-    fn parse_fixed(&self, b: &[u8]) -> Result<(Method, u8, u8, u32, u32), PtmError> {
-        let magic = [b[0], b[1], b[2], b[3]];
-        if magic != MAGIC {
-            return Err(PtmError::BadMagic(magic));
-        }
-        if b[4] != FORMAT_VERSION {
-            return Err(PtmError::UnsupportedVersion(b[4]));
-        }
-        let method = Method::from_byte(b[5]).ok_or(PtmError::UnknownMethod(b[5]))?;
-        let channels = b[6];
-        let levels = b[7];
-        let width = u32::from_le_bytes([b[8], b[9], b[10], b[11]]);
-        let height = u32::from_le_bytes([b[12], b[13], b[14], b[15]]);
-        let bad = |field, value: u64, reason| PtmError::BadHeader {
-            field,
-            value,
-            reason,
-        };
-        if !(1..=4).contains(&channels) {
-            return Err(bad("channels", channels as u64, "must be 1 to 4"));
-        }
-        if width == 0 {
-            return Err(bad("width", 0, "must be positive"));
-        }
-        if height == 0 {
-            return Err(bad("height", 0, "must be positive"));
-        }
-        for (what, v) in [("width", width), ("height", height)] {
-            if v > self.limits.max_side {
-                return Err(PtmError::LimitsExceeded {
-                    what,
-                    value: v as u64,
-                    limit: self.limits.max_side as u64,
-                });
-            }
-        }
-        if levels == 0 || levels > max_levels(width, height) {
-            return Err(bad(
-                "levels",
-                levels as u64,
-                "must be 1 to 1 + ceil(log2(max(width, height)))",
-            ));
-        }
-        let decoded: u64 = (0..levels as u32)
-            .map(|l| {
-                let (w, h) = level_dims(width, height, l);
-                w as u64 * h as u64 * channels as u64
-            })
-            .sum();
-        if decoded > self.limits.max_decoded_bytes {
-            return Err(PtmError::LimitsExceeded {
-                what: "decoded bytes",
-                value: decoded,
-                limit: self.limits.max_decoded_bytes,
-            });
-        }
-        Ok((method, channels, levels, width, height))
-    }
-
-    fn parse_table(&self, b: &[u8]) -> Result<Header, PtmError> {
-        let (method, channels, levels, width, height) =
-            self.fixed.expect("table follows the fixed header");
-        let group_lens: Vec<u32> = b
-            .chunks_exact(4)
-            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
-        let h = Header {
-            method,
-            channels,
-            width,
-            height,
-            levels,
-            group_lens,
-        };
-        for (g, &len) in h.group_lens.iter().enumerate() {
-            let plain = plain_len(&h, g);
-            let len = len as u64;
-            let err = |reason| PtmError::GroupLength {
-                group: g,
-                level: h.level_of_group(g),
-                len,
-                reason,
-            };
-            match method {
-                Method::Raw if len != plain => {
-                    return Err(err("raw groups hold exactly their level"));
-                }
-                Method::Zstd if len > plain + plain / 128 + 1025 => {
-                    return Err(err("larger than zstd can make the level"));
-                }
-                Method::Zstd if len < 2 => return Err(err("no mode byte and zstd frame")),
-                _ => {}
-            }
-        }
-        Ok(h)
     }
 
     fn decode_group(&mut self, g: usize, payload: &[u8]) -> Result<Image, PtmError> {
@@ -323,8 +381,35 @@ impl Decoder {
         let level = h.level_of_group(g);
         let (w, hh) = level_dims(h.width, h.height, level);
         let expected = plain_len(h, g) as usize;
+        if method == Method::Arith {
+            let params = arith::Params {
+                colour_within_alpha: h.colour_within_alpha,
+                near: h.near,
+                level,
+            };
+            let mut out = vec![0u8; w as usize * hh as usize * c as usize];
+            let models = self
+                .models
+                .get_or_insert_with(|| Box::new(arith::Models::new()));
+            let mut d = crate::entropy::Decoder::new(payload);
+            arith::level(
+                &mut d,
+                models,
+                params,
+                None,
+                if g == 0 { None } else { self.levels.last() },
+                &mut out,
+                (w, hh, c),
+            )?;
+            return Ok(Image {
+                width: w,
+                height: hh,
+                channels: c,
+                data: out,
+            });
+        }
         let plain: Cow<[u8]> = match method {
-            Method::Raw => Cow::Borrowed(payload),
+            Method::Raw | Method::Arith => Cow::Borrowed(payload),
             Method::Zstd => {
                 let zerr = |message: String| PtmError::Compression {
                     group: g,
@@ -398,7 +483,7 @@ fn with_zstd<T>(
 
 fn lowest_from_plain(plain: &[u8], w: u32, h: u32, c: u8, method: Method) -> Image {
     let data = match method {
-        Method::Raw => plain.to_vec(),
+        Method::Raw | Method::Arith => plain.to_vec(),
         Method::Zstd => {
             let c = c as usize;
             let n = w as usize * h as usize;

@@ -1,8 +1,9 @@
 //! PTM encoder: pyramid → header, lowest level, one group per level coarse to fine.
 
+use super::arith;
 use super::layout::{mode_allowed, split, MODE_DECORRELATE};
 use super::pyramid::{is_rebuilt, max_levels, stored_count, MipChain};
-use super::{Image, PtmError, FIXED_HEADER_LEN, FORMAT_VERSION, MAGIC};
+use super::{Image, PtmError, FLAG_COLOUR_WITHIN_ALPHA, FORMAT_VERSION};
 
 /// How group payloads are coded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -12,6 +13,9 @@ pub enum Method {
     /// Prediction from the level's own neighbours and the parent (`predict.rs`), samples laid
     /// out per group mode (`layout.rs`), a mode byte and one zstd frame per group.
     Zstd = 1,
+    /// The same prediction, each group one adaptive range-coded stream with context models
+    /// shared across the levels (`arith.rs`): the smallest, what databases store.
+    Arith = 2,
 }
 
 impl Method {
@@ -19,6 +23,7 @@ impl Method {
         match b {
             0 => Some(Method::Raw),
             1 => Some(Method::Zstd),
+            2 => Some(Method::Arith),
             _ => None,
         }
     }
@@ -32,14 +37,21 @@ pub struct EncodeOptions {
     pub zstd_level: i32,
     /// Number of levels to store; `None` = down to 1 × 1.
     pub levels: Option<u8>,
+    /// Largest error of a colour sample, [`Method::Arith`] only (0 = lossless, the default;
+    /// at most [`MAX_NEAR`]).
+    pub near: u8,
 }
+
+/// Largest `near` of the lossy mode.
+pub const MAX_NEAR: u8 = 32;
 
 impl Default for EncodeOptions {
     fn default() -> Self {
         EncodeOptions {
-            method: Method::Zstd,
+            method: Method::Arith,
             zstd_level: 19,
             levels: None,
+            near: 0,
         }
     }
 }
@@ -78,34 +90,56 @@ pub(crate) fn encode_with_modes(
     let level_count = opts
         .levels
         .unwrap_or_else(|| max_levels(image.width, image.height));
-    let chain = MipChain::build(image, level_count)?;
-    let lowest = chain.levels.last().expect("at least one level");
-    let mut payloads = Vec::with_capacity(level_count as usize);
-    payloads.push(code(lowest_plain(lowest, opts.method), 0, opts)?);
-    for n in (0..level_count as usize - 1).rev() {
-        let (level, parent) = (&chain.levels[n], &chain.levels[n + 1]);
-        let plain = group_plain(level, parent, &chain.residuals[n], opts.method);
-        let payload = match opts.method {
-            Method::Raw => plain,
-            Method::Zstd => zstd_group(&plain, parent, opts, mode)?,
-        };
-        payloads.push(payload);
+    if opts.near > 0 && opts.method != Method::Arith {
+        return Err(PtmError::InvalidImage(format!(
+            "near {} needs method 2 (only it codes with an error)",
+            opts.near
+        )));
     }
-    let mut bytes = Vec::with_capacity(
-        FIXED_HEADER_LEN + 4 * payloads.len() + payloads.iter().map(Vec::len).sum::<usize>(),
-    );
-    bytes.extend_from_slice(&MAGIC);
+    if opts.near > MAX_NEAR {
+        return Err(PtmError::InvalidImage(format!(
+            "near {} (at most {MAX_NEAR})",
+            opts.near
+        )));
+    }
+    let chain = MipChain::build(image, level_count)?;
+    let within = colour_within_alpha(&chain);
+    let payloads = match opts.method {
+        Method::Arith => arith_groups(&chain, within, opts.near)?,
+        _ => {
+            let lowest = chain.levels.last().expect("at least one level");
+            let mut payloads = Vec::with_capacity(level_count as usize);
+            payloads.push(code(lowest_plain(lowest, opts.method), 0, opts)?);
+            for n in (0..level_count as usize - 1).rev() {
+                let (level, parent) = (&chain.levels[n], &chain.levels[n + 1]);
+                let plain = group_plain(level, parent, &chain.residuals[n], opts.method);
+                let payload = match opts.method {
+                    Method::Zstd => zstd_group(&plain, parent, opts, mode)?,
+                    _ => plain,
+                };
+                payloads.push(payload);
+            }
+            payloads
+        }
+    };
+    let flags = if within && opts.method == Method::Arith {
+        FLAG_COLOUR_WITHIN_ALPHA
+    } else {
+        0
+    };
+    let mut bytes = Vec::with_capacity(32 + payloads.iter().map(Vec::len).sum::<usize>());
     bytes.push(FORMAT_VERSION);
     bytes.push(opts.method as u8);
-    bytes.push(image.channels);
+    bytes.push(image.channels | flags);
     bytes.push(level_count);
-    bytes.extend_from_slice(&image.width.to_le_bytes());
-    bytes.extend_from_slice(&image.height.to_le_bytes());
+    bytes.push(opts.near);
+    put_varint(&mut bytes, image.width as u64);
+    put_varint(&mut bytes, image.height as u64);
     for p in &payloads {
-        let len = u32::try_from(p.len()).map_err(|_| {
+        u32::try_from(p.len()).map_err(|_| {
             PtmError::InvalidImage(format!("a group of {} bytes is too large", p.len()))
         })?;
-        bytes.extend_from_slice(&len.to_le_bytes());
+        put_varint(&mut bytes, p.len() as u64);
     }
     let mut groups = Vec::with_capacity(payloads.len());
     for (g, p) in payloads.iter().enumerate() {
@@ -123,10 +157,81 @@ pub(crate) fn encode_with_modes(
     Ok(Encoded { bytes, groups })
 }
 
+fn put_varint(out: &mut Vec<u8>, mut v: u64) {
+    while v >= 0x80 {
+        out.push((v as u8) | 0x80);
+        v >>= 7;
+    }
+    out.push(v as u8);
+}
+
+/// Whether every colour sample is at most its alpha at every level (images with alpha).
+fn colour_within_alpha(chain: &MipChain) -> bool {
+    let c = chain.levels[0].channels as usize;
+    if c != 2 && c != 4 {
+        return false;
+    }
+    chain.levels.iter().all(|l| {
+        l.data
+            .chunks_exact(c)
+            .all(|px| px[..c - 1].iter().all(|&v| v <= px[c - 1]))
+    })
+}
+
+/// Method 2's group payloads, coarse to fine, the models carried from group to group; with
+/// `near > 0` each level coded against the parent the decoder rebuilds.
+fn arith_groups(chain: &MipChain, within: bool, near: u8) -> Result<Vec<Vec<u8>>, PtmError> {
+    let count = chain.levels.len();
+    let c = chain.levels[0].channels;
+    let mut models = arith::Models::new();
+    let mut payloads = Vec::with_capacity(count);
+    let mut parent: Option<Image> = None;
+    for n in (0..count).rev() {
+        let level = &chain.levels[n];
+        let residuals: &[u8] = if n + 1 < count {
+            &chain.residuals[n]
+        } else {
+            &[]
+        };
+        let mut e = crate::entropy::Encoder::new();
+        let mut out = vec![0u8; level.data.len()];
+        let params = arith::Params {
+            colour_within_alpha: within,
+            near,
+            level: n as u32,
+        };
+        let src = arith::Source {
+            samples: &level.data,
+            residuals,
+        };
+        arith::level(
+            &mut e,
+            &mut models,
+            params,
+            Some(src),
+            parent.as_ref(),
+            &mut out,
+            (level.width, level.height, c),
+        )?;
+        debug_assert!(
+            near > 0 || out == level.data,
+            "lossless coding rebuilds the level"
+        );
+        payloads.push(e.finish());
+        parent = Some(Image {
+            width: level.width,
+            height: level.height,
+            channels: c,
+            data: out,
+        });
+    }
+    Ok(payloads)
+}
+
 /// A group payload from its plain bytes: raw as is; zstd as the mode byte and one frame.
 fn code(plain: Vec<u8>, mode: u8, opts: &EncodeOptions) -> Result<Vec<u8>, PtmError> {
     match opts.method {
-        Method::Raw => Ok(plain),
+        Method::Raw | Method::Arith => Ok(plain),
         Method::Zstd => {
             let mut out = vec![mode];
             out.extend_from_slice(&compress(&plain, opts.zstd_level)?);
@@ -194,7 +299,7 @@ fn zstd_group(
 /// The lowest level before compression.
 fn lowest_plain(img: &Image, method: Method) -> Vec<u8> {
     match method {
-        Method::Raw => img.data.clone(),
+        Method::Raw | Method::Arith => img.data.clone(),
         Method::Zstd => {
             let c = img.channels as usize;
             let mut out = Vec::with_capacity(img.data.len());
@@ -239,7 +344,7 @@ fn group_plain(level: &Image, parent: &Image, residuals: &[u8], method: Method) 
                 }
             }
         }
-        Method::Zstd => unreachable!("handled above"),
+        Method::Zstd | Method::Arith => unreachable!("handled above"),
     }
     out
 }

@@ -18,21 +18,24 @@
 //! (the bottom-right one for full blocks): `(x odd or x = w−1) and (y odd or y = h−1)`; a
 //! 1×1 block stores nothing and is its parent.
 //!
-//! ## File layout (little endian)
+//! ## File layout (format 3)
 //! ```text
-//! 0   4  magic "RPTM"
-//! 4   1  format version (2)
-//! 5   1  method: 0 = raw (the paper's layout, no compression), 1 = parent prediction + zstd
-//! 6   1  channels (1 grey, 2 grey+alpha, 3 RGB, 4 RGBA)
-//! 7   1  level count L (1 ..= 1 + ⌈log2 max(w, h)⌉)
-//! 8   4  width of level 0
-//! 12  4  height of level 0
-//! 16  4L payload length of group 0 .. L−1 (u32 each): the offset table
+//! 0   1  format version (3)
+//! 1   1  method: 0 = raw (the paper's layout, no compression), 1 = parent prediction + zstd,
+//!        2 = parent prediction + context-modelled range coding
+//! 2   1  channels (1 grey, 2 grey+alpha, 3 RGB, 4 RGBA) in bits 0–2; bit 4: every colour
+//!        sample is at most its alpha at every level (method 2 codes nothing it implies)
+//! 3   1  level count L (1 ..= 1 + ⌈log2 max(w, h)⌉)
+//! 4   1  near: the largest error of a colour sample (0 = lossless; only method 2)
+//! 5   …  varint width of level 0, varint height, then L varints: the payload length of
+//!        group 0 .. L−1 (LEB128)
 //! then group 0: the lowest level (L−1) whole, in line-major order
 //! then group g = 1 .. L−1: level L−1−g — residuals (2 bits per channel per parent pixel,
 //!      raster order over the parent, channels interleaved, four per byte from the low bits),
 //!      then the partial level (every pixel except the rebuilt ones, raster order)
 //! ```
+//! A PTM is found through a table that says what it is, so the header has no magic and its
+//! sizes are varints: 10–16 bytes for a tile instead of the 40 of format 2.
 //! Group 0 as a *stream chunk* includes the header, so fetching chunk 0 gives everything
 //! needed to ask for any other chunk by byte range ([`Encoded::groups`], [`Header::chunk_range`]).
 //!
@@ -41,8 +44,10 @@
 //! sample's difference (mod 256) from its prediction (see `predict.rs`), the colour channels
 //! interleaved and the alpha channel in planes of its own, red and blue optionally relative
 //! to green (the mode byte, chosen per group by the encoder; see `layout.rs`). The lowest
-//! level is coded as differences from the previous value in each channel plane (mode 0). A
-//! group decodes once its parent level is known.
+//! level is coded as differences from the previous value in each channel plane (mode 0).
+//! With method 2 each group is one adaptive range-coded stream whose context models carry
+//! over from the groups before it (see `arith.rs`); it is what databases store. A group
+//! decodes once its parent level is known.
 //!
 //! ```
 //! use streamer::ptm::{encode, Decoder, EncodeOptions, Image, Limits, Status};
@@ -57,6 +62,7 @@
 //! assert_eq!(dec.finest().unwrap(), &img);
 //! ```
 
+mod arith;
 mod decode;
 mod encode;
 mod layout;
@@ -64,17 +70,17 @@ mod predict;
 mod pyramid;
 
 pub use decode::{decode, decode_up_to, Decoder, Status};
-pub use encode::{encode, EncodeOptions, Encoded, GroupSpan, Method};
+pub use encode::{encode, EncodeOptions, Encoded, GroupSpan, Method, MAX_NEAR};
 pub use pyramid::{level_dims, max_levels, MipChain};
 
-/// File magic.
-pub const MAGIC: [u8; 4] = *b"RPTM";
-/// Format version written and read by this module (2: group mode byte, colour
-/// decorrelation and a separate alpha plane in zstd groups; files of version 1 are refused
-/// with [`PtmError::UnsupportedVersion`]).
-pub const FORMAT_VERSION: u8 = 2;
-/// Size of the fixed part of the header; the offset table follows.
-pub const FIXED_HEADER_LEN: usize = 16;
+/// Format version written and read by this module (3: no magic, varint sizes, method 2 and
+/// the lossy mode; files of versions 1 and 2 are refused with
+/// [`PtmError::UnsupportedVersion`]).
+pub const FORMAT_VERSION: u8 = 3;
+/// Size of the fixed part of the header; the varints follow.
+pub const FIXED_HEADER_LEN: usize = 5;
+/// Header flag (in the channels byte): every colour sample is at most its alpha.
+pub(crate) const FLAG_COLOUR_WITHIN_ALPHA: u8 = 0x10;
 
 /// An 8-bit image with 1–4 interleaved channels, rows top to bottom.
 #[derive(Clone, PartialEq, Eq)]
@@ -197,9 +203,7 @@ pub enum PtmError {
     /// The encoder was given an inconsistent image or options.
     #[error("invalid image: {0}")]
     InvalidImage(String),
-    #[error("not a PTM file (bad magic {0:02x?})")]
-    BadMagic([u8; 4]),
-    #[error("unsupported PTM format version {0} (this decoder reads version {FORMAT_VERSION}; re-encode the file)")]
+    #[error("unsupported PTM format version {0} (this decoder reads version {FORMAT_VERSION}; rebuild the database with `railview build`)")]
     UnsupportedVersion(u8),
     #[error("unknown PTM method {0}")]
     UnknownMethod(u8),
@@ -262,18 +266,24 @@ pub enum PtmError {
 pub struct Header {
     pub method: Method,
     pub channels: u8,
+    /// Every colour sample is at most its alpha, at every level.
+    pub colour_within_alpha: bool,
+    /// Largest error of a colour sample (0: lossless).
+    pub near: u8,
     pub width: u32,
     pub height: u32,
     /// Number of stored levels (level 0 = full resolution … `levels − 1` = lowest stored).
     pub levels: u8,
     /// Payload length of each group, group 0 = the lowest level.
     pub group_lens: Vec<u32>,
+    /// Bytes of the header (the fixed part and the varints).
+    pub header_len: usize,
 }
 
 impl Header {
-    /// Bytes of the header including the offset table.
+    /// Bytes of the header including the group lengths.
     pub fn len(&self) -> usize {
-        FIXED_HEADER_LEN + 4 * self.levels as usize
+        self.header_len
     }
 
     /// Never empty; here for clippy's `len_without_is_empty`.

@@ -10,8 +10,11 @@ fn opts(method: Method) -> EncodeOptions {
         method,
         zstd_level: 3,
         levels: None,
+        near: 0,
     }
 }
+
+const METHODS: [Method; 3] = [Method::Raw, Method::Zstd, Method::Arith];
 
 fn roundtrip(img: &Image, o: &EncodeOptions) {
     let enc = encode(img, o).unwrap();
@@ -29,15 +32,15 @@ fn textured(w: u32, h: u32, c: u8, seed: u32) -> Image {
 }
 
 fn image_strategy(max: u32) -> impl Strategy<Value = Image> {
-    (1..=max, 1..=max, 1u8..=4, any::<u64>(), 0u8..3).prop_map(|(w, h, c, seed, kind)| {
+    (1..=max, 1..=max, 1u8..=4, any::<u64>(), 0u8..5).prop_map(|(w, h, c, seed, kind)| {
         let mut s = seed | 1;
-        Image::from_fn(w, h, c, |x, y, k| {
+        let mut img = Image::from_fn(w, h, c, |x, y, k| {
             s ^= s << 13;
             s ^= s >> 7;
             s ^= s << 17;
             match kind {
-                0 => s as u8,                                                         // noise
-                1 => ((x + 2 * y + k as u32 * 30) as u8).wrapping_add((s & 3) as u8), // smooth
+                0 => s as u8,                                                             // noise
+                1 | 3 => ((x + 2 * y + k as u32 * 30) as u8).wrapping_add((s & 3) as u8), // smooth
                 _ => {
                     if (s >> 60) & 1 == 1 {
                         255
@@ -46,7 +49,26 @@ fn image_strategy(max: u32) -> impl Strategy<Value = Image> {
                     }
                 } // binary, like alpha
             }
-        })
+        });
+        if kind >= 3 && (c == 2 || c == 4) {
+            // A slab tile: a binary opacity mask (a disc, or blotches) and the colour cleared
+            // under it, as databases store.
+            let c = c as usize;
+            let (cx, cy, r) = (w as i64 / 2, h as i64 / 2, (w.min(h) as i64 / 2).max(1));
+            for (i, px) in img.data.chunks_exact_mut(c).enumerate() {
+                let (x, y) = ((i % w as usize) as i64, (i / w as usize) as i64);
+                let inside = if kind == 3 {
+                    (x - cx).pow(2) + (y - cy).pow(2) <= r * r
+                } else {
+                    px[c - 1] == 255
+                };
+                px[c - 1] = if inside { 255 } else { 0 };
+                if !inside {
+                    px[..c - 1].fill(0);
+                }
+            }
+        }
+        img
     })
 }
 
@@ -54,9 +76,32 @@ proptest! {
     #![proptest_config(ProptestConfig { cases: 96, ..ProptestConfig::default() })]
 
     #[test]
-    fn roundtrip_is_bit_exact_for_any_size_and_channels(img in image_strategy(300), raw in any::<bool>()) {
-        let o = opts(if raw { Method::Raw } else { Method::Zstd });
-        roundtrip(&img, &o);
+    fn roundtrip_is_bit_exact_for_any_size_and_channels(img in image_strategy(300), m in 0usize..3) {
+        roundtrip(&img, &opts(METHODS[m]));
+    }
+
+    /// The lossy mode: every colour sample of every level within `near` of the lossless
+    /// pyramid's, alpha exact; every level decodes on its own.
+    #[test]
+    fn lossy_levels_stay_within_near(img in image_strategy(70), near in 1u8..=8) {
+        let o = EncodeOptions { near, ..opts(Method::Arith) };
+        let enc = encode(&img, &o).unwrap();
+        let chain = MipChain::build(&img, max_levels(img.width(), img.height())).unwrap();
+        let mut dec = Decoder::new(Limits::default());
+        dec.push(&enc.bytes).unwrap();
+        let c = img.channels() as usize;
+        let alpha = (c == 2 || c == 4).then_some(c - 1);
+        for (n, want) in chain.levels.iter().enumerate() {
+            let got = dec.level(n as u32).unwrap();
+            for (i, (a, b)) in want.data().iter().zip(got.data()).enumerate() {
+                let err = (*a as i32 - *b as i32).abs();
+                if Some(i % c) == alpha {
+                    prop_assert_eq!(err, 0, "alpha at level {}", n);
+                } else {
+                    prop_assert!(err <= near as i32, "level {} sample {}: {} vs {}", n, i, a, b);
+                }
+            }
+        }
     }
 
     /// Every group mode, forced, round-trips (the encoder alone may never pick some of them
@@ -68,9 +113,9 @@ proptest! {
     }
 
     #[test]
-    fn fewer_levels_round_trip(img in image_strategy(40), keep in 1u8..8) {
+    fn fewer_levels_round_trip(img in image_strategy(40), keep in 1u8..8, m in 1usize..3) {
         let levels = keep.min(max_levels(img.width(), img.height()));
-        let o = EncodeOptions { levels: Some(levels), ..opts(Method::Zstd) };
+        let o = EncodeOptions { levels: Some(levels), ..opts(METHODS[m]) };
         let enc = encode(&img, &o).unwrap();
         prop_assert_eq!(enc.groups.len(), levels as usize);
         prop_assert_eq!(decode(&enc.bytes, Limits::default()).unwrap(), img);
@@ -78,8 +123,8 @@ proptest! {
 
     /// Whole, byte by byte, or in arbitrary pieces: the same levels come out.
     #[test]
-    fn decoding_is_independent_of_chunking(img in image_strategy(24), cuts in proptest::collection::vec(any::<usize>(), 0..12)) {
-        let enc = encode(&img, &opts(Method::Zstd)).unwrap();
+    fn decoding_is_independent_of_chunking(img in image_strategy(24), cuts in proptest::collection::vec(any::<usize>(), 0..12), m in 1usize..3) {
+        let enc = encode(&img, &opts(METHODS[m])).unwrap();
         let mut cuts: Vec<usize> = cuts.into_iter().map(|c| c % (enc.bytes.len() + 1)).collect();
         cuts.push(0);
         cuts.push(enc.bytes.len());
@@ -105,8 +150,9 @@ proptest! {
     }
 
     #[test]
-    fn mutated_files_are_rejected_cleanly(img in image_strategy(20), raw in any::<bool>(), flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..4), cut in any::<usize>()) {
-        let enc = encode(&img, &opts(if raw { Method::Raw } else { Method::Zstd })).unwrap();
+    fn mutated_files_are_rejected_cleanly(img in image_strategy(20), m in 0usize..3, near in prop_oneof![Just(0u8), 1u8..5], flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..4), cut in any::<usize>()) {
+        let near = if METHODS[m] == Method::Arith { near } else { 0 };
+        let enc = encode(&img, &EncodeOptions { near, ..opts(METHODS[m]) }).unwrap();
         let mut bytes = enc.bytes.clone();
         for (at, x) in flips {
             let at = at % bytes.len();
@@ -144,7 +190,7 @@ fn check_hostile(bytes: &[u8]) {
     }
 }
 
-/// The long fuzz run: `PTM_FUZZ_CASES=200000 cargo test --release -p streamer long_fuzz -- --ignored`.
+/// The long fuzz run: `PTM_FUZZ_CASES=1000000 cargo test --release -p streamer long_fuzz -- --ignored`.
 #[test]
 #[ignore = "long fuzz run; set PTM_FUZZ_CASES"]
 fn long_fuzz() {
@@ -159,17 +205,31 @@ fn long_fuzz() {
     });
     let strat = (
         image_strategy(48),
-        any::<bool>(),
+        0usize..4,
         proptest::collection::vec((any::<usize>(), any::<u8>()), 0..6),
         any::<usize>(),
         proptest::collection::vec(any::<u8>(), 0..64),
     );
     runner
-        .run(&strat, |(img, raw, flips, cut, junk)| {
-            // Zstd groups in the mode the encoder picks, or decorrelated wherever it applies.
-            let o = opts(if raw { Method::Raw } else { Method::Zstd });
+        .run(&strat, |(img, m, flips, cut, junk)| {
+            // Method 2 lossless and lossy, raw, and zstd groups in the mode the encoder picks
+            // or decorrelated wherever it applies.
+            let (method, near) = match m {
+                0 => (Method::Raw, 0),
+                1 => (Method::Zstd, 0),
+                2 => (Method::Arith, 0),
+                _ => (Method::Arith, 1 + (cut % 6) as u8),
+            };
+            let o = EncodeOptions {
+                near,
+                ..opts(method)
+            };
             let mode = (cut % 7 == 0).then_some(1);
             let enc = super::encode::encode_with_modes(&img, &o, mode).unwrap();
+            if flips.is_empty() && near == 0 {
+                prop_assert_eq!(decode(&enc.bytes, Limits::default()).unwrap(), img);
+                return Ok(());
+            }
             let mut bytes = enc.bytes.clone();
             for (at, x) in flips {
                 let at = at % bytes.len();
@@ -203,7 +263,7 @@ fn extreme_images_round_trip() {
         (64, 64),
     ] {
         for c in 1..=4u8 {
-            for method in [Method::Raw, Method::Zstd] {
+            for method in METHODS {
                 let o = opts(method);
                 roundtrip(&Image::from_fn(w, h, c, |_, _, _| 0), &o);
                 roundtrip(&Image::from_fn(w, h, c, |_, _, _| 255), &o);
@@ -246,6 +306,7 @@ fn raw_method_is_the_papers_layout_with_residual_overhead() {
     let base = img.data().len() as f64;
     let overhead = enc.bytes.len() as f64 / base - 1.0;
     assert!((0.0833..0.0834).contains(&overhead), "overhead {overhead}");
+    assert_eq!(enc.bytes[0], FORMAT_VERSION);
     // Group 1 (level L−2 = 2×2 from 1×1): residual byte(s) then three stored pixels.
     let g1 = &enc.groups[1];
     assert_eq!((g1.width, g1.height, g1.level), (2, 2, 9));
@@ -326,12 +387,18 @@ fn every_prefix_decodes_and_quality_never_drops() {
 }
 
 fn header_bytes(method: u8, c: u8, levels: u8, w: u32, h: u32, lens: &[u32]) -> Vec<u8> {
-    let mut b = MAGIC.to_vec();
-    b.extend_from_slice(&[FORMAT_VERSION, method, c, levels]);
-    b.extend_from_slice(&w.to_le_bytes());
-    b.extend_from_slice(&h.to_le_bytes());
-    for l in lens {
-        b.extend_from_slice(&l.to_le_bytes());
+    let mut b = vec![FORMAT_VERSION, method, c, levels, 0];
+    let mut var = |mut v: u64| {
+        while v >= 0x80 {
+            b.push((v as u8) | 0x80);
+            v >>= 7;
+        }
+        b.push(v as u8);
+    };
+    var(w as u64);
+    var(h as u64);
+    for &l in lens {
+        var(l as u64);
     }
     b
 }
@@ -340,28 +407,35 @@ fn header_bytes(method: u8, c: u8, levels: u8, w: u32, h: u32, lens: &[u32]) -> 
 fn hostile_headers_give_typed_errors() {
     let l = Limits::default();
     let e = |b: &[u8]| decode(b, l).unwrap_err();
-    assert!(matches!(e(b"JUNKJUNKJUNKJUNK"), PtmError::BadMagic(_)));
+    assert_eq!(e(b"JUNKJUNKJUNKJUNK"), PtmError::UnsupportedVersion(b'J'));
     let mut v = header_bytes(1, 3, 1, 1, 1, &[10]);
-    v[4] = 9;
+    v[0] = 9;
     assert_eq!(e(&v), PtmError::UnsupportedVersion(9));
     assert_eq!(
         e(&header_bytes(7, 3, 1, 1, 1, &[10])),
         PtmError::UnknownMethod(7)
     );
-    assert!(matches!(
-        e(&header_bytes(1, 0, 1, 1, 1, &[1])),
-        PtmError::BadHeader {
-            field: "channels",
-            ..
-        }
-    ));
-    assert!(matches!(
-        e(&header_bytes(1, 5, 1, 1, 1, &[1])),
-        PtmError::BadHeader {
-            field: "channels",
-            ..
-        }
-    ));
+    for c in [0, 5] {
+        assert!(matches!(
+            e(&header_bytes(1, c, 1, 1, 1, &[1])),
+            PtmError::BadHeader {
+                field: "channels",
+                ..
+            }
+        ));
+    }
+    // Unknown flags, the alpha flag without alpha or without method 2, near out of place.
+    for (m, c) in [(2, 0x23), (2, 0x13), (1, 0x14)] {
+        assert!(matches!(
+            e(&header_bytes(m, c, 1, 1, 1, &[1])),
+            PtmError::BadHeader { field: "flags", .. }
+        ));
+    }
+    for (m, near) in [(1, 1), (2, 33)] {
+        let mut b = header_bytes(m, 4, 1, 1, 1, &[4]);
+        b[4] = near;
+        assert!(matches!(e(&b), PtmError::BadHeader { field: "near", .. }));
+    }
     assert!(matches!(
         e(&header_bytes(1, 3, 1, 0, 1, &[1])),
         PtmError::BadHeader { field: "width", .. }
@@ -373,6 +447,13 @@ fn hostile_headers_give_typed_errors() {
             ..
         }
     ));
+    // A varint longer than 32 bits.
+    let mut b = vec![FORMAT_VERSION, 1, 3, 1, 0];
+    b.extend_from_slice(&[0xff, 0xff, 0xff, 0xff, 0x7f]);
+    assert!(matches!(e(&b), PtmError::BadHeader { field: "size", .. }));
+    b.truncate(5);
+    b.extend_from_slice(&[0x80; 6]);
+    assert!(matches!(e(&b), PtmError::BadHeader { field: "size", .. }));
     // Wrong level counts: zero, and more than halving down to 1×1 allows.
     assert!(matches!(
         e(&header_bytes(1, 3, 0, 4, 4, &[])),
@@ -417,6 +498,10 @@ fn hostile_headers_give_typed_errors() {
         e(&header_bytes(1, 1, 2, 2, 2, &[0, 9])),
         PtmError::GroupLength { group: 0, .. }
     ));
+    assert!(matches!(
+        e(&header_bytes(2, 1, 2, 2, 2, &[0, 1 << 20])),
+        PtmError::GroupLength { group: 1, .. }
+    ));
 }
 
 #[test]
@@ -443,8 +528,9 @@ fn trailing_bytes_and_reuse_after_error_are_errors() {
         Err(PtmError::TrailingBytes(1))
     );
     let mut dec = Decoder::new(Limits::default());
-    assert!(dec.push(b"nope, not a ptm").is_ok());
-    assert!(dec.push(b"!").is_err());
+    assert!(dec.push(&[FORMAT_VERSION, 2, 4, 1]).is_ok());
+    assert!(dec.push(&[99]).is_err()); // near 99
+
     assert_eq!(dec.push(b""), Err(PtmError::Poisoned));
 }
 
@@ -454,9 +540,9 @@ fn bad_residuals_are_caught_in_raw_groups() {
     // stored pixel dropped below… here we make the residual impossible instead.
     let img = Image::from_fn(2, 2, 1, |_, _, _| 255);
     let mut bytes = encode(&img, &opts(Method::Raw)).unwrap().bytes;
-    // Layout: header (16 + 8) | group 0: 1 byte | group 1: 1 residual byte, 3 pixels.
-    assert_eq!(bytes.len(), 24 + 1 + 4);
-    bytes[25] = 3; // residual 3 with parent 255 and three stored 255s → 4·255 + 3 − 765 = 258
+    // Layout: header (5 + 4 varints) | group 0: 1 byte | group 1: 1 residual byte, 3 pixels.
+    assert_eq!(bytes.len(), 9 + 1 + 4);
+    bytes[10] = 3; // residual 3 with parent 255 and three stored 255s → 4·255 + 3 − 765 = 258
     assert!(matches!(
         decode(&bytes, Limits::default()),
         Err(PtmError::BadResidual {
@@ -470,13 +556,13 @@ fn bad_residuals_are_caught_in_raw_groups() {
     // A 2×1 image: its one block has two pixels, so residuals above 1 are impossible.
     let img = Image::from_fn(2, 1, 1, |x, _, _| x as u8);
     let mut bytes = encode(&img, &opts(Method::Raw)).unwrap().bytes;
-    bytes[25] = 2;
+    bytes[10] = 2;
     assert!(matches!(
         decode(&bytes, Limits::default()),
         Err(PtmError::BadResidual { value: 2, .. })
     ));
     // Non-zero padding bits after the last residual.
-    bytes[25] = 0b0100_0001;
+    bytes[10] = 0b0100_0001;
     assert!(matches!(
         decode(&bytes, Limits::default()),
         Err(PtmError::BadResidual { .. })
@@ -505,19 +591,68 @@ fn encoder_rejects_inconsistent_input() {
 fn prediction_compresses_textured_tiles_well() {
     let img = textured(256, 256, 4, 5);
     let raw = encode(&img, &opts(Method::Raw)).unwrap().bytes.len();
-    let z = encode(&img, &EncodeOptions::default()).unwrap().bytes.len();
+    let z = encode(&img, &opts(Method::Zstd)).unwrap().bytes.len();
+    let a = encode(&img, &EncodeOptions::default()).unwrap().bytes.len();
     assert!(z * 2 < raw, "zstd {z} vs raw {raw}");
+    assert!(a < z, "method 2 {a} vs zstd {z}");
 }
 
 #[test]
-fn version_1_files_are_refused_with_a_typed_error() {
+fn masked_tiles_cost_little_for_what_is_empty_or_opaque() {
+    // A 32² RGBA tile: a textured disc, the colour cleared outside it.
+    let img = Image::from_fn(32, 32, 4, |x, y, k| {
+        let inside = (x as i32 - 16).pow(2) + (y as i32 - 16).pow(2) <= 144;
+        match (inside, k) {
+            (false, _) => 0,
+            (true, 3) => 255,
+            (true, _) => (x * 3 + y * 2 + k as u32 * 50) as u8,
+        }
+    });
+    let enc = encode(&img, &EncodeOptions::default()).unwrap();
+    assert_eq!(enc.bytes[2], 4 | FLAG_COLOUR_WITHIN_ALPHA);
+    let zstd = encode(&img, &opts(Method::Zstd)).unwrap().bytes.len();
+    assert!(
+        enc.bytes.len() * 2 < zstd,
+        "{} vs zstd {zstd}",
+        enc.bytes.len()
+    );
+    assert_eq!(decode(&enc.bytes, Limits::default()).unwrap(), img);
+    // Colour left under the mask: still exact, without the flag.
+    let mut stray = img.clone();
+    stray.data[0] = 7;
+    let enc = encode(&stray, &EncodeOptions::default()).unwrap();
+    assert_eq!(enc.bytes[2], 4);
+    assert_eq!(decode(&enc.bytes, Limits::default()).unwrap(), stray);
+}
+
+#[test]
+fn older_formats_are_refused_with_a_typed_error() {
     let img = textured(6, 5, 4, 1);
     let mut bytes = encode(&img, &EncodeOptions::default()).unwrap().bytes;
-    bytes[4] = 1;
+    bytes[0] = 2;
+    let e = decode(&bytes, Limits::default()).unwrap_err();
+    assert_eq!(e, PtmError::UnsupportedVersion(2));
+    assert!(e.to_string().contains("rebuild"), "{e}");
+    // Format 2 began with the magic "RPTM".
     assert_eq!(
-        decode(&bytes, Limits::default()),
-        Err(PtmError::UnsupportedVersion(1))
+        decode(b"RPTM\x02\x01\x04\x01", Limits::default()),
+        Err(PtmError::UnsupportedVersion(b'R'))
     );
+}
+
+#[test]
+fn lossy_mode_needs_method_2_and_a_small_near() {
+    let img = textured(8, 8, 3, 1);
+    let o = |method, near| EncodeOptions {
+        near,
+        ..opts(method)
+    };
+    assert!(encode(&img, &o(Method::Zstd, 1)).is_err());
+    assert!(encode(&img, &o(Method::Arith, MAX_NEAR + 1)).is_err());
+    let lossy = encode(&img, &o(Method::Arith, 4)).unwrap();
+    let exact = encode(&img, &o(Method::Arith, 0)).unwrap();
+    assert!(lossy.bytes.len() < exact.bytes.len());
+    assert_eq!(lossy.bytes[4], 4);
 }
 
 /// Byte offset of chunk `g`'s first payload byte (its mode byte for zstd groups).
@@ -529,6 +664,7 @@ fn group_start(enc: &Encoded, g: usize) -> usize {
             .unwrap();
         d.header().unwrap().clone()
     };
+    assert_eq!(h.method, Method::Zstd);
     if g == 0 {
         h.len()
     } else {
@@ -543,7 +679,7 @@ fn group_modes_are_checked() {
         let noise = (x.wrapping_mul(2_654_435_761) ^ y.wrapping_mul(40_503)) >> 27;
         (x + y + noise + 20 * k as u32) as u8
     });
-    let enc = encode(&img, &EncodeOptions::default()).unwrap();
+    let enc = encode(&img, &opts(Method::Zstd)).unwrap();
     let last = enc.groups.len() - 1;
     assert_eq!(
         enc.bytes[group_start(&enc, last)],
@@ -568,7 +704,7 @@ fn group_modes_are_checked() {
     }
     // Decorrelation needs three colour channels.
     let grey = textured(8, 8, 2, 3);
-    let enc = encode(&grey, &EncodeOptions::default()).unwrap();
+    let enc = encode(&grey, &opts(Method::Zstd)).unwrap();
     let mut bytes = enc.bytes.clone();
     bytes[group_start(&enc, 1)] = 1;
     assert!(matches!(
@@ -601,11 +737,11 @@ fn decode_up_to_reads_only_the_groups_it_needs() {
         assert_eq!(lowest, chain.levels[levels as usize - 1]);
     }
     assert!(matches!(
-        decode_up_to(b"RPT", 0, Limits::default()),
+        decode_up_to(&[FORMAT_VERSION, 2, 4], 0, Limits::default()),
         Err(PtmError::Truncated { .. })
     ));
     assert!(matches!(
         decode_up_to(b"JUNKJUNKJUNKJUNK", 0, Limits::default()),
-        Err(PtmError::BadMagic(_))
+        Err(PtmError::UnsupportedVersion(_))
     ));
 }

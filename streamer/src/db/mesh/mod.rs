@@ -1,0 +1,639 @@
+//! Compact tile meshes: lattice vertices, connectivity grown edge by edge, depth predicted
+//! across triangles and quantised to a bound in pixels of parallax; one adaptive range-coded
+//! stream ([`crate::entropy`]).
+//!
+//! A mesh is vertices `[x, y, r]` (continuous face-pixel coordinates, radial depth in metres;
+//! the shape `slabs` produces, vertices on pixel centres) and triangles as vertex index
+//! triples. Layout (format 2):
+//!
+//! ```text
+//! 0  4  magic "RMSH"
+//! 4  1  version (2)
+//! 5  1  lattice unit u: 1 (vertices on pixel centres) or 8 (eighths of a pixel)
+//! 6  …  varint face size N; zigzag varints X0, Y0; varints W, H; varint V (vertices);
+//!       varint T (triangles); f32 δ (little endian)
+//! then one range-coded stream to the end:
+//!   occupancy   the W × H lattice cells from (X0, Y0) in raster order, one adaptive bit
+//!               each (context: the left, upper-left, upper and upper-right cells) until V
+//!               are set: the vertices, in this order; vertex (X, Y) is at
+//!               x = X / u + ½, y = Y / u + ½
+//!   triangles   grown edge by edge (`connect.rs`)
+//!   depths      per vertex in order, Q = round(|F + uR + vU| / (r δ)) ≥ 1 — the inverse
+//!               *planar* depth, affine in face pixels over a flat surface — minus its
+//!               prediction: the plane through the three earlier vertices of an earlier
+//!               triangle across an edge of one of the vertex's triangles, else the mean of
+//!               an earlier edge's ends, else an earlier neighbour, else the previous vertex
+//! ```
+//!
+//! A mesh the lattice cannot hold (two vertices at one lattice position, as where a pixel no
+//! triangle covers gets a quad of its own at its depth, or triangles that are not part of a
+//! planar triangulation) is stored plain, lattice unit 0:
+//!
+//! ```text
+//! 6  …  varint face size N; varint V; varint T; V × (x, y, r) f32; T × 3 u32 (little endian)
+//! ```
+//!
+//! A decoder returns the vertices of a lattice mesh in lattice raster order and every triangle's indices
+//! sorted (the renderer draws both sides, so the winding is not kept). Depth error: the
+//! decoded `1/r` is within `δ/2` of the encoded one (δ for depths beyond `2/δ` metres, where
+//! Q would round to 0), so `δ = 2 e θ / B` bounds the parallax error at baseline `B` to `e`
+//! pixels of `θ` radians ([`MeshCoding::for_parallax`]). Positions are exact on pixel
+//! centres (u = 1), within 1/16 pixel otherwise. Every count is checked against
+//! [`MAX_CELLS`], [`MAX_BOX_SIDE`], [`MAX_WORK`] and the planar bound T ≤ 2V before anything is allocated.
+
+mod connect;
+
+use crate::entropy::{Bit, Decoder, Encoder, Signed};
+
+/// Mesh vertices and triangles (the decoded form).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MeshData {
+    pub vertices: Vec<[f32; 3]>,
+    pub indices: Vec<u32>,
+}
+
+/// Why a mesh could not be encoded or decoded.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum MeshError {
+    #[error("mesh vertex {index}: {message}")]
+    BadVertex { index: usize, message: String },
+    #[error("mesh has {0} indices, not a multiple of 3")]
+    Ragged(usize),
+    #[error("mesh index {index} at position {at} ≥ vertex count {count}")]
+    BadIndex { at: usize, index: u32, count: usize },
+    #[error("mesh coding: {0}")]
+    Coding(String),
+    #[error("mesh file: {0}")]
+    Format(String),
+}
+
+const MAGIC: [u8; 4] = *b"RMSH";
+/// The format written and read.
+pub const MESH_VERSION: u8 = 2;
+/// Most lattice cells a mesh's box may hold (the occupancy is a bit per cell).
+pub const MAX_CELLS: u64 = 1 << 24;
+/// Most vertices × triangles of a mesh: growing the connectivity scans the vertices on one
+/// side of each new edge. A 64² tile with a vertex on every pixel is 4225 × 8192 = 2²⁵.
+pub const MAX_WORK: u64 = 1 << 28;
+/// Largest face size.
+const MAX_SIDE: u64 = 1 << 20;
+/// Largest side of a mesh's lattice box (keeps the connectivity's integer geometry in 64
+/// bits).
+pub const MAX_BOX_SIDE: u64 = 1 << 15;
+
+/// How a mesh's depths are quantised, and the face its positions are on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MeshCoding {
+    /// Face size in pixels (the planar depth of a vertex depends on its place in the face).
+    pub face_size: u32,
+    /// Quantisation step δ of the inverse planar depth, 1/metres.
+    pub depth_step: f64,
+}
+
+impl MeshCoding {
+    /// The step that keeps depth errors within `error_px` pixels of parallax at `baseline_m`
+    /// on faces of `face_size` pixels (`θ = (π/2)/N` per pixel; a baseline ≤ 0 counts as
+    /// 1 m).
+    pub fn for_parallax(face_size: u32, baseline_m: f64, error_px: f64) -> MeshCoding {
+        let theta = std::f64::consts::FRAC_PI_2 / face_size.max(1) as f64;
+        let b = if baseline_m > 0.0 { baseline_m } else { 1.0 };
+        MeshCoding {
+            face_size,
+            depth_step: 2.0 * error_px * theta / b,
+        }
+    }
+}
+
+/// `|F + uR + vU|` at face position `(x, y)`: radial over planar depth.
+fn planar_norm(x: f64, y: f64, face_size: u32) -> f64 {
+    let (u, v) = tracks::cubemap::uv_from_pixel_f(x, y, face_size);
+    (1.0 + u * u + v * v).sqrt()
+}
+
+fn put_varint(out: &mut Vec<u8>, mut v: u64) {
+    while v >= 0x80 {
+        out.push((v as u8) | 0x80);
+        v >>= 7;
+    }
+    out.push(v as u8);
+}
+
+fn zigzag(v: i64) -> u64 {
+    ((v << 1) ^ (v >> 63)) as u64
+}
+
+/// Context of a cell's occupancy bit.
+fn occupancy_ctx(cells: &[bool], w: usize, i: usize) -> usize {
+    let (x, y) = (i % w, i / w);
+    let at = |ok: bool, k: usize| usize::from(ok && cells[k]);
+    at(x > 0, i.wrapping_sub(1))
+        | at(x > 0 && y > 0, i.wrapping_sub(w + 1)) << 1
+        | at(y > 0, i.wrapping_sub(w)) << 2
+        | at(y > 0 && x + 1 < w, i.wrapping_sub(w).wrapping_add(1)) << 3
+}
+
+/// The depth predictors, in order of preference (each has its own residual model).
+#[derive(Clone, Copy)]
+enum Predictor {
+    Plane = 0,
+    Edge = 1,
+    Neighbour = 2,
+    Previous = 3,
+}
+
+/// Rounded `num / den` (`den ≠ 0`).
+fn div_round(num: i128, den: i128) -> i128 {
+    let (n, d) = if den < 0 { (-num, -den) } else { (num, den) };
+    (2 * n + d).div_euclid(2 * d)
+}
+
+/// The prediction of vertex `v`'s quantised depth from the earlier vertices' `q`.
+fn predict(
+    v: usize,
+    pts: &[connect::Pt],
+    q: &[i64],
+    tris: &[[u32; 3]],
+    adj: &Adjacency,
+) -> (i64, Predictor) {
+    let mut edge = None;
+    let mut neighbour = None;
+    let incident = &adj.incident[adj.first[v] as usize..adj.first[v + 1] as usize];
+    for &ti in incident {
+        let t = tris[ti as usize];
+        let mut others = t.into_iter().filter(|&p| p as usize != v);
+        let (a, b) = match (others.next(), others.next()) {
+            (Some(a), Some(b)) => (a, b),
+            _ => continue,
+        };
+        let both = (a as usize) < v && (b as usize) < v;
+        if neighbour.is_none() {
+            neighbour = [a, b].into_iter().map(|p| p as usize).find(|&p| p < v);
+        }
+        if !both {
+            continue;
+        }
+        if edge.is_none() {
+            edge = Some((a as usize, b as usize));
+        }
+        let Some(pair) = adj.across.get(&(a.min(b), a.max(b))) else {
+            continue;
+        };
+        for &tj in pair {
+            if tj == ti || tj == u32::MAX {
+                continue;
+            }
+            let Some(c) = tris[tj as usize]
+                .into_iter()
+                .find(|&p| p != a && p != b)
+                .map(|c| c as usize)
+                .filter(|&c| c < v)
+            else {
+                continue;
+            };
+            let (pa, pb, pc, pv) = (pts[a as usize], pts[b as usize], pts[c], pts[v]);
+            let d = |o: connect::Pt, s: connect::Pt, t: connect::Pt| {
+                (s.0 - o.0) as i128 * (t.1 - o.1) as i128
+                    - (s.1 - o.1) as i128 * (t.0 - o.0) as i128
+            };
+            let den = d(pa, pb, pc);
+            if den == 0 {
+                continue;
+            }
+            let (qa, qb, qc) = (q[a as usize] as i128, q[b as usize] as i128, q[c] as i128);
+            let num = (qb - qa) * d(pa, pv, pc) + (qc - qa) * d(pa, pb, pv);
+            let pred = qa + div_round(num, den);
+            return (pred.clamp(1, i32::MAX as i128) as i64, Predictor::Plane);
+        }
+    }
+    if let Some((a, b)) = edge {
+        return ((q[a] + q[b] + 1) / 2, Predictor::Edge);
+    }
+    if let Some(a) = neighbour {
+        return (q[a], Predictor::Neighbour);
+    }
+    (if v > 0 { q[v - 1] } else { 0 }, Predictor::Previous)
+}
+
+/// Per vertex the triangles using it, and per edge the (up to two) triangles on it.
+struct Adjacency {
+    /// `incident[first[v]..first[v + 1]]`: the triangles using vertex `v`, in order.
+    first: Vec<u32>,
+    incident: Vec<u32>,
+    across: foldhash::HashMap<(u32, u32), [u32; 2]>,
+}
+
+fn adjacency(vertices: usize, tris: &[[u32; 3]]) -> Adjacency {
+    use foldhash::HashMapExt;
+    let mut first = vec![0u32; vertices + 1];
+    for t in tris {
+        for &p in t {
+            first[p as usize + 1] += 1;
+        }
+    }
+    for v in 0..vertices {
+        first[v + 1] += first[v];
+    }
+    let mut fill = first.clone();
+    let mut incident = vec![0u32; 3 * tris.len()];
+    let mut across: foldhash::HashMap<(u32, u32), [u32; 2]> =
+        foldhash::HashMap::with_capacity(3 * tris.len());
+    for (ti, t) in tris.iter().enumerate() {
+        for &p in t {
+            incident[fill[p as usize] as usize] = ti as u32;
+            fill[p as usize] += 1;
+        }
+        for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[0], t[2])] {
+            let e = across.entry((a.min(b), a.max(b))).or_insert([u32::MAX; 2]);
+            if e[0] == u32::MAX {
+                e[0] = ti as u32;
+            } else {
+                e[1] = ti as u32;
+            }
+        }
+    }
+    Adjacency {
+        first,
+        incident,
+        across,
+    }
+}
+
+/// Encodes a mesh: vertices finite with depth > 0, indices in range. On the lattice when no
+/// two vertices share a lattice position and the triangles are part of a planar
+/// triangulation; plain (exact, larger) otherwise.
+pub fn encode_mesh(mesh: &MeshData, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
+    if !mesh.indices.len().is_multiple_of(3) {
+        return Err(MeshError::Ragged(mesh.indices.len()));
+    }
+    let n = mesh.vertices.len();
+    for (at, &i) in mesh.indices.iter().enumerate() {
+        if i as usize >= n {
+            return Err(MeshError::BadIndex {
+                at,
+                index: i,
+                count: n,
+            });
+        }
+    }
+    let step = coding.depth_step;
+    if !(1e-9..=1e9).contains(&step) || coding.face_size == 0 || coding.face_size as u64 > MAX_SIDE
+    {
+        return Err(MeshError::Coding(format!(
+            "depth step {step} (1e-9 to 1e9 per metre) on faces of {} pixels",
+            coding.face_size
+        )));
+    }
+    for (index, v) in mesh.vertices.iter().enumerate() {
+        if !(v.iter().all(|c| c.is_finite()) && v[2] > 0.0) {
+            return Err(MeshError::BadVertex {
+                index,
+                message: format!("{v:?} (needs finite x, y and depth > 0)"),
+            });
+        }
+    }
+    encode_lattice(mesh, coding).or_else(|_| encode_plain(mesh, coding))
+}
+
+/// The plain layout (lattice unit 0), exact: for meshes the lattice cannot hold.
+fn encode_plain(mesh: &MeshData, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
+    let (n, tris) = (mesh.vertices.len() as u64, mesh.indices.len() as u64 / 3);
+    check_plain_counts(n, tris).map_err(MeshError::Coding)?;
+    let mut out = Vec::with_capacity(32 + 12 * (n + tris) as usize);
+    out.extend_from_slice(&MAGIC);
+    out.push(MESH_VERSION);
+    out.push(0);
+    put_varint(&mut out, coding.face_size as u64);
+    put_varint(&mut out, n);
+    put_varint(&mut out, tris);
+    for v in &mesh.vertices {
+        for c in v {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for i in &mesh.indices {
+        out.extend_from_slice(&i.to_le_bytes());
+    }
+    Ok(out)
+}
+
+/// The plain layout's counts against the limits.
+fn check_plain_counts(vertices: u64, triangles: u64) -> Result<(), String> {
+    if vertices > MAX_CELLS || triangles > 2 * MAX_CELLS {
+        return Err(format!(
+            "{vertices} vertices and {triangles} triangles (at most {MAX_CELLS} and {})",
+            2 * MAX_CELLS
+        ));
+    }
+    Ok(())
+}
+
+/// Decodes the plain layout after its first 6 bytes.
+fn decode_plain(b: &[u8]) -> Result<MeshData, MeshError> {
+    let fmt = |m: String| MeshError::Format(m);
+    let mut hd = Header { b, at: 6 };
+    let face_size = hd.varint("face size")?;
+    let n = hd.varint("vertex count")?;
+    let tris = hd.varint("triangle count")?;
+    if face_size == 0 || face_size > MAX_SIDE {
+        return Err(fmt(format!("face size {face_size}")));
+    }
+    check_plain_counts(n, tris).map_err(fmt)?;
+    let body = &b[hd.at..];
+    let want = 12 * (n + tris);
+    if body.len() as u64 != want {
+        return Err(fmt(format!(
+            "{} bytes after the header of a plain mesh of {n} vertices and {tris} triangles \
+             (needs {want})",
+            body.len()
+        )));
+    }
+    let word = |k: usize| {
+        [
+            body[4 * k],
+            body[4 * k + 1],
+            body[4 * k + 2],
+            body[4 * k + 3],
+        ]
+    };
+    let n = n as usize;
+    let mut vertices = Vec::with_capacity(n);
+    for k in 0..n {
+        let v = [0, 1, 2].map(|c| f32::from_le_bytes(word(3 * k + c)));
+        if !(v.iter().all(|c| c.is_finite()) && v[2] > 0.0) {
+            return Err(fmt(format!(
+                "vertex {k}: {v:?} (needs finite x, y and depth > 0)"
+            )));
+        }
+        vertices.push(v);
+    }
+    let indices: Vec<u32> = (0..3 * tris as usize)
+        .map(|k| u32::from_le_bytes(word(3 * n + k)))
+        .collect();
+    if let Some((at, &i)) = indices.iter().enumerate().find(|(_, &i)| i as usize >= n) {
+        return Err(MeshError::BadIndex {
+            at,
+            index: i,
+            count: n,
+        });
+    }
+    Ok(MeshData { vertices, indices })
+}
+
+/// The lattice layout: compact, for vertices on distinct lattice positions of a planar
+/// triangulation (what `slabs` meshes are, apart from the quads of uncovered pixels).
+fn encode_lattice(mesh: &MeshData, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
+    let n = mesh.vertices.len();
+    let step = coding.depth_step;
+    // The lattice: pixel centres when every vertex is on one, else eighths of a pixel.
+    let on_centres = mesh
+        .vertices
+        .iter()
+        .all(|v| (v[0] - 0.5).fract() == 0.0 && (v[1] - 0.5).fract() == 0.0);
+    let unit: i64 = if on_centres { 1 } else { 8 };
+    let lattice: Vec<connect::Pt> = mesh
+        .vertices
+        .iter()
+        .map(|v| {
+            let l = |c: f32| ((c as f64 - 0.5) * unit as f64).round() as i64;
+            (l(v[0]), l(v[1]))
+        })
+        .collect();
+    let (x0, y0) = lattice
+        .iter()
+        .fold((i64::MAX, i64::MAX), |(a, b), p| (a.min(p.0), b.min(p.1)));
+    let (x1, y1) = lattice
+        .iter()
+        .fold((i64::MIN, i64::MIN), |(a, b), p| (a.max(p.0), b.max(p.1)));
+    let (x0, y0, w, h) = if n == 0 {
+        (0, 0, 0u64, 0u64)
+    } else {
+        (x0, y0, (x1 - x0 + 1) as u64, (y1 - y0 + 1) as u64)
+    };
+    let tris = mesh.indices.len() as u64 / 3;
+    check_counts(w, h, n as u64, tris).map_err(MeshError::Coding)?;
+    // Vertices in raster order.
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_unstable_by_key(|&i| (lattice[i].1, lattice[i].0));
+    for pair in order.windows(2) {
+        if lattice[pair[0]] == lattice[pair[1]] {
+            return Err(MeshError::BadVertex {
+                index: pair[1],
+                message: format!(
+                    "at the lattice position of vertex {} (one vertex per position)",
+                    pair[0]
+                ),
+            });
+        }
+    }
+    let mut new_index = vec![0u32; n];
+    for (k, &i) in order.iter().enumerate() {
+        new_index[i] = k as u32;
+    }
+    let pts: Vec<connect::Pt> = order
+        .iter()
+        .map(|&i| (lattice[i].0 - x0, lattice[i].1 - y0))
+        .collect();
+
+    let mut out = Vec::with_capacity(64 + 4 * n);
+    out.extend_from_slice(&MAGIC);
+    out.push(MESH_VERSION);
+    out.push(unit as u8);
+    put_varint(&mut out, coding.face_size as u64);
+    put_varint(&mut out, zigzag(x0));
+    put_varint(&mut out, zigzag(y0));
+    put_varint(&mut out, w);
+    put_varint(&mut out, h);
+    put_varint(&mut out, n as u64);
+    put_varint(&mut out, tris);
+    out.extend_from_slice(&(step as f32).to_le_bytes());
+    let step = step as f32 as f64;
+
+    let mut e = Encoder::new();
+    let mut occupied = vec![false; (w * h) as usize];
+    for p in &pts {
+        occupied[(p.1 as u64 * w + p.0 as u64) as usize] = true;
+    }
+    let mut ctx = [Bit::new(); 16];
+    let mut seen = 0;
+    for i in 0..occupied.len() {
+        if seen == n {
+            break;
+        }
+        let c = occupancy_ctx(&occupied, w as usize, i);
+        e.bit(&mut ctx[c], occupied[i]);
+        seen += usize::from(occupied[i]);
+    }
+    let triangles: Vec<[u32; 3]> = mesh
+        .indices
+        .chunks_exact(3)
+        .map(|t| {
+            [
+                new_index[t[0] as usize],
+                new_index[t[1] as usize],
+                new_index[t[2] as usize],
+            ]
+        })
+        .collect();
+    let grown = connect::encode(&mut e, &pts, &triangles)?;
+    let adj = adjacency(n, &grown);
+    let mut q = vec![0i64; n];
+    let mut models: [Signed; 4] = Default::default();
+    for (k, &i) in order.iter().enumerate() {
+        let (x, y) = position(pts[k], x0, y0, unit);
+        let planar = planar_norm(x as f64, y as f64, coding.face_size) / mesh.vertices[i][2] as f64;
+        q[k] = ((planar / step).round() as i64).clamp(1, i32::MAX as i64);
+        let (pred, how) = predict(k, &pts, &q, &grown, &adj);
+        models[how as usize].encode(&mut e, (q[k] - pred) as i32);
+    }
+    out.extend_from_slice(&e.finish());
+    Ok(out)
+}
+
+/// Face position of lattice point `p` (relative to the box corner `(x0, y0)`).
+fn position(p: connect::Pt, x0: i64, y0: i64, unit: i64) -> (f32, f32) {
+    let c = |l: i64| (l as f64 / unit as f64 + 0.5) as f32;
+    (c(p.0 + x0), c(p.1 + y0))
+}
+
+/// The header's counts against the limits.
+fn check_counts(w: u64, h: u64, vertices: u64, triangles: u64) -> Result<(), String> {
+    if w > MAX_BOX_SIDE || h > MAX_BOX_SIDE || w * h > MAX_CELLS {
+        return Err(format!(
+            "a lattice box of {w} × {h} cells (at most {MAX_CELLS} cells, {MAX_BOX_SIDE} a side)"
+        ));
+    }
+    if vertices > w * h {
+        return Err(format!("{vertices} vertices in {} lattice cells", w * h));
+    }
+    if triangles > 2 * vertices {
+        return Err(format!(
+            "{triangles} triangles over {vertices} vertices (a planar mesh has at most twice as many)"
+        ));
+    }
+    if vertices * triangles > MAX_WORK {
+        return Err(format!(
+            "{vertices} vertices × {triangles} triangles exceed {MAX_WORK} (use smaller tiles)"
+        ));
+    }
+    Ok(())
+}
+
+/// A cursor over the header.
+struct Header<'a> {
+    b: &'a [u8],
+    at: usize,
+}
+
+impl Header<'_> {
+    fn varint(&mut self, what: &str) -> Result<u64, MeshError> {
+        let mut v = 0u64;
+        for shift in (0..64).step_by(7) {
+            let byte = *self
+                .b
+                .get(self.at)
+                .ok_or_else(|| MeshError::Format(format!("ends inside the header ({what})")))?;
+            self.at += 1;
+            v |= ((byte & 0x7f) as u64).checked_shl(shift).unwrap_or(0);
+            if byte & 0x80 == 0 {
+                return Ok(v);
+            }
+        }
+        Err(MeshError::Format(format!("{what}: varint too long")))
+    }
+}
+
+/// Decodes a mesh; every count is checked against the limits before allocating.
+pub fn decode_mesh(b: &[u8]) -> Result<MeshData, MeshError> {
+    let fmt = |m: String| MeshError::Format(m);
+    if b.len() < 6 {
+        return Err(fmt(format!(
+            "{} bytes, shorter than any mesh header",
+            b.len()
+        )));
+    }
+    if b[0..4] != MAGIC {
+        return Err(fmt("bad magic (not a railview mesh)".into()));
+    }
+    if b[4] != MESH_VERSION {
+        return Err(fmt(format!(
+            "format {} (this build reads format {MESH_VERSION}; rebuild the database with `railview build`)",
+            b[4]
+        )));
+    }
+    let unit = match b[5] {
+        0 => return decode_plain(b),
+        u @ (1 | 8) => u as i64,
+        u => return Err(fmt(format!("lattice unit {u} (0, 1 or 8)"))),
+    };
+    let mut hd = Header { b, at: 6 };
+    let face_size = hd.varint("face size")?;
+    let unzig = |v: u64| ((v >> 1) as i64) ^ -((v & 1) as i64);
+    let x0 = unzig(hd.varint("x0")?);
+    let y0 = unzig(hd.varint("y0")?);
+    let w = hd.varint("box width")?;
+    let h = hd.varint("box height")?;
+    let n = hd.varint("vertex count")?;
+    let tris = hd.varint("triangle count")?;
+    if face_size == 0 || face_size > MAX_SIDE {
+        return Err(fmt(format!("face size {face_size}")));
+    }
+    let lim = 1i64 << 40;
+    if !(-lim..=lim).contains(&x0) || !(-lim..=lim).contains(&y0) {
+        return Err(fmt(format!("box corner ({x0}, {y0}) out of range")));
+    }
+    check_counts(w, h, n, tris).map_err(fmt)?;
+    let step_bytes = b
+        .get(hd.at..hd.at + 4)
+        .ok_or_else(|| fmt("ends inside the header (depth step)".into()))?;
+    let step =
+        f32::from_le_bytes([step_bytes[0], step_bytes[1], step_bytes[2], step_bytes[3]]) as f64;
+    if !(1e-9..=1e9).contains(&step) {
+        return Err(fmt(format!("depth step {step}")));
+    }
+    let mut d = Decoder::new(&b[hd.at + 4..]);
+    let n = n as usize;
+    let cells = (w * h) as usize;
+    let mut occupied = vec![false; cells];
+    let mut pts = Vec::with_capacity(n);
+    let mut ctx = [Bit::new(); 16];
+    for i in 0..cells {
+        if pts.len() == n {
+            break;
+        }
+        let c = occupancy_ctx(&occupied, w as usize, i);
+        if d.bit(&mut ctx[c]) {
+            occupied[i] = true;
+            pts.push(((i as u64 % w) as i64, (i as u64 / w) as i64));
+        }
+    }
+    if pts.len() < n {
+        return Err(fmt(format!(
+            "occupancy holds {} of {n} vertices",
+            pts.len()
+        )));
+    }
+    let grown = connect::decode(&mut d, &pts, tris as usize)?;
+    let adj = adjacency(n, &grown);
+    let mut q = vec![0i64; n];
+    let mut models: [Signed; 4] = Default::default();
+    let mut vertices = Vec::with_capacity(n);
+    for k in 0..n {
+        let (pred, how) = predict(k, &pts, &q, &grown, &adj);
+        let v = pred + models[how as usize].decode(&mut d) as i64;
+        if !(1..=i32::MAX as i64).contains(&v) {
+            return Err(fmt(format!("vertex {k}: quantised depth {v} out of range")));
+        }
+        q[k] = v;
+        let (x, y) = position(pts[k], x0, y0, unit);
+        let r = planar_norm(x as f64, y as f64, face_size as u32) / (v as f64 * step);
+        vertices.push([x, y, r as f32]);
+    }
+    Ok(MeshData {
+        vertices,
+        indices: grown.into_iter().flatten().collect(),
+    })
+}
+
+#[cfg(test)]
+mod tests;
