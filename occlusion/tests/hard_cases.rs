@@ -14,26 +14,11 @@ use occlusion::{
     cull_viewpoint, cull_viewpoint_shrunk, score, Cell, CullParams, SceneSolids, Variant,
     ViewpointCull,
 };
-use prerender::scene::{Material, Object, Scene, SceneDesc, Shape, Texture};
+use prerender::scene::{Scene, Shape};
 use tracks::cubemap::subpixel_dir;
 
 fn scene(shapes: Vec<Shape>) -> Scene {
-    Scene::new(
-        SceneDesc {
-            materials: vec![Material {
-                name: "m".into(),
-                color: DVec3::splat(0.6),
-                texture: Texture::Solid,
-            }],
-            objects: shapes
-                .into_iter()
-                .map(|shape| Object { shape, material: 0 })
-                .collect(),
-            ..Default::default()
-        },
-        "hard case",
-    )
-    .unwrap()
+    common::grey_scene(shapes, "hard case")
 }
 
 fn bx(min: (f64, f64, f64), max: (f64, f64, f64)) -> Shape {

@@ -4,10 +4,12 @@
 //! reached from any of many positions along the cell. And its results do not depend on the
 //! number of threads or on the order viewpoints are culled in.
 
+mod common;
+
 use glam::DVec3;
 use occlusion::synth::render_layers;
 use occlusion::{cull_viewpoint_shrunk, Cell, CullParams, SceneSolids, Variant, ViewpointCull};
-use prerender::scene::{Material, Object, Scene, SceneDesc, Shape, Texture};
+use prerender::scene::{Scene, Shape};
 use proptest::prelude::*;
 use tracks::cubemap::subpixel_dir;
 use tracks::{SlabRange, TileGrid};
@@ -15,22 +17,7 @@ use tracks::{SlabRange, TileGrid};
 const FACE: u32 = 32;
 
 fn scene(shapes: Vec<Shape>) -> Scene {
-    Scene::new(
-        SceneDesc {
-            materials: vec![Material {
-                name: "m".into(),
-                color: DVec3::splat(0.6),
-                texture: Texture::Solid,
-            }],
-            objects: shapes
-                .into_iter()
-                .map(|shape| Object { shape, material: 0 })
-                .collect(),
-            ..Default::default()
-        },
-        "random",
-    )
-    .unwrap()
+    common::grey_scene(shapes, "random")
 }
 
 /// A box (`kind` 0) or an upright cylinder (1) centred at `c` with sizes `s`.

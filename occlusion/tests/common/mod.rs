@@ -168,3 +168,24 @@ pub fn builtin(name: &str) -> (Scene, Vec<DVec3>) {
         .collect();
     (b.scene, positions)
 }
+
+/// A scene of `shapes`, all of one grey solid material, named `name`.
+pub fn grey_scene(shapes: Vec<prerender::scene::Shape>, name: &str) -> Scene {
+    use prerender::scene::{Material, Object, SceneDesc, Texture};
+    Scene::new(
+        SceneDesc {
+            materials: vec![Material {
+                name: "m".into(),
+                color: DVec3::splat(0.6),
+                texture: Texture::Solid,
+            }],
+            objects: shapes
+                .into_iter()
+                .map(|shape| Object { shape, material: 0 })
+                .collect(),
+            ..Default::default()
+        },
+        name,
+    )
+    .unwrap()
+}
