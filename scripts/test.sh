@@ -21,6 +21,8 @@ ensure_runtime_dir
 
 cargo fmt --all --check
 cargo clippy --release --workspace --all-targets --locked -- -D warnings
+# Every crate's documentation builds without warnings (broken intra-doc links included).
+RUSTDOCFLAGS="-D warnings" cargo doc --release --workspace --no-deps --locked
 cargo test --release --workspace --locked
 
 # The renderer's GPU tests run on wgpu's default backend (Vulkan) above; once more on GL
