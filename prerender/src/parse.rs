@@ -256,32 +256,118 @@ fn parse_desc(
     load: AssetLoader<'_>,
 ) -> Result<(SceneDesc, Vec<usize>), SceneError> {
     let file: FileToml = toml::from_str(text).map_err(|e| syntax(text, source_name, &e))?;
-    let invalid = |line: usize, item: String, field: &str, message: String| SceneError::Invalid {
-        source_name: source_name.to_string(),
-        line,
-        item,
-        field: field.to_string(),
-        message,
+    let src = Source {
+        text,
+        name: source_name,
+        load,
     };
     let mut desc = SceneDesc::default();
     if let Some(s) = file.sky {
+        desc.sky = src.sky(&s)?;
+    }
+    if let Some(s) = &file.sun {
+        desc.sun = Some(src.sun(s)?);
+    }
+    for (i, l) in file.light.iter().enumerate() {
+        desc.lights.push(src.light(i, l)?);
+    }
+    let mut by_name: HashMap<String, usize> = HashMap::new();
+    for m in &file.material {
+        let line = src.line(m);
+        let m = m.get_ref();
+        let item = format!("material {:?}", m.name);
+        if by_name.contains_key(&m.name) {
+            return Err(src.invalid(line, item, "name", "another material has this name".into()));
+        }
+        let material = src.material(line, &item, m)?;
+        by_name.insert(m.name.clone(), desc.materials.len());
+        desc.materials.push(material);
+    }
+    let mut lines = Vec::with_capacity(file.object.len());
+    for (i, o) in file.object.iter().enumerate() {
+        let line = src.line(o);
+        let o = o.get_ref();
+        let item = format!("object {i} ({})", o.kind);
+        let material = match &o.material {
+            Some(name) => *by_name.get(name).ok_or_else(|| {
+                src.invalid(
+                    line,
+                    item.clone(),
+                    "material",
+                    format!("no material named {name:?}"),
+                )
+            })?,
+            None => *by_name.entry("<default>".into()).or_insert_with(|| {
+                desc.materials.push(Material {
+                    name: "<default>".into(),
+                    color: DVec3::splat(0.6),
+                    texture: Texture::Solid,
+                });
+                desc.materials.len() - 1
+            }),
+        };
+        let shape = src.shape(line, &item, o)?;
+        desc.objects.push(Object { shape, material });
+        lines.push(line);
+    }
+    Ok((desc, lines))
+}
+
+/// The text being parsed, its name for errors, and how it reads external files.
+struct Source<'a> {
+    text: &'a str,
+    name: &'a str,
+    load: AssetLoader<'a>,
+}
+
+impl Source<'_> {
+    /// Line of the start of a table.
+    fn line<T>(&self, table: &Spanned<T>) -> usize {
+        line_of(self.text, table.span().start)
+    }
+
+    fn invalid(&self, line: usize, item: String, field: &str, message: String) -> SceneError {
+        SceneError::Invalid {
+            source_name: self.name.to_string(),
+            line,
+            item,
+            field: field.to_string(),
+            message,
+        }
+    }
+
+    fn asset(&self, line: usize, item: &str, path: &str, message: String) -> SceneError {
+        SceneError::Asset {
+            source_name: self.name.to_string(),
+            line,
+            item: item.to_string(),
+            path: path.to_string(),
+            message,
+        }
+    }
+
+    /// `[sky]`: defaults for what is missing.
+    fn sky(&self, s: &SkyToml) -> Result<Sky, SceneError> {
         let d = Sky::default();
-        desc.sky = Sky {
+        let sky = Sky {
             zenith: s.zenith.map_or(d.zenith, v3),
             horizon: s.horizon.map_or(d.horizon, v3),
             ground: s.ground.map_or(d.ground, v3),
             ambient: s.ambient.unwrap_or(d.ambient),
         };
-        if !(desc.sky.ambient.is_finite() && desc.sky.ambient >= 0.0) {
-            return Err(invalid(0, "sky".into(), "ambient", "must be >= 0".into()));
+        if !(sky.ambient.is_finite() && sky.ambient >= 0.0) {
+            return Err(self.invalid(0, "sky".into(), "ambient", "must be >= 0".into()));
         }
+        Ok(sky)
     }
-    if let Some(s) = &file.sun {
-        let line = line_of(text, s.span().start);
+
+    /// `[sun]`.
+    fn sun(&self, s: &Spanned<SunToml>) -> Result<Sun, SceneError> {
+        let line = self.line(s);
         let s = s.get_ref();
         let direction = v3(s.direction);
         if !(direction.is_finite() && direction.length() > 0.0) {
-            return Err(invalid(
+            return Err(self.invalid(
                 line,
                 "sun".into(),
                 "direction",
@@ -290,20 +376,22 @@ fn parse_desc(
         }
         let color = s.color.map_or(DVec3::ONE, v3);
         if !(color.is_finite() && color.min_element() >= 0.0) {
-            return Err(invalid(
+            return Err(self.invalid(
                 line,
                 "sun".into(),
                 "color",
                 format!("must be finite and >= 0, found {color}"),
             ));
         }
-        desc.sun = Some(Sun { direction, color });
+        Ok(Sun { direction, color })
     }
-    for (i, l) in file.light.iter().enumerate() {
-        let line = line_of(text, l.span().start);
+
+    /// The `i`th `[[light]]`.
+    fn light(&self, i: usize, l: &Spanned<LightToml>) -> Result<PointLight, SceneError> {
+        let line = self.line(l);
         let (position, color) = (v3(l.get_ref().position), v3(l.get_ref().color));
         if !position.is_finite() {
-            return Err(invalid(
+            return Err(self.invalid(
                 line,
                 format!("light {i}"),
                 "position",
@@ -311,36 +399,43 @@ fn parse_desc(
             ));
         }
         if !(color.is_finite() && color.min_element() >= 0.0) {
-            return Err(invalid(
+            return Err(self.invalid(
                 line,
                 format!("light {i}"),
                 "color",
                 format!("must be finite and >= 0, found {color}"),
             ));
         }
-        desc.lights.push(PointLight { position, color });
+        Ok(PointLight { position, color })
     }
-    let mut by_name: HashMap<String, usize> = HashMap::new();
-    for m in &file.material {
-        let line = line_of(text, m.span().start);
-        let m = m.get_ref();
-        let item = format!("material {:?}", m.name);
-        if by_name.contains_key(&m.name) {
-            return Err(invalid(
-                line,
-                item,
-                "name",
-                "another material has this name".into(),
-            ));
-        }
+
+    /// A `[[material]]` table (named `item` in errors), validated.
+    fn material(&self, line: usize, item: &str, m: &MaterialToml) -> Result<Material, SceneError> {
+        let texture = self.texture(line, item, m)?;
+        let material = Material {
+            name: m.name.clone(),
+            color: v3(m.color),
+            texture,
+        };
+        material
+            .validate()
+            .map_err(|(field, message)| self.invalid(line, item.to_string(), field, message))?;
+        Ok(material)
+    }
+
+    /// A material's texture and the fields it requires.
+    fn texture(&self, line: usize, item: &str, m: &MaterialToml) -> Result<Texture, SceneError> {
         let need3 = |f: &str, v: Option<[f64; 3]>| {
-            v.map(v3)
-                .ok_or_else(|| invalid(line, item.clone(), f, "required by this texture".into()))
+            v.map(v3).ok_or_else(|| {
+                self.invalid(line, item.to_string(), f, "required by this texture".into())
+            })
         };
         let need = |f: &str, v: Option<f64>| {
-            v.ok_or_else(|| invalid(line, item.clone(), f, "required by this texture".into()))
+            v.ok_or_else(|| {
+                self.invalid(line, item.to_string(), f, "required by this texture".into())
+            })
         };
-        let texture = match m.texture.as_deref().unwrap_or("solid") {
+        Ok(match m.texture.as_deref().unwrap_or("solid") {
             "solid" => Texture::Solid,
             "checker" => Texture::Checker {
                 color2: need3("color2", m.color2)?,
@@ -365,18 +460,11 @@ fn parse_desc(
                 size: m.window_size.unwrap_or([1.2, 1.6]),
             },
             "image" => {
-                let path = m
-                    .image
-                    .clone()
-                    .ok_or_else(|| invalid(line, item.clone(), "image", "required".into()))?;
-                let asset = |message: String| SceneError::Asset {
-                    source_name: source_name.to_string(),
-                    line,
-                    item: item.clone(),
-                    path: path.clone(),
-                    message,
-                };
-                let bytes = load(&path).map_err(asset)?;
+                let path = m.image.as_deref().ok_or_else(|| {
+                    self.invalid(line, item.to_string(), "image", "required".into())
+                })?;
+                let asset = |message: String| self.asset(line, item, path, message);
+                let bytes = (self.load)(path).map_err(asset)?;
                 let img = decode_texture(&bytes).map_err(asset)?;
                 if img.width() == 0 || img.height() == 0 {
                     return Err(asset("image is empty".into()));
@@ -391,50 +479,22 @@ fn parse_desc(
                 }
             }
             other => {
-                return Err(invalid(
+                return Err(self.invalid(
                     line,
-                    item,
+                    item.to_string(),
                     "texture",
                     format!(
                         "unknown texture `{other}` (expected solid, checker, noise, bricks, windows or image)"
                     ),
                 ))
             }
-        };
-        let material = Material {
-            name: m.name.clone(),
-            color: v3(m.color),
-            texture,
-        };
-        material
-            .validate()
-            .map_err(|(field, message)| invalid(line, item.clone(), field, message))?;
-        by_name.insert(m.name.clone(), desc.materials.len());
-        desc.materials.push(material);
+        })
     }
-    let mut lines = Vec::with_capacity(file.object.len());
-    for (i, o) in file.object.iter().enumerate() {
-        let line = line_of(text, o.span().start);
-        let o = o.get_ref();
-        let item = format!("object {i} ({})", o.kind);
-        let material = match &o.material {
-            Some(name) => *by_name.get(name).ok_or_else(|| {
-                invalid(
-                    line,
-                    item.clone(),
-                    "material",
-                    format!("no material named {name:?}"),
-                )
-            })?,
-            None => *by_name.entry("<default>".into()).or_insert_with(|| {
-                desc.materials.push(Material {
-                    name: "<default>".into(),
-                    color: DVec3::splat(0.6),
-                    texture: Texture::Solid,
-                });
-                desc.materials.len() - 1
-            }),
-        };
+
+    /// An `[[object]]`'s shape: only the fields of its type, those it needs present, validated.
+    fn shape(&self, line: usize, item: &str, o: &ObjectToml) -> Result<Shape, SceneError> {
+        let invalid =
+            |field: &str, message: String| self.invalid(line, item.to_string(), field, message);
         let allowed: &[&str] = match o.kind.as_str() {
             "sphere" => &["center", "radius"],
             "box" => &["min", "max"],
@@ -445,8 +505,6 @@ fn parse_desc(
             "mesh" => &["positions", "triangles", "obj", "translate", "scale"],
             other => {
                 return Err(invalid(
-                    line,
-                    item,
                     "type",
                     format!(
                         "unknown primitive `{other}` (expected sphere, box, plane, cylinder, cone, triangle or mesh)"
@@ -455,15 +513,11 @@ fn parse_desc(
             }
         };
         if let Some(f) = o.set_fields().into_iter().find(|f| !allowed.contains(f)) {
-            return Err(invalid(line, item, f, format!("not used by a {}", o.kind)));
+            return Err(invalid(f, format!("not used by a {}", o.kind)));
         }
-        let req3 = |f: &str, v: Option<[f64; 3]>| {
-            v.map(v3)
-                .ok_or_else(|| invalid(line, item.clone(), f, "missing".into()))
-        };
-        let req = |f: &str, v: Option<f64>| {
-            v.ok_or_else(|| invalid(line, item.clone(), f, "missing".into()))
-        };
+        let req3 =
+            |f: &str, v: Option<[f64; 3]>| v.map(v3).ok_or_else(|| invalid(f, "missing".into()));
+        let req = |f: &str, v: Option<f64>| v.ok_or_else(|| invalid(f, "missing".into()));
         let shape = match o.kind.as_str() {
             "sphere" => Shape::Sphere {
                 center: req3("center", o.center)?,
@@ -497,59 +551,45 @@ fn parse_desc(
                 b: req3("b", o.b)?,
                 c: req3("c", o.c)?,
             },
-            _ => {
-                let mut mesh = match (&o.positions, &o.triangles, &o.obj) {
-                    (Some(p), Some(t), None) => Mesh {
-                        positions: p.iter().map(|a| v3(*a)).collect(),
-                        triangles: t.clone(),
-                    },
-                    (None, None, Some(path)) => {
-                        let bytes = load(path).map_err(|message| SceneError::Asset {
-                            source_name: source_name.to_string(),
-                            line,
-                            item: item.clone(),
-                            path: path.clone(),
-                            message,
-                        })?;
-                        parse_obj(&bytes).map_err(|message| SceneError::Asset {
-                            source_name: source_name.to_string(),
-                            line,
-                            item: item.clone(),
-                            path: path.clone(),
-                            message,
-                        })?
-                    }
-                    _ => {
-                        return Err(invalid(
-                            line,
-                            item,
-                            "positions",
-                            "a mesh needs either `positions` and `triangles`, or `obj`".into(),
-                        ))
-                    }
-                };
-                let scale = o.scale.unwrap_or(1.0);
-                if !(scale.is_finite() && scale > 0.0) {
-                    return Err(invalid(
-                        line,
-                        item,
-                        "scale",
-                        format!("must be positive, found {scale}"),
-                    ));
-                }
-                let t = o.translate.map_or(DVec3::ZERO, v3);
-                mesh.positions.iter_mut().for_each(|p| *p = *p * scale + t);
-                Shape::Mesh(Arc::new(mesh))
-            }
+            _ => Shape::Mesh(Arc::new(self.mesh(line, item, o)?)),
         };
         // Validate here too, so the error carries the line.
         shape
             .validate()
-            .map_err(|(field, message)| invalid(line, item.clone(), field, message))?;
-        desc.objects.push(Object { shape, material });
-        lines.push(line);
+            .map_err(|(field, message)| invalid(field, message))?;
+        Ok(shape)
     }
-    Ok((desc, lines))
+
+    /// A `mesh` object: inline `positions` and `triangles`, or an `obj` file, then scaled and
+    /// translated.
+    fn mesh(&self, line: usize, item: &str, o: &ObjectToml) -> Result<Mesh, SceneError> {
+        let invalid =
+            |field: &str, message: String| self.invalid(line, item.to_string(), field, message);
+        let mut mesh = match (&o.positions, &o.triangles, &o.obj) {
+            (Some(p), Some(t), None) => Mesh {
+                positions: p.iter().map(|a| v3(*a)).collect(),
+                triangles: t.clone(),
+            },
+            (None, None, Some(path)) => {
+                let asset = |message: String| self.asset(line, item, path, message);
+                let bytes = (self.load)(path).map_err(asset)?;
+                parse_obj(&bytes).map_err(asset)?
+            }
+            _ => {
+                return Err(invalid(
+                    "positions",
+                    "a mesh needs either `positions` and `triangles`, or `obj`".into(),
+                ))
+            }
+        };
+        let scale = o.scale.unwrap_or(1.0);
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(invalid("scale", format!("must be positive, found {scale}")));
+        }
+        let t = o.translate.map_or(DVec3::ZERO, v3);
+        mesh.positions.iter_mut().for_each(|p| *p = *p * scale + t);
+        Ok(mesh)
+    }
 }
 
 /// Triangles of every model in an OBJ file (materials ignored).

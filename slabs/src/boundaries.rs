@@ -270,60 +270,63 @@ pub fn choose_with_edges(
     }
     let smooth = hist.smoothed(params.smoothing_passes);
     let cands = find_candidates(&hist, &smooth, params.valley_ratio);
-    // Fractions of the whole panorama (4π sr per viewpoint).
-    let finite = 4.0 * std::f64::consts::PI;
-    let edge_fraction: Vec<f64> = cands
-        .iter()
-        .map(|c| {
-            edges
-                .iter()
-                .filter(|e| e.near_m < c.depth_m && e.far_m >= c.depth_m)
-                .map(|e| e.weight_sr)
-                .sum::<f64>()
-                / finite
-                + 0.0 // an empty sum is -0.0
-        })
+    let placement = stab_edges(&cands, edges, params.min_edge_fraction);
+    let live: Vec<usize> = (0..cands.len())
+        .filter(|&ci| placement.placed[ci])
         .collect();
-    let mode_depth = |lo: usize, hi: usize| -> f64 {
-        // Mode of bins lo..hi (exclusive) by the raw weights; fall back to the centre.
-        let mut best = (lo, -1.0);
-        for i in lo..hi {
-            if hist.weights[i] > best.1 {
-                best = (i, hist.weights[i]);
-            }
-        }
-        hist.centre_m(best.0)
+    let clusters = Clusters {
+        hist: &hist,
+        cands: &cands,
+        half_baseline_m: b / 2.0,
     };
-    // Representative depths of the clusters either side of `live[k]` among `live`.
-    let evaluate = |live: &[usize], k: usize| -> (f64, f64, f64) {
-        let c = &cands[live[k]];
-        let lo = if k == 0 {
-            0
-        } else {
-            cands[live[k - 1]].bin + 1
-        };
-        let hi = if k + 1 == live.len() {
-            hist.bins()
-        } else {
-            cands[live[k + 1]].bin
-        };
-        let near = mode_depth(lo, c.bin.max(lo + 1).min(hist.bins()));
-        let far = mode_depth(
-            (c.bin + 1).min(hi.saturating_sub(1)),
-            hi.max(c.bin + 2).min(hist.bins()),
-        );
-        (near, far, cluster_parallax_rad(b / 2.0, near, far))
-    };
-    // Interval stabbing: every occlusion edge (near, far] wants a boundary inside it, so
-    // that its two sides land in different slabs. Greedy by far end picks the fewest
-    // candidates that separate them (optimal for stabbing intervals with points); a
-    // candidate that would separate less than `min_edge_fraction` of the panorama is
-    // not worth a slab, and its edge is left unresolved.
+    report.candidates = clusters.describe(edges, &placement, &live, theta, params);
+    let slabs = slabs_at(&cands, &live);
+    report.unresolved_edge_fraction = placement.unresolved;
+    report.summary = format!(
+        "{} slab(s) from {} candidate valley(s), occlusion edges left in one slab: {:.2e} of the panorama; B/2 = {:.3} m, θ_pixel = {:.3e} rad (N = {}), threshold {} px",
+        slabs.len(),
+        cands.len(),
+        placement.unresolved,
+        b / 2.0,
+        theta,
+        face_size,
+        params.threshold_px
+    );
+    SlabChoice {
+        slabs,
+        criterion: report,
+        histogram: hist,
+    }
+}
+
+/// Solid angle of a whole panorama (per viewpoint): edge weights are fractions of it.
+const PANORAMA_SR: f64 = 4.0 * std::f64::consts::PI;
+
+/// Whether a boundary at candidate `c` separates the two sides of edge `e`.
+fn stabs(c: &Cand, e: &OcclusionEdge) -> bool {
+    e.near_m < c.depth_m && e.far_m >= c.depth_m
+}
+
+/// Which candidates became boundaries, and what the edges they separate reveal.
+struct Placement {
+    /// Per candidate: placed as a boundary.
+    placed: Vec<bool>,
+    /// Per candidate: the fraction of the panorama it newly separated when placed (0 if not).
+    placed_gain: Vec<f64>,
+    /// Edges no placed boundary separates, as a fraction of the panorama.
+    unresolved: f64,
+}
+
+/// Interval stabbing: every occlusion edge (near, far] wants a boundary inside it, so that its
+/// two sides land in different slabs. Greedy by far end picks the fewest candidates that
+/// separate them (optimal for stabbing intervals with points); a candidate that would separate
+/// less than `min_edge_fraction` of the panorama is not worth a slab, and its edge is left
+/// unresolved.
+fn stab_edges(cands: &[Cand], edges: &[OcclusionEdge], min_edge_fraction: f64) -> Placement {
     let mut order: Vec<usize> = (0..edges.len()).collect();
     order.sort_by(|&i, &j| edges[i].far_m.total_cmp(&edges[j].far_m));
     let mut stabbed = vec![false; edges.len()];
     let mut placed = vec![false; cands.len()];
-    let stabs = |c: &Cand, e: &OcclusionEdge| e.near_m < c.depth_m && e.far_m >= c.depth_m;
     let gain = |ci: usize, stabbed: &[bool]| -> f64 {
         edges
             .iter()
@@ -331,7 +334,7 @@ pub fn choose_with_edges(
             .filter(|(e, s)| !**s && stabs(&cands[ci], e))
             .map(|(e, _)| e.weight_sr)
             .sum::<f64>()
-            / finite
+            / PANORAMA_SR
     };
     let mut gains: Vec<f64> = (0..cands.len()).map(|ci| gain(ci, &stabbed)).collect();
     let mut placed_gain = vec![0.0; cands.len()];
@@ -343,7 +346,7 @@ pub fn choose_with_edges(
         let Some(ci) = (0..cands.len()).rev().find(|&ci| stabs(&cands[ci], e)) else {
             continue;
         };
-        if placed[ci] || gains[ci] < params.min_edge_fraction {
+        if placed[ci] || gains[ci] < min_edge_fraction {
             continue;
         }
         placed[ci] = true;
@@ -355,60 +358,135 @@ pub fn choose_with_edges(
         }
         gains = (0..cands.len()).map(|ci| gain(ci, &stabbed)).collect();
     }
-    let live: Vec<usize> = (0..cands.len()).filter(|&ci| placed[ci]).collect();
     let unresolved: f64 = edges
         .iter()
         .zip(&stabbed)
         .filter(|(_, s)| !**s)
         .map(|(e, _)| e.weight_sr)
         .sum::<f64>()
-        / finite;
-    let mut decided: Vec<Option<Candidate>> = (0..cands.len()).map(|_| None).collect();
-    // Report each candidate against the clusters between its placed neighbours.
-    for ci in 0..cands.len() {
-        let mut with: Vec<usize> = live.clone();
-        if !placed[ci] {
-            with.push(ci);
-            with.sort_unstable();
-        }
-        let k = with.iter().position(|&x| x == ci).unwrap_or(0);
-        let (near, far, p) = evaluate(&with, k);
-        let c = &cands[ci];
-        let px = p / theta;
-        let all_edges = edge_fraction[ci];
-        let reason = if placed[ci] {
-            format!(
-                "separates occlusion edges covering {:.2e} of the panorama that no nearer boundary separates (clusters {near:.3} m / {far:.3} m slide {px:.3} px)",
-                placed_gain[ci]
-            )
-        } else if all_edges < params.min_edge_fraction {
-            format!(
-                "occlusion edges across {:.3} m cover {all_edges:.2e} < {:.1e} of the panorama: the surfaces on either side are continuous or too small to matter",
-                c.depth_m, params.min_edge_fraction
-            )
-        } else {
-            format!(
-                "its occlusion edges ({all_edges:.2e}) are separated by a placed boundary already, or leave less than {:.1e} for it",
-                params.min_edge_fraction
-            )
-        };
-        decided[ci] = Some(Candidate {
-            kind: c.kind.into(),
-            depth_m: c.depth_m,
-            near_cluster_m: near,
-            far_cluster_m: far,
-            parallax_rad: p,
-            parallax_px: px,
-            valley_depth_ratio: c.ratio,
-            edge_fraction: all_edges,
-            accepted: placed[ci],
-            reason,
-        });
+        / PANORAMA_SR;
+    Placement {
+        placed,
+        placed_gain,
+        unresolved,
     }
-    report.candidates = decided.into_iter().flatten().collect();
+}
+
+/// The depth clusters between candidate boundaries of a histogram.
+struct Clusters<'a> {
+    hist: &'a DepthHistogram,
+    cands: &'a [Cand],
+    half_baseline_m: f64,
+}
+
+impl Clusters<'_> {
+    /// Mode of bins lo..hi (exclusive) by the raw weights; fall back to the centre.
+    fn mode_depth(&self, lo: usize, hi: usize) -> f64 {
+        let mut best = (lo, -1.0);
+        for i in lo..hi {
+            if self.hist.weights[i] > best.1 {
+                best = (i, self.hist.weights[i]);
+            }
+        }
+        self.hist.centre_m(best.0)
+    }
+
+    /// Representative depths of the clusters either side of `live[k]` among `live`, and their
+    /// parallax.
+    fn evaluate(&self, live: &[usize], k: usize) -> (f64, f64, f64) {
+        let (cands, bins) = (self.cands, self.hist.bins());
+        let c = &cands[live[k]];
+        let lo = if k == 0 {
+            0
+        } else {
+            cands[live[k - 1]].bin + 1
+        };
+        let hi = if k + 1 == live.len() {
+            bins
+        } else {
+            cands[live[k + 1]].bin
+        };
+        let near = self.mode_depth(lo, c.bin.max(lo + 1).min(bins));
+        let far = self.mode_depth(
+            (c.bin + 1).min(hi.saturating_sub(1)),
+            hi.max(c.bin + 2).min(bins),
+        );
+        (
+            near,
+            far,
+            cluster_parallax_rad(self.half_baseline_m, near, far),
+        )
+    }
+
+    /// The report of every candidate, each against the clusters between its placed
+    /// neighbours (`live`: the placed candidates in order).
+    fn describe(
+        &self,
+        edges: &[OcclusionEdge],
+        placement: &Placement,
+        live: &[usize],
+        theta: f64,
+        params: &ChooseParams,
+    ) -> Vec<Candidate> {
+        let cands = self.cands;
+        let placed = &placement.placed;
+        let mut decided = Vec::with_capacity(cands.len());
+        for (ci, c) in cands.iter().enumerate() {
+            let mut with: Vec<usize> = live.to_vec();
+            if !placed[ci] {
+                with.push(ci);
+                with.sort_unstable();
+            }
+            let k = with.iter().position(|&x| x == ci).unwrap_or(0);
+            let (near, far, p) = self.evaluate(&with, k);
+            let px = p / theta;
+            // Fraction of the panorama across all edges this candidate would separate.
+            let all_edges = edges
+                .iter()
+                .filter(|e| stabs(c, e))
+                .map(|e| e.weight_sr)
+                .sum::<f64>()
+                / PANORAMA_SR
+                + 0.0; // an empty sum is -0.0
+            let reason = if placed[ci] {
+                format!(
+                    "separates occlusion edges covering {:.2e} of the panorama that no nearer boundary separates (clusters {near:.3} m / {far:.3} m slide {px:.3} px)",
+                    placement.placed_gain[ci]
+                )
+            } else if all_edges < params.min_edge_fraction {
+                format!(
+                    "occlusion edges across {:.3} m cover {all_edges:.2e} < {:.1e} of the panorama: the surfaces on either side are continuous or too small to matter",
+                    c.depth_m, params.min_edge_fraction
+                )
+            } else {
+                format!(
+                    "its occlusion edges ({all_edges:.2e}) are separated by a placed boundary already, or leave less than {:.1e} for it",
+                    params.min_edge_fraction
+                )
+            };
+            decided.push(Candidate {
+                kind: c.kind.into(),
+                depth_m: c.depth_m,
+                near_cluster_m: near,
+                far_cluster_m: far,
+                parallax_rad: p,
+                parallax_px: px,
+                valley_depth_ratio: c.ratio,
+                edge_fraction: all_edges,
+                accepted: placed[ci],
+                reason,
+            });
+        }
+        decided
+    }
+}
+
+/// Slabs from 0 to infinity split at the placed candidates `live` (a candidate no deeper than
+/// the previous boundary adds none).
+fn slabs_at(cands: &[Cand], live: &[usize]) -> Vec<SlabRange> {
     let mut slabs = Vec::new();
     let mut near = 0.0;
-    for &k in &live {
+    for &k in live {
         let d = cands[k].depth_m;
         if let Some(r) = SlabRange::new(near, d) {
             slabs.push(r);
@@ -416,22 +494,7 @@ pub fn choose_with_edges(
         }
     }
     slabs.extend(SlabRange::new(near, f64::INFINITY));
-    report.unresolved_edge_fraction = unresolved;
-    report.summary = format!(
-        "{} slab(s) from {} candidate valley(s), occlusion edges left in one slab: {:.2e} of the panorama; B/2 = {:.3} m, θ_pixel = {:.3e} rad (N = {}), threshold {} px",
-        slabs.len(),
-        cands.len(),
-        unresolved,
-        b / 2.0,
-        theta,
-        face_size,
-        params.threshold_px
-    );
-    SlabChoice {
-        slabs,
-        criterion: report,
-        histogram: hist,
-    }
+    slabs
 }
 
 /// Report for a manual `--slabs` list: no candidates, the list as given.

@@ -16,7 +16,7 @@
 //! skirts drawn beside the stored mesh and cut by the opacity mask; the stored meshes and
 //! databases are unchanged.)
 //!
-//! Adaptive meshes may reach up to [`FILL_RINGS`] pixels past the outline of the opaque
+//! Adaptive meshes may reach up to `FILL_RINGS` (two) pixels past the outline of the opaque
 //! pixels, over a band whose depth is extrapolated from the surface: their vertices there are
 //! never drawn as content (the opacity mask cuts), they only spare the mesh from tracing the
 //! outline's staircase pixel by pixel.
@@ -27,11 +27,14 @@
 //! predicts the other within `discontinuity_px` of such parallax; no triangle spans one.
 
 use serde::{Deserialize, Serialize};
-use spade::{DelaunayTriangulation, Point2, Triangulation};
-use tracks::cubemap::{pixel_dir, uv_from_pixel_f};
+use tracks::cubemap::pixel_dir;
 use tracks::{CubeMap, Face, TileGrid, TileId};
 
-use crate::boundaries::theta_pixel;
+mod adaptive;
+mod field;
+
+pub(crate) use adaptive::adaptive_mesh;
+pub(crate) use field::Field;
 
 /// A tile's depth mesh: vertices `[x, y, r]` (face pixels, radial metres), triangles as
 /// index triples (counter-clockwise in image coordinates is not guaranteed).
@@ -84,293 +87,6 @@ pub struct MeshStats {
     /// Largest and mean parallax error over covered pixels that touch no discontinuity.
     pub max_error_px: f64,
     pub mean_error_px: f64,
-}
-
-/// The lattice of pixel centres a tile's mesh spans, with per-pixel depth data.
-pub(crate) struct Field {
-    x0: u32,
-    y0: u32,
-    /// Tile's own pixel rectangle end (exclusive), face pixels.
-    x1: u32,
-    y1: u32,
-    w: usize,
-    h: usize,
-    valid: Vec<bool>,
-    r: Vec<f64>,
-    q: Vec<f64>,
-    dnorm: Vec<f64>,
-    /// Discontinuity between `(i, j)` and `(i + 1, j)` / `(i, j + 1)`.
-    disc_right: Vec<bool>,
-    disc_down: Vec<bool>,
-    /// Connected component over continuous edges; `u32::MAX` for transparent pixels (and for
-    /// all pixels of a field built without components).
-    comp: Vec<u32>,
-    /// The filled band: for transparent pixels within [`FILL_RINGS`] of the surface their ring
-    /// (1 = next to the surface), 0 for all others. Band pixels have an extrapolated depth
-    /// (`q`, `r` and `comp` set; `valid` stays false, so they count for neither coverage nor
-    /// error): adaptive meshes may place vertices there and overhang them; the mask cuts.
-    ring: Vec<u8>,
-    /// Parallax pixels per unit of `1/r`: `B / θ_pixel`.
-    px_per_inv_m: f64,
-}
-
-impl Field {
-    #[cfg(test)]
-    pub(crate) fn new(
-        depth: &CubeMap<f32>,
-        mask: &CubeMap<bool>,
-        grid: TileGrid,
-        tile: TileId,
-        params: &MeshParams,
-    ) -> Field {
-        Field::build(depth, mask, grid, tile, params, true)
-    }
-
-    /// The field; connected components (only the adaptive mesh needs them) when `components`.
-    fn build(
-        depth: &CubeMap<f32>,
-        mask: &CubeMap<bool>,
-        grid: TileGrid,
-        tile: TileId,
-        params: &MeshParams,
-        components: bool,
-    ) -> Field {
-        let n = grid.face_size;
-        let (x0, y0, x1, y1) = grid.pixel_rect(tile);
-        let xe = x1.min(n - 1);
-        let ye = y1.min(n - 1);
-        let (w, h) = ((xe - x0 + 1) as usize, (ye - y0 + 1) as usize);
-        let face = tile.face;
-        let b = if params.baseline_m > 0.0 {
-            params.baseline_m
-        } else {
-            1.0
-        };
-        let px_per_inv_m = b / theta_pixel(n);
-        // Inverse planar depth over the lattice plus a one-pixel border (NaN where
-        // transparent or off the face), for second differences across the lattice edges.
-        let (pw, ph) = (w + 2, h + 2);
-        let mut pq = vec![f64::NAN; pw * ph];
-        // |F + uR + vU|² = 1 + u² + v², with u by column and v by row of the padded lattice.
-        let u2: Vec<f64> = (0..pw)
-            .map(|pi| {
-                let (u, _) = uv_from_pixel_f(x0 as f64 + pi as f64 - 0.5, 0.0, n);
-                u * u
-            })
-            .collect();
-        let v2: Vec<f64> = (0..ph)
-            .map(|pj| {
-                let (_, v) = uv_from_pixel_f(0.0, y0 as f64 + pj as f64 - 0.5, n);
-                v * v
-            })
-            .collect();
-        let fd = depth.face(face);
-        let fm = mask.face(face);
-        let nn = n as usize;
-        // Padded columns that lie on the face.
-        let pi_lo = if x0 == 0 { 1 } else { 0 };
-        let pi_hi = pw.min(nn + 1 - x0 as usize);
-        for pj in 0..ph {
-            let y = y0 as i64 + pj as i64 - 1;
-            if y < 0 || y >= n as i64 {
-                continue;
-            }
-            let row = y as usize * nn + x0 as usize;
-            for pi in pi_lo..pi_hi {
-                let src = row + pi - 1;
-                let d = fd[src] as f64;
-                if fm[src] && d.is_finite() && d > 0.0 {
-                    pq[pj * pw + pi] = (1.0 + u2[pi] + v2[pj]).sqrt() / d;
-                }
-            }
-        }
-        let len = w * h;
-        let mut f = Field {
-            x0,
-            y0,
-            x1,
-            y1,
-            w,
-            h,
-            valid: vec![false; len],
-            r: vec![f64::INFINITY; len],
-            q: vec![0.0; len],
-            dnorm: vec![1.0; len],
-            disc_right: vec![false; len],
-            disc_down: vec![false; len],
-            comp: vec![u32::MAX; len],
-            ring: vec![0; len],
-            px_per_inv_m,
-        };
-        let thr = params.discontinuity_px;
-        // Residual of the jump a→b given the pixels before a and after b (NaN = missing).
-        let resid = |qp: f64, qa: f64, qb: f64, qn: f64| -> f64 {
-            let e1 = if qp.is_nan() {
-                (qb - qa).abs()
-            } else {
-                (qb - (2.0 * qa - qp)).abs()
-            };
-            let e2 = if qn.is_nan() {
-                (qa - qb).abs()
-            } else {
-                (qa - (2.0 * qb - qn)).abs()
-            };
-            e1.min(e2)
-        };
-        for j in 0..h {
-            for i in 0..w {
-                let k = j * w + i;
-                let pk = (j + 1) * pw + i + 1;
-                let dn = (1.0 + u2[i + 1] + v2[j + 1]).sqrt();
-                f.dnorm[k] = dn;
-                let qa = pq[pk];
-                if qa.is_nan() {
-                    continue;
-                }
-                f.valid[k] = true;
-                f.q[k] = qa;
-                f.r[k] = fd[(y0 as usize + j) * nn + x0 as usize + i] as f64;
-                let s = px_per_inv_m / dn;
-                if i + 1 < w && !pq[pk + 1].is_nan() {
-                    f.disc_right[k] = resid(pq[pk - 1], qa, pq[pk + 1], pq[pk + 2]) * s > thr;
-                }
-                if j + 1 < h && !pq[pk + pw].is_nan() {
-                    f.disc_down[k] = resid(pq[pk - pw], qa, pq[pk + pw], pq[pk + 2 * pw]) * s > thr;
-                }
-            }
-        }
-        if components {
-            f.label_components();
-            f.fill(FILL_RINGS);
-        }
-        f
-    }
-
-    /// Extrapolate the surface `rings` pixels into the transparent pixels around it, ring by
-    /// ring: each new pixel continues a neighbour linearly (from the pixel behind it in the same
-    /// direction, when that one is known and of the same component) or repeats it; of several
-    /// neighbours the nearest surface (largest `q`) wins.
-    fn fill(&mut self, rings: usize) {
-        let (w, h) = (self.w, self.h);
-        let known = |f: &Field, k: usize| f.valid[k] || f.filled(k);
-        for ring in 1..=rings {
-            let mut new: Vec<(usize, f64, u32)> = Vec::new();
-            for j in 0..h {
-                for i in 0..w {
-                    let k = j * w + i;
-                    if known(self, k) {
-                        continue;
-                    }
-                    let mut best: Option<(f64, u32)> = None;
-                    let dirs: [(i64, i64); 4] = [(1, 0), (-1, 0), (0, 1), (0, -1)];
-                    for (dx, dy) in dirs {
-                        let (ni, nj) = (i as i64 + dx, j as i64 + dy);
-                        if ni < 0 || nj < 0 || ni >= w as i64 || nj >= h as i64 {
-                            continue;
-                        }
-                        let nk = nj as usize * w + ni as usize;
-                        if !known(self, nk) {
-                            continue;
-                        }
-                        let qn = self.q[nk];
-                        let (bi, bj) = (ni + dx, nj + dy);
-                        let mut q = qn;
-                        if bi >= 0 && bj >= 0 && bi < w as i64 && bj < h as i64 {
-                            let bk = bj as usize * w + bi as usize;
-                            if known(self, bk) && self.comp[bk] == self.comp[nk] {
-                                q = (2.0 * qn - self.q[bk]).clamp(0.5 * qn, 2.0 * qn);
-                            }
-                        }
-                        if best.is_none_or(|(bq, _)| q > bq) {
-                            best = Some((q, self.comp[nk]));
-                        }
-                    }
-                    if let Some((q, c)) = best {
-                        new.push((k, q, c));
-                    }
-                }
-            }
-            if new.is_empty() {
-                break;
-            }
-            for (k, q, c) in new {
-                self.ring[k] = ring as u8;
-                self.q[k] = q;
-                self.r[k] = self.dnorm[k] / q;
-                self.comp[k] = c;
-            }
-        }
-    }
-
-    /// Whether pixel `k` lies in the filled band.
-    fn filled(&self, k: usize) -> bool {
-        self.ring[k] > 0
-    }
-
-    fn label_components(&mut self) {
-        let (w, h) = (self.w, self.h);
-        let mut next = 0u32;
-        let mut stack = Vec::new();
-        for start in 0..w * h {
-            if !self.valid[start] || self.comp[start] != u32::MAX {
-                continue;
-            }
-            self.comp[start] = next;
-            stack.push((start, start % w, start / w));
-            while let Some((k, i, j)) = stack.pop() {
-                let mut visit = |m: usize, mi: usize, mj: usize, open: bool| {
-                    if open && self.valid[m] && self.comp[m] == u32::MAX {
-                        self.comp[m] = next;
-                        stack.push((m, mi, mj));
-                    }
-                };
-                if i + 1 < w {
-                    visit(k + 1, i + 1, j, !self.disc_right[k]);
-                }
-                if i > 0 {
-                    visit(k - 1, i - 1, j, !self.disc_right[k - 1]);
-                }
-                if j + 1 < h {
-                    visit(k + w, i, j + 1, !self.disc_down[k]);
-                }
-                if j > 0 {
-                    visit(k - w, i, j - 1, !self.disc_down[k - w]);
-                }
-            }
-            next += 1;
-        }
-    }
-
-    fn idx(&self, i: usize, j: usize) -> usize {
-        j * self.w + i
-    }
-
-    /// Whether pixel `(i, j)` touches a discontinuity edge.
-    fn at_discontinuity(&self, i: usize, j: usize) -> bool {
-        let k = self.idx(i, j);
-        self.disc_right[k]
-            || self.disc_down[k]
-            || (i > 0 && self.disc_right[k - 1])
-            || (j > 0 && self.disc_down[k - self.w])
-    }
-
-    /// Whether local pixel `(i, j)` belongs to the tile itself (not the next tile's edge).
-    fn in_tile(&self, i: usize, j: usize) -> bool {
-        self.x0 + (i as u32) < self.x1 && self.y0 + (j as u32) < self.y1
-    }
-
-    fn error_px(&self, k: usize, q_mesh: f64) -> f64 {
-        (self.q[k] - q_mesh).abs() * self.px_per_inv_m / self.dnorm[k]
-    }
-
-    /// Emit a vertex for local pixel `(i, j)`.
-    fn vertex(&self, i: usize, j: usize) -> [f32; 3] {
-        [
-            (self.x0 as f64 + i as f64 + 0.5) as f32,
-            (self.y0 as f64 + j as f64 + 0.5) as f32,
-            self.r[self.idx(i, j)] as f32,
-        ]
-    }
 }
 
 /// Pixels with centres inside triangle `t` (local lattice coordinates, edges inclusive),
@@ -442,29 +158,6 @@ fn raster(t: [(f64, f64); 3], w: usize, h: usize, mut visit: impl FnMut(usize, u
         }
     }
 }
-
-/// A fast hasher for small integer keys (lattice indices of a tile): multiply–rotate mixing.
-#[derive(Default)]
-struct LatticeHasher(u64);
-
-impl std::hash::Hasher for LatticeHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-    fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.write_u64(b as u64);
-        }
-    }
-    fn write_u64(&mut self, v: u64) {
-        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
-    }
-    fn write_usize(&mut self, v: usize) {
-        self.write_u64(v as u64);
-    }
-}
-
-type LatticeHash = std::hash::BuildHasherDefault<LatticeHasher>;
 
 /// How far (pixels) adaptive meshes may reach beyond the surface into transparent pixels.
 /// Two rings let a mesh edge run straight past the staircase of an outline that turns
@@ -572,150 +265,6 @@ fn unit_cell(f: &Field, out: &mut MeshOut, i: usize, j: usize) {
             out.tri(p(tr), p(br), p(bl));
         }
     }
-}
-
-/// An adaptive mesh: a Delaunay triangulation of the lattice, refined by inserting the worst
-/// pixel of every triangle whose error exceeds `max_error_px`, that covers a transparent
-/// pixel beyond the filled band ([`FILL_RINGS`]) or another continuous surface, or whose
-/// corners are not one continuous surface. A triangle of one surface may have corners in the
-/// filled band and overhang transparent pixels there: the renderer's opacity mask cuts the
-/// outline, so the mesh need not follow its staircase pixel by pixel (on the synthetic street
-/// this halves the triangles). A triangle whose corners are not one surface is refined only
-/// while it covers an opaque pixel, at its outermost filled pixel if it has one (the mesh
-/// then ends in the band), else at the opaque pixel nearest its centre; without an opaque
-/// pixel it is dropped. Every lattice point can be inserted, so refinement ends.
-pub(crate) fn adaptive_mesh(field: &Field, max_error_px: f64) -> TileMesh {
-    let f = field;
-    let (w, h) = (f.w, f.h);
-    let mut tri: DelaunayTriangulation<Point2<f64>> = DelaunayTriangulation::new();
-    let mut is_vertex = vec![false; w * h];
-    let mut pending: Vec<(usize, usize)> = vec![(0, 0), (w - 1, 0), (0, h - 1), (w - 1, h - 1)];
-    let mut keep: Vec<[(usize, usize); 3]> = Vec::new();
-    // Final verdicts (kept or dropped) by vertex triple: a triangle that survives an
-    // insertion pass unchanged covers the same pixels, so it need not be rasterised again.
-    let mut settled: std::collections::HashMap<[usize; 3], bool, LatticeHash> = Default::default();
-    // Opaque vertices already refined towards (see below).
-    let mut reached = vec![false; w * h];
-    loop {
-        pending.retain(|&(i, j)| !is_vertex[f.idx(i, j)]);
-        if pending.is_empty() {
-            // An opaque vertex that no kept triangle uses (a lone pixel on a corner of the
-            // lattice, a vertex from the start) is covered by refining towards it: its
-            // opaque or filled neighbours become vertices, and the triangles between them
-            // and it are one surface.
-            let mut used = vec![false; w * h];
-            for t in &keep {
-                for &(i, j) in t {
-                    used[f.idx(i, j)] = true;
-                }
-            }
-            for j in 0..h {
-                for i in 0..w {
-                    let k = f.idx(i, j);
-                    if !is_vertex[k] || !f.valid[k] || used[k] || reached[k] || !f.in_tile(i, j) {
-                        continue;
-                    }
-                    reached[k] = true;
-                    for nj in j.saturating_sub(1)..(j + 2).min(h) {
-                        for ni in i.saturating_sub(1)..(i + 2).min(w) {
-                            let n = f.idx(ni, nj);
-                            if !is_vertex[n] && (f.valid[n] || f.filled(n)) {
-                                pending.push((ni, nj));
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        pending.sort_unstable();
-        pending.dedup();
-        if pending.is_empty() {
-            break;
-        }
-        for &(i, j) in &pending {
-            is_vertex[f.idx(i, j)] = true;
-            // Lattice points are distinct and finite: insertion cannot fail.
-            tri.insert(Point2::new(i as f64, j as f64)).ok();
-        }
-        pending.clear();
-        keep.clear();
-        for face in tri.inner_faces() {
-            let pos = face.positions();
-            let c: [(usize, usize); 3] = pos.map(|p| ((p.x + 0.5) as usize, (p.y + 0.5) as usize));
-            let ks = c.map(|(i, j)| f.idx(i, j));
-            let mut key = ks;
-            key.sort_unstable();
-            if let Some(&kept) = settled.get(&key) {
-                if kept {
-                    keep.push(c);
-                }
-                continue;
-            }
-            let surface = ks.iter().all(|&k| f.valid[k] || f.filled(k))
-                && ks.iter().any(|&k| f.valid[k])
-                && f.comp[ks[0]] == f.comp[ks[1]]
-                && f.comp[ks[1]] == f.comp[ks[2]];
-            let comp = f.comp[ks[0]];
-            let qs = ks.map(|k| f.q[k]);
-            // Worst offending pixel: (badness class, error), larger is worse.
-            let mut worst: Option<((usize, usize), u8, f64)> = None;
-            let mut has_opaque = false;
-            let centre = (
-                (c[0].0 + c[1].0 + c[2].0) as f64 / 3.0,
-                (c[0].1 + c[1].1 + c[2].1) as f64 / 3.0,
-            );
-            let pts = c.map(|(i, j)| (i as f64, j as f64));
-            raster(pts, w, h, |i, j, bary| {
-                let k = f.idx(i, j);
-                if is_vertex[k] {
-                    return;
-                }
-                let (class, err) = if !surface {
-                    // Refined only to cover opaque pixels: at the outermost filled pixels
-                    // first (the mesh may end there, the mask cuts), else at opaque pixels
-                    // near the centre.
-                    if f.valid[k] {
-                        has_opaque = true;
-                    } else if !f.filled(k) {
-                        return;
-                    }
-                    let d = (i as f64 - centre.0).powi(2) + (j as f64 - centre.1).powi(2);
-                    (if f.filled(k) { 2 + f.ring[k] } else { 1 }, -d)
-                } else if f.filled(k) {
-                    return;
-                } else if !f.valid[k] || f.comp[k] != comp {
-                    (3, 0.0)
-                } else {
-                    let qm = bary[0] * qs[0] + bary[1] * qs[1] + bary[2] * qs[2];
-                    let e = f.error_px(k, qm);
-                    if e <= max_error_px {
-                        return;
-                    }
-                    (2, e)
-                };
-                if worst.is_none_or(|(_, wc, we)| (class, err) > (wc, we)) {
-                    worst = Some(((i, j), class, err));
-                }
-            });
-            if !surface && !has_opaque {
-                worst = None;
-            }
-            match worst {
-                Some((p, _, _)) => pending.push(p),
-                None => {
-                    settled.insert(key, surface);
-                    if surface {
-                        keep.push(c);
-                    }
-                }
-            }
-        }
-    }
-    let mut out = MeshOut::new(f);
-    for [a, b, c] in keep {
-        out.tri(a, b, c);
-    }
-    out.mesh
 }
 
 /// Measure a mesh against the field it was built from: every pixel centre inside a
@@ -918,6 +467,7 @@ pub fn cover_lone_pixels(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::boundaries::theta_pixel;
     use tracks::cubemap::pixel_dir;
 
     fn params(b: f64, err: f64) -> MeshParams {

@@ -82,6 +82,26 @@ fn roof(x0: f64, x1: f64, z0: f64, z1: f64, h: f64, rise: f64) -> Mesh {
 pub fn generate(seed: u64) -> (crate::scene::SceneDesc, TrackSet) {
     let mut rng = Rng::new(seed);
     let mut b = Builder::default();
+    lighting(&mut b);
+    let m = Palette::new(&mut b);
+    ground(&mut b, &m);
+    curtain_walls(&mut b, &m);
+    merlons(&mut b, &m);
+    towers(&mut b, &m);
+    let spans = block_spans();
+    blocked_streets(&mut b, &mut rng, &spans, &m);
+    blocks(&mut b, &mut rng, &spans, &m);
+    trees(&mut b, &mut rng);
+    (
+        b.desc,
+        TrackSet {
+            tracks: vec![main_track()],
+        },
+    )
+}
+
+/// Sky, sun and the one point light.
+fn lighting(b: &mut Builder) {
     b.desc.sky = Sky::default();
     b.desc.sun = Some(Sun {
         direction: DVec3::new(0.45, 0.75, 0.35),
@@ -91,101 +111,132 @@ pub fn generate(seed: u64) -> (crate::scene::SceneDesc, TrackSet) {
         position: DVec3::new(1.5, 4.0, -1.5),
         color: DVec3::new(6.0, 4.5, 2.5),
     });
+}
 
-    let grass = b.material(
-        "grass",
-        [0.18, 0.32, 0.10],
-        Texture::Noise {
-            color2: DVec3::new(0.30, 0.42, 0.14),
-            size: 2.5,
-        },
-    );
-    let cobbles = b.material(
-        "cobbles",
-        [0.42, 0.40, 0.37],
-        Texture::Bricks {
-            mortar: DVec3::new(0.25, 0.24, 0.22),
-            width: 0.35,
-            height: 0.35,
-            joint: 0.03,
-        },
-    );
-    let stone = b.material(
-        "stone",
-        [0.55, 0.52, 0.47],
-        Texture::Bricks {
-            mortar: DVec3::new(0.70, 0.68, 0.63),
-            width: 0.9,
-            height: 0.45,
-            joint: 0.04,
-        },
-    );
-    let slate = b.material(
-        "slate",
-        [0.20, 0.22, 0.28],
-        Texture::Noise {
-            color2: DVec3::new(0.28, 0.30, 0.36),
-            size: 0.7,
-        },
-    );
-    let tiles = b.material(
-        "roof_tiles",
-        [0.55, 0.22, 0.14],
-        Texture::Checker {
-            color2: DVec3::new(0.45, 0.18, 0.12),
-            size: 0.4,
-        },
-    );
-    let wood = b.material("gate_wood", [0.35, 0.22, 0.12], Texture::Solid);
-    let mut styles: Vec<usize> = Vec::new();
-    for (name, c) in [
-        ("plaster_cream", [0.80, 0.74, 0.60]),
-        ("plaster_ochre", [0.78, 0.58, 0.32]),
-        ("plaster_white", [0.85, 0.85, 0.82]),
-        ("plaster_rose", [0.78, 0.55, 0.50]),
-    ] {
+/// The town's materials (indices into the builder's list), created in this order.
+struct Palette {
+    grass: usize,
+    cobbles: usize,
+    stone: usize,
+    slate: usize,
+    tiles: usize,
+    wood: usize,
+    /// House facades: four plasters and a brick.
+    styles: Vec<usize>,
+}
+
+impl Palette {
+    fn new(b: &mut Builder) -> Palette {
+        let grass = b.material(
+            "grass",
+            [0.18, 0.32, 0.10],
+            Texture::Noise {
+                color2: DVec3::new(0.30, 0.42, 0.14),
+                size: 2.5,
+            },
+        );
+        let cobbles = b.material(
+            "cobbles",
+            [0.42, 0.40, 0.37],
+            Texture::Bricks {
+                mortar: DVec3::new(0.25, 0.24, 0.22),
+                width: 0.35,
+                height: 0.35,
+                joint: 0.03,
+            },
+        );
+        let stone = b.material(
+            "stone",
+            [0.55, 0.52, 0.47],
+            Texture::Bricks {
+                mortar: DVec3::new(0.70, 0.68, 0.63),
+                width: 0.9,
+                height: 0.45,
+                joint: 0.04,
+            },
+        );
+        let slate = b.material(
+            "slate",
+            [0.20, 0.22, 0.28],
+            Texture::Noise {
+                color2: DVec3::new(0.28, 0.30, 0.36),
+                size: 0.7,
+            },
+        );
+        let tiles = b.material(
+            "roof_tiles",
+            [0.55, 0.22, 0.14],
+            Texture::Checker {
+                color2: DVec3::new(0.45, 0.18, 0.12),
+                size: 0.4,
+            },
+        );
+        let wood = b.material("gate_wood", [0.35, 0.22, 0.12], Texture::Solid);
+        let mut styles: Vec<usize> = Vec::new();
+        for (name, c) in [
+            ("plaster_cream", [0.80, 0.74, 0.60]),
+            ("plaster_ochre", [0.78, 0.58, 0.32]),
+            ("plaster_white", [0.85, 0.85, 0.82]),
+            ("plaster_rose", [0.78, 0.55, 0.50]),
+        ] {
+            styles.push(b.material(
+                name,
+                c,
+                Texture::Windows {
+                    glass: DVec3::new(0.10, 0.14, 0.20),
+                    spacing: [2.8, 3.2],
+                    size: [1.0, 1.5],
+                },
+            ));
+        }
         styles.push(b.material(
-            name,
-            c,
-            Texture::Windows {
-                glass: DVec3::new(0.10, 0.14, 0.20),
-                spacing: [2.8, 3.2],
-                size: [1.0, 1.5],
+            "brick_house",
+            [0.50, 0.25, 0.18],
+            Texture::Bricks {
+                mortar: DVec3::new(0.65, 0.62, 0.58),
+                width: 0.25,
+                height: 0.08,
+                joint: 0.012,
             },
         ));
+        Palette {
+            grass,
+            cobbles,
+            stone,
+            slate,
+            tiles,
+            wood,
+            styles,
+        }
     }
-    styles.push(b.material(
-        "brick_house",
-        [0.50, 0.25, 0.18],
-        Texture::Bricks {
-            mortar: DVec3::new(0.65, 0.62, 0.58),
-            width: 0.25,
-            height: 0.08,
-            joint: 0.012,
-        },
-    ));
+}
 
-    // Ground and paving.
+/// Ground and paving: the grass plane, the cobbled town and the road to the gate.
+fn ground(b: &mut Builder, m: &Palette) {
     b.add(
         Shape::Plane {
             point: DVec3::ZERO,
             normal: DVec3::Y,
         },
-        grass,
+        m.grass,
     );
     b.boxed(
         DVec3::new(-INNER, -0.2, -INNER),
         DVec3::new(INNER, 0.02, INNER),
-        cobbles,
+        m.cobbles,
     );
     // The road to the gate.
     b.boxed(
         DVec3::new(-STREET_HALF, -0.2, INNER),
         DVec3::new(STREET_HALF, 0.02, INNER + 20.0),
-        cobbles,
+        m.cobbles,
     );
+}
 
-    // Curtain walls; the front wall (+z) has the gate opening at |x| < STREET_HALF.
+/// Curtain walls; the front wall (+z) has the gate opening at |x| < STREET_HALF, with an open
+/// gate leaf against the inside of the wall.
+fn curtain_walls(b: &mut Builder, m: &Palette) {
+    let stone = m.stone;
     let (i, o) = (INNER, INNER + WALL_THICK);
     let gate_h = 5.0;
     b.boxed(DVec3::new(-o, 0.0, -o), DVec3::new(o, WALL_H, -i), stone); // back
@@ -210,9 +261,14 @@ pub fn generate(seed: u64) -> (crate::scene::SceneDesc, TrackSet) {
     b.boxed(
         DVec3::new(STREET_HALF + 0.1, 0.0, i - 2.6),
         DVec3::new(STREET_HALF + 0.25, gate_h - 0.2, i - 0.1),
-        wood,
+        m.wood,
     );
-    // Merlons along the wall tops.
+}
+
+/// Merlons along the wall tops.
+fn merlons(b: &mut Builder, m: &Palette) {
+    let stone = m.stone;
+    let (i, o) = (INNER, INNER + WALL_THICK);
     let mut x = -o + 0.5;
     while x < o - 1.0 {
         for (z0, z1) in [(-o, -i), (i, o)] {
@@ -231,7 +287,10 @@ pub fn generate(seed: u64) -> (crate::scene::SceneDesc, TrackSet) {
         }
         x += 2.0;
     }
-    // Corner towers and gate towers.
+}
+
+/// Corner towers and gate towers, each with a slate cone.
+fn towers(b: &mut Builder, m: &Palette) {
     let mid = INNER + 0.5 * WALL_THICK;
     for (cx, cz, r, h) in [
         (-mid, -mid, 4.0, 14.0),
@@ -241,34 +300,38 @@ pub fn generate(seed: u64) -> (crate::scene::SceneDesc, TrackSet) {
         (-(STREET_HALF + 2.6), mid + 1.0, 2.5, 12.0),
         (STREET_HALF + 2.6, mid + 1.0, 2.5, 12.0),
     ] {
-        b.cylinder(DVec3::new(cx, 0.0, cz), DVec3::new(cx, h, cz), r, stone);
+        b.cylinder(DVec3::new(cx, 0.0, cz), DVec3::new(cx, h, cz), r, m.stone);
         b.cone(
             DVec3::new(cx, h, cz),
             DVec3::new(cx, h + 1.4 * r, cz),
             r + 0.5,
-            slate,
+            m.slate,
         );
     }
+}
 
-    // The street graph: segments between crossings; remove some that the track does not use.
-    let spans = block_spans();
-    let track_uses = |vertical: bool, street: f64, span: (f64, f64)| -> bool {
-        let c = 0.5 * (span.0 + span.1);
-        if vertical {
-            (street == 0.0 && c > 0.0) || (street == 14.0 && c < 0.0 && c > -14.0)
-        } else {
-            street == 0.0 && c > 0.0 && c < 14.0
-        }
-    };
+/// Whether the track runs along the street segment `span` of street `street`.
+fn track_uses(vertical: bool, street: f64, span: (f64, f64)) -> bool {
+    let c = 0.5 * (span.0 + span.1);
+    if vertical {
+        (street == 0.0 && c > 0.0) || (street == 14.0 && c < 0.0 && c > -14.0)
+    } else {
+        street == 0.0 && c > 0.0 && c < 14.0
+    }
+}
+
+/// The street graph: segments between crossings; some that the track does not use are removed
+/// by putting a building across them.
+fn blocked_streets(b: &mut Builder, rng: &mut Rng, spans: &[(f64, f64)], m: &Palette) {
     for vertical in [true, false] {
         for &s in &STREETS {
-            for &span in &spans {
+            for &span in spans {
                 if track_uses(vertical, s, span) || rng.f() > 0.3 {
                     continue;
                 }
                 let (a0, a1) = (s - STREET_HALF, s + STREET_HALF);
                 let h = rng.range(5.0, 9.0);
-                let style = styles[rng.below(styles.len())];
+                let style = m.styles[rng.below(m.styles.len())];
                 let (min, max) = if vertical {
                     (DVec3::new(a0, 0.0, span.0), DVec3::new(a1, h, span.1))
                 } else {
@@ -278,57 +341,71 @@ pub fn generate(seed: u64) -> (crate::scene::SceneDesc, TrackSet) {
             }
         }
     }
+}
 
-    // Blocks → building footprints (the keep takes one block).
+/// Blocks → building footprints (the keep takes one block).
+fn blocks(b: &mut Builder, rng: &mut Rng, spans: &[(f64, f64)], m: &Palette) {
     for (bi, &(x0, x1)) in spans.iter().enumerate() {
         for (bj, &(z0, z1)) in spans.iter().enumerate() {
             if bi == 1 && bj == 1 {
-                let (cx, cz) = (0.5 * (x0 + x1), 0.5 * (z0 + z1));
-                b.cylinder(
-                    DVec3::new(cx, 0.0, cz),
-                    DVec3::new(cx, 24.0, cz),
-                    4.2,
-                    stone,
-                );
-                b.cone(
-                    DVec3::new(cx, 24.0, cz),
-                    DVec3::new(cx, 31.0, cz),
-                    4.8,
-                    slate,
-                );
-                continue;
-            }
-            let split_x = x1 - x0 >= z1 - z0;
-            let (lo, hi) = if split_x { (x0, x1) } else { (z0, z1) };
-            let parts = 2 + rng.below(2);
-            let mut cuts = vec![lo];
-            for k in 1..parts {
-                let base = lo + (hi - lo) * k as f64 / parts as f64;
-                cuts.push(base + rng.range(-0.12, 0.12) * (hi - lo) / parts as f64);
-            }
-            cuts.push(hi);
-            for w in cuts.windows(2) {
-                let (a, c) = (w[0], w[1]);
-                let (bx0, bx1, bz0, bz1) = if split_x {
-                    (a, c, z0, z1)
-                } else {
-                    (x0, x1, a, c)
-                };
-                let h = rng.range(6.0, 13.0);
-                let style = styles[rng.below(styles.len())];
-                b.boxed(DVec3::new(bx0, 0.0, bz0), DVec3::new(bx1, h, bz1), style);
-                if rng.f() < 0.6 {
-                    let rise = rng.range(1.8, 3.2);
-                    b.add(
-                        Shape::Mesh(Arc::new(roof(bx0, bx1, bz0, bz1, h, rise))),
-                        tiles,
-                    );
-                }
+                keep(b, 0.5 * (x0 + x1), 0.5 * (z0 + z1), m);
+            } else {
+                houses(b, rng, (x0, x1), (z0, z1), m);
             }
         }
     }
+}
 
-    // A few trees outside the walls.
+/// The keep: a tall round tower with a slate cone, centred at (`cx`, `cz`).
+fn keep(b: &mut Builder, cx: f64, cz: f64, m: &Palette) {
+    b.cylinder(
+        DVec3::new(cx, 0.0, cz),
+        DVec3::new(cx, 24.0, cz),
+        4.2,
+        m.stone,
+    );
+    b.cone(
+        DVec3::new(cx, 24.0, cz),
+        DVec3::new(cx, 31.0, cz),
+        4.8,
+        m.slate,
+    );
+}
+
+/// One block `[x0,x1]×[z0,z1]` cut across its longer side into two or three houses of random
+/// widths, heights and styles, some with pitched roofs.
+fn houses(b: &mut Builder, rng: &mut Rng, (x0, x1): (f64, f64), (z0, z1): (f64, f64), m: &Palette) {
+    let split_x = x1 - x0 >= z1 - z0;
+    let (lo, hi) = if split_x { (x0, x1) } else { (z0, z1) };
+    let parts = 2 + rng.below(2);
+    let mut cuts = vec![lo];
+    for k in 1..parts {
+        let base = lo + (hi - lo) * k as f64 / parts as f64;
+        cuts.push(base + rng.range(-0.12, 0.12) * (hi - lo) / parts as f64);
+    }
+    cuts.push(hi);
+    for w in cuts.windows(2) {
+        let (a, c) = (w[0], w[1]);
+        let (bx0, bx1, bz0, bz1) = if split_x {
+            (a, c, z0, z1)
+        } else {
+            (x0, x1, a, c)
+        };
+        let h = rng.range(6.0, 13.0);
+        let style = m.styles[rng.below(m.styles.len())];
+        b.boxed(DVec3::new(bx0, 0.0, bz0), DVec3::new(bx1, h, bz1), style);
+        if rng.f() < 0.6 {
+            let rise = rng.range(1.8, 3.2);
+            b.add(
+                Shape::Mesh(Arc::new(roof(bx0, bx1, bz0, bz1, h, rise))),
+                m.tiles,
+            );
+        }
+    }
+}
+
+/// A few trees outside the walls (their materials come last in the list).
+fn trees(b: &mut Builder, rng: &mut Rng) {
     let bark = b.material("bark", [0.30, 0.20, 0.12], Texture::Solid);
     let leaves = b.material(
         "leaves",
@@ -352,20 +429,22 @@ pub fn generate(seed: u64) -> (crate::scene::SceneDesc, TrackSet) {
             leaves,
         );
     }
+}
 
+/// Track `main`: in through the gate, along the middle street, then right and back.
+fn main_track() -> Track {
     let points = vec![
         DVec3::new(0.0, EYE, INNER + 14.0),
         DVec3::new(0.0, EYE, 0.0),
         DVec3::new(14.0, EYE, 0.0),
         DVec3::new(14.0, EYE, -16.0),
     ];
-    let main = Track::new(
+    Track::new(
         "main",
         points,
         Smoothing::None,
         Sampling::Spacing(2.0),
         "builtin:castle",
     )
-    .expect("castle track is valid");
-    (b.desc, TrackSet { tracks: vec![main] })
+    .expect("castle track is valid")
 }

@@ -56,6 +56,27 @@ pub fn generate(seed: u64) -> (SceneDesc, TrackSet) {
     let mut rng = Rng::new(seed);
     let seed_offset = (seed % 1000) as f64 * 0.731;
     let mut b = Builder::default();
+    lighting(&mut b);
+    let m = Palette::new(&mut b);
+    let pts = track_points();
+    terrain(&mut b, &pts, seed_offset, m.grass);
+    path(&mut b, &pts, m.path);
+    trees(&mut b, &mut rng, &pts, seed_offset, &m);
+    rocks(&mut b, &mut rng, &pts, seed_offset, m.rock);
+    far_hills(&mut b, &mut rng, m.hills);
+    let main = Track::new(
+        "main",
+        pts,
+        Smoothing::CatmullRom,
+        Sampling::Spacing(2.5),
+        "builtin:nature",
+    )
+    .expect("nature track is valid");
+    (b.desc, TrackSet { tracks: vec![main] })
+}
+
+/// A blue sky and a low sun.
+fn lighting(b: &mut Builder) {
     b.desc.sky = Sky {
         zenith: DVec3::new(0.15, 0.30, 0.65),
         horizon: DVec3::new(0.65, 0.75, 0.85),
@@ -66,65 +87,91 @@ pub fn generate(seed: u64) -> (SceneDesc, TrackSet) {
         direction: DVec3::new(-0.5, 0.6, 0.4),
         color: DVec3::new(1.0, 0.93, 0.8),
     });
-    let grass = b.material(
-        "meadow",
-        [0.20, 0.36, 0.10],
-        Texture::Noise {
-            color2: DVec3::new(0.36, 0.46, 0.16),
-            size: 3.0,
-        },
-    );
-    let path = b.material(
-        "path",
-        [0.45, 0.38, 0.28],
-        Texture::Noise {
-            color2: DVec3::new(0.55, 0.48, 0.36),
-            size: 0.6,
-        },
-    );
-    let bark = b.material("bark", [0.28, 0.19, 0.11], Texture::Solid);
-    let needles = b.material(
-        "needles",
-        [0.06, 0.20, 0.08],
-        Texture::Noise {
-            color2: DVec3::new(0.10, 0.28, 0.10),
-            size: 0.5,
-        },
-    );
-    let leaves = b.material(
-        "leaves",
-        [0.16, 0.34, 0.08],
-        Texture::Noise {
-            color2: DVec3::new(0.30, 0.46, 0.12),
-            size: 0.7,
-        },
-    );
-    let rock = b.material(
-        "rock",
-        [0.42, 0.41, 0.40],
-        Texture::Noise {
-            color2: DVec3::new(0.58, 0.56, 0.52),
-            size: 0.5,
-        },
-    );
-    let hills = b.material(
-        "far_hills",
-        [0.20, 0.30, 0.22],
-        Texture::Noise {
-            color2: DVec3::new(0.30, 0.38, 0.30),
-            size: 25.0,
-        },
-    );
+}
 
-    let pts = track_points();
-    // Terrain mesh.
+/// The materials (indices into the builder's list), created in this order.
+struct Palette {
+    grass: usize,
+    path: usize,
+    bark: usize,
+    needles: usize,
+    leaves: usize,
+    rock: usize,
+    hills: usize,
+}
+
+impl Palette {
+    fn new(b: &mut Builder) -> Palette {
+        let grass = b.material(
+            "meadow",
+            [0.20, 0.36, 0.10],
+            Texture::Noise {
+                color2: DVec3::new(0.36, 0.46, 0.16),
+                size: 3.0,
+            },
+        );
+        let path = b.material(
+            "path",
+            [0.45, 0.38, 0.28],
+            Texture::Noise {
+                color2: DVec3::new(0.55, 0.48, 0.36),
+                size: 0.6,
+            },
+        );
+        let bark = b.material("bark", [0.28, 0.19, 0.11], Texture::Solid);
+        let needles = b.material(
+            "needles",
+            [0.06, 0.20, 0.08],
+            Texture::Noise {
+                color2: DVec3::new(0.10, 0.28, 0.10),
+                size: 0.5,
+            },
+        );
+        let leaves = b.material(
+            "leaves",
+            [0.16, 0.34, 0.08],
+            Texture::Noise {
+                color2: DVec3::new(0.30, 0.46, 0.12),
+                size: 0.7,
+            },
+        );
+        let rock = b.material(
+            "rock",
+            [0.42, 0.41, 0.40],
+            Texture::Noise {
+                color2: DVec3::new(0.58, 0.56, 0.52),
+                size: 0.5,
+            },
+        );
+        let hills = b.material(
+            "far_hills",
+            [0.20, 0.30, 0.22],
+            Texture::Noise {
+                color2: DVec3::new(0.30, 0.38, 0.30),
+                size: 25.0,
+            },
+        );
+        Palette {
+            grass,
+            path,
+            bark,
+            needles,
+            leaves,
+            rock,
+            hills,
+        }
+    }
+}
+
+/// The terrain mesh: a `CELLS`² grid over ±`EXTENT`, heights from [`height`].
+fn terrain(b: &mut Builder, pts: &[DVec3], seed_offset: f64, grass: usize) {
     let n = CELLS;
     let step = 2.0 * EXTENT / n as f64;
     let mut positions = Vec::with_capacity((n + 1) * (n + 1));
     for j in 0..=n {
         for i in 0..=n {
             let (x, z) = (-EXTENT + i as f64 * step, -EXTENT + j as f64 * step);
-            positions.push(DVec3::new(x, height(x, z, &pts, seed_offset), z));
+            positions.push(DVec3::new(x, height(x, z, pts, seed_offset), z));
         }
     }
     let mut triangles = Vec::with_capacity(2 * n * n);
@@ -142,7 +189,10 @@ pub fn generate(seed: u64) -> (SceneDesc, TrackSet) {
         })),
         grass,
     );
-    // Path: thin boxes along the straight pieces (terrain is flat there).
+}
+
+/// The path: thin boxes along the straight pieces (terrain is flat there).
+fn path(b: &mut Builder, pts: &[DVec3], path: usize) {
     for w in pts.windows(2) {
         let (a, c) = (w[0], w[1]);
         let len = a.distance(c);
@@ -156,48 +206,54 @@ pub fn generate(seed: u64) -> (SceneDesc, TrackSet) {
             );
         }
     }
-    // Trees.
+}
+
+/// 140 trees away from the path, half conifers (cone crowns), half broadleaves (spheres).
+fn trees(b: &mut Builder, rng: &mut Rng, pts: &[DVec3], seed_offset: f64, m: &Palette) {
     let mut placed = 0;
     while placed < 140 {
         let (x, z) = (rng.range(-110.0, 110.0), rng.range(-110.0, 110.0));
-        if dist_to_path(x, z, &pts) < 6.0 {
+        if dist_to_path(x, z, pts) < 6.0 {
             continue;
         }
         placed += 1;
-        let y = height(x, z, &pts, seed_offset) - 0.3;
+        let y = height(x, z, pts, seed_offset) - 0.3;
         let trunk = rng.range(1.8, 3.5);
         let base = DVec3::new(x, y, z);
         if rng.f() < 0.5 {
-            b.cylinder(base, base + DVec3::Y * (trunk + 0.5), 0.22, bark);
+            b.cylinder(base, base + DVec3::Y * (trunk + 0.5), 0.22, m.bark);
             let r = rng.range(1.4, 2.2);
             b.cone(
                 base + DVec3::Y * trunk,
                 base + DVec3::Y * (trunk + rng.range(4.0, 7.0)),
                 r,
-                needles,
+                m.needles,
             );
         } else {
-            b.cylinder(base, base + DVec3::Y * (trunk + 0.8), 0.28, bark);
+            b.cylinder(base, base + DVec3::Y * (trunk + 0.8), 0.28, m.bark);
             let r = rng.range(1.5, 2.6);
             b.add(
                 Shape::Sphere {
                     center: base + DVec3::Y * (trunk + r * 0.8),
                     radius: r,
                 },
-                leaves,
+                m.leaves,
             );
         }
     }
-    // Rocks.
+}
+
+/// 40 half-buried rocks away from the path.
+fn rocks(b: &mut Builder, rng: &mut Rng, pts: &[DVec3], seed_offset: f64, rock: usize) {
     let mut placed = 0;
     while placed < 40 {
         let (x, z) = (rng.range(-80.0, 80.0), rng.range(-80.0, 80.0));
         let r = rng.range(0.4, 1.6);
-        if dist_to_path(x, z, &pts) < 3.0 + r {
+        if dist_to_path(x, z, pts) < 3.0 + r {
             continue;
         }
         placed += 1;
-        let y = height(x, z, &pts, seed_offset) - 0.4 * r;
+        let y = height(x, z, pts, seed_offset) - 0.4 * r;
         b.add(
             Shape::Sphere {
                 center: DVec3::new(x, y, z),
@@ -206,7 +262,10 @@ pub fn generate(seed: u64) -> (SceneDesc, TrackSet) {
             rock,
         );
     }
-    // Far hills: big spheres sunk below the horizon, beyond the terrain.
+}
+
+/// Far hills: big spheres sunk below the horizon, beyond the terrain.
+fn far_hills(b: &mut Builder, rng: &mut Rng, hills: usize) {
     for k in 0..14 {
         let a = k as f64 / 14.0 * std::f64::consts::TAU + rng.range(-0.1, 0.1);
         let dist = rng.range(380.0, 600.0);
@@ -219,13 +278,4 @@ pub fn generate(seed: u64) -> (SceneDesc, TrackSet) {
             hills,
         );
     }
-    let main = Track::new(
-        "main",
-        pts,
-        Smoothing::CatmullRom,
-        Sampling::Spacing(2.5),
-        "builtin:nature",
-    )
-    .expect("nature track is valid");
-    (b.desc, TrackSet { tracks: vec![main] })
 }
