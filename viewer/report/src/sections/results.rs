@@ -4,8 +4,8 @@
 use serde_json::Value;
 
 use super::{fmt_int, fmt_num, num, pngs_in, spread, Ctx};
-use crate::report::doc::{Block, Figure, Table};
-use crate::report::StageStatus;
+use crate::doc::{Block, Figure, Table};
+use crate::StageStatus;
 
 pub(super) fn streaming(c: &mut Ctx) {
     c.section(

@@ -6,8 +6,8 @@ use std::path::Path;
 use serde_json::Value;
 
 use super::{fmt_depth, fmt_int, fmt_num, num, read_json, reduction, spread, Ctx};
-use crate::report::doc::{Block, Figure, Table};
-use crate::report::images;
+use crate::doc::{Block, Figure, Table};
+use crate::images;
 use tracks::Face;
 
 pub(super) fn viewpoints(c: &mut Ctx) -> Option<Value> {

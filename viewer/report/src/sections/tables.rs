@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use serde_json::Value;
 
 use super::{fmt_int, fmt_mb, fmt_num, num, pngs_in, read_json, reduction, Ctx};
-use crate::report::doc::{Block, Figure, Table};
+use crate::doc::{Block, Figure, Table};
 
 pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
     c.section(
