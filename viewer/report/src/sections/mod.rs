@@ -302,6 +302,41 @@ mod tests {
         assert_eq!(fmt_num(None, 2), "–");
     }
 
+    /// The report reads `walk.json` as `WalkReport`, which gained `Deserialize` for it: what
+    /// the walk writes (unlimited bandwidth and a first frame never reached are `null`) reads
+    /// back the same.
+    #[test]
+    fn walk_json_reads_back_as_written() {
+        use streamer::walk::{RunReport, WalkReport};
+        let walk = WalkReport {
+            scene: "castle".into(),
+            track: "main".into(),
+            length_m: 72.0,
+            speed_mps: 36.0,
+            latency_s: 0.05,
+            runs: vec![
+                RunReport {
+                    strategy: "naive".into(),
+                    bandwidth_bps: Some(2_000_000),
+                    time_to_first_frame_s: Some(0.75),
+                    bytes: 90_000,
+                    ..RunReport::default()
+                },
+                RunReport {
+                    strategy: "ach+prefetch".into(),
+                    error: Some("the server stopped answering".into()),
+                    ..RunReport::default()
+                },
+            ],
+            error: None,
+        };
+        let json = serde_json::to_vec_pretty(&walk).unwrap();
+        let back: WalkReport = serde_json::from_slice(&json).unwrap();
+        assert_eq!(serde_json::to_vec_pretty(&back).unwrap(), json);
+        assert_eq!(back.runs[1].bandwidth_bps, None);
+        assert_eq!(back.runs[1].time_to_first_frame_s, None);
+    }
+
     #[test]
     fn reduction_of_nothing_is_a_dash() {
         assert_eq!(reduction(0.0, 0.0), "–");
