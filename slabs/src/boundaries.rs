@@ -85,7 +85,9 @@ pub struct Candidate {
 }
 
 /// The criterion's numbers: what a report prints to say why the slabs are what they are.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// Read back, a field the file lacks takes its default.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct CriterionReport {
     /// Longest segment `B` of the track, metres.
     pub max_spacing_m: f64,

@@ -9,7 +9,7 @@ use tracks::{CubeMap, Face};
 /// divided by the number of viewpoints, so the weights of one viewpoint sum to 4π and a bin
 /// reads "steradians of the average panorama at this depth". Sky (`+inf`) and zero or
 /// invalid depths go to separate totals, never into a bin.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DepthHistogram {
     /// `log10` of the lower edge of bin 0.
     pub log10_min: f64,

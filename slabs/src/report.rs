@@ -58,7 +58,9 @@ pub struct SlabSummary {
     pub texture_bytes: u64,
     /// Bytes of the kept meshes in `tiles.bin`.
     pub mesh_bytes: u64,
+    #[serde(default)]
     pub grid_mesh: MeshTotals,
+    #[serde(default)]
     pub adaptive_mesh: MeshTotals,
     /// The criterion's numbers at this slab's near boundary (none for the first slab or a
     /// manual list).
@@ -77,8 +79,10 @@ fn de_far<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::INFINITY))
 }
 
-/// `slabs.json`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// `slabs.json`. Read back, a field the file lacks (a report of an earlier version) takes its
+/// default.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct SlabsReport {
     /// Nearest first.
     pub slabs: Vec<SlabSummary>,

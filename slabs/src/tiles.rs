@@ -49,11 +49,12 @@ pub fn split_depth(depth: &CubeMap<f32>, slabs: &[SlabRange]) -> Vec<CubeMap<f32
         .collect()
 }
 
-/// Which mesh a tile carries.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+/// Which mesh a tile carries (by default the adaptive one, as `railview slabs` keeps).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum MeshKind {
     Grid,
+    #[default]
     Adaptive,
 }
 

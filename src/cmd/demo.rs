@@ -15,7 +15,7 @@ use anyhow::Context;
 use clap::error::ErrorKind;
 use clap::Parser;
 
-use crate::report::{self, Layout, RunLog, StageRecord, StageStatus};
+use report::{self, Layout, RunLog, StageRecord, StageStatus};
 
 #[derive(clap::Args)]
 pub struct Args {

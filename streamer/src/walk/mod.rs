@@ -45,7 +45,7 @@ pub mod synth;
 
 use std::path::Path;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tracks::manifest::Manifest;
 
 use crate::db::split::{assemble, TopManifest, ViewTable};
@@ -254,8 +254,10 @@ pub struct FrameRecord {
     pub cache_bytes: u64,
 }
 
-/// One (strategy, bandwidth) run.
-#[derive(Clone, Debug, Default, Serialize)]
+/// One (strategy, bandwidth) run. Read back (its frames and request log are not in
+/// `walk.json`), a field the file lacks takes its default.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
 pub struct RunReport {
     pub strategy: String,
     pub bandwidth_bps: Option<u64>,
@@ -321,8 +323,9 @@ pub struct RunReport {
     pub request_log: Vec<Vec<FetchKey>>,
 }
 
-/// All runs.
-#[derive(Clone, Debug, Default, Serialize)]
+/// All runs (`walk.json`). Read back, a field the file lacks takes its default.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
 pub struct WalkReport {
     pub scene: String,
     pub track: String,

@@ -487,6 +487,30 @@ fn resolve(axis: &Axis, chart: &Chart, pick: impl Fn((f64, f64)) -> f64) -> Rang
     }
 }
 
+/// Font size of a chart's title: [`TITLE_SIZE`], or smaller where that would be wider than
+/// the area it is centred over (a long title beside a wide legend column: its ends would fall
+/// off the picture), down to [`MIN_TITLE_SIZE`]. Keeps [`TITLE_PAD`] pixels free either side
+/// and a sixteenth of the width to spare: a browser draws the SVG's text in its own
+/// sans-serif, which may run wider than the compiled-in font (DejaVu Sans by about 3 %).
+fn title_size<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, title: &str) -> u32 {
+    let room = area.dim_in_pixel().0.saturating_sub(2 * TITLE_PAD);
+    let fits = |size: u32| {
+        let style = TextStyle::from((FONT, size).into_font());
+        area.estimate_text_size(title, &style)
+            .is_ok_and(|(w, _)| w + w / 16 <= room)
+    };
+    (MIN_TITLE_SIZE..=TITLE_SIZE)
+        .rev()
+        .find(|&size| fits(size))
+        .unwrap_or(MIN_TITLE_SIZE)
+}
+
+/// A chart title's font size where it fits ([`title_size`]).
+const TITLE_SIZE: u32 = 24;
+const MIN_TITLE_SIZE: u32 = 12;
+/// Pixels kept free left and right of a title.
+const TITLE_PAD: u32 = 4;
+
 /// A tick label: up to four significant digits, thousands as k/M/G.
 pub fn tick_label(v: f64) -> String {
     let a = v.abs();
@@ -533,7 +557,7 @@ where
 {
     let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
     let mut ctx = ChartBuilder::on(area)
-        .caption(&chart.title, (FONT, 24))
+        .caption(&chart.title, (FONT, title_size(area, &chart.title)))
         .margin(12)
         .x_label_area_size(52)
         .y_label_area_size(72)
@@ -722,6 +746,65 @@ mod tests {
                 )),
         );
         assert!(png(&bars).unwrap().len() > 100);
+    }
+
+    /// Regression: a title wider than its panel's plot area (the legend column takes up to
+    /// two fifths of the width) was centred over the plot area anyway, so its first letters
+    /// fell off the picture's left edge (the walk figure's "… streaming at unlimited
+    /// bandwidth" panel).
+    #[test]
+    fn a_long_title_stays_whole_beside_a_wide_legend() {
+        let panel = |title: &str| {
+            let mut c = Chart::new(title)
+                .x(Axis::linear("time since the walk started (s)"))
+                .y(Axis::linear("fraction of visible pixels").range(0.0, 1.02));
+            for (i, name) in ["naive", "ach+prefetch", "visibility+prefetch"]
+                .iter()
+                .enumerate()
+            {
+                c = c
+                    .series(
+                        Series::line(format!("{name}: quality"), vec![(0.0, 0.1), (3.0, 0.9)])
+                            .color(i),
+                    )
+                    .series(
+                        Series::dashed(
+                            format!("{name}: at the level needed"),
+                            vec![(0.0, 0.2), (3.0, 1.0)],
+                        )
+                        .color(i),
+                    );
+            }
+            c
+        };
+        let fig = Figure::stacked(
+            vec![
+                panel("castle / main: streaming at 2 Mbit/s"),
+                panel("castle / main: streaming at unlimited bandwidth"),
+            ],
+            360,
+        );
+        let img = image::load_from_memory(&png(&fig).unwrap())
+            .unwrap()
+            .to_rgb8();
+        let dark = |x: u32, y: u32| img.get_pixel(x, y).0.iter().all(|&c| c < 160);
+        for (k, top) in [(0, 0), (1, fig.panel_height)] {
+            // The title band: above the plot, whose frame starts below the caption.
+            let band = top..top + 36;
+            let inked: Vec<u32> = (0..img.width())
+                .filter(|&x| band.clone().any(|y| dark(x, y)))
+                .collect();
+            assert!(inked.len() > 100, "panel {k}: no title drawn");
+            let (first, last) = (inked[0], inked[inked.len() - 1]);
+            assert!(
+                first >= 4,
+                "panel {k}: the title touches the left edge (first ink at x = {first})"
+            );
+            assert!(
+                last < img.width() - 4,
+                "panel {k}: the title touches the right edge (last ink at x = {last})"
+            );
+        }
     }
 
     #[test]

@@ -3,9 +3,10 @@
 
 use std::path::Path;
 
-use anyhow::Context;
 use image::{DynamicImage, GenericImage, GenericImageView, ImageFormat};
 use tracks::Face;
+
+use crate::{write_file, ReportError};
 
 /// Faces around the horizon, left to right, so that each face's right edge meets the next
 /// face's left edge (see the table in `tracks::cubemap`).
@@ -14,17 +15,32 @@ pub const STRIP_FACES: [Face; 4] = [Face::PosX, Face::PosZ, Face::NegX, Face::Ne
 /// Largest face edge drawn in the report; bigger faces are scaled down.
 pub const MAX_STRIP_FACE: u32 = 256;
 
+fn image_error(action: &'static str, path: &Path, error: image::ImageError) -> ReportError {
+    ReportError::Image {
+        action,
+        path: path.to_path_buf(),
+        error,
+    }
+}
+
+/// A stored cube map (`N × 6N`, faces stacked in `Face` order) and its face size `N`.
+fn open_cube(cube_png: &Path) -> Result<(DynamicImage, u32), ReportError> {
+    let img = image::open(cube_png).map_err(|e| image_error("reading", cube_png, e))?;
+    let (w, h) = img.dimensions();
+    if w == 0 || h != 6 * w {
+        return Err(ReportError::NotACubeMap {
+            path: cube_png.to_path_buf(),
+            width: w,
+            height: h,
+        });
+    }
+    Ok((img, w))
+}
+
 /// Read a stored cube map (`N × 6N`, faces stacked in `Face` order) and return the horizon
 /// strip (`4N × N`, RGB or RGBA as stored), scaled down to at most [`MAX_STRIP_FACE`] per face.
-pub fn horizon_strip(cube_png: &Path) -> anyhow::Result<DynamicImage> {
-    let img = image::open(cube_png).with_context(|| format!("reading {}", cube_png.display()))?;
-    let (w, h) = img.dimensions();
-    anyhow::ensure!(
-        w > 0 && h == 6 * w,
-        "{}: expected a cube map of N × 6N pixels, found {w} × {h}",
-        cube_png.display()
-    );
-    let n = w;
+pub fn horizon_strip(cube_png: &Path) -> Result<DynamicImage, ReportError> {
+    let (img, n) = open_cube(cube_png)?;
     let mut strip = match &img {
         DynamicImage::ImageRgba8(_) | DynamicImage::ImageLumaA8(_) => {
             DynamicImage::new_rgba8(4 * n, n)
@@ -35,7 +51,7 @@ pub fn horizon_strip(cube_png: &Path) -> anyhow::Result<DynamicImage> {
         let view = img.view(0, face.index() as u32 * n, n, n);
         strip
             .copy_from(&*view, i as u32 * n, 0)
-            .context("composing the horizon strip")?;
+            .map_err(|e| image_error("composing the horizon strip of", cube_png, e))?;
     }
     if n > MAX_STRIP_FACE {
         strip = strip.resize_exact(
@@ -48,14 +64,8 @@ pub fn horizon_strip(cube_png: &Path) -> anyhow::Result<DynamicImage> {
 }
 
 /// One face of a stored cube map (`N × 6N`), scaled down to at most [`MAX_STRIP_FACE`].
-pub fn cube_face(cube_png: &Path, face: Face) -> anyhow::Result<DynamicImage> {
-    let img = image::open(cube_png).with_context(|| format!("reading {}", cube_png.display()))?;
-    let (w, h) = img.dimensions();
-    anyhow::ensure!(
-        w > 0 && h == 6 * w,
-        "{}: expected a cube map of N × 6N pixels, found {w} × {h}",
-        cube_png.display()
-    );
+pub fn cube_face(cube_png: &Path, face: Face) -> Result<DynamicImage, ReportError> {
+    let (img, w) = open_cube(cube_png)?;
     let face_img = img.crop_imm(0, face.index() as u32 * w, w, w);
     Ok(if w > MAX_STRIP_FACE {
         face_img.resize_exact(
@@ -70,14 +80,8 @@ pub fn cube_face(cube_png: &Path, face: Face) -> anyhow::Result<DynamicImage> {
 
 /// The horizontal face of an RGBA cube map with the most opaque pixels (where a far slab
 /// has the most to show); `PosX` for an image without alpha or without opaque pixels.
-pub fn busiest_face(cube_png: &Path) -> anyhow::Result<Face> {
-    let img = image::open(cube_png).with_context(|| format!("reading {}", cube_png.display()))?;
-    let (w, h) = img.dimensions();
-    anyhow::ensure!(
-        w > 0 && h == 6 * w,
-        "{}: expected a cube map of N × 6N pixels, found {w} × {h}",
-        cube_png.display()
-    );
+pub fn busiest_face(cube_png: &Path) -> Result<Face, ReportError> {
+    let (img, w) = open_cube(cube_png)?;
     if !img.color().has_alpha() {
         return Ok(Face::PosX);
     }
@@ -97,39 +101,36 @@ pub fn busiest_face(cube_png: &Path) -> anyhow::Result<Face> {
 }
 
 /// Write `img` as PNG into `path` (temp file + rename).
-pub fn save_png(img: &DynamicImage, path: &Path) -> anyhow::Result<()> {
+pub fn save_png(img: &DynamicImage, path: &Path) -> Result<(), ReportError> {
     let mut bytes = std::io::Cursor::new(Vec::new());
     img.write_to(&mut bytes, ImageFormat::Png)
-        .with_context(|| format!("encoding {}", path.display()))?;
-    prerender::store::write_atomic(path, bytes.get_ref())
-        .with_context(|| format!("writing {}", path.display()))
+        .map_err(|e| image_error("encoding", path, e))?;
+    write_file(path, bytes.get_ref())
 }
 
 /// Copy an image into the report directory after checking that it decodes, so the page never
 /// links a broken picture.
-pub fn copy_checked(src: &Path, dst: &Path) -> anyhow::Result<()> {
-    let bytes = std::fs::read(src).with_context(|| format!("reading {}", src.display()))?;
-    image::load_from_memory(&bytes).with_context(|| format!("decoding {}", src.display()))?;
-    prerender::store::write_atomic(dst, &bytes)
-        .with_context(|| format!("writing {}", dst.display()))
+pub fn copy_checked(src: &Path, dst: &Path) -> Result<(), ReportError> {
+    let bytes = std::fs::read(src).map_err(|e| ReportError::io("reading", src, e))?;
+    image::load_from_memory(&bytes).map_err(|e| image_error("decoding", src, e))?;
+    write_file(dst, &bytes)
 }
 
 /// Copy a plot's SVG into the report directory if there is one (`Ok(false)` if not), after
 /// checking that it is an SVG document.
-pub fn copy_svg(src: &Path, dst: &Path) -> anyhow::Result<bool> {
+pub fn copy_svg(src: &Path, dst: &Path) -> Result<bool, ReportError> {
     let bytes = match std::fs::read(src) {
         Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
-        Err(e) => return Err(e).with_context(|| format!("reading {}", src.display())),
+        Err(e) => return Err(ReportError::io("reading", src, e)),
     };
     let head = String::from_utf8_lossy(&bytes[..bytes.len().min(256)]).to_string();
-    anyhow::ensure!(
-        head.trim_start().starts_with("<svg") || head.trim_start().starts_with("<?xml"),
-        "{} is not an SVG document",
-        src.display()
-    );
-    prerender::store::write_atomic(dst, &bytes)
-        .with_context(|| format!("writing {}", dst.display()))?;
+    if !(head.trim_start().starts_with("<svg") || head.trim_start().starts_with("<?xml")) {
+        return Err(ReportError::NotSvg {
+            path: src.to_path_buf(),
+        });
+    }
+    write_file(dst, &bytes)?;
     Ok(true)
 }
 

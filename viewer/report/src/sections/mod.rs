@@ -1,10 +1,10 @@
-//! The report's sections, each built from one stage's outputs. Stage reports are read as JSON
-//! values by their documented field names (issues 2–8), so a stage that adds fields never
-//! breaks the report and a missing stage gives an "not available" note.
+//! The report's sections, each built from one stage's outputs. Stage reports are read as the
+//! types their stages write (a stage that adds fields never breaks the report: unknown fields
+//! are ignored), and a missing or unreadable one gives a "not available" note.
 
 use std::path::{Path, PathBuf};
 
-use serde_json::Value;
+use serde::de::DeserializeOwned;
 
 mod results;
 mod scene;
@@ -69,13 +69,14 @@ impl Ctx<'_> {
             _ => format!("no `{file}` was found in {}", self.layout.root().display()),
         }
     }
-    /// A stage's JSON report, or `None` with a note saying why it is missing or unreadable.
-    fn stage_report(
+    /// A stage's JSON report as its type, or `None` with a note saying why it is missing or
+    /// unreadable.
+    fn stage_report<T: DeserializeOwned>(
         &mut self,
         path: Option<PathBuf>,
         stage: &str,
         file: &str,
-    ) -> Option<(PathBuf, Value)> {
+    ) -> Option<(PathBuf, T)> {
         let Some(path) = path.filter(|p| p.is_file()) else {
             let why = self.why_missing(stage, file);
             self.missing(why);
@@ -140,13 +141,10 @@ fn first_line(s: &str) -> &str {
     s.lines().next().unwrap_or("")
 }
 
-fn read_json(path: &Path) -> Result<Value, String> {
+/// A JSON file as `T`; the error names the file.
+fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T, String> {
     let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
     serde_json::from_slice(&bytes).map_err(|e| format!("{}: {e}", path.display()))
-}
-
-fn num(v: &Value, key: &str) -> Option<f64> {
-    v.get(key).and_then(Value::as_f64)
 }
 
 fn fmt_num(x: Option<f64>, decimals: usize) -> String {
@@ -161,6 +159,12 @@ fn fmt_int(x: Option<f64>) -> String {
     fmt_num(x, 0)
 }
 
+/// An error statistic, which JSON holds as `null` where it is not finite (the mean over no
+/// views, the PSNR of a view without error): `–` then.
+fn fmt_stat(x: f64, decimals: usize) -> String {
+    fmt_num(Some(x).filter(|x| x.is_finite()), decimals)
+}
+
 fn fmt_mb(bytes: f64) -> String {
     format!("{:.3}", bytes / 1e6)
 }
@@ -173,13 +177,9 @@ fn reduction(before: f64, after: f64) -> String {
     }
 }
 
-/// Depth in metres; JSON `null` is infinity (the slab convention).
-fn fmt_depth(v: Option<&Value>) -> String {
-    match v {
-        Some(Value::Null) => "∞".into(),
-        Some(v) => fmt_num(v.as_f64(), 2),
-        None => "–".into(),
-    }
+/// Depth in metres; infinity (JSON `null`, the slab convention) is ∞.
+fn fmt_depth(depth_m: f64) -> String {
+    fmt_num(Some(depth_m), 2)
 }
 
 fn pngs_in(dir: &Path) -> Vec<PathBuf> {
@@ -293,9 +293,48 @@ mod tests {
 
     #[test]
     fn depth_null_is_infinity() {
-        assert_eq!(fmt_depth(Some(&Value::Null)), "∞");
-        assert_eq!(fmt_depth(Some(&serde_json::json!(12.5))), "12.50");
-        assert_eq!(fmt_depth(None), "–");
+        let far: slabs::report::SlabSummary = serde_json::from_value(serde_json::json!({
+            "near": 12.5, "far": null, "tiles_before": 1, "tiles_after": 1,
+            "opaque_pixels": 1, "pixels": 1, "texture_bytes": 4, "mesh_bytes": 0}))
+        .unwrap();
+        assert_eq!(fmt_depth(far.far), "∞");
+        assert_eq!(fmt_depth(far.near), "12.50");
+        assert_eq!(fmt_num(None, 2), "–");
+    }
+
+    /// The report reads `walk.json` as `WalkReport`, which gained `Deserialize` for it: what
+    /// the walk writes (unlimited bandwidth and a first frame never reached are `null`) reads
+    /// back the same.
+    #[test]
+    fn walk_json_reads_back_as_written() {
+        use streamer::walk::{RunReport, WalkReport};
+        let walk = WalkReport {
+            scene: "castle".into(),
+            track: "main".into(),
+            length_m: 72.0,
+            speed_mps: 36.0,
+            latency_s: 0.05,
+            runs: vec![
+                RunReport {
+                    strategy: "naive".into(),
+                    bandwidth_bps: Some(2_000_000),
+                    time_to_first_frame_s: Some(0.75),
+                    bytes: 90_000,
+                    ..RunReport::default()
+                },
+                RunReport {
+                    strategy: "ach+prefetch".into(),
+                    error: Some("the server stopped answering".into()),
+                    ..RunReport::default()
+                },
+            ],
+            error: None,
+        };
+        let json = serde_json::to_vec_pretty(&walk).unwrap();
+        let back: WalkReport = serde_json::from_slice(&json).unwrap();
+        assert_eq!(serde_json::to_vec_pretty(&back).unwrap(), json);
+        assert_eq!(back.runs[1].bandwidth_bps, None);
+        assert_eq!(back.runs[1].time_to_first_frame_s, None);
     }
 
     #[test]

@@ -1,11 +1,12 @@
 //! Sections of what the database does: streaming walks, error against run time, the
 //! flythrough, and how to open it all again.
 
-use serde_json::Value;
+use streamer::walk::WalkReport;
+use viewer::eval::report::EvalReport;
 
-use super::{fmt_int, fmt_num, num, pngs_in, spread, Ctx};
-use crate::report::doc::{Block, Figure, Table};
-use crate::report::StageStatus;
+use super::{fmt_num, fmt_stat, pngs_in, spread, Ctx};
+use crate::doc::{Block, Figure, Table};
+use crate::StageStatus;
 
 pub(super) fn streaming(c: &mut Ctx) {
     c.section(
@@ -21,7 +22,8 @@ pub(super) fn streaming(c: &mut Ctx) {
             dir.display()
         ),
     );
-    let Some((_, report)) = c.stage_report(Some(dir.join("walk.json")), "walk", "walk/walk.json")
+    let Some((_, report)) =
+        c.stage_report::<WalkReport>(Some(dir.join("walk.json")), "walk", "walk/walk.json")
     else {
         return;
     };
@@ -30,9 +32,9 @@ pub(super) fn streaming(c: &mut Ctx) {
         "A simulated walk of {} m at {} m/s with {} ms latency, streaming from a server on \
          loopback. Quality is the paper's progressive downloading quality; the needed fraction \
          is the share of visible pixels present at the level they need.",
-        fmt_num(num(&report, "length_m"), 1),
-        fmt_num(num(&report, "speed_mps"), 2),
-        fmt_num(num(&report, "latency_s").map(|s| s * 1000.0), 0)
+        fmt_num(Some(report.length_m), 1),
+        fmt_num(Some(report.speed_mps), 2),
+        fmt_num(Some(report.latency_s * 1000.0), 0)
     )));
     let png = dir.join("walk.png");
     if png.is_file() {
@@ -47,29 +49,19 @@ pub(super) fn streaming(c: &mut Ctx) {
         c.missing("the walk wrote no walk.png".into());
     }
     let rows = report
-        .get("runs")
-        .and_then(Value::as_array)
-        .into_iter()
-        .flatten()
+        .runs
+        .iter()
         .map(|r| {
-            let bw = match r.get("bandwidth_bps") {
-                Some(Value::Null) | None => "unlimited".to_string(),
-                Some(v) => v.as_u64().map_or("?".into(), streamer::walk::format_bps),
-            };
             vec![
-                r.get("strategy")
-                    .and_then(Value::as_str)
-                    .unwrap_or("?")
-                    .to_string(),
-                bw,
-                match r.get("time_to_first_frame_s") {
-                    Some(Value::Null) => "never".into(),
-                    v => fmt_num(v.and_then(Value::as_f64), 2),
-                },
-                fmt_num(num(r, "mean_needed_fraction"), 3),
-                fmt_num(num(r, "mean_quality"), 3),
-                fmt_int(num(r, "bytes")),
-                fmt_num(num(r, "bytes_per_m"), 0),
+                r.strategy.clone(),
+                r.bandwidth_bps
+                    .map_or("unlimited".into(), streamer::walk::format_bps),
+                r.time_to_first_frame_s
+                    .map_or("never".into(), |t| fmt_num(Some(t), 2)),
+                fmt_num(Some(r.mean_needed_fraction), 3),
+                fmt_num(Some(r.mean_quality), 3),
+                r.bytes.to_string(),
+                fmt_num(Some(r.bytes_per_m), 0),
             ]
         })
         .collect();
@@ -102,40 +94,39 @@ pub(super) fn evaluation(c: &mut Ctx) {
             dir.display()
         ),
     );
-    let Some((_, report)) = c.stage_report(Some(dir.join("eval.json")), "eval", "eval/eval.json")
+    let Some((_, report)) =
+        c.stage_report::<EvalReport>(Some(dir.join("eval.json")), "eval", "eval/eval.json")
     else {
         return;
     };
     c.push(Block::Command(cmd));
-    let views = &report["views"];
+    let views = &report.views;
     c.push(Block::Para(format!(
         "Reconstructed views against the ground truth from the same camera ({}): {} positions          inside every segment of the track, {} directions each, at {}×{} px and {}° (resolution          ratio {}: a view pixel over a panorama pixel at their centres; 1 is matched). At the          reference samples the error is the resampling floor; between them it adds the          interpolation. \"Worst 5 %\" is the PSNR that 95 % of the views meet or beat.",
-        report["truth"].as_str().unwrap_or("?"),
-        fmt_int(num(views, "per_segment")),
-        fmt_int(num(views, "directions")),
-        fmt_int(num(&report, "width")),
-        fmt_int(num(&report, "height")),
-        fmt_num(num(&report, "fov_deg"), 0),
-        fmt_num(num(&report, "resolution_ratio"), 2),
+        report.truth,
+        views.per_segment,
+        views.directions,
+        report.width,
+        report.height,
+        fmt_num(Some(report.fov_deg), 0),
+        fmt_num(Some(report.resolution_ratio), 2),
     )));
     let rows: Vec<Vec<String>> = report
-        .get("summary")
-        .and_then(Value::as_array)
-        .into_iter()
-        .flatten()
+        .summary
+        .iter()
         .map(|s| {
-            let b = &s["between"];
+            let b = &s.between;
             vec![
-                s["config"].as_str().unwrap_or("?").to_string(),
-                fmt_int(num(b, "views")),
-                fmt_num(num(b, "psnr_mean_db"), 2),
-                fmt_num(num(b, "psnr_worst5_db"), 2),
-                fmt_num(num(b, "psnr_min_db"), 2),
-                fmt_num(num(b, "ssim_mean"), 4),
-                fmt_num(num(b, "holes_mean").map(|h| h * 100.0), 3),
-                fmt_num(num(&s["at_samples"], "psnr_mean_db"), 2),
-                fmt_num(num(s, "frame_ms"), 2),
-                fmt_int(num(s, "db_bytes")),
+                s.config.clone(),
+                b.views.to_string(),
+                fmt_stat(b.psnr_mean_db, 2),
+                fmt_stat(b.psnr_worst5_db, 2),
+                fmt_stat(b.psnr_min_db, 2),
+                fmt_stat(b.ssim_mean, 4),
+                fmt_stat(b.holes_mean * 100.0, 3),
+                fmt_stat(s.at_samples.psnr_mean_db, 2),
+                fmt_num(Some(s.frame_ms), 2),
+                s.db_bytes.to_string(),
             ]
         })
         .collect();
@@ -159,26 +150,18 @@ pub(super) fn evaluation(c: &mut Ctx) {
         rows,
     }));
     let worst: Vec<Vec<String>> = report
-        .get("worst")
-        .and_then(Value::as_array)
-        .into_iter()
-        .flatten()
+        .worst
+        .iter()
         .enumerate()
         .map(|(i, w)| {
-            let p = w["position"].as_array();
-            let at = |k: usize| p.and_then(|p| p.get(k)).and_then(Value::as_f64);
+            let [x, y, z] = w.position.map(|v| fmt_num(Some(v), 1));
             vec![
                 (i + 1).to_string(),
-                fmt_num(num(w, "s"), 2),
-                format!(
-                    "({}, {}, {})",
-                    fmt_num(at(0), 1),
-                    fmt_num(at(1), 1),
-                    fmt_num(at(2), 1)
-                ),
-                fmt_num(num(w, "yaw_deg"), 0),
-                fmt_num(num(w, "pitch_deg"), 0),
-                fmt_num(num(w, "psnr_db"), 2),
+                fmt_num(Some(w.view.s), 2),
+                format!("({x}, {y}, {z})"),
+                fmt_num(Some(w.view.yaw_deg), 0),
+                fmt_num(Some(w.view.pitch_deg), 0),
+                fmt_stat(w.psnr_db, 2),
             ]
         })
         .collect();
@@ -252,19 +235,14 @@ pub(super) fn tuning(c: &mut Ctx) {
             dir.display()
         ),
     );
-    let Some((path, report)) =
-        c.stage_report(Some(dir.join("sweep.json")), "tune", "tune/sweep.json")
-    else {
+    let Some((_, sweep)) = c.stage_report::<tune::report::SweepReport>(
+        Some(dir.join("sweep.json")),
+        "tune",
+        "tune/sweep.json",
+    ) else {
         return;
     };
     c.push(Block::Command(cmd));
-    let sweep: tune::report::SweepReport = match serde_json::from_value(report) {
-        Ok(s) => s,
-        Err(e) => {
-            c.missing(format!("{}: {e}", path.display()));
-            return;
-        }
-    };
     c.push(Block::Para(format!(
         "A small sweep: the databases of this scene with one build knob changed at a time          around a base configuration ({}), each evaluated on the same views. {} The table          marks which configurations lie on the Pareto front of each cost against the PSNR of          the worst 5 % of views.",
         tune::report::describe(&sweep.base),

@@ -4,13 +4,17 @@
 //! - [`Layout`]: where each stage's outputs live inside the demo directory.
 //! - [`RunLog`] / [`StageRecord`]: which commands the demo ran, how long they took and whether
 //!   they were available (`OUT/demo.json`); every number in the report cites its command.
-//! - [`write_report`]: reads the stage reports (`prerender.json`, `slabs.json`, `cull.json`,
-//!   `walk.json`, `eval.json`, the database manifest), copies and composes the pictures into
-//!   `OUT/report/`, and writes both pages from one list of [`doc::Block`]s. A stage whose
-//!   outputs are missing gives a section that says so instead of failing the report.
+//! - [`write_report`]: reads the stage reports as the stages' own types
+//!   ([`prerender::store::PrerenderReport`], [`slabs::report::SlabsReport`],
+//!   [`occlusion::report::CullReport`], [`streamer::walk::WalkReport`],
+//!   [`viewer::eval::report::EvalReport`], [`tune::report::SweepReport`]), copies and composes
+//!   the pictures into `OUT/report/`, and writes both pages from one list of [`doc::Block`]s.
+//!   A stage whose outputs are missing or unreadable gives a section that says so instead of
+//!   failing the report.
+//! - [`images`]: the pictures (horizon strips of stored cube maps, checked copies of plots).
 //!
 //! ```no_run
-//! # fn main() -> anyhow::Result<()> {
+//! # fn main() -> Result<(), report::ReportError> {
 //! let layout = report::Layout::new("railview-demo");
 //! let log = report::RunLog::load_or_default(&layout, "castle", "main", 64);
 //! let written = report::write_report(&layout, &log)?;
@@ -24,8 +28,74 @@ mod sections;
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
 use serde::{Deserialize, Serialize};
+
+/// What went wrong writing the report or one of its pictures. Each message names the file
+/// and already includes the underlying error, so none is a `source` (a chain printed with
+/// `{:#}` would repeat it).
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ReportError {
+    /// Reading a file or creating a directory failed.
+    #[error("{action} {}: {error}", path.display())]
+    Io {
+        action: &'static str,
+        path: PathBuf,
+        error: std::io::Error,
+    },
+    /// Writing a file whole failed.
+    #[error("writing {}: {error}", path.display())]
+    Write {
+        path: PathBuf,
+        error: prerender::store::StoreError,
+    },
+    /// A picture does not decode, or encoding or composing one failed.
+    #[error("{action} {}: {error}", path.display())]
+    Image {
+        action: &'static str,
+        path: PathBuf,
+        error: image::ImageError,
+    },
+    /// An image that should be a stored cube map (`N × 6N` pixels) is not.
+    #[error("{}: expected a cube map of N × 6N pixels, found {width} × {height}", path.display())]
+    NotACubeMap {
+        path: PathBuf,
+        width: u32,
+        height: u32,
+    },
+    /// A plot's vector copy is not an SVG document.
+    #[error("{} is not an SVG document", path.display())]
+    NotSvg { path: PathBuf },
+    /// `demo.json` could not be encoded.
+    #[error("encoding demo.json: {0}")]
+    Encode(serde_json::Error),
+}
+
+impl ReportError {
+    fn io(action: &'static str, path: &Path, error: std::io::Error) -> ReportError {
+        ReportError::Io {
+            action,
+            path: path.to_path_buf(),
+            error,
+        }
+    }
+    fn write(path: &Path, error: prerender::store::StoreError) -> ReportError {
+        ReportError::Write {
+            path: path.to_path_buf(),
+            error,
+        }
+    }
+}
+
+/// Create `dir` and its parents.
+fn create_dir(dir: &Path) -> Result<(), ReportError> {
+    std::fs::create_dir_all(dir).map_err(|e| ReportError::io("creating", dir, e))
+}
+
+/// Write `bytes` to `path` whole.
+fn write_file(path: &Path, bytes: &[u8]) -> Result<(), ReportError> {
+    prerender::store::write_atomic(path, bytes).map_err(|e| ReportError::write(path, e))
+}
 
 /// Where things live in a demo directory.
 #[derive(Clone, Debug)]
@@ -168,12 +238,10 @@ impl RunLog {
         }
     }
 
-    pub fn save(&self, layout: &Layout) -> anyhow::Result<()> {
-        let bytes = serde_json::to_vec_pretty(self).context("encoding demo.json")?;
-        std::fs::create_dir_all(layout.root())
-            .with_context(|| format!("creating {}", layout.root().display()))?;
-        prerender::store::write_atomic(&layout.log(), &bytes)
-            .with_context(|| format!("writing {}", layout.log().display()))
+    pub fn save(&self, layout: &Layout) -> Result<(), ReportError> {
+        let bytes = serde_json::to_vec_pretty(self).map_err(ReportError::Encode)?;
+        create_dir(layout.root())?;
+        write_file(&layout.log(), &bytes)
     }
 }
 
@@ -191,9 +259,9 @@ pub struct Written {
 }
 
 /// Build `OUT/report/index.html` and `index.md` from whatever the stages left in `layout`.
-pub fn write_report(layout: &Layout, log: &RunLog) -> anyhow::Result<Written> {
+pub fn write_report(layout: &Layout, log: &RunLog) -> Result<Written, ReportError> {
     let dir = layout.report();
-    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    create_dir(&dir)?;
     let built = sections::build(layout, log, &dir);
     let title = format!(
         "railview demo: {} / {} at {}² per face",
@@ -201,13 +269,11 @@ pub fn write_report(layout: &Layout, log: &RunLog) -> anyhow::Result<Written> {
     );
     let html = dir.join("index.html");
     let markdown = dir.join("index.md");
-    prerender::store::write_atomic(&html, doc::to_html(&title, &built.blocks).as_bytes())
-        .with_context(|| format!("writing {}", html.display()))?;
-    prerender::store::write_atomic(
+    write_file(&html, doc::to_html(&title, &built.blocks).as_bytes())?;
+    write_file(
         &markdown,
         doc::to_markdown(&title, &built.blocks).as_bytes(),
-    )
-    .with_context(|| format!("writing {}", markdown.display()))?;
+    )?;
     let mut tables = Vec::new();
     let mut imgs = Vec::new();
     for b in &built.blocks {

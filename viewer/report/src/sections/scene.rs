@@ -3,14 +3,16 @@
 
 use std::path::Path;
 
+use prerender::store::PrerenderReport;
 use serde_json::Value;
-
-use super::{fmt_depth, fmt_int, fmt_num, num, read_json, reduction, spread, Ctx};
-use crate::report::doc::{Block, Figure, Table};
-use crate::report::images;
+use slabs::report::SlabsReport;
 use tracks::Face;
 
-pub(super) fn viewpoints(c: &mut Ctx) -> Option<Value> {
+use super::{fmt_depth, fmt_num, read_json, reduction, spread, Ctx};
+use crate::doc::{Block, Figure, Table};
+use crate::images;
+
+pub(super) fn viewpoints(c: &mut Ctx) -> Option<PrerenderReport> {
     c.section("viewpoints", "The scene from a few reference viewpoints");
     let work = c.layout.prerender();
     let cmd = c.command(
@@ -23,7 +25,7 @@ pub(super) fn viewpoints(c: &mut Ctx) -> Option<Value> {
             c.path_arg(work.clone())
         ),
     );
-    let (path, report) = c.stage_report(
+    let (path, report): (_, PrerenderReport) = c.stage_report(
         c.layout.find("prerender.json"),
         "prerender",
         "prerender.json",
@@ -42,15 +44,15 @@ pub(super) fn viewpoints(c: &mut Ctx) -> Option<Value> {
         .map(String::from)
         .to_vec(),
         rows: vec![vec![
-            fmt_int(num(&report, "samples")),
-            fmt_int(num(&report, "face_size")),
-            fmt_int(num(&report, "lowres_face_size")),
-            fmt_num(num(&report, "seconds"), 2),
-            fmt_num(num(&report, "rays_per_second"), 0),
+            report.samples.to_string(),
+            report.face_size.to_string(),
+            report.lowres_face_size.to_string(),
+            fmt_num(Some(report.seconds), 2),
+            fmt_num(Some(report.rays_per_second), 0),
         ]],
     }));
     let pre_dir = prerender::store::PrerenderDir::new(path.parent().unwrap_or(Path::new(".")));
-    let n = num(&report, "samples").unwrap_or(0.0) as usize;
+    let n = report.samples;
     let mut figs = Vec::new();
     for i in spread(n) {
         let src = pre_dir.color_png(i);
@@ -78,13 +80,14 @@ pub(super) fn viewpoints(c: &mut Ctx) -> Option<Value> {
     Some(report)
 }
 
-pub(super) fn histogram(c: &mut Ctx) -> Option<Value> {
+pub(super) fn histogram(c: &mut Ctx) -> Option<SlabsReport> {
     c.section("slabs", "Depth histogram and slab boundaries");
     let cmd = c.command(
         "slabs",
         format!("railview slabs {}", c.path_arg(c.layout.prerender())),
     );
-    let (path, report) = c.stage_report(c.layout.find("slabs.json"), "slabs", "slabs.json")?;
+    let (path, report): (_, SlabsReport) =
+        c.stage_report(c.layout.find("slabs.json"), "slabs", "slabs.json")?;
     c.push(Block::Command(cmd));
     if let Some(hist) = path
         .parent()
@@ -101,27 +104,21 @@ pub(super) fn histogram(c: &mut Ctx) -> Option<Value> {
     } else {
         c.missing("the slab stage wrote no histogram.png".into());
     }
-    let slabs = report
-        .get("slabs")
-        .and_then(Value::as_array)
-        .cloned()
-        .unwrap_or_default();
-    let rows = slabs
+    let rows = report
+        .slabs
         .iter()
         .enumerate()
         .map(|(k, s)| {
-            let before = num(s, "tiles_before").unwrap_or(0.0);
-            let after = num(s, "tiles_after").unwrap_or(0.0);
             vec![
                 k.to_string(),
-                fmt_depth(s.get("near")),
-                fmt_depth(s.get("far")),
-                fmt_int(num(s, "tiles_before")),
-                fmt_int(num(s, "tiles_after")),
-                reduction(before, after),
-                fmt_int(num(s, "opaque_pixels").or_else(|| num(s, "pixels"))),
-                fmt_int(num(s, "texture_bytes").or_else(|| num(s, "bytes"))),
-                fmt_int(num(s, "mesh_bytes")),
+                fmt_depth(s.near),
+                fmt_depth(s.far),
+                s.tiles_before.to_string(),
+                s.tiles_after.to_string(),
+                reduction(s.tiles_before as f64, s.tiles_after as f64),
+                s.opaque_pixels.to_string(),
+                s.texture_bytes.to_string(),
+                s.mesh_bytes.to_string(),
             ]
         })
         .collect();
@@ -143,17 +140,11 @@ pub(super) fn histogram(c: &mut Ctx) -> Option<Value> {
         .to_vec(),
         rows,
     }));
-    // The criterion's numbers (or, from a slab stage without a `criterion` object, every
-    // other scalar it reported).
+    // The criterion's numbers, each under its name in `slabs.json`.
     let mut crit = Vec::new();
-    match (report.get("criterion"), report.as_object()) {
-        (Some(v), _) => flatten("criterion", v, &mut crit),
-        (None, Some(obj)) => {
-            for (k, v) in obj.iter().filter(|(k, _)| *k != "slabs") {
-                flatten(k, v, &mut crit);
-            }
-        }
-        (None, None) => {}
+    match serde_json::to_value(&report.criterion) {
+        Ok(v) => flatten("criterion", &v, &mut crit),
+        Err(e) => c.missing(format!("the slab-count criterion: {e}")),
     }
     if !crit.is_empty() {
         c.push(Block::Table(Table {
@@ -166,7 +157,8 @@ pub(super) fn histogram(c: &mut Ctx) -> Option<Value> {
     Some(report)
 }
 
-/// Scalars of a JSON object as `a.b` = value rows (arrays of scalars joined, big arrays skipped).
+/// Scalars of a JSON object as `a.b` = value rows (arrays of scalars joined, big arrays and
+/// arrays of objects skipped), in the order of their names.
 pub(super) fn flatten(prefix: &str, v: &Value, out: &mut Vec<(String, String)>) {
     match v {
         Value::Number(n) => out.push((prefix.into(), format_number(n))),
@@ -213,10 +205,7 @@ pub(super) fn layers(c: &mut Ctx) {
         return;
     };
     let pre_dir = prerender::store::PrerenderDir::new(path.parent().unwrap_or(Path::new(".")));
-    let n = read_json(&path)
-        .ok()
-        .and_then(|v| num(&v, "samples"))
-        .unwrap_or(0.0) as usize;
+    let n = read_json::<PrerenderReport>(&path).map_or(0, |r| r.samples);
     let i = n / 2;
     let Some(meta) = pre_dir.layers_meta(i) else {
         c.missing(format!(

@@ -2,12 +2,16 @@
 
 use std::path::{Path, PathBuf};
 
+use occlusion::cull::Variant;
+use occlusion::report::{CullReport, RunReport};
+use prerender::store::PrerenderReport;
 use serde_json::Value;
+use slabs::report::SlabsReport;
 
-use super::{fmt_int, fmt_mb, fmt_num, num, pngs_in, read_json, reduction, Ctx};
-use crate::report::doc::{Block, Figure, Table};
+use super::{fmt_int, fmt_mb, fmt_num, pngs_in, read_json, reduction, Ctx};
+use crate::doc::{Block, Figure, Table};
 
-pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
+pub(super) fn culling(c: &mut Ctx) -> Option<CullReport> {
     c.section(
         "culling",
         "Track-dependent occlusion culling (the paper's Tables 1–2)",
@@ -19,7 +23,8 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
             c.path_arg(c.layout.prerender())
         ),
     );
-    let (path, report) = c.stage_report(c.layout.find("cull.json"), "cull", "cull.json")?;
+    let (path, report): (_, CullReport) =
+        c.stage_report(c.layout.find("cull.json"), "cull", "cull.json")?;
     c.push(Block::Command(cmd));
     c.push(Block::Para(
         "Tiles and sizes summed over every reference viewpoint, per slab; size is raw RGBA8 \
@@ -27,123 +32,99 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
          yet seen as the first visible surface from dense viewpoints along the track."
             .into(),
     ));
-    let runs = report
-        .get("runs")
-        .and_then(Value::as_array)
-        .cloned()
-        .unwrap_or_default();
-    let mut variants: Vec<String> = Vec::new();
-    for r in &runs {
-        let v = r
-            .get("variant")
-            .and_then(Value::as_str)
-            .unwrap_or("?")
-            .to_string();
-        if !variants.contains(&v) {
-            variants.push(v);
+    let mut variants: Vec<Variant> = Vec::new();
+    for r in &report.runs {
+        if !variants.contains(&r.variant) {
+            variants.push(r.variant);
         }
     }
-    for variant in &variants {
-        let rs: Vec<&Value> = runs
-            .iter()
-            .filter(|r| r.get("variant").and_then(Value::as_str).unwrap_or("?") == variant)
-            .collect();
-        let slab_count = rs
-            .iter()
-            .map(|r| r.get("slabs").and_then(Value::as_array).map_or(0, Vec::len))
-            .max()
-            .unwrap_or(0);
-        let mut header = vec!["α".to_string(), "".to_string()];
-        for k in 0..slab_count {
-            header.push(format!("slab {} before", k + 1));
-            header.push("after".into());
-            header.push("reduction".into());
-        }
-        let mut rows = Vec::new();
-        for r in &rs {
-            let alpha = fmt_num(num(r, "alpha"), 2);
-            let slabs = r
-                .get("slabs")
-                .and_then(Value::as_array)
-                .cloned()
-                .unwrap_or_default();
-            let mut tiles = vec![alpha, "Tiles".to_string()];
-            let mut size = vec![String::new(), "Size (MB)".to_string()];
-            for s in &slabs {
-                let (tb, ta) = (
-                    num(s, "tiles_before").unwrap_or(0.0),
-                    num(s, "tiles_after").unwrap_or(0.0),
-                );
-                let (bb, ba) = (
-                    num(s, "bytes_before").unwrap_or(0.0),
-                    num(s, "bytes_after").unwrap_or(0.0),
-                );
-                tiles.extend([fmt_int(Some(tb)), fmt_int(Some(ta)), reduction(tb, ta)]);
-                size.extend([fmt_mb(bb), fmt_mb(ba), reduction(bb, ba)]);
-            }
-            rows.push(tiles);
-            rows.push(size);
-        }
-        c.push(Block::Table(Table {
-            id: format!("culling-{variant}"),
-            caption: format!("Variant `{variant}`: tiles and size before and after culling"),
-            header,
-            rows,
-        }));
+    for variant in variants {
+        c.push(Block::Table(variant_table(&report.runs, variant)));
     }
-    let mut fc_rows = Vec::new();
-    for r in &runs {
-        for s in r
-            .get("slabs")
-            .and_then(Value::as_array)
-            .into_iter()
-            .flatten()
-        {
-            if s.get("false_culls").is_none() {
-                continue;
-            }
-            fc_rows.push(vec![
-                fmt_num(num(r, "alpha"), 2),
-                r.get("variant")
-                    .and_then(Value::as_str)
-                    .unwrap_or("?")
-                    .to_string(),
-                fmt_int(num(s, "slab").map(|k| k + 1.0)),
-                fmt_int(num(s, "false_culls")),
-                fmt_int(num(s, "false_cull_pixels")),
-                fmt_int(num(s, "kept_never_visible")),
-                fmt_int(num(s, "visible_tiles")),
-                fmt_int(num(s, "never_visible")),
+    false_culls(c, &report.runs);
+    atlases(c, &path);
+    Some(report)
+}
+
+/// The paper's table for the runs of one variant: tiles and size per slab, before and after.
+fn variant_table(runs: &[RunReport], variant: Variant) -> Table {
+    let rs: Vec<&RunReport> = runs.iter().filter(|r| r.variant == variant).collect();
+    let slab_count = rs.iter().map(|r| r.slabs.len()).max().unwrap_or(0);
+    let mut header = vec!["α".to_string(), "".to_string()];
+    for k in 0..slab_count {
+        header.push(format!("slab {} before", k + 1));
+        header.push("after".into());
+        header.push("reduction".into());
+    }
+    let mut rows = Vec::new();
+    for r in &rs {
+        let mut tiles = vec![fmt_num(Some(r.alpha), 2), "Tiles".to_string()];
+        let mut size = vec![String::new(), "Size (MB)".to_string()];
+        for s in &r.slabs {
+            let (tb, ta) = (s.tiles_before as f64, s.tiles_after as f64);
+            let (bb, ba) = (s.bytes_before as f64, s.bytes_after as f64);
+            tiles.extend([fmt_int(Some(tb)), fmt_int(Some(ta)), reduction(tb, ta)]);
+            size.extend([fmt_mb(bb), fmt_mb(ba), reduction(bb, ba)]);
+        }
+        rows.push(tiles);
+        rows.push(size);
+    }
+    let name = variant.name();
+    Table {
+        id: format!("culling-{name}"),
+        caption: format!("Variant `{name}`: tiles and size before and after culling"),
+        header,
+        rows,
+    }
+}
+
+/// The oracle's table: per run and slab, false culls and tiles kept but never seen.
+fn false_culls(c: &mut Ctx, runs: &[RunReport]) {
+    let count = |x: Option<u64>| fmt_int(x.map(|x| x as f64));
+    let mut rows = Vec::new();
+    for r in runs {
+        for s in r.slabs.iter().filter(|s| s.false_culls.is_some()) {
+            rows.push(vec![
+                fmt_num(Some(r.alpha), 2),
+                r.variant.name().to_string(),
+                (s.slab + 1).to_string(),
+                count(s.false_culls),
+                count(s.false_cull_pixels),
+                count(s.kept_never_visible),
+                count(s.visible_tiles),
+                count(s.never_visible),
             ]);
         }
     }
-    if fc_rows.is_empty() {
+    if rows.is_empty() {
         c.missing("the culling run had no oracle, so false culls were not measured".into());
-    } else {
-        c.push(Block::Table(Table {
-            id: "false-culls".into(),
-            caption:
-                "The oracle: false culls (culled yet visible) and tightness (kept, never seen)"
-                    .into(),
-            header: [
-                "α",
-                "variant",
-                "slab",
-                "false culls (tiles)",
-                "false-cull pixels",
-                "kept never visible",
-                "visible tiles",
-                "never visible (ceiling)",
-            ]
-            .map(String::from)
-            .to_vec(),
-            rows: fc_rows,
-        }));
+        return;
     }
-    // The culling stage's atlases (`cull/<variant>-a<alpha>.png`: kept and culled tiles).
-    // The shrunk and conservative runs at α = 1 and the most aggressive paper run say the
-    // most; other atlases are in the culling directory.
-    let all: Vec<PathBuf> = path
+    c.push(Block::Table(Table {
+        id: "false-culls".into(),
+        caption: "The oracle: false culls (culled yet visible) and tightness (kept, never seen)"
+            .into(),
+        header: [
+            "α",
+            "variant",
+            "slab",
+            "false culls (tiles)",
+            "false-cull pixels",
+            "kept never visible",
+            "visible tiles",
+            "never visible (ceiling)",
+        ]
+        .map(String::from)
+        .to_vec(),
+        rows,
+    }));
+}
+
+/// The culling stage's atlases (`cull/<variant>-a<alpha>.png`: kept and culled tiles) beside
+/// `cull.json`. The shrunk and conservative runs at α = 1 and the most aggressive paper run
+/// say the most; other atlases are in the culling directory.
+fn atlases(c: &mut Ctx, cull_json: &Path) {
+    let all: Vec<PathBuf> = cull_json
         .parent()
         .map(|d| pngs_in(&d.join("cull")))
         .unwrap_or_default();
@@ -182,7 +163,6 @@ pub(super) fn culling(c: &mut Ctx) -> Option<Value> {
         ));
         c.push(Block::Figures(figs));
     }
-    Some(report)
 }
 
 /// Total size of the files under `dir` (recursively).
@@ -204,10 +184,16 @@ fn dir_bytes(dir: &Path) -> Option<u64> {
     any.then_some(total)
 }
 
-pub(super) fn sizes(c: &mut Ctx, pre: Option<&Value>, slabs: Option<&Value>, cull: Option<&Value>) {
+pub(super) fn sizes(
+    c: &mut Ctx,
+    pre: Option<&PrerenderReport>,
+    slabs: Option<&SlabsReport>,
+    cull: Option<&CullReport>,
+) {
     c.section("sizes", "Database size per stage");
     if let Some(path) = c.layout.find("build.json") {
-        match read_json(&path) {
+        // build.json: typed once stages::BuildReport is public
+        match read_json::<Value>(&path) {
             Ok(build) => {
                 build_sizes(c, &build);
                 return;
@@ -216,6 +202,11 @@ pub(super) fn sizes(c: &mut Ctx, pre: Option<&Value>, slabs: Option<&Value>, cul
         }
     }
     estimated_sizes(c, pre, slabs, cull);
+}
+
+/// A number of `build.json` by its field name.
+fn num(v: &Value, key: &str) -> Option<f64> {
+    v.get(key).and_then(Value::as_f64)
 }
 
 /// Sizes and timings from the build stage's own report (`build.json`).
@@ -314,115 +305,56 @@ fn build_sizes(c: &mut Ctx, build: &Value) {
     }
 }
 
+/// Rows of the estimated size table (stage, MB, share of the raw panoramas, how, command).
+struct SizeRows {
+    rows: Vec<Vec<String>>,
+    /// Bytes of the raw panoramas, once known.
+    raw: Option<f64>,
+}
+
+impl SizeRows {
+    fn add(&mut self, stage: &str, bytes: f64, how: String, cmd: String) {
+        let rel = self
+            .raw
+            .filter(|r| *r > 0.0)
+            .map_or("–".into(), |r| format!("{:.1}%", 100.0 * bytes / r));
+        self.rows
+            .push(vec![stage.into(), fmt_mb(bytes), rel, how, cmd]);
+    }
+}
+
 /// Sizes estimated from the stage reports, when no build report exists.
-fn estimated_sizes(c: &mut Ctx, pre: Option<&Value>, slabs: Option<&Value>, cull: Option<&Value>) {
+fn estimated_sizes(
+    c: &mut Ctx,
+    pre: Option<&PrerenderReport>,
+    slabs: Option<&SlabsReport>,
+    cull: Option<&CullReport>,
+) {
     c.push(Block::Para(
         "Colour as raw RGBA8 (4 bytes per pixel, the paper's Size unit) up to culling; the last \
          row is the database as written to disk (PTM levels compressed, meshes, manifest)."
             .into(),
     ));
-    let mut rows: Vec<Vec<String>> = Vec::new();
-    let mut raw = None;
-    let add = |rows: &mut Vec<Vec<String>>,
-               stage: &str,
-               bytes: f64,
-               how: String,
-               cmd: String,
-               raw: Option<f64>| {
-        let rel = raw
-            .filter(|r| *r > 0.0)
-            .map_or("–".into(), |r| format!("{:.1}%", 100.0 * bytes / r));
-        rows.push(vec![stage.into(), fmt_mb(bytes), rel, how, cmd]);
+    let mut rows = SizeRows {
+        rows: Vec::new(),
+        raw: None,
     };
-    let face = pre.and_then(|p| num(p, "face_size"));
-    let samples = pre.and_then(|p| num(p, "samples"));
-    let pre_cmd = c.command(
-        "prerender",
-        format!(
-            "railview prerender --scene {} --track {} --face-size {}",
-            c.log.scene, c.log.track, c.log.face_size
-        ),
-    );
-    let slab_cmd = c.command(
-        "slabs",
-        format!("railview slabs {}", c.path_arg(c.layout.prerender())),
-    );
-    let cull_cmd = c.command(
-        "cull",
-        format!("railview cull {}", c.path_arg(c.layout.prerender())),
-    );
-    if let (Some(n), Some(s)) = (face, samples) {
-        let b = s * 6.0 * n * n * 4.0;
-        raw = Some(b);
-        add(
-            &mut rows,
-            "raw panoramas",
-            b,
-            format!("{s} samples × 6 × {n}² px"),
-            pre_cmd.clone(),
-            raw,
+    layer_sizes(c, &mut rows, pre, slabs, cull);
+    if let Some(run) = cull.and_then(|v| database_run(&v.runs)) {
+        let cull_cmd = c.command(
+            "cull",
+            format!("railview cull {}", c.path_arg(c.layout.prerender())),
         );
-    }
-    let slab_list = slabs.and_then(|v| v.get("slabs")).and_then(Value::as_array);
-    let tile_size = slabs
-        .and_then(|v| num(v, "tile_size"))
-        .or_else(|| cull.and_then(|v| num(v, "tile_size")));
-    if let (Some(list), Some(n), Some(s)) = (slab_list, face, samples) {
-        let k = list.len() as f64;
-        add(
-            &mut rows,
-            "slab layers",
-            s * k * 6.0 * n * n * 4.0,
-            format!("{k} slab layers per sample"),
-            slab_cmd.clone(),
-            raw,
-        );
-        if let Some(t) = tile_size {
-            let after: f64 = list.iter().filter_map(|x| num(x, "tiles_after")).sum();
-            add(
-                &mut rows,
-                "empty tiles removed",
-                after * t * t * 4.0,
-                format!("{after} tiles of {t}²"),
-                slab_cmd.clone(),
-                raw,
-            );
-        }
-    }
-    // The database's culling: the shrunk run (α = 1) where there is one, else the
-    // conservative one at α = 1.
-    let used = cull
-        .and_then(|v| v.get("runs"))
-        .and_then(Value::as_array)
-        .and_then(|runs| {
-            let of = |name: &'static str| {
-                runs.iter()
-                    .filter(move |r| r.get("variant").and_then(Value::as_str) == Some(name))
-            };
-            of("shrunk")
-                .chain(of("conservative"))
-                .chain(runs.iter())
-                .find(|r| num(r, "alpha") == Some(1.0))
-                .or(runs.first())
-        });
-    if let Some(run) = used {
-        let list = run
-            .get("slabs")
-            .and_then(Value::as_array)
-            .cloned()
-            .unwrap_or_default();
-        let after: f64 = list.iter().filter_map(|x| num(x, "bytes_after")).sum();
-        add(
-            &mut rows,
+        let after: f64 = run.slabs.iter().map(|x| x.bytes_after as f64).sum();
+        rows.add(
             "culled",
             after,
             format!(
                 "α = {}, variant {}",
-                fmt_num(num(run, "alpha"), 2),
-                run.get("variant").and_then(Value::as_str).unwrap_or("?")
+                fmt_num(Some(run.alpha), 2),
+                run.variant.name()
             ),
             cull_cmd,
-            raw,
         );
     }
     let db = c.layout.db();
@@ -437,15 +369,14 @@ fn estimated_sizes(c: &mut Ctx, pre: Option<&Value>, slabs: Option<&Value>, cull
                 db.display()
             ),
         );
-        add(
-            &mut rows,
+        rows.add(
             "PTM compressed (database on disk)",
             b as f64,
             format!("du -b {}", db.display()),
             cmd,
-            raw,
         );
     }
+    let rows = rows.rows;
     if rows.is_empty() {
         let why = c.why_missing("build", "prerender.json");
         c.missing(why);
@@ -465,4 +396,66 @@ fn estimated_sizes(c: &mut Ctx, pre: Option<&Value>, slabs: Option<&Value>, cull
             .to_vec(),
         rows,
     }));
+}
+
+/// The raw panoramas, the slab layers and the tiles left after empty-tile removal.
+fn layer_sizes(
+    c: &Ctx,
+    rows: &mut SizeRows,
+    pre: Option<&PrerenderReport>,
+    slabs: Option<&SlabsReport>,
+    cull: Option<&CullReport>,
+) {
+    let Some(pre) = pre else { return };
+    let (n, s) = (pre.face_size as f64, pre.samples as f64);
+    let pre_cmd = c.command(
+        "prerender",
+        format!(
+            "railview prerender --scene {} --track {} --face-size {}",
+            c.log.scene, c.log.track, c.log.face_size
+        ),
+    );
+    let b = s * 6.0 * n * n * 4.0;
+    rows.raw = Some(b);
+    rows.add(
+        "raw panoramas",
+        b,
+        format!("{s} samples × 6 × {n}² px"),
+        pre_cmd,
+    );
+    let Some(slabs) = slabs else { return };
+    let slab_cmd = c.command(
+        "slabs",
+        format!("railview slabs {}", c.path_arg(c.layout.prerender())),
+    );
+    let k = slabs.slabs.len() as f64;
+    rows.add(
+        "slab layers",
+        s * k * 6.0 * n * n * 4.0,
+        format!("{k} slab layers per sample"),
+        slab_cmd.clone(),
+    );
+    let tile_size = Some(slabs.tile_size)
+        .filter(|t| *t > 0)
+        .or_else(|| cull.map(|v| v.tile_size));
+    if let Some(t) = tile_size.map(f64::from) {
+        let after: f64 = slabs.slabs.iter().map(|x| x.tiles_after as f64).sum();
+        rows.add(
+            "empty tiles removed",
+            after * t * t * 4.0,
+            format!("{after} tiles of {t}²"),
+            slab_cmd,
+        );
+    }
+}
+
+/// The database's culling: the shrunk run (α = 1) where there is one, else the conservative
+/// one at α = 1, else any at α = 1, else the first.
+fn database_run(runs: &[RunReport]) -> Option<&RunReport> {
+    let of = |v: Variant| runs.iter().filter(move |r| r.variant == v);
+    of(Variant::Shrunk)
+        .chain(of(Variant::Conservative))
+        .chain(runs.iter())
+        .find(|r| r.alpha == 1.0)
+        .or(runs.first())
 }
