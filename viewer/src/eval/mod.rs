@@ -385,8 +385,11 @@ pub struct EvalRow {
     pub view: EvalView,
     /// Camera position, metres.
     pub position: [f64; 3],
+    #[serde(deserialize_with = "nan_from_null")]
     pub psnr_db: f64,
+    #[serde(deserialize_with = "nan_from_null")]
     pub ssim: f64,
+    #[serde(deserialize_with = "nan_from_null")]
     pub hole_fraction: f64,
     /// Mean GPU frame time (plan + draw + wait, no readback), milliseconds.
     pub frame_ms: f64,
@@ -498,18 +501,32 @@ pub fn upper_percentile(values: &[f64], q: f64) -> f64 {
     -lower_percentile(&neg, q)
 }
 
+/// A number of `eval.json` read back: JSON writes a value that is not finite (the mean over
+/// no views, say) as `null`, which reads back as NaN.
+fn nan_from_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 /// Error over a set of views: means, the worst 5 % (the value 95 % of views meet or beat)
 /// and the worst single view.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct ErrorStats {
     pub views: usize,
+    #[serde(deserialize_with = "nan_from_null")]
     pub psnr_mean_db: f64,
+    #[serde(deserialize_with = "nan_from_null")]
     pub psnr_worst5_db: f64,
+    #[serde(deserialize_with = "nan_from_null")]
     pub psnr_min_db: f64,
+    #[serde(deserialize_with = "nan_from_null")]
     pub ssim_mean: f64,
+    #[serde(deserialize_with = "nan_from_null")]
     pub ssim_worst5: f64,
+    #[serde(deserialize_with = "nan_from_null")]
     pub holes_mean: f64,
+    #[serde(deserialize_with = "nan_from_null")]
     pub holes_worst5: f64,
+    #[serde(deserialize_with = "nan_from_null")]
     pub holes_max: f64,
 }
 
@@ -629,6 +646,16 @@ pub fn triptych(recon: &[[u8; 3]], truth: &[[u8; 3]], width: u32, height: u32) -
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn stats_over_no_views_read_back_from_json_as_nan() {
+        let stats = ErrorStats::of(std::iter::empty());
+        let json = serde_json::to_string(&stats).unwrap();
+        assert!(json.contains("\"psnr_mean_db\":null"), "{json}");
+        let back: ErrorStats = serde_json::from_str(&json).unwrap();
+        assert_eq!(back.views, 0);
+        assert!(back.psnr_mean_db.is_nan() && back.holes_max.is_nan());
+    }
     use crate::headless::synth_street;
     use crate::refview::MeshParams;
 
