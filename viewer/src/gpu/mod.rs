@@ -46,6 +46,7 @@ use std::collections::HashMap;
 use crate::plan::{FramePlan, Overlays};
 use crate::refview::RefView;
 
+pub use crate::frame::Frame;
 pub use device::{
     describe_adapter, device_limits, no_adapter, Caps, DeviceLimits, Gpu, GpuRequest,
 };
@@ -134,22 +135,6 @@ fn forced_note(forced: &Option<String>) -> String {
     match forced {
         Some(v) => format!("; WGPU_BACKEND={v} limits the search, unset it to try every backend"),
         None => String::new(),
-    }
-}
-
-/// A rendered frame: sRGB RGBA8, rows from the top; alpha 0 marks hole pixels.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Frame {
-    pub width: u32,
-    pub height: u32,
-    pub rgba: Vec<u8>,
-}
-
-impl Frame {
-    /// Fraction of pixels that no view covers.
-    pub fn hole_fraction(&self) -> f64 {
-        let n = (self.width as usize * self.height as usize).max(1);
-        self.rgba.chunks(4).filter(|p| p[3] == 0).count() as f64 / n as f64
     }
 }
 
