@@ -134,13 +134,13 @@ fn time_uploads(
     plan: &viewer::FramePlan,
     reps: usize,
 ) -> anyhow::Result<Option<Uploads>> {
-    use viewer::texture::{dilate_masked, FaceRect, Layer};
+    use viewer::texture::{dilate_masked, Layer};
     let Some(tile) = views[0].tiles.iter().find(|t| t.slab == 0).map(|t| t.tile) else {
         return Ok(None);
     };
     let grid = tracks::TileGrid::new(views[0].face_size, views[0].tile_size)
         .context("tile grid of view 0")?;
-    let rect = FaceRect::of_tile(grid, tile);
+    let rect = tracks::PixelRect::of_tile(grid, tile);
     // Level 0 is the dense map dilated; dilating it again changes nothing.
     let dense = views[0].layers[1].levels[0].clone();
     let index = views[0].index;
@@ -202,7 +202,13 @@ fn coarse_triangles(view: &RefView, level: u32) -> usize {
     view.tiles
         .iter()
         .map(|t| {
-            viewer::refview::decimated_indices(&t.mesh, grid.pixel_rect(t.tile), cell, jump).len()
+            viewer::refview::decimated_indices(
+                &t.mesh,
+                tracks::PixelRect::of_tile(grid, t.tile),
+                cell,
+                jump,
+            )
+            .len()
                 / 3
         })
         .sum()

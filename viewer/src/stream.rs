@@ -64,7 +64,8 @@ use crate::refview::{RefView, ViewTile};
 use crate::source::{
     image_rgba, manifest_track, paste_tile, tile_mesh_from_bytes, SourceError, Walkthrough,
 };
-use crate::texture::{FaceRect, Layer};
+use crate::texture::Layer;
+use tracks::PixelRect;
 
 mod redecode;
 
@@ -141,7 +142,7 @@ pub struct StepReport {
     /// Tile arrivals: `(RefView::index, layer, texel rectangles per mip level)` as
     /// [`Layer::update_region`] returned them, for
     /// [`crate::gpu::Renderer::update_layer_region`]; one entry per tile.
-    pub regions: Vec<(usize, usize, Vec<FaceRect>)>,
+    pub regions: Vec<(usize, usize, Vec<PixelRect>)>,
     /// Parts that arrived.
     pub arrivals: usize,
     /// Tiles or backgrounds that became visible or sharper.
@@ -546,7 +547,7 @@ impl StreamedWalkthrough {
             })
             .collect();
         // Tile rectangles that changed.
-        let mut rects: Vec<(usize, usize, FaceRect)> = Vec::new();
+        let mut rects: Vec<(usize, usize, PixelRect)> = Vec::new();
         for (item, what, d) in decoded {
             match d.and_then(|d| match d {
                 Some(d) => self.place(item, d, &what, now),
@@ -565,7 +566,7 @@ impl StreamedWalkthrough {
         }
         // A tile redoes the dilation and mip texels around its own rectangle only; the
         // layers that changed are redone in parallel.
-        let mut by_layer: BTreeMap<(usize, usize), Vec<FaceRect>> = BTreeMap::new();
+        let mut by_layer: BTreeMap<(usize, usize), Vec<PixelRect>> = BTreeMap::new();
         for (v, layer, rect) in rects {
             by_layer.entry((v, layer)).or_default().push(rect);
         }
@@ -577,7 +578,7 @@ impl StreamedWalkthrough {
                 }
             }
         }
-        let regions: Vec<Vec<(usize, usize, Vec<FaceRect>)>> = jobs
+        let regions: Vec<Vec<(usize, usize, Vec<PixelRect>)>> = jobs
             .into_par_iter()
             .map(|(index, l, layer, map, rects)| {
                 rects
@@ -850,7 +851,7 @@ impl StreamedWalkthrough {
         d: Decoded,
         what: &str,
         now: Instant,
-    ) -> Result<Option<(usize, FaceRect)>, SourceError> {
+    ) -> Result<Option<(usize, PixelRect)>, SourceError> {
         let it = &self.items[item];
         let view = it.view;
         // Levels of the views as laid out.
@@ -864,7 +865,7 @@ impl StreamedWalkthrough {
                 let it = &mut self.items[item];
                 it.level = Some(d.level);
                 it.loaded_at = Some(now);
-                Ok(Some((0, FaceRect::of_tile(self.grid, tile))))
+                Ok(Some((0, PixelRect::of_tile(self.grid, tile))))
             }
             Kind::Tile { tile, slab } => {
                 let joined = self.tile_items[view].iter().position(|&i| i == item);
@@ -891,7 +892,7 @@ impl StreamedWalkthrough {
                         self.tile_items[view].insert(slot, item);
                     }
                 }
-                Ok(Some((layer, FaceRect::of_tile(self.grid, tile))))
+                Ok(Some((layer, PixelRect::of_tile(self.grid, tile))))
             }
         }
     }

@@ -7,6 +7,8 @@ use super::{
     tile_extent, tile_rows, GpuError, GpuVertex, GpuView, Renderer, Targets, COUNTS_FORMAT,
     DEPTH_FORMAT, ID_FORMAT, OUTPUT_FORMAT, TILE_INFO_FORMAT, TILE_ROW,
 };
+use tracks::PixelRect;
+
 use crate::plan::ViewUniforms;
 use crate::refview::{decimated_indices, mesh_cell, RefView, MESH_LEVELS};
 
@@ -108,7 +110,12 @@ impl Renderer {
                     (0..MESH_LEVELS)
                         .map(|k| {
                             let cell = mesh_cell(view.tile_size, k + 1);
-                            decimated_indices(&tile.mesh, g.pixel_rect(tile.tile), cell, jump)
+                            decimated_indices(
+                                &tile.mesh,
+                                PixelRect::of_tile(*g, tile.tile),
+                                cell,
+                                jump,
+                            )
                         })
                         .collect()
                 })
@@ -363,7 +370,7 @@ impl Renderer {
         &mut self,
         view: &RefView,
         layer: usize,
-        rects: &[crate::texture::FaceRect],
+        rects: &[PixelRect],
     ) -> bool {
         let (Some(g), Some(src)) = (self.views.get_mut(&view.index), view.layers.get(layer)) else {
             return false;
