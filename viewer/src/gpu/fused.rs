@@ -1,5 +1,6 @@
 //! Fused frames (no view targets, no composite pass) and the half-resolution second view.
 
+use super::pipelines::Pipe;
 use super::{CompositeUniforms, GpuView, Renderer, Targets, SECOND_VIEW_MIN_WEIGHT};
 use crate::plan::FramePlan;
 use crate::refview::RefView;
@@ -136,25 +137,25 @@ impl Renderer {
                 // The other view (the first): its sky, for the second view near a sample.
                 rp.set_bind_group(2, &passes[0].1.bind_group, &[]);
                 if !copies {
-                    rp.set_pipeline(&self.copy_depth);
+                    rp.set_pipeline(self.pipeline(Pipe::CopyDepth));
                     rp.draw(0..3, 0..1);
                 }
             }
             if !pass.runs.is_empty() {
                 rp.set_pipeline(if slot == 0 {
-                    &self.first_mesh
+                    self.pipeline(Pipe::FirstMesh)
                 } else if pass.weight <= 0.0 {
-                    &self.second_mesh_at_sample
+                    self.pipeline(Pipe::SecondMeshAtSample)
                 } else if pass.weight < SECOND_VIEW_MIN_WEIGHT {
-                    &self.second_mesh_holes
+                    self.pipeline(Pipe::SecondMeshHoles)
                 } else {
-                    &self.second_mesh
+                    self.pipeline(Pipe::SecondMesh)
                 });
                 self.draw_runs(&mut rp, plan, pass, g);
             }
             // The sky last, where no mesh drew: of the one view, or of both views blended.
             if passes.len() == 1 {
-                rp.set_pipeline(&self.first_sky);
+                rp.set_pipeline(self.pipeline(Pipe::FirstSky));
                 rp.draw(0..3, 0..1);
             } else if slot == 1 {
                 // The heavier view's sky, then the other's where that one has none.
@@ -165,12 +166,12 @@ impl Renderer {
                 };
                 rp.set_bind_group(0, &heavy.bind_group, &[]);
                 rp.set_bind_group(2, &light.bind_group, &[]);
-                rp.set_pipeline(&self.sky_heavier);
+                rp.set_pipeline(self.pipeline(Pipe::SkyHeavier));
                 rp.draw(0..3, 0..1);
                 // Nothing for the other view's sky to fill when the heavier view's has no
                 // hole (a full-screen pass that llvmpipe would still bin and depth-test).
                 if !heavy.sky_whole {
-                    rp.set_pipeline(&self.sky_other);
+                    rp.set_pipeline(self.pipeline(Pipe::SkyOther));
                     rp.draw(0..3, 0..1);
                 }
             }
@@ -235,10 +236,10 @@ impl Renderer {
             });
             rp.set_bind_group(0, &half.1.bind_group, &[]);
             if !half.0.runs.is_empty() {
-                rp.set_pipeline(&self.mesh);
+                rp.set_pipeline(self.pipeline(Pipe::Mesh));
                 self.draw_runs(&mut rp, plan, half.0, half.1);
             }
-            rp.set_pipeline(&self.background);
+            rp.set_pipeline(self.pipeline(Pipe::Background));
             rp.draw(0..3, 0..1);
         }
         // Every output pixel is written (the background pass has no discard): no clear.
@@ -261,10 +262,10 @@ impl Renderer {
         rp.set_bind_group(0, &full.1.bind_group, &[]);
         rp.set_bind_group(1, &targets.half_group, &[]);
         if !full.0.runs.is_empty() {
-            rp.set_pipeline(&self.mesh_over_half);
+            rp.set_pipeline(self.pipeline(Pipe::MeshOverHalf));
             self.draw_runs(&mut rp, plan, full.0, full.1);
         }
-        rp.set_pipeline(&self.background_over_half);
+        rp.set_pipeline(self.pipeline(Pipe::BackgroundOverHalf));
         rp.draw(0..3, 0..1);
     }
 
@@ -309,7 +310,7 @@ impl Renderer {
             });
             if !pass.runs.is_empty() {
                 rp.set_bind_group(0, &g.bind_group, &[]);
-                rp.set_pipeline(&self.mesh_id_only);
+                rp.set_pipeline(self.pipeline(Pipe::MeshIdOnly));
                 self.draw_runs(&mut rp, plan, pass, g);
             }
         }

@@ -45,6 +45,7 @@ use std::collections::HashMap;
 
 use crate::plan::{FramePlan, Overlays};
 use crate::refview::RefView;
+use pipelines::Pipe;
 
 pub use crate::frame::Frame;
 pub use device::{
@@ -290,42 +291,8 @@ pub struct Renderer {
     /// Fused frames (no tile ids, no overlays): the first view into the output, the second
     /// view blended into it, weighted by the first view's depth (`render.wgsl`).
     second_bgl: wgpu::BindGroupLayout,
-    /// Fused frames: the first view's meshes into the output alone, and a one-view frame's sky.
-    first_mesh: wgpu::RenderPipeline,
-    first_sky: wgpu::RenderPipeline,
-    second_mesh: wgpu::RenderPipeline,
-    /// The second view only where it is clearly nearer than the first view or the first view
-    /// has sky or a hole (weight below `SECOND_VIEW_MIN_WEIGHT`).
-    second_mesh_holes: wgpu::RenderPipeline,
-    /// The same at a sample (weight 0): only where the first view has neither a mesh nor sky.
-    second_mesh_at_sample: wgpu::RenderPipeline,
-    /// The sky of a two-view fused frame, after both views' meshes: the heavier view's where
-    /// it has sky (writing depth), then the other view's where it has none (the sky is at
-    /// infinity, the same from both viewpoints).
-    sky_heavier: wgpu::RenderPipeline,
-    sky_other: wgpu::RenderPipeline,
-    /// Half-resolution second view: the first view drawn over it, blending it in.
-    mesh_over_half: wgpu::RenderPipeline,
-    background_over_half: wgpu::RenderPipeline,
-    /// Background (sky) where no tile drew, with and without the tile-id target.
-    background_ids: wgpu::RenderPipeline,
-    background: wgpu::RenderPipeline,
-    /// Composite frames with the hole overlay: first view's sky with depth; second view's
-    /// meshes against it.
-    sky_depth: wgpu::RenderPipeline,
-    mesh_behind: wgpu::RenderPipeline,
-    /// Tile meshes writing colour and tile ids.
-    mesh_ids: wgpu::RenderPipeline,
-    /// Tile meshes writing tile ids only (feedback frames without overlays).
-    mesh_id_only: wgpu::RenderPipeline,
-    /// Tile meshes writing colour only.
-    mesh: wgpu::RenderPipeline,
-    panorama: wgpu::RenderPipeline,
-    composite: wgpu::RenderPipeline,
-    composite_overlays: wgpu::RenderPipeline,
-    /// Devices without depth copies: the first view's depth written into the depth the
-    /// second view is drawn against (`fs_copy_depth`).
-    copy_depth: wgpu::RenderPipeline,
+    /// Every render pipeline, in [`pipelines::Pipe`] order ([`Renderer::pipeline`]).
+    pipelines: Vec<wgpu::RenderPipeline>,
     /// The visible-pixel count (devices with [`Caps::compute`]).
     feedback: Option<wgpu::ComputePipeline>,
     /// Colour + distance targets of view passes (`VIEW_FORMAT`, or a stand-in where the
@@ -662,9 +629,9 @@ impl Renderer {
             multiview_mask: None,
         });
         rp.set_pipeline(if plan.overlays == Overlays::default() {
-            &self.composite
+            self.pipeline(Pipe::Composite)
         } else {
-            &self.composite_overlays
+            self.pipeline(Pipe::CompositeOverlays)
         });
         rp.set_bind_group(0, bg, &[]);
         rp.draw(0..3, 0..1);
@@ -731,20 +698,20 @@ impl Renderer {
             rp.set_bind_group(0, &g.bind_group, &[]);
             if !pass.runs.is_empty() {
                 rp.set_pipeline(if ids {
-                    &self.mesh_ids
+                    self.pipeline(Pipe::MeshIds)
                 } else if shared_depth && slot == 1 {
-                    &self.mesh_behind
+                    self.pipeline(Pipe::MeshBehind)
                 } else {
-                    &self.mesh
+                    self.pipeline(Pipe::Mesh)
                 });
                 self.draw_runs(&mut rp, plan, pass, g);
             }
             rp.set_pipeline(if ids {
-                &self.background_ids
+                self.pipeline(Pipe::BackgroundIds)
             } else if shared_depth && slot == 0 {
-                &self.sky_depth
+                self.pipeline(Pipe::SkyDepth)
             } else {
-                &self.background
+                self.pipeline(Pipe::Background)
             });
             rp.draw(0..3, 0..1);
         }
@@ -838,7 +805,7 @@ impl Renderer {
                 occlusion_query_set: None,
                 multiview_mask: None,
             });
-            rp.set_pipeline(&self.panorama);
+            rp.set_pipeline(self.pipeline(Pipe::Panorama));
             rp.set_bind_group(0, &g.bind_group, &[]);
             rp.draw(0..3, 0..1);
         }
