@@ -52,8 +52,10 @@ pub use device::{
     describe_adapter, device_limits, no_adapter, Caps, DeviceLimits, Gpu, GpuRequest,
 };
 
+mod composite;
 mod device;
 mod fused;
+mod passes;
 mod pipelines;
 mod readback;
 mod upload;
@@ -390,51 +392,6 @@ impl Renderer {
         self.gpu.check("drawing a frame")
     }
 
-    /// A composite frame with the heat map on a device without compute: the view passes,
-    /// then the visible pixels per tile counted on the CPU from the tile ids read back, then
-    /// the composite with them.
-    fn draw_heat_on_cpu(
-        &self,
-        mut enc: wgpu::CommandEncoder,
-        plan: &FramePlan,
-        views: &[RefView],
-    ) -> Result<(), GpuError> {
-        let Some(targets) = &self.targets else {
-            return Ok(());
-        };
-        let drawn = self.encode_view_passes(&mut enc, targets, plan, views, true, false);
-        self.gpu.queue.submit([enc.finish()]);
-        for (slot, g) in drawn.iter().enumerate() {
-            let ids = self.read_ids(targets.id_views[slot].texture())?;
-            let counts = count_ids(&ids, g.face_layer.len());
-            self.write_counts(g, &counts);
-        }
-        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        if !drawn.is_empty() {
-            self.encode_composite(&mut enc, targets, plan, views, drawn.len());
-        }
-        self.gpu.queue.submit([enc.finish()]);
-        Ok(())
-    }
-
-    /// Write a view's visible-pixel counts into its counts texture (the heat map's input).
-    fn write_counts(&self, g: &GpuView, counts: &[u32]) {
-        let rows = g.counts_tex.height();
-        let mut data = vec![0u32; (rows * TILE_ROW) as usize];
-        let n = counts.len().min(data.len());
-        data[..n].copy_from_slice(&counts[..n]);
-        self.gpu.queue.write_texture(
-            g.counts_tex.as_image_copy(),
-            bytemuck::cast_slice(&data),
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(4 * TILE_ROW),
-                rows_per_image: Some(rows),
-            },
-            g.counts_tex.size(),
-        );
-    }
-
     /// Rewrite a view's per-tile info (face, layer, min level, highlight, slab) when it changed
     /// since the last frame; most frames write nothing.
     fn update_tile_info(&mut self, pass: &crate::plan::ViewPass, view: &RefView) {
@@ -473,61 +430,6 @@ impl Renderer {
         );
     }
 
-    /// Make (once) the composite bind group of the views drawn by `plan`.
-    fn prepare_composite(&mut self, plan: &FramePlan, views: &[RefView]) {
-        let Some(targets) = &self.targets else {
-            return;
-        };
-        let slots: Vec<&RefView> = plan
-            .passes
-            .iter()
-            .take(2)
-            .filter_map(|p| views.get(p.view))
-            .collect();
-        let Some(first) = slots.first() else {
-            return;
-        };
-        let key = (first.index, slots.get(1).map_or(usize::MAX, |v| v.index));
-        if self.composite_groups.contains_key(&key) {
-            return;
-        }
-        let Some(g0) = self.views.get(&first.index) else {
-            return;
-        };
-        let g1 = slots
-            .get(1)
-            .and_then(|v| self.views.get(&v.index))
-            .unwrap_or(g0);
-        let resources = [
-            self.composite_uniforms.as_entire_binding(),
-            tex(&targets.view_views[0]),
-            tex(&targets.view_views[1]),
-            tex(&targets.id_views[0]),
-            tex(&targets.id_views[1]),
-            tex(&g0.tile_info_view),
-            tex(&g1.tile_info_view),
-            tex(&g0.counts_view),
-            tex(&g1.counts_view),
-        ];
-        let entries: Vec<wgpu::BindGroupEntry<'_>> = resources
-            .into_iter()
-            .enumerate()
-            .map(|(i, resource)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource,
-            })
-            .collect();
-        let bg = self
-            .gpu
-            .device
-            .create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("composite"),
-                layout: &self.composite_bgl,
-                entries: &entries,
-            });
-        self.composite_groups.insert(key, bg);
-    }
-
     /// Encode the frame's passes into the internal output target. Views, targets and tile
     /// info must have been prepared ([`Renderer::draw`] does it).
     fn encode(&self, enc: &mut wgpu::CommandEncoder, plan: &FramePlan, views: &[RefView]) {
@@ -546,208 +448,7 @@ impl Renderer {
             }
             return;
         }
-        // Without tile ids the second view is drawn against the first view's depth: it then
-        // skips what the first view hides and its sky where the first view has sky.
-        let shared_depth = !ids && plan.passes.len() > 1;
-        let drawn = self.encode_view_passes(enc, targets, plan, views, ids, shared_depth);
-        if drawn.is_empty() {
-            return;
-        }
-        if plan.overlays.heat && self.gpu.caps.compute {
-            for (slot, g) in drawn.iter().enumerate() {
-                self.encode_counts(enc, &targets.id_views[slot], g);
-                if let Some(counts) = &g.counts {
-                    enc.copy_buffer_to_texture(
-                        wgpu::TexelCopyBufferInfo {
-                            buffer: counts,
-                            layout: wgpu::TexelCopyBufferLayout {
-                                offset: 0,
-                                bytes_per_row: Some(4 * TILE_ROW),
-                                rows_per_image: Some(g.counts_tex.height()),
-                            },
-                        },
-                        g.counts_tex.as_image_copy(),
-                        g.counts_tex.size(),
-                    );
-                }
-            }
-        }
-        self.encode_composite(enc, targets, plan, views, drawn.len());
-    }
-
-    /// The composite pass of a frame whose `drawn` view passes are encoded.
-    fn encode_composite(
-        &self,
-        enc: &mut wgpu::CommandEncoder,
-        targets: &Targets,
-        plan: &FramePlan,
-        views: &[RefView],
-        drawn: usize,
-    ) {
-        let tiles = |slot: usize| {
-            plan.passes
-                .get(slot)
-                .and_then(|p| views.get(p.view))
-                .map_or(0, |v| v.tiles.len() as u32)
-        };
-        let pixels = plan.width as f32 * plan.height as f32;
-        let uniforms = CompositeUniforms {
-            weights: [
-                plan.passes.first().map_or(0.0, |p| p.weight as f32),
-                plan.passes.get(1).map_or(0.0, |p| p.weight as f32),
-                drawn as f32,
-                (1.0 + pixels).log2(),
-            ],
-            flags: [plan.overlays.bits(), tiles(0), tiles(1), 0],
-        };
-        self.gpu
-            .queue
-            .write_buffer(&self.composite_uniforms, 0, bytemuck::bytes_of(&uniforms));
-        let index = |slot: usize| {
-            plan.passes
-                .get(slot)
-                .and_then(|p| views.get(p.view))
-                .map_or(usize::MAX, |v| v.index)
-        };
-        let Some(bg) = self.composite_groups.get(&(index(0), index(1))) else {
-            return;
-        };
-        let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("composite"),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: &targets.output_view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                    store: wgpu::StoreOp::Store,
-                },
-            })],
-            depth_stencil_attachment: None,
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
-        rp.set_pipeline(if plan.overlays == Overlays::default() {
-            self.pipeline(Pipe::Composite)
-        } else {
-            self.pipeline(Pipe::CompositeOverlays)
-        });
-        rp.set_bind_group(0, bg, &[]);
-        rp.draw(0..3, 0..1);
-    }
-
-    /// The view passes of the composite path (tile meshes, then the sky, into the view and,
-    /// with `ids`, tile-id targets); returns the views drawn, slot order.
-    fn encode_view_passes<'a>(
-        &'a self,
-        enc: &mut wgpu::CommandEncoder,
-        targets: &Targets,
-        plan: &FramePlan,
-        views: &[RefView],
-        ids: bool,
-        shared_depth: bool,
-    ) -> Vec<&'a GpuView> {
-        let mut drawn: Vec<&GpuView> = Vec::new();
-        for (slot, pass) in plan.passes.iter().take(2).enumerate() {
-            let Some(g) = views.get(pass.view).and_then(|v| self.views.get(&v.index)) else {
-                continue;
-            };
-            drawn.push(g);
-            self.gpu
-                .queue
-                .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
-            let clear = |view| {
-                Some(wgpu::RenderPassColorAttachment {
-                    view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })
-            };
-            let with_ids = [
-                clear(&targets.view_views[slot]),
-                clear(&targets.id_views[slot]),
-            ];
-            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("view"),
-                color_attachments: if ids { &with_ids[..] } else { &with_ids[..1] },
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &targets.depth_view,
-                    depth_ops: Some(wgpu::Operations {
-                        load: if shared_depth && slot == 1 {
-                            wgpu::LoadOp::Load
-                        } else {
-                            wgpu::LoadOp::Clear(0.0)
-                        },
-                        store: if shared_depth && slot == 0 {
-                            wgpu::StoreOp::Store
-                        } else {
-                            wgpu::StoreOp::Discard
-                        },
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            rp.set_bind_group(0, &g.bind_group, &[]);
-            if !pass.runs.is_empty() {
-                rp.set_pipeline(if ids {
-                    self.pipeline(Pipe::MeshIds)
-                } else if shared_depth && slot == 1 {
-                    self.pipeline(Pipe::MeshBehind)
-                } else {
-                    self.pipeline(Pipe::Mesh)
-                });
-                self.draw_runs(&mut rp, plan, pass, g);
-            }
-            rp.set_pipeline(if ids {
-                self.pipeline(Pipe::BackgroundIds)
-            } else if shared_depth && slot == 0 {
-                self.pipeline(Pipe::SkyDepth)
-            } else {
-                self.pipeline(Pipe::Background)
-            });
-            rp.draw(0..3, 0..1);
-        }
-        drawn
-    }
-
-    /// Encode the feedback count of one view pass: zero the view's counts, then count the
-    /// visible pixels of every tile in its tile-id target (devices with [`Caps::compute`];
-    /// nothing elsewhere).
-    fn encode_counts(&self, enc: &mut wgpu::CommandEncoder, ids: &wgpu::TextureView, g: &GpuView) {
-        let (Some(feedback), Some(counts)) = (&self.feedback, &g.counts) else {
-            return;
-        };
-        enc.clear_buffer(counts, 0, None);
-        let bg = self
-            .gpu
-            .device
-            .create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("feedback"),
-                layout: &feedback.get_bind_group_layout(0),
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: wgpu::BindingResource::TextureView(ids),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: counts.as_entire_binding(),
-                    },
-                ],
-            });
-        let (w, h) = (ids.texture().width(), ids.texture().height());
-        let mut cp = enc.begin_compute_pass(&Default::default());
-        cp.set_pipeline(feedback);
-        cp.set_bind_group(0, &bg, &[]);
-        cp.dispatch_workgroups(w.div_ceil(8), h.div_ceil(8), 1);
+        self.encode_composite_path(enc, targets, plan, views, ids);
     }
 
     /// Draw the plain panorama of `plan.passes[0]`'s view (its background layer as one cube
@@ -785,30 +486,15 @@ impl Renderer {
         let Some(targets) = &self.targets else {
             return;
         };
-        self.gpu
-            .queue
-            .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
-        {
-            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("panorama"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &targets.output_view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: None,
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            rp.set_pipeline(self.pipeline(Pipe::Panorama));
-            rp.set_bind_group(0, &g.bind_group, &[]);
-            rp.draw(0..3, 0..1);
-        }
+        self.write_view_uniforms((pass, g));
+        let mut rp = passes::begin(
+            enc,
+            "panorama",
+            &[passes::color(&targets.output_view, true)],
+            None,
+        );
+        rp.set_bind_group(0, &g.bind_group, &[]);
+        self.draw_full(&mut rp, Pipe::Panorama);
     }
 
     /// The internal output target of the last draw (for showing it in a window).
