@@ -25,6 +25,7 @@
 //! ```
 
 pub mod app;
+pub mod bench;
 pub mod cpu;
 pub mod eval;
 pub mod feedback;
