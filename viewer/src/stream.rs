@@ -6,10 +6,10 @@
 //! [`StreamedWalkthrough::step`] hands the position and camera (and the GPU's visible-pixel
 //! counts, see [`StreamedWalkthrough::live_counts`]) to the session and folds what arrived
 //! into the views: an item's parts are consumed in order (mesh, then PTM level groups into an
-//! incremental [`Decoder`]); a tile joins its view once its mesh and coarsest level are in,
-//! and is upgraded in place as finer levels decode (the coarse level stands in, nearest, and
-//! [`crate::refview::ViewTile::finest_level`] keeps the renderer from sampling finer than what
-//! arrived). A background is pasted at whatever level has arrived. The parts taken in a step
+//! incremental [`streamer::ptm::Decoder`]); a tile joins its view once its mesh and coarsest
+//! level are in, and is upgraded in place as finer levels decode (the coarse level stands in,
+//! nearest, and [`crate::refview::ViewTile::finest_level`] keeps the renderer from sampling
+//! finer than what arrived). A background is pasted at whatever level has arrived. The parts taken in a step
 //! are decoded for all items at once on every core (each item has its own decoder), then
 //! placed in order. Only the texels around each tile that arrived are rebuilt, and the step
 //! reports them so the renderer writes just those ([`StepReport::regions`]); views laid out
@@ -104,7 +104,7 @@ pub struct StepReport {
     /// these.
     pub changed_views: Vec<usize>,
     /// Tile arrivals: `(RefView::index, layer, texel rectangles per mip level)` as
-    /// [`Layer::update_region`] returned them, for
+    /// [`crate::texture::Layer::update_region`] returned them, for
     /// [`crate::gpu::Renderer::update_layer_region`]; one entry per tile.
     pub regions: Vec<(usize, usize, Vec<PixelRect>)>,
     /// Parts that arrived.
