@@ -9,6 +9,8 @@
 //! - [`gpu::Renderer`] executes a plan with wgpu (headless or into a window);
 //!   [`cpu::render`] executes the same plan on the CPU as a reference; both return a
 //!   [`Frame`] (`frame`, plain data: the CPU path does not go through the GPU module).
+//! - [`bench::Bench`] (`bench`): the viewer benchmark (`railview bench-viewer`), its frame
+//!   types as data ([`bench::FrameKind`]).
 //!
 //! ```no_run
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -40,6 +40,12 @@
 //! Streaming: [`Renderer::update_layer_region`] writes the texels around one tile that
 //! arrived (from [`crate::texture::Layer::update_region`]) into an uploaded view; when tiles
 //! join a view, the next draw rebuilds its meshes and keeps its texture.
+//!
+//! Inside: `pipelines` (every render pipeline a row of one table, built by one function),
+//! `passes` (what the passes of both paths share: attachments, view passes, mesh and
+//! full-screen draws), `composite` (the composite path), `fused` (fused frames, the
+//! half-resolution second view, the reduced tile-id passes), `upload` (views, targets),
+//! `readback` and `device`.
 
 use std::collections::HashMap;
 
