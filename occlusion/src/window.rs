@@ -200,21 +200,8 @@ pub fn landing_window(
     w
 }
 
-/// A pixel rectangle `[x0, x1) × [y0, y1)` on one face.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct PixelRect {
-    pub face: Face,
-    pub x0: u32,
-    pub y0: u32,
-    pub x1: u32,
-    pub y1: u32,
-}
-
-impl PixelRect {
-    pub fn area(&self) -> u64 {
-        (self.x1 - self.x0) as u64 * (self.y1 - self.y0) as u64
-    }
-}
+/// A pixel rectangle on one face: the workspace's one rectangle type.
+pub use tracks::PixelRect;
 
 /// The faces a window on `face`'s extended plane touches, each with the pixel rectangle
 /// that covers the window's part there (a superset: the part is clipped to the face exactly,

@@ -2,6 +2,8 @@
 //!
 //! - [`cubemap`]: the six faces of a panorama, pixel ↔ direction, tile grids, [`CubeMap`]
 //!   storage. Every crate addresses panoramas through this module.
+//! - [`rect`]: [`PixelRect`], a rectangle of pixels on one face (a tile's pixels, texels
+//!   to rewrite, a window's cover).
 //! - [`camera`]: the perspective camera (yaw/pitch/FOV convention) used everywhere.
 //! - [`manifest`]: the walkthrough database manifest (content-addressed objects, tiles, PTM
 //!   level ranges, ACH per segment).
@@ -34,11 +36,13 @@ pub mod camera;
 pub mod cubemap;
 pub mod limits;
 pub mod manifest;
+pub mod rect;
 pub mod segment;
 pub mod slab;
 pub mod track;
 
 pub use camera::PerspectiveCamera;
 pub use cubemap::{CubeMap, Face, FaceCoord, TileGrid, TileId};
+pub use rect::PixelRect;
 pub use slab::SlabRange;
 pub use track::{ReferenceViewpoint, Sampling, Smoothing, Track, TrackError, TrackSet};

@@ -12,7 +12,7 @@
 use glam::{Mat4, Vec3, Vec4};
 use tracks::Face;
 
-use crate::gpu::Frame;
+use crate::frame::Frame;
 use crate::plan::{FramePlan, ViewPass, NEAR_M};
 use crate::refview::RefView;
 use crate::texture::{linear_to_srgb, Layer};

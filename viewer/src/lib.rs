@@ -7,7 +7,10 @@
 //!   camera and their smooth blend weights, visible tiles per view within a [`DrawBudget`],
 //!   camera-relative reversed-Z uniforms. Unit-tested without a GPU.
 //! - [`gpu::Renderer`] executes a plan with wgpu (headless or into a window);
-//!   [`cpu::render`] executes the same plan on the CPU as a reference.
+//!   [`cpu::render`] executes the same plan on the CPU as a reference; both return a
+//!   [`Frame`] (`frame`, plain data: the CPU path does not go through the GPU module).
+//! - [`bench::Bench`] (`bench`): the viewer benchmark (`railview bench-viewer`), its frame
+//!   types as data ([`bench::FrameKind`]).
 //!
 //! ```no_run
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -24,9 +27,11 @@
 //! ```
 
 pub mod app;
+pub mod bench;
 pub mod cpu;
 pub mod eval;
 pub mod feedback;
+pub mod frame;
 pub mod gpu;
 pub mod headless;
 pub mod metrics;
@@ -37,5 +42,6 @@ pub mod stream;
 pub mod synth;
 pub mod texture;
 
+pub use frame::Frame;
 pub use plan::{plan_frame, DrawBudget, FramePlan, PlanError};
 pub use refview::{MeshParams, RefView, ViewError};

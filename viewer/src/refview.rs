@@ -11,7 +11,7 @@
 
 use glam::DVec3;
 use tracks::cubemap::{subpixel_dir, Face, FaceCoord};
-use tracks::{CubeMap, TileGrid, TileId};
+use tracks::{CubeMap, PixelRect, TileGrid, TileId};
 
 use crate::texture::{dilate_masked, Layer};
 
@@ -496,7 +496,7 @@ pub fn mesh_cell(tile_size: u32, level: u32) -> u32 {
 /// A coarser triangulation of `mesh` by vertex clustering, as indices into the *same*
 /// vertices (so a renderer keeps one vertex buffer and adds an index buffer per level).
 ///
-/// The tile `rect = (x0, y0, x1, y1)` (face pixels) is cut into square cells `cell` pixels
+/// The tile's pixels `rect` are cut into square cells `cell` pixels
 /// wide; the inner vertices of one cell that lie on one surface (same depth bucket, buckets a
 /// factor `1 + jump` apart) merge into the one nearest the cell centre, and triangles that
 /// lose a corner vanish. Vertices on the mesh's border (edges of a single triangle: the tile
@@ -506,13 +506,13 @@ pub fn mesh_cell(tile_size: u32, level: u32) -> u32 {
 /// in cells aligned to the edge: symmetric when the tile size is a multiple of `cell`.)
 /// Every kept vertex is an original one, so the reference viewpoint still sees the exact
 /// depths there.
-pub fn decimated_indices(
-    mesh: &TileMesh,
-    rect: (u32, u32, u32, u32),
-    cell: u32,
-    jump: f64,
-) -> Vec<u32> {
-    let (x0, y0, x1, y1) = (rect.0 as f32, rect.1 as f32, rect.2 as f32, rect.3 as f32);
+pub fn decimated_indices(mesh: &TileMesh, rect: PixelRect, cell: u32, jump: f64) -> Vec<u32> {
+    let (x0, y0, x1, y1) = (
+        rect.x0 as f32,
+        rect.y0 as f32,
+        rect.x1 as f32,
+        rect.y1 as f32,
+    );
     let c = cell.max(1) as f32;
     let log_step = (1.0 + jump.max(1e-6)).ln();
     // Cluster key: kind (0 interior, 1..=4 edges, 5 own), two cell coordinates, depth bucket.
@@ -750,7 +750,12 @@ mod tests {
             };
             let mut prev = m.indices.len();
             for level in 1..=MESH_LEVELS {
-                let idx = decimated_indices(&m, rect, mesh_cell(16, level), p.jump);
+                let idx = decimated_indices(
+                    &m,
+                    PixelRect::of_tile(grid, t),
+                    mesh_cell(16, level),
+                    p.jump,
+                );
                 assert!(idx.len() < prev, "{t:?} level {level}");
                 assert!(idx.iter().all(|&i| (i as usize) < m.vertices.len()));
                 prev = idx.len();
@@ -791,7 +796,12 @@ mod tests {
         };
         let shared = |t: TileId, level: u32| {
             let m = tile_mesh(&d, &grid, t, p).unwrap();
-            let idx = decimated_indices(&m, grid.pixel_rect(t), mesh_cell(16, level), p.jump);
+            let idx = decimated_indices(
+                &m,
+                PixelRect::of_tile(grid, t),
+                mesh_cell(16, level),
+                p.jump,
+            );
             let mut e: Vec<u32> = idx
                 .iter()
                 .map(|&i| m.vertices[i as usize].pos_in_face)
@@ -837,7 +847,7 @@ mod tests {
             },
         )
         .unwrap();
-        let idx = decimated_indices(&m, grid.pixel_rect(t), 16, 0.1);
+        let idx = decimated_indices(&m, PixelRect::of_tile(grid, t), 16, 0.1);
         for tri in idx.chunks(3) {
             let ds: Vec<f32> = tri
                 .iter()

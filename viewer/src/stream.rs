@@ -6,10 +6,10 @@
 //! [`StreamedWalkthrough::step`] hands the position and camera (and the GPU's visible-pixel
 //! counts, see [`StreamedWalkthrough::live_counts`]) to the session and folds what arrived
 //! into the views: an item's parts are consumed in order (mesh, then PTM level groups into an
-//! incremental [`Decoder`]); a tile joins its view once its mesh and coarsest level are in,
-//! and is upgraded in place as finer levels decode (the coarse level stands in, nearest, and
-//! [`crate::refview::ViewTile::finest_level`] keeps the renderer from sampling finer than what
-//! arrived). A background is pasted at whatever level has arrived. The parts taken in a step
+//! incremental [`streamer::ptm::Decoder`]); a tile joins its view once its mesh and coarsest
+//! level are in, and is upgraded in place as finer levels decode (the coarse level stands in,
+//! nearest, and [`crate::refview::ViewTile::finest_level`] keeps the renderer from sampling
+//! finer than what arrived). A background is pasted at whatever level has arrived. The parts taken in a step
 //! are decoded for all items at once on every core (each item has its own decoder), then
 //! placed in order. Only the texels around each tile that arrived are rebuilt, and the step
 //! reports them so the renderer writes just those ([`StepReport::regions`]); views laid out
@@ -46,27 +46,25 @@
 //! the views end as the one-step path leaves them. A partially re-filled view is reported as
 //! any streamed one is: whole when it is laid out again, by tile regions afterwards.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
+use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::time::{Duration, Instant};
 
-use bytes::Bytes;
-use rayon::prelude::*;
 use streamer::client::{
     next_segment, LiveConfig, LiveCount, LiveError, LiveSession, MotionTracker,
 };
-use streamer::ptm::{Decoder, Limits};
-use tracks::manifest::tile_key;
-use tracks::{CubeMap, PerspectiveCamera, TileGrid, TileId};
+use tracks::{CubeMap, PerspectiveCamera, PixelRect, TileGrid};
 
 use crate::feedback::ViewCounts;
 use crate::plan::FramePlan;
-use crate::refview::{RefView, ViewTile};
-use crate::source::{
-    image_rgba, manifest_track, paste_tile, tile_mesh_from_bytes, SourceError, Walkthrough,
-};
-use crate::texture::{FaceRect, Layer};
+use crate::refview::RefView;
+use crate::source::{manifest_track, SourceError, Walkthrough};
+use items::{item_state, ItemState};
+use memory::{full_view_bytes, placeholder_layers};
 
+mod items;
+mod memory;
 mod redecode;
+mod step;
 
 /// How long a newly loaded tile stays highlighted.
 pub const HIGHLIGHT: Duration = Duration::from_secs(1);
@@ -98,39 +96,6 @@ pub enum StreamError {
     Manifest(String),
 }
 
-/// What an item is in the views.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Kind {
-    Tile {
-        tile: TileId,
-        slab: u32,
-    },
-    Background {
-        tile: TileId,
-    },
-    /// An item whose entry could not be used (never consumed).
-    Unusable,
-}
-
-struct ItemState {
-    /// Position of the view in `walk.views`.
-    view: usize,
-    kind: Kind,
-    /// Parts received and not yet consumed (they may arrive out of order).
-    waiting: HashMap<usize, Bytes>,
-    /// Parts consumed (a prefix).
-    next: usize,
-    first_level_part: usize,
-    /// What the decoder may allocate (a fresh decoder after eviction takes the same).
-    limits: Limits,
-    decoder: Decoder,
-    mesh: Option<crate::refview::TileMesh>,
-    /// Finest level shown.
-    level: Option<u32>,
-    loaded_at: Option<Instant>,
-    failed: bool,
-}
-
 /// What one [`StreamedWalkthrough::step`] did.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct StepReport {
@@ -139,9 +104,9 @@ pub struct StepReport {
     /// these.
     pub changed_views: Vec<usize>,
     /// Tile arrivals: `(RefView::index, layer, texel rectangles per mip level)` as
-    /// [`Layer::update_region`] returned them, for
+    /// [`crate::texture::Layer::update_region`] returned them, for
     /// [`crate::gpu::Renderer::update_layer_region`]; one entry per tile.
-    pub regions: Vec<(usize, usize, Vec<FaceRect>)>,
+    pub regions: Vec<(usize, usize, Vec<PixelRect>)>,
     /// Parts that arrived.
     pub arrivals: usize,
     /// Tiles or backgrounds that became visible or sharper.
@@ -245,53 +210,6 @@ pub struct StreamedWalkthrough {
     premultiplied: bool,
 }
 
-/// The state of session item `i` (nothing received yet).
-fn item_state(session: &LiveSession, i: usize) -> Result<ItemState, StreamError> {
-    let m = session.manifest();
-    let entry = &m.tracks[session.track()];
-    let it = &session.table().items[i];
-    let kind = match (it.tile, it.background) {
-        (Some(ti), _) => {
-            let t = &entry.viewpoints[it.viewpoint].tiles[ti];
-            if t.slab as usize >= m.slabs.len() {
-                return Err(StreamError::Manifest(format!(
-                    "{}: slab {} beyond the manifest's {} slabs",
-                    tile_key(entry.viewpoints[it.viewpoint].index, t.slab, t.tile),
-                    t.slab,
-                    m.slabs.len()
-                )));
-            }
-            Kind::Tile {
-                tile: t.tile,
-                slab: t.slab,
-            }
-        }
-        (None, Some(bi)) => Kind::Background {
-            tile: entry.viewpoints[it.viewpoint].background[bi].tile,
-        },
-        (None, None) => Kind::Unusable,
-    };
-    // Bound what a bad server can make us decode to what the item should be: at most one
-    // tile square (RGBA, all levels: 4/3 of the base, doubled for headroom).
-    let limits = Limits {
-        max_side: m.tile_size.max(1),
-        max_decoded_bytes: 8 * u64::from(m.tile_size).pow(2),
-    };
-    Ok(ItemState {
-        view: it.viewpoint,
-        kind,
-        waiting: HashMap::new(),
-        next: 0,
-        first_level_part: it.info.first_level_part,
-        limits,
-        decoder: Decoder::new(limits),
-        mesh: None,
-        level: None,
-        loaded_at: None,
-        failed: false,
-    })
-}
-
 impl StreamedWalkthrough {
     /// Connect to `url` and lay out the (still empty) views of `track`.
     pub fn connect(
@@ -381,36 +299,6 @@ impl StreamedWalkthrough {
         &mut self.session
     }
 
-    /// Hold the decoded views within `bytes` (decoded layers, dense maps, meshes and the
-    /// renderer's copy of the layers): the views are laid out at the finest resolution at
-    /// which the views that must be held — the pair drawn and the predicted next pair, four
-    /// views — fit, and the session fetches no finer PTM level. The same rule for every
-    /// database, so memory follows the budget, not the database: a face-512 database laid out
-    /// in 96 MiB is drawn from its level 1 (faces of 256), one at face 192 at full
-    /// resolution. Views already laid out start over. Returns the layout level.
-    pub fn set_memory_budget(&mut self, bytes: u64) -> u32 {
-        let (n, t) = (self.db_grid.face_size, self.db_grid.tile_size);
-        let max_k = t.max(1).ilog2().min(n.trailing_zeros());
-        let k = (0..=max_k)
-            .find(|&k| 4 * full_view_bytes(n >> k, self.layer_count) <= bytes)
-            .unwrap_or(max_k);
-        self.decoded_budget_bytes = bytes;
-        if k != self.layout_level {
-            for v in 0..self.walk.views.len() {
-                self.evict(v);
-                self.fresh.insert(v);
-            }
-            self.layout_level = k;
-            self.grid = TileGrid::new(n >> k, t >> k).unwrap_or(self.db_grid);
-            for v in &mut self.walk.views {
-                v.face_size = self.grid.face_size;
-                v.tile_size = self.grid.tile_size;
-            }
-            self.session.set_finest_level((k > 0).then_some(k));
-        }
-        k
-    }
-
     /// Largest decoded state of a step so far (see [`StreamedWalkthrough::decoded_bytes`]).
     pub fn decoded_peak(&self) -> u64 {
         self.decoded_peak
@@ -419,198 +307,6 @@ impl StreamedWalkthrough {
     /// The PTM level the views are laid out at (0: full resolution).
     pub fn layout_level(&self) -> u32 {
         self.layout_level
-    }
-
-    /// One frame: update the session at `s` / `camera` (with the GPU's counts when given)
-    /// and fold what arrived into the views.
-    pub fn step(
-        &mut self,
-        s: f64,
-        camera: &PerspectiveCamera,
-        live: Option<&[LiveCount]>,
-    ) -> StepReport {
-        let arrived = self.session.update(s, camera, live);
-        // Tiles of viewpoint tables that arrived: new items (appended, never renumbered).
-        for i in self.items.len()..self.session.table().items.len() {
-            let view = self.session.table().items[i].viewpoint;
-            if let Some(list) = self.view_items.get_mut(view) {
-                list.push(i);
-            }
-            match item_state(&self.session, i) {
-                Ok(state) => self.items.push(state),
-                Err(e) => {
-                    self.errors.push(e.to_string());
-                    self.items.push(ItemState {
-                        view,
-                        kind: Kind::Unusable,
-                        waiting: HashMap::new(),
-                        next: 0,
-                        first_level_part: 0,
-                        limits: Limits::default(),
-                        decoder: Decoder::new(Limits::default()),
-                        mesh: None,
-                        level: None,
-                        loaded_at: None,
-                        failed: true,
-                    });
-                }
-            }
-        }
-        let now = Instant::now();
-        let mut report = StepReport {
-            arrivals: arrived.len(),
-            ..Default::default()
-        };
-        let drawn = self.drawn_views(s, camera);
-        let protected = self.protected_views(s, &drawn, now);
-        // Views that stopped being drawn before anything of them arrived: the renderer may
-        // hold a placeholder upload of them.
-        let mut views: BTreeSet<usize> = self
-            .protected
-            .difference(&protected)
-            .filter(|&&v| !self.laid_out(v))
-            .filter_map(|&v| self.walk.views.get(v).map(|rv| rv.index))
-            .collect();
-        let mut touched = BTreeSet::new();
-        for a in arrived {
-            self.walk.bytes += a.data.len() as u64;
-            self.arrivals.push_back((now, a.data.len()));
-            let Some(it) = self.items.get_mut(a.item) else {
-                continue;
-            };
-            // Parts of a view that is neither laid out nor needed soon stay in the session's
-            // cache only (consumed from there when the view is needed).
-            let wanted = protected.contains(&it.view)
-                || self.dense.get(it.view).is_some_and(|d| !d.is_empty());
-            if a.part >= it.next && !it.failed && wanted {
-                it.waiting.insert(a.part, a.data);
-                touched.insert(a.item);
-            }
-        }
-        // Items of the views needed now whose next part is in the session's cache (e.g. they
-        // were evicted here, or arrived while their view was not needed).
-        for &v in &protected {
-            for &i in self.view_items.get(v).map_or(&[][..], |l| &l[..]) {
-                let it = &self.items[i];
-                if !it.failed
-                    && (it.waiting.contains_key(&it.next)
-                        || self.session.part_bytes(i, it.next).is_some())
-                {
-                    touched.insert(i);
-                }
-            }
-        }
-        // Parts that arrived in earlier steps and wait for a step with budget left: taken in
-        // turn, as they would have been at once, even where their view is no longer needed
-        // (a view that received them may stand in later, e.g. with the server gone; the
-        // decoded budget evicts what is too far).
-        for (i, it) in self.items.iter().enumerate() {
-            if !it.failed && it.waiting.contains_key(&it.next) {
-                touched.insert(i);
-            }
-        }
-        while self
-            .arrivals
-            .front()
-            .is_some_and(|(t, _)| now.duration_since(*t) > Duration::from_secs(10))
-        {
-            self.arrivals.pop_front();
-        }
-        let plan = self.plan_redecode(&touched, &drawn, &protected, s);
-        report.redecoded_parts = plan.parts;
-        report.redecoded_bytes = plan.bytes;
-        report.backlog = plan.backlog;
-        // The parts each touched item takes in this step, decoded for all items at once on
-        // every core (each item has its own decoder), then placed into the views in order.
-        let work: Vec<(usize, Vec<Bytes>, String)> = touched
-            .iter()
-            .map(|&item| {
-                let count = plan.allowed.get(&item).copied().unwrap_or(0);
-                (item, self.take_parts(item, count), self.item_name(item))
-            })
-            .collect();
-        let mut work = work.into_iter().peekable();
-        let mut jobs = Vec::new();
-        for (i, it) in self.items.iter_mut().enumerate() {
-            if let Some((_, parts, what)) = work.next_if(|w| w.0 == i) {
-                jobs.push((i, it, parts, what));
-            }
-        }
-        let premultiplied = self.premultiplied;
-        let k = self.layout_level;
-        let decoded: Vec<(usize, String, Result<Option<Decoded>, SourceError>)> = jobs
-            .into_par_iter()
-            .map(|(i, it, parts, what)| {
-                let d = decode_parts(it, parts, &what, premultiplied, k);
-                (i, what, d)
-            })
-            .collect();
-        // Tile rectangles that changed.
-        let mut rects: Vec<(usize, usize, FaceRect)> = Vec::new();
-        for (item, what, d) in decoded {
-            match d.and_then(|d| match d {
-                Some(d) => self.place(item, d, &what, now),
-                None => Ok(None),
-            }) {
-                Ok(Some((layer, rect))) => {
-                    rects.push((self.items[item].view, layer, rect));
-                    report.upgraded += 1;
-                }
-                Ok(None) => {}
-                Err(e) => {
-                    self.items[item].failed = true;
-                    self.errors.push(e.to_string());
-                }
-            }
-        }
-        // A tile redoes the dilation and mip texels around its own rectangle only; the
-        // layers that changed are redone in parallel.
-        let mut by_layer: BTreeMap<(usize, usize), Vec<FaceRect>> = BTreeMap::new();
-        for (v, layer, rect) in rects {
-            by_layer.entry((v, layer)).or_default().push(rect);
-        }
-        let mut jobs = Vec::new();
-        for (v, (view, dense)) in self.walk.views.iter_mut().zip(&self.dense).enumerate() {
-            for (l, (layer, map)) in view.layers.iter_mut().zip(dense).enumerate() {
-                if let Some(rects) = by_layer.remove(&(v, l)) {
-                    jobs.push((view.index, l, layer, map, rects));
-                }
-            }
-        }
-        let regions: Vec<Vec<(usize, usize, Vec<FaceRect>)>> = jobs
-            .into_par_iter()
-            .map(|(index, l, layer, map, rects)| {
-                rects
-                    .into_iter()
-                    .map(|r| (index, l, layer.update_region(map, r)))
-                    .filter(|r| !r.2.is_empty())
-                    .collect()
-            })
-            .collect();
-        report.regions.extend(regions.into_iter().flatten());
-        // Views laid out in this step changed shape: uploaded whole.
-        views.extend(
-            std::mem::take(&mut self.fresh)
-                .into_iter()
-                .map(|v| self.walk.views[v].index),
-        );
-        // Decoded bytes per view, counted once a step (every item of every view).
-        let mut per_view: Vec<u64> = (0..self.walk.views.len())
-            .map(|v| self.view_decoded_bytes(v))
-            .collect();
-        for v in self.evict_over_budget(s, &protected, &per_view) {
-            let index = self.walk.views[v].index;
-            report.evicted.push(index);
-            views.insert(index);
-            per_view[v] = self.view_decoded_bytes(v);
-        }
-        report.regions.retain(|r| !report.evicted.contains(&r.0));
-        self.protected = protected;
-        report.changed_views = views.into_iter().collect();
-        report.decoded_bytes = per_view.iter().sum();
-        self.decoded_peak = self.decoded_peak.max(report.decoded_bytes);
-        self.fade_highlights(now);
-        report
     }
 
     /// Positions in `walk.views` of the pair around `s` (what arrives for them is kept) and
@@ -691,122 +387,9 @@ impl StreamedWalkthrough {
         out
     }
 
-    /// Whether view `v` (position in `walk.views`) has its full-size layers and dense maps.
-    fn laid_out(&self, v: usize) -> bool {
-        self.dense.get(v).is_some_and(|d| !d.is_empty())
-    }
-
-    /// Give view `v` its full-size (transparent) layers and dense maps, when it has none.
-    fn lay_out(&mut self, v: usize) {
-        if self.laid_out(v) {
-            return;
-        }
-        let n = self.walk.views[v].face_size;
-        self.dense[v] = vec![CubeMap::filled(n, [0u8; 4]); self.layer_count];
-        self.walk.views[v].layers = vec![empty_layer(n); self.layer_count];
-        self.fresh.insert(v);
-    }
-
-    /// Drop the decoded state of the views farthest along the track from `s` (never those
-    /// in `protected`) until the total is within the budget (`per_view`: the decoded bytes
-    /// of each view); returns the views dropped.
-    fn evict_over_budget(
-        &mut self,
-        s: f64,
-        protected: &BTreeSet<usize>,
-        per_view: &[u64],
-    ) -> Vec<usize> {
-        let mut total: u64 = per_view.iter().sum();
-        let mut out = Vec::new();
-        if total <= self.decoded_budget_bytes {
-            return out;
-        }
-        let mut order: Vec<usize> = (0..per_view.len())
-            .filter(|v| !protected.contains(v) && per_view[*v] > 0)
-            .collect();
-        let dist = |v: usize| (self.walk.views[v].s - s).abs();
-        order.sort_by(|&a, &b| dist(b).total_cmp(&dist(a)).then(b.cmp(&a)));
-        for v in order {
-            if total <= self.decoded_budget_bytes {
-                break;
-            }
-            self.evict(v);
-            total = total.saturating_sub(per_view[v]);
-            out.push(v);
-        }
-        out
-    }
-
-    /// Back to nothing decoded for view `v`: placeholder layers, no tiles, its items start
-    /// over (their parts are consumed again from the session's cache or downloaded again).
-    fn evict(&mut self, v: usize) {
-        let view = &mut self.walk.views[v];
-        view.layers = placeholder_layers(self.layer_count);
-        view.tiles = Vec::new();
-        self.tile_items[v] = Vec::new();
-        self.dense[v] = Vec::new();
-        self.fresh.remove(&v);
-        for &i in &self.view_items[v] {
-            let it = &mut self.items[i];
-            it.waiting = HashMap::new();
-            it.next = 0;
-            it.decoder = Decoder::new(it.limits);
-            it.mesh = None;
-            it.level = None;
-            it.loaded_at = None;
-        }
-    }
-
-    /// Decoded bytes held for view `v`: its layers (all mip levels; counted twice, for the
-    /// renderer's copy) and dense maps when laid out, its tiles' meshes, and its items'
-    /// decoders, meshes and parts waiting.
-    pub fn view_decoded_bytes(&self, v: usize) -> u64 {
-        let Some(view) = self.walk.views.get(v) else {
-            return 0;
-        };
-        let maps = if self.laid_out(v) {
-            let layers: u64 = view
-                .layers
-                .iter()
-                .flat_map(|l| &l.levels)
-                .map(map_bytes)
-                .sum();
-            // The layers twice: here and in the renderer's textures (which a software
-            // rasteriser keeps in main memory too).
-            2 * layers + self.dense[v].iter().map(map_bytes).sum::<u64>()
-        } else {
-            0
-        };
-        let tiles: u64 = view.tiles.iter().map(|t| mesh_bytes(&t.mesh)).sum();
-        let items: u64 = self.view_items[v]
-            .iter()
-            .map(|&i| item_bytes(&self.items[i]))
-            .sum();
-        maps + tiles + items
-    }
-
-    /// Decoded bytes held over all views (see [`StreamedWalkthrough::view_decoded_bytes`]).
-    pub fn decoded_bytes(&self) -> u64 {
-        (0..self.walk.views.len())
-            .map(|v| self.view_decoded_bytes(v))
-            .sum()
-    }
-
-    /// Bytes of one laid-out view's layers (with mips, here and in the renderer) and dense
-    /// maps: what a view costs once anything of it arrived (decoders and meshes come on top).
-    pub fn full_view_bytes(&self) -> u64 {
-        full_view_bytes(self.grid.face_size, self.layer_count)
-    }
-
-    /// Positions in `walk.views` of the views laid out (holding decoded layers).
-    pub fn laid_out_views(&self) -> Vec<usize> {
-        (0..self.walk.views.len())
-            .filter(|&v| self.laid_out(v))
-            .collect()
-    }
-
-    /// Set every tile's [`ViewTile::highlight`]: 1 when its latest level arrived, fading to 0
-    /// over [`HIGHLIGHT`] (the renderer tints by it; no re-upload needed).
+    /// Set every tile's [`crate::refview::ViewTile::highlight`]: 1 when its latest level
+    /// arrived, fading to 0 over [`HIGHLIGHT`] (the renderer tints by it; no re-upload
+    /// needed).
     fn fade_highlights(&mut self, now: Instant) {
         for (v, items) in self.tile_items.iter().enumerate() {
             for (slot, &item) in items.iter().enumerate() {
@@ -818,96 +401,6 @@ impl StreamedWalkthrough {
                     tile.highlight = h as f32;
                 }
             }
-        }
-    }
-
-    /// The parts of `item` that are next in order (received, or at most `cached` of them
-    /// taken from the session's cache), out of its waiting list.
-    /// The next `count` parts of `item` in order, each from those that arrived for it or
-    /// from the session's cache (fewer when one is in neither).
-    fn take_parts(&mut self, item: usize, count: usize) -> Vec<Bytes> {
-        let it = &mut self.items[item];
-        let mut out = Vec::new();
-        while out.len() < count {
-            let next = it.next + out.len();
-            let data = match it.waiting.remove(&next) {
-                Some(data) => data,
-                None => match self.session.part_bytes(item, next) {
-                    Some(data) => data.clone(),
-                    None => break,
-                },
-            };
-            out.push(data);
-        }
-        out
-    }
-
-    /// Put a tile's (or background tile's) newly decoded finest level into its view: the
-    /// layer and the face rectangle that changed.
-    fn place(
-        &mut self,
-        item: usize,
-        d: Decoded,
-        what: &str,
-        now: Instant,
-    ) -> Result<Option<(usize, FaceRect)>, SourceError> {
-        let it = &self.items[item];
-        let view = it.view;
-        // Levels of the views as laid out.
-        let view_level = d.level.saturating_sub(self.layout_level);
-        let pixels = (&d.rgba[..], d.width, d.height, view_level);
-        match it.kind {
-            Kind::Unusable => Ok(None),
-            Kind::Background { tile } => {
-                self.lay_out(view);
-                paste_tile(&mut self.dense[view][0], self.grid, tile, pixels, what)?;
-                let it = &mut self.items[item];
-                it.level = Some(d.level);
-                it.loaded_at = Some(now);
-                Ok(Some((0, FaceRect::of_tile(self.grid, tile))))
-            }
-            Kind::Tile { tile, slab } => {
-                let joined = self.tile_items[view].iter().position(|&i| i == item);
-                if joined.is_none() && it.mesh.is_none() {
-                    return Ok(None);
-                }
-                let layer = slab as usize + 1;
-                self.lay_out(view);
-                paste_tile(&mut self.dense[view][layer], self.grid, tile, pixels, what)?;
-                let it = &mut self.items[item];
-                it.level = Some(d.level);
-                it.loaded_at = Some(now);
-                let v = &mut self.walk.views[view];
-                match joined {
-                    Some(slot) => v.tiles[slot].finest_level = view_level,
-                    None => {
-                        // The view's tile holds the mesh from now on.
-                        let mesh = it.mesh.take().unwrap_or_default();
-                        let mut vt = ViewTile::new(tile, slab, mesh, v.face_size);
-                        vt.finest_level = view_level;
-                        let key = |t: &ViewTile| (t.slab, self.grid.tile_index(t.tile));
-                        let slot = v.tiles.partition_point(|t| key(t) < key(&vt));
-                        v.tiles.insert(slot, vt);
-                        self.tile_items[view].insert(slot, item);
-                    }
-                }
-                Ok(Some((layer, FaceRect::of_tile(self.grid, tile))))
-            }
-        }
-    }
-
-    fn item_name(&self, item: usize) -> String {
-        let it = &self.items[item];
-        let vp = self.walk.views.get(it.view).map_or(it.view, |v| v.index);
-        match it.kind {
-            Kind::Tile { tile, slab } => tile_key(vp, slab, tile),
-            Kind::Background { tile } => format!(
-                "viewpoint {vp} background tile {}-{}-{}",
-                tile.face.short_name(),
-                tile.tx,
-                tile.ty
-            ),
-            Kind::Unusable => format!("viewpoint {vp} item {item}"),
         }
     }
 
@@ -1004,155 +497,5 @@ impl StreamedWalkthrough {
             .filter(|(t, _)| now.duration_since(*t) <= window)
             .map(|a| a.1 as u64)
             .sum()
-    }
-}
-
-/// An item's finest level, decoded ([`decode_parts`]).
-struct Decoded {
-    level: u32,
-    rgba: Vec<u8>,
-    width: u32,
-    height: u32,
-}
-
-/// Feed `parts` (the item's next parts, in order) to its mesh and decoder; its finest level
-/// when that became finer than the one shown (a coarse level divided by its coverage when
-/// `premultiplied`, see [`streamer::db::clear_masked`]). Views laid out `k` levels coarser
-/// than the database take level `k` where a finer one arrived, and meshes scaled to them.
-/// Items are independent, so a step decodes them in parallel.
-fn decode_parts(
-    it: &mut ItemState,
-    parts: Vec<Bytes>,
-    what: &str,
-    premultiplied: bool,
-    k: u32,
-) -> Result<Option<Decoded>, SourceError> {
-    for data in parts {
-        if it.next < it.first_level_part {
-            let mut mesh = tile_mesh_from_bytes(&data, what)?;
-            if k > 0 {
-                let scale = 1.0 / (1u32 << k) as f32;
-                for v in &mut mesh.vertices {
-                    v.pos_in_face = [v.pos_in_face[0] * scale, v.pos_in_face[1] * scale];
-                }
-            }
-            it.mesh = Some(mesh);
-        } else {
-            it.decoder.push(&data).map_err(|e| SourceError::Format {
-                what: what.to_string(),
-                message: e.to_string(),
-            })?;
-        }
-        it.next += 1;
-    }
-    let level = it.decoder.finest_level().map(|l| l.max(k));
-    if level == it.level || level.is_none() {
-        return Ok(None);
-    }
-    let level = level.unwrap_or(k);
-    let Some(img) = it.decoder.level(level) else {
-        return Ok(None);
-    };
-    let mut rgba = image_rgba(img);
-    if premultiplied && level > 0 {
-        streamer::db::unpremultiply(&mut rgba);
-    }
-    let d = Decoded {
-        level,
-        rgba,
-        width: img.width(),
-        height: img.height(),
-    };
-    // The finest level the views take decoded: nothing more will come for this item, its
-    // decoder's levels are no longer needed.
-    if level == k {
-        it.decoder = Decoder::new(it.limits);
-    }
-    Ok(Some(d))
-}
-
-/// Transparent layers with 1×1 faces for a view not laid out: they draw as nothing (no
-/// tiles reference them) at a few bytes each.
-fn placeholder_layers(count: usize) -> Vec<Layer> {
-    vec![Layer::from_rgba(CubeMap::filled(1, [0u8; 4])); count]
-}
-
-/// A transparent layer of face size `n` with its mip chain, as [`Layer::from_rgba`] of a
-/// transparent map builds it, without the downsampling passes.
-fn empty_layer(n: u32) -> Layer {
-    let mut levels = vec![CubeMap::filled(n, [0u8; 4])];
-    let mut m = n;
-    while m >= 2 && m.is_multiple_of(2) {
-        m /= 2;
-        levels.push(CubeMap::filled(m, [0u8; 4]));
-    }
-    Layer { levels }
-}
-
-/// Bytes of one laid-out view of face size `n` with `layers` layers: each layer's mip chain
-/// (twice: decoded here and uploaded to the renderer) and its dense level-0 map.
-fn full_view_bytes(n: u32, layers: usize) -> u64 {
-    // 6 faces × 4 bytes per texel, halving as `Layer::from_rgba` does.
-    let face = |m: u32| 24 * u64::from(m).pow(2);
-    let mut layer = face(n);
-    let mut m = n;
-    while m >= 2 && m.is_multiple_of(2) {
-        m /= 2;
-        layer += face(m);
-    }
-    let dense = face(n);
-    layers as u64 * (2 * layer + dense)
-}
-
-fn map_bytes(m: &CubeMap<[u8; 4]>) -> u64 {
-    std::mem::size_of_val(m.as_slice()) as u64
-}
-
-fn mesh_bytes(m: &crate::refview::TileMesh) -> u64 {
-    (std::mem::size_of_val(&m.vertices[..]) + std::mem::size_of_val(&m.indices[..])) as u64
-}
-
-/// Decoded bytes an item holds: its decoder's levels, its mesh and the parts waiting.
-fn item_bytes(it: &ItemState) -> u64 {
-    let levels = it.decoder.header().map_or(0, |h| u32::from(h.levels));
-    let decoded: usize = (0..levels)
-        .filter_map(|l| it.decoder.level(l))
-        .map(|img| img.data().len())
-        .sum();
-    let waiting: usize = it.waiting.values().map(|b| b.len()).sum();
-    (decoded + waiting) as u64 + it.mesh.as_ref().map_or(0, mesh_bytes)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn empty_layers_match_the_mip_chain_of_a_transparent_map() {
-        for n in [1, 2, 6, 16, 24] {
-            let built = Layer::from_rgba(CubeMap::filled(n, [0u8; 4]));
-            assert_eq!(empty_layer(n), built, "face {n}");
-            let bytes: u64 =
-                2 * built.levels.iter().map(map_bytes).sum::<u64>() + map_bytes(&built.levels[0]);
-            assert_eq!(full_view_bytes(n, 3), 3 * bytes, "face {n}");
-        }
-    }
-
-    #[test]
-    fn placeholder_layers_are_tiny_and_transparent() {
-        let layers = placeholder_layers(3);
-        assert_eq!(layers.len(), 3);
-        for l in &layers {
-            assert_eq!(l.levels.len(), 1);
-            assert_eq!(l.face_size(), 1);
-            assert!(l.levels[0].as_slice().iter().all(|p| *p == [0u8; 4]));
-        }
-    }
-
-    #[test]
-    fn a_face_1024_view_with_two_slabs() {
-        // Layer with mips 33.5 MB (here and in the renderer), dense map 25.2 MB, three layers.
-        let b = full_view_bytes(1024, 3);
-        assert_eq!(b, 3 * (2 * 33_554_424 + 25_165_824));
     }
 }

@@ -7,7 +7,7 @@
 
 use std::sync::LazyLock;
 
-use tracks::{CubeMap, Face, TileGrid, TileId};
+use tracks::{CubeMap, Face, PixelRect};
 
 /// One cube-map layer and its mip chain (level 0 first).
 #[derive(Clone, Debug, PartialEq)]
@@ -161,57 +161,6 @@ impl Layer {
     }
 }
 
-/// A rectangle of face pixels on one face: `x0..x1 × y0..y1` (ends exclusive).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct FaceRect {
-    pub face: Face,
-    pub x0: u32,
-    pub y0: u32,
-    pub x1: u32,
-    pub y1: u32,
-}
-
-impl FaceRect {
-    /// The face pixels of tile `tile` of `grid`.
-    pub fn of_tile(grid: TileGrid, tile: TileId) -> FaceRect {
-        let (x0, y0, x1, y1) = grid.pixel_rect(tile);
-        FaceRect {
-            face: tile.face,
-            x0,
-            y0,
-            x1,
-            y1,
-        }
-    }
-
-    /// Grown by `d` pixels on every side, clipped to a face `n` pixels wide.
-    pub fn grown(&self, d: u32, n: u32) -> FaceRect {
-        FaceRect {
-            face: self.face,
-            x0: self.x0.saturating_sub(d),
-            y0: self.y0.saturating_sub(d),
-            x1: (self.x1 + d).min(n),
-            y1: (self.y1 + d).min(n),
-        }
-    }
-
-    /// The texels of the level `level` steps coarser that cover it.
-    pub fn coarser(&self, level: u32) -> FaceRect {
-        let s = 1u32 << level;
-        FaceRect {
-            face: self.face,
-            x0: self.x0 / s,
-            y0: self.y0 / s,
-            x1: self.x1.div_ceil(s),
-            y1: self.y1.div_ceil(s),
-        }
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.x0 >= self.x1 || self.y0 >= self.y1
-    }
-}
-
 impl Layer {
     /// Bring the layer up to date after `dense` (the undilated map the layer was built
     /// from, [`Layer::from_rgba`]`(`[`dilate_masked`]`(dense))`) changed inside `rect` only,
@@ -219,7 +168,7 @@ impl Layer {
     /// texels around it, and each mip level over the texels that cover that. The result is
     /// identical to rebuilding the whole layer. Returns, per level, the rectangle of texels
     /// that may have changed (for [`crate::gpu::Renderer::update_layer_region`]).
-    pub fn update_region(&mut self, dense: &CubeMap<[u8; 4]>, rect: FaceRect) -> Vec<FaceRect> {
+    pub fn update_region(&mut self, dense: &CubeMap<[u8; 4]>, rect: PixelRect) -> Vec<PixelRect> {
         let n = self.face_size();
         if dense.face_size() != n || rect.is_empty() {
             return Vec::new();
@@ -318,7 +267,7 @@ pub fn dilate_masked(map: &CubeMap<[u8; 4]>) -> CubeMap<[u8; 4]> {
         .map(|&face| {
             dilate_window(
                 map,
-                FaceRect {
+                PixelRect {
                     face,
                     x0: 0,
                     y0: 0,
@@ -334,7 +283,7 @@ pub fn dilate_masked(map: &CubeMap<[u8; 4]>) -> CubeMap<[u8; 4]> {
 /// [`dilate_masked`] computed inside `window` only (row-major texels of the window). Texels
 /// of the window's border that are not the face's border see fewer neighbours than in the
 /// whole map, so only texels at least [`DILATE_STEPS`] inside such a border are exact.
-fn dilate_window(map: &CubeMap<[u8; 4]>, window: FaceRect) -> Vec<[u8; 4]> {
+fn dilate_window(map: &CubeMap<[u8; 4]>, window: PixelRect) -> Vec<[u8; 4]> {
     let (w, h) = (
         (window.x1 - window.x0) as i64,
         (window.y1 - window.y0) as i64,
@@ -596,7 +545,7 @@ mod tests {
                 let a = if bits(f, x, y, 1) > 140 { 255 } else { 0 };
                 [bits(f, x, y, 2), bits(f, x, y, 3), bits(f, x, y, 4), a]
             });
-            let rect = FaceRect {
+            let rect = PixelRect {
                 face: Face::ALL[face],
                 x0,
                 y0,

@@ -3,11 +3,12 @@
 //! them as ignored.
 
 use glam::DVec3;
+use tracks::PixelRect;
 use tracks::{PerspectiveCamera, TileGrid};
 use viewer::gpu::{Frame, Gpu, Renderer};
 use viewer::refview::AdaptiveMesh;
 use viewer::synth::{views_along, Scene};
-use viewer::texture::{dilate_masked, FaceRect, Layer};
+use viewer::texture::{dilate_masked, Layer};
 use viewer::{plan_frame, DrawBudget, FramePlan, MeshParams, RefView};
 
 fn renderer() -> Renderer {
@@ -277,7 +278,7 @@ fn tile_region_uploads_match_a_full_upload() {
         "the changed tile is not visible"
     );
     let mut inc = views.clone();
-    let rect = FaceRect {
+    let rect = PixelRect {
         face: t.tile.face,
         x0,
         y0,

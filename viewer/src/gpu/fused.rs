@@ -1,6 +1,8 @@
 //! Fused frames (no view targets, no composite pass) and the half-resolution second view.
 
-use super::{CompositeUniforms, GpuView, Renderer, Targets, SECOND_VIEW_MIN_WEIGHT};
+use super::passes::{begin, color, depth, pass_weights, DrawnPass};
+use super::pipelines::Pipe;
+use super::{CompositeUniforms, Renderer, Targets, SECOND_VIEW_MIN_WEIGHT};
 use crate::plan::FramePlan;
 use crate::refview::RefView;
 
@@ -16,164 +18,125 @@ impl Renderer {
         plan: &FramePlan,
         views: &[RefView],
     ) {
-        let passes: Vec<(&crate::plan::ViewPass, &GpuView)> = plan
-            .passes
-            .iter()
-            .take(2)
-            .filter_map(|p| Some((p, self.views.get(&views.get(p.view)?.index)?)))
-            .collect();
-        let uniforms = CompositeUniforms {
-            weights: [
-                passes.first().map_or(0.0, |p| p.0.weight as f32),
-                passes.get(1).map_or(0.0, |p| p.0.weight as f32),
-                passes.len() as f32,
-                0.0,
-            ],
-            flags: [0; 4],
-        };
-        self.gpu
-            .queue
-            .write_buffer(&self.composite_uniforms, 0, bytemuck::bytes_of(&uniforms));
-        let clear = |view| {
-            Some(wgpu::RenderPassColorAttachment {
-                view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                    store: wgpu::StoreOp::Store,
-                },
-            })
-        };
+        let passes = self.drawn_passes(plan, views);
+        self.write_composite_uniforms(CompositeUniforms::new(
+            pass_weights(&passes),
+            passes.len(),
+            0.0,
+            [0; 4],
+        ));
         if plan.half_res_second && passes.len() == 2 && self.gpu.caps.float_targets {
             self.encode_half(enc, targets, plan, &passes);
             return;
         }
         if passes.is_empty() {
             // Nothing to draw: a transparent (all-hole) frame.
-            enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("empty frame"),
-                color_attachments: &[clear(&targets.output_view)],
-                depth_stencil_attachment: None,
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
+            begin(
+                enc,
+                "empty frame",
+                &[color(&targets.output_view, true)],
+                None,
+            );
             return;
         }
-        for (slot, (pass, g)) in passes.iter().enumerate() {
-            self.gpu
-                .queue
-                .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
-            let first_targets = [clear(&targets.output_view)];
-            // The second view reads the first view's depth from `depth_copy` while drawn
-            // against `depth`: copied there, or, without depth copies, drawn there by the
-            // first view and written into `depth` by a shader (below).
-            let copies = self.gpu.caps.depth_copy;
-            if slot == 1 && copies {
-                // The second view's weights need the first view's depth where it is itself
-                // depth-tested against (and writes) the same attachment: a copy.
-                let copy = |texture| wgpu::TexelCopyTextureInfo {
-                    texture,
-                    mip_level: 0,
-                    origin: wgpu::Origin3d::ZERO,
-                    aspect: wgpu::TextureAspect::All,
-                };
-                enc.copy_texture_to_texture(
-                    copy(&targets.depth),
-                    copy(&targets.depth_copy),
-                    targets.depth.size(),
-                );
+        for slot in 0..passes.len() {
+            self.encode_fused_view(enc, targets, plan, &passes, slot);
+        }
+    }
+
+    /// View pass `slot` of a fused frame: the first view writes the output and the depth;
+    /// the second is blended in against (and weighted by) the first view's depth, then the
+    /// sky goes where no mesh drew: of the one view, or of both views.
+    fn encode_fused_view(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        targets: &Targets,
+        plan: &FramePlan,
+        passes: &[DrawnPass<'_>],
+        slot: usize,
+    ) {
+        let (pass, g) = passes[slot];
+        self.write_view_uniforms(passes[slot]);
+        let two = passes.len() > 1;
+        // The second view reads the first view's depth from `depth_copy` while drawn
+        // against `depth`: copied there, or, without depth copies, drawn there by the
+        // first view and written into `depth` by a shader (below).
+        let copies = self.gpu.caps.depth_copy;
+        if slot == 1 && copies {
+            // The second view's weights need the first view's depth where it is itself
+            // depth-tested against (and writes) the same attachment: a copy.
+            let copy = |texture| wgpu::TexelCopyTextureInfo {
+                texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            };
+            enc.copy_texture_to_texture(
+                copy(&targets.depth),
+                copy(&targets.depth_copy),
+                targets.depth.size(),
+            );
+        }
+        let depth_view = if slot == 0 && two && !copies {
+            &targets.depth_copy_view
+        } else {
+            &targets.depth_view
+        };
+        let mut rp = begin(
+            enc,
+            if slot == 0 {
+                "first view"
+            } else {
+                "second view"
+            },
+            // The first view clears the output, the second blends into it.
+            &[color(&targets.output_view, slot == 0)],
+            // The shader copy writes every pixel.
+            depth(depth_view, slot == 0 || !copies, slot == 0 && two),
+        );
+        rp.set_bind_group(0, &g.bind_group, &[]);
+        if slot == 1 {
+            rp.set_bind_group(1, &targets.second_group, &[]);
+            // The other view (the first): its sky, for the second view near a sample.
+            rp.set_bind_group(2, &passes[0].1.bind_group, &[]);
+            if !copies {
+                self.draw_full(&mut rp, Pipe::CopyDepth);
             }
-            let second_targets = [Some(wgpu::RenderPassColorAttachment {
-                view: &targets.output_view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Load,
-                    store: wgpu::StoreOp::Store,
-                },
-            })];
-            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some(if slot == 0 {
-                    "first view"
-                } else {
-                    "second view"
-                }),
-                color_attachments: if slot == 0 {
-                    &first_targets[..]
-                } else {
-                    &second_targets[..]
-                },
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: if slot == 0 && passes.len() > 1 && !copies {
-                        &targets.depth_copy_view
-                    } else {
-                        &targets.depth_view
-                    },
-                    depth_ops: Some(wgpu::Operations {
-                        // The shader copy writes every pixel.
-                        load: if slot == 0 || !copies {
-                            wgpu::LoadOp::Clear(0.0)
-                        } else {
-                            wgpu::LoadOp::Load
-                        },
-                        store: if slot == 0 && passes.len() > 1 {
-                            wgpu::StoreOp::Store
-                        } else {
-                            wgpu::StoreOp::Discard
-                        },
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            rp.set_bind_group(0, &g.bind_group, &[]);
-            if slot == 1 {
-                rp.set_bind_group(1, &targets.second_group, &[]);
-                // The other view (the first): its sky, for the second view near a sample.
-                rp.set_bind_group(2, &passes[0].1.bind_group, &[]);
-                if !copies {
-                    rp.set_pipeline(&self.copy_depth);
-                    rp.draw(0..3, 0..1);
-                }
-            }
-            if !pass.runs.is_empty() {
-                rp.set_pipeline(if slot == 0 {
-                    &self.first_mesh
-                } else if pass.weight <= 0.0 {
-                    &self.second_mesh_at_sample
-                } else if pass.weight < SECOND_VIEW_MIN_WEIGHT {
-                    &self.second_mesh_holes
-                } else {
-                    &self.second_mesh
-                });
-                self.draw_runs(&mut rp, plan, pass, g);
-            }
-            // The sky last, where no mesh drew: of the one view, or of both views blended.
-            if passes.len() == 1 {
-                rp.set_pipeline(&self.first_sky);
-                rp.draw(0..3, 0..1);
-            } else if slot == 1 {
-                // The heavier view's sky, then the other's where that one has none.
-                let (heavy, light) = if pass.weight > passes[0].0.weight {
-                    (*g, passes[0].1)
-                } else {
-                    (passes[0].1, *g)
-                };
-                rp.set_bind_group(0, &heavy.bind_group, &[]);
-                rp.set_bind_group(2, &light.bind_group, &[]);
-                rp.set_pipeline(&self.sky_heavier);
-                rp.draw(0..3, 0..1);
-                // Nothing for the other view's sky to fill when the heavier view's has no
-                // hole (a full-screen pass that llvmpipe would still bin and depth-test).
-                if !heavy.sky_whole {
-                    rp.set_pipeline(&self.sky_other);
-                    rp.draw(0..3, 0..1);
-                }
-            }
+        }
+        let mesh = if slot == 0 {
+            Pipe::FirstMesh
+        } else if pass.weight <= 0.0 {
+            Pipe::SecondMeshAtSample
+        } else if pass.weight < SECOND_VIEW_MIN_WEIGHT {
+            Pipe::SecondMeshHoles
+        } else {
+            Pipe::SecondMesh
+        };
+        self.draw_meshes(&mut rp, plan, passes[slot], mesh);
+        // The sky last, where no mesh drew: of the one view, or of both views blended.
+        if !two {
+            self.draw_full(&mut rp, Pipe::FirstSky);
+        } else if slot == 1 {
+            self.draw_two_view_sky(&mut rp, passes);
+        }
+    }
+
+    /// The sky of a two-view fused frame, in the second view's pass: the heavier view's,
+    /// then the other's where that one has none.
+    fn draw_two_view_sky(&self, rp: &mut wgpu::RenderPass<'_>, passes: &[DrawnPass<'_>]) {
+        let ((first, a), (second, b)) = (passes[0], passes[1]);
+        let (heavy, light) = if second.weight > first.weight {
+            (b, a)
+        } else {
+            (a, b)
+        };
+        rp.set_bind_group(0, &heavy.bind_group, &[]);
+        rp.set_bind_group(2, &light.bind_group, &[]);
+        self.draw_full(rp, Pipe::SkyHeavier);
+        // Nothing for the other view's sky to fill when the heavier view's has no
+        // hole (a full-screen pass that llvmpipe would still bin and depth-test).
+        if !heavy.sky_whole {
+            self.draw_full(rp, Pipe::SkyOther);
         }
     }
 
@@ -187,85 +150,49 @@ impl Renderer {
         enc: &mut wgpu::CommandEncoder,
         targets: &Targets,
         plan: &FramePlan,
-        passes: &[(&crate::plan::ViewPass, &GpuView)],
+        passes: &[DrawnPass<'_>],
     ) {
         let (full, half) = if passes[1].0.weight <= passes[0].0.weight {
             (passes[0], passes[1])
         } else {
             (passes[1], passes[0])
         };
-        let uniforms = CompositeUniforms {
-            weights: [full.0.weight as f32, half.0.weight as f32, 2.0, 0.0],
-            flags: [0; 4],
-        };
-        let queue = &self.gpu.queue;
-        queue.write_buffer(&self.composite_uniforms, 0, bytemuck::bytes_of(&uniforms));
-        queue.write_buffer(&full.1.uniforms, 0, bytemuck::bytes_of(&full.0.uniforms));
+        self.write_composite_uniforms(CompositeUniforms::new(
+            [full.0.weight, half.0.weight],
+            2,
+            0.0,
+            [0; 4],
+        ));
+        self.write_view_uniforms(full);
         // The same camera at half the framebuffer size (pixel rays of the background).
         let mut u = half.0.uniforms;
         u.params[1] = plan.width.div_ceil(2) as f32;
         u.params[2] = plan.height.div_ceil(2) as f32;
-        queue.write_buffer(&half.1.uniforms, 0, bytemuck::bytes_of(&u));
-        let depth = |view, load| {
-            Some(wgpu::RenderPassDepthStencilAttachment {
-                view,
-                depth_ops: Some(wgpu::Operations {
-                    load,
-                    store: wgpu::StoreOp::Discard,
-                }),
-                stencil_ops: None,
-            })
-        };
+        self.gpu
+            .queue
+            .write_buffer(&half.1.uniforms, 0, bytemuck::bytes_of(&u));
         {
-            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("second view (half resolution)"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &targets.half_view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: depth(&targets.half_depth, wgpu::LoadOp::Clear(0.0)),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
+            let mut rp = begin(
+                enc,
+                "second view (half resolution)",
+                &[color(&targets.half_view, true)],
+                depth(&targets.half_depth, true, false),
+            );
             rp.set_bind_group(0, &half.1.bind_group, &[]);
-            if !half.0.runs.is_empty() {
-                rp.set_pipeline(&self.mesh);
-                self.draw_runs(&mut rp, plan, half.0, half.1);
-            }
-            rp.set_pipeline(&self.background);
-            rp.draw(0..3, 0..1);
+            self.draw_meshes(&mut rp, plan, half, Pipe::Mesh);
+            self.draw_full(&mut rp, Pipe::Background);
         }
         // Every output pixel is written (the background pass has no discard): no clear.
-        let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("first view over the second"),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: &targets.output_view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Load,
-                    store: wgpu::StoreOp::Store,
-                },
-            })],
-            depth_stencil_attachment: depth(&targets.depth_view, wgpu::LoadOp::Clear(0.0)),
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
+        let mut rp = begin(
+            enc,
+            "first view over the second",
+            &[color(&targets.output_view, false)],
+            depth(&targets.depth_view, true, false),
+        );
         rp.set_bind_group(0, &full.1.bind_group, &[]);
         rp.set_bind_group(1, &targets.half_group, &[]);
-        if !full.0.runs.is_empty() {
-            rp.set_pipeline(&self.mesh_over_half);
-            self.draw_runs(&mut rp, plan, full.0, full.1);
-        }
-        rp.set_pipeline(&self.background_over_half);
-        rp.draw(0..3, 0..1);
+        self.draw_meshes(&mut rp, plan, full, Pipe::MeshOverHalf);
+        self.draw_full(&mut rp, Pipe::BackgroundOverHalf);
     }
 
     /// Feedback frames without overlays: per view pass, its tile ids alone (depth + R32
@@ -279,65 +206,17 @@ impl Renderer {
         plan: &FramePlan,
         views: &[RefView],
     ) {
-        let (ids, depth) = targets.feedback_ids();
-        for (slot, pass) in plan.passes.iter().take(2).enumerate() {
-            let Some(g) = views.get(pass.view).and_then(|v| self.views.get(&v.index)) else {
-                continue;
-            };
-            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("tile ids"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &ids[slot],
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: depth,
-                    depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(0.0),
-                        store: wgpu::StoreOp::Discard,
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            if !pass.runs.is_empty() {
-                rp.set_bind_group(0, &g.bind_group, &[]);
-                rp.set_pipeline(&self.mesh_id_only);
-                self.draw_runs(&mut rp, plan, pass, g);
-            }
-        }
-    }
-
-    /// Draw a pass's tile runs (vertex and index buffers of the plan's mesh level); the
-    /// pipeline and bind groups are set.
-    pub(super) fn draw_runs(
-        &self,
-        rp: &mut wgpu::RenderPass<'_>,
-        plan: &FramePlan,
-        pass: &crate::plan::ViewPass,
-        g: &GpuView,
-    ) {
-        rp.set_vertex_buffer(0, g.vertices.slice(..));
-        let (indices, starts) = match (plan.mesh_level as usize).checked_sub(1) {
-            Some(k) => g
-                .coarse
-                .get(k)
-                .or(g.coarse.last())
-                .map_or((&g.indices, &g.index_start), |(b, s)| (b, s)),
-            None => (&g.indices, &g.index_start),
-        };
-        rp.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
-        for run in &pass.runs {
-            let (a, b) = (starts[run.first], starts[run.first + run.count]);
-            if b > a {
-                rp.draw_indexed(a..b, 0, 0..1);
+        let (ids, depth_view) = targets.feedback_ids();
+        for (slot, drawn) in self.drawn_passes(plan, views).into_iter().enumerate() {
+            let mut rp = begin(
+                enc,
+                "tile ids",
+                &[color(&ids[slot], true)],
+                depth(depth_view, true, false),
+            );
+            if !drawn.0.runs.is_empty() {
+                rp.set_bind_group(0, &drawn.1.bind_group, &[]);
+                self.draw_meshes(&mut rp, plan, drawn, Pipe::MeshIdOnly);
             }
         }
     }

@@ -40,18 +40,28 @@
 //! Streaming: [`Renderer::update_layer_region`] writes the texels around one tile that
 //! arrived (from [`crate::texture::Layer::update_region`]) into an uploaded view; when tiles
 //! join a view, the next draw rebuilds its meshes and keeps its texture.
+//!
+//! Inside: `pipelines` (every render pipeline a row of one table, built by one function),
+//! `passes` (what the passes of both paths share: attachments, view passes, mesh and
+//! full-screen draws), `composite` (the composite path), `fused` (fused frames, the
+//! half-resolution second view, the reduced tile-id passes), `upload` (views, targets),
+//! `readback` and `device`.
 
 use std::collections::HashMap;
 
 use crate::plan::{FramePlan, Overlays};
 use crate::refview::RefView;
+use pipelines::Pipe;
 
+pub use crate::frame::Frame;
 pub use device::{
     describe_adapter, device_limits, no_adapter, Caps, DeviceLimits, Gpu, GpuRequest,
 };
 
+mod composite;
 mod device;
 mod fused;
+mod passes;
 mod pipelines;
 mod readback;
 mod upload;
@@ -134,22 +144,6 @@ fn forced_note(forced: &Option<String>) -> String {
     match forced {
         Some(v) => format!("; WGPU_BACKEND={v} limits the search, unset it to try every backend"),
         None => String::new(),
-    }
-}
-
-/// A rendered frame: sRGB RGBA8, rows from the top; alpha 0 marks hole pixels.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Frame {
-    pub width: u32,
-    pub height: u32,
-    pub rgba: Vec<u8>,
-}
-
-impl Frame {
-    /// Fraction of pixels that no view covers.
-    pub fn hole_fraction(&self) -> f64 {
-        let n = (self.width as usize * self.height as usize).max(1);
-        self.rgba.chunks(4).filter(|p| p[3] == 0).count() as f64 / n as f64
     }
 }
 
@@ -305,42 +299,8 @@ pub struct Renderer {
     /// Fused frames (no tile ids, no overlays): the first view into the output, the second
     /// view blended into it, weighted by the first view's depth (`render.wgsl`).
     second_bgl: wgpu::BindGroupLayout,
-    /// Fused frames: the first view's meshes into the output alone, and a one-view frame's sky.
-    first_mesh: wgpu::RenderPipeline,
-    first_sky: wgpu::RenderPipeline,
-    second_mesh: wgpu::RenderPipeline,
-    /// The second view only where it is clearly nearer than the first view or the first view
-    /// has sky or a hole (weight below `SECOND_VIEW_MIN_WEIGHT`).
-    second_mesh_holes: wgpu::RenderPipeline,
-    /// The same at a sample (weight 0): only where the first view has neither a mesh nor sky.
-    second_mesh_at_sample: wgpu::RenderPipeline,
-    /// The sky of a two-view fused frame, after both views' meshes: the heavier view's where
-    /// it has sky (writing depth), then the other view's where it has none (the sky is at
-    /// infinity, the same from both viewpoints).
-    sky_heavier: wgpu::RenderPipeline,
-    sky_other: wgpu::RenderPipeline,
-    /// Half-resolution second view: the first view drawn over it, blending it in.
-    mesh_over_half: wgpu::RenderPipeline,
-    background_over_half: wgpu::RenderPipeline,
-    /// Background (sky) where no tile drew, with and without the tile-id target.
-    background_ids: wgpu::RenderPipeline,
-    background: wgpu::RenderPipeline,
-    /// Composite frames with the hole overlay: first view's sky with depth; second view's
-    /// meshes against it.
-    sky_depth: wgpu::RenderPipeline,
-    mesh_behind: wgpu::RenderPipeline,
-    /// Tile meshes writing colour and tile ids.
-    mesh_ids: wgpu::RenderPipeline,
-    /// Tile meshes writing tile ids only (feedback frames without overlays).
-    mesh_id_only: wgpu::RenderPipeline,
-    /// Tile meshes writing colour only.
-    mesh: wgpu::RenderPipeline,
-    panorama: wgpu::RenderPipeline,
-    composite: wgpu::RenderPipeline,
-    composite_overlays: wgpu::RenderPipeline,
-    /// Devices without depth copies: the first view's depth written into the depth the
-    /// second view is drawn against (`fs_copy_depth`).
-    copy_depth: wgpu::RenderPipeline,
+    /// Every render pipeline, in [`pipelines::Pipe`] order ([`Renderer::pipeline`]).
+    pipelines: Vec<wgpu::RenderPipeline>,
     /// The visible-pixel count (devices with [`Caps::compute`]).
     feedback: Option<wgpu::ComputePipeline>,
     /// Colour + distance targets of view passes (`VIEW_FORMAT`, or a stand-in where the
@@ -438,51 +398,6 @@ impl Renderer {
         self.gpu.check("drawing a frame")
     }
 
-    /// A composite frame with the heat map on a device without compute: the view passes,
-    /// then the visible pixels per tile counted on the CPU from the tile ids read back, then
-    /// the composite with them.
-    fn draw_heat_on_cpu(
-        &self,
-        mut enc: wgpu::CommandEncoder,
-        plan: &FramePlan,
-        views: &[RefView],
-    ) -> Result<(), GpuError> {
-        let Some(targets) = &self.targets else {
-            return Ok(());
-        };
-        let drawn = self.encode_view_passes(&mut enc, targets, plan, views, true, false);
-        self.gpu.queue.submit([enc.finish()]);
-        for (slot, g) in drawn.iter().enumerate() {
-            let ids = self.read_ids(targets.id_views[slot].texture())?;
-            let counts = count_ids(&ids, g.face_layer.len());
-            self.write_counts(g, &counts);
-        }
-        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        if !drawn.is_empty() {
-            self.encode_composite(&mut enc, targets, plan, views, drawn.len());
-        }
-        self.gpu.queue.submit([enc.finish()]);
-        Ok(())
-    }
-
-    /// Write a view's visible-pixel counts into its counts texture (the heat map's input).
-    fn write_counts(&self, g: &GpuView, counts: &[u32]) {
-        let rows = g.counts_tex.height();
-        let mut data = vec![0u32; (rows * TILE_ROW) as usize];
-        let n = counts.len().min(data.len());
-        data[..n].copy_from_slice(&counts[..n]);
-        self.gpu.queue.write_texture(
-            g.counts_tex.as_image_copy(),
-            bytemuck::cast_slice(&data),
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(4 * TILE_ROW),
-                rows_per_image: Some(rows),
-            },
-            g.counts_tex.size(),
-        );
-    }
-
     /// Rewrite a view's per-tile info (face, layer, min level, highlight, slab) when it changed
     /// since the last frame; most frames write nothing.
     fn update_tile_info(&mut self, pass: &crate::plan::ViewPass, view: &RefView) {
@@ -521,61 +436,6 @@ impl Renderer {
         );
     }
 
-    /// Make (once) the composite bind group of the views drawn by `plan`.
-    fn prepare_composite(&mut self, plan: &FramePlan, views: &[RefView]) {
-        let Some(targets) = &self.targets else {
-            return;
-        };
-        let slots: Vec<&RefView> = plan
-            .passes
-            .iter()
-            .take(2)
-            .filter_map(|p| views.get(p.view))
-            .collect();
-        let Some(first) = slots.first() else {
-            return;
-        };
-        let key = (first.index, slots.get(1).map_or(usize::MAX, |v| v.index));
-        if self.composite_groups.contains_key(&key) {
-            return;
-        }
-        let Some(g0) = self.views.get(&first.index) else {
-            return;
-        };
-        let g1 = slots
-            .get(1)
-            .and_then(|v| self.views.get(&v.index))
-            .unwrap_or(g0);
-        let resources = [
-            self.composite_uniforms.as_entire_binding(),
-            tex(&targets.view_views[0]),
-            tex(&targets.view_views[1]),
-            tex(&targets.id_views[0]),
-            tex(&targets.id_views[1]),
-            tex(&g0.tile_info_view),
-            tex(&g1.tile_info_view),
-            tex(&g0.counts_view),
-            tex(&g1.counts_view),
-        ];
-        let entries: Vec<wgpu::BindGroupEntry<'_>> = resources
-            .into_iter()
-            .enumerate()
-            .map(|(i, resource)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource,
-            })
-            .collect();
-        let bg = self
-            .gpu
-            .device
-            .create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("composite"),
-                layout: &self.composite_bgl,
-                entries: &entries,
-            });
-        self.composite_groups.insert(key, bg);
-    }
-
     /// Encode the frame's passes into the internal output target. Views, targets and tile
     /// info must have been prepared ([`Renderer::draw`] does it).
     fn encode(&self, enc: &mut wgpu::CommandEncoder, plan: &FramePlan, views: &[RefView]) {
@@ -594,208 +454,7 @@ impl Renderer {
             }
             return;
         }
-        // Without tile ids the second view is drawn against the first view's depth: it then
-        // skips what the first view hides and its sky where the first view has sky.
-        let shared_depth = !ids && plan.passes.len() > 1;
-        let drawn = self.encode_view_passes(enc, targets, plan, views, ids, shared_depth);
-        if drawn.is_empty() {
-            return;
-        }
-        if plan.overlays.heat && self.gpu.caps.compute {
-            for (slot, g) in drawn.iter().enumerate() {
-                self.encode_counts(enc, &targets.id_views[slot], g);
-                if let Some(counts) = &g.counts {
-                    enc.copy_buffer_to_texture(
-                        wgpu::TexelCopyBufferInfo {
-                            buffer: counts,
-                            layout: wgpu::TexelCopyBufferLayout {
-                                offset: 0,
-                                bytes_per_row: Some(4 * TILE_ROW),
-                                rows_per_image: Some(g.counts_tex.height()),
-                            },
-                        },
-                        g.counts_tex.as_image_copy(),
-                        g.counts_tex.size(),
-                    );
-                }
-            }
-        }
-        self.encode_composite(enc, targets, plan, views, drawn.len());
-    }
-
-    /// The composite pass of a frame whose `drawn` view passes are encoded.
-    fn encode_composite(
-        &self,
-        enc: &mut wgpu::CommandEncoder,
-        targets: &Targets,
-        plan: &FramePlan,
-        views: &[RefView],
-        drawn: usize,
-    ) {
-        let tiles = |slot: usize| {
-            plan.passes
-                .get(slot)
-                .and_then(|p| views.get(p.view))
-                .map_or(0, |v| v.tiles.len() as u32)
-        };
-        let pixels = plan.width as f32 * plan.height as f32;
-        let uniforms = CompositeUniforms {
-            weights: [
-                plan.passes.first().map_or(0.0, |p| p.weight as f32),
-                plan.passes.get(1).map_or(0.0, |p| p.weight as f32),
-                drawn as f32,
-                (1.0 + pixels).log2(),
-            ],
-            flags: [plan.overlays.bits(), tiles(0), tiles(1), 0],
-        };
-        self.gpu
-            .queue
-            .write_buffer(&self.composite_uniforms, 0, bytemuck::bytes_of(&uniforms));
-        let index = |slot: usize| {
-            plan.passes
-                .get(slot)
-                .and_then(|p| views.get(p.view))
-                .map_or(usize::MAX, |v| v.index)
-        };
-        let Some(bg) = self.composite_groups.get(&(index(0), index(1))) else {
-            return;
-        };
-        let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("composite"),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: &targets.output_view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                    store: wgpu::StoreOp::Store,
-                },
-            })],
-            depth_stencil_attachment: None,
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
-        rp.set_pipeline(if plan.overlays == Overlays::default() {
-            &self.composite
-        } else {
-            &self.composite_overlays
-        });
-        rp.set_bind_group(0, bg, &[]);
-        rp.draw(0..3, 0..1);
-    }
-
-    /// The view passes of the composite path (tile meshes, then the sky, into the view and,
-    /// with `ids`, tile-id targets); returns the views drawn, slot order.
-    fn encode_view_passes<'a>(
-        &'a self,
-        enc: &mut wgpu::CommandEncoder,
-        targets: &Targets,
-        plan: &FramePlan,
-        views: &[RefView],
-        ids: bool,
-        shared_depth: bool,
-    ) -> Vec<&'a GpuView> {
-        let mut drawn: Vec<&GpuView> = Vec::new();
-        for (slot, pass) in plan.passes.iter().take(2).enumerate() {
-            let Some(g) = views.get(pass.view).and_then(|v| self.views.get(&v.index)) else {
-                continue;
-            };
-            drawn.push(g);
-            self.gpu
-                .queue
-                .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
-            let clear = |view| {
-                Some(wgpu::RenderPassColorAttachment {
-                    view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })
-            };
-            let with_ids = [
-                clear(&targets.view_views[slot]),
-                clear(&targets.id_views[slot]),
-            ];
-            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("view"),
-                color_attachments: if ids { &with_ids[..] } else { &with_ids[..1] },
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &targets.depth_view,
-                    depth_ops: Some(wgpu::Operations {
-                        load: if shared_depth && slot == 1 {
-                            wgpu::LoadOp::Load
-                        } else {
-                            wgpu::LoadOp::Clear(0.0)
-                        },
-                        store: if shared_depth && slot == 0 {
-                            wgpu::StoreOp::Store
-                        } else {
-                            wgpu::StoreOp::Discard
-                        },
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            rp.set_bind_group(0, &g.bind_group, &[]);
-            if !pass.runs.is_empty() {
-                rp.set_pipeline(if ids {
-                    &self.mesh_ids
-                } else if shared_depth && slot == 1 {
-                    &self.mesh_behind
-                } else {
-                    &self.mesh
-                });
-                self.draw_runs(&mut rp, plan, pass, g);
-            }
-            rp.set_pipeline(if ids {
-                &self.background_ids
-            } else if shared_depth && slot == 0 {
-                &self.sky_depth
-            } else {
-                &self.background
-            });
-            rp.draw(0..3, 0..1);
-        }
-        drawn
-    }
-
-    /// Encode the feedback count of one view pass: zero the view's counts, then count the
-    /// visible pixels of every tile in its tile-id target (devices with [`Caps::compute`];
-    /// nothing elsewhere).
-    fn encode_counts(&self, enc: &mut wgpu::CommandEncoder, ids: &wgpu::TextureView, g: &GpuView) {
-        let (Some(feedback), Some(counts)) = (&self.feedback, &g.counts) else {
-            return;
-        };
-        enc.clear_buffer(counts, 0, None);
-        let bg = self
-            .gpu
-            .device
-            .create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("feedback"),
-                layout: &feedback.get_bind_group_layout(0),
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: wgpu::BindingResource::TextureView(ids),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: counts.as_entire_binding(),
-                    },
-                ],
-            });
-        let (w, h) = (ids.texture().width(), ids.texture().height());
-        let mut cp = enc.begin_compute_pass(&Default::default());
-        cp.set_pipeline(feedback);
-        cp.set_bind_group(0, &bg, &[]);
-        cp.dispatch_workgroups(w.div_ceil(8), h.div_ceil(8), 1);
+        self.encode_composite_path(enc, targets, plan, views, ids);
     }
 
     /// Draw the plain panorama of `plan.passes[0]`'s view (its background layer as one cube
@@ -833,30 +492,15 @@ impl Renderer {
         let Some(targets) = &self.targets else {
             return;
         };
-        self.gpu
-            .queue
-            .write_buffer(&g.uniforms, 0, bytemuck::bytes_of(&pass.uniforms));
-        {
-            let mut rp = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("panorama"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &targets.output_view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: None,
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            rp.set_pipeline(&self.panorama);
-            rp.set_bind_group(0, &g.bind_group, &[]);
-            rp.draw(0..3, 0..1);
-        }
+        self.write_view_uniforms((pass, g));
+        let mut rp = passes::begin(
+            enc,
+            "panorama",
+            &[passes::color(&targets.output_view, true)],
+            None,
+        );
+        rp.set_bind_group(0, &g.bind_group, &[]);
+        self.draw_full(&mut rp, Pipe::Panorama);
     }
 
     /// The internal output target of the last draw (for showing it in a window).

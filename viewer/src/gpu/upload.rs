@@ -7,6 +7,8 @@ use super::{
     tile_extent, tile_rows, GpuError, GpuVertex, GpuView, Renderer, Targets, COUNTS_FORMAT,
     DEPTH_FORMAT, ID_FORMAT, OUTPUT_FORMAT, TILE_INFO_FORMAT, TILE_ROW,
 };
+use tracks::PixelRect;
+
 use crate::plan::ViewUniforms;
 use crate::refview::{decimated_indices, mesh_cell, RefView, MESH_LEVELS};
 
@@ -82,71 +84,13 @@ impl Renderer {
     ) -> GpuView {
         let mut bytes = tex_bytes;
         let device = &self.gpu.device;
-        let n = view.face_size;
-        let mut verts: Vec<GpuVertex> = Vec::new();
-        let mut idx: Vec<u32> = Vec::new();
-        let mut index_start = Vec::with_capacity(view.tiles.len() + 1);
-        let mut face_layer = Vec::with_capacity(view.tiles.len());
-        // Decimated index lists per coarser mesh level (same vertices).
-        let grid = tracks::TileGrid::new(n, view.tile_size);
-        let mut coarse: Vec<(Vec<u32>, Vec<u32>)> = (0..MESH_LEVELS)
-            .map(|_| (Vec::new(), Vec::with_capacity(view.tiles.len() + 1)))
-            .collect();
-        let jump = crate::refview::MeshParams::default().jump;
-        let skirts = if self.skirts {
-            crate::refview::view_skirts(view)
-        } else {
-            Vec::new()
-        };
-        // The coarser levels' index lists of every tile, on every core (three quarters of
-        // a view's upload on one).
-        let decimated: Vec<Vec<Vec<u32>>> = match &grid {
-            Some(g) => view
-                .tiles
-                .par_iter()
-                .map(|tile| {
-                    (0..MESH_LEVELS)
-                        .map(|k| {
-                            let cell = mesh_cell(view.tile_size, k + 1);
-                            decimated_indices(&tile.mesh, g.pixel_rect(tile.tile), cell, jump)
-                        })
-                        .collect()
-                })
-                .collect(),
-            None => Vec::new(),
-        };
-        for (ti, tile) in view.tiles.iter().enumerate() {
-            index_start.push(idx.len() as u32);
-            let base = verts.len() as u32;
-            // Half-texel skirts close the outline of meshes on pixel centres (databases'
-            // adaptive meshes); drawn at every mesh level.
-            let (skirt_verts, skirt_idx) = skirts
-                .get(ti)
-                .map_or((&[][..], &[][..]), |(v, i)| (&v[..], &i[..]));
-            for (k, (cidx, cstart)) in coarse.iter_mut().enumerate() {
-                cstart.push(cidx.len() as u32);
-                match decimated.get(ti).and_then(|d| d.get(k)) {
-                    Some(d) => cidx.extend(d.iter().map(|i| base + i)),
-                    None => cidx.extend(tile.mesh.indices.iter().map(|i| base + i)),
-                }
-                cidx.extend(skirt_idx.iter().map(|i| base + i));
-            }
-            let face = tile.tile.face.index() as u32;
-            verts.extend(
-                tile.mesh
-                    .vertices
-                    .iter()
-                    .chain(skirt_verts)
-                    .map(|v| GpuVertex {
-                        pos_in_face: v.pos_in_face,
-                        depth_m: v.depth_m,
-                        packed: ((ti as u32) << 3) | face,
-                    }),
-            );
-            idx.extend(tile.mesh.indices.iter().chain(skirt_idx).map(|i| base + i));
-            face_layer.push(face | ((tile.slab + 1) << 8));
-        }
-        index_start.push(idx.len() as u32);
+        let MeshArrays {
+            mut verts,
+            mut idx,
+            index_start,
+            face_layer,
+            coarse,
+        } = mesh_arrays(view, self.skirts);
         let coarse: Vec<(wgpu::Buffer, Vec<u32>)> = coarse
             .into_iter()
             .map(|(mut cidx, mut cstart)| {
@@ -181,9 +125,43 @@ impl Renderer {
             usage: wgpu::BufferUsages::INDEX,
         });
         bytes += (verts.len() * std::mem::size_of::<GpuVertex>() + idx.len() * 4) as u64;
-        // Per-tile textures, `TILE_ROW` tiles a row (`ensure_view` checked the rows fit).
-        let rows = tile_rows(face_layer.len());
-        let extent = tile_extent(face_layer.len());
+        let tiles = self.tile_textures(face_layer.len());
+        bytes += tiles.bytes;
+        let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("view uniforms"),
+            size: std::mem::size_of::<ViewUniforms>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let bind_group = self.view_bind_group(&texture, &uniforms, &tiles.info_view);
+        GpuView {
+            texture,
+            vertices,
+            indices,
+            tile_info: tiles.info,
+            tile_info_view: tiles.info_view,
+            info: Vec::new(),
+            counts: tiles.counts,
+            counts_view: tiles.counts_view,
+            counts_tex: tiles.counts_tex,
+            uniforms,
+            bind_group,
+            index_start,
+            coarse,
+            face_layer,
+            bytes,
+            mesh_bytes: bytes - tex_bytes,
+            sky_whole: false,
+        }
+    }
+
+    /// A view's per-tile textures (tile info, visible-pixel counts) for `tiles` tiles,
+    /// `TILE_ROW` tiles a row (`ensure_view` checked the rows fit), and the counts' storage
+    /// buffer on devices with compute.
+    fn tile_textures(&self, tiles: usize) -> TileTextures {
+        let device = &self.gpu.device;
+        let rows = tile_rows(tiles);
+        let extent = tile_extent(tiles);
         let per_tile = |label, format, usage| {
             device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
@@ -196,7 +174,7 @@ impl Renderer {
                 view_formats: &[],
             })
         };
-        let tile_info = per_tile(
+        let info = per_tile(
             "tile info",
             TILE_INFO_FORMAT,
             wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
@@ -206,7 +184,6 @@ impl Renderer {
             COUNTS_FORMAT,
             wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
         );
-        bytes += u64::from(extent.width * extent.height) * 20;
         let counts = self.gpu.caps.compute.then(|| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("tile counts"),
@@ -217,58 +194,51 @@ impl Renderer {
                 mapped_at_creation: false,
             })
         });
-        let tile_info_view = tile_info.create_view(&Default::default());
-        let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("view uniforms"),
-            size: std::mem::size_of::<ViewUniforms>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        TileTextures {
+            info_view: info.create_view(&Default::default()),
+            info,
+            counts_view: counts_tex.create_view(&Default::default()),
+            counts_tex,
+            counts,
+            bytes: u64::from(extent.width * extent.height) * 20,
+        }
+    }
+
+    /// A view's bind group 0: uniforms, its layers, the sampler, its tile info.
+    fn view_bind_group(
+        &self,
+        texture: &wgpu::Texture,
+        uniforms: &wgpu::Buffer,
+        tile_info_view: &wgpu::TextureView,
+    ) -> wgpu::BindGroup {
         let layers_view = texture.create_view(&wgpu::TextureViewDescriptor {
             dimension: Some(wgpu::TextureViewDimension::D2Array),
             ..Default::default()
         });
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("view"),
-            layout: &self.view_bgl,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: uniforms.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: wgpu::BindingResource::TextureView(&layers_view),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: wgpu::BindingResource::Sampler(&self.sampler),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: wgpu::BindingResource::TextureView(&tile_info_view),
-                },
-            ],
-        });
-        GpuView {
-            texture,
-            vertices,
-            indices,
-            tile_info,
-            tile_info_view,
-            info: Vec::new(),
-            counts,
-            counts_view: counts_tex.create_view(&Default::default()),
-            counts_tex,
-            uniforms,
-            bind_group,
-            index_start,
-            coarse,
-            face_layer,
-            bytes,
-            mesh_bytes: bytes - tex_bytes,
-            sky_whole: false,
-        }
+        self.gpu
+            .device
+            .create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("view"),
+                layout: &self.view_bgl,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: uniforms.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: wgpu::BindingResource::TextureView(&layers_view),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: wgpu::BindingResource::Sampler(&self.sampler),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: wgpu::BindingResource::TextureView(tile_info_view),
+                    },
+                ],
+            })
     }
 
     /// Whether the uploaded texture of a view has the view's shape (face size, layers, levels).
@@ -363,7 +333,7 @@ impl Renderer {
         &mut self,
         view: &RefView,
         layer: usize,
-        rects: &[crate::texture::FaceRect],
+        rects: &[PixelRect],
     ) -> bool {
         let (Some(g), Some(src)) = (self.views.get_mut(&view.index), view.layers.get(layer)) else {
             return false;
@@ -410,6 +380,8 @@ impl Renderer {
         true
     }
 
+    /// Make the render targets for frames of `width × height` with tile ids at
+    /// `1 / id_scale` of that, unless the current ones are so.
     pub(super) fn ensure_targets(
         &mut self,
         width: u32,
@@ -429,37 +401,24 @@ impl Renderer {
         {
             return Ok(());
         }
+        let targets = self.make_targets(width, height, id_scale);
+        self.composite_groups.clear();
+        self.targets = Some(targets);
+        Ok(())
+    }
+
+    fn make_targets(&self, width: u32, height: u32, id_scale: u32) -> Targets {
         let device = &self.gpu.device;
-        let size = wgpu::Extent3d {
-            width,
-            height,
-            depth_or_array_layers: 1,
-        };
         // The output also as plain UNORM where the device has view formats.
-        let unorm = [wgpu::TextureFormat::Rgba8Unorm];
         let view_formats = self.gpu.caps.view_formats;
         let tex = |label, format, usage| {
-            device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size,
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage,
-                view_formats: if format == OUTPUT_FORMAT && view_formats {
-                    &unorm
-                } else {
-                    &[]
-                },
-            })
+            let unorm = format == OUTPUT_FORMAT && view_formats;
+            target(device, label, (width, height), format, usage, unorm)
         };
         let view_format = self.view_format;
-        let view_usage =
-            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
         let views = [
-            tex("view 0", view_format, view_usage),
-            tex("view 1", view_format, view_usage),
+            tex("view 0", view_format, VIEW_USAGE),
+            tex("view 1", view_format, VIEW_USAGE),
         ];
         let depth = tex(
             "depth",
@@ -482,97 +441,37 @@ impl Renderer {
                 | wgpu::TextureUsages::COPY_SRC
                 | wgpu::TextureUsages::TEXTURE_BINDING,
         );
-        let id_usage = wgpu::TextureUsages::RENDER_ATTACHMENT
-            | wgpu::TextureUsages::TEXTURE_BINDING
-            | wgpu::TextureUsages::COPY_SRC;
         let id_views = [
-            tex("ids 0", ID_FORMAT, id_usage).create_view(&Default::default()),
-            tex("ids 1", ID_FORMAT, id_usage).create_view(&Default::default()),
+            tex("ids 0", ID_FORMAT, ID_USAGE).create_view(&Default::default()),
+            tex("ids 1", ID_FORMAT, ID_USAGE).create_view(&Default::default()),
         ];
         let view_views = [
             views[0].create_view(&Default::default()),
             views[1].create_view(&Default::default()),
         ];
-        let group = |view: &wgpu::TextureView| {
-            device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("second view"),
-                layout: &self.second_bgl,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: self.composite_uniforms.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: wgpu::BindingResource::TextureView(view),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: wgpu::BindingResource::TextureView(&depth_copy_view),
-                    },
-                ],
-            })
-        };
-        let half_tex = |label, format, usage| {
-            device
-                .create_texture(&wgpu::TextureDescriptor {
-                    label: Some(label),
-                    size: wgpu::Extent3d {
-                        width: width.div_ceil(2),
-                        height: height.div_ceil(2),
-                        depth_or_array_layers: 1,
-                    },
-                    mip_level_count: 1,
-                    sample_count: 1,
-                    dimension: wgpu::TextureDimension::D2,
-                    format,
-                    usage,
-                    view_formats: &[],
-                })
-                .create_view(&Default::default())
-        };
-        let half_view = half_tex("second view (half resolution)", view_format, view_usage);
-        let half_depth = half_tex(
+        let half_size = (width.div_ceil(2), height.div_ceil(2));
+        let half_view = target(
+            device,
+            "second view (half resolution)",
+            half_size,
+            view_format,
+            VIEW_USAGE,
+            false,
+        )
+        .create_view(&Default::default());
+        let half_depth = target(
+            device,
             "depth (half resolution)",
+            half_size,
             DEPTH_FORMAT,
             wgpu::TextureUsages::RENDER_ATTACHMENT,
-        );
-        let half_group = group(&half_view);
+            false,
+        )
+        .create_view(&Default::default());
+        let half_group = self.second_group(&half_view, &depth_copy_view);
         // The fused second view reads the first view's depth, not binding 1.
-        let second_group = group(&half_view);
-        let small = (id_scale > 1).then(|| {
-            let small_tex = |label, format, usage| {
-                device
-                    .create_texture(&wgpu::TextureDescriptor {
-                        label: Some(label),
-                        size: wgpu::Extent3d {
-                            width: width.div_ceil(id_scale),
-                            height: height.div_ceil(id_scale),
-                            depth_or_array_layers: 1,
-                        },
-                        mip_level_count: 1,
-                        sample_count: 1,
-                        dimension: wgpu::TextureDimension::D2,
-                        format,
-                        usage,
-                        view_formats: &[],
-                    })
-                    .create_view(&Default::default())
-            };
-            (
-                [
-                    small_tex("ids 0 (reduced)", ID_FORMAT, id_usage),
-                    small_tex("ids 1 (reduced)", ID_FORMAT, id_usage),
-                ],
-                small_tex(
-                    "depth (reduced ids)",
-                    DEPTH_FORMAT,
-                    wgpu::TextureUsages::RENDER_ATTACHMENT,
-                ),
-            )
-        });
-        self.composite_groups.clear();
-        self.targets = Some(Targets {
+        let second_group = self.second_group(&half_view, &depth_copy_view);
+        Targets {
             width,
             height,
             depth_copy,
@@ -594,10 +493,100 @@ impl Renderer {
             id_views,
             output,
             id_scale,
-            small,
-        });
-        Ok(())
+            small: (id_scale > 1).then(|| small_targets(device, width, height, id_scale)),
+        }
     }
+
+    /// A bind group 1 of the second view's pipelines: composite uniforms, `view` (the
+    /// half-resolution target), the first view's depth copy.
+    fn second_group(
+        &self,
+        view: &wgpu::TextureView,
+        depth_copy_view: &wgpu::TextureView,
+    ) -> wgpu::BindGroup {
+        self.gpu
+            .device
+            .create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("second view"),
+                layout: &self.second_bgl,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: self.composite_uniforms.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: wgpu::BindingResource::TextureView(view),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: wgpu::BindingResource::TextureView(depth_copy_view),
+                    },
+                ],
+            })
+    }
+}
+
+/// Usage of the colour + distance targets of view passes.
+const VIEW_USAGE: wgpu::TextureUsages =
+    wgpu::TextureUsages::RENDER_ATTACHMENT.union(wgpu::TextureUsages::TEXTURE_BINDING);
+/// Usage of tile-id targets.
+const ID_USAGE: wgpu::TextureUsages = wgpu::TextureUsages::RENDER_ATTACHMENT
+    .union(wgpu::TextureUsages::TEXTURE_BINDING)
+    .union(wgpu::TextureUsages::COPY_SRC);
+
+/// A 2D render target of `size`; with `unorm`, also viewable as plain `Rgba8Unorm`.
+fn target(
+    device: &wgpu::Device,
+    label: &str,
+    (width, height): (u32, u32),
+    format: wgpu::TextureFormat,
+    usage: wgpu::TextureUsages,
+    unorm: bool,
+) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage,
+        view_formats: if unorm {
+            &[wgpu::TextureFormat::Rgba8Unorm]
+        } else {
+            &[]
+        },
+    })
+}
+
+/// The reduced-resolution tile-id targets of feedback frames (`1 / id_scale` of the
+/// frame's width and height) and their depth.
+fn small_targets(
+    device: &wgpu::Device,
+    width: u32,
+    height: u32,
+    id_scale: u32,
+) -> ([wgpu::TextureView; 2], wgpu::TextureView) {
+    let size = (width.div_ceil(id_scale), height.div_ceil(id_scale));
+    let small = |label, format, usage| {
+        target(device, label, size, format, usage, false).create_view(&Default::default())
+    };
+    (
+        [
+            small("ids 0 (reduced)", ID_FORMAT, ID_USAGE),
+            small("ids 1 (reduced)", ID_FORMAT, ID_USAGE),
+        ],
+        small(
+            "depth (reduced ids)",
+            DEPTH_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT,
+        ),
+    )
 }
 
 /// Layers of a view's texture array: one per layer, at least two. wgpu's GL backend makes a
@@ -623,4 +612,103 @@ fn sky_whole(view: &RefView) -> bool {
         .first()
         .and_then(|l| l.levels.first())
         .is_some_and(|m| m.as_slice().iter().all(|p| p[3] > 0))
+}
+
+/// A view's per-tile textures ([`Renderer::tile_textures`]) and their bytes.
+struct TileTextures {
+    info: wgpu::Texture,
+    info_view: wgpu::TextureView,
+    counts_tex: wgpu::Texture,
+    counts_view: wgpu::TextureView,
+    counts: Option<wgpu::Buffer>,
+    bytes: u64,
+}
+
+/// A view's meshes as the GPU draws them: every tile's vertices (and its skirt's) in one
+/// list, indices into it, the first index of every tile, per tile `face | layer << 8`, and
+/// per coarser mesh level the decimated indices with the first index of every tile (the
+/// end not yet pushed).
+struct MeshArrays {
+    verts: Vec<GpuVertex>,
+    idx: Vec<u32>,
+    index_start: Vec<u32>,
+    face_layer: Vec<u32>,
+    coarse: Vec<(Vec<u32>, Vec<u32>)>,
+}
+
+/// The meshes of `view`, with half-texel skirts where `skirts`.
+fn mesh_arrays(view: &RefView, skirts: bool) -> MeshArrays {
+    let mut verts: Vec<GpuVertex> = Vec::new();
+    let mut idx: Vec<u32> = Vec::new();
+    let mut index_start = Vec::with_capacity(view.tiles.len() + 1);
+    let mut face_layer = Vec::with_capacity(view.tiles.len());
+    // Decimated index lists per coarser mesh level (same vertices).
+    let mut coarse: Vec<(Vec<u32>, Vec<u32>)> = (0..MESH_LEVELS)
+        .map(|_| (Vec::new(), Vec::with_capacity(view.tiles.len() + 1)))
+        .collect();
+    let skirts = if skirts {
+        crate::refview::view_skirts(view)
+    } else {
+        Vec::new()
+    };
+    let decimated = decimated_levels(view);
+    for (ti, tile) in view.tiles.iter().enumerate() {
+        index_start.push(idx.len() as u32);
+        let base = verts.len() as u32;
+        // Half-texel skirts close the outline of meshes on pixel centres (databases'
+        // adaptive meshes); drawn at every mesh level.
+        let (skirt_verts, skirt_idx) = skirts
+            .get(ti)
+            .map_or((&[][..], &[][..]), |(v, i)| (&v[..], &i[..]));
+        for (k, (cidx, cstart)) in coarse.iter_mut().enumerate() {
+            cstart.push(cidx.len() as u32);
+            match decimated.get(ti).and_then(|d| d.get(k)) {
+                Some(d) => cidx.extend(d.iter().map(|i| base + i)),
+                None => cidx.extend(tile.mesh.indices.iter().map(|i| base + i)),
+            }
+            cidx.extend(skirt_idx.iter().map(|i| base + i));
+        }
+        let face = tile.tile.face.index() as u32;
+        verts.extend(
+            tile.mesh
+                .vertices
+                .iter()
+                .chain(skirt_verts)
+                .map(|v| GpuVertex {
+                    pos_in_face: v.pos_in_face,
+                    depth_m: v.depth_m,
+                    packed: ((ti as u32) << 3) | face,
+                }),
+        );
+        idx.extend(tile.mesh.indices.iter().chain(skirt_idx).map(|i| base + i));
+        face_layer.push(face | ((tile.slab + 1) << 8));
+    }
+    index_start.push(idx.len() as u32);
+    MeshArrays {
+        verts,
+        idx,
+        index_start,
+        face_layer,
+        coarse,
+    }
+}
+
+/// The coarser levels' index lists of every tile of `view` (none without a tile grid), on
+/// every core (three quarters of a view's upload on one).
+fn decimated_levels(view: &RefView) -> Vec<Vec<Vec<u32>>> {
+    let Some(grid) = tracks::TileGrid::new(view.face_size, view.tile_size) else {
+        return Vec::new();
+    };
+    let jump = crate::refview::MeshParams::default().jump;
+    view.tiles
+        .par_iter()
+        .map(|tile| {
+            (0..MESH_LEVELS)
+                .map(|k| {
+                    let cell = mesh_cell(view.tile_size, k + 1);
+                    decimated_indices(&tile.mesh, PixelRect::of_tile(grid, tile.tile), cell, jump)
+                })
+                .collect()
+        })
+        .collect()
 }

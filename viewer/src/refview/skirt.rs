@@ -21,7 +21,7 @@
 use rayon::prelude::*;
 use std::collections::{HashMap, HashSet};
 
-use tracks::TileGrid;
+use tracks::{PixelRect, TileGrid};
 
 use super::{MeshVertex, RefView, TileMesh};
 
@@ -38,7 +38,16 @@ pub fn view_skirts(view: &RefView) -> Vec<(Vec<MeshVertex>, Vec<u32>)> {
         return view
             .tiles
             .iter()
-            .map(|t| skirt(&t.mesh, n, (0, 0, n, n), [false; 4]))
+            .map(|t| {
+                let face = PixelRect {
+                    face: t.tile.face,
+                    x0: 0,
+                    y0: 0,
+                    x1: n,
+                    y1: n,
+                };
+                skirt(&t.mesh, n, face, [false; 4])
+            })
             .collect();
     };
     let kept: HashSet<(u32, usize, u32, u32)> = view
@@ -56,14 +65,14 @@ pub fn view_skirts(view: &RefView) -> Vec<(Vec<MeshVertex>, Vec<u32>)> {
                 x >= 0 && y >= 0 && kept.contains(&(t.slab, f, x as u32, y as u32))
             };
             let shared = [has(-1, 0), has(0, -1), has(1, 0), has(0, 1)];
-            skirt(&t.mesh, n, grid.pixel_rect(t.tile), shared)
+            skirt(&t.mesh, n, PixelRect::of_tile(grid, t.tile), shared)
         })
         .collect()
 }
 
 /// The extra vertices and triangles (indices into `mesh.vertices` followed by the extra
 /// vertices) that close the half-texel gap around `mesh`, the mesh of the tile covering
-/// pixels `rect = (x0, y0, x1, y1)` (end exclusive) of a face of `face_size` pixels.
+/// pixels `rect` of a face of `face_size` pixels.
 /// Only boundary edges whose two ends sit on pixel centres get a skirt (grid meshes, whose
 /// vertices sit on corners, get none), and none along a border shared with the next tile
 /// of the face where `shared` (left, top, right, bottom) says that tile is kept (the lines
@@ -72,12 +81,12 @@ pub fn view_skirts(view: &RefView) -> Vec<(Vec<MeshVertex>, Vec<u32>)> {
 pub fn skirt(
     mesh: &TileMesh,
     face_size: u32,
-    rect: (u32, u32, u32, u32),
+    rect: PixelRect,
     shared: [bool; 4],
 ) -> (Vec<MeshVertex>, Vec<u32>) {
     let n = face_size as f32;
     let verts = &mesh.vertices;
-    let (x0, y0, x1, y1) = rect;
+    let PixelRect { x0, y0, x1, y1, .. } = rect;
     let shared = |c: f32, lo: u32, hi: u32, first: usize| {
         (shared[first] && c == lo as f32 + 0.5) || (shared[first + 2] && c == hi as f32 + 0.5)
     };
@@ -176,6 +185,17 @@ pub fn skirt(
 mod tests {
     use super::*;
 
+    /// Pixels `[x0, x1) × [y0, y1)` of a face.
+    fn rect(x0: u32, y0: u32, x1: u32, y1: u32) -> PixelRect {
+        PixelRect {
+            face: tracks::Face::PosZ,
+            x0,
+            y0,
+            x1,
+            y1,
+        }
+    }
+
     fn v(x: f32, y: f32) -> MeshVertex {
         MeshVertex {
             pos_in_face: [x, y],
@@ -207,7 +227,7 @@ mod tests {
             vertices: vec![v(1.5, 1.5), v(3.5, 1.5), v(3.5, 3.5), v(1.5, 3.5)],
             indices: vec![0, 1, 2, 0, 2, 3],
         };
-        let (extra, idx) = skirt(&mesh, 8, (0, 0, 8, 8), [false; 4]);
+        let (extra, idx) = skirt(&mesh, 8, rect(0, 0, 8, 8), [false; 4]);
         let all: Vec<MeshVertex> = mesh.vertices.iter().chain(&extra).copied().collect();
         let tris: Vec<u32> = mesh.indices.iter().chain(&idx).copied().collect();
         // Every point of pixels 1..=3 (corners 1.0..4.0) is covered, nothing beyond.
@@ -234,7 +254,7 @@ mod tests {
             vertices: vec![v(0.5, 0.5), v(7.5, 0.5), v(7.5, 7.5), v(0.5, 7.5)],
             indices: vec![0, 1, 2, 0, 2, 3],
         };
-        let (extra, _) = skirt(&mesh, 8, (0, 0, 8, 8), [false; 4]);
+        let (extra, _) = skirt(&mesh, 8, rect(0, 0, 8, 8), [false; 4]);
         let xs = extra.iter().flat_map(|v| v.pos_in_face);
         let (lo, hi) = xs.fold((f32::MAX, f32::MIN), |(a, b), x| (a.min(x), b.max(x)));
         assert_eq!((lo, hi), (0.0, 8.0));
@@ -248,14 +268,14 @@ mod tests {
             vertices: vec![v(4.5, 4.5), v(8.5, 4.5), v(8.5, 8.5), v(4.5, 8.5)],
             indices: vec![0, 1, 2, 0, 2, 3],
         };
-        let (extra, idx) = skirt(&mesh, 12, (4, 4, 8, 8), [true; 4]);
+        let (extra, idx) = skirt(&mesh, 12, rect(4, 4, 8, 8), [true; 4]);
         assert!(extra.is_empty() && idx.is_empty());
         // The last tile of the face (8..12): its right border is the face edge.
         let mesh = TileMesh {
             vertices: vec![v(8.5, 4.5), v(11.5, 4.5), v(11.5, 8.5), v(8.5, 8.5)],
             indices: vec![0, 1, 2, 0, 2, 3],
         };
-        let (extra, idx) = skirt(&mesh, 12, (8, 4, 12, 8), [true; 4]);
+        let (extra, idx) = skirt(&mesh, 12, rect(8, 4, 12, 8), [true; 4]);
         assert_eq!(idx.len(), 6);
         assert!(extra.iter().all(|v| v.pos_in_face[0] == 12.0));
         // Without kept neighbours every border gets a skirt.
@@ -263,7 +283,7 @@ mod tests {
             vertices: vec![v(4.5, 4.5), v(8.5, 4.5), v(8.5, 8.5), v(4.5, 8.5)],
             indices: vec![0, 1, 2, 0, 2, 3],
         };
-        let (_, idx) = skirt(&mesh, 12, (4, 4, 8, 8), [false; 4]);
+        let (_, idx) = skirt(&mesh, 12, rect(4, 4, 8, 8), [false; 4]);
         assert_eq!(idx.len(), 4 * 6 + 4 * 6);
     }
 
@@ -273,7 +293,7 @@ mod tests {
             vertices: vec![v(0.0, 0.0), v(4.0, 0.0), v(4.0, 4.0), v(0.0, 4.0)],
             indices: vec![0, 1, 2, 0, 2, 3],
         };
-        let (extra, idx) = skirt(&mesh, 8, (0, 0, 8, 8), [false; 4]);
+        let (extra, idx) = skirt(&mesh, 8, rect(0, 0, 8, 8), [false; 4]);
         assert!(extra.is_empty() && idx.is_empty());
     }
 }

@@ -54,7 +54,7 @@ fn schedule(
 
 impl StreamedWalkthrough {
     /// Decoded bytes (plus [`REDECODE_PART_BYTES`] per part) of the parts a step consumes,
-    /// arrived or from the session's cache (default [`DEFAULT_REDECODE_BUDGET`]).
+    /// arrived or from the session's cache (default [`super::DEFAULT_REDECODE_BUDGET`]).
     pub fn redecode_budget(&self) -> u64 {
         self.redecode_budget
     }
