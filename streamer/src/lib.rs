@@ -22,9 +22,10 @@
 
 pub mod client;
 pub mod db;
-pub mod entropy;
 pub mod hostile;
-pub mod ptm;
 pub mod server;
 pub mod visibility;
 pub mod walk;
+
+// Compatibility path for the binary and the viewer until they import the crates directly.
+pub use codec::{entropy, ptm};

@@ -32,7 +32,6 @@
 
 pub mod ach;
 pub mod baseline;
-pub mod mesh;
 pub mod pack;
 pub mod split;
 pub mod table;
@@ -45,10 +44,13 @@ use std::path::{Path, PathBuf};
 
 use tracks::manifest::{object_rel_path, LevelRef, Manifest, ObjectRef, PtmRef};
 
-use crate::ptm;
+use codec::ptm;
 
 pub use split::{TopManifest, ViewTable, OLDEST_READ_VERSION, TOP_VERSION};
 pub use verify::{verify, verify_with, Problem, Report, VerifyOptions};
+
+// Compatibility path for the binary and the viewer until they import the crates directly.
+pub use codec::mesh;
 
 /// Name of the manifest file in a database directory.
 pub const MANIFEST_FILE: &str = "manifest.json";

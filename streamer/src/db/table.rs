@@ -193,7 +193,7 @@ fn usual_shape(p: &PtmRef) -> bool {
     let k = p.levels.len();
     p.levels.iter().enumerate().all(|(i, l)| {
         l.level as usize == k - 1 - i
-            && crate::ptm::level_dims(p.width, p.height, l.level) == (l.width, l.height)
+            && codec::ptm::level_dims(p.width, p.height, l.level) == (l.width, l.height)
     })
 }
 
@@ -797,7 +797,7 @@ impl Dec {
                     if level >= 32 {
                         return Err(r.invalid("PTM range count", at, format!("{ranges} levels")));
                     }
-                    let (w, h) = crate::ptm::level_dims(width, height, level);
+                    let (w, h) = codec::ptm::level_dims(width, height, level);
                     (level, w, h)
                 } else {
                     (

@@ -11,7 +11,7 @@ use super::{
     gunzip_limited, gzip, hash_hex, hash_matches, parse_top, DbError, MANIFEST_FILE,
     MANIFEST_GZ_FILE, MANIFEST_HASH_FILE,
 };
-use crate::ptm;
+use codec::ptm;
 
 /// One thing wrong with a database.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
@@ -578,7 +578,7 @@ pub(super) fn colour_under_empty_texels(rgba: &[u8]) -> usize {
 /// Decodes a mesh whose range was checked.
 fn decode_mesh_range(path: &Path, bytes: &[u8], r: &PackRange, report: &mut Report) {
     let b = &bytes[r.offset as usize..(r.offset + r.len) as usize];
-    match super::mesh::decode_mesh(b) {
+    match codec::mesh::decode_mesh(b) {
         Ok(_) => report.meshes_decoded += 1,
         Err(e) => report.problems.push(Problem {
             path: path.to_path_buf(),

@@ -1,5 +1,5 @@
 //! Adaptive binary range coding: the entropy coder of the PTM's context-modelled groups
-//! ([`crate::ptm`], method 2) and of the compact meshes ([`crate::db::mesh`]).
+//! ([`crate::ptm`], method 2) and of the compact meshes ([`crate::mesh`]).
 //!
 //! Main types: [`Bit`] (an adaptive probability), the [`Encoder`] and the sans-IO [`Decoder`]
 //! over one byte stream, and the binarisations built on them: [`Unsigned`] (an adaptive
@@ -21,7 +21,7 @@
 //! property-tested below.
 //!
 //! ```
-//! use streamer::entropy::{Bit, Decoder, Encoder, Signed};
+//! use codec::entropy::{Bit, Decoder, Encoder, Signed};
 //! let mut enc = Encoder::new();
 //! let (mut flag, mut value) = (Bit::new(), Signed::new());
 //! for v in [0i32, 3, -7, 0, 120] {

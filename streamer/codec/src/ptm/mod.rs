@@ -50,7 +50,7 @@
 //! decodes once its parent level is known.
 //!
 //! ```
-//! use streamer::ptm::{encode, Decoder, EncodeOptions, Image, Limits, Status};
+//! use codec::ptm::{encode, Decoder, EncodeOptions, Image, Limits, Status};
 //! let img = Image::from_fn(5, 3, 3, |x, y, c| (x * 40 + y * 7 + c as u32 * 3) as u8);
 //! let enc = encode(&img, &EncodeOptions::default()).unwrap();
 //! let mut dec = Decoder::new(Limits::default());
