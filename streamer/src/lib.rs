@@ -21,7 +21,6 @@
 //!   attack benchmark.
 
 pub mod client;
-pub mod db;
 pub mod hostile;
 pub mod server;
 pub mod visibility;
@@ -29,3 +28,5 @@ pub mod walk;
 
 // Compatibility path for the binary and the viewer until they import the crates directly.
 pub use codec::{entropy, ptm};
+// Compatibility path for the binary and the viewer until they import the crates directly.
+pub use db;

@@ -26,8 +26,8 @@ use hyper_util::rt::TokioIo;
 use tokio::net::TcpStream;
 use tracks::manifest::{object_rel_path, Manifest, ObjectRef};
 
-use crate::db::hash_matches;
-use crate::db::split::{assemble, decode_table, TopManifest, ViewTable};
+use db::hash_matches;
+use db::split::{assemble, decode_table, TopManifest, ViewTable};
 
 mod ranges;
 pub use ranges::{RangePiece, MULTI_GAP_BYTES, SINGLE_GAP_BYTES};
@@ -929,7 +929,7 @@ impl Connection {
             range: None,
         };
         let bytes = self.fetch_checked(&key, &ach.hash, None).await?;
-        crate::db::split::decode_ach(&bytes, viewpoint)
+        db::split::decode_ach(&bytes, viewpoint)
             .map_err(|e| ClientError::Manifest(format!("viewpoint {viewpoint}: {e}")))
     }
 
@@ -940,7 +940,7 @@ impl Connection {
     /// file before they are parsed. A body that fails (bad gzip, wrong hash) is fetched again
     /// (up to `checksum_attempts` times), uncompressed once gzip has failed; nothing that
     /// failed is returned. A server without the checksum file (404) gives an unchecked
-    /// manifest (`checked: false`), as [`crate::db::read_manifest`] accepts a database
+    /// manifest (`checked: false`), as [`db::read_manifest`] accepts a database
     /// without one.
     pub async fn fetch_manifest(&mut self) -> Result<ManifestFetch, ClientError> {
         const PATH: &str = "/manifest.json";
@@ -991,9 +991,9 @@ impl Connection {
             transferred += body.len() as u64;
             requests += 1;
             let json = if gzip {
-                match crate::db::gunzip_limited(&body, limit) {
+                match db::gunzip_limited(&body, limit) {
                     Ok(j) => j,
-                    Err(crate::db::GunzipError::TooLarge { limit }) => {
+                    Err(db::GunzipError::TooLarge { limit }) => {
                         return Err(ClientError::DecodedTooLarge {
                             path: PATH.into(),
                             limit,
@@ -1020,7 +1020,7 @@ impl Connection {
                     continue;
                 }
             }
-            let top = crate::db::parse_top(std::path::Path::new("manifest.json"), &json)
+            let top = db::parse_top(std::path::Path::new("manifest.json"), &json)
                 .map_err(|e| ClientError::Manifest(e.to_string()))?;
             return Ok(ManifestFetch {
                 top,

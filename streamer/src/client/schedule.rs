@@ -47,8 +47,8 @@ use super::http::{ClientError, FetchKey, KeyMap, KeySet};
 use super::items::{ItemTable, Part};
 use super::pool::Completion;
 use super::predict::{next_segment, segment_at, MotionTracker};
-use crate::db::split::{assemble, TopManifest, ViewTable};
 use crate::visibility::{blend_weights, SceneIndex, Surface, SurfaceCount};
+use db::split::{assemble, TopManifest, ViewTable};
 
 mod config;
 mod dispatch;

@@ -1570,7 +1570,7 @@ mod tests {
 
     /// The long fuzz run of the table decoder (tables whose payloads lie in the pack, earlier
     /// in it, or in earlier packs; damaged, cut or garbage):
-    /// `TABLE_FUZZ_CASES=1000000 cargo test --release -p streamer table_long_fuzz -- --ignored`.
+    /// `TABLE_FUZZ_CASES=1000000 cargo test --release -p db --lib table_long_fuzz -- --ignored`.
     #[test]
     #[ignore = "long fuzz run; set TABLE_FUZZ_CASES"]
     fn table_long_fuzz() {
@@ -1659,7 +1659,7 @@ mod tests {
         let mut plain = good[..6].to_vec();
         plain[5] = 0;
         let body = if good[5] == 1 {
-            crate::db::gunzip_limited(&good[6..], MAX_TABLE_BYTES).unwrap()
+            crate::gunzip_limited(&good[6..], MAX_TABLE_BYTES).unwrap()
         } else {
             good[6..].to_vec()
         };
@@ -1713,10 +1713,10 @@ mod tests {
     fn a_huge_table_is_refused_within_the_limit() {
         let zeros = vec![0u8; (MAX_TABLE_BYTES + 10) as usize];
         let mut b = b"RVTB\x05\x01".to_vec();
-        b.extend_from_slice(&crate::db::gzip(&zeros).unwrap());
+        b.extend_from_slice(&crate::gzip(&zeros).unwrap());
         assert!(matches!(
             decode_table(&b, 0),
-            Err(TableError::Gzip(crate::db::GunzipError::TooLarge { .. }))
+            Err(TableError::Gzip(crate::GunzipError::TooLarge { .. }))
         ));
     }
 }
