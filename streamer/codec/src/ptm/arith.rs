@@ -27,6 +27,8 @@
 //! block as well, predicted by its neighbours clamped to what the block sum allows; alpha
 //! stays exact (it is the opacity mask) and so do the rules above that rest on it. Every
 //! sample of every level is then within `near` of the lossless pyramid's.
+//!
+//! The exact rules, for a second decoder, are in the [module docs](super) ("Method 2").
 
 use super::pyramid::is_rebuilt;
 use super::{Image, PtmError};
@@ -53,8 +55,8 @@ pub(crate) struct Models {
     colour: Vec<Signed>,
     /// Stored alpha errors by [level class][parent is 0][activity].
     alpha: Vec<Signed>,
-    /// Rebuilt residuals by [channel class][block of 2 or 4][activity / 3]: three bits (ε
-    /// hit, +1, −1 of the tree).
+    /// Rebuilt residuals by [channel class][block of 4][min(activity, 5) / 2]: the three bits
+    /// of the tree (`d = 0`, `d = 1`, `d = 3` rather than 2).
     residual: Vec<[Bit; 3]>,
 }
 

@@ -1,4 +1,4 @@
-//! The binary viewpoint table (format 4): what a client needs to know about one viewpoint's
+//! The binary viewpoint table (format 5): what a client needs to know about one viewpoint's
 //! tiles, in a few bytes per tile; and the viewpoint's ACH object, the ACH lists of the
 //! segments starting there, which only clients that rank tiles by ACH fetch.
 //!

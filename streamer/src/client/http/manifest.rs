@@ -87,7 +87,7 @@ impl Connection {
 
     /// Download `manifest.json.blake3` and, at the same time on a second connection,
     /// `manifest.json` with `Accept-Encoding: gzip`;
-    /// a gzip body is decompressed within [`RetryPolicy::max_body`] (more →
+    /// a gzip body is decompressed within [`RetryPolicy::max_body`](super::RetryPolicy::max_body) (more →
     /// [`ClientError::DecodedTooLarge`]), and the decoded bytes must hash to the checksum
     /// file before they are parsed. A body that fails (bad gzip, wrong hash) is fetched again
     /// (up to `checksum_attempts` times), uncompressed once gzip has failed; nothing that
