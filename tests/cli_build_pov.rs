@@ -95,7 +95,7 @@ fn build_pov_analytic_end_to_end_and_verify() {
     assert_eq!(track["viewpoints"].as_array().unwrap().len(), 2);
     assert_eq!(track["segments"].as_array().unwrap().len(), 1);
     // Tiles are in each viewpoint's table (manifest format 2), read through the database.
-    let full = streamer::db::Database::open(&db).unwrap();
+    let full = db::Database::open(&db).unwrap();
     assert!(full.manifest().tracks[0].viewpoints[0]
         .tiles
         .iter()

@@ -170,7 +170,7 @@ fn a_build_killed_at_random_moments_resumes_to_identical_bytes_and_no_stray_file
             .keys()
             .filter(|p| {
                 p.file_name()
-                    .is_some_and(|n| streamer::db::is_temp_name(&n.to_string_lossy()))
+                    .is_some_and(|n| db::is_temp_name(&n.to_string_lossy()))
             })
             .collect();
         assert!(stray.is_empty(), "case {case}: stray files {stray:?}");
@@ -187,7 +187,7 @@ fn a_build_killed_at_random_moments_resumes_to_identical_bytes_and_no_stray_file
             );
         }
         // Empty directories a killed build left are not files: verify says intact.
-        let v = streamer::db::verify(&out).unwrap();
+        let v = db::verify(&out).unwrap();
         assert!(v.is_intact() && v.stray.is_empty(), "{:?}", v.problems);
     }
     assert!(
@@ -216,7 +216,7 @@ fn a_work_directory_built_at_another_face_size_is_tiled_and_encoded_again() {
         let argv: Vec<&str> = args.iter().map(String::as_str).collect();
         let o = railview(&argv);
         assert!(o.status.success(), "face {face}: {}", stderr(&o));
-        let db = streamer::db::Database::open(&out).unwrap();
+        let db = db::Database::open(&out).unwrap();
         assert_eq!(db.top().face_size.to_string(), face);
         // The tiles were cut again from the new panoramas, not reused from the old ones.
         let slabs: serde_json::Value = serde_json::from_slice(
@@ -224,9 +224,9 @@ fn a_work_directory_built_at_another_face_size_is_tiled_and_encoded_again() {
         )
         .unwrap();
         assert_eq!(slabs["face_size"].to_string(), face, "stale tiling reused");
-        let v = streamer::db::verify_with(
+        let v = db::verify_with(
             &out,
-            streamer::db::VerifyOptions {
+            db::VerifyOptions {
                 decode: true,
                 ..Default::default()
             },

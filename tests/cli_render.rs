@@ -82,7 +82,7 @@ fn psnr_of(o: &Output) -> f64 {
 
 /// Rewrite a database's top manifest with another format number.
 fn relabel_format(db: &std::path::Path, version: u32) {
-    use streamer::db::{hash_hex, Database, MANIFEST_FILE, MANIFEST_HASH_FILE};
+    use db::{hash_hex, Database, MANIFEST_FILE, MANIFEST_HASH_FILE};
     let mut top = Database::open(db).unwrap().top().clone();
     top.version = version;
     let json = serde_json::to_vec(&top).unwrap();

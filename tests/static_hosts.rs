@@ -161,7 +161,7 @@ fn nginx_with_the_readme_configuration_streams_as_well_as_railview_serve() {
     assert_eq!(m.status, 200, "{}", ngx.errors());
     assert_eq!(m.header("content-encoding"), Some("gzip"), "gzip_static");
     assert_eq!(m.header("cache-control"), Some("no-cache"));
-    let top = streamer::db::read_top(&db).unwrap();
+    let top = db::read_top(&db).unwrap();
     let table = &top.tracks[0].viewpoints[0].table;
     let path = format!(
         "/castle/{}",
@@ -273,7 +273,7 @@ fn a_caching_proxy_serves_the_second_client_from_its_cache() {
 
     // What a CDN needs, through the cache: the origin's ETag and `immutable`, a hit,
     // conditional requests and ranges answered from the cache.
-    let top = streamer::db::read_top(&db).unwrap();
+    let top = db::read_top(&db).unwrap();
     let table = &top.tracks[0].viewpoints[1].table;
     let path = format!(
         "/{}",

@@ -1,30 +1,42 @@
-//! streamer: the PTM codec, the walkthrough database and ACH hints, the HTTP tile server and
-//! client, and the walk simulator.
+//! streamer: railview databases over the network — the HTTP tile server, the streaming
+//! client and the walk simulator. The payloads' formats are [`codec`]'s, the database's
+//! [`db`]'s; this crate adds tokio and hyper on top of them.
 //!
-//! - [`ptm`]: progressive texture maps — lossless mip levels sent coarse to fine.
-//! - [`entropy`]: the adaptive binary range coder under the PTM's context-modelled levels
-//!   and the compact meshes.
-//! - [`db`]: the content-addressed database directory (writer, reader, `verify`), the split
-//!   manifest (a small top plus one binary tile table per viewpoint, [`db::split`],
-//!   [`db::table`], and one pack of its tiles' payloads, [`db::pack`]), the compact mesh
-//!   format and ACH (average coverage hints) per track segment.
 //! - [`server`]: the HTTP tile server (`run(listener, db, config, stats, shutdown)`): manifest
-//!   and content-addressed objects with `Range:`, shaping, limits, graceful shutdown.
+//!   and content-addressed objects with `Range:`, `/bundle`, shaping, limits, graceful
+//!   shutdown, hardened against hostile and broken peers.
 //! - [`client`]: checked downloads with reconnect ([`client::Connection`]), the prioritised
-//!   cancellable [`client::Fetcher`], the distance-evicting [`client::Cache`], and the budget
-//!   rules ([`client::plan`]) with prefetch ([`client::MotionTracker`]).
+//!   cancellable [`client::Fetcher`], the distance-evicting [`client::Cache`], the budget
+//!   rules ([`client::plan`]) with prefetch ([`client::MotionTracker`]), the I/O-free
+//!   [`client::Scheduler`] and [`client::LiveSession`], which drives it on the wall clock for
+//!   a viewer.
 //! - [`visibility`]: CPU reference of the viewer's tile-visibility pass (live pixel counts and
 //!   needed levels per tile for a camera).
-//! - [`walk`]: the headless walk simulator, its report and plot, a synthetic test database and
-//!   the load generator.
+//! - [`walk`]: the headless walk simulator (the scheduler on a virtual clock and link), its
+//!   report and plot, a synthetic test database and the load generator.
 //! - [`hostile`]: slow header senders and stalled readers, for the server's tests and the
 //!   attack benchmark.
+//!
+//! ```no_run
+//! # async fn serve() -> Result<(), Box<dyn std::error::Error>> {
+//! use std::sync::Arc;
+//! use streamer::server::{self, ServedDb, ServerConfig, ServerStats};
+//!
+//! let db = ServedDb::open(std::path::Path::new("db"))?;
+//! let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+//! let stats = Arc::new(ServerStats::default());
+//! server::run(listener, db, ServerConfig::default(), stats, std::future::pending()).await?;
+//! # Ok(())
+//! # }
+//! ```
 
 pub mod client;
-pub mod db;
-pub mod entropy;
 pub mod hostile;
-pub mod ptm;
 pub mod server;
 pub mod visibility;
 pub mod walk;
+
+// Compatibility path for the binary and the viewer until they import the crates directly.
+pub use codec::{entropy, ptm};
+// Compatibility path for the binary and the viewer until they import the crates directly.
+pub use db;

@@ -102,7 +102,7 @@ async fn fetch_all(f: &mut Fetcher, reqs: &[(FetchRequest, Option<u64>)]) -> Vec
         let o = next(f).await;
         let (r, _) = reqs.iter().find(|r| r.0.key == o.key).unwrap();
         if let Ok(b) = &o.result {
-            assert!(streamer::db::hash_matches(b, &r.expected_hash));
+            assert!(db::hash_matches(b, &r.expected_hash));
         }
         out.push(o);
     }
@@ -366,7 +366,7 @@ async fn queued_and_running_keys_of_bundles_can_be_cancelled() {
         if keep.contains(&o.key) {
             let r = reqs.iter().find(|r| r.0.key == o.key).unwrap();
             let b = o.result.as_ref().expect("kept keys arrive");
-            assert!(streamer::db::hash_matches(b, &r.0.expected_hash));
+            assert!(db::hash_matches(b, &r.0.expected_hash));
         } else {
             assert!(
                 matches!(o.result, Err(ClientError::Cancelled)),

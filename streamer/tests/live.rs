@@ -38,17 +38,14 @@ fn assert_every_held_part_handed_out(session: &LiveSession, arrivals: &[Arrival]
 /// payloads in two packs, at the two ends of the track.
 fn repeating_db(name: &str) -> PathBuf {
     let src = temp_db(&format!("{name}-src"));
-    let mut m = streamer::db::Database::open(&src)
-        .unwrap()
-        .manifest()
-        .clone();
+    let mut m = db::Database::open(&src).unwrap().manifest().clone();
     for t in &mut m.tracks {
         let last = t.viewpoints.len() - 1;
         t.viewpoints[last].tiles = t.viewpoints[0].tiles.clone();
     }
     let dir = std::env::temp_dir().join(format!("railview-live-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let mut w = streamer::db::DbWriter::create(&dir)
+    let mut w = db::DbWriter::create(&dir)
         .unwrap()
         .with_stage(&src)
         .unwrap();
@@ -133,7 +130,7 @@ fn check(session: &LiveSession, arrivals: &[Arrival]) {
     for a in arrivals {
         let part = &session.table().items[a.item].parts[a.part];
         assert!(
-            streamer::db::hash_matches(&a.data, &part.hash),
+            db::hash_matches(&a.data, &part.hash),
             "item {} part {}",
             a.item,
             a.part
@@ -166,7 +163,7 @@ fn run_until(
 
 /// Bytes of every part of track 0 of the database in `dir` (all tables included).
 fn total_bytes(dir: &Path) -> u64 {
-    let db = streamer::db::Database::open(dir).unwrap();
+    let db = db::Database::open(dir).unwrap();
     streamer::client::ItemTable::new(db.manifest(), 0)
         .unwrap()
         .items
@@ -268,7 +265,7 @@ fn a_session_survives_the_server_going_away_and_coming_back() {
 fn a_damaged_pack_is_given_up_part_by_part_and_the_rest_streams_on() {
     let dir = temp_db("damaged");
     let srv = Server::start(&dir, ServerConfig::default(), "127.0.0.1:0");
-    let db = streamer::db::Database::open(&dir).unwrap();
+    let db = db::Database::open(&dir).unwrap();
     let pack = db.manifest().tracks[0].viewpoints[0]
         .tiles
         .iter()
@@ -323,7 +320,7 @@ fn corrupted_responses_never_reach_the_caller() {
     );
     // The tables that arrived are exactly the database's (a corrupted one was fetched
     // again, never used).
-    let db = streamer::db::Database::open(&dir).unwrap();
+    let db = db::Database::open(&dir).unwrap();
     let want = &db.manifest().tracks[0];
     let got = &session.manifest().tracks[0];
     assert!(session.has_table(0), "{:?}", session.stats());
@@ -338,7 +335,7 @@ fn corrupted_responses_never_reach_the_caller() {
     for (i, it) in session.table().items.iter().enumerate() {
         for (p, part) in it.parts.iter().enumerate() {
             if let Some(b) = session.part_bytes(i, p) {
-                assert!(streamer::db::hash_matches(b, &part.hash));
+                assert!(db::hash_matches(b, &part.hash));
             }
         }
     }
@@ -395,7 +392,7 @@ fn tables_arrive_nearest_first_and_the_session_grows_with_them() {
     let n = session.top().tracks[0].viewpoints.len();
     assert_eq!(session.tables_loaded(), (n, n));
     // With every table in, the session's manifest is the database's.
-    let db = streamer::db::Database::open(&dir).unwrap();
+    let db = db::Database::open(&dir).unwrap();
     assert_eq!(session.manifest(), db.manifest());
     drop(session);
     srv.stop();

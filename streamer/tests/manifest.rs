@@ -8,8 +8,8 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Duration;
 
+use db::{gunzip_limited, gzip, hash_hex, MANIFEST_FILE, MANIFEST_GZ_FILE};
 use streamer::client::{ClientError, ClientStats, Connection, RetryPolicy, ServerUrl};
-use streamer::db::{gunzip_limited, gzip, hash_hex, MANIFEST_FILE, MANIFEST_GZ_FILE};
 use streamer::server::{self, ServedDb, ServerConfig, ServerStats};
 use streamer::walk::{self, synth, Strategy, WalkConfig};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -111,7 +111,7 @@ async fn the_manifest_travels_gzipped_and_is_checked() {
     let stats = Arc::new(ClientStats::default());
     let mut conn = Connection::new(url(addr), RetryPolicy::default(), stats.clone());
     let got = conn.fetch_manifest().await.unwrap();
-    assert_eq!(got.top, streamer::db::split::split(&m).unwrap().0);
+    assert_eq!(got.top, db::split::split(&m).unwrap().0);
     assert!(got.gzip && got.checked);
     assert_eq!(got.requests, 2);
     assert_eq!(got.transferred_bytes, gz.len() as u64 + 65);
@@ -239,7 +239,7 @@ async fn a_damaged_gzip_manifest_is_never_returned() {
         let stats = Arc::new(ClientStats::default());
         let mut conn = Connection::new(url(addr), RetryPolicy::default(), stats.clone());
         let got = conn.fetch_manifest().await.unwrap();
-        assert_eq!(got.top, streamer::db::split::split(&m).unwrap().0, "{what}");
+        assert_eq!(got.top, db::split::split(&m).unwrap().0, "{what}");
         assert!(!got.gzip, "{what}: the damaged gzip body was accepted");
         assert_eq!(stats.checksum_failures.load(Ordering::Relaxed), 1, "{what}");
         assert_eq!(
@@ -376,7 +376,7 @@ async fn the_first_frame_needs_the_nearest_tables_and_their_tiles_only() {
         ..synth::SynthParams::default()
     };
     let m = synth::write_synthetic(&dir, &params).expect("database");
-    let db = streamer::db::Database::open(&dir).unwrap();
+    let db = db::Database::open(&dir).unwrap();
     let top = db.top().clone();
     let vps = &top.tracks[0].viewpoints;
     assert!(vps.len() >= 6, "{} viewpoints", vps.len());

@@ -216,7 +216,7 @@ async fn bundles_are_checked_piece_by_piece_and_fall_back_on_static_hosts() {
         assert_eq!(data.len(), keys.len());
         for (d, (_, len, hash)) in data.iter().zip(&keys) {
             assert_eq!(d.len() as u64, *len);
-            assert!(streamer::db::hash_matches(d, hash));
+            assert!(db::hash_matches(d, hash));
         }
     };
     // Every second response corrupted: the bundle still arrives right, in one request each.
@@ -357,7 +357,7 @@ async fn fetcher_serves_by_priority_and_drops_cancelled_requests() {
             .unwrap();
         let r = reqs.iter().find(|r| r.key == out.key).unwrap();
         let data = out.result.unwrap();
-        assert!(streamer::db::hash_matches(&data, &r.expected_hash));
+        assert!(db::hash_matches(&data, &r.expected_hash));
         order.push(r.priority);
     }
     assert_eq!(order.len(), reqs.len() - cancelled.len());
@@ -427,10 +427,7 @@ async fn a_running_request_can_be_cancelled_and_the_worker_goes_on() {
         .await
         .unwrap()
         .unwrap();
-    assert!(streamer::db::hash_matches(
-        &out.result.unwrap(),
-        &level.hash
-    ));
+    assert!(db::hash_matches(&out.result.unwrap(), &level.hash));
     drop(f);
     srv.stop().await;
     let _ = std::fs::remove_dir_all(dir);
@@ -457,7 +454,7 @@ async fn corrupted_responses_are_fetched_again_and_never_returned() {
             .fetch_checked(&r.key, &r.expected_hash, None)
             .await
             .unwrap();
-        assert!(streamer::db::hash_matches(&data, &r.expected_hash));
+        assert!(db::hash_matches(&data, &r.expected_hash));
     }
     assert!(stats.checksum_failures.load(Ordering::Relaxed) >= 5);
     assert!(srv.stats.corrupted.load(Ordering::Relaxed) >= 5);
@@ -516,7 +513,7 @@ async fn level_runs_in_one_request_are_checked_part_by_part() {
         assert_eq!(parts.len(), run.len());
         for (d, &(_, len, hash)) in parts.iter().zip(&run) {
             assert_eq!(d.len() as u64, len);
-            assert!(streamer::db::hash_matches(d, hash));
+            assert!(db::hash_matches(d, hash));
         }
     }
     assert!(stats.checksum_failures.load(Ordering::Relaxed) >= 1);
@@ -640,7 +637,7 @@ async fn client_recovers_when_the_server_is_killed_and_restarted() {
     assert!(cache.used() <= cache.budget());
     for r in &reqs {
         if let Some(b) = cache.get(&r.key) {
-            assert!(streamer::db::hash_matches(b, &r.expected_hash));
+            assert!(db::hash_matches(b, &r.expected_hash));
         }
     }
     drop(f);

@@ -20,16 +20,16 @@ use std::time::{Duration, Instant};
 
 use bytes::{Bytes, BytesMut};
 use http_body_util::{BodyExt, Empty};
+use hyper::body::Incoming;
 use hyper::client::conn::http1::SendRequest;
-use hyper::{header, Request, StatusCode};
+use hyper::{header, Request, Response, StatusCode};
 use hyper_util::rt::TokioIo;
 use tokio::net::TcpStream;
-use tracks::manifest::{object_rel_path, Manifest, ObjectRef};
 
-use crate::db::hash_matches;
-use crate::db::split::{assemble, decode_table, TopManifest, ViewTable};
-
+mod checked;
+mod manifest;
 mod ranges;
+pub use manifest::ManifestFetch;
 pub use ranges::{RangePiece, MULTI_GAP_BYTES, SINGLE_GAP_BYTES};
 
 /// What one GET asks for: the whole object, one byte range `(offset, len)`, or a `Range:`
@@ -47,6 +47,25 @@ struct Head {
     status: u16,
     content_type: Option<String>,
     content_range: Option<String>,
+}
+
+impl Head {
+    /// The head of `resp` (header values cut to 256 characters).
+    fn of(resp: &Response<Incoming>) -> Head {
+        let text = |name: header::HeaderName| {
+            resp.headers().get(name).map(|v| {
+                String::from_utf8_lossy(v.as_bytes())
+                    .chars()
+                    .take(256)
+                    .collect()
+            })
+        };
+        Head {
+            status: resp.status().as_u16(),
+            content_type: text(header::CONTENT_TYPE),
+            content_range: text(header::CONTENT_RANGE),
+        }
+    }
 }
 
 /// Where a database is served: `http://HOST:PORT[/PREFIX]`.
@@ -293,25 +312,6 @@ pub struct BundlePiece<'a> {
     pub hash: &'a str,
 }
 
-/// A downloaded, checked top manifest and what it cost.
-#[derive(Clone, Debug)]
-pub struct ManifestFetch {
-    pub top: TopManifest,
-    /// Body bytes received for it (the checksum file and every attempt included).
-    pub transferred_bytes: u64,
-    /// Requests it took (the checksum file included).
-    pub requests: u64,
-    /// Round trips they took: the checksum file travels beside the first manifest request,
-    /// so 1 unless the manifest had to be fetched again.
-    pub round_trips: u64,
-    /// Length of the decoded `manifest.json`.
-    pub json_bytes: u64,
-    /// Whether the accepted body came gzip-encoded.
-    pub gzip: bool,
-    /// Whether it was checked against `manifest.json.blake3` (`false`: the server has none).
-    pub checked: bool,
-}
-
 /// One keep-alive connection, reopened on demand.
 pub struct Connection {
     url: ServerUrl,
@@ -412,16 +412,11 @@ impl Connection {
         cancel: Option<&AtomicBool>,
         accept_gzip: bool,
     ) -> Result<(Bytes, bool, Head), ClientError> {
-        let max_body = self.policy.max_body;
         let host = self.url.host().to_string();
         // Errors name the whole URL: which server, which object.
         let url = format!("http://{host}{path}");
         let path = url.as_str();
         let request_path = &url[7 + host.len()..];
-        let tr = |m: &dyn std::fmt::Display| ClientError::Transfer {
-            path: path.to_string(),
-            message: m.to_string(),
-        };
         let mut builder = Request::get(request_path).header(header::HOST, host.clone());
         match ask {
             Ask::Whole => {}
@@ -434,98 +429,130 @@ impl Connection {
         if accept_gzip {
             builder = builder.header(header::ACCEPT_ENCODING, "gzip");
         }
-        let req = builder.body(Empty::new()).map_err(|e| tr(&e))?;
-        let response_timeout = self.policy.response_timeout;
-        let stall_timeout = self.policy.stall_timeout;
-        let timeout = |what: &'static str, after: Duration| ClientError::Timeout {
-            path: path.to_string(),
-            what,
-            after,
-        };
-        let sender = self.connect().await?;
-        let sent = tokio::time::timeout(response_timeout, async {
-            sender.ready().await?;
-            sender.send_request(req).await
-        })
-        .await;
-        let resp = match sent {
-            Ok(Ok(r)) => r,
-            Ok(Err(e)) => {
-                self.sender = None;
-                return Err(tr(&e));
-            }
-            Err(_) => {
-                self.sender = None;
-                return Err(timeout("no response", response_timeout));
-            }
-        };
-        let stalled = || timeout("transfer stalled: no bytes", stall_timeout);
+        let req = builder
+            .body(Empty::new())
+            .map_err(|e| transfer_error(path, &e))?;
+        let resp = self.send(req, path).await?;
         let status = resp.status();
-        let encoding = resp.headers().get(header::CONTENT_ENCODING).map(|v| {
-            String::from_utf8_lossy(v.as_bytes())
-                .trim()
-                .to_ascii_lowercase()
-        });
-        let gzip = match encoding.as_deref() {
-            None | Some("identity") => false,
-            Some("gzip" | "x-gzip") if accept_gzip => true,
-            Some(other) if status.is_success() => {
-                self.sender = None;
-                return Err(ClientError::Transfer {
-                    path: path.to_string(),
-                    message: format!("unrequested Content-Encoding `{other}`"),
-                });
-            }
-            Some(_) => false,
-        };
+        let gzip = self.content_gzip(&resp, accept_gzip, path)?;
         let ok = match ask {
             Ask::Whole => status == StatusCode::OK,
             Ask::One(_) => status == StatusCode::PARTIAL_CONTENT,
             // Several ranges may come back as one, as several, or as the whole object.
             Ask::Ranges(_) => matches!(status, StatusCode::OK | StatusCode::PARTIAL_CONTENT),
         };
-        let text = |name: header::HeaderName| {
-            resp.headers().get(name).map(|v| {
-                String::from_utf8_lossy(v.as_bytes())
-                    .chars()
-                    .take(256)
-                    .collect()
-            })
-        };
-        let head = Head {
-            status: status.as_u16(),
-            content_type: text(header::CONTENT_TYPE),
-            content_range: text(header::CONTENT_RANGE),
-        };
-        let mut body = resp.into_body();
+        let head = Head::of(&resp);
+        let body = resp.into_body();
         if !ok {
-            let mut reason = Vec::new();
-            while let Ok(Some(f)) = tokio::time::timeout(stall_timeout, body.frame()).await {
-                match f {
-                    Ok(f) => {
-                        if let Some(d) = f.data_ref() {
-                            reason
-                                .extend_from_slice(&d[..d.len().min(512 - reason.len().min(512))]);
-                        }
-                    }
-                    Err(_) => {
-                        self.sender = None;
-                        break;
-                    }
-                }
-            }
-            {
-                use hyper::body::Body as _;
-                if !body.is_end_stream() {
-                    self.sender = None;
-                }
-            }
-            return Err(ClientError::Status {
-                path: path.to_string(),
-                status: status.as_u16(),
-                reason: String::from_utf8_lossy(&reason).trim().to_string(),
-            });
+            return Err(self.refused(body, path, status).await);
         }
+        let out = self.read_body(body, cancel, path).await?;
+        self.stats.requests.fetch_add(1, Ordering::Relaxed);
+        self.stats
+            .bytes
+            .fetch_add(out.len() as u64, Ordering::Relaxed);
+        Ok((out, gzip, head))
+    }
+
+    /// Sends `req` on the connection (opened if needed) and waits for the response head,
+    /// within the response timeout; drops the connection when that fails.
+    async fn send(
+        &mut self,
+        req: Request<Empty<Bytes>>,
+        path: &str,
+    ) -> Result<Response<Incoming>, ClientError> {
+        let response_timeout = self.policy.response_timeout;
+        let sender = self.connect().await?;
+        let sent = tokio::time::timeout(response_timeout, async {
+            sender.ready().await?;
+            sender.send_request(req).await
+        })
+        .await;
+        match sent {
+            Ok(Ok(r)) => Ok(r),
+            Ok(Err(e)) => {
+                self.sender = None;
+                Err(transfer_error(path, &e))
+            }
+            Err(_) => {
+                self.sender = None;
+                Err(ClientError::Timeout {
+                    path: path.to_string(),
+                    what: "no response",
+                    after: response_timeout,
+                })
+            }
+        }
+    }
+
+    /// Whether the response's body is gzip-encoded (only where it was asked for); a
+    /// successful response in an encoding nobody asked for is an error.
+    fn content_gzip(
+        &mut self,
+        resp: &Response<Incoming>,
+        accept_gzip: bool,
+        path: &str,
+    ) -> Result<bool, ClientError> {
+        let encoding = resp.headers().get(header::CONTENT_ENCODING).map(|v| {
+            String::from_utf8_lossy(v.as_bytes())
+                .trim()
+                .to_ascii_lowercase()
+        });
+        match encoding.as_deref() {
+            None | Some("identity") => Ok(false),
+            Some("gzip" | "x-gzip") if accept_gzip => Ok(true),
+            Some(other) if resp.status().is_success() => {
+                self.sender = None;
+                Err(ClientError::Transfer {
+                    path: path.to_string(),
+                    message: format!("unrequested Content-Encoding `{other}`"),
+                })
+            }
+            Some(_) => Ok(false),
+        }
+    }
+
+    /// The error of a response with an unexpected `status`: its body's first 512 bytes as
+    /// the reason; the connection is dropped unless the body was read to its end.
+    async fn refused(&mut self, mut body: Incoming, path: &str, status: StatusCode) -> ClientError {
+        let stall_timeout = self.policy.stall_timeout;
+        let mut reason = Vec::new();
+        while let Ok(Some(f)) = tokio::time::timeout(stall_timeout, body.frame()).await {
+            match f {
+                Ok(f) => {
+                    if let Some(d) = f.data_ref() {
+                        reason.extend_from_slice(&d[..d.len().min(512 - reason.len().min(512))]);
+                    }
+                }
+                Err(_) => {
+                    self.sender = None;
+                    break;
+                }
+            }
+        }
+        {
+            use hyper::body::Body as _;
+            if !body.is_end_stream() {
+                self.sender = None;
+            }
+        }
+        ClientError::Status {
+            path: path.to_string(),
+            status: status.as_u16(),
+            reason: String::from_utf8_lossy(&reason).trim().to_string(),
+        }
+    }
+
+    /// The whole body, within the stall timeout between chunks and the body limit, checking
+    /// `cancel` between chunks; the connection is dropped when it stops early.
+    async fn read_body(
+        &mut self,
+        mut body: Incoming,
+        cancel: Option<&AtomicBool>,
+        path: &str,
+    ) -> Result<Bytes, ClientError> {
+        let max_body = self.policy.max_body;
+        let stall_timeout = self.policy.stall_timeout;
         let mut out = BytesMut::new();
         loop {
             let frame = match tokio::time::timeout(stall_timeout, body.frame()).await {
@@ -533,7 +560,11 @@ impl Connection {
                 Ok(None) => break,
                 Err(_) => {
                     self.sender = None;
-                    return Err(stalled());
+                    return Err(ClientError::Timeout {
+                        path: path.to_string(),
+                        what: "transfer stalled: no bytes",
+                        after: stall_timeout,
+                    });
                 }
             };
             if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
@@ -544,22 +575,21 @@ impl Connection {
                 Ok(f) => f,
                 Err(e) => {
                     self.sender = None;
-                    return Err(tr(&e));
+                    return Err(transfer_error(path, &e));
                 }
             };
             if let Some(d) = frame.data_ref() {
                 if out.len() as u64 + d.len() as u64 > max_body {
                     self.sender = None;
-                    return Err(tr(&format!("body longer than {max_body} bytes")));
+                    return Err(transfer_error(
+                        path,
+                        &format!("body longer than {max_body} bytes"),
+                    ));
                 }
                 out.extend_from_slice(d);
             }
         }
-        self.stats.requests.fetch_add(1, Ordering::Relaxed);
-        self.stats
-            .bytes
-            .fetch_add(out.len() as u64, Ordering::Relaxed);
-        Ok((out.freeze(), gzip, head))
+        Ok(out.freeze())
     }
 
     /// GET with reconnect and exponential back-off on connection errors and 5xx.
@@ -630,420 +660,13 @@ impl Connection {
         }
         result
     }
-
-    /// Download `key` and check it against `expected_hash`; a mismatch is re-downloaded
-    /// (up to `checksum_attempts` times) and never returned.
-    pub async fn fetch_checked(
-        &mut self,
-        key: &FetchKey,
-        expected_hash: &str,
-        cancel: Option<&AtomicBool>,
-    ) -> Result<Bytes, ClientError> {
-        let rel = object_rel_path(&key.object)
-            .ok_or_else(|| ClientError::BadObject(key.object.to_string()))?;
-        let path = format!("/{rel}");
-        let attempts = self.policy.checksum_attempts.max(1);
-        for _ in 0..attempts {
-            let data = self.get(&path, key.range, cancel).await?;
-            if let Some((_, len)) = key.range {
-                if data.len() as u64 != len {
-                    self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
-                    continue;
-                }
-            }
-            if hash_matches(&data, expected_hash) {
-                return Ok(data);
-            }
-            self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
-            tracing::warn!("{path}: checksum mismatch, fetching again");
-        }
-        Err(ClientError::Checksum { path, attempts })
-    }
-
-    /// Download consecutive byte ranges of one object in a single request and check each
-    /// range against its own hash: `parts` are `(offset, len, hash)`, each starting where the
-    /// previous one ends. A mismatch anywhere re-downloads the whole run (up to
-    /// `checksum_attempts` times); nothing that failed its check is returned. One request
-    /// instead of one per PTM level saves a round trip per level.
-    pub async fn fetch_checked_run(
-        &mut self,
-        object: &str,
-        parts: &[(u64, u64, &str)],
-        cancel: Option<&AtomicBool>,
-    ) -> Result<Vec<Bytes>, ClientError> {
-        let rel =
-            object_rel_path(object).ok_or_else(|| ClientError::BadObject(object.to_string()))?;
-        let path = format!("/{rel}");
-        let Some(&(start, _, _)) = parts.first() else {
-            return Ok(Vec::new());
-        };
-        let mut end = start;
-        for &(off, len, _) in parts {
-            if off != end {
-                return Err(ClientError::Transfer {
-                    path,
-                    message: format!("ranges not consecutive at offset {off} (expected {end})"),
-                });
-            }
-            end = off.checked_add(len).ok_or_else(|| ClientError::Transfer {
-                path: path.clone(),
-                message: format!("range {off}+{len} overflows"),
-            })?;
-        }
-        let attempts = self.policy.checksum_attempts.max(1);
-        'attempt: for _ in 0..attempts {
-            let data = self.get(&path, Some((start, end - start)), cancel).await?;
-            if data.len() as u64 != end - start {
-                self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
-                continue;
-            }
-            let mut out = Vec::with_capacity(parts.len());
-            for &(off, len, hash) in parts {
-                let piece = data.slice((off - start) as usize..(off - start + len) as usize);
-                if !hash_matches(&piece, hash) {
-                    self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
-                    tracing::warn!("{path}: checksum mismatch at offset {off}, fetching again");
-                    continue 'attempt;
-                }
-                out.push(piece);
-            }
-            return Ok(out);
-        }
-        Err(ClientError::Checksum { path, attempts })
-    }
-
-    /// Download many pieces (whole objects or ranges, of any objects) in one `/bundle`
-    /// request and check each against its own hash; consecutive ranges of one object travel
-    /// as one entry. A mismatch anywhere (or a body of the wrong length) re-downloads the
-    /// bundle, up to `checksum_attempts` times; nothing that failed its check is returned.
-    /// A server without `/bundle` (a static host: 404, 405 or 501) is remembered, and the
-    /// pieces are then fetched one object at a time, an object's ranges together
-    /// ([`Connection::fetch_checked_ranges`]: several per request where the server answers
-    /// them as `multipart/byteranges`).
-    pub async fn fetch_checked_bundle(
-        &mut self,
-        pieces: &[BundlePiece<'_>],
-        cancel: Option<&AtomicBool>,
-    ) -> Result<Vec<Bytes>, ClientError> {
-        if pieces.is_empty() {
-            return Ok(Vec::new());
-        }
-        for p in pieces {
-            if object_rel_path(&p.key.object).is_none() {
-                return Err(ClientError::BadObject(p.key.object.to_string()));
-            }
-            if p.key.range.is_some_and(|(_, len)| len != p.len) {
-                return Err(ClientError::Transfer {
-                    path: "/bundle".into(),
-                    message: format!("{}: range length differs from {}", p.key.object, p.len),
-                });
-            }
-        }
-        if !self.no_bundles {
-            match self.bundle_once_checked(pieces, cancel).await {
-                Err(ClientError::Status { status, .. }) if matches!(status, 404 | 405 | 501) => {
-                    tracing::info!("server has no /bundle ({status}); fetching object by object");
-                    self.no_bundles = true;
-                }
-                other => return other,
-            }
-        }
-        // One object at a time: whole objects alone, an object's ranges together (several
-        // ranges per request where the server answers them, else runs merged across small
-        // gaps: [`Connection::fetch_checked_ranges`]).
-        let mut out: Vec<Option<Bytes>> = vec![None; pieces.len()];
-        let mut objects: Vec<&str> = Vec::new();
-        for p in pieces {
-            if !objects.contains(&&*p.key.object) {
-                objects.push(&p.key.object);
-            }
-        }
-        for object in objects {
-            let mut ranged = Vec::new();
-            for (i, p) in pieces.iter().enumerate() {
-                if &*p.key.object != object {
-                    continue;
-                }
-                match p.key.range {
-                    None => out[i] = Some(self.fetch_checked(p.key, p.hash, cancel).await?),
-                    Some((off, len)) => ranged.push((i, (off, len, p.hash))),
-                }
-            }
-            if ranged.is_empty() {
-                continue;
-            }
-            let run: Vec<RangePiece> = ranged.iter().map(|r| r.1).collect();
-            let got = self
-                .fetch_checked_ranges(object, None, &run, cancel)
-                .await?;
-            for ((i, _), b) in ranged.into_iter().zip(got) {
-                out[i] = Some(b);
-            }
-        }
-        Ok(out.into_iter().flatten().collect())
-    }
-
-    /// Each piece's own result, in order. One `/bundle` (or, on a static host, one request
-    /// per object or range run) when everything checks out; when that fails for one
-    /// object's fault (a checksum that keeps failing, a missing object, a range outside its
-    /// file), the pieces are fetched one by one so that only the damaged ones fail. Once the
-    /// server is unreachable, the pieces not yet fetched fail with the same error without
-    /// being tried each.
-    pub async fn fetch_pieces(
-        &mut self,
-        pieces: &[BundlePiece<'_>],
-        cancel: Option<&AtomicBool>,
-    ) -> Vec<Result<Bytes, ClientError>> {
-        match self.fetch_checked_bundle(pieces, cancel).await {
-            Ok(v) => v.into_iter().map(Ok).collect(),
-            Err(e) if e.is_object_fault() && pieces.len() > 1 => {
-                tracing::warn!(
-                    "{} pieces in one request failed ({e}); fetching them one by one",
-                    pieces.len()
-                );
-                let mut out = Vec::with_capacity(pieces.len());
-                let mut fatal: Option<ClientError> = None;
-                for p in pieces {
-                    if let Some(e) = &fatal {
-                        out.push(Err(e.clone()));
-                        continue;
-                    }
-                    let r = self.fetch_checked(p.key, p.hash, cancel).await;
-                    if let Err(e) = &r {
-                        if !e.is_object_fault() {
-                            fatal = Some(e.clone());
-                        }
-                    }
-                    out.push(r);
-                }
-                out
-            }
-            Err(e) => pieces.iter().map(|_| Err(e.clone())).collect(),
-        }
-    }
-
-    async fn bundle_once_checked(
-        &mut self,
-        pieces: &[BundlePiece<'_>],
-        cancel: Option<&AtomicBool>,
-    ) -> Result<Vec<Bytes>, ClientError> {
-        // Entries: consecutive ranges of one object merged.
-        let mut entries: Vec<crate::server::BundleEntry> = Vec::new();
-        for (k, p) in pieces.iter().enumerate() {
-            if k > 0 && consecutive(&pieces[k - 1], p) {
-                if let Some(Some((_, len))) = entries.last_mut().map(|e| e.range.as_mut()) {
-                    *len += p.len;
-                    continue;
-                }
-            }
-            entries.push(crate::server::BundleEntry {
-                object: p.key.object.to_string(),
-                range: p.key.range,
-            });
-        }
-        let path = format!("/bundle?{}", crate::server::bundle_query(&entries));
-        let total: u64 = pieces.iter().map(|p| p.len).sum();
-        let attempts = self.policy.checksum_attempts.max(1);
-        'attempt: for _ in 0..attempts {
-            let data = self.get(&path, None, cancel).await?;
-            if data.len() as u64 != total {
-                self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
-                tracing::warn!(
-                    "/bundle: {} bytes, expected {total}; fetching again",
-                    data.len()
-                );
-                continue;
-            }
-            let mut out = Vec::with_capacity(pieces.len());
-            let mut at = 0usize;
-            for p in pieces {
-                let piece = data.slice(at..at + p.len as usize);
-                at += p.len as usize;
-                if !hash_matches(&piece, p.hash) {
-                    self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
-                    tracing::warn!(
-                        "/bundle: checksum mismatch in {}, fetching again",
-                        p.key.object
-                    );
-                    continue 'attempt;
-                }
-                out.push(piece);
-            }
-            return Ok(out);
-        }
-        Err(ClientError::Checksum {
-            path: "/bundle".into(),
-            attempts,
-        })
-    }
-
-    /// The whole manifest: the top ([`Connection::fetch_manifest`]) and every viewpoint's
-    /// table ([`Connection::fetch_table`]) and ACH object ([`Connection::fetch_ach`]),
-    /// assembled (for tools that want everything at once; a viewer fetches tables as it
-    /// needs them).
-    pub async fn manifest(&mut self) -> Result<Manifest, ClientError> {
-        let top = self.fetch_manifest().await?.top;
-        let mut tables = Vec::with_capacity(top.tracks.len());
-        for t in &top.tracks {
-            let mut row = Vec::with_capacity(t.viewpoints.len());
-            for v in &t.viewpoints {
-                let mut table = self.fetch_table(&v.table, v.index).await?;
-                if let Some(ach) = &v.ach {
-                    table.segments = self.fetch_ach(ach, v.index).await?;
-                }
-                row.push(table);
-            }
-            tables.push(row);
-        }
-        let refs: Vec<Vec<Option<&ViewTable>>> = tables
-            .iter()
-            .map(|row| row.iter().map(Some).collect())
-            .collect();
-        Ok(assemble(&top, &refs))
-    }
-
-    /// Download viewpoint `viewpoint`'s table object, check it against its hash (re-fetched
-    /// on mismatch, never used when wrong) and decode it.
-    pub async fn fetch_table(
-        &mut self,
-        table: &ObjectRef,
-        viewpoint: usize,
-    ) -> Result<ViewTable, ClientError> {
-        let key = FetchKey {
-            object: table.hash.as_str().into(),
-            range: None,
-        };
-        let bytes = self.fetch_checked(&key, &table.hash, None).await?;
-        decode_table(&bytes, viewpoint)
-            .map_err(|e| ClientError::Manifest(format!("viewpoint {viewpoint}: {e}")))
-    }
-
-    /// Fetches a viewpoint's ACH object (hash-checked) and decodes its lists.
-    pub async fn fetch_ach(
-        &mut self,
-        ach: &ObjectRef,
-        viewpoint: usize,
-    ) -> Result<Vec<tracks::manifest::SegmentEntry>, ClientError> {
-        let key = FetchKey {
-            object: ach.hash.as_str().into(),
-            range: None,
-        };
-        let bytes = self.fetch_checked(&key, &ach.hash, None).await?;
-        crate::db::split::decode_ach(&bytes, viewpoint)
-            .map_err(|e| ClientError::Manifest(format!("viewpoint {viewpoint}: {e}")))
-    }
-
-    /// Download `manifest.json.blake3` and, at the same time on a second connection,
-    /// `manifest.json` with `Accept-Encoding: gzip`;
-    /// a gzip body is decompressed within [`RetryPolicy::max_body`] (more →
-    /// [`ClientError::DecodedTooLarge`]), and the decoded bytes must hash to the checksum
-    /// file before they are parsed. A body that fails (bad gzip, wrong hash) is fetched again
-    /// (up to `checksum_attempts` times), uncompressed once gzip has failed; nothing that
-    /// failed is returned. A server without the checksum file (404) gives an unchecked
-    /// manifest (`checked: false`), as [`crate::db::read_manifest`] accepts a database
-    /// without one.
-    pub async fn fetch_manifest(&mut self) -> Result<ManifestFetch, ClientError> {
-        const PATH: &str = "/manifest.json";
-        let mut transferred = 0u64;
-        let mut requests = 0u64;
-        // The checksum file on a second connection while the manifest comes on this one: one
-        // round trip for both.
-        let mut side = Connection::new(self.url.clone(), self.policy.clone(), self.stats.clone());
-        let (hash_res, first) = tokio::join!(
-            side.get("/manifest.json.blake3", None, None),
-            self.get_retrying(PATH, Ask::Whole, None, true)
-        );
-        let mut first = Some(first?);
-        let mut round_trips = 1u64;
-        let expected = match hash_res {
-            Ok(text) => {
-                transferred += text.len() as u64;
-                requests += 1;
-                let line = std::str::from_utf8(&text).unwrap_or("").trim();
-                if object_rel_path(line).is_none() {
-                    return Err(ClientError::Manifest(
-                        "manifest.json.blake3 is not a BLAKE3 hex line".into(),
-                    ));
-                }
-                Some(line.to_string())
-            }
-            Err(ClientError::Status { status: 404, .. }) => {
-                requests += 1;
-                tracing::warn!("server has no manifest.json.blake3: the manifest is unchecked");
-                None
-            }
-            Err(e) => return Err(e),
-        };
-        let limit = self.policy.max_body;
-        let attempts = self.policy.checksum_attempts.max(1);
-        let mut gzip_failed = false;
-        for _ in 0..attempts {
-            let (body, gzip) = match first.take() {
-                Some((b, gzip, _)) => (b, gzip),
-                None => {
-                    round_trips += 1;
-                    let (b, gzip, _) = self
-                        .get_retrying(PATH, Ask::Whole, None, !gzip_failed)
-                        .await?;
-                    (b, gzip)
-                }
-            };
-            transferred += body.len() as u64;
-            requests += 1;
-            let json = if gzip {
-                match crate::db::gunzip_limited(&body, limit) {
-                    Ok(j) => j,
-                    Err(crate::db::GunzipError::TooLarge { limit }) => {
-                        return Err(ClientError::DecodedTooLarge {
-                            path: PATH.into(),
-                            limit,
-                        })
-                    }
-                    Err(e) => {
-                        self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
-                        tracing::warn!("{PATH}: {e}; fetching it uncompressed");
-                        gzip_failed = true;
-                        continue;
-                    }
-                }
-            } else {
-                body.to_vec()
-            };
-            if let Some(want) = &expected {
-                let got = blake3::hash(&json).to_hex();
-                if got.as_str() != want {
-                    self.stats.checksum_failures.fetch_add(1, Ordering::Relaxed);
-                    tracing::warn!(
-                        "{PATH}: hashes to {got}, manifest.json.blake3 says {want}; fetching again"
-                    );
-                    gzip_failed |= gzip;
-                    continue;
-                }
-            }
-            let top = crate::db::parse_top(std::path::Path::new("manifest.json"), &json)
-                .map_err(|e| ClientError::Manifest(e.to_string()))?;
-            return Ok(ManifestFetch {
-                top,
-                transferred_bytes: transferred,
-                requests,
-                round_trips,
-                json_bytes: json.len() as u64,
-                gzip,
-                checked: expected.is_some(),
-            });
-        }
-        Err(ClientError::Checksum {
-            path: PATH.into(),
-            attempts,
-        })
-    }
 }
 
-/// Whether `b` is the byte range right after `a` in the same object.
-fn consecutive(a: &BundlePiece, b: &BundlePiece) -> bool {
-    match (a.key.range, b.key.range) {
-        (Some((ao, al)), Some((bo, _))) => a.key.object == b.key.object && ao + al == bo,
-        _ => false,
+/// A transfer failure of `path`.
+fn transfer_error(path: &str, m: &dyn std::fmt::Display) -> ClientError {
+    ClientError::Transfer {
+        path: path.to_string(),
+        message: m.to_string(),
     }
 }
 

@@ -351,7 +351,7 @@ fn check_range(
     hash: &str,
     f: impl FnOnce() -> String,
 ) -> Result<(), ClientError> {
-    if !crate::db::valid_range_hash(hash) {
+    if !db::valid_range_hash(hash) {
         return Err(ClientError::Manifest(format!(
             "{}.hash: `{hash}` is not a valid checksum",
             f()

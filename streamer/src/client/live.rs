@@ -38,7 +38,7 @@ use super::items::ItemTable;
 use super::pool::Pool;
 use super::schedule::{Arrival, Scheduler, SchedulerConfig, Strategy};
 use super::transport::{Source, Transport};
-use crate::db::split::TopManifest;
+use db::split::TopManifest;
 
 /// Settings of a session.
 #[derive(Clone, Debug)]

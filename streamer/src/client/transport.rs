@@ -15,7 +15,7 @@ use super::http::{
     ServerUrl, TransferReport,
 };
 use super::schedule::Piece;
-use crate::db::hash_matches;
+use db::hash_matches;
 
 /// A database's address: `http://HOST:PORT[/PREFIX]` or a directory.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -31,10 +31,10 @@ impl Source {
             return ServerUrl::parse(text).map(Source::Http);
         }
         let dir = PathBuf::from(text);
-        if !dir.join(crate::db::MANIFEST_FILE).is_file() {
+        if !dir.join(db::MANIFEST_FILE).is_file() {
             return Err(ClientError::Url(format!(
                 "`{text}`: neither an http:// URL nor a database directory (no {})",
-                crate::db::MANIFEST_FILE
+                db::MANIFEST_FILE
             )));
         }
         Ok(Source::Dir(dir))
@@ -42,7 +42,7 @@ impl Source {
 
     /// Whether `text` names a database directory (one with a `manifest.json`).
     pub fn is_database_dir(text: &str) -> bool {
-        !text.contains("://") && Path::new(text).join(crate::db::MANIFEST_FILE).is_file()
+        !text.contains("://") && Path::new(text).join(db::MANIFEST_FILE).is_file()
     }
 }
 
@@ -257,7 +257,7 @@ impl LocalDir {
     }
 
     fn manifest(&self) -> Result<ManifestFetch, ClientError> {
-        let path = self.root.join(crate::db::MANIFEST_FILE);
+        let path = self.root.join(db::MANIFEST_FILE);
         let json = std::fs::read(&path).map_err(|e| self.io(&path, e))?;
         if json.len() as u64 > self.policy.max_body {
             return Err(ClientError::DecodedTooLarge {
@@ -265,7 +265,7 @@ impl LocalDir {
                 limit: self.policy.max_body,
             });
         }
-        let hash_path = self.root.join(crate::db::MANIFEST_HASH_FILE);
+        let hash_path = self.root.join(db::MANIFEST_HASH_FILE);
         let checked = match std::fs::read_to_string(&hash_path) {
             Ok(text) => {
                 let got = blake3::hash(&json).to_hex();
@@ -282,8 +282,7 @@ impl LocalDir {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
             Err(e) => return Err(self.io(&hash_path, e)),
         };
-        let top =
-            crate::db::parse_top(&path, &json).map_err(|e| ClientError::Manifest(e.to_string()))?;
+        let top = db::parse_top(&path, &json).map_err(|e| ClientError::Manifest(e.to_string()))?;
         self.stats.requests.fetch_add(1, Ordering::Relaxed);
         self.stats
             .bytes

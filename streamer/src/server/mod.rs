@@ -148,10 +148,7 @@ pub enum ServerError {
     },
     /// The database does not open (the message names the damaged file).
     #[error("cannot serve {root}: {error}{}", verify_hint(error, root))]
-    Database {
-        root: PathBuf,
-        error: crate::db::DbError,
-    },
+    Database { root: PathBuf, error: db::DbError },
     #[error("{path}: {message}")]
     Manifest { path: PathBuf, message: String },
     #[error("accepting connections: {0}")]
@@ -159,9 +156,9 @@ pub enum ServerError {
 }
 
 /// For a database whose files are damaged: where to find every problem.
-fn verify_hint(e: &crate::db::DbError, root: &Path) -> String {
+fn verify_hint(e: &db::DbError, root: &Path) -> String {
     match e {
-        crate::db::DbError::Format { .. } => format!(
+        db::DbError::Format { .. } => format!(
             " (`railview verify {}` lists every problem)",
             root.display()
         ),
@@ -242,16 +239,15 @@ impl ServedDb {
     /// checksum file when present); remember every object hash it lists.
     pub fn open(root: &Path) -> Result<ServedDb, ServerError> {
         let path = root.join("manifest.json");
-        let err = |error: crate::db::DbError| ServerError::Database {
+        let err = |error: db::DbError| ServerError::Database {
             root: root.to_path_buf(),
             error,
         };
-        let top = crate::db::read_top(root).map_err(err)?;
-        let manifest: Manifest = crate::db::read_tables(root, &top).map_err(err)?;
+        let top = db::read_top(root).map_err(err)?;
+        let manifest: Manifest = db::read_tables(root, &top).map_err(err)?;
         // The bytes served are the bytes checked (re-read: the reader does not return them).
-        let raw =
-            crate::db::read_limited(&path, tracks::limits::MAX_MANIFEST_BYTES).map_err(err)?;
-        if crate::db::parse_top(&path, &raw).ok().as_ref() != Some(&top) {
+        let raw = db::read_limited(&path, tracks::limits::MAX_MANIFEST_BYTES).map_err(err)?;
+        if db::parse_top(&path, &raw).ok().as_ref() != Some(&top) {
             return Err(ServerError::Manifest {
                 path,
                 message: "changed while it was being opened".into(),
@@ -287,11 +283,11 @@ impl ServedDb {
                 Err(error) => Err(ServerError::Io { path, error }),
             }
         };
-        let manifest_hash = read_optional(crate::db::MANIFEST_HASH_FILE)?.map(Bytes::from);
+        let manifest_hash = read_optional(db::MANIFEST_HASH_FILE)?.map(Bytes::from);
         // A gzip copy that does not decode to the manifest's bytes is not served (and said so):
         // clients then get the identity body, which is always right.
-        let manifest_gz = read_optional(crate::db::MANIFEST_GZ_FILE)?.and_then(|gz| {
-            match crate::db::gunzip_limited(&gz, raw.len() as u64) {
+        let manifest_gz = read_optional(db::MANIFEST_GZ_FILE)?.and_then(|gz| {
+            match db::gunzip_limited(&gz, raw.len() as u64) {
                 Ok(plain) if plain == raw => {
                     let etag = format!("\"gz-{}\"", blake3::hash(&gz).to_hex());
                     Some((Bytes::from(gz), etag))
@@ -299,14 +295,14 @@ impl ServedDb {
                 Ok(_) => {
                     tracing::warn!(
                         "{}: does not decompress to manifest.json; serving it uncompressed",
-                        root.join(crate::db::MANIFEST_GZ_FILE).display()
+                        root.join(db::MANIFEST_GZ_FILE).display()
                     );
                     None
                 }
                 Err(e) => {
                     tracing::warn!(
                         "{}: {e}; serving manifest.json uncompressed",
-                        root.join(crate::db::MANIFEST_GZ_FILE).display()
+                        root.join(db::MANIFEST_GZ_FILE).display()
                     );
                     None
                 }

@@ -48,7 +48,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 use tracks::manifest::Manifest;
 
-use crate::db::split::{assemble, TopManifest, ViewTable};
+use db::split::{assemble, TopManifest, ViewTable};
 use tracks::{PerspectiveCamera, TrackSet};
 
 use crate::client::{

@@ -11,6 +11,7 @@ use crate::client::{
 };
 use crate::visibility::{blend_weights, Surface, SurfaceCount};
 use bytes::Bytes;
+use tracks::PerspectiveCamera;
 
 /// A request on the virtual link.
 struct InFlight {
@@ -154,6 +155,48 @@ impl Exec {
     }
 }
 
+impl Exec {
+    fn new(source: &Source, cfg: &WalkConfig, bandwidth: Option<u64>) -> Exec {
+        Exec {
+            transport: Transport::new(source, cfg.retry.clone()),
+            dispatcher: Dispatcher::new(),
+            link: VirtualLink::new(bandwidth, cfg.latency_s),
+            in_flight: Vec::new(),
+            arrived: Vec::new(),
+            bytes: 0,
+            requests: 0,
+            table_bytes: 0,
+            table_requests: 0,
+            background_bytes: 0,
+            delivered_bytes: 0,
+            delivered_table_bytes: 0,
+            log: cfg.record_requests.then(Vec::new),
+            progress: ProgressClock::default(),
+            transfer: TransferReport::default(),
+            longest_outage_s: 0.0,
+        }
+    }
+
+    /// Checksum failures of the transport so far.
+    fn checksum_failures(&self) -> u64 {
+        self.transport
+            .stats()
+            .checksum_failures
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+}
+
+/// What the frames of a walk measured.
+#[derive(Default)]
+struct Walked {
+    frames: Vec<FrameRecord>,
+    /// Most bytes the cache held after a frame.
+    max_cache: u64,
+    /// Time of the first complete frame, and the bytes (all, tables) delivered by then.
+    first_frame: Option<f64>,
+    first_frame_bytes: Option<(u64, u64)>,
+}
+
 /// Run one (strategy, bandwidth) walk.
 pub(crate) async fn run_one(
     source: &Source,
@@ -189,126 +232,27 @@ pub(crate) async fn run_one(
             return (report, Some(e.into()));
         }
     };
-    let mut exec = Exec {
-        transport: Transport::new(source, cfg.retry.clone()),
-        dispatcher: Dispatcher::new(),
-        link: VirtualLink::new(bandwidth, cfg.latency_s),
-        in_flight: Vec::new(),
-        arrived: Vec::new(),
-        bytes: 0,
-        requests: 0,
-        table_bytes: 0,
-        table_requests: 0,
-        background_bytes: 0,
-        delivered_bytes: 0,
-        delivered_table_bytes: 0,
-        log: cfg.record_requests.then(Vec::new),
-        progress: ProgressClock::default(),
-        transfer: TransferReport::default(),
-        longest_outage_s: 0.0,
-    };
-    let mut error = None;
-    let failures_before = exec
-        .transport
-        .stats()
-        .checksum_failures
-        .load(std::sync::atomic::Ordering::Relaxed);
+    let mut exec = Exec::new(source, cfg, bandwidth);
+    let failures_before = exec.checksum_failures();
     let length = scene.track.length();
-    let dt = cfg.frame_dt_s.max(1e-3);
-    let mut frames = Vec::new();
-    let mut max_cache = 0u64;
-    let mut first_frame = None;
-    let mut first_frame_bytes = None;
-    for (k, frame) in walk_frames(&scene.track, cfg).into_iter().enumerate() {
-        let (t, s, cam) = (frame.t_s, frame.s_m, frame.camera);
-        exec.arrive_until(t);
-        exec.feed(t, &mut sched);
-        // What the frame needs: the visibility pass over the whole database at the scripted
-        // camera.
-        let weights = blend_weights(&scene.table.vp_s, s);
-        let counts = scene
-            .index
-            .count(&cam, &weights, cfg.samples_x, cfg.samples_y);
-        let seg = segment_at(&scene.table.vp_s, s).unwrap_or(0);
-        // The paper's quality is measured against the segment's ACH list as the database
-        // has it, whether or not the strategy fetched the lists: the client's item of each
-        // entry's tile (`None` while its table is missing).
-        let truth: Vec<Option<usize>> = scene
-            .table
-            .segment_ach
-            .get(seg)
-            .map_or(&[][..], |v| v.as_slice())
-            .iter()
-            .map(|&(i, _)| {
-                let it = &scene.table.items[i];
-                sched.table().tile_item(it.viewpoint, it.tile?)
-            })
-            .collect();
-        let (quality, needed, complete) =
-            frame_metrics(sched.table(), sched.held(), &truth, &counts);
-        if complete && first_frame.is_none() {
-            first_frame = Some(t0 + t);
-            first_frame_bytes = Some((
-                manifest.bytes + exec.delivered_bytes,
-                exec.delivered_table_bytes,
-            ));
-        }
-        sched.set_bundles(exec.transport.bundles_supported());
-        let running = exec.dispatcher.running_keys();
-        let actions = sched.tick(t, s, &cam, None, &running);
-        exec.dispatcher.replace(actions.wants, actions.limits);
-        if let Err(e) = exec.send(t, &sched).await {
-            error = Some(e);
-        }
-        max_cache = max_cache.max(sched.cache().used());
-        on_frame(k as u64);
-        frames.push(FrameRecord {
-            t_s: t0 + t,
-            s_m: s,
-            quality,
-            needed_fraction: needed,
-            complete,
-            bytes: exec.bytes,
-            cache_bytes: sched.cache().used(),
-        });
-        if error.is_some() {
-            break;
-        }
-        // Between frames: each arrival frees a slot, and the next request goes at once.
-        let t_next = (k + 1) as f64 * dt;
-        while let Some(te) = exec.next_arrival(t_next) {
-            exec.arrive_until(te);
-            sched.set_bundles(exec.transport.bundles_supported());
-            if let Err(e) = exec.send(te, &sched).await {
-                error = Some(e);
-                break;
-            }
-        }
-        if error.is_some() {
-            break;
-        }
-    }
+    let (walked, error) = walk(&mut exec, &mut sched, scene, cfg, t0, manifest, on_frame).await;
+    let frames = walked.frames;
     let mean = |f: &dyn Fn(&FrameRecord) -> f64| {
         frames.iter().map(f).sum::<f64>() / frames.len().max(1) as f64
     };
     let naive = strategy == Strategy::Naive;
     let stats = sched.stats().clone();
-    let failures = exec
-        .transport
-        .stats()
-        .checksum_failures
-        .load(std::sync::atomic::Ordering::Relaxed)
-        - failures_before;
+    let failures = exec.checksum_failures() - failures_before;
     let report = RunReport {
         strategy: strategy.name(),
         bandwidth_bps: bandwidth,
-        time_to_first_frame_s: first_frame,
+        time_to_first_frame_s: walked.first_frame,
         manifest_bytes: manifest.bytes,
         manifest_s: t0,
         table_bytes: exec.table_bytes,
         background_bytes: exec.background_bytes,
-        first_frame_bytes: first_frame_bytes.map(|b| b.0),
-        first_frame_table_bytes: first_frame_bytes.map(|b| b.1),
+        first_frame_bytes: walked.first_frame_bytes.map(|b| b.0),
+        first_frame_table_bytes: walked.first_frame_bytes.map(|b| b.1),
         table_requests: exec.table_requests,
         mean_needed_fraction: mean(&|f| f.needed_fraction),
         mean_quality: mean(&|f| f.quality),
@@ -326,7 +270,7 @@ pub(crate) async fn run_one(
         },
         checksum_failures: failures,
         cache_budget_bytes: (!naive).then(|| sched.cache().budget()),
-        max_cache_bytes: max_cache,
+        max_cache_bytes: walked.max_cache,
         max_resident_bytes: stats.max_resident_bytes,
         resident_within_budget: !stats.over_budget,
         memory_budget_bytes: stats.memory_budget_bytes,
@@ -346,6 +290,98 @@ pub(crate) async fn run_one(
         request_log: exec.log.unwrap_or_default(),
     };
     (report, error)
+}
+
+/// The frames of the walk, each measured, with the requests between them; stops at the
+/// first error.
+async fn walk(
+    exec: &mut Exec,
+    sched: &mut Scheduler,
+    scene: &Scene,
+    cfg: &WalkConfig,
+    t0: f64,
+    manifest: ManifestCost,
+    on_frame: &mut dyn FnMut(u64),
+) -> (Walked, Option<WalkError>) {
+    let dt = cfg.frame_dt_s.max(1e-3);
+    let mut walked = Walked::default();
+    for (k, frame) in walk_frames(&scene.track, cfg).into_iter().enumerate() {
+        let (t, s, cam) = (frame.t_s, frame.s_m, frame.camera);
+        exec.arrive_until(t);
+        exec.feed(t, sched);
+        let (quality, needed, complete) = measure_frame(scene, cfg, sched, s, &cam);
+        if complete && walked.first_frame.is_none() {
+            walked.first_frame = Some(t0 + t);
+            walked.first_frame_bytes = Some((
+                manifest.bytes + exec.delivered_bytes,
+                exec.delivered_table_bytes,
+            ));
+        }
+        sched.set_bundles(exec.transport.bundles_supported());
+        let running = exec.dispatcher.running_keys();
+        let actions = sched.tick(t, s, &cam, None, &running);
+        exec.dispatcher.replace(actions.wants, actions.limits);
+        let mut error = exec.send(t, sched).await.err();
+        walked.max_cache = walked.max_cache.max(sched.cache().used());
+        on_frame(k as u64);
+        walked.frames.push(FrameRecord {
+            t_s: t0 + t,
+            s_m: s,
+            quality,
+            needed_fraction: needed,
+            complete,
+            bytes: exec.bytes,
+            cache_bytes: sched.cache().used(),
+        });
+        if error.is_some() {
+            return (walked, error);
+        }
+        // Between frames: each arrival frees a slot, and the next request goes at once.
+        let t_next = (k + 1) as f64 * dt;
+        while let Some(te) = exec.next_arrival(t_next) {
+            exec.arrive_until(te);
+            sched.set_bundles(exec.transport.bundles_supported());
+            if let Err(e) = exec.send(te, sched).await {
+                error = Some(e);
+                break;
+            }
+        }
+        if error.is_some() {
+            return (walked, error);
+        }
+    }
+    (walked, None)
+}
+
+/// `(quality, needed fraction, complete)` of the frame at `s` seen by `cam`: the visibility
+/// pass over the whole database at the scripted camera, against what the scheduler holds.
+fn measure_frame(
+    scene: &Scene,
+    cfg: &WalkConfig,
+    sched: &Scheduler,
+    s: f64,
+    cam: &PerspectiveCamera,
+) -> (f64, f64, bool) {
+    let weights = blend_weights(&scene.table.vp_s, s);
+    let counts = scene
+        .index
+        .count(cam, &weights, cfg.samples_x, cfg.samples_y);
+    let seg = segment_at(&scene.table.vp_s, s).unwrap_or(0);
+    // The paper's quality is measured against the segment's ACH list as the database has
+    // it, whether or not the strategy fetched the lists: the client's item of each entry's
+    // tile (`None` while its table is missing).
+    let truth: Vec<Option<usize>> = scene
+        .table
+        .segment_ach
+        .get(seg)
+        .map_or(&[][..], |v| v.as_slice())
+        .iter()
+        .map(|&(i, _)| {
+            let it = &scene.table.items[i];
+            sched.table().tile_item(it.viewpoint, it.tile?)
+        })
+        .collect();
+    frame_metrics(sched.table(), sched.held(), &truth, &counts)
 }
 
 /// `(quality, needed fraction, complete)` of one frame; `ach` is the segment's ACH list as

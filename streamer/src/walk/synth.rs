@@ -240,7 +240,7 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
     // The database writer's manifest files (compact JSON, checksum, gzip copy), so a
     // synthetic database streams like a built one.
     // The tiles are packed per viewpoint: what comes back is the manifest a reader sees.
-    crate::db::DbWriter::create(root)
+    db::DbWriter::create(root)
         .and_then(|mut w| w.finish(&manifest))
         .map_err(io::Error::other)
 }

@@ -11,7 +11,7 @@ use tracks::manifest::object_rel_path;
 
 use super::{Ask, ClientError, Connection};
 use crate::client::byteranges::{self, plan_ranges, range_header, Chunks, RangeLimits, Span};
-use crate::db::hash_matches;
+use db::hash_matches;
 
 /// Gap between two ranges of one request below which they are fetched as one: about what a
 /// part of a multipart answer costs in headers (delimiter, Content-Type, Content-Range).

@@ -93,7 +93,7 @@ pub struct SchedulerConfig {
     pub max_in_flight: usize,
     /// Pieces (meshes, PTM level groups, tables) one request carries at most.
     pub max_pieces: usize,
-    /// Smallest byte limit of one request (see [`DispatchLimits::request_bytes`]).
+    /// Smallest byte limit of one request (see [`DispatchLimits::request_bytes`](super::DispatchLimits::request_bytes)).
     pub min_request_bytes: u64,
     /// Largest byte limit of one request.
     pub max_request_bytes: u64,
@@ -112,7 +112,7 @@ pub struct SchedulerConfig {
     /// After a failed download, new requests wait this long (seconds).
     pub error_pause_s: f64,
     /// Parts with the same checksum and length fetched and cached once under one key
-    /// ([`ItemTable::set_share_parts`]; `naive` never shares).
+    /// ([`ItemTable::set_share_parts`](crate::client::ItemTable::set_share_parts); `naive` never shares).
     pub share_parts: bool,
     /// When a damaged or missing part or table is asked for again (seconds of the driver's
     /// clock), and when it is given up.

@@ -8,8 +8,8 @@ use super::{whole, whole_piece, Scheduler, Want, WantClass};
 use crate::client::http::KeySet;
 use crate::client::predict::{next_segment, segment_at};
 use crate::client::schedule::Arrival;
-use crate::db::split::{assemble, decode_ach, decode_table, ViewTable};
 use crate::visibility::SceneIndex;
+use db::split::{assemble, decode_ach, decode_table, ViewTable};
 
 impl Scheduler {
     /// The objects to fetch for viewpoint `v` that are neither in nor on the wire: its table,

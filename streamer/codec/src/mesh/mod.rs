@@ -4,42 +4,102 @@
 //!
 //! A mesh is vertices `[x, y, r]` (continuous face-pixel coordinates, radial depth in metres;
 //! the shape `slabs` produces, vertices on pixel centres) and triangles as vertex index
-//! triples. Layout (format 2):
+//! triples. A decoder returns the vertices of a lattice mesh in lattice raster order and
+//! every triangle's indices sorted (the renderer draws both sides, so the winding is not
+//! kept). Depth error: the decoded `1/r` is within `δ/2` of the encoded one (δ for depths
+//! beyond `2/δ` metres, where Q would round to 0), so `δ = 2 e θ / B` bounds the parallax
+//! error at baseline `B` to `e` pixels of `θ` radians ([`MeshCoding::for_parallax`]).
+//! Positions are exact on pixel centres (u = 1), within 1/16 pixel otherwise.
+//!
+//! ## Layout (format 2)
+//!
+//! Varints are LEB128 (7 bits a byte, least significant group first, high bit = more
+//! follows); zigzag maps `v` to `2v` (v ≥ 0) or `−2v − 1` (v < 0); floats and integers of
+//! fixed width are little-endian.
 //!
 //! ```text
 //! 0  4  magic "RMSH"
 //! 4  1  version (2)
-//! 5  1  lattice unit u: 1 (vertices on pixel centres) or 8 (eighths of a pixel)
-//! 6  …  varint face size N; zigzag varints X0, Y0; varints W, H; varint V (vertices);
-//!       varint T (triangles); f32 δ (little endian)
-//! then one range-coded stream to the end:
-//!   occupancy   the W × H lattice cells from (X0, Y0) in raster order, one adaptive bit
-//!               each (context: the left, upper-left, upper and upper-right cells) until V
-//!               are set: the vertices, in this order; vertex (X, Y) is at
-//!               x = X / u + ½, y = Y / u + ½
-//!   triangles   grown edge by edge (`connect.rs`)
-//!   depths      per vertex in order, Q = round(|F + uR + vU| / (r δ)) ≥ 1 — the inverse
-//!               *planar* depth, affine in face pixels over a flat surface — minus its
-//!               prediction: the plane through the three earlier vertices of an earlier
-//!               triangle across an edge of one of the vertex's triangles, else the mean of
-//!               an earlier edge's ends, else an earlier neighbour, else the previous vertex
+//! 5  1  lattice unit u: 1 (vertices on pixel centres), 8 (eighths of a pixel) or 0 (plain)
+//! 6  …  varint face size N; zigzag varints X0, Y0; varints W, H (the lattice box); varint V
+//!       (vertices); varint T (triangles); f32 δ (1/metres)
+//! then one range-coded stream to the end of the bytes (zeros read past it):
+//!   occupancy, triangles, depths (below)
 //! ```
 //!
+//! A decoder checks before allocating: `1 ≤ N ≤ 2²⁰`, `|X0|, |Y0| ≤ 2⁴⁰`, `W, H ≤ 2¹⁵`,
+//! `W·H ≤ 2²⁴` ([`MAX_CELLS`], [`MAX_BOX_SIDE`]), `V ≤ W·H`, `T ≤ 2V`, `V·T ≤ 2²⁸`
+//! ([`MAX_WORK`]) and `10⁻⁹ ≤ δ ≤ 10⁹`.
+//!
+//! **Occupancy.** The `W × H` lattice cells in raster order, one decision each with the
+//! model `occ[ctx]` (16 bits), `ctx = L + 2·UL + 4·U + 8·UR` from the left, upper-left,
+//! upper and upper-right cells (1 when inside the box and occupied), until `V` cells are set
+//! (no decision after the `V`-th; none when `V = 0`). The set cells are the vertices, in this
+//! order; cell `(X, Y)` (relative to the box) is the vertex at face position
+//! `x = (X + X0)/u + ½`, `y = (Y + Y0)/u + ½` (computed in f64, stored as f32).
+//!
+//! **Triangles** (models: `seed[3]`, `rank`, `far` — [`Unsigned`](crate::entropy::Unsigned)s
+//! — and `exists[6]`, bits; all fresh per mesh). Let `P(i)` be vertex `i`'s cell and
+//! `cross(o, a, b) = (a.x − o.x)(b.y − o.y) − (a.y − o.y)(b.x − o.x)`. A *side* is
+//! `(a, b, s)` with `a < b`: the points `p` with `cross(P(a), P(b), P(p))` positive
+//! (`s` = left) or negative. A triangle `[a, b, c]` (sorted) has the sides `(a, b, side of
+//! c)`, `(b, c, side of a)`, `(a, c, side of b)`; *adding* it marks these three resolved and
+//! appends the three opposite sides, in that order, to a queue (FIFO). Until `T` triangles
+//! are out:
+//!
+//! - Queue empty (at the start too): a *seed* `[a, b, c]` as three Unsigneds, `a − a'`
+//!   with `seed[0]` (`a'`: the previous seed's `a`, 0 at first), `b − a − 1` with `seed[1]`,
+//!   `c − b − 1` with `seed[2]`; it is added. (The encoder seeds with the smallest triangle
+//!   not yet out, in the order of sorted triples.)
+//! - Else pop a side; skip it when resolved. Its *first box*: the bounding box of `P(a)`,
+//!   `P(b)` grown on every side by `max(⌊max(|dx|, |dy|)/2⌋, 1)`; `empty` = no vertex other
+//!   than `a`, `b` strictly on the side within it. A decision with
+//!   `exists[shape + 3·empty]`, shape 0 for an axis-aligned edge, 1 for a diagonal
+//!   (`|dx| = |dy|`), 2 otherwise: 0 marks the side resolved; 1 is a triangle there. Its third
+//!   vertex: the *ties* are the vertices strictly on the side seen from the edge at the
+//!   largest angle (smallest `dot/|cross|` at the vertex, compared exactly in integers by
+//!   cross-multiplying), in index order — empty when no vertex is on the side. An Unsigned
+//!   with `rank`, `k`: `k` below the number of ties names the `k`-th; `k` equal to it is
+//!   followed by the vertex's index as an Unsigned with `far` (it must lie on the side); the
+//!   triangle (sorted) is added. A triangle whose corners are on one line, or that takes a
+//!   resolved side, is damage.
+//!
+//! The triangles come out in this order, each sorted.
+//!
+//! **Depths.** Per vertex `k` in order the quantised inverse *planar* depth
+//! `Q = round((√(1 + U² + V²) / r) / δ)` (f64, δ as the f32 written), clamped to
+//! 1 ..= 2³¹ − 1, where
+//! `U = 2x/N − 1`, `V = 1 − 2y/N` (so `Q` is affine in face pixels over a flat surface), is
+//! coded as `Q − pred` with a [`Signed`] model of its own per
+//! predictor (four), the prediction from earlier vertices (index below `k`), by the first
+//! that applies:
+//!
+//! 1. *Plane*: over `k`'s triangles in output order, one with two earlier corners `a < b`;
+//!    over the (up to two) triangles on edge `a b` in output order, another one whose third
+//!    corner `c` is earlier; with `D(o, s, t) = cross(P(o), P(s), P(t))` and
+//!    `den = D(a, b, c) ≠ 0`: `pred = Q_a + round((Q_b − Q_a)·D(a, k, c) + (Q_c − Q_a)·D(a, b, k),
+//!    den)`, rounding half up (`⌊(2·num + den) / (2·den)⌋` with `den > 0`, signs moved to the
+//!    numerator), clamped to 1 ..= 2³¹ − 1. The first such triangle and edge decide.
+//! 2. *Edge*: the first of `k`'s triangles with two earlier corners `a < b`:
+//!    `⌊(Q_a + Q_b + 1)/2⌋`.
+//! 3. *Neighbour*: in the first of `k`'s triangles with an earlier corner, the first such
+//!    (smaller index): its `Q`.
+//! 4. *Previous*: `Q` of vertex `k − 1`, or 0 for the first.
+//!
+//! A decoded `Q` outside 1 ..= 2³¹ − 1 is damage; `r = √(1 + U² + V²) / (Q·δ)` (δ as the f32
+//! read, in f64), stored as f32.
+//!
+//! ## Plain layout (lattice unit 0)
 //! A mesh the lattice cannot hold (two vertices at one lattice position, as where a pixel no
 //! triangle covers gets a quad of its own at its depth, or triangles that are not part of a
-//! planar triangulation) is stored plain, lattice unit 0:
+//! planar triangulation) is stored plain and exact:
 //!
 //! ```text
-//! 6  …  varint face size N; varint V; varint T; V × (x, y, r) f32; T × 3 u32 (little endian)
+//! 6  …  varint face size N (1 ..= 2²⁰); varint V (≤ 2²⁴); varint T (≤ 2²⁵);
+//!       V × (x, y, r) f32; T × 3 u32 — exactly 12·(V + T) bytes to the end
 //! ```
 //!
-//! A decoder returns the vertices of a lattice mesh in lattice raster order and every triangle's indices
-//! sorted (the renderer draws both sides, so the winding is not kept). Depth error: the
-//! decoded `1/r` is within `δ/2` of the encoded one (δ for depths beyond `2/δ` metres, where
-//! Q would round to 0), so `δ = 2 e θ / B` bounds the parallax error at baseline `B` to `e`
-//! pixels of `θ` radians ([`MeshCoding::for_parallax`]). Positions are exact on pixel
-//! centres (u = 1), within 1/16 pixel otherwise. Every count is checked against
-//! [`MAX_CELLS`], [`MAX_BOX_SIDE`], [`MAX_WORK`] and the planar bound T ≤ 2V before anything is allocated.
+//! Every vertex finite with `r > 0`, every index below `V`.
 
 mod connect;
 

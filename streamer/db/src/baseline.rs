@@ -9,7 +9,7 @@
 //! `r_min` beside it. [`measure`] does every viewpoint on every core.
 //!
 //! ```
-//! use streamer::db::baseline::panorama;
+//! use db::baseline::panorama;
 //! use tracks::CubeMap;
 //! let colour = CubeMap::filled(8, [90u8, 120, 200]);
 //! let depth = CubeMap::filled(8, 4.0f32);

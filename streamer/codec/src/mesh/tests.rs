@@ -316,7 +316,7 @@ proptest! {
 }
 
 /// The long fuzz run of the mesh decoder:
-/// `MESH_FUZZ_CASES=1000000 cargo test --release -p streamer mesh_long_fuzz -- --ignored`.
+/// `MESH_FUZZ_CASES=1000000 cargo test --release -p codec --lib mesh_long_fuzz -- --ignored`.
 #[test]
 #[ignore = "long fuzz run; set MESH_FUZZ_CASES"]
 fn mesh_long_fuzz() {

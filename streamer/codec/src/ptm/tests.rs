@@ -190,7 +190,7 @@ fn check_hostile(bytes: &[u8]) {
     }
 }
 
-/// The long fuzz run: `PTM_FUZZ_CASES=1000000 cargo test --release -p streamer long_fuzz -- --ignored`.
+/// The long fuzz run: `PTM_FUZZ_CASES=1000000 cargo test --release -p codec --lib long_fuzz -- --ignored`.
 #[test]
 #[ignore = "long fuzz run; set PTM_FUZZ_CASES"]
 fn long_fuzz() {

@@ -1,5 +1,5 @@
 //! Adaptive binary range coding: the entropy coder of the PTM's context-modelled groups
-//! ([`crate::ptm`], method 2) and of the compact meshes ([`crate::db::mesh`]).
+//! ([`crate::ptm`], method 2) and of the compact meshes ([`crate::mesh`]).
 //!
 //! Main types: [`Bit`] (an adaptive probability), the [`Encoder`] and the sans-IO [`Decoder`]
 //! over one byte stream, and the binarisations built on them: [`Unsigned`] (an adaptive
@@ -20,8 +20,66 @@
 //! implementations keep theirs private); this one is ~150 lines and its round trip is
 //! property-tested below.
 //!
+//! ## The stream, exactly
+//!
+//! All arithmetic below is on unsigned integers unless it says otherwise; `>>` is a shift
+//! (on a negative `i32`, arithmetic: it rounds towards −∞).
+//!
+//! **Adaptive bit.** A [`Bit`] is `p` (16 bits: P(bit = 1) in units of 2⁻¹⁶) and `n` (the
+//! observations so far, 0 ..= 30). It starts at `p = 32768, n = 0`. After coding `bit` it
+//! becomes, in `i32` arithmetic,
+//!
+//! ```text
+//! target = 65536 if bit = 1, else 0
+//! rate   = ⌊65536 / (n + 2)⌋            (n = 30: 2048, i.e. 1/32)
+//! p      = clamp(p + ((target − p) · rate >> 16), 31, 65505)
+//! n      = n + 1 if n < 30
 //! ```
-//! use streamer::entropy::{Bit, Decoder, Encoder, Signed};
+//!
+//! **Decoder state.** `range` and `code`, 32 bits each. At the start `range = 0xFFFF_FFFF`
+//! and `code` is the first 4 bytes of the stream, big-endian. Every byte read past the end
+//! of the stream is 0 (a stream may be empty). *Renormalisation*, after every decision:
+//! while `range < 2²⁴`: `range = range << 8`, `code = (code << 8) | next byte` (both kept to
+//! 32 bits).
+//!
+//! **Modelled decision** with bit model `m`: `bound = (range >> 16) · m.p`; the bit is 1 when
+//! `code < bound`, then `range = bound`; else it is 0, `code −= bound` and `range −= bound`.
+//! Then `m` is updated (above) and the state renormalised. The 1 takes the *lower* part of
+//! the interval.
+//!
+//! **Even decision** (probability ½, no model): `range = range >> 1`; the bit is 1 when
+//! `code < range`, else it is 0 and `code −= range`; then renormalise.
+//!
+//! **Encoder.** The carry-propagating range encoder of LZMA: a 33-bit `low` (0 at the
+//! start), `range = 0xFFFF_FFFF`, a cached byte (0) and a count of pending bytes (1). A
+//! decision narrows `[low, low + range)` exactly as the decoder narrows `code` (a 0 adds
+//! `bound`, or the halved range, to `low`); renormalising shifts out the top byte of `low`
+//! through LZMA's `shift_low` (a byte is held back while it could still receive a carry).
+//! To finish, `low` is replaced by the value in `[low, low + range − 1]` with the most
+//! trailing zero bits, five bytes are shifted out, and then the first output byte (always
+//! 0: the coded value starts below 1) and every trailing 0 byte are dropped — the decoder
+//! reads those zeros back past the end. The stream is therefore the shortest one whose
+//! value, read with zeros past its end, lies in the final interval.
+//!
+//! **Unsigned** (an adaptive Elias-gamma code of `v ≥ 0` up to 2³² − 1): models `unary[0..33]`
+//! and `high[0..33][0..3]`, bits all. Let `x = v + 1` and `k = ⌊log2 x⌋` (0 ..= 32):
+//!
+//! ```text
+//! unary    for i in 0 .. min(k, 32): a 1 with unary[i]; then, if k < 32, a 0 with unary[k]
+//!          (a decoder counts the 1s, stopping at a 0 or at 32)
+//! mantissa the k bits of x − 2^k, most significant first: the first min(k, 2) with
+//!          high[k][node] — node 0 for the first, then 1 + (first bit) for the second —
+//!          the rest as even decisions
+//! ```
+//!
+//! A decoded value is `x − 1`, saturated to 2³² − 1.
+//!
+//! **Signed** (`i32`): models `zero` and `negative` (bits) and `magnitude` (an [`Unsigned`]).
+//! A 1 with `zero` means 0; else a decision with `negative` (1: negative) and the magnitude
+//! minus one as an [`Unsigned`]. A decoded magnitude is saturated to 2³¹ − 1.
+//!
+//! ```
+//! use codec::entropy::{Bit, Decoder, Encoder, Signed};
 //! let mut enc = Encoder::new();
 //! let (mut flag, mut value) = (Bit::new(), Signed::new());
 //! for v in [0i32, 3, -7, 0, 120] {

@@ -11,7 +11,7 @@ use super::{
     gunzip_limited, gzip, hash_hex, hash_matches, parse_top, DbError, MANIFEST_FILE,
     MANIFEST_GZ_FILE, MANIFEST_HASH_FILE,
 };
-use crate::ptm;
+use codec::ptm;
 
 /// One thing wrong with a database.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
@@ -78,9 +78,32 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
 /// [`verify`], with the checks of `opts`.
 pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
     let mut report = Report::default();
+    check_top_dir(dir, &mut report)?;
+    let top = read_top_checked(dir, &mut report);
+    let decode = opts.decode.then(|| {
+        top.as_ref()
+            .is_some_and(|t| t.coarse_levels_premultiplied())
+    });
+    let (table_refs, tables) = match &top {
+        Some(top) => check_tables(dir, top, &mut report),
+        None => (Vec::new(), Vec::new()),
+    };
+    let manifest: Option<Manifest> = top.as_ref().map(|top| {
+        let refs: Vec<Vec<Option<&ViewTable>>> = tables
+            .iter()
+            .map(|row| row.iter().map(|t| t.as_ref()).collect())
+            .collect();
+        assemble(top, &refs)
+    });
+    let wanted = wanted_objects(dir, &table_refs, manifest.as_ref(), &mut report);
+    check_objects(dir, &wanted, decode, &mut report);
+    remove_stray(dir, opts, &mut report);
+    Ok(report)
+}
+
+/// The database's own directory: the manifest's files and objects/, nothing else.
+fn check_top_dir(dir: &Path, report: &mut Report) -> Result<(), DbError> {
     let top_level = fs::read_dir(dir).map_err(|e| DbError::io(dir, e))?;
-    let problem = |path: PathBuf, what: String| Problem { path, what };
-    // The database's own directory: the manifest's files and objects/, nothing else.
     let mut entries: Vec<_> = top_level.filter_map(Result::ok).collect();
     entries.sort_by_key(|e| e.file_name());
     for e in entries {
@@ -100,113 +123,119 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
                 .push(problem(e.path(), "not part of a database".into()));
         }
     }
+    Ok(())
+}
 
+/// The top manifest, its gzip copy and its checksum file: the top when it parses.
+fn read_top_checked(dir: &Path, report: &mut Report) -> Option<TopManifest> {
     let manifest_path = dir.join(MANIFEST_FILE);
     let hash_path = dir.join(MANIFEST_HASH_FILE);
     let manifest_bytes = fs::read(&manifest_path);
-    check_manifest_gz(dir, manifest_bytes.as_deref().ok(), &mut report);
-    let manifest = match manifest_bytes {
+    check_manifest_gz(dir, manifest_bytes.as_deref().ok(), report);
+    let bytes = match manifest_bytes {
         Err(e) => {
             report
                 .problems
                 .push(problem(manifest_path.clone(), e.to_string()));
-            None
+            return None;
         }
-        Ok(bytes) => {
-            match fs::read_to_string(&hash_path) {
-                Err(e) => report.problems.push(problem(
-                    hash_path.clone(),
-                    format!("{e} (the manifest cannot be checked)"),
-                )),
-                Ok(text)
-                    if object_rel_path(text.trim_end_matches('\n')).is_none()
-                        || !text.ends_with('\n') =>
-                {
-                    report.problems.push(problem(
-                        hash_path.clone(),
-                        "not a BLAKE3 hex line: the file is damaged".into(),
-                    ))
-                }
-                Ok(text) => {
-                    let got = hash_hex(&bytes);
-                    if text.trim_end() != got {
-                        let what = format!("manifest.json hashes to {got}, manifest.json.blake3 says {}: one of the two is damaged", text.trim_end());
-                        report
-                            .problems
-                            .push(problem(manifest_path.clone(), what.clone()));
-                        report.problems.push(problem(hash_path.clone(), what));
-                    }
-                }
-            }
-            match parse_top(&manifest_path, &bytes) {
-                Ok(top) => Some(top),
-                Err(e) => {
-                    report
-                        .problems
-                        .push(problem(manifest_path.clone(), strip_path(&e)));
-                    None
-                }
-            }
-        }
+        Ok(bytes) => bytes,
     };
-
-    // Every viewpoint's table: present, hash, decode; a bad one is named by viewpoint.
-    let top: Option<TopManifest> = manifest;
-    let decode = opts.decode.then(|| {
-        top.as_ref()
-            .is_some_and(|t| t.coarse_levels_premultiplied())
-    });
-    let mut table_refs: Vec<ObjectRef> = Vec::new();
-    let mut tables: Vec<Vec<Option<ViewTable>>> = Vec::new();
-    if let Some(top) = &top {
-        for t in &top.tracks {
-            let mut row = Vec::new();
-            for v in &t.viewpoints {
-                table_refs.push(v.table.clone());
-                table_refs.extend(v.ach.clone());
-                let (path, got) = check_table(dir, &v.table, v.index);
-                match got {
-                    Ok(mut table) => {
-                        report.tables_checked += 1;
-                        if let Some(ach) = &v.ach {
-                            match check_ach(dir, ach, v.index) {
-                                (_, Ok(segments)) => table.segments = segments,
-                                (path, Err(what)) => report.problems.push(problem(
-                                    path,
-                                    format!(
-                                        "ACH lists of track `{}` viewpoint {}: {what}",
-                                        t.name, v.index
-                                    ),
-                                )),
-                            }
-                        }
-                        row.push(Some(table));
-                    }
-                    Err(what) => {
-                        report.problems.push(problem(
-                            path,
-                            format!("table of track `{}` viewpoint {}: {what}", t.name, v.index),
-                        ));
-                        row.push(None);
-                    }
-                }
+    match fs::read_to_string(&hash_path) {
+        Err(e) => report.problems.push(problem(
+            hash_path.clone(),
+            format!("{e} (the manifest cannot be checked)"),
+        )),
+        Ok(text)
+            if object_rel_path(text.trim_end_matches('\n')).is_none() || !text.ends_with('\n') =>
+        {
+            report.problems.push(problem(
+                hash_path.clone(),
+                "not a BLAKE3 hex line: the file is damaged".into(),
+            ))
+        }
+        Ok(text) => {
+            let got = hash_hex(&bytes);
+            if text.trim_end() != got {
+                let what = format!("manifest.json hashes to {got}, manifest.json.blake3 says {}: one of the two is damaged", text.trim_end());
+                report
+                    .problems
+                    .push(problem(manifest_path.clone(), what.clone()));
+                report.problems.push(problem(hash_path.clone(), what));
             }
-            tables.push(row);
         }
     }
-    let manifest: Option<Manifest> = top.as_ref().map(|top| {
-        let refs: Vec<Vec<Option<&ViewTable>>> = tables
-            .iter()
-            .map(|row| row.iter().map(|t| t.as_ref()).collect())
-            .collect();
-        assemble(top, &refs)
-    });
+    match parse_top(&manifest_path, &bytes) {
+        Ok(top) => Some(top),
+        Err(e) => {
+            report
+                .problems
+                .push(problem(manifest_path.clone(), strip_path(&e)));
+            None
+        }
+    }
+}
 
-    // Every object the manifest references, with the PTM ranges inside it.
-    type Wanted<'a> = (u64, Vec<&'a PtmRef>, Vec<&'a PackRange>);
+/// Every viewpoint's table: present, hash, decode; a bad one is named by viewpoint. Returns
+/// the objects the top names (tables and ACH objects) and the tables by track and viewpoint.
+fn check_tables(
+    dir: &Path,
+    top: &TopManifest,
+    report: &mut Report,
+) -> (Vec<ObjectRef>, Vec<Vec<Option<ViewTable>>>) {
+    let mut table_refs: Vec<ObjectRef> = Vec::new();
+    let mut tables: Vec<Vec<Option<ViewTable>>> = Vec::new();
+    for t in &top.tracks {
+        let mut row = Vec::new();
+        for v in &t.viewpoints {
+            table_refs.push(v.table.clone());
+            table_refs.extend(v.ach.clone());
+            let (path, got) = check_table(dir, &v.table, v.index);
+            match got {
+                Ok(mut table) => {
+                    report.tables_checked += 1;
+                    if let Some(ach) = &v.ach {
+                        match check_ach(dir, ach, v.index) {
+                            (_, Ok(segments)) => table.segments = segments,
+                            (path, Err(what)) => report.problems.push(problem(
+                                path,
+                                format!(
+                                    "ACH lists of track `{}` viewpoint {}: {what}",
+                                    t.name, v.index
+                                ),
+                            )),
+                        }
+                    }
+                    row.push(Some(table));
+                }
+                Err(what) => {
+                    report.problems.push(problem(
+                        path,
+                        format!("table of track `{}` viewpoint {}: {what}", t.name, v.index),
+                    ));
+                    row.push(None);
+                }
+            }
+        }
+        tables.push(row);
+    }
+    (table_refs, tables)
+}
+
+/// An object the manifest references: its size, the PTMs and the mesh ranges inside it.
+type Wanted<'a> = (u64, Vec<&'a PtmRef>, Vec<&'a PackRange>);
+
+/// Every object the manifest references, with the PTM ranges inside it; bad references are
+/// problems of the manifest.
+fn wanted_objects<'a>(
+    dir: &Path,
+    table_refs: &'a [ObjectRef],
+    manifest: Option<&'a Manifest>,
+    report: &mut Report,
+) -> BTreeMap<String, Wanted<'a>> {
     let mut wanted: BTreeMap<String, Wanted> = BTreeMap::new();
     let mut bad_refs = Vec::new();
-    for obj in &table_refs {
+    for obj in table_refs {
         if object_rel_path(&obj.hash).is_none() {
             bad_refs.push(format!("invalid table hash {:?}", obj.hash));
             continue;
@@ -215,7 +244,7 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
             .entry(obj.hash.clone())
             .or_insert((obj.size, Vec::new(), Vec::new()));
     }
-    if let Some(m) = &manifest {
+    if let Some(m) = manifest {
         for_each_object(m, &mut |obj, ptm, mesh| {
             if object_rel_path(&obj.hash).is_none() {
                 bad_refs.push(format!("invalid object hash {:?}", obj.hash));
@@ -247,8 +276,18 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
         report.problems.push(problem(dir.join(MANIFEST_FILE), what));
     }
     report.objects_referenced = wanted.len();
+    wanted
+}
 
-    // Every file under objects/.
+/// Every file under objects/: its name, place, hash and size, and the ranges inside the
+/// objects the manifest references (decoded when `decode` is `Some(cleared)`); then the
+/// unreferenced and the missing objects.
+fn check_objects(
+    dir: &Path,
+    wanted: &BTreeMap<String, Wanted>,
+    decode: Option<bool>,
+    report: &mut Report,
+) {
     let objects = dir.join("objects");
     let mut seen = BTreeMap::new();
     let mut unreferenced = Vec::new();
@@ -278,66 +317,18 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
                 let mut files: Vec<_> = files.filter_map(Result::ok).collect();
                 files.sort_by_key(|e| e.file_name());
                 for f in files {
-                    let path = f.path();
                     let name = f.file_name().to_string_lossy().into_owned();
-                    if super::is_temp_name(&name) {
-                        report.stray.push(problem(path, TEMP_NOTE.into()));
-                        continue;
-                    }
-                    let Some(rel) = object_rel_path(&name) else {
-                        report
-                            .problems
-                            .push(problem(path, "not an object name (64 hex digits)".into()));
-                        continue;
-                    };
-                    if dir.join(&rel) != path {
-                        report.problems.push(problem(
-                            path,
-                            format!("object stored in the wrong directory (belongs in {rel})"),
-                        ));
-                        continue;
-                    }
-                    let bytes = match fs::read(&path) {
-                        Ok(b) => b,
-                        Err(e) => {
-                            report.problems.push(problem(path, e.to_string()));
-                            continue;
+                    let path = f.path();
+                    match check_object_file(dir, &path, &name, wanted, decode, report) {
+                        ObjectFile::Skipped => {}
+                        ObjectFile::Unreferenced => {
+                            unreferenced.push(path);
+                            seen.insert(name, ());
                         }
-                    };
-                    report.files_checked += 1;
-                    report.bytes_checked += bytes.len() as u64;
-                    let got = hash_hex(&bytes);
-                    if got != name {
-                        report.problems.push(problem(
-                            path.clone(),
-                            format!("content hash is {got}: the file is damaged"),
-                        ));
-                    }
-                    match wanted.get(&name) {
-                        None => unreferenced.push(path.clone()),
-                        Some((size, ptms, meshes)) => {
-                            if bytes.len() as u64 != *size {
-                                report.problems.push(problem(
-                                    path.clone(),
-                                    format!("size {} but the manifest says {size}", bytes.len()),
-                                ));
-                            }
-                            for p in ptms {
-                                check_ptm(&path, &bytes, p, &mut report);
-                                if let Some(cleared) = decode {
-                                    decode_ptm(&path, &bytes, p, cleared, &mut report);
-                                }
-                            }
-                            for r in meshes {
-                                if check_mesh_range(&path, &bytes, r, &mut report)
-                                    && decode.is_some()
-                                {
-                                    decode_mesh_range(&path, &bytes, r, &mut report);
-                                }
-                            }
+                        ObjectFile::Referenced => {
+                            seen.insert(name, ());
                         }
                     }
-                    seen.insert(name, ());
                 }
             }
         }
@@ -370,39 +361,121 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
             ));
         }
     }
-    // Only the holder of the directory's lock may remove temporary files: a build that is
-    // writing holds it, and its files in flight are not leftovers.
-    let lock = if opts.remove_temp && !report.stray.is_empty() {
-        match super::lock_dir(dir) {
-            Ok(lock) => Some(lock),
-            Err(e) => {
-                report.problems.push(problem(
-                    dir.to_path_buf(),
-                    format!("stray temporary files not removed: {e}"),
-                ));
-                None
-            }
-        }
-    } else {
-        None
+}
+
+/// What [`check_object_file`] made of a file under objects/.
+enum ObjectFile {
+    /// A temporary file, a misnamed or misplaced one, or one that could not be read.
+    Skipped,
+    /// An object the manifest does not reference.
+    Unreferenced,
+    /// An object the manifest references.
+    Referenced,
+}
+
+/// One file `name` at `path` under objects/: its name, place and hash, and, when the
+/// manifest references it, its size and the ranges inside it.
+fn check_object_file(
+    dir: &Path,
+    path: &Path,
+    name: &str,
+    wanted: &BTreeMap<String, Wanted>,
+    decode: Option<bool>,
+    report: &mut Report,
+) -> ObjectFile {
+    let path = path.to_path_buf();
+    if super::is_temp_name(name) {
+        report.stray.push(problem(path, TEMP_NOTE.into()));
+        return ObjectFile::Skipped;
+    }
+    let Some(rel) = object_rel_path(name) else {
+        report
+            .problems
+            .push(problem(path, "not an object name (64 hex digits)".into()));
+        return ObjectFile::Skipped;
     };
-    if lock.is_some() {
-        for s in &report.stray {
-            let gone = if s.path.is_dir() {
-                fs::remove_dir_all(&s.path)
-            } else {
-                fs::remove_file(&s.path)
-            };
-            match gone {
-                Ok(()) => report.removed.push(s.path.clone()),
-                Err(e) => report.problems.push(problem(
-                    s.path.clone(),
-                    format!("stray temporary file could not be removed: {e}"),
-                )),
-            }
+    if dir.join(&rel) != path {
+        report.problems.push(problem(
+            path,
+            format!("object stored in the wrong directory (belongs in {rel})"),
+        ));
+        return ObjectFile::Skipped;
+    }
+    let bytes = match fs::read(&path) {
+        Ok(b) => b,
+        Err(e) => {
+            report.problems.push(problem(path, e.to_string()));
+            return ObjectFile::Skipped;
+        }
+    };
+    report.files_checked += 1;
+    report.bytes_checked += bytes.len() as u64;
+    let got = hash_hex(&bytes);
+    if got != name {
+        report.problems.push(problem(
+            path.clone(),
+            format!("content hash is {got}: the file is damaged"),
+        ));
+    }
+    let Some((size, ptms, meshes)) = wanted.get(name) else {
+        return ObjectFile::Unreferenced;
+    };
+    if bytes.len() as u64 != *size {
+        report.problems.push(problem(
+            path.clone(),
+            format!("size {} but the manifest says {size}", bytes.len()),
+        ));
+    }
+    for p in ptms {
+        check_ptm(&path, &bytes, p, report);
+        if let Some(cleared) = decode {
+            decode_ptm(&path, &bytes, p, cleared, report);
         }
     }
-    Ok(report)
+    for r in meshes {
+        if check_mesh_range(&path, &bytes, r, report) && decode.is_some() {
+            decode_mesh_range(&path, &bytes, r, report);
+        }
+    }
+    ObjectFile::Referenced
+}
+
+/// Removes the stray temporary files when `opts` asks for it. Only the holder of the
+/// directory's lock may remove them: a build that is writing holds it, and its files in
+/// flight are not leftovers.
+fn remove_stray(dir: &Path, opts: VerifyOptions, report: &mut Report) {
+    if !opts.remove_temp || report.stray.is_empty() {
+        return;
+    }
+    // Held until the files are removed.
+    let _lock = match super::lock_dir(dir) {
+        Ok(lock) => lock,
+        Err(e) => {
+            report.problems.push(problem(
+                dir.to_path_buf(),
+                format!("stray temporary files not removed: {e}"),
+            ));
+            return;
+        }
+    };
+    for s in &report.stray {
+        let gone = if s.path.is_dir() {
+            fs::remove_dir_all(&s.path)
+        } else {
+            fs::remove_file(&s.path)
+        };
+        match gone {
+            Ok(()) => report.removed.push(s.path.clone()),
+            Err(e) => report.problems.push(problem(
+                s.path.clone(),
+                format!("stray temporary file could not be removed: {e}"),
+            )),
+        }
+    }
+}
+
+fn problem(path: PathBuf, what: String) -> Problem {
+    Problem { path, what }
 }
 
 const TEMP_NOTE: &str = "temporary file of an interrupted write (not part of the database)";
@@ -578,7 +651,7 @@ pub(super) fn colour_under_empty_texels(rgba: &[u8]) -> usize {
 /// Decodes a mesh whose range was checked.
 fn decode_mesh_range(path: &Path, bytes: &[u8], r: &PackRange, report: &mut Report) {
     let b = &bytes[r.offset as usize..(r.offset + r.len) as usize];
-    match super::mesh::decode_mesh(b) {
+    match codec::mesh::decode_mesh(b) {
         Ok(_) => report.meshes_decoded += 1,
         Err(e) => report.problems.push(Problem {
             path: path.to_path_buf(),

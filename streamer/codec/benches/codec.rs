@@ -1,6 +1,6 @@
 //! Decode speed of a database's payloads as a client meets them, against PNG.
 //!
-//! `RAILVIEW_BENCH_DB=DB cargo bench -p streamer --bench codec` — every distinct PTM of the
+//! `RAILVIEW_BENCH_DB=DB cargo bench -p codec --bench codec` — every distinct PTM of the
 //! database `DB` (its level groups fed in order to the streaming decoder, as a client
 //! does) and every distinct mesh, against PNG decode (the `image` crate) of the same pixels:
 //! each PTM's full-resolution image as an RGBA PNG at best compression. The decoders
@@ -14,9 +14,9 @@ use std::io::Cursor;
 use std::path::Path;
 use std::time::Instant;
 
-use streamer::db::mesh::decode_mesh;
-use streamer::db::Database;
-use streamer::ptm::{Decoder, Limits};
+use codec::mesh::decode_mesh;
+use codec::ptm::{Decoder, Limits};
+use db::Database;
 
 const ROUNDS: usize = 5;
 /// 10 Mbit/s in bytes per second.

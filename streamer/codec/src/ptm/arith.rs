@@ -27,6 +27,8 @@
 //! block as well, predicted by its neighbours clamped to what the block sum allows; alpha
 //! stays exact (it is the opacity mask) and so do the rules above that rest on it. Every
 //! sample of every level is then within `near` of the lossless pyramid's.
+//!
+//! The exact rules, for a second decoder, are in the [module docs](super) ("Method 2").
 
 use super::pyramid::is_rebuilt;
 use super::{Image, PtmError};
@@ -53,8 +55,8 @@ pub(crate) struct Models {
     colour: Vec<Signed>,
     /// Stored alpha errors by [level class][parent is 0][activity].
     alpha: Vec<Signed>,
-    /// Rebuilt residuals by [channel class][block of 2 or 4][activity / 3]: three bits (ε
-    /// hit, +1, −1 of the tree).
+    /// Rebuilt residuals by [channel class][block of 4][min(activity, 5) / 2]: the three bits
+    /// of the tree (`d = 0`, `d = 1`, `d = 3` rather than 2).
     residual: Vec<[Bit; 3]>,
 }
 
@@ -179,6 +181,45 @@ pub(crate) fn level<I: Io>(
     }
 }
 
+/// What the coding of one level keeps fixed.
+#[derive(Clone, Copy)]
+struct LevelCtx {
+    /// Width and height in pixels, samples per row.
+    w: usize,
+    h: usize,
+    row: usize,
+    /// Colour within alpha, and the level has an alpha channel.
+    within: bool,
+    /// Level class: 0 for level 0, 1 coarser.
+    lc: usize,
+    near: i32,
+    /// The lossy quantisation step, `2·near + 1`.
+    step: i32,
+    level: u32,
+}
+
+/// One sample being coded: where it is and what is known of it before its neighbours.
+#[derive(Clone, Copy)]
+struct Sample {
+    x: usize,
+    y: usize,
+    /// Index of the sample in the level, of its pixel's first sample in the parent.
+    i: usize,
+    pidx: usize,
+    ch: usize,
+    class: usize,
+    /// A colour channel (not alpha).
+    colour: bool,
+    /// The pixel rebuilt from its block's others (eq. 3).
+    rebuilt: bool,
+    /// The parent's sample (`None` for the lowest stored level).
+    pv: Option<i32>,
+    /// The pixel's alpha (255 without an alpha channel).
+    alpha: i32,
+    /// The largest value the sample may take (its alpha, with colour within alpha).
+    hi: i32,
+}
+
 fn level_c<I: Io, const C: usize>(
     io: &mut I,
     m: &mut Models,
@@ -194,9 +235,17 @@ fn level_c<I: Io, const C: usize>(
     let alpha_ch = C - 1;
     let (chans, classes) = order::<C>();
     let within = p.colour_within_alpha && has_alpha;
-    let lc = usize::from(p.level > 0);
     let near = p.near as i32;
-    let step = 2 * near + 1;
+    let lv = LevelCtx {
+        w: wu,
+        h: hu,
+        row,
+        within,
+        lc: usize::from(p.level > 0),
+        near,
+        step: 2 * near + 1,
+        level: p.level,
+    };
     // The group's first decision: red and blue relative to green.
     let decorrelate = if C >= 3 {
         let choice = src.is_some_and(|s| choose_decorrelation::<C>(s.samples));
@@ -232,128 +281,194 @@ fn level_c<I: Io, const C: usize>(
                     out[i] = 0;
                     continue;
                 }
-                // Neighbours (already decoded, rebuilt pixels included); with colour within
-                // alpha, a transparent neighbour's colour (0) says nothing about this one's.
-                let usable = |j: usize| !(within && colour) || out[j - ch + alpha_ch] > 0;
-                let wv = (x > 0 && usable(i - C)).then(|| out[i - C] as i32);
-                let nv = (y > 0 && usable(i - row)).then(|| out[i - row] as i32);
-                let nwv = (x > 0 && y > 0 && usable(i - row - C)).then(|| out[i - row - C] as i32);
-                let edge = within
-                    && colour
-                    && (alpha < 255 || (x > 0 && wv.is_none()) || (y > 0 && nv.is_none()));
-                let (pred, act) = match (wv, nv) {
-                    (Some(a), Some(b)) => {
-                        let c = nwv.unwrap_or((a + b) / 2);
-                        let ne = if x + 1 < wu && usable(i - row + C) {
-                            out[i - row + C] as i32
-                        } else {
-                            b
-                        };
-                        let pred = (a + b - c).clamp(a.min(b), a.max(b));
-                        (
-                            pred,
-                            (a - c).unsigned_abs()
-                                + (b - c).unsigned_abs()
-                                + (b - ne).unsigned_abs(),
-                        )
-                    }
-                    (Some(a), None) => (a, 0),
-                    (None, Some(b)) => (b, 0),
-                    (None, None) => (pv.unwrap_or(0), 0),
-                };
                 let hi = if within && colour { alpha } else { 255 };
-                // How far the neighbours' prediction strays from the block's mean (the parent)
-                // counts as activity too.
-                let act = match pv {
-                    Some(pp) if !rebuilt => act + (pred - pp).unsigned_abs(),
-                    _ => act,
+                let s = Sample {
+                    x,
+                    y,
+                    i,
+                    pidx,
+                    ch,
+                    class,
+                    colour,
+                    rebuilt,
+                    pv,
+                    alpha,
+                    hi,
                 };
-                let pred = pred.min(hi);
-                let act = bucket(act);
+                let (pred, act, edge) = predict::<C>(out, &lv, &s);
                 if rebuilt && !lossy {
-                    // ε of the block, relative to the one the prediction implies (eq. 3).
-                    let pv = pv.unwrap_or(0);
-                    let (others, cnt) = block_others::<C>(out, x, y, wu, hu, row, ch);
-                    let n = cnt as i32;
-                    if cnt == 1 {
-                        out[i] = pv as u8;
-                        continue;
-                    }
-                    let guess = (others + pred - n * pv).clamp(0, n - 1);
-                    let d =
-                        src.map_or(0, |s| (s.residuals[pidx + ch] as i32 - guess).rem_euclid(n));
-                    let ms =
-                        &mut m.residual[(class * 2 + usize::from(cnt == 4)) * 3 + act.min(5) / 2];
-                    let d = residual_tree(io, ms, cnt, d as u32) as i32;
-                    let eps = (guess + d) % n;
-                    let v = n * pv + eps - others;
-                    if !(0..=255).contains(&v) {
-                        return Err(PtmError::BadResidual {
-                            level: p.level,
-                            x: x as u32,
-                            y: y as u32,
-                            channel: ch as u8,
-                            value: v,
-                        });
-                    }
-                    out[i] = v as u8;
+                    out[i] = rebuilt_lossless::<I, C>(io, m, &lv, &s, src, out, pred, act)?;
                     continue;
                 }
                 let model = if class == ALPHA {
-                    &mut m.alpha[(lc * 2 + usize::from(pv == Some(0))) * ACTS + act]
+                    &mut m.alpha[(lv.lc * 2 + usize::from(pv == Some(0))) * ACTS + act]
                 } else {
-                    &mut m.colour[((lc * 2 + class - 1) * 2 + usize::from(edge)) * ACTS + act]
+                    &mut m.colour[((lv.lc * 2 + class - 1) * 2 + usize::from(edge)) * ACTS + act]
                 };
-                let red_blue = decorrelate && class == RED_BLUE;
-                if !lossy {
-                    let e = src.map_or(0, |s| wrap(s.samples[i] as i32 - pred));
-                    let coded = if red_blue { wrap(e - green_err) } else { e };
-                    let coded = io.signed(model, coded);
-                    let e = if red_blue {
-                        wrap(coded.wrapping_add(green_err))
-                    } else {
-                        wrap(coded)
-                    };
-                    if class == GREEN {
-                        green_err = e;
-                    }
-                    out[i] = (pred + e) as u8;
-                    continue;
-                }
-                // Lossy colour: the rebuilt pixel predicted within what the block sum allows.
-                let pred = if rebuilt {
-                    let pv = pv.unwrap_or(0);
-                    let (others, cnt) = block_others::<C>(out, x, y, wu, hu, row, ch);
-                    let n = cnt as i32;
-                    let (lo, top) = (n * pv - others, n * pv + n - 1 - others);
-                    if lo <= top {
-                        pred.clamp(lo.max(0), top.min(hi).max(lo.max(0)))
-                    } else {
-                        pred
-                    }
+                // Red and blue relative to green: green's error, else 0.
+                let base = if decorrelate && class == RED_BLUE {
+                    green_err
                 } else {
-                    pred
+                    0
                 };
-                let q = src.map_or(0, |s| {
-                    let e = s.samples[i] as i32 - pred;
-                    e.signum() * ((e.abs() + near) / step)
-                });
-                let coded = if red_blue { q - green_err } else { q };
-                let coded = io.signed(model, coded);
-                let q = if red_blue {
-                    coded.saturating_add(green_err)
+                let (v, err) = if lossy {
+                    lossy_colour::<I, C>(io, model, &lv, &s, src, out, pred, base)
                 } else {
-                    coded
+                    lossless_stored(io, model, &s, src, pred, base)
                 };
                 if class == GREEN {
-                    green_err = q;
+                    green_err = err;
                 }
-                let v = (pred as i64 + q as i64 * step as i64).clamp(0, hi as i64);
-                out[i] = v as u8;
+                out[i] = v;
             }
         }
     }
     Ok(())
+}
+
+/// The prediction of a sample from its causal neighbours in the level (rebuilt pixels
+/// included), clamped to its `hi`; its activity bucket; whether it lies at an outline (with
+/// colour within alpha).
+#[inline(always)]
+fn predict<const C: usize>(out: &[u8], lv: &LevelCtx, s: &Sample) -> (i32, usize, bool) {
+    let (x, y, i, ch, row) = (s.x, s.y, s.i, s.ch, lv.row);
+    let alpha_ch = C - 1;
+    // With colour within alpha, a transparent neighbour's colour (0) says nothing about this
+    // one's.
+    let masked = lv.within && s.colour;
+    let usable = |j: usize| !masked || out[j - ch + alpha_ch] > 0;
+    let wv = (x > 0 && usable(i - C)).then(|| out[i - C] as i32);
+    let nv = (y > 0 && usable(i - row)).then(|| out[i - row] as i32);
+    let nwv = (x > 0 && y > 0 && usable(i - row - C)).then(|| out[i - row - C] as i32);
+    let edge = masked && (s.alpha < 255 || (x > 0 && wv.is_none()) || (y > 0 && nv.is_none()));
+    let (pred, act) = match (wv, nv) {
+        (Some(a), Some(b)) => {
+            let c = nwv.unwrap_or((a + b) / 2);
+            let ne = if x + 1 < lv.w && usable(i - row + C) {
+                out[i - row + C] as i32
+            } else {
+                b
+            };
+            let pred = (a + b - c).clamp(a.min(b), a.max(b));
+            (
+                pred,
+                (a - c).unsigned_abs() + (b - c).unsigned_abs() + (b - ne).unsigned_abs(),
+            )
+        }
+        (Some(a), None) => (a, 0),
+        (None, Some(b)) => (b, 0),
+        (None, None) => (s.pv.unwrap_or(0), 0),
+    };
+    // How far the neighbours' prediction strays from the block's mean (the parent) counts as
+    // activity too.
+    let act = match s.pv {
+        Some(pp) if !s.rebuilt => act + (pred - pp).unsigned_abs(),
+        _ => act,
+    };
+    (pred.min(s.hi), bucket(act), edge)
+}
+
+/// The rebuilt pixel's sample, lossless: ε of the block, relative to the one the prediction
+/// implies (eq. 3), through the residual tree.
+#[expect(
+    clippy::too_many_arguments,
+    reason = "inlined into the per-sample loop; a struct would only rename them"
+)]
+#[inline(always)]
+fn rebuilt_lossless<I: Io, const C: usize>(
+    io: &mut I,
+    m: &mut Models,
+    lv: &LevelCtx,
+    s: &Sample,
+    src: Option<Source>,
+    out: &[u8],
+    pred: i32,
+    act: usize,
+) -> Result<u8, PtmError> {
+    let pv = s.pv.unwrap_or(0);
+    let (others, cnt) = block_others::<C>(out, s.x, s.y, lv.w, lv.h, lv.row, s.ch);
+    let n = cnt as i32;
+    if cnt == 1 {
+        return Ok(pv as u8);
+    }
+    let guess = (others + pred - n * pv).clamp(0, n - 1);
+    let d = src.map_or(0, |src| {
+        (src.residuals[s.pidx + s.ch] as i32 - guess).rem_euclid(n)
+    });
+    let ms = &mut m.residual[(s.class * 2 + usize::from(cnt == 4)) * 3 + act.min(5) / 2];
+    let d = residual_tree(io, ms, cnt, d as u32) as i32;
+    let eps = (guess + d) % n;
+    let v = n * pv + eps - others;
+    if !(0..=255).contains(&v) {
+        return Err(PtmError::BadResidual {
+            level: lv.level,
+            x: s.x as u32,
+            y: s.y as u32,
+            channel: s.ch as u8,
+            value: v,
+        });
+    }
+    Ok(v as u8)
+}
+
+/// A stored sample, lossless: its error against the prediction (mod 256), coded relative
+/// to `base` (green's error for red and blue when decorrelated, else 0). Returns the sample
+/// and its error.
+#[inline(always)]
+fn lossless_stored<I: Io>(
+    io: &mut I,
+    model: &mut Signed,
+    s: &Sample,
+    src: Option<Source>,
+    pred: i32,
+    base: i32,
+) -> (u8, i32) {
+    let e = src.map_or(0, |src| wrap(src.samples[s.i] as i32 - pred));
+    let coded = io.signed(model, wrap(e - base));
+    let e = wrap(coded.wrapping_add(base));
+    ((pred + e) as u8, e)
+}
+
+/// A colour sample, lossy: its error quantised in steps of `2·near + 1`, the rebuilt pixel
+/// predicted within what the block sum allows; coded relative to `base` (green's quantised
+/// error for red and blue when decorrelated, else 0). Returns the sample and its quantised
+/// error.
+#[expect(
+    clippy::too_many_arguments,
+    reason = "inlined into the per-sample loop; a struct would only rename them"
+)]
+#[inline(always)]
+fn lossy_colour<I: Io, const C: usize>(
+    io: &mut I,
+    model: &mut Signed,
+    lv: &LevelCtx,
+    s: &Sample,
+    src: Option<Source>,
+    out: &[u8],
+    pred: i32,
+    base: i32,
+) -> (u8, i32) {
+    let pred = if s.rebuilt {
+        let pv = s.pv.unwrap_or(0);
+        let (others, cnt) = block_others::<C>(out, s.x, s.y, lv.w, lv.h, lv.row, s.ch);
+        let n = cnt as i32;
+        let (lo, top) = (n * pv - others, n * pv + n - 1 - others);
+        if lo <= top {
+            pred.clamp(lo.max(0), top.min(s.hi).max(lo.max(0)))
+        } else {
+            pred
+        }
+    } else {
+        pred
+    };
+    let q = src.map_or(0, |src| {
+        let e = src.samples[s.i] as i32 - pred;
+        e.signum() * ((e.abs() + lv.near) / lv.step)
+    });
+    let coded = io.signed(model, q - base);
+    let q = coded.saturating_add(base);
+    let v = (pred as i64 + q as i64 * lv.step as i64).clamp(0, s.hi as i64);
+    (v as u8, q)
 }
 
 /// Sum of the block's pixels other than the rebuilt one at `(x, y)`, channel `ch`, and the

@@ -10,15 +10,15 @@
 //! the zstd method and partial decodes. Database tiles (32² slab tiles with masks) and meshes
 //! are measured by the `codec` bench.
 //!
-//! `cargo bench -p streamer --bench ptm` (sizes and ratio only: `… -- nomatch`)
+//! `cargo bench -p codec --bench ptm` (sizes and ratio only: `… -- nomatch`)
 
 use std::hint::black_box;
 use std::io::Cursor;
 use std::time::Instant;
 
+use codec::ptm::{decode, decode_up_to, encode, EncodeOptions, Image, Limits, Method};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use prerender::render::{render_cube, RenderOptions};
-use streamer::ptm::{decode, decode_up_to, encode, EncodeOptions, Image, Limits, Method};
 use tracks::Face;
 
 const N: u32 = 256;

@@ -1,14 +1,17 @@
-//! The split manifest (format 5; format 4 is read too): a small top-level [`TopManifest`] plus one content-addressed
-//! tile table per viewpoint ([`ViewTable`]), so a client needs the top and the tables of the
+//! The split manifest (format 6; older formats are refused with a request to rebuild): a
+//! small top-level [`TopManifest`] plus one content-addressed tile table per viewpoint ([`ViewTable`]), so a client needs the top and the tables of the
 //! viewpoints around it before its first frame, not the whole database's entries.
 //!
 //! ```text
 //! manifest.json      TopManifest: scene, slabs, tracks, viewpoints (position and a
 //!                    reference — hash and size — to the viewpoint's table)
 //! objects/HH/HASH    a viewpoint's table: compact binary ([`super::table`]: background tiles
-//!                    and tiles, their ranges in the viewpoint's pack with 32-bit checksums,
-//!                    the ACH lists of the segments starting at the viewpoint); an object
-//!                    like the others (fetched, hash-checked and cached the same way)
+//!                    and tiles, their ranges in the viewpoint's pack, or in an earlier
+//!                    viewpoint's, with 32-bit checksums); an object like the others
+//!                    (fetched, hash-checked and cached the same way)
+//! objects/HH/HASH    a viewpoint's ACH object ([`super::table`]: the ACH lists of the
+//!                    segments starting at the viewpoint), fetched only by clients that
+//!                    rank tiles by ACH
 //! objects/HH/HASH    a viewpoint's pack ([`super::pack`]): its background tiles' PTM level
 //!                    groups, then its tiles' meshes and PTM level groups, back to back in
 //!                    table order, named once by the table
@@ -41,7 +44,7 @@ pub use super::table::{
     decode_ach, decode_table, encode_ach, encode_table, TableError, MAX_TABLE_BYTES,
 };
 
-/// `manifest.json` of format 4 or 5.
+/// `manifest.json` (format [`TOP_VERSION`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TopManifest {
     pub version: u32,

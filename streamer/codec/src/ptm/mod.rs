@@ -19,38 +19,130 @@
 //! 1×1 block stores nothing and is its parent.
 //!
 //! ## File layout (format 3)
+//!
 //! ```text
-//! 0   1  format version (3)
-//! 1   1  method: 0 = raw (the paper's layout, no compression), 1 = parent prediction + zstd,
-//!        2 = parent prediction + context-modelled range coding
-//! 2   1  channels (1 grey, 2 grey+alpha, 3 RGB, 4 RGBA) in bits 0–2; bit 4: every colour
-//!        sample is at most its alpha at every level (method 2 codes nothing it implies)
-//! 3   1  level count L (1 ..= 1 + ⌈log2 max(w, h)⌉)
-//! 4   1  near: the largest error of a colour sample (0 = lossless; only method 2)
-//! 5   …  varint width of level 0, varint height, then L varints: the payload length of
-//!        group 0 .. L−1 (LEB128)
-//! then group 0: the lowest level (L−1) whole, in line-major order
-//! then group g = 1 .. L−1: level L−1−g — residuals (2 bits per channel per parent pixel,
-//!      raster order over the parent, channels interleaved, four per byte from the low bits),
-//!      then the partial level (every pixel except the rebuilt ones, raster order)
+//! offset  bytes  field
+//! 0       1      format version: 3
+//! 1       1      method: 0 = raw (the paper's layout, no compression), 1 = parent
+//!                prediction + zstd, 2 = parent prediction + context-modelled range coding
+//! 2       1      bits 0–2: channels C (1 grey, 2 grey+alpha, 3 RGB, 4 RGBA);
+//!                bit 4: colour within alpha — every colour sample is at most its pixel's
+//!                alpha at every level (method 2 with C = 2 or 4 only; method 2 codes
+//!                nothing it implies); every other bit 0
+//! 3       1      level count L, 1 ..= 1 + ⌈log2 max(W, H)⌉
+//! 4       1      near: the largest error of a colour sample, 0 (lossless) ..= 32; nonzero
+//!                only with method 2
+//! 5       …      LEB128 varints (7 bits a byte, least significant group first, high bit =
+//!                more follows; at most 5 bytes, value < 2³²): W, H (both ≥ 1), then L
+//!                payload lengths: group 0's .. group L−1's
+//! then the L group payloads back to back, group 0 first; nothing after the last
 //! ```
+//!
+//! Levels: level 0 is `W × H`; level `ℓ + 1` is `⌈w/2⌉ × ⌈h/2⌉` of level `ℓ`'s `w × h`
+//! ([`level_dims`]). Group `g` holds level `L − 1 − g`: group 0 the lowest stored level
+//! whole, group `g ≥ 1` what the level needs beyond its parent (level `L − g`, decoded by
+//! the group before). Samples are interleaved (`(y·w + x)·C + c`), rows top to bottom.
 //! A PTM is found through a table that says what it is, so the header has no magic and its
 //! sizes are varints: 10–16 bytes for a tile instead of the 40 of format 2.
 //! Group 0 as a *stream chunk* includes the header, so fetching chunk 0 gives everything
 //! needed to ask for any other chunk by byte range ([`Encoded::groups`], [`Header::chunk_range`]).
 //!
-//! With method 1 each group's payload is a mode byte and one zstd frame of: one byte per
-//! residual, coded relative to the residual the neighbours predict, then every stored
-//! sample's difference (mod 256) from its prediction (see `predict.rs`), the colour channels
-//! interleaved and the alpha channel in planes of its own, red and blue optionally relative
-//! to green (the mode byte, chosen per group by the encoder; see `layout.rs`). The lowest
-//! level is coded as differences from the previous value in each channel plane (mode 0).
-//! With method 2 each group is one adaptive range-coded stream whose context models carry
-//! over from the groups before it (see `arith.rs`); it is what databases store. A group
-//! decodes once its parent level is known.
+//! A decoder checks every field before allocating: the sizes against [`Limits`] (each side,
+//! and the bytes of all `L` levels), and each payload length `len` against the group's
+//! *plain length* — group 0: `w·h·C` of its level; group `g ≥ 1`: `s·C` for the stored
+//! pixels, `s = w·h − pw·ph`, plus the residuals, `⌈pw·ph·C / 4⌉` bytes for method 0 and
+//! `pw·ph·C` for methods 1 and 2 (`pw × ph` the parent's size). Method 0 needs
+//! `len = plain`, method 1 `2 ≤ len ≤ plain + plain/128 + 1025`, method 2
+//! `len ≤ 4·plain + 1024`.
+//!
+//! **Blocks.** Pixel `(x, y)` of a level belongs to the block of parent pixel
+//! `(⌊x/2⌋, ⌊y/2⌋)`. A block has `n` = 4, 2 or 1 pixels (2 or 1 on an odd right or bottom
+//! edge). Its *rebuilt* pixel is its last in raster order: `(x odd or x = w − 1) and
+//! (y odd or y = h − 1)`; the others are *stored*. Rebuilt pixels, met in raster order, are
+//! one per parent pixel in the parent's raster order. A rebuilt sample is
+//! `v = n·parent + ε − others` (eq. 3), `others` the sum of the block's other samples of that
+//! channel and `ε ∈ [0, n)` the block's residual; `v` outside 0..=255 or `ε ≥ n` is damage.
+//!
+//! ## Method 0 (raw)
+//! Group 0: the level's samples. Group `g ≥ 1`: the residuals ε of every parent sample
+//! (parent raster order, channels interleaved), 2 bits each, four to a byte from the low bits,
+//! the unused bits of the last byte 0; then the samples of the stored pixels in raster order.
+//!
+//! ## Method 1 (zstd)
+//! Each payload is a *mode* byte and one zstd frame that decompresses to exactly the plain
+//! length. Group 0 (mode 0): per channel `c`, a plane of `w·h` bytes, each sample minus the
+//! one before it in that plane (mod 256; the first minus 0). Group `g ≥ 1`, in plain
+//! (interleaved) order: per parent sample a residual code `(ε − guess) mod 4` (one byte),
+//! then per sample of the stored pixels `(I − pred) mod 256`, where a sample is predicted in
+//! raster order from the level decoded so far (rebuilt pixels included as soon as their block
+//! is complete): `pred = MED(W, N, NW) = clamp(W + N − NW, min(W, N), max(W, N))` inside the
+//! level, `W` on the first row, `N` in the first column, and for pixel (0, 0) its parent's
+//! sample; a rebuilt sample's `guess = clamp(others + pred − n·parent, 0, n − 1)` (a code
+//! above 3 is damage). The plain bytes are stored rearranged: the colour channels' residual
+//! codes (interleaved), their prediction errors (interleaved), then, with 2 or 4 channels,
+//! the alpha residual codes and the alpha errors as planes of their own. Mode bit 0 (RGB and
+//! RGBA only; every other bit 0, and group 0 always mode 0): the errors of red and blue are
+//! stored as `(e_R − e_G) mod 256` and `(e_B − e_G) mod 256`.
+//!
+//! ## Method 2 (context-modelled range coding; what databases store)
+//! Each payload is one range-coded stream ([`crate::entropy`], a fresh decoder per group,
+//! zeros read past the payload's end). The context models are made once per PTM, every
+//! probability at ½, and carried from group to group:
+//!
+//! ```text
+//! colour[2][2][2][8]   Signed: [level class][green or grey: 0, red or blue: 1][edge][activity]
+//! alpha[2][2][8]       Signed: [level class][parent sample is 0][activity]
+//! residual[3][2][3]    three Bits: [channel class: alpha 0, green or grey 1, red or blue 2]
+//!                      [block of 4 pixels][min(activity, 5) / 2]
+//! ```
+//!
+//! (indices row-major, e.g. `colour[lc][k][e][a]` at `((lc·2 + k)·2 + e)·8 + a`). A group
+//! codes level `ℓ` (`w × h`); its level class `lc` is 0 for `ℓ = 0`, else 1; `near` and the
+//! colour-within-alpha flag `F` (with an alpha channel) come from the header. With 3 or 4
+//! channels the group starts with one even decision, `D`: red and blue relative to green.
+//! Then every pixel in raster order, its channels in the order
+//!
+//! ```text
+//! C = 1: grey                C = 2: alpha, grey
+//! C = 3: green, red, blue    C = 4: alpha, green, red, blue
+//! ```
+//!
+//! and per pixel `g_err = 0`. Each sample, with `pv` the parent's sample of its block
+//! (none in group 0), `lossy = (colour channel and near > 0)`, `A` the pixel's alpha
+//! (decoded first; 255 without alpha) and `rebuilt` only when there is a parent:
+//!
+//! 1. `pv = 255` and not lossy: the sample is 255, nothing coded (the block's floor mean is
+//!    255). `F`, a colour channel and `A = 0`: the sample is 0, nothing coded.
+//! 2. Neighbours in the level decoded so far: `W` (x > 0), `N` (y > 0), `NW`, `NE`
+//!    (x + 1 < w); with `F` on a colour channel a neighbour whose alpha is 0 is absent.
+//!    `edge = F and colour and (A < 255 or W absent with x > 0 or N absent with y > 0)`.
+//!    With `W` and `N`: `c = NW`, or `⌊(W + N)/2⌋` when `NW` is absent; `NE` defaults to `N`;
+//!    `pred = clamp(W + N − c, min(W, N), max(W, N))` and
+//!    `act = |W − c| + |N − c| + |N − NE|`. Only `W`: `pred = W`; only `N`: `pred = N`;
+//!    neither: `pred = pv` (0 in group 0); `act = 0` in those three cases. Then
+//!    `act += |pred − pv|` when there is a parent and the pixel is stored; `hi = A` with `F`
+//!    on a colour channel, else 255; `pred = min(pred, hi)`; and `act` becomes its bucket,
+//!    the number of the bounds 0, 2, 5, 10, 20, 40, 80 it exceeds (0 ..= 7).
+//! 3. Rebuilt and not lossy: with the block's `n` and `others`, `n = 1` gives `pv`, nothing
+//!    coded; else `guess = clamp(others + pred − n·pv, 0, n − 1)` and `d ∈ [0, n)` is read
+//!    from the three bits `r = residual[class][n = 4][min(act, 5)/2]`: a 1 with `r[0]` is
+//!    `d = 0`; else `n = 2` gives `d = 1`; else a 1 with `r[1]` is `d = 1`; else a 1 with
+//!    `r[2]` is `d = 3`, a 0 is `d = 2`. `ε = (guess + d) mod n` and the sample is eq. 3.
+//! 4. Otherwise the model is `alpha[lc][pv = 0][act]` for alpha, `colour[lc][k][edge][act]`
+//!    for colour; `base = g_err` for red and blue when `D`, else 0; `s` is a Signed.
+//!    Lossless: `e = wrap(s + base)` (`wrap`: to −128..=127 modulo 256), the sample is
+//!    `(pred + e) mod 256`. Lossy colour: a rebuilt pixel's `pred` first becomes
+//!    `clamp(pred, lo', max(min(n·pv + n − 1 − others, hi), lo'))` with
+//!    `lo' = max(n·pv − others, 0)`; then `q = s + base` and the sample is
+//!    `clamp(pred + q·(2·near + 1), 0, hi)` (the encoder's `q` is
+//!    `sign(e)·⌊(|e| + near)/(2·near + 1)⌋` for `e = I − pred`). For green (or grey),
+//!    `g_err = e` (lossless) or `q` (lossy).
+//!
+//! In the lossy mode a group is coded against the parent as the decoder rebuilt it, so every
+//! sample of every level is within `near` of the lossless pyramid's; alpha stays exact.
 //!
 //! ```
-//! use streamer::ptm::{encode, Decoder, EncodeOptions, Image, Limits, Status};
+//! use codec::ptm::{encode, Decoder, EncodeOptions, Image, Limits, Status};
 //! let img = Image::from_fn(5, 3, 3, |x, y, c| (x * 40 + y * 7 + c as u32 * 3) as u8);
 //! let enc = encode(&img, &EncodeOptions::default()).unwrap();
 //! let mut dec = Decoder::new(Limits::default());

@@ -6,9 +6,9 @@ use glam::DVec3;
 use tracks::manifest::*;
 use tracks::{Face, SlabRange, TileId};
 
-use super::mesh::{encode_mesh, MeshCoding, MeshData};
 use super::*;
-use crate::ptm::{encode, EncodeOptions, Image};
+use codec::mesh::{encode_mesh, MeshCoding, MeshData};
+use codec::ptm::{encode, EncodeOptions, Image};
 
 fn tmpdir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("railview-db-{name}-{}", std::process::id()));
@@ -161,7 +161,7 @@ fn write_open_read_levels() {
     let start = p.levels[0].offset as usize;
     assert_eq!(&stream[..], &whole[start..start + stream.len()]);
     assert_eq!(
-        crate::ptm::decode(&stream, crate::ptm::Limits::default())
+        codec::ptm::decode(&stream, codec::ptm::Limits::default())
             .unwrap()
             .width(),
         16

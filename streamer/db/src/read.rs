@@ -1,0 +1,271 @@
+//! Reading a database: the top manifest checked against its checksum file and the limits,
+//! every viewpoint's table and ACH object checked against its hash, assembled into one
+//! [`Manifest`]; objects, byte ranges and PTM level groups read with their checksums.
+
+use std::fs;
+use std::io::{self, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+
+use tracks::manifest::{object_rel_path, Manifest, ObjectRef, PtmRef};
+
+use crate::split::{self, TopManifest, ViewTable, OLDEST_READ_VERSION, TOP_VERSION};
+use crate::{hash_hex, hash_matches, DbError, MANIFEST_FILE, MANIFEST_HASH_FILE};
+
+/// A database opened for reading.
+#[derive(Debug, Clone)]
+pub struct Database {
+    root: PathBuf,
+    top: TopManifest,
+    manifest: Manifest,
+}
+
+impl Database {
+    /// Reads and checks `DIR/manifest.json` (against its checksum file when present) and
+    /// every viewpoint's table (hash, decode).
+    pub fn open(dir: &Path) -> Result<Database, DbError> {
+        let top = read_top(dir)?;
+        let manifest = read_tables(dir, &top)?;
+        Ok(Database {
+            root: dir.to_path_buf(),
+            top,
+            manifest,
+        })
+    }
+
+    /// The top manifest as stored (`manifest.json`).
+    pub fn top(&self) -> &TopManifest {
+        &self.top
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// Path of the object with this hash; `None` for anything that is not a valid hash.
+    pub fn object_path(&self, hash: &str) -> Option<PathBuf> {
+        object_rel_path(hash).map(|rel| self.root.join(rel))
+    }
+
+    /// The whole object, checked against its size and hash.
+    pub fn read_object(&self, obj: &ObjectRef) -> Result<Vec<u8>, DbError> {
+        let path = self
+            .object_path(&obj.hash)
+            .ok_or_else(|| DbError::Request(format!("invalid object hash {:?}", obj.hash)))?;
+        let bytes = fs::read(&path).map_err(|e| DbError::io(&path, e))?;
+        if bytes.len() as u64 != obj.size {
+            return Err(DbError::format(
+                &path,
+                format!("size {} (manifest says {})", bytes.len(), obj.size),
+            ));
+        }
+        let got = hash_hex(&bytes);
+        if got != obj.hash {
+            return Err(DbError::format(&path, format!("content hash is {got}")));
+        }
+        Ok(bytes)
+    }
+
+    /// `len` bytes at `offset` of an object (not hash-checked: ranges carry their own hash).
+    pub fn read_range(&self, obj: &ObjectRef, offset: u64, len: u64) -> Result<Vec<u8>, DbError> {
+        let end = offset
+            .checked_add(len)
+            .filter(|&e| e <= obj.size)
+            .ok_or_else(|| {
+                DbError::Request(format!(
+                    "range {offset}+{len} outside object {} of {} bytes",
+                    obj.hash, obj.size
+                ))
+            })?;
+        let path = self
+            .object_path(&obj.hash)
+            .ok_or_else(|| DbError::Request(format!("invalid object hash {:?}", obj.hash)))?;
+        let mut f = fs::File::open(&path).map_err(|e| DbError::io(&path, e))?;
+        let mut buf = vec![0u8; (end - offset) as usize];
+        f.seek(SeekFrom::Start(offset))
+            .and_then(|_| f.read_exact(&mut buf))
+            .map_err(|e| DbError::io(&path, e))?;
+        Ok(buf)
+    }
+
+    /// A range of a pack, checked against its checksum.
+    pub fn read_checked_range(
+        &self,
+        obj: &ObjectRef,
+        r: &tracks::manifest::PackRange,
+    ) -> Result<Vec<u8>, DbError> {
+        let bytes = self.read_range(obj, r.offset, r.len)?;
+        if !hash_matches(&bytes, &r.hash) {
+            let path = self.object_path(&obj.hash).unwrap_or_default();
+            return Err(DbError::format(
+                &path,
+                format!(
+                    "bytes {}..{}: checksum does not match {}",
+                    r.offset,
+                    r.offset + r.len,
+                    r.hash
+                ),
+            ));
+        }
+        Ok(bytes)
+    }
+
+    /// Stream chunk `group` of a PTM (0 = header + lowest level), checked against its hash.
+    pub fn read_level(&self, ptm: &PtmRef, group: usize) -> Result<Vec<u8>, DbError> {
+        let l = ptm.levels.get(group).ok_or_else(|| {
+            DbError::Request(format!(
+                "PTM {} has {} level groups, not {}",
+                ptm.object.hash,
+                ptm.levels.len(),
+                group + 1
+            ))
+        })?;
+        let bytes = self.read_range(&ptm.object, l.offset, l.len)?;
+        if !hash_matches(&bytes, &l.hash) {
+            let got = hash_hex(&bytes);
+            let path = self.object_path(&ptm.object.hash).unwrap_or_default();
+            return Err(DbError::format(
+                &path,
+                format!(
+                    "level group {group} (bytes {}..{}) hash is {got}, manifest says {}",
+                    l.offset,
+                    l.offset + l.len,
+                    l.hash
+                ),
+            ));
+        }
+        Ok(bytes)
+    }
+}
+
+/// Reads the whole manifest: the top ([`read_top`]) and every viewpoint's table, assembled.
+pub fn read_manifest(dir: &Path) -> Result<Manifest, DbError> {
+    read_tables(dir, &read_top(dir)?)
+}
+
+/// Reads every table the top manifest refers to (hash-checked, decoded) and assembles the
+/// full manifest.
+pub fn read_tables(dir: &Path, top: &TopManifest) -> Result<Manifest, DbError> {
+    let db = Database {
+        root: dir.to_path_buf(),
+        top: top.clone(),
+        manifest: split::assemble(top, &[]),
+    };
+    let mut tables = Vec::with_capacity(top.tracks.len());
+    for t in &top.tracks {
+        let mut row = Vec::with_capacity(t.viewpoints.len());
+        for v in &t.viewpoints {
+            let bytes = db.read_object(&v.table)?;
+            let path = db.object_path(&v.table.hash).unwrap_or_default();
+            let mut table = split::decode_table(&bytes, v.index).map_err(|e| {
+                DbError::format(
+                    &path,
+                    format!("track `{}` viewpoint {}: {e}", t.name, v.index),
+                )
+            })?;
+            if let Some(ach) = &v.ach {
+                let bytes = db.read_object(ach)?;
+                let path = db.object_path(&ach.hash).unwrap_or_default();
+                table.segments = split::decode_ach(&bytes, v.index).map_err(|e| {
+                    DbError::format(
+                        &path,
+                        format!("ACH lists of track `{}` viewpoint {}: {e}", t.name, v.index),
+                    )
+                })?;
+            }
+            row.push(table);
+        }
+        tables.push(row);
+    }
+    let refs: Vec<Vec<Option<&ViewTable>>> = tables
+        .iter()
+        .map(|row| row.iter().map(Some).collect())
+        .collect();
+    Ok(split::assemble(top, &refs))
+}
+
+/// Reads `DIR/manifest.json` (the top manifest), checking its checksum file when present and
+/// its version.
+pub fn read_top(dir: &Path) -> Result<TopManifest, DbError> {
+    let path = dir.join(MANIFEST_FILE);
+    let bytes = read_limited(&path, tracks::limits::MAX_MANIFEST_BYTES)?;
+    let hash_path = dir.join(MANIFEST_HASH_FILE);
+    match fs::read_to_string(&hash_path) {
+        Ok(text) => {
+            let got = hash_hex(&bytes);
+            if text.trim() != got {
+                return Err(DbError::format(
+                    &path,
+                    format!("content hash {got} does not match {}", hash_path.display()),
+                ));
+            }
+        }
+        Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+        Err(e) => return Err(DbError::io(&hash_path, e)),
+    }
+    parse_top(&path, &bytes)
+}
+
+/// The bytes of `path`, refused unread when the file is larger than `limit`.
+pub fn read_limited(path: &Path, limit: u64) -> Result<Vec<u8>, DbError> {
+    let mut f = fs::File::open(path).map_err(|e| DbError::io(path, e))?;
+    let len = f.metadata().map_err(|e| DbError::io(path, e))?.len();
+    if len > limit {
+        return Err(DbError::format(
+            path,
+            format!("{len} bytes; at most {limit} are read"),
+        ));
+    }
+    let mut out = Vec::with_capacity(len as usize);
+    (&mut f)
+        .take(limit + 1)
+        .read_to_end(&mut out)
+        .map_err(|e| DbError::io(path, e))?;
+    if out.len() as u64 > limit {
+        return Err(DbError::format(
+            path,
+            format!("more than {limit} bytes; at most {limit} are read"),
+        ));
+    }
+    Ok(out)
+}
+
+/// Parses top-manifest bytes read from `path` and checks the version: format 6 is read;
+/// older ones are refused with a request to rebuild the database.
+pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
+    #[derive(serde::Deserialize)]
+    struct Version {
+        version: u32,
+    }
+    let v: Version = serde_json::from_slice(bytes)
+        .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
+    if !(OLDEST_READ_VERSION..=TOP_VERSION).contains(&v.version) {
+        let hint = if v.version < OLDEST_READ_VERSION {
+            " (format 6 codes textures and meshes several times smaller and stores each \
+             payload once): rebuild the database with `railview build` (it resumes from its \
+             work directory and re-encodes only)"
+        } else {
+            ""
+        };
+        let reads = if OLDEST_READ_VERSION == TOP_VERSION {
+            format!("format {TOP_VERSION}")
+        } else {
+            format!("formats {OLDEST_READ_VERSION} to {TOP_VERSION}")
+        };
+        return Err(DbError::format(
+            path,
+            format!(
+                "manifest format {}{hint}; this build reads {reads}",
+                v.version
+            ),
+        ));
+    }
+    let top: TopManifest = serde_json::from_slice(bytes)
+        .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
+    top.check_limits()
+        .map_err(|e| DbError::format(path, format!("{e} (limits of this build)")))?;
+    Ok(top)
+}
