@@ -36,19 +36,7 @@ mod field;
 pub(crate) use adaptive::adaptive_mesh;
 pub(crate) use field::Field;
 
-/// A tile's depth mesh: vertices `[x, y, r]` (face pixels, radial metres), triangles as
-/// index triples (counter-clockwise in image coordinates is not guaranteed).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct TileMesh {
-    pub vertices: Vec<[f32; 3]>,
-    pub indices: Vec<u32>,
-}
-
-impl TileMesh {
-    pub fn triangle_count(&self) -> usize {
-        self.indices.len() / 3
-    }
-}
+pub use tracks::TileMesh;
 
 /// Parameters shared by both mesh builders.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

@@ -6,7 +6,7 @@ use viewer::bench::{backends_summary, Bench, BenchParams};
 use viewer::gpu::{Gpu, GpuRequest, Renderer};
 use viewer::headless::{open, parse_size, synth_street};
 use viewer::source::LoadOptions;
-use viewer::MeshParams;
+use viewer::LayerMeshing;
 
 /// Arguments of `railview bench-viewer`.
 #[derive(clap::Args)]
@@ -70,7 +70,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     super::face_size("--face", args.face)?;
     super::count("--mesh-step", args.mesh_step as usize, 4096)?;
-    let mesh = MeshParams {
+    let mesh = LayerMeshing {
         step: args.mesh_step,
         adaptive: match args.mesh.as_str() {
             // The street's samples are 1.5 m apart (its largest baseline).

@@ -28,7 +28,7 @@ use prerender::store::{self, PrerenderDir, PrerenderReport};
 use serde::{Deserialize, Serialize};
 use slabs::io as sio;
 use streamer::db::ach::{segment_ach, AchParams, AchTile, SegmentEnd};
-use streamer::db::mesh::{encode_mesh, MeshCoding, MeshData};
+use streamer::db::mesh::{encode_mesh, MeshCoding, TileMesh};
 use streamer::db::DbWriter;
 use streamer::ptm::{self, EncodeOptions, Image};
 use tracks::manifest::{
@@ -1182,7 +1182,7 @@ fn encode_sample(
                 let img = Image::new(x1 - x0, y1 - y0, 4, px)?;
                 let enc = ptm::encode(&img, opts)?;
                 let ptm = writer.put_ptm_staged(&enc, 4)?;
-                let data = MeshData {
+                let data = TileMesh {
                     vertices: mesh.vertices.clone(),
                     indices: mesh.indices.clone(),
                 };

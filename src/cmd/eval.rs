@@ -196,8 +196,8 @@ fn runs(args: &Args, walk: Walkthrough) -> anyhow::Result<Vec<Run>> {
             near: 0.0,
             far: f64::INFINITY,
         }];
-        let base = viewer::MeshParams::default();
-        let step4 = viewer::MeshParams { step: 4, ..base };
+        let base = viewer::LayerMeshing::default();
+        let step4 = viewer::LayerMeshing { step: 4, ..base };
         let slabs3 = Scene::street_slabs();
         for (name, walk) in [
             ("db slabs=1", synth_street_spaced(64, &one, base, 1.5)?),

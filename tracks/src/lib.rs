@@ -36,6 +36,7 @@ pub mod camera;
 pub mod cubemap;
 pub mod limits;
 pub mod manifest;
+pub mod mesh;
 pub mod rect;
 pub mod segment;
 pub mod slab;
@@ -43,6 +44,7 @@ pub mod track;
 
 pub use camera::PerspectiveCamera;
 pub use cubemap::{CubeMap, Face, FaceCoord, TileGrid, TileId};
+pub use mesh::TileMesh;
 pub use rect::PixelRect;
 pub use slab::SlabRange;
 pub use track::{ReferenceViewpoint, Sampling, Smoothing, Track, TrackError, TrackSet};

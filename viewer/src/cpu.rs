@@ -99,9 +99,9 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
             .iter()
             .chain(skirt_verts)
             .map(|v| {
-                let uu = 2.0 * v.pos_in_face[0] / n - 1.0;
-                let vv = 1.0 - 2.0 * v.pos_in_face[1] / n;
-                let p = (fw + uu * r + vv * up).normalize() * v.depth_m;
+                let uu = 2.0 * v[0] / n - 1.0;
+                let vv = 1.0 - 2.0 * v[1] / n;
+                let p = (fw + uu * r + vv * up).normalize() * v[2];
                 (m * (p + origin).extend(1.0), p)
             })
             .collect();

@@ -9,7 +9,7 @@ use tracks::{SlabRange, TrackSet};
 
 use crate::gpu::GpuError;
 use crate::plan::PlanError;
-use crate::refview::MeshParams;
+use crate::refview::LayerMeshing;
 use crate::source::{self, LoadOptions, SourceError, Walkthrough};
 use crate::synth::{views_along, Scene};
 
@@ -31,7 +31,7 @@ pub enum HeadlessError {
 pub fn synth_street(
     face_size: u32,
     slabs: &[SlabRange],
-    params: MeshParams,
+    params: LayerMeshing,
 ) -> Result<Walkthrough, HeadlessError> {
     synth_street_spaced(face_size, slabs, params, 1.5)
 }
@@ -40,7 +40,7 @@ pub fn synth_street(
 pub fn synth_street_spaced(
     face_size: u32,
     slabs: &[SlabRange],
-    params: MeshParams,
+    params: LayerMeshing,
     spacing_m: f64,
 ) -> Result<Walkthrough, HeadlessError> {
     let set = TrackSet::parse(

@@ -44,4 +44,4 @@ pub mod texture;
 
 pub use frame::Frame;
 pub use plan::{plan_frame, DrawBudget, FramePlan, PlanError};
-pub use refview::{MeshParams, RefView, ViewError};
+pub use refview::{LayerMeshing, RefView, ViewError};

@@ -36,32 +36,8 @@ pub enum ViewError {
     Position(DVec3),
 }
 
-/// A depth-mesh vertex: face-pixel position (level-0 pixel units, corners at integers) and
-/// radial depth from the reference viewpoint, metres.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct MeshVertex {
-    pub pos_in_face: [f32; 2],
-    pub depth_m: f32,
-}
-
-/// A triangle mesh over one tile, all vertices on the tile's face.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct TileMesh {
-    pub vertices: Vec<MeshVertex>,
-    pub indices: Vec<u32>,
-}
-
-impl MeshVertex {
-    /// Position relative to the reference viewpoint, metres.
-    pub fn pos_from_ref(&self, face: Face, face_size: u32) -> DVec3 {
-        subpixel_dir(
-            face,
-            self.pos_in_face[0] as f64,
-            self.pos_in_face[1] as f64,
-            face_size,
-        ) * self.depth_m as f64
-    }
-}
+pub use tracks::mesh::{pos_from_ref, pos_in_face};
+pub use tracks::TileMesh;
 
 /// One kept slab tile of a reference view.
 #[derive(Clone, Debug, PartialEq)]
@@ -97,9 +73,10 @@ pub struct RefView {
     pub tiles: Vec<ViewTile>,
 }
 
-/// How dense layers are turned into tile meshes.
+/// How a directory's dense slab layers are turned into tile meshes for drawing (the slab
+/// stage's own mesh builder takes [`slabs::mesh::MeshParams`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct MeshParams {
+pub struct LayerMeshing {
     /// Grid step in pixels (1 = a vertex at every pixel corner).
     pub step: u32,
     /// Two neighbouring depths `a < b` belong to different surfaces when `b > a·(1 + jump)`.
@@ -109,9 +86,9 @@ pub struct MeshParams {
     pub adaptive: Option<AdaptiveMesh>,
 }
 
-impl Default for MeshParams {
+impl Default for LayerMeshing {
     fn default() -> Self {
-        MeshParams {
+        LayerMeshing {
             step: 2,
             jump: 0.08,
             adaptive: None,
@@ -162,17 +139,7 @@ pub fn adaptive_tile_mesh(
         Some(slabs::tiles::MeshKind::Adaptive),
     )
     .adaptive;
-    (!m.indices.is_empty()).then(|| TileMesh {
-        vertices: m
-            .vertices
-            .iter()
-            .map(|v| MeshVertex {
-                pos_in_face: [v[0], v[1]],
-                depth_m: v[2],
-            })
-            .collect(),
-        indices: m.indices,
-    })
+    (!m.indices.is_empty()).then_some(m)
 }
 
 /// One dense slab layer: colour (alpha is the binary opacity mask) and radial depth
@@ -189,7 +156,7 @@ impl RefView {
         s: f64,
         position: DVec3,
         tile_size: u32,
-        params: MeshParams,
+        params: LayerMeshing,
         background: &CubeMap<[u8; 4]>,
         slabs: &[DenseLayer<'_>],
     ) -> Result<RefView, ViewError> {
@@ -303,7 +270,7 @@ impl ViewTile {
         let pts: Vec<DVec3> = mesh
             .vertices
             .iter()
-            .map(|v| v.pos_from_ref(tile.face, face_size))
+            .map(|v| pos_from_ref(*v, tile.face, face_size))
             .collect();
         let (lo, hi) = pts.iter().fold(
             (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
@@ -396,7 +363,7 @@ pub fn tile_mesh(
     depth: &CubeMap<f32>,
     grid: &TileGrid,
     tile: TileId,
-    params: MeshParams,
+    params: LayerMeshing,
 ) -> Option<TileMesh> {
     let (x0, y0, x1, y1) = grid.pixel_rect(tile);
     let face = tile.face;
@@ -412,10 +379,7 @@ pub fn tile_mesh(
     let mut mesh = TileMesh::default();
     let mut shared: Vec<Option<u32>> = vec![None; nx * ny];
     let vertex = |mesh: &mut TileMesh, x: u32, y: u32, d: f32| -> u32 {
-        mesh.vertices.push(MeshVertex {
-            pos_in_face: [x as f32, y as f32],
-            depth_m: d,
-        });
+        mesh.vertices.push([x as f32, y as f32, d]);
         (mesh.vertices.len() - 1) as u32
     };
     for j in 0..ny - 1 {
@@ -471,7 +435,7 @@ pub fn tile_mesh(
             };
             // Two triangles, split along the diagonal whose ends are closer in depth.
             let dd = |a: u32, b: u32| {
-                (mesh.vertices[a as usize].depth_m - mesh.vertices[b as usize].depth_m).abs()
+                (mesh.vertices[a as usize][2] - mesh.vertices[b as usize][2]).abs()
             };
             if dd(v[0], v[3]) <= dd(v[1], v[2]) {
                 mesh.indices.extend([v[0], v[2], v[3], v[0], v[3], v[1]]);
@@ -516,9 +480,9 @@ pub fn decimated_indices(mesh: &TileMesh, rect: PixelRect, cell: u32, jump: f64)
     let c = cell.max(1) as f32;
     let log_step = (1.0 + jump.max(1e-6)).ln();
     // Cluster key: kind (0 interior, 1..=4 edges, 5 own), two cell coordinates, depth bucket.
-    let key_of = |i: usize, v: &MeshVertex| -> (u8, i64, i64, i64) {
-        let [x, y] = v.pos_in_face;
-        let d = v.depth_m;
+    let key_of = |i: usize, v: &[f32; 3]| -> (u8, i64, i64, i64) {
+        let [x, y, _] = *v;
+        let d = v[2];
         if !(d.is_finite() && d > 0.0) {
             return (5, i as i64, 0, 0);
         }
@@ -535,8 +499,8 @@ pub fn decimated_indices(mesh: &TileMesh, rect: PixelRect, cell: u32, jump: f64)
         }
     };
     // Distance of a vertex to the centre of its cell (along the edge for edge clusters).
-    let centre_dist = |key: (u8, i64, i64, i64), v: &MeshVertex| -> f32 {
-        let [x, y] = v.pos_in_face;
+    let centre_dist = |key: (u8, i64, i64, i64), v: &[f32; 3]| -> f32 {
+        let [x, y, _] = *v;
         let mid = |k: i64, o: f32| o + (k as f32 + 0.5) * c;
         match key.0 {
             0 => (x - mid(key.1, x0)).abs().max((y - mid(key.2, y0)).abs()),
@@ -584,8 +548,8 @@ pub fn decimated_indices(mesh: &TileMesh, rect: PixelRect, cell: u32, jump: f64)
             let w = &mesh.vertices[j];
             let (a, b) = (centre_dist(k, v), centre_dist(k, w));
             // Ties: the nearer surface, then the position (independent of vertex order).
-            (a, v.depth_m, v.pos_in_face[0], v.pos_in_face[1])
-                .partial_cmp(&(b, w.depth_m, w.pos_in_face[0], w.pos_in_face[1]))
+            (a, v[2], v[0], v[1])
+                .partial_cmp(&(b, w[2], w[0], w[1]))
                 .is_some_and(|o| o.is_lt())
         };
         match best.get(&k) {
@@ -623,7 +587,7 @@ mod tests {
         let n = 8;
         let d = sphere_depth(n, 5.0);
         let grid = TileGrid::new(n, 4).unwrap();
-        let p = MeshParams {
+        let p = LayerMeshing {
             step: 2,
             jump: 0.1,
             adaptive: None,
@@ -633,7 +597,7 @@ mod tests {
             // 2x2 cells, shared corners: 9 vertices, 8 triangles.
             assert_eq!(m.vertices.len(), 9, "{t:?}");
             assert_eq!(m.indices.len(), 24);
-            assert!(m.vertices.iter().all(|v| v.depth_m == 5.0));
+            assert!(m.vertices.iter().all(|v| v[2] == 5.0));
         }
     }
 
@@ -688,7 +652,7 @@ mod tests {
             &d,
             &grid,
             t,
-            MeshParams {
+            LayerMeshing {
                 step: 2,
                 jump: 0.1,
                 adaptive: None,
@@ -696,10 +660,7 @@ mod tests {
         )
         .unwrap();
         for tri in m.indices.chunks(3) {
-            let ds: Vec<f32> = tri
-                .iter()
-                .map(|&i| m.vertices[i as usize].depth_m)
-                .collect();
+            let ds: Vec<f32> = tri.iter().map(|&i| m.vertices[i as usize][2]).collect();
             let (lo, hi) = ds
                 .iter()
                 .fold((f32::MAX, 0f32), |(a, b), &d| (a.min(d), b.max(d)));
@@ -712,7 +673,7 @@ mod tests {
         let d = CubeMap::filled(8, f32::INFINITY);
         let grid = TileGrid::new(8, 4).unwrap();
         for t in grid.tiles() {
-            assert!(tile_mesh(&d, &grid, t, MeshParams::default()).is_none());
+            assert!(tile_mesh(&d, &grid, t, LayerMeshing::default()).is_none());
         }
     }
 
@@ -724,7 +685,7 @@ mod tests {
             (4.0 + dir.x) as f32
         });
         let grid = TileGrid::new(n, 16).unwrap();
-        let p = MeshParams {
+        let p = LayerMeshing {
             step: 2,
             jump: 0.5,
             adaptive: None,
@@ -735,7 +696,7 @@ mod tests {
             let edge_vertices = |idx: &[u32]| {
                 let mut e: Vec<[u32; 2]> = idx
                     .iter()
-                    .map(|&i| m.vertices[i as usize].pos_in_face)
+                    .map(|&i| pos_in_face(m.vertices[i as usize]))
                     .filter(|v| {
                         v[0] == rect.0 as f32
                             || v[0] == rect.2 as f32
@@ -779,7 +740,7 @@ mod tests {
         let n = 32;
         let d = CubeMap::filled(n, 6.0f32);
         let grid = TileGrid::new(n, 16).unwrap();
-        let p = MeshParams {
+        let p = LayerMeshing {
             step: 2,
             jump: 0.1,
             adaptive: None,
@@ -804,7 +765,7 @@ mod tests {
             );
             let mut e: Vec<u32> = idx
                 .iter()
-                .map(|&i| m.vertices[i as usize].pos_in_face)
+                .map(|&i| pos_in_face(m.vertices[i as usize]))
                 .filter(|v| v[0] == 16.0)
                 .map(|v| v[1] as u32)
                 .collect();
@@ -840,7 +801,7 @@ mod tests {
             &d,
             &grid,
             t,
-            MeshParams {
+            LayerMeshing {
                 step: 2,
                 jump: 0.1,
                 adaptive: None,
@@ -849,10 +810,7 @@ mod tests {
         .unwrap();
         let idx = decimated_indices(&m, PixelRect::of_tile(grid, t), 16, 0.1);
         for tri in idx.chunks(3) {
-            let ds: Vec<f32> = tri
-                .iter()
-                .map(|&i| m.vertices[i as usize].depth_m)
-                .collect();
+            let ds: Vec<f32> = tri.iter().map(|&i| m.vertices[i as usize][2]).collect();
             let (lo, hi) = ds
                 .iter()
                 .fold((f32::MAX, 0f32), |(a, b), &d| (a.min(d), b.max(d)));

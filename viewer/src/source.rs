@@ -12,7 +12,7 @@ use streamer::ptm::{Decoder, Limits};
 use tracks::manifest::{PtmRef, TrackEntry};
 use tracks::{CubeMap, SlabRange, TileGrid, Track, TrackSet};
 
-use crate::refview::{DenseLayer, MeshParams, MeshVertex, RefView, TileMesh, ViewTile};
+use crate::refview::{DenseLayer, LayerMeshing, RefView, TileMesh, ViewTile};
 use crate::texture::{dilate_masked, Layer};
 
 /// Errors opening a walkthrough source; each names the file or entry at fault.
@@ -64,7 +64,7 @@ impl Walkthrough {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct LoadOptions {
     pub level_groups: Option<usize>,
-    pub mesh: MeshParams,
+    pub mesh: LayerMeshing,
 }
 
 /// Open a database or prerender directory.
@@ -212,18 +212,7 @@ pub fn paste_tile(
 
 /// A tile's depth mesh from its stored bytes.
 pub fn tile_mesh_from_bytes(bytes: &[u8], what: &str) -> Result<TileMesh, SourceError> {
-    let mesh = decode_mesh(bytes).map_err(|e| format_err(what, e))?;
-    Ok(TileMesh {
-        vertices: mesh
-            .vertices
-            .iter()
-            .map(|v| MeshVertex {
-                pos_in_face: [v[0], v[1]],
-                depth_m: v[2],
-            })
-            .collect(),
-        indices: mesh.indices,
-    })
+    decode_mesh(bytes).map_err(|e| format_err(what, e))
 }
 
 /// The track of a manifest entry.
@@ -338,7 +327,7 @@ pub fn from_database(
 pub fn from_prerender(
     dir: &Path,
     track: Option<&str>,
-    params: MeshParams,
+    params: LayerMeshing,
 ) -> Result<Walkthrough, SourceError> {
     let pd = PrerenderDir::new(dir);
     let report = pd.read_report()?;

@@ -10,7 +10,7 @@ use glam::DVec3;
 use tracks::cubemap::pixel_dir;
 use tracks::{CubeMap, PerspectiveCamera, SlabRange};
 
-use crate::refview::{DenseLayer, MeshParams, RefView, ViewError};
+use crate::refview::{DenseLayer, LayerMeshing, RefView, ViewError};
 
 /// A surface of the scene.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -199,7 +199,7 @@ pub fn views_along(
     face_size: u32,
     tile_size: u32,
     slabs: &[SlabRange],
-    params: MeshParams,
+    params: LayerMeshing,
 ) -> Result<Vec<RefView>, ViewError> {
     samples
         .iter()

@@ -27,7 +27,7 @@ use viewer::feedback::ViewCounts;
 use viewer::gpu::{Caps, DeviceLimits, Frame, Gpu, GpuError, GpuRequest, Renderer};
 use viewer::plan::Overlays;
 use viewer::synth::{views_along, Scene};
-use viewer::{plan_frame, DrawBudget, FramePlan, MeshParams, RefView};
+use viewer::{plan_frame, DrawBudget, FramePlan, LayerMeshing, RefView};
 
 /// How far a frame may be from the golden image and from the `vulkan` configuration: no
 /// channel of any pixel more than `max` (of 255) apart, and the mean channel difference at
@@ -101,7 +101,7 @@ fn views() -> Vec<RefView> {
         48,
         8,
         &Scene::street_slabs(),
-        MeshParams::default(),
+        LayerMeshing::default(),
     )
     .unwrap()
 }

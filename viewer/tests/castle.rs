@@ -7,7 +7,7 @@ use prerender::render::{render_cube, render_depth_lowres, render_slabs, RenderOp
 use tracks::{CubeMap, PerspectiveCamera, SlabRange};
 use viewer::gpu::{Gpu, Renderer};
 use viewer::refview::DenseLayer;
-use viewer::{plan_frame, DrawBudget, MeshParams, RefView};
+use viewer::{plan_frame, DrawBudget, LayerMeshing, RefView};
 
 const FACE: u32 = 48;
 
@@ -39,7 +39,8 @@ fn views(
                     depth: &l.depth,
                 })
                 .collect();
-            RefView::from_layers(i, s, pos, 8, MeshParams::default(), &background, &dense).unwrap()
+            RefView::from_layers(i, s, pos, 8, LayerMeshing::default(), &background, &dense)
+                .unwrap()
         })
         .collect()
 }

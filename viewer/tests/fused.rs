@@ -9,7 +9,7 @@ use viewer::gpu::{Frame, Gpu, Renderer};
 use viewer::refview::AdaptiveMesh;
 use viewer::synth::{views_along, Scene};
 use viewer::texture::{dilate_masked, Layer};
-use viewer::{plan_frame, DrawBudget, FramePlan, MeshParams, RefView};
+use viewer::{plan_frame, DrawBudget, FramePlan, LayerMeshing, RefView};
 
 fn renderer() -> Renderer {
     let gpu = Gpu::new().expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)");
@@ -18,7 +18,7 @@ fn renderer() -> Renderer {
 
 const EYE: f64 = 1.7;
 
-fn views(params: MeshParams) -> Vec<RefView> {
+fn views(params: LayerMeshing) -> Vec<RefView> {
     let samples = [
         (0.0, DVec3::new(0.0, EYE, 0.0)),
         (1.5, DVec3::new(1.5, EYE, 0.0)),
@@ -73,7 +73,7 @@ fn diff(a: &Frame, b: &Frame) -> (u8, f64) {
 )]
 fn fused_frames_match_the_composite_at_samples_and_between() {
     let mut r = renderer();
-    let views = views(MeshParams::default());
+    let views = views(LayerMeshing::default());
     // 0 and 1.5: reference samples (the second view only fills holes); 0.02 and 1.49:
     // second weight below 0.003 (drawn only where it is nearer than the first view or that
     // has sky or a hole); between: blending.
@@ -117,7 +117,7 @@ fn fused_frames_match_the_composite_at_samples_and_between() {
 )]
 fn half_resolution_second_view_stays_close_and_keeps_samples_exact() {
     let mut r = renderer();
-    let views = views(MeshParams::default());
+    let views = views(LayerMeshing::default());
     let half = DrawBudget {
         half_res_second: true,
         ..Default::default()
@@ -156,8 +156,8 @@ fn half_resolution_second_view_stays_close_and_keeps_samples_exact() {
 )]
 fn adaptive_meshes_are_sparser_and_draw_the_same_street() {
     let mut r = renderer();
-    let grid = views(MeshParams::default());
-    let adaptive = views(MeshParams {
+    let grid = views(LayerMeshing::default());
+    let adaptive = views(LayerMeshing {
         adaptive: Some(AdaptiveMesh::database(1.5)),
         ..Default::default()
     });
@@ -201,8 +201,8 @@ fn adaptive_meshes_are_sparser_and_draw_the_same_street() {
 )]
 fn outline_cracks_of_adaptive_meshes_are_closed_by_skirts() {
     let mut r = renderer();
-    let grid = views(MeshParams::default());
-    let adaptive = views(MeshParams {
+    let grid = views(LayerMeshing::default());
+    let adaptive = views(LayerMeshing {
         adaptive: Some(AdaptiveMesh::database(1.5)),
         ..Default::default()
     });
@@ -246,7 +246,7 @@ fn outline_cracks_of_adaptive_meshes_are_closed_by_skirts() {
 )]
 fn tile_region_uploads_match_a_full_upload() {
     let mut r = renderer();
-    let views = views(MeshParams::default());
+    let views = views(LayerMeshing::default());
     let s = 0.6;
     let p = plan(&views, s, DrawBudget::default(), false);
     let v = p.passes[0].view;

@@ -9,7 +9,7 @@ use tracks::{PerspectiveCamera, SlabRange};
 use viewer::gpu::{Frame, Gpu, Renderer};
 use viewer::metrics::{psnr, resample_cube, split_rgba};
 use viewer::synth::{views_along, Scene, Shape};
-use viewer::{cpu, plan_frame, DrawBudget, MeshParams, RefView};
+use viewer::{cpu, plan_frame, DrawBudget, LayerMeshing, RefView};
 
 fn renderer() -> Renderer {
     let gpu = Gpu::new().expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)");
@@ -33,7 +33,7 @@ fn street_views(slabs: &[SlabRange]) -> Vec<RefView> {
         FACE,
         8,
         slabs,
-        MeshParams::default(),
+        LayerMeshing::default(),
     )
     .unwrap()
 }
@@ -269,7 +269,7 @@ fn content_at_10_cm_and_10_km_in_one_frame() {
         FACE,
         8,
         &slabs,
-        MeshParams::default(),
+        LayerMeshing::default(),
     )
     .unwrap();
     let cam = PerspectiveCamera {

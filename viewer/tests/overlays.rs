@@ -7,7 +7,7 @@ use tracks::{PerspectiveCamera, SlabRange};
 use viewer::gpu::{Frame, Gpu, Renderer};
 use viewer::plan::Overlays;
 use viewer::synth::{views_along, Scene};
-use viewer::{plan_frame, DrawBudget, FramePlan, MeshParams, RefView};
+use viewer::{plan_frame, DrawBudget, FramePlan, LayerMeshing, RefView};
 
 fn renderer() -> Renderer {
     let gpu = Gpu::new().expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)");
@@ -27,7 +27,7 @@ fn views(slabs: &[SlabRange]) -> Vec<RefView> {
         48,
         8,
         slabs,
-        MeshParams::default(),
+        LayerMeshing::default(),
     )
     .unwrap()
 }

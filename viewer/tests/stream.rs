@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use streamer::client::LiveConfig;
-use streamer::db::mesh::{encode_mesh, MeshCoding, MeshData};
+use streamer::db::mesh::{encode_mesh, MeshCoding, TileMesh};
 use streamer::db::DbWriter;
 use streamer::ptm::{encode, EncodeOptions, Image, Method};
 use streamer::server::{self, ServedDb, ServerConfig, ServerStats};
@@ -23,7 +23,7 @@ use viewer::headless::{synth_street, synth_street_spaced, yaw_along};
 use viewer::source::{open, LoadOptions, Walkthrough};
 use viewer::stream::StreamedWalkthrough;
 use viewer::synth::Scene;
-use viewer::{plan_frame, DrawBudget, MeshParams};
+use viewer::{plan_frame, DrawBudget, LayerMeshing};
 
 const FACE: u32 = 32;
 
@@ -37,7 +37,7 @@ fn renderer() -> Renderer {
 /// stores have no others); the synthetic street's grid mesher gives a cell across a depth
 /// jump corners of its own, which this merges. Both sides of every comparison here read the
 /// meshes from the database.
-fn one_vertex_per_position(m: MeshData) -> MeshData {
+fn one_vertex_per_position(m: TileMesh) -> TileMesh {
     let mut first = std::collections::HashMap::new();
     let mut vertices = Vec::new();
     let remap: Vec<u32> = m
@@ -51,7 +51,7 @@ fn one_vertex_per_position(m: MeshData) -> MeshData {
             })
         })
         .collect();
-    MeshData {
+    TileMesh {
         vertices,
         indices: m.indices.iter().map(|&i| remap[i as usize]).collect(),
     }
@@ -91,16 +91,11 @@ fn write_db_with(walk: &Walkthrough, dir: &Path, opts: EncodeOptions, share: boo
             streamer::db::clear_masked(&mut px);
             let img = Image::new(x1 - x0, y1 - y0, 4, px).unwrap();
             let ptm = w.put_ptm(&encode(&img, &opts).unwrap(), 4).unwrap();
-            let mesh = one_vertex_per_position(MeshData {
-                vertices: t
-                    .mesh
-                    .vertices
-                    .iter()
-                    .map(|m| [m.pos_in_face[0], m.pos_in_face[1], m.depth_m])
-                    .collect(),
+            let mesh = one_vertex_per_position(TileMesh {
+                vertices: t.mesh.vertices.clone(),
                 indices: t.mesh.indices.clone(),
             });
-            let depths = t.mesh.vertices.iter().map(|m| m.depth_m as f64);
+            let depths = t.mesh.vertices.iter().map(|m| m[2] as f64);
             let depth_min = depths.clone().fold(f64::INFINITY, f64::min);
             let depth_max = depths.fold(0.0, f64::max);
             tiles.push(TileEntry {
@@ -318,7 +313,7 @@ fn lit(st: &StreamedWalkthrough) -> usize {
 )]
 fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
     let mut r = renderer();
-    let street = synth_street(2 * FACE, &Scene::street_slabs(), MeshParams::default()).unwrap();
+    let street = synth_street(2 * FACE, &Scene::street_slabs(), LayerMeshing::default()).unwrap();
     let dir: PathBuf =
         std::env::temp_dir().join(format!("railview-viewer-stream-{}", std::process::id()));
     // Range-coded (or zstd-coded), every PTM of this small street is under
@@ -498,7 +493,7 @@ fn there_and_back(
     tag: &str,
 ) -> (bool, f64) {
     let mut r = renderer();
-    let street = synth_street(FACE, &Scene::street_slabs(), MeshParams::default()).unwrap();
+    let street = synth_street(FACE, &Scene::street_slabs(), LayerMeshing::default()).unwrap();
     let dir: PathBuf = std::env::temp_dir().join(format!(
         "railview-viewer-stream-{tag}-{}",
         std::process::id()
@@ -727,7 +722,7 @@ fn walking_on_after_the_server_is_gone_draws_the_views_that_arrived() {
     // Views every 0.5 m: the first segment's parts are all that arrives before the server
     // goes away.
     let street =
-        synth_street_spaced(FACE, &Scene::street_slabs(), MeshParams::default(), 0.5).unwrap();
+        synth_street_spaced(FACE, &Scene::street_slabs(), LayerMeshing::default(), 0.5).unwrap();
     let dir: PathBuf = std::env::temp_dir().join(format!(
         "railview-viewer-stream-gone-{}",
         std::process::id()
@@ -794,7 +789,7 @@ fn redecode_step_times() {
         .and_then(|v| v.parse().ok())
         .unwrap_or(256);
     let t = Instant::now();
-    let street = synth_street(face, &Scene::street_slabs(), MeshParams::default()).unwrap();
+    let street = synth_street(face, &Scene::street_slabs(), LayerMeshing::default()).unwrap();
     let dir: PathBuf =
         std::env::temp_dir().join(format!("railview-viewer-redecode-{}", std::process::id()));
     write_db(&street, &dir);
@@ -895,7 +890,8 @@ fn steady_step_times() {
                 .ok()
                 .and_then(|v| v.parse().ok())
                 .unwrap_or(256);
-            let street = synth_street(face, &Scene::street_slabs(), MeshParams::default()).unwrap();
+            let street =
+                synth_street(face, &Scene::street_slabs(), LayerMeshing::default()).unwrap();
             let dir =
                 std::env::temp_dir().join(format!("railview-viewer-steady-{}", std::process::id()));
             write_db(&street, &dir);
@@ -977,7 +973,7 @@ fn steady_step_times() {
 )]
 fn a_burst_of_arrivals_is_consumed_a_budget_per_step() {
     let mut r = renderer();
-    let street = synth_street(FACE, &Scene::street_slabs(), MeshParams::default()).unwrap();
+    let street = synth_street(FACE, &Scene::street_slabs(), LayerMeshing::default()).unwrap();
     let dir: PathBuf =
         std::env::temp_dir().join(format!("railview-viewer-burst-{}", std::process::id()));
     write_db(&street, &dir);
@@ -1040,7 +1036,7 @@ fn a_burst_of_arrivals_is_consumed_a_budget_per_step() {
 )]
 fn a_directory_streams_within_a_memory_budget_at_a_coarser_layout() {
     let mut r = renderer();
-    let street = synth_street(FACE, &Scene::street_slabs(), MeshParams::default()).unwrap();
+    let street = synth_street(FACE, &Scene::street_slabs(), LayerMeshing::default()).unwrap();
     let dir: PathBuf = std::env::temp_dir().join(format!(
         "railview-viewer-stream-budget-{}",
         std::process::id()

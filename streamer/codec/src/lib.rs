@@ -13,14 +13,14 @@
 //!   ([`mesh::encode_mesh`], [`mesh::decode_mesh`]).
 //!
 //! ```
-//! use codec::mesh::{decode_mesh, encode_mesh, MeshCoding, MeshData};
+//! use codec::mesh::{decode_mesh, encode_mesh, MeshCoding, TileMesh};
 //! use codec::ptm::{decode, encode, EncodeOptions, Image, Limits};
 //!
 //! let img = Image::from_fn(8, 8, 4, |x, y, c| (x * 30 + y * 5 + c as u32) as u8);
 //! let enc = encode(&img, &EncodeOptions::default()).unwrap();
 //! assert_eq!(decode(&enc.bytes, Limits::default()).unwrap(), img);
 //!
-//! let mesh = MeshData {
+//! let mesh = TileMesh {
 //!     vertices: vec![[0.5, 0.5, 10.0], [4.5, 0.5, 10.0], [0.5, 4.5, 10.0]],
 //!     indices: vec![0, 1, 2],
 //! };

@@ -7,7 +7,7 @@ use tracks::manifest::*;
 use tracks::{Face, SlabRange, TileId};
 
 use super::*;
-use codec::mesh::{encode_mesh, MeshCoding, MeshData};
+use codec::mesh::{encode_mesh, MeshCoding, TileMesh};
 use codec::ptm::{encode, EncodeOptions, Image};
 
 fn tmpdir(name: &str) -> PathBuf {
@@ -35,7 +35,7 @@ fn build(dir: &Path) -> (Manifest, DbWriter) {
                     (x * 9 + y * 3 + c as u32 * 50 + v as u32 * 7 + t) as u8
                 });
                 let enc = encode(&img, &EncodeOptions::default()).unwrap();
-                let mesh = MeshData {
+                let mesh = TileMesh {
                     vertices: vec![
                         [0.5, 0.5, 3.0],
                         [15.5, 0.5, 3.5],

@@ -8,7 +8,7 @@ use crate::gpu::Renderer;
 use crate::plan::FramePlan;
 use crate::refview::{decimated_indices, mesh_cell, view_skirts, MESH_LEVELS};
 use crate::texture::{dilate_masked, Layer};
-use crate::{MeshParams, RefView};
+use crate::{LayerMeshing, RefView};
 
 /// The median (the upper one of an even count); NaN of nothing.
 pub(super) fn median(v: &[f64]) -> f64 {
@@ -141,7 +141,7 @@ fn view_coarse_triangles(view: &RefView, level: u32) -> usize {
         return view.triangle_count();
     };
     let cell = mesh_cell(view.tile_size, level);
-    let jump = MeshParams::default().jump;
+    let jump = LayerMeshing::default().jump;
     view.tiles
         .iter()
         .map(|t| {

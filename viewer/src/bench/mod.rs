@@ -15,7 +15,7 @@
 //! let walk = viewer::headless::synth_street(
 //!     64,
 //!     &viewer::synth::Scene::street_slabs(),
-//!     viewer::MeshParams::default(),
+//!     viewer::LayerMeshing::default(),
 //! )?;
 //! let params = BenchParams { width: 160, height: 90, frames: 3, ..Default::default() };
 //! let result = Bench::new(&walk, params)?.run()?;

@@ -657,7 +657,7 @@ mod tests {
         assert!(back.psnr_mean_db.is_nan() && back.holes_max.is_nan());
     }
     use crate::headless::synth_street;
-    use crate::refview::MeshParams;
+    use crate::refview::LayerMeshing;
 
     #[test]
     fn percentiles_take_the_worst_tail() {
@@ -670,7 +670,7 @@ mod tests {
 
     #[test]
     fn views_cover_every_segment_in_every_direction() {
-        let w = synth_street(8, &SynthScene::street_slabs(), MeshParams::default()).unwrap();
+        let w = synth_street(8, &SynthScene::street_slabs(), LayerMeshing::default()).unwrap();
         let arcs: Vec<f64> = w.views.iter().map(|v| v.s).collect();
         let spec = ViewSpec {
             per_segment: 2,

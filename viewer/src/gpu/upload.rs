@@ -675,8 +675,8 @@ fn mesh_arrays(view: &RefView, skirts: bool) -> MeshArrays {
                 .iter()
                 .chain(skirt_verts)
                 .map(|v| GpuVertex {
-                    pos_in_face: v.pos_in_face,
-                    depth_m: v.depth_m,
+                    pos_in_face: [v[0], v[1]],
+                    depth_m: v[2],
                     packed: ((ti as u32) << 3) | face,
                 }),
         );
@@ -699,7 +699,7 @@ fn decimated_levels(view: &RefView) -> Vec<Vec<Vec<u32>>> {
     let Some(grid) = tracks::TileGrid::new(view.face_size, view.tile_size) else {
         return Vec::new();
     };
-    let jump = crate::refview::MeshParams::default().jump;
+    let jump = crate::refview::LayerMeshing::default().jump;
     view.tiles
         .par_iter()
         .map(|tile| {

@@ -23,7 +23,7 @@ use std::collections::{HashMap, HashSet};
 
 use tracks::{PixelRect, TileGrid};
 
-use super::{MeshVertex, RefView, TileMesh};
+use super::{pos_in_face, RefView, TileMesh};
 
 /// Whether `c` lies on a pixel centre (`k + 0.5`).
 fn on_centre(c: f32) -> bool {
@@ -32,7 +32,7 @@ fn on_centre(c: f32) -> bool {
 
 /// The skirts of every tile of `view` ([`skirt`]), with the borders shared with a kept
 /// neighbour of the same slab and face.
-pub fn view_skirts(view: &RefView) -> Vec<(Vec<MeshVertex>, Vec<u32>)> {
+pub fn view_skirts(view: &RefView) -> Vec<(Vec<[f32; 3]>, Vec<u32>)> {
     let n = view.face_size;
     let Some(grid) = TileGrid::new(n, view.tile_size) else {
         return view
@@ -83,7 +83,7 @@ pub fn skirt(
     face_size: u32,
     rect: PixelRect,
     shared: [bool; 4],
-) -> (Vec<MeshVertex>, Vec<u32>) {
+) -> (Vec<[f32; 3]>, Vec<u32>) {
     let n = face_size as f32;
     let verts = &mesh.vertices;
     let PixelRect { x0, y0, x1, y1, .. } = rect;
@@ -105,9 +105,9 @@ pub fn skirt(
         .filter(|(_, (count, _))| *count == 1)
         .filter_map(|((a, b), (_, c))| {
             let (pa, pb, pc) = (
-                verts.get(a as usize)?.pos_in_face,
-                verts.get(b as usize)?.pos_in_face,
-                verts.get(c as usize)?.pos_in_face,
+                pos_in_face(*verts.get(a as usize)?),
+                pos_in_face(*verts.get(b as usize)?),
+                pos_in_face(*verts.get(c as usize)?),
             );
             if !pa.iter().chain(&pb).all(|&x| on_centre(x)) {
                 return None;
@@ -135,14 +135,15 @@ pub fn skirt(
     // A deterministic order (the map's is not).
     boundary.sort_by_key(|&(a, b, _)| (a, b));
     let base = verts.len() as u32;
-    let mut extra: Vec<MeshVertex> = Vec::new();
+    let mut extra: Vec<[f32; 3]> = Vec::new();
     let mut indices: Vec<u32> = Vec::new();
-    let add = |extra: &mut Vec<MeshVertex>, v: u32, o: [f32; 2]| -> u32 {
-        let p = verts[v as usize].pos_in_face;
-        extra.push(MeshVertex {
-            pos_in_face: [(p[0] + o[0]).clamp(0.0, n), (p[1] + o[1]).clamp(0.0, n)],
-            depth_m: verts[v as usize].depth_m,
-        });
+    let add = |extra: &mut Vec<[f32; 3]>, v: u32, o: [f32; 2]| -> u32 {
+        let p = verts[v as usize];
+        extra.push([
+            (p[0] + o[0]).clamp(0.0, n),
+            (p[1] + o[1]).clamp(0.0, n),
+            p[2],
+        ]);
         base + extra.len() as u32 - 1
     };
     let mut offsets: HashMap<u32, Vec<[f32; 2]>> = HashMap::new();
@@ -196,17 +197,14 @@ mod tests {
         }
     }
 
-    fn v(x: f32, y: f32) -> MeshVertex {
-        MeshVertex {
-            pos_in_face: [x, y],
-            depth_m: 2.0,
-        }
+    fn v(x: f32, y: f32) -> [f32; 3] {
+        [x, y, 2.0]
     }
 
     /// Area covered by the union of triangles, by sampling a fine grid over the face.
-    fn covered(verts: &[MeshVertex], idx: &[u32], x: f32, y: f32) -> bool {
+    fn covered(verts: &[[f32; 3]], idx: &[u32], x: f32, y: f32) -> bool {
         idx.chunks_exact(3).any(|t| {
-            let p = [t[0], t[1], t[2]].map(|i| verts[i as usize].pos_in_face);
+            let p = [t[0], t[1], t[2]].map(|i| pos_in_face(verts[i as usize]));
             let cross = |a: [f32; 2], b: [f32; 2], c: [f32; 2]| {
                 (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
             };
@@ -228,7 +226,7 @@ mod tests {
             indices: vec![0, 1, 2, 0, 2, 3],
         };
         let (extra, idx) = skirt(&mesh, 8, rect(0, 0, 8, 8), [false; 4]);
-        let all: Vec<MeshVertex> = mesh.vertices.iter().chain(&extra).copied().collect();
+        let all: Vec<[f32; 3]> = mesh.vertices.iter().chain(&extra).copied().collect();
         let tris: Vec<u32> = mesh.indices.iter().chain(&idx).copied().collect();
         // Every point of pixels 1..=3 (corners 1.0..4.0) is covered, nothing beyond.
         for k in 0..=60 {
@@ -245,7 +243,7 @@ mod tests {
                 }
             }
         }
-        assert!(extra.iter().all(|v| v.depth_m == 2.0));
+        assert!(extra.iter().all(|v| v[2] == 2.0));
     }
 
     #[test]
@@ -255,7 +253,7 @@ mod tests {
             indices: vec![0, 1, 2, 0, 2, 3],
         };
         let (extra, _) = skirt(&mesh, 8, rect(0, 0, 8, 8), [false; 4]);
-        let xs = extra.iter().flat_map(|v| v.pos_in_face);
+        let xs = extra.iter().flat_map(|v| pos_in_face(*v));
         let (lo, hi) = xs.fold((f32::MAX, f32::MIN), |(a, b), x| (a.min(x), b.max(x)));
         assert_eq!((lo, hi), (0.0, 8.0));
     }
@@ -277,7 +275,7 @@ mod tests {
         };
         let (extra, idx) = skirt(&mesh, 12, rect(8, 4, 12, 8), [true; 4]);
         assert_eq!(idx.len(), 6);
-        assert!(extra.iter().all(|v| v.pos_in_face[0] == 12.0));
+        assert!(extra.iter().all(|v| v[0] == 12.0));
         // Without kept neighbours every border gets a skirt.
         let mesh = TileMesh {
             vertices: vec![v(4.5, 4.5), v(8.5, 4.5), v(8.5, 8.5), v(4.5, 8.5)],

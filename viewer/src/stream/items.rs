@@ -231,7 +231,8 @@ pub(super) fn decode_parts(
             if k > 0 {
                 let scale = 1.0 / (1u32 << k) as f32;
                 for v in &mut mesh.vertices {
-                    v.pos_in_face = [v.pos_in_face[0] * scale, v.pos_in_face[1] * scale];
+                    v[0] *= scale;
+                    v[1] *= scale;
                 }
             }
             it.mesh = Some(mesh);

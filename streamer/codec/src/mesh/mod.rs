@@ -105,12 +105,7 @@ mod connect;
 
 use crate::entropy::{Bit, Decoder, Encoder, Signed};
 
-/// Mesh vertices and triangles (the decoded form).
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct MeshData {
-    pub vertices: Vec<[f32; 3]>,
-    pub indices: Vec<u32>,
-}
+pub use tracks::TileMesh;
 
 /// Why a mesh could not be encoded or decoded.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -322,7 +317,7 @@ fn adjacency(vertices: usize, tris: &[[u32; 3]]) -> Adjacency {
 /// Encodes a mesh: vertices finite with depth > 0, indices in range. On the lattice when no
 /// two vertices share a lattice position and the triangles are part of a planar
 /// triangulation; plain (exact, larger) otherwise.
-pub fn encode_mesh(mesh: &MeshData, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
+pub fn encode_mesh(mesh: &TileMesh, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
     if !mesh.indices.len().is_multiple_of(3) {
         return Err(MeshError::Ragged(mesh.indices.len()));
     }
@@ -356,7 +351,7 @@ pub fn encode_mesh(mesh: &MeshData, coding: &MeshCoding) -> Result<Vec<u8>, Mesh
 }
 
 /// The plain layout (lattice unit 0), exact: for meshes the lattice cannot hold.
-fn encode_plain(mesh: &MeshData, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
+fn encode_plain(mesh: &TileMesh, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
     let (n, tris) = (mesh.vertices.len() as u64, mesh.indices.len() as u64 / 3);
     check_plain_counts(n, tris).map_err(MeshError::Coding)?;
     let mut out = Vec::with_capacity(32 + 12 * (n + tris) as usize);
@@ -389,7 +384,7 @@ fn check_plain_counts(vertices: u64, triangles: u64) -> Result<(), String> {
 }
 
 /// Decodes the plain layout after its first 6 bytes.
-fn decode_plain(b: &[u8]) -> Result<MeshData, MeshError> {
+fn decode_plain(b: &[u8]) -> Result<TileMesh, MeshError> {
     let fmt = |m: String| MeshError::Format(m);
     let mut hd = Header { b, at: 6 };
     let face_size = hd.varint("face size")?;
@@ -437,12 +432,12 @@ fn decode_plain(b: &[u8]) -> Result<MeshData, MeshError> {
             count: n,
         });
     }
-    Ok(MeshData { vertices, indices })
+    Ok(TileMesh { vertices, indices })
 }
 
 /// The lattice layout: compact, for vertices on distinct lattice positions of a planar
 /// triangulation (what `slabs` meshes are, apart from the quads of uncovered pixels).
-fn encode_lattice(mesh: &MeshData, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
+fn encode_lattice(mesh: &TileMesh, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
     let n = mesh.vertices.len();
     let step = coding.depth_step;
     // The lattice: pixel centres when every vertex is on one, else eighths of a pixel.
@@ -604,7 +599,7 @@ impl Header<'_> {
 }
 
 /// Decodes a mesh; every count is checked against the limits before allocating.
-pub fn decode_mesh(b: &[u8]) -> Result<MeshData, MeshError> {
+pub fn decode_mesh(b: &[u8]) -> Result<TileMesh, MeshError> {
     let fmt = |m: String| MeshError::Format(m);
     if b.len() < 6 {
         return Err(fmt(format!(
@@ -689,7 +684,7 @@ pub fn decode_mesh(b: &[u8]) -> Result<MeshData, MeshError> {
         let r = planar_norm(x as f64, y as f64, face_size as u32) / (v as f64 * step);
         vertices.push([x, y, r as f32]);
     }
-    Ok(MeshData {
+    Ok(TileMesh {
         vertices,
         indices: grown.into_iter().flatten().collect(),
     })

@@ -19,8 +19,8 @@ fn grid_with(
     depth: impl Fn(u32, u32) -> f32,
     keep: impl Fn(u32, u32) -> bool,
     diag: impl Fn(u32, u32) -> bool,
-) -> MeshData {
-    let mut m = MeshData::default();
+) -> TileMesh {
+    let mut m = TileMesh::default();
     for y in 0..ny {
         for x in 0..nx {
             m.vertices.push([
@@ -48,7 +48,7 @@ fn grid_with(
     m
 }
 
-fn grid(nx: u32, ny: u32, depth: impl Fn(u32, u32) -> f32) -> MeshData {
+fn grid(nx: u32, ny: u32, depth: impl Fn(u32, u32) -> f32) -> TileMesh {
     grid_with(nx, ny, 4.0, depth, |_, _| true, |_, _| false)
 }
 
@@ -61,7 +61,7 @@ fn key(v: [f32; 3]) -> (u32, u32) {
 /// uses are kept too.
 type Canon = (Vec<[(u32, u32); 3]>, Vec<((u32, u32), f32)>);
 
-fn canonical(m: &MeshData) -> Canon {
+fn canonical(m: &TileMesh) -> Canon {
     let mut tris: Vec<[(u32, u32); 3]> = m
         .indices
         .chunks_exact(3)
@@ -79,7 +79,7 @@ fn canonical(m: &MeshData) -> Canon {
 
 /// `m` survives a round trip: the same triangles on the same positions, every depth within
 /// the quantisation bound (in inverse planar depth, f32 rounding allowed).
-fn assert_round_trip(m: &MeshData, step: f64) -> Vec<u8> {
+fn assert_round_trip(m: &TileMesh, step: f64) -> Vec<u8> {
     let bytes = encode_mesh(m, &coding(step)).unwrap();
     let back = decode_mesh(&bytes).unwrap();
     let (ta, va) = canonical(m);
@@ -132,7 +132,7 @@ fn planes_cost_almost_nothing_beyond_their_outline() {
 fn flat_empty_isolated_and_eighth_pixel_meshes() {
     let flat = grid(3, 2, |_, _| 5.0);
     assert_round_trip(&flat, 1e-3);
-    let empty = MeshData::default();
+    let empty = TileMesh::default();
     let b = encode_mesh(&empty, &coding(1e-3)).unwrap();
     assert_eq!(decode_mesh(&b).unwrap(), empty);
     // A vertex no triangle uses, and vertices off the pixel centres.
@@ -187,7 +187,7 @@ fn bad_meshes_are_refused() {
         .vertices
         .push([shared.vertices[0][0], shared.vertices[0][1], 2.5]);
     shared.indices.extend_from_slice(&[4, 1, 2]);
-    let line = MeshData {
+    let line = TileMesh {
         vertices: vec![[0.5, 0.5, 1.0], [1.5, 0.5, 1.0], [2.5, 0.5, 1.0]],
         indices: vec![0, 1, 2],
     };
@@ -253,7 +253,7 @@ fn hostile_counts_are_refused_before_allocating() {
     assert!(decode_mesh(&header(4, 4, 16, 18)).is_err());
 }
 
-fn random_mesh() -> impl Strategy<Value = (MeshData, f64)> {
+fn random_mesh() -> impl Strategy<Value = (TileMesh, f64)> {
     (
         2u32..12,
         2u32..12,
