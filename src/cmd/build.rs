@@ -1031,7 +1031,7 @@ impl TilingWanted {
         Ok(TilingWanted {
             tile_size: args.tile_size,
             mesh,
-            step: args.mesh_step.unwrap_or(s::DEFAULT_MESH_STEP),
+            step: args.mesh_step.unwrap_or(stages::slabs::DEFAULT_MESH_STEP),
             error: args.mesh_error,
         })
     }
