@@ -126,6 +126,55 @@ pub struct Args {
     pub lowres_face_size: Option<u32>,
 }
 
+impl Args {
+    /// The command's defaults, with no scene and an empty output directory.
+    pub fn defaults() -> Args {
+        Args {
+            scene: None,
+            pov: None,
+            up: None,
+            track: "main".into(),
+            out: PathBuf::new(),
+            face_size: 128,
+            supersample: 1,
+            slabs: "auto".into(),
+            tile_size: 32,
+            mesh_error: 0.5,
+            cull: "conservative:1".into(),
+            every: "2".into(),
+            face_sizes: "3/4".into(),
+            supersamples: "2".into(),
+            slab_counts: "fewer,more".into(),
+            tile_sizes: "16,64".into(),
+            mesh_errors: "2".into(),
+            culls: "paper:1,conservative:0.9,none".into(),
+            drop_levels: "1".into(),
+            target_psnr: Vec::new(),
+            cost: "db-bytes".into(),
+            combine: false,
+            per_segment: 2,
+            directions: 4,
+            fov: 90.0,
+            truth_supersample: 3,
+            walk_speed: 1.5,
+            zstd_level: 19,
+            ach_samples: 8,
+            ach_camera_size: 64,
+            lowres_face_size: None,
+        }
+    }
+}
+
+/// Run a subcommand in this process from its command line (after `railview`).
+fn run_sub(argv: &[String]) -> anyhow::Result<()> {
+    use clap::Parser;
+    let mut full = vec!["railview".to_string()];
+    full.extend_from_slice(argv);
+    let cli = crate::Cli::try_parse_from(&full)
+        .with_context(|| format!("`{}` is not available in this build", argv[0]))?;
+    crate::dispatch(cli.command).with_context(|| format!("stage `{}`", argv.join(" ")))
+}
+
 fn list<T: std::str::FromStr>(text: &str, flag: &str) -> anyhow::Result<Vec<T>> {
     text.split(',')
         .map(str::trim)
@@ -308,7 +357,7 @@ impl Sweep {
             },
             (None, None) => bail!("give --scene NAME or --pov SCENE.pov"),
         };
-        let track = super::build::resolve_track(args.scene.as_deref(), &args.track, None)?;
+        let track = stages::scene::resolve_track(args.scene.as_deref(), &args.track, None)?;
         let base_samples = track.viewpoints().len();
         prerender::store::ensure_writable_dir(&args.out)?;
         let root =
@@ -383,7 +432,7 @@ impl Sweep {
                     }
                     eprintln!("tune: {:?} stage: railview {}", n.stage, n.argv.join(" "));
                     let meter = tune::cost::Meter::start();
-                    super::build::run_sub(&n.argv)?;
+                    run_sub(&n.argv)?;
                     let (cpu_s, wall_s) = meter.stop();
                     let r = NodeRecord {
                         stage: n.stage,
@@ -519,7 +568,7 @@ impl Sweep {
         let out = dir.join("walk");
         let json = out.join("walk.json");
         if !json.is_file() {
-            super::build::run_sub(&[
+            run_sub(&[
                 "walk".into(),
                 dir.join("db").display().to_string(),
                 "--speed".into(),

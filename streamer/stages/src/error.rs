@@ -82,6 +82,30 @@ impl<T, E: Into<Error>> Context<T> for std::result::Result<T, E> {
     }
 }
 
+impl<T> Context<T> for Option<T> {
+    /// `None` as an [`Error::Input`] saying `context`.
+    fn context(self, context: impl Display) -> Result<T> {
+        self.ok_or_else(|| Error::Input(context.to_string()))
+    }
+    fn with_context<D: Display>(self, f: impl FnOnce() -> D) -> Result<T> {
+        self.ok_or_else(|| Error::Input(f().to_string()))
+    }
+}
+
+impl Error {
+    /// The message with every cause after it, `: `-separated (what `{:#}` of an `anyhow`
+    /// error prints).
+    pub fn chain(&self) -> String {
+        let mut out = self.to_string();
+        let mut source = std::error::Error::source(self);
+        while let Some(e) = source {
+            out += &format!(": {e}");
+            source = e.source();
+        }
+        out
+    }
+}
+
 /// An [`Error::Parameter`] from a formatted message.
 macro_rules! parameter {
     ($($t:tt)*) => { $crate::error::Error::Parameter(format!($($t)*)) };

@@ -7,9 +7,13 @@
 //!   by the built-in tracer or POV-Ray ([`prerender::Renderer`]), sharded and merged.
 //! - [`slabs`]: slab boundaries chosen, missing layers rendered, every layer tiled and meshed.
 //! - [`cull`]: track-dependent culling of the tiles for every α and variant, with the oracle.
+//! - [`encode`]: the kept tiles into the database (PTM textures, meshes, ACH, the manifest)
+//!   and the build's report ([`encode::BuildReport`]).
+//! - [`build`]: the whole pipeline ([`build::BuildParams`]), each stage a function call.
 //! - [`scene`]: scenes and tracks as the stages name them (built-in, TOML files, track files).
 //! - [`knobs`]: [`Knobs`], the one knob struct of a build (and of a sweep's configurations),
 //!   with [`SlabSpec`] and [`CullChoice`].
+//! - [`cost`]: CPU and wall seconds of a stage.
 //! - [`progress`]: [`Progress`], [`Bar`], [`Silent`]; [`error`]: [`Error`].
 //!
 //! ```
@@ -23,7 +27,10 @@
 //! assert_eq!(k.label(&Knobs::default()), "slabs fewer, no culling");
 //! ```
 
+pub mod build;
+pub mod cost;
 pub mod cull;
+pub mod encode;
 pub mod error;
 pub mod knobs;
 pub mod prerender;

@@ -11,7 +11,7 @@
 //!   cheapest configuration whose worst 5 % of views meet a PSNR target (Yang and Crawfis'
 //!   future work, sampling chosen by reconstruction error, done per scene).
 //! - [`report`]: `sweep.json`, `sweep.csv`, `sweep.md` and the Pareto figures.
-//! - [`cost`]: CPU seconds of a stage; [`link`]: starting a stage from another's files.
+//! - [`link`]: starting a stage from another's files.
 //!
 //! ```
 //! use tune::{Knobs, SweepSpec};
@@ -25,7 +25,6 @@
 //! assert_eq!(configs[1].label(&spec.base), "every 2nd reference viewpoint");
 //! ```
 
-pub mod cost;
 pub mod knobs;
 pub mod link;
 pub mod pareto;
@@ -35,3 +34,5 @@ pub mod report;
 
 pub use knobs::{Knobs, SweepSpec};
 pub use record::{Cost, Measured};
+/// CPU seconds of a stage (`stages::cost`).
+pub use stages::cost;
