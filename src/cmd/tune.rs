@@ -17,7 +17,7 @@ use tune::pareto::{quality, select, Selection};
 use tune::plan::{self, SceneSpec, Setup, Stage};
 use tune::record::{Costs, ErrorSummary};
 use tune::report::{self as tr, SweepReport};
-use tune::{Cost, Knobs, Measured, SweepSpec};
+use tune::{Cost, CullChoice, Knobs, Measured, SweepSpec};
 use viewer::eval::{self, EvalConfig, EvalInput, Truth, TruthCache, ViewSpec};
 
 /// Arguments of `railview tune`.
@@ -189,9 +189,9 @@ fn list<T: std::str::FromStr>(text: &str, flag: &str) -> anyhow::Result<Vec<T>> 
 /// A culling choice, `VARIANT:ALPHA` or `none`; `auto` is `railview build`'s default: the
 /// shrunk variant at α = 1 for scenes whose solids the tracer has, the conservative one
 /// otherwise.
-fn cull(text: &str, flag: &str, pov: bool) -> anyhow::Result<(String, f64)> {
+fn cull(text: &str, flag: &str, pov: bool) -> anyhow::Result<(CullChoice, f64)> {
     if text == "none" {
-        return Ok(("none".into(), 1.0));
+        return Ok((CullChoice::Off, 1.0));
     }
     let (v, a) = text.split_once(':').unwrap_or((text, "1"));
     let alpha: f64 = a
@@ -214,23 +214,25 @@ fn cull(text: &str, flag: &str, pov: bool) -> anyhow::Result<(String, f64)> {
         variant != occlusion::Variant::Shrunk || (alpha == 1.0 && !pov),
         "--{flag} `{text}`: the shrunk variant runs at α = 1 on scenes with solids (not --pov)"
     );
-    Ok((variant.name().to_string(), alpha))
+    Ok((CullChoice::Variant(variant), alpha))
 }
 
 impl Args {
     /// The sweep these arguments ask for.
     pub fn spec(&self) -> anyhow::Result<SweepSpec> {
-        let (cull_variant, alpha) = cull(&self.cull, "cull", self.pov.is_some())?;
+        let (culling, alpha) = cull(&self.cull, "cull", self.pov.is_some())?;
         let base = Knobs {
             every: 1,
             face_size: self.face_size,
             supersample: self.supersample,
-            slabs: self.slabs.clone(),
+            slabs: self.slabs.parse().map_err(anyhow::Error::msg)?,
             tile_size: self.tile_size,
             mesh_error_px: self.mesh_error,
-            cull_variant,
+            cull: culling,
             alpha,
             drop_levels: 0,
+            zstd_level: self.zstd_level,
+            ..Knobs::default()
         };
         let spec = SweepSpec {
             base,

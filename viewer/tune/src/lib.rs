@@ -32,7 +32,7 @@ pub mod plan;
 pub mod record;
 pub mod report;
 
-pub use knobs::{Knobs, SweepSpec};
+pub use knobs::{CullChoice, Knobs, SlabSpec, SweepSpec};
 pub use record::{Cost, Measured};
 /// CPU seconds of a stage (`stages::cost`).
 pub use stages::cost;

@@ -21,7 +21,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::knobs::Knobs;
+use crate::knobs::{CullChoice, Knobs};
 
 /// The scene of a sweep.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -164,7 +164,7 @@ pub fn nodes(setup: &Setup, knobs: &Knobs, track_file: &Path, track_text: &str) 
         knobs.tile_size, knobs.mesh_error_px
     );
     let d_tiles = node_dir("tiles", &k_tiles);
-    let k_cull = format!("{k_tiles} | cull {} {}", knobs.cull_variant, knobs.alpha);
+    let k_cull = format!("{k_tiles} | cull {} {}", knobs.cull, knobs.alpha);
     let d_cull = node_dir("cull", &k_cull);
     let k_db = format!(
         "{k_cull} | drop {} | zstd {} | ach {} {}",
@@ -188,7 +188,7 @@ pub fn nodes(setup: &Setup, knobs: &Knobs, track_file: &Path, track_text: &str) 
                 "slabs".into(),
                 pre_dir(&d_layers),
                 "--slabs".into(),
-                knobs.slabs.clone(),
+                knobs.slabs.to_string(),
                 "--layers-only".into(),
             ],
         },
@@ -201,7 +201,7 @@ pub fn nodes(setup: &Setup, knobs: &Knobs, track_file: &Path, track_text: &str) 
                 "slabs".into(),
                 pre_dir(&d_tiles),
                 "--slabs".into(),
-                knobs.slabs.clone(),
+                knobs.slabs.to_string(),
                 "--tile-size".into(),
                 knobs.tile_size.to_string(),
                 "--mesh-error".into(),
@@ -209,7 +209,7 @@ pub fn nodes(setup: &Setup, knobs: &Knobs, track_file: &Path, track_text: &str) 
             ],
         },
     ];
-    let last = if knobs.cull_variant == "none" {
+    let last = if knobs.cull == CullChoice::Off {
         d_tiles
     } else {
         out.push(Node {
@@ -223,7 +223,7 @@ pub fn nodes(setup: &Setup, knobs: &Knobs, track_file: &Path, track_text: &str) 
                 "--alpha".into(),
                 knobs.alpha.to_string(),
                 "--variant".into(),
-                knobs.cull_variant.clone(),
+                knobs.cull.to_string(),
             ],
         });
         d_cull
@@ -253,13 +253,13 @@ pub fn nodes(setup: &Setup, knobs: &Knobs, track_file: &Path, track_text: &str) 
         "--face-size".into(),
         knobs.face_size.to_string(),
         "--slabs".into(),
-        knobs.slabs.clone(),
+        knobs.slabs.to_string(),
         "--tile-size".into(),
         knobs.tile_size.to_string(),
         "--mesh-error".into(),
         knobs.mesh_error_px.to_string(),
         "--cull-variant".into(),
-        knobs.cull_variant.clone(),
+        knobs.cull.to_string(),
         "--alpha".into(),
         knobs.alpha.to_string(),
         "--drop-levels".into(),
@@ -324,7 +324,7 @@ mod tests {
         }
         // Without culling the database starts from the tiles.
         let none = Knobs {
-            cull_variant: "none".into(),
+            cull: CullChoice::Off,
             ..base
         };
         let c = nodes(&setup(), &none, t, "track");
