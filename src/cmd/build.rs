@@ -15,6 +15,8 @@ use stages::prerender::PovParams;
 use stages::{CullChoice, Knobs};
 use streamer::db::ach::AchParams;
 use streamer::ptm;
+use tune::target::TargetParams;
+use tune::Cost;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -215,107 +217,27 @@ fn params(args: &Args) -> anyhow::Result<BuildParams> {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let params = params(&args)?;
     params.check()?;
-    if let Some(target) = args.target_psnr {
-        return build_for_target(&args, params, target);
+    let progress = crate::progress::terminal();
+    match args.target_psnr {
+        None => {
+            stages::build::run(&params, &progress)?;
+        }
+        Some(psnr_db) => {
+            let cost = Cost::parse(&args.cost).with_context(|| {
+                format!(
+                    "--cost `{}`: expected one of db-bytes, walk-bytes, prerender-cpu, build-cpu, frame-ms",
+                    args.cost
+                )
+            })?;
+            let target = TargetParams {
+                psnr_db,
+                cost,
+                tune_dir: args.tune_dir,
+                per_segment: args.per_segment,
+                directions: args.directions,
+            };
+            tune::target::build_for_target(&params, &target, &progress)?;
+        }
     }
-    stages::build::run(&params, &crate::progress::terminal())?;
-    Ok(())
-}
-
-/// `--target-psnr`: sweep the knobs around the settings given (`railview tune`'s lists),
-/// choose the cheapest configuration reaching the target on the worst 5 % of views, and
-/// build it into `--out` from the sweep's own stages (nothing is rendered or encoded again),
-/// with the choice and its evidence in the report.
-fn build_for_target(args: &Args, params: BuildParams, target: f64) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        target.is_finite() && target > 0.0,
-        "--target-psnr must be a positive number of dB"
-    );
-    let work = params.work_dir();
-    prerender::store::ensure_writable_dir(&work)?;
-    let tune_dir = args.tune_dir.clone().unwrap_or_else(|| work.join("tune"));
-    let track = params.track_file(&work)?;
-    let cull = match params.cull_variant()? {
-        None => "none".to_string(),
-        Some(v) => format!("{}:{}", v.name(), args.alpha),
-    };
-    if args.pov.is_some() && args.supersample > 2 {
-        bail!("--supersample with --pov: 1 or 2");
-    }
-    let tune_args = super::tune::Args {
-        scene: args.scene.clone(),
-        pov: args.pov.clone(),
-        up: args.pov.as_ref().and(args.up).map(|u| u.name().to_string()),
-        track,
-        out: tune_dir.clone(),
-        face_size: args.face_size,
-        supersample: args.supersample,
-        slabs: args.slabs.clone(),
-        tile_size: args.tile_size,
-        mesh_error: args.mesh_error,
-        cull,
-        target_psnr: vec![target],
-        cost: args.cost.clone(),
-        combine: true,
-        per_segment: args.per_segment,
-        directions: args.directions,
-        zstd_level: args.zstd_level,
-        ach_samples: args.ach_samples,
-        ach_camera_size: args.ach_camera_size,
-        lowres_face_size: args.lowres_face_size,
-        ..super::tune::Args::defaults()
-    };
-    let mut sweep = super::tune::Sweep::new(tune_args)?;
-    let report = sweep.run()?;
-    let selection = report
-        .selections
-        .first()
-        .context("the sweep made no choice")?;
-    let text = tune::report::selection_text(&report, selection);
-    let Some(i) = selection.chosen else {
-        bail!("{text} (the sweep is in {})", tune_dir.display());
-    };
-    let chosen = &report.records[i];
-    eprintln!("{text}");
-    let node = tune_dir.join(&chosen.dir);
-    let k = &chosen.knobs;
-    let evidence = serde_json::json!({
-        "target_psnr_db": target,
-        "judged_on": "PSNR of the worst 5 % of views between samples",
-        "cost": selection.cost,
-        "chosen": chosen,
-        "left_out": k.differences(&report.base),
-        "summary": text,
-        "sweep": tune_dir.display().to_string(),
-        "table": tune::report::table(&report),
-        "configurations": report.records.len(),
-    });
-    let chosen_params = BuildParams {
-        track: node
-            .join("prerender")
-            .join("track.toml")
-            .display()
-            .to_string(),
-        track_name: None,
-        knobs: Knobs {
-            every: 1,
-            samples: None,
-            spacing_m: None,
-            face_size: k.face_size,
-            supersample: k.supersample,
-            slabs: k.slabs.clone(),
-            tile_size: k.tile_size,
-            mesh_error_px: k.mesh_error_px,
-            cull: k.cull,
-            alpha: k.alpha,
-            drop_levels: k.drop_levels,
-            zstd_level: args.zstd_level,
-        },
-        work: Some(node),
-        report_dir: Some(work),
-        evidence: Some(evidence),
-        ..params
-    };
-    stages::build::run(&chosen_params, &crate::progress::terminal())?;
     Ok(())
 }

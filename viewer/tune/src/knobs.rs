@@ -3,7 +3,10 @@
 //! knobs of `railview build`).
 
 use serde::{Deserialize, Serialize};
+use stages::cull::Variant;
 pub use stages::knobs::{CullChoice, Knobs, SlabSpec};
+
+use crate::error::{Error, Result};
 
 /// The values each knob takes in a sweep; the base configuration is `base`, and every other
 /// value of a list makes one configuration that differs from the base in that knob only.
@@ -35,6 +38,61 @@ impl SweepSpec {
             cull: Vec::new(),
             drop_levels: Vec::new(),
         }
+    }
+
+    /// `railview tune`'s lists around `base`: every 2nd viewpoint, faces of three quarters
+    /// of the base's (a multiple of 8), 2×2 supersampling, a slab fewer and one more, tiles of
+    /// 16 and 64 px, mesh error 2 px, culling `paper` at α 1, `conservative` at α 0.9 and
+    /// none, the finest texture level left out.
+    pub fn around(base: Knobs) -> SweepSpec {
+        SweepSpec {
+            every: vec![2],
+            face_size: vec![three_quarters(base.face_size)],
+            supersample: vec![2],
+            slabs: vec![SlabSpec::Auto(-1), SlabSpec::Auto(1)],
+            tile_size: vec![16, 64],
+            mesh_error_px: vec![2.0],
+            cull: vec![
+                (CullChoice::Variant(Variant::Paper), 1.0),
+                (CullChoice::Variant(Variant::Conservative), 0.9),
+                (CullChoice::Off, 1.0),
+            ],
+            drop_levels: vec![1],
+            base,
+        }
+    }
+
+    /// Every configuration's knobs in range (`pov`: POV-Ray renders the panoramas, which
+    /// anti-alias 2×2 or not at all).
+    pub fn check(&self, pov: bool) -> Result<()> {
+        let bad = |m: String| Err(Error::Parameter(m));
+        for k in self.configs() {
+            if !(1..=64).contains(&k.every) {
+                return bad(format!("--every {}: must be in 1..=64", k.every));
+            }
+            if !(8..=4096).contains(&k.face_size) {
+                return bad(format!("face size {} out of 8..=4096", k.face_size));
+            }
+            if !((1..=16).contains(&k.supersample) && (!pov || k.supersample <= 2)) {
+                return bad(format!(
+                    "supersampling {} out of range (POV-Ray imports: 1 or 2)",
+                    k.supersample
+                ));
+            }
+            if !(k.tile_size.is_power_of_two() && (4..=1024).contains(&k.tile_size)) {
+                return bad(format!(
+                    "tile size {}: a power of two from 4 to 1024",
+                    k.tile_size
+                ));
+            }
+            if !(k.mesh_error_px.is_finite() && k.mesh_error_px > 0.0) {
+                return bad(format!("mesh error {} must be positive", k.mesh_error_px));
+            }
+            if k.drop_levels > 8 {
+                return bad("at most 8 levels left out".into());
+            }
+        }
+        Ok(())
     }
 
     /// The base, then one configuration per value that differs from the base, knob by knob in
@@ -98,6 +156,11 @@ impl SweepSpec {
         }
         out
     }
+}
+
+/// Three quarters of a face size, rounded up to a multiple of 8 (`--face-sizes 3/4`).
+pub fn three_quarters(face_size: u32) -> u32 {
+    (face_size * 3 / 4).div_ceil(8).max(1) * 8
 }
 
 #[cfg(test)]

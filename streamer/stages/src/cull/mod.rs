@@ -30,12 +30,14 @@ use occlusion::report::{
 };
 use occlusion::{
     cull_viewpoint, cull_viewpoint_shrunk, mark_visible, score, CullParams as RunParams, MatchRule,
-    SceneSolids, Variant, Visibility,
+    SceneSolids, Visibility,
 };
 use prerender::runlog::RunLog;
 use prerender::scene::Scene;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
 use tracks::{SlabRange, TileGrid};
+
+pub use occlusion::Variant;
 
 use self::oracle::{load_viewpoint, same_geometry, Loaded, OracleSource, TrackPath};
 use crate::error::{input, parameter, Context, Result};
