@@ -253,6 +253,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         lowres_face_size: args.lowres_face_size,
     };
+    sweep(params)
+}
+
+/// Run a sweep and print its table and choices.
+pub fn sweep(params: SweepParams) -> anyhow::Result<()> {
     let mut sweep = Sweep::new(params, &crate::progress::terminal())?;
     let report = sweep.run()?;
     print!("{}", tr::table(&report));
