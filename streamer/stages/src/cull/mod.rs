@@ -41,6 +41,7 @@ pub use occlusion::Variant;
 
 use self::oracle::{load_viewpoint, same_geometry, Loaded, OracleSource, TrackPath};
 use crate::error::{input, parameter, Context, Result};
+use crate::prerender::RenderedBy;
 use crate::progress::{BarKind, Reporter};
 
 /// Which variants run.
@@ -130,7 +131,7 @@ fn variants_and_solids(
     let (variants, explicit) = params.variants.list();
     // The shrunk variant needs the scene's solids: built-in and TOML scenes only.
     let solids: Option<Box<Scene>> = if variants.contains(&Variant::Shrunk) {
-        if pre.renderer == "builtin" {
+        if RenderedBy::of(pre) == RenderedBy::Builtin {
             Some(Box::new(
                 oracle::load_geometry(pre).context("the shrunk variant")?,
             ))

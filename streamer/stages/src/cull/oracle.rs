@@ -11,6 +11,7 @@ use slabs::io::{self as sio, TilesFile};
 use tracks::{CubeMap, TileGrid, TrackSet};
 
 use crate::error::{input, parameter, Context, Result};
+use crate::prerender::RenderedBy;
 
 /// Everything loaded for one reference viewpoint.
 pub(super) struct Loaded {
@@ -81,7 +82,7 @@ impl OracleSource {
         pre: &PrerenderReport,
         face_size: Option<u32>,
     ) -> Result<OracleSource> {
-        if pre.renderer == "povray" {
+        if RenderedBy::of(pre) == RenderedBy::PovRay {
             let scratch = PrerenderDir::new(dir.root().join("cull-oracle"));
             std::fs::remove_dir_all(scratch.root()).ok();
             // The import as it was recorded, at the oracle's face size.
@@ -189,7 +190,7 @@ pub(super) fn same_geometry(scene: &Scene, position: DVec3, layers: &[SlabLayer]
 
 /// Exact geometry of a built-in or TOML scene for the oracle.
 pub(super) fn load_geometry(pre: &PrerenderReport) -> Result<Scene> {
-    if pre.renderer != "builtin" {
+    if RenderedBy::of(pre) != RenderedBy::Builtin {
         return Err(parameter!(
             "--oracle: scene `{}` was rendered by `{}`; the oracle needs exact geometry \
              (built-in or TOML scenes) or a POV-Ray import (depth rendered by POV-Ray)",

@@ -34,6 +34,28 @@ pub enum Renderer {
     PovRay(PovParams),
 }
 
+/// Who rendered a prerender directory, as its report (`prerender.json`) says.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RenderedBy {
+    /// The built-in tracer (`builtin`): the scene's geometry is at hand.
+    Builtin,
+    /// POV-Ray (`povray`): the import can be re-created from the report.
+    PovRay,
+    /// Another renderer, which the stages cannot drive.
+    Other,
+}
+
+impl RenderedBy {
+    /// The renderer of `report`.
+    pub fn of(report: &PrerenderReport) -> RenderedBy {
+        match report.renderer.as_str() {
+            "builtin" => RenderedBy::Builtin,
+            "povray" => RenderedBy::PovRay,
+            _ => RenderedBy::Other,
+        }
+    }
+}
+
 /// What to prerender, and where.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PrerenderParams {

@@ -11,7 +11,7 @@ use prerender::store::{self, LayersMeta, PrerenderDir, PrerenderReport};
 use tracks::SlabRange;
 
 use crate::error::{input, parameter, Context, Result};
-use crate::prerender::labels;
+use crate::prerender::{labels, RenderedBy};
 use crate::progress::{BarKind, Reporter};
 
 /// Render slab layers of `missing` samples with the renderer of the panoramas.
@@ -23,16 +23,17 @@ pub(super) fn render(
     log: &Arc<RunLog>,
     progress: &Reporter,
 ) -> Result<()> {
-    if pre.renderer == "povray" {
-        return render_pov(dir, pre, slabs, missing, log, progress);
-    }
-    if pre.renderer != "builtin" {
-        return Err(parameter!(
-            "samples {:?} have no slab layers {} and renderer `{}` cannot be driven from `railview slabs` (only `builtin` and `povray` can): render them with that renderer's own command",
-            missing,
-            labels(slabs),
-            pre.renderer
-        ));
+    match RenderedBy::of(pre) {
+        RenderedBy::PovRay => return render_pov(dir, pre, slabs, missing, log, progress),
+        RenderedBy::Builtin => {}
+        RenderedBy::Other => {
+            return Err(parameter!(
+                "samples {:?} have no slab layers {} and renderer `{}` cannot be driven from `railview slabs` (only `builtin` and `povray` can): render them with that renderer's own command",
+                missing,
+                labels(slabs),
+                pre.renderer
+            ))
+        }
     }
     let scene = match prerender::scenes::builtin(&pre.scene) {
         Some(b) => b.scene,
