@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod cmd;
+mod progress;
 
 #[derive(Parser)]
 #[command(
@@ -13,13 +14,13 @@ mod cmd;
     version,
     about = "Image-based panoramic walkthroughs along tracks"
 )]
-pub(crate) struct Cli {
+struct Cli {
     #[command(subcommand)]
     command: Command,
 }
 
 #[derive(Subcommand)]
-pub(crate) enum Command {
+enum Command {
     /// The whole system on the built-in castle scene in one command, then a report.
     Demo(cmd::demo::Args),
     /// Render cube-map colour, depth (and optionally slab layers) at the reference viewpoints of a track.
@@ -79,7 +80,7 @@ fn main() -> ExitCode {
     }
 }
 
-/// Run one subcommand; `demo` also calls this to run the pipeline's stages in this process.
+/// Run one subcommand.
 fn dispatch(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Demo(a) => cmd::demo::run(a),

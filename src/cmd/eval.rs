@@ -127,10 +127,10 @@ fn pitches(text: &str) -> anyhow::Result<Vec<f64>> {
 /// the partial loads worth evaluating. Nothing for other sources.
 fn coarse_level_groups(db: &str) -> anyhow::Result<Vec<usize>> {
     let dir = Path::new(db);
-    if !dir.join(streamer::db::MANIFEST_FILE).is_file() {
+    if !dir.join(db::MANIFEST_FILE).is_file() {
         return Ok(Vec::new());
     }
-    let db = streamer::db::Database::open(dir)?;
+    let db = db::Database::open(dir)?;
     let most = db
         .manifest()
         .tracks
@@ -146,7 +146,7 @@ fn coarse_level_groups(db: &str) -> anyhow::Result<Vec<usize>> {
 /// How a database codes its textures, read from its first PTM's header: `lossless` or
 /// `lossy near=N`.
 fn texture_coding(db: &str) -> anyhow::Result<String> {
-    let db = streamer::db::Database::open(std::path::Path::new(db))?;
+    let db = db::Database::open(std::path::Path::new(db))?;
     let first = db
         .manifest()
         .tracks
@@ -157,7 +157,7 @@ fn texture_coding(db: &str) -> anyhow::Result<String> {
     let Some(p) = first else {
         return Ok("no textures".into());
     };
-    let mut dec = streamer::ptm::Decoder::new(streamer::ptm::Limits::default());
+    let mut dec = codec::ptm::Decoder::new(codec::ptm::Limits::default());
     dec.push(&db.read_level(p, 0)?)?;
     Ok(match dec.header().map_or(0, |h| h.near) {
         0 => "lossless".into(),

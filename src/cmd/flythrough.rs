@@ -10,7 +10,7 @@ use viewer::source::LoadOptions;
 use viewer::{plan_frame, DrawBudget};
 
 /// Arguments of `railview flythrough`.
-#[derive(clap::Args)]
+#[derive(clap::Args, Clone)]
 pub struct Args {
     /// Database or prerender directory, or `synth:street`.
     pub db: String,

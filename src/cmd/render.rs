@@ -69,7 +69,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "--level-groups {g}: at least 1 (the coarsest group)"
         );
         let is_db = std::path::Path::new(&args.db)
-            .join(streamer::db::MANIFEST_FILE)
+            .join(db::MANIFEST_FILE)
             .is_file();
         anyhow::ensure!(
             is_db,

@@ -24,11 +24,11 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let opts = streamer::db::VerifyOptions {
+    let opts = db::VerifyOptions {
         decode: args.decode,
         remove_temp: args.remove_temp,
     };
-    let report = streamer::db::verify_with(&args.db, opts)
+    let report = db::verify_with(&args.db, opts)
         .with_context(|| format!("verifying {}", args.db.display()))?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -95,7 +95,7 @@ mod tests {
     fn exit_status_follows_damage_and_names_the_file() {
         let dir = std::env::temp_dir().join(format!("railview-verify-cmd-{}", std::process::id()));
         std::fs::remove_dir_all(&dir).ok();
-        let mut w = streamer::db::DbWriter::create(&dir).unwrap();
+        let mut w = db::DbWriter::create(&dir).unwrap();
         let obj = w.put(b"some object bytes").unwrap();
         let manifest = tracks::manifest::Manifest {
             version: tracks::manifest::MANIFEST_VERSION,
@@ -151,7 +151,7 @@ mod tests {
         std::fs::write(&path, &bytes).unwrap();
         run(args()).unwrap();
         // A missing viewpoint table is named by track and viewpoint.
-        let top = streamer::db::read_top(&dir).unwrap();
+        let top = db::read_top(&dir).unwrap();
         let table = dir.join(top.tracks[0].viewpoints[0].table.rel_path().unwrap());
         std::fs::remove_file(&table).unwrap();
         let err = format!("{:#}", run(args()).unwrap_err());

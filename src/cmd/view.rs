@@ -10,7 +10,7 @@ use viewer::source::LoadOptions;
 use viewer::stream::StreamedWalkthrough;
 
 /// Arguments of `railview view`.
-#[derive(clap::Args)]
+#[derive(clap::Args, Clone)]
 pub struct Args {
     /// Database or prerender directory, `synth:street`, or a server URL
     /// (`http://127.0.0.1:8080`, as `railview serve` prints).

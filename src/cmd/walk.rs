@@ -14,7 +14,7 @@ use streamer::server::{self, parse_duration, parse_rate, ServedDb, ServerConfig,
 use streamer::walk::{self, synth, Strategy, WalkConfig, WalkEvent};
 use tracks::limits::{check_f64, check_u64};
 
-#[derive(clap::Args)]
+#[derive(clap::Args, Clone)]
 pub struct Args {
     /// Database directory or server URL (http://HOST:PORT).
     pub db: String,

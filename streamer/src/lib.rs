@@ -35,8 +35,3 @@ pub mod hostile;
 pub mod server;
 pub mod visibility;
 pub mod walk;
-
-// Compatibility path for the binary and the viewer until they import the crates directly.
-pub use codec::{entropy, ptm};
-// Compatibility path for the binary and the viewer until they import the crates directly.
-pub use db;

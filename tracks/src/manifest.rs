@@ -10,7 +10,7 @@
 //! ```
 //!
 //! The on-disk form (the split top manifest, binary tables, packs) is the streamer's
-//! (`streamer::db`); [`Manifest`] here is the assembled in-memory form every crate reads: a
+//! (`db`); [`Manifest`] here is the assembled in-memory form every crate reads: a
 //! tile's PTM names its pack as `object` with level ranges inside it, and its mesh is a
 //! [`PackRange`] of the same pack ([`TileEntry::mesh_range`]).
 //!

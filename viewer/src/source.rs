@@ -1,14 +1,15 @@
 //! Where reference views come from: a walkthrough database (`manifest.json` + objects, read
-//! through `streamer::db`) or a prerender directory (`prerender.json` + `samples/`, read
+//! through `db`) or a prerender directory (`prerender.json` + `samples/`, read
 //! through `prerender::store`, meshed here). [`open`] picks by what the directory holds.
 
 use std::path::Path;
 
+use codec::mesh::decode_mesh;
+use codec::ptm::{Decoder, Limits};
+use db::Database;
 use glam::DVec3;
 use prerender::store::{self, PrerenderDir};
 use rayon::prelude::*;
-use streamer::db::{mesh::decode_mesh, Database};
-use streamer::ptm::{Decoder, Limits};
 use tracks::manifest::{PtmRef, TrackEntry};
 use tracks::{CubeMap, SlabRange, TileGrid, Track, TrackSet};
 
@@ -22,7 +23,7 @@ pub enum SourceError {
     #[error("{0}: neither a database (manifest.json) nor a prerender directory (prerender.json)")]
     Unknown(String),
     #[error(transparent)]
-    Db(#[from] streamer::db::DbError),
+    Db(#[from] db::DbError),
     #[error(transparent)]
     Store(#[from] store::StoreError),
     #[error("{what}: {message}")]
@@ -73,7 +74,7 @@ pub fn open(
     track: Option<&str>,
     opts: LoadOptions,
 ) -> Result<Walkthrough, SourceError> {
-    if dir.join(streamer::db::MANIFEST_FILE).is_file() {
+    if dir.join(db::MANIFEST_FILE).is_file() {
         from_database(&Database::open(dir)?, track, opts)
     } else if PrerenderDir::new(dir).report_json().is_file() {
         from_prerender(dir, track, opts.mesh)
@@ -137,7 +138,7 @@ fn decode_ptm(
     // A coarse level of a format-5 database holds colour × coverage: its outline is drawn in
     // the covered texels' own colour, not darkened by the empty texels beside them.
     if premultiplied && level > 0 {
-        streamer::db::unpremultiply(&mut rgba);
+        db::unpremultiply(&mut rgba);
     }
     Ok((rgba, img.width(), img.height(), level))
 }
@@ -161,7 +162,7 @@ fn group_bytes(ptm: &PtmRef, groups: Option<usize>) -> u64 {
 }
 
 /// A decoded PTM level as RGBA8 (grey, grey+alpha and RGB expanded).
-pub fn image_rgba(img: &streamer::ptm::Image) -> Vec<u8> {
+pub fn image_rgba(img: &codec::ptm::Image) -> Vec<u8> {
     let c = img.channels() as usize;
     img.data()
         .chunks_exact(c.max(1))

@@ -6,7 +6,7 @@
 //! [`StreamedWalkthrough::step`] hands the position and camera (and the GPU's visible-pixel
 //! counts, see [`StreamedWalkthrough::live_counts`]) to the session and folds what arrived
 //! into the views: an item's parts are consumed in order (mesh, then PTM level groups into an
-//! incremental [`streamer::ptm::Decoder`]); a tile joins its view once its mesh and coarsest
+//! incremental [`codec::ptm::Decoder`]); a tile joins its view once its mesh and coarsest
 //! level are in, and is upgraded in place as finer levels decode (the coarse level stands in,
 //! nearest, and [`crate::refview::ViewTile::finest_level`] keeps the renderer from sampling
 //! finer than what arrived). A background is pasted at whatever level has arrived. The parts taken in a step
@@ -206,7 +206,7 @@ pub struct StreamedWalkthrough {
     /// Problems with received data (bytes that passed their checksum but do not decode).
     pub errors: Vec<String>,
     /// Coarse PTM levels hold colour × coverage (format 5 on): divided by the coverage
-    /// before they are pasted ([`streamer::db::unpremultiply`]).
+    /// before they are pasted ([`db::unpremultiply`]).
     premultiplied: bool,
 }
 

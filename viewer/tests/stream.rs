@@ -8,10 +8,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use codec::mesh::{encode_mesh, MeshCoding, TileMesh};
+use codec::ptm::{encode, EncodeOptions, Image, Method};
+use db::DbWriter;
 use streamer::client::LiveConfig;
-use streamer::db::mesh::{encode_mesh, MeshCoding, TileMesh};
-use streamer::db::DbWriter;
-use streamer::ptm::{encode, EncodeOptions, Image, Method};
 use streamer::server::{self, ServedDb, ServerConfig, ServerStats};
 use tracks::manifest::{
     AchEntry, BackgroundTile, Manifest, SegmentEntry, TileEntry, TrackEntry, ViewpointEntry,
@@ -88,7 +88,7 @@ fn write_db_with(walk: &Walkthrough, dir: &Path, opts: EncodeOptions, share: boo
                 }
             }
             // As `railview build` stores it (format 5): no colour under the mask.
-            streamer::db::clear_masked(&mut px);
+            db::clear_masked(&mut px);
             let img = Image::new(x1 - x0, y1 - y0, 4, px).unwrap();
             let ptm = w.put_ptm(&encode(&img, &opts).unwrap(), 4).unwrap();
             let mesh = one_vertex_per_position(TileMesh {
@@ -128,7 +128,7 @@ fn write_db_with(walk: &Walkthrough, dir: &Path, opts: EncodeOptions, share: boo
                     if px.chunks(4).all(|p| p[3] == 0) {
                         continue;
                     }
-                    streamer::db::clear_masked(&mut px);
+                    db::clear_masked(&mut px);
                     let img = Image::new(x1 - x0, y1 - y0, 4, px).unwrap();
                     background.push(BackgroundTile {
                         tile,
@@ -327,7 +327,7 @@ fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
     write_db_with(&street, &dir, opts, true);
     {
         // The premise: some tiles come in more than one range.
-        let db = streamer::db::Database::open(&dir).unwrap();
+        let db = db::Database::open(&dir).unwrap();
         let progressive = db
             .manifest()
             .tracks
@@ -453,7 +453,7 @@ fn streamed_views_draw_from_the_coarsest_level_and_sharpen_as_levels_arrive() {
 /// level groups, every background tile's level groups), a range pointed at twice counted
 /// twice.
 fn part_bytes(dir: &Path) -> u64 {
-    let db = streamer::db::Database::open(dir).unwrap();
+    let db = db::Database::open(dir).unwrap();
     let ptm = |p: &tracks::manifest::PtmRef| p.levels.iter().map(|l| l.len).sum::<u64>();
     db.manifest()
         .tracks

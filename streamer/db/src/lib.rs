@@ -68,9 +68,6 @@ pub use read::{parse_top, read_limited, read_manifest, read_tables, read_top, Da
 pub use split::{TopManifest, ViewTable, OLDEST_READ_VERSION, TOP_VERSION};
 pub use verify::{verify, verify_with, Problem, Report, VerifyOptions};
 
-// Compatibility path for the binary and the viewer until they import the crates directly.
-pub use codec::mesh;
-
 /// Name of the manifest file in a database directory.
 pub const MANIFEST_FILE: &str = "manifest.json";
 /// Name of the manifest's checksum file.

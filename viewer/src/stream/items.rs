@@ -6,8 +6,8 @@ use std::collections::HashMap;
 use std::time::Instant;
 
 use bytes::Bytes;
+use codec::ptm::{Decoder, Limits};
 use streamer::client::LiveSession;
-use streamer::ptm::{Decoder, Limits};
 use tracks::manifest::tile_key;
 use tracks::{PixelRect, TileId};
 
@@ -215,7 +215,7 @@ pub(super) struct Decoded {
 
 /// Feed `parts` (the item's next parts, in order) to its mesh and decoder; its finest level
 /// when that became finer than the one shown (a coarse level divided by its coverage when
-/// `premultiplied`, see [`streamer::db::clear_masked`]). Views laid out `k` levels coarser
+/// `premultiplied`, see [`db::clear_masked`]). Views laid out `k` levels coarser
 /// than the database take level `k` where a finer one arrived, and meshes scaled to them.
 /// Items are independent, so a step decodes them in parallel.
 pub(super) fn decode_parts(
@@ -254,7 +254,7 @@ pub(super) fn decode_parts(
     };
     let mut rgba = image_rgba(img);
     if premultiplied && level > 0 {
-        streamer::db::unpremultiply(&mut rgba);
+        db::unpremultiply(&mut rgba);
     }
     let d = Decoded {
         level,

@@ -5,7 +5,7 @@
 
 use std::collections::{BTreeSet, HashMap};
 
-use streamer::ptm::Decoder;
+use codec::ptm::Decoder;
 use tracks::{CubeMap, TileGrid};
 
 use super::items::{item_bytes, mesh_bytes};

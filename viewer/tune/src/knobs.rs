@@ -1,148 +1,12 @@
-//! The build knobs one configuration sets ([`Knobs`]) and the sweep around a base
-//! configuration ([`SweepSpec::configs`]: each knob varied on its own, the others at the base).
+//! The sweep around a base configuration ([`SweepSpec::configs`]: each knob varied on its
+//! own, the others at the base). One configuration is a [`Knobs`] (`stages::Knobs`, the
+//! knobs of `railview build`).
 
 use serde::{Deserialize, Serialize};
+use stages::cull::Variant;
+pub use stages::knobs::{CullChoice, Knobs, SlabSpec};
 
-/// Everything `railview build` needs to make one database of a scene along a track, besides
-/// the scene and track themselves.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Knobs {
-    /// Keep every n-th reference viewpoint of the track's own sampling (1 = all of them).
-    pub every: u32,
-    pub face_size: u32,
-    /// Rays per pixel along each axis of the panoramas.
-    pub supersample: u32,
-    /// `auto`, `fewer`, `more` (or anything `railview slabs --slabs` takes).
-    pub slabs: String,
-    pub tile_size: u32,
-    pub mesh_error_px: f64,
-    /// `conservative`, `paper` or `none`.
-    pub cull_variant: String,
-    pub alpha: f64,
-    /// Finest texture levels left out.
-    pub drop_levels: u32,
-}
-
-impl Default for Knobs {
-    /// What `railview build` does without options (faces of 128 pixels).
-    fn default() -> Self {
-        Knobs {
-            every: 1,
-            face_size: 128,
-            supersample: 1,
-            slabs: "auto".into(),
-            tile_size: 32,
-            mesh_error_px: 0.5,
-            cull_variant: "conservative".into(),
-            alpha: 1.0,
-            drop_levels: 0,
-        }
-    }
-}
-
-impl Knobs {
-    /// Reference viewpoints kept of a track sampled with `base_samples`: the first, every
-    /// `every`-th after it, and the last (evenly spread again when `every` does not divide the
-    /// segments).
-    pub fn samples(&self, base_samples: usize) -> usize {
-        if base_samples <= 1 || self.every <= 1 {
-            return base_samples;
-        }
-        let segments = base_samples - 1;
-        segments.div_ceil(self.every as usize) + 1
-    }
-
-    /// What differs from `base`, one phrase per knob, in knob order.
-    pub fn differences(&self, base: &Knobs) -> Vec<String> {
-        let mut v = Vec::new();
-        if self.every != base.every {
-            v.push(format!("every {} reference viewpoint", ordinal(self.every)));
-        }
-        if self.face_size != base.face_size {
-            v.push(format!("faces of {} px", self.face_size));
-        }
-        if self.supersample != base.supersample {
-            v.push(format!(
-                "{}×{} rays per panorama pixel",
-                self.supersample, self.supersample
-            ));
-        }
-        if self.slabs != base.slabs {
-            v.push(format!("slabs {}", self.slabs));
-        }
-        if self.tile_size != base.tile_size {
-            v.push(format!("tiles of {} px", self.tile_size));
-        }
-        if self.mesh_error_px != base.mesh_error_px {
-            v.push(format!("mesh error {} px", self.mesh_error_px));
-        }
-        if self.cull_variant != base.cull_variant || self.alpha != base.alpha {
-            v.push(if self.cull_variant == "none" {
-                "no culling".to_string()
-            } else {
-                format!("culling {} α {}", self.cull_variant, self.alpha)
-            });
-        }
-        if self.drop_levels != base.drop_levels {
-            v.push(match self.drop_levels {
-                0 => "every texture level".to_string(),
-                1 => "finest texture level left out".to_string(),
-                n => format!("{n} finest texture levels left out"),
-            });
-        }
-        v
-    }
-
-    /// A short name: `base`, or the differences from `base`.
-    pub fn label(&self, base: &Knobs) -> String {
-        let d = self.differences(base);
-        if d.is_empty() {
-            "base".into()
-        } else {
-            d.join(", ")
-        }
-    }
-
-    /// `self` with every knob in which `other` differs from `base` taken from `other`.
-    pub fn merged(&self, other: &Knobs, base: &Knobs) -> Knobs {
-        let mut k = self.clone();
-        if other.every != base.every {
-            k.every = other.every;
-        }
-        if other.face_size != base.face_size {
-            k.face_size = other.face_size;
-        }
-        if other.supersample != base.supersample {
-            k.supersample = other.supersample;
-        }
-        if other.slabs != base.slabs {
-            k.slabs = other.slabs.clone();
-        }
-        if other.tile_size != base.tile_size {
-            k.tile_size = other.tile_size;
-        }
-        if other.mesh_error_px != base.mesh_error_px {
-            k.mesh_error_px = other.mesh_error_px;
-        }
-        if other.cull_variant != base.cull_variant || other.alpha != base.alpha {
-            k.cull_variant = other.cull_variant.clone();
-            k.alpha = other.alpha;
-        }
-        if other.drop_levels != base.drop_levels {
-            k.drop_levels = other.drop_levels;
-        }
-        k
-    }
-}
-
-fn ordinal(n: u32) -> String {
-    match n {
-        1 => String::new(),
-        2 => "2nd".into(),
-        3 => "3rd".into(),
-        n => format!("{n}th"),
-    }
-}
+use crate::error::{Error, Result};
 
 /// The values each knob takes in a sweep; the base configuration is `base`, and every other
 /// value of a list makes one configuration that differs from the base in that knob only.
@@ -152,11 +16,11 @@ pub struct SweepSpec {
     pub every: Vec<u32>,
     pub face_size: Vec<u32>,
     pub supersample: Vec<u32>,
-    pub slabs: Vec<String>,
+    pub slabs: Vec<SlabSpec>,
     pub tile_size: Vec<u32>,
     pub mesh_error_px: Vec<f64>,
     /// `(variant, α)`.
-    pub cull: Vec<(String, f64)>,
+    pub cull: Vec<(CullChoice, f64)>,
     pub drop_levels: Vec<u32>,
 }
 
@@ -174,6 +38,61 @@ impl SweepSpec {
             cull: Vec::new(),
             drop_levels: Vec::new(),
         }
+    }
+
+    /// `railview tune`'s lists around `base`: every 2nd viewpoint, faces of three quarters
+    /// of the base's (a multiple of 8), 2×2 supersampling, a slab fewer and one more, tiles of
+    /// 16 and 64 px, mesh error 2 px, culling `paper` at α 1, `conservative` at α 0.9 and
+    /// none, the finest texture level left out.
+    pub fn around(base: Knobs) -> SweepSpec {
+        SweepSpec {
+            every: vec![2],
+            face_size: vec![three_quarters(base.face_size)],
+            supersample: vec![2],
+            slabs: vec![SlabSpec::Auto(-1), SlabSpec::Auto(1)],
+            tile_size: vec![16, 64],
+            mesh_error_px: vec![2.0],
+            cull: vec![
+                (CullChoice::Variant(Variant::Paper), 1.0),
+                (CullChoice::Variant(Variant::Conservative), 0.9),
+                (CullChoice::Off, 1.0),
+            ],
+            drop_levels: vec![1],
+            base,
+        }
+    }
+
+    /// Every configuration's knobs in range (`pov`: POV-Ray renders the panoramas, which
+    /// anti-alias 2×2 or not at all).
+    pub fn check(&self, pov: bool) -> Result<()> {
+        let bad = |m: String| Err(Error::Parameter(m));
+        for k in self.configs() {
+            if !(1..=64).contains(&k.every) {
+                return bad(format!("--every {}: must be in 1..=64", k.every));
+            }
+            if !(8..=4096).contains(&k.face_size) {
+                return bad(format!("face size {} out of 8..=4096", k.face_size));
+            }
+            if !((1..=16).contains(&k.supersample) && (!pov || k.supersample <= 2)) {
+                return bad(format!(
+                    "supersampling {} out of range (POV-Ray imports: 1 or 2)",
+                    k.supersample
+                ));
+            }
+            if !(k.tile_size.is_power_of_two() && (4..=1024).contains(&k.tile_size)) {
+                return bad(format!(
+                    "tile size {}: a power of two from 4 to 1024",
+                    k.tile_size
+                ));
+            }
+            if !(k.mesh_error_px.is_finite() && k.mesh_error_px > 0.0) {
+                return bad(format!("mesh error {} must be positive", k.mesh_error_px));
+            }
+            if k.drop_levels > 8 {
+                return bad("at most 8 levels left out".into());
+            }
+        }
+        Ok(())
     }
 
     /// The base, then one configuration per value that differs from the base, knob by knob in
@@ -222,10 +141,10 @@ impl SweepSpec {
                 ..b.clone()
             });
         }
-        for (variant, alpha) in &self.cull {
+        for &(cull, alpha) in &self.cull {
             push(Knobs {
-                cull_variant: variant.clone(),
-                alpha: *alpha,
+                cull,
+                alpha,
                 ..b.clone()
             });
         }
@@ -239,6 +158,11 @@ impl SweepSpec {
     }
 }
 
+/// Three quarters of a face size, rounded up to a multiple of 8 (`--face-sizes 3/4`).
+pub fn three_quarters(face_size: u32) -> u32 {
+    (face_size * 3 / 4).div_ceil(8).max(1) * 8
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -247,7 +171,7 @@ mod tests {
     fn one_knob_at_a_time_around_the_base() {
         let spec = SweepSpec {
             every: vec![1, 2],
-            slabs: vec!["auto".into(), "fewer".into(), "more".into()],
+            slabs: vec![SlabSpec::Auto(0), SlabSpec::Auto(-1), SlabSpec::Auto(1)],
             drop_levels: vec![0, 1],
             ..SweepSpec::base_only(Knobs::default())
         };
@@ -262,19 +186,5 @@ mod tests {
         assert_eq!(c[4].label(&base), "finest texture level left out");
         let both = c[1].merged(&c[4], &base);
         assert_eq!(both.differences(&base).len(), 2);
-    }
-
-    #[test]
-    fn every_nth_sample_keeps_both_ends() {
-        let k = |every| Knobs {
-            every,
-            ..Knobs::default()
-        };
-        assert_eq!(k(1).samples(37), 37);
-        assert_eq!(k(2).samples(37), 19);
-        assert_eq!(k(3).samples(37), 13);
-        assert_eq!(k(5).samples(37), 9);
-        assert_eq!(k(2).samples(1), 1);
-        assert_eq!(k(4).samples(2), 2);
     }
 }

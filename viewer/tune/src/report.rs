@@ -98,7 +98,7 @@ pub fn csv(r: &SweepReport) -> String {
             m.slab_count,
             k.tile_size,
             k.mesh_error_px,
-            k.cull_variant,
+            k.cull,
             k.alpha,
             k.drop_levels,
             e.psnr_mean_db,
@@ -278,7 +278,7 @@ pub fn describe(k: &Knobs) -> String {
         k.slabs,
         k.tile_size,
         k.mesh_error_px,
-        k.cull_variant,
+        k.cull,
         k.alpha,
         k.drop_levels
     )

@@ -1,20 +1,22 @@
 //! `railview demo [--out railview-demo] [--face-size N]`: the whole system on the built-in
 //! `castle` scene in one command, then a report.
 //!
-//! Each stage is the ordinary `railview` subcommand, parsed and run in this process, so the
-//! demo shows exactly what a person typing the commands would get. A stage is skipped when
-//! `OUT/demo.json` says the same command completed and its outputs are still there; a stage
-//! that was killed midway simply runs again and resumes from what it wrote. A subcommand this
-//! build does not have yet makes its section of the report say "not available".
+//! Each stage is the function the ordinary `railview` subcommand calls, run in this process
+//! with the same parameters, so the demo shows exactly what a person typing the commands
+//! would get; the log records for each the command line that reproduces it. A stage is
+//! skipped when `OUT/demo.json` says the same command completed and its outputs are still
+//! there; a stage that was killed midway simply runs again and resumes from what it wrote. A
+//! stage whose prerequisite did not complete makes its section of the report say "not
+//! available".
 
-use std::ffi::OsString;
-use std::path::{Path, PathBuf};
+mod stages;
+
+use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use clap::error::ErrorKind;
-use clap::Parser;
 
+use self::stages::{build_stages, use_stages, view_stage, Stage};
 use report::{self, Layout, RunLog, StageRecord, StageStatus};
 
 #[derive(clap::Args)]
@@ -44,21 +46,10 @@ pub struct Args {
     pub report_only: bool,
 }
 
-/// One subcommand the demo runs.
-struct Stage {
-    name: &'static str,
-    /// Arguments after `railview`.
-    argv: Vec<String>,
-    /// Files whose presence (with a completed log record) proves the stage done.
-    outputs: Vec<PathBuf>,
-    /// Stages that must be done first.
-    requires: Vec<&'static str>,
-}
-
 /// `railview a b` with shell quoting where needed, for people to copy.
-fn command_line(argv: &[String]) -> String {
+fn command_line(words: &[String]) -> String {
     let mut s = String::from("railview");
-    for a in argv {
+    for a in words {
         s.push(' ');
         let plain = !a.is_empty()
             && a.chars()
@@ -70,18 +61,6 @@ fn command_line(argv: &[String]) -> String {
         }
     }
     s
-}
-
-fn path_arg(p: &Path) -> String {
-    p.display().to_string()
-}
-
-/// Whether this build of `railview` has subcommand `name`.
-fn has_command(name: &str) -> bool {
-    match crate::Cli::try_parse_from(["railview", name, "--help"]) {
-        Ok(_) => true,
-        Err(e) => e.kind() == ErrorKind::DisplayHelp,
-    }
 }
 
 fn display_available() -> bool {
@@ -98,7 +77,7 @@ fn run_stage(
     step: usize,
     steps: usize,
 ) -> StageStatus {
-    let command = command_line(&stage.argv);
+    let command = command_line(&stage.command);
     if let Some(prev) = log.stage(stage.name) {
         let inputs_unchanged = !stage
             .requires
@@ -137,41 +116,9 @@ fn run_stage(
         );
         return finish(layout, log, record);
     }
-    let argv: Vec<OsString> = std::iter::once(OsString::from("railview"))
-        .chain(stage.argv.iter().map(OsString::from))
-        .collect();
-    let cli = match crate::Cli::try_parse_from(argv) {
-        Ok(cli) => cli,
-        Err(e) => {
-            let text = e.to_string();
-            let first = text
-                .lines()
-                .next()
-                .unwrap_or("")
-                .trim_start_matches("error: ")
-                .to_string();
-            if e.kind() == ErrorKind::InvalidSubcommand {
-                record.message = Some(format!(
-                    "this build of railview has no `{}` command",
-                    stage.argv[0]
-                ));
-            } else {
-                record.status = StageStatus::Failed;
-                record.message = Some(format!("arguments not accepted: {first}"));
-            }
-            eprintln!(
-                "[{step}/{steps}] {}: {}",
-                stage.name,
-                record.message.as_deref().unwrap_or("")
-            );
-            return finish(layout, log, record);
-        }
-    };
     eprintln!("[{step}/{steps}] {}: {command}", stage.name);
     let start = Instant::now();
-    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        crate::dispatch(cli.command)
-    }));
+    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| (stage.run)()));
     record.seconds = start.elapsed().as_secs_f64();
     match outcome {
         Ok(Ok(())) => {
@@ -217,158 +164,6 @@ fn finish(layout: &Layout, log: &mut RunLog, record: StageRecord) -> StageStatus
         eprintln!("warning: {e:#}");
     }
     status
-}
-
-/// The stages that make the database, in order: `build` runs prerender → slabs → cull
-/// (shrunk, α = 1) → encode → ACH, each resuming; then `cull` runs again over every α and
-/// every variant with the oracle, for the report's tables (it rewrites the same decisions for
-/// the run `build` used).
-fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
-    let work = layout.prerender();
-    let db = layout.db();
-    vec![
-        Stage {
-            name: "build",
-            argv: vec![
-                "build".into(),
-                "--scene".into(),
-                args.scene.clone(),
-                "--track".into(),
-                args.track.clone(),
-                "--face-size".into(),
-                args.face_size.to_string(),
-                "--out".into(),
-                path_arg(&db),
-                "--work".into(),
-                path_arg(&layout.work()),
-            ],
-            outputs: vec![db.join("manifest.json"), layout.work().join("build.json")],
-            requires: vec![],
-        },
-        Stage {
-            name: "cull",
-            argv: vec![
-                "cull".into(),
-                path_arg(&work),
-                "--alpha".into(),
-                "1.0,0.9,0.8".into(),
-                "--oracle".into(),
-                "--oracle-per-segment".into(),
-                "8".into(),
-            ],
-            outputs: vec![work.join("cull.json")],
-            requires: vec!["build"],
-        },
-    ]
-}
-
-/// The PSNR (worst 5 % of views) the demo's small sweep chooses the smallest database for.
-const TUNE_TARGET_DB: &str = "24";
-
-/// The stages that use the database. The flythrough always runs (the report shows its
-/// frames); with a display the viewer window comes after the report.
-fn use_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
-    let db = layout.db();
-    vec![
-        Stage {
-            name: "walk",
-            argv: vec![
-                "walk".into(),
-                path_arg(&db),
-                "--speed".into(),
-                args.walk_speed.to_string(),
-                "--bandwidth".into(),
-                "2mbit,unlimited".into(),
-                "--strategy".into(),
-                "naive,ach+prefetch,visibility+prefetch".into(),
-                "--pause".into(),
-                "1".into(),
-                "--out".into(),
-                path_arg(&layout.walk()),
-            ],
-            outputs: vec![layout.walk().join("walk.json")],
-            requires: vec!["build"],
-        },
-        Stage {
-            name: "eval",
-            argv: vec![
-                "eval".into(),
-                path_arg(&db),
-                "--out".into(),
-                path_arg(&layout.eval()),
-                "--per-segment".into(),
-                "1".into(),
-                "--directions".into(),
-                "2".into(),
-                "--timed-draws".into(),
-                "1".into(),
-            ],
-            outputs: vec![layout.eval().join("eval.json")],
-            requires: vec!["build"],
-        },
-        // A small sweep over the build's knobs at faces of at most 64 px (the full-size one
-        // is `railview tune`, as long as a build per configuration): error against cost,
-        // Pareto fronts and the choice for a target.
-        Stage {
-            name: "tune",
-            argv: [
-                "tune",
-                "--scene",
-                &args.scene,
-                "--track",
-                &args.track,
-                "--out",
-                &path_arg(&layout.tune()),
-                "--face-size",
-                &args.face_size.min(64).to_string(),
-                "--every",
-                "2",
-                "--supersamples",
-                "2",
-                "--slab-counts",
-                "",
-                "--tile-sizes",
-                "",
-                "--mesh-errors",
-                "",
-                "--culls",
-                "none",
-                "--drop-levels",
-                "1",
-                "--per-segment",
-                "1",
-                "--directions",
-                "2",
-                "--truth-supersample",
-                "2",
-                "--zstd-level",
-                "9",
-                "--walk-speed",
-                &args.walk_speed.to_string(),
-                "--target-psnr",
-                TUNE_TARGET_DB,
-            ]
-            .map(String::from)
-            .to_vec(),
-            outputs: vec![layout.tune().join("sweep.json")],
-            requires: vec![],
-        },
-        Stage {
-            name: "flythrough",
-            argv: vec![
-                "flythrough".into(),
-                path_arg(&db),
-                "-o".into(),
-                path_arg(&layout.frames()),
-                "--frames".into(),
-                "24".into(),
-                "--size".into(),
-                "320x180".into(),
-            ],
-            outputs: vec![layout.frames().join("flythrough.json")],
-            requires: vec!["build"],
-        },
-    ]
 }
 
 /// Mesa prints "XDG_RUNTIME_DIR is invalid or not set" for every GPU stage when the variable
@@ -425,7 +220,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     std::fs::create_dir_all(layout.root())
         .with_context(|| format!("creating {}", layout.root().display()))?;
     set_runtime_dir();
-    let window = !args.no_window && display_available() && has_command("view");
+    let window = !args.no_window && display_available();
     let start = Instant::now();
     let first = build_stages(&args, &layout);
     let steps = first.len() + use_stages(&args, &layout).len();
@@ -451,10 +246,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !window {
         let why = if args.no_window {
             "--no-window"
-        } else if !display_available() {
-            "no display (DISPLAY/WAYLAND_DISPLAY unset)"
         } else {
-            "this build has no `view` command"
+            "no display (DISPLAY/WAYLAND_DISPLAY unset)"
         };
         println!("  no viewer window ({why}): the flythrough frames above were rendered headless");
     }
@@ -540,17 +333,12 @@ fn view_window(layout: &Layout, log: &mut RunLog) -> anyhow::Result<()> {
         "serving {} on {url}; opening the viewer (close the window to finish)",
         layout.db().display()
     );
-    let view = |source: String| Stage {
-        name: "view",
-        argv: vec!["view".into(), source, "--play".into()],
-        outputs: vec![],
-        requires: vec!["build"],
-    };
     // The window streams from the server just started, as a remote viewer would.
-    if run_stage(layout, log, &view(url), 1, 2) != StageStatus::Done {
+    if run_stage(layout, log, &view_stage(url), 1, 2) != StageStatus::Done {
         // Streaming failed (see the log): the database directory still opens directly.
         println!("opening the viewer on the database directory instead");
-        run_stage(layout, log, &view(path_arg(&layout.db())), 2, 2);
+        let dir = layout.db().display().to_string();
+        run_stage(layout, log, &view_stage(dir), 2, 2);
     }
     drop(stop_tx);
     rt.block_on(task).context("server task")??;
@@ -584,40 +372,39 @@ mod tests {
         assert_eq!(panic_text(caught.as_ref()), "no message");
     }
 
-    #[test]
-    fn known_and_unknown_subcommands() {
-        assert!(has_command("demo"));
-        assert!(!has_command("no-such-command"));
+    /// A stage running `f`, with these outputs and prerequisites.
+    fn stage(
+        name: &'static str,
+        outputs: Vec<PathBuf>,
+        requires: Vec<&'static str>,
+        f: impl Fn() -> anyhow::Result<()> + 'static,
+    ) -> Stage {
+        Stage {
+            name,
+            command: vec![name.to_string()],
+            run: Box::new(f),
+            outputs,
+            requires,
+        }
     }
 
     #[test]
-    fn unknown_stage_is_recorded_as_unavailable_not_failed() {
+    fn a_stage_whose_prerequisite_is_not_done_is_unavailable_not_failed() {
         let dir = std::env::temp_dir().join(format!("railview-demo-stage-{}", std::process::id()));
         let layout = Layout::new(&dir);
         let mut log = RunLog::load_or_default(&layout, "castle", "main", 16);
-        let stage = Stage {
-            name: "nothing",
-            argv: vec!["no-such-command".into()],
-            outputs: vec![],
-            requires: vec![],
-        };
+        // A stage that fails: recorded as failed, with its message.
+        let failing = stage("nothing", vec![], vec![], || anyhow::bail!("no such thing"));
         assert_eq!(
-            run_stage(&layout, &mut log, &stage, 1, 1),
-            StageStatus::Unavailable
+            run_stage(&layout, &mut log, &failing, 1, 1),
+            StageStatus::Failed
         );
         let rec = log.stage("nothing").unwrap();
-        assert!(rec
-            .message
-            .as_deref()
-            .unwrap()
-            .contains("no `no-such-command`"));
+        assert!(rec.message.as_deref().unwrap().contains("no such thing"));
         // A stage whose prerequisite is not done does not run.
-        let dependent = Stage {
-            name: "after",
-            argv: vec!["demo".into(), "--report-only".into()],
-            outputs: vec![],
-            requires: vec!["nothing"],
-        };
+        let dependent = stage("after", vec![], vec!["nothing"], || {
+            panic!("a stage whose prerequisite failed ran")
+        });
         assert_eq!(
             run_stage(&layout, &mut log, &dependent, 1, 1),
             StageStatus::Unavailable
@@ -629,6 +416,19 @@ mod tests {
             .as_deref()
             .unwrap()
             .contains("needs `nothing`"));
+        // A stage that panics is recorded as failed with the panic's message.
+        let panics = stage("bug", vec![], vec![], || panic!("out of {} apples", 3));
+        assert_eq!(
+            run_stage(&layout, &mut log, &panics, 1, 1),
+            StageStatus::Failed
+        );
+        assert!(log
+            .stage("bug")
+            .unwrap()
+            .message
+            .as_deref()
+            .unwrap()
+            .contains("panicked: out of 3 apples"));
         std::fs::remove_dir_all(&dir).ok();
     }
 
@@ -637,17 +437,15 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("railview-demo-reuse-{}", std::process::id()));
         let layout = Layout::new(dir.join("demo"));
         let inner = dir.join("inner");
-        // A cheap real command: the report of an empty demo directory.
-        let cheap = |name: &'static str, requires: Vec<&'static str>| Stage {
-            name,
-            argv: vec![
-                "demo".into(),
-                "--report-only".into(),
-                "--out".into(),
-                path_arg(&inner.join(name)),
-            ],
-            outputs: vec![inner.join(name).join("report/index.html")],
-            requires,
+        // A cheap stage: one output file.
+        let cheap = |name: &'static str, requires: Vec<&'static str>| {
+            let out = inner.join(name).join("out.txt");
+            let made = out.clone();
+            stage(name, vec![out], requires, move || {
+                std::fs::create_dir_all(made.parent().unwrap())?;
+                std::fs::write(&made, b"done")?;
+                Ok(())
+            })
         };
         let (a, b) = (cheap("a", vec![]), cheap("b", vec!["a"]));
         let mut log = RunLog::load_or_default(&layout, "castle", "main", 16);
@@ -670,20 +468,71 @@ mod tests {
     }
 
     #[test]
-    fn bad_arguments_of_an_existing_command_fail() {
-        let dir = std::env::temp_dir().join(format!("railview-demo-args-{}", std::process::id()));
-        let layout = Layout::new(&dir);
-        let mut log = RunLog::load_or_default(&layout, "castle", "main", 16);
-        let stage = Stage {
-            name: "bad",
-            argv: vec!["demo".into(), "--no-such-flag".into()],
-            outputs: vec![],
-            requires: vec![],
+    fn the_recorded_commands_are_those_a_person_would_type() {
+        let args = Args {
+            out: PathBuf::from("demo"),
+            face_size: 192,
+            scene: "castle".into(),
+            track: "main".into(),
+            walk_speed: 4.0,
+            no_window: true,
+            report_only: false,
         };
+        let layout = Layout::new(&args.out);
+        let all: Vec<String> = build_stages(&args, &layout)
+            .iter()
+            .chain(&use_stages(&args, &layout))
+            .map(|s| command_line(&s.command))
+            .collect();
+        let p = |x: PathBuf| x.display().to_string();
         assert_eq!(
-            run_stage(&layout, &mut log, &stage, 1, 1),
-            StageStatus::Failed
+            all[0],
+            format!(
+                "railview build --scene castle --track main --face-size 192 --out {} --work {}",
+                p(layout.db()),
+                p(layout.work())
+            )
         );
-        std::fs::remove_dir_all(&dir).ok();
+        assert_eq!(
+            all[1],
+            format!(
+                "railview cull {} --alpha 1.0,0.9,0.8 --oracle --oracle-per-segment 8",
+                p(layout.prerender())
+            )
+        );
+        assert_eq!(
+            all[2],
+            format!(
+                "railview walk {} --speed 4 --bandwidth 2mbit,unlimited --strategy naive,ach+prefetch,visibility+prefetch --pause 1 --out {}",
+                p(layout.db()),
+                p(layout.walk())
+            )
+        );
+        assert_eq!(
+            all[3],
+            format!(
+                "railview eval {} --out {} --per-segment 1 --directions 2 --timed-draws 1",
+                p(layout.db()),
+                p(layout.eval())
+            )
+        );
+        assert_eq!(
+            all[4],
+            format!(
+                "railview tune --scene castle --track main --out {} --face-size 64 --every 2 \
+                 --supersamples 2 --slab-counts '' --tile-sizes '' --mesh-errors '' --culls none \
+                 --drop-levels 1 --per-segment 1 --directions 2 --truth-supersample 2 \
+                 --zstd-level 9 --walk-speed 4 --target-psnr 24",
+                p(layout.tune())
+            )
+        );
+        assert_eq!(
+            all[5],
+            format!(
+                "railview flythrough {} -o {} --frames 24 --size 320x180",
+                p(layout.db()),
+                p(layout.frames())
+            )
+        );
     }
 }

@@ -1,0 +1,358 @@
+//! The stages the demo runs: each a function call with its parameters, and the command line
+//! a person would type to reproduce it (built from the same values, for the log and the
+//! report; never parsed).
+
+use std::path::{Path, PathBuf};
+
+use db::ach::AchParams;
+use stages::build::{BuildParams, BuildScene};
+use stages::cull::{CullParams, OracleParams, Variants};
+use tune::sweep::ViewParams;
+use tune::{Cost, CullChoice, Knobs, SweepParams, SweepSpec};
+
+use super::Args;
+use crate::cmd::{eval, flythrough, view, walk};
+use report::Layout;
+
+/// One stage the demo runs.
+pub struct Stage {
+    pub name: &'static str,
+    /// The words of the command line (after `railview`) that reproduces it; for the log
+    /// and the report, never parsed.
+    pub command: Vec<String>,
+    /// The stage itself.
+    pub run: Box<dyn Fn() -> anyhow::Result<()>>,
+    /// Files whose presence (with a completed log record) proves the stage done.
+    pub outputs: Vec<PathBuf>,
+    /// Stages that must be done first.
+    pub requires: Vec<&'static str>,
+}
+
+fn path_arg(p: &Path) -> String {
+    p.display().to_string()
+}
+
+/// The stages that make the database, in order: the build runs prerender → slabs → cull
+/// (shrunk, α = 1) → encode → ACH, each resuming; then culling runs again over every α and
+/// every variant with the oracle, for the report's tables (it rewrites the same decisions
+/// for the run the build used).
+pub fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
+    let db = layout.db();
+    let build = BuildParams {
+        work: Some(layout.work()),
+        knobs: Knobs {
+            face_size: args.face_size,
+            cull: CullChoice::Auto,
+            ..Knobs::default()
+        },
+        ..BuildParams::new(BuildScene::Tracer(args.scene.clone()), &args.track, &db)
+    };
+    let cull = CullParams {
+        dir: layout.prerender(),
+        alphas: vec![1.0, 0.9, 0.8],
+        variants: Variants::All,
+        oracle: Some(OracleParams {
+            per_segment: 8,
+            face_size: None,
+        }),
+    };
+    let mut cull_command = vec![
+        "cull".into(),
+        path_arg(&cull.dir),
+        "--alpha".into(),
+        cull.alphas
+            .iter()
+            .map(|a| format!("{a:?}"))
+            .collect::<Vec<_>>()
+            .join(","),
+    ];
+    if let Some(o) = cull.oracle {
+        cull_command.extend([
+            "--oracle".into(),
+            "--oracle-per-segment".into(),
+            o.per_segment.to_string(),
+        ]);
+    }
+    vec![
+        Stage {
+            name: "build",
+            command: vec![
+                "build".into(),
+                "--scene".into(),
+                args.scene.clone(),
+                "--track".into(),
+                build.track.clone(),
+                "--face-size".into(),
+                build.knobs.face_size.to_string(),
+                "--out".into(),
+                path_arg(&build.out),
+                "--work".into(),
+                path_arg(&build.work_dir()),
+            ],
+            outputs: vec![db.join("manifest.json"), layout.work().join("build.json")],
+            requires: vec![],
+            run: Box::new(move || {
+                stages::build::run(&build, &crate::progress::terminal())?;
+                Ok(())
+            }),
+        },
+        Stage {
+            name: "cull",
+            command: cull_command,
+            outputs: vec![layout.prerender().join("cull.json")],
+            requires: vec!["build"],
+            run: Box::new(move || {
+                stages::cull::run(&cull, &crate::progress::terminal())?;
+                Ok(())
+            }),
+        },
+    ]
+}
+
+/// The PSNR (worst 5 % of views) the demo's small sweep chooses the smallest database for.
+const TUNE_TARGET_DB: f64 = 24.0;
+
+/// The stages that use the database. The flythrough always runs (the report shows its
+/// frames); with a display the viewer window comes after the report.
+pub fn use_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
+    vec![
+        walk_stage(args, layout),
+        eval_stage(layout),
+        tune_stage(args, layout),
+        flythrough_stage(layout),
+    ]
+}
+
+fn walk_stage(args: &Args, layout: &Layout) -> Stage {
+    let w = walk::Args {
+        db: path_arg(&layout.db()),
+        speed: args.walk_speed,
+        bandwidth: "2mbit,unlimited".into(),
+        strategy: "naive,ach+prefetch,visibility+prefetch".into(),
+        out: layout.walk(),
+        latency: "50ms".into(),
+        memory_mb: None,
+        memory_static_mb: None,
+        dt_max: 0.5,
+        dt_static: 20.0,
+        t_static: 1.0,
+        cache_mb: 64.0,
+        in_flight: 6,
+        prefetch_turn: 10.0,
+        prefetch_horizon: 1.0,
+        prefetch_coverage: 0.9,
+        pause: 1.0,
+        synthetic: false,
+        synthetic_face: 64,
+        synthetic_length: 12.0,
+        response_timeout: "10s".into(),
+        stall_timeout: "10s".into(),
+        give_up_after: "30s".into(),
+    };
+    Stage {
+        name: "walk",
+        command: vec![
+            "walk".into(),
+            w.db.clone(),
+            "--speed".into(),
+            w.speed.to_string(),
+            "--bandwidth".into(),
+            w.bandwidth.clone(),
+            "--strategy".into(),
+            w.strategy.clone(),
+            "--pause".into(),
+            w.pause.to_string(),
+            "--out".into(),
+            path_arg(&w.out),
+        ],
+        outputs: vec![layout.walk().join("walk.json")],
+        requires: vec!["build"],
+        run: Box::new(move || walk::run(w.clone())),
+    }
+}
+
+fn eval_stage(layout: &Layout) -> Stage {
+    let e = eval::Args {
+        db: path_arg(&layout.db()),
+        out: layout.eval(),
+        size: "matched".into(),
+        fov: 90.0,
+        per_segment: 1,
+        directions: 2,
+        pitch: "0".into(),
+        segments: None,
+        truth_supersample: 3,
+        truth_cache: None,
+        prerender: None,
+        configs: "all".into(),
+        worst: 3,
+        timed_draws: 1,
+        track: None,
+        also: Vec::new(),
+    };
+    Stage {
+        name: "eval",
+        command: vec![
+            "eval".into(),
+            e.db.clone(),
+            "--out".into(),
+            path_arg(&e.out),
+            "--per-segment".into(),
+            e.per_segment.to_string(),
+            "--directions".into(),
+            e.directions.to_string(),
+            "--timed-draws".into(),
+            e.timed_draws.to_string(),
+        ],
+        outputs: vec![layout.eval().join("eval.json")],
+        requires: vec!["build"],
+        run: Box::new(move || eval::run(e.clone())),
+    }
+}
+
+/// A small sweep over the build's knobs at faces of at most 64 px (the full-size one is
+/// `railview tune`, as long as a build per configuration): error against cost, Pareto
+/// fronts and the choice for a target.
+fn tune_stage(args: &Args, layout: &Layout) -> Stage {
+    let face = args.face_size.min(64);
+    let base = Knobs {
+        face_size: face,
+        zstd_level: 9,
+        ..Knobs::default()
+    };
+    let spec = SweepSpec {
+        every: vec![2],
+        face_size: vec![tune::knobs::three_quarters(face)],
+        supersample: vec![2],
+        cull: vec![(CullChoice::Off, 1.0)],
+        drop_levels: vec![1],
+        ..SweepSpec::base_only(base)
+    };
+    let params = SweepParams {
+        scene: BuildScene::Tracer(args.scene.clone()),
+        track: args.track.clone(),
+        out: layout.tune(),
+        spec,
+        targets: vec![TUNE_TARGET_DB],
+        cost: Cost::DbBytes,
+        combine: false,
+        views: ViewParams {
+            per_segment: 1,
+            directions: 2,
+            truth_supersample: 2,
+            ..ViewParams::default()
+        },
+        walk_speed: args.walk_speed,
+        zstd_level: 9,
+        ach: AchParams::default(),
+        lowres_face_size: None,
+    };
+    let list = |v: Vec<String>| v.join(",");
+    let s = &params.spec;
+    let culls = s.cull.iter().map(|(c, a)| match c {
+        CullChoice::Off => "none".to_string(),
+        c => format!("{c}:{a}"),
+    });
+    let options = [
+        ("--scene", args.scene.clone()),
+        ("--track", params.track.clone()),
+        ("--out", path_arg(&params.out)),
+        ("--face-size", s.base.face_size.to_string()),
+        (
+            "--every",
+            list(s.every.iter().map(u32::to_string).collect()),
+        ),
+        (
+            "--supersamples",
+            list(s.supersample.iter().map(u32::to_string).collect()),
+        ),
+        (
+            "--slab-counts",
+            list(s.slabs.iter().map(|x| x.to_string()).collect()),
+        ),
+        (
+            "--tile-sizes",
+            list(s.tile_size.iter().map(u32::to_string).collect()),
+        ),
+        (
+            "--mesh-errors",
+            list(s.mesh_error_px.iter().map(f64::to_string).collect()),
+        ),
+        ("--culls", list(culls.collect())),
+        (
+            "--drop-levels",
+            list(s.drop_levels.iter().map(u32::to_string).collect()),
+        ),
+        ("--per-segment", params.views.per_segment.to_string()),
+        ("--directions", params.views.directions.to_string()),
+        (
+            "--truth-supersample",
+            params.views.truth_supersample.to_string(),
+        ),
+        ("--zstd-level", params.zstd_level.to_string()),
+        ("--walk-speed", params.walk_speed.to_string()),
+        (
+            "--target-psnr",
+            list(params.targets.iter().map(f64::to_string).collect()),
+        ),
+    ];
+    Stage {
+        name: "tune",
+        command: std::iter::once("tune".to_string())
+            .chain(options.into_iter().flat_map(|(k, v)| [k.to_string(), v]))
+            .collect(),
+        outputs: vec![layout.tune().join("sweep.json")],
+        requires: vec![],
+        run: Box::new(move || super::super::tune::sweep(params.clone())),
+    }
+}
+
+fn flythrough_stage(layout: &Layout) -> Stage {
+    let f = flythrough::Args {
+        db: path_arg(&layout.db()),
+        output: layout.frames(),
+        frames: 24,
+        size: "320x180".into(),
+        fov: 90.0,
+        track: None,
+    };
+    Stage {
+        name: "flythrough",
+        command: vec![
+            "flythrough".into(),
+            f.db.clone(),
+            "-o".into(),
+            path_arg(&f.output),
+            "--frames".into(),
+            f.frames.to_string(),
+            "--size".into(),
+            f.size.clone(),
+        ],
+        outputs: vec![layout.frames().join("flythrough.json")],
+        requires: vec!["build"],
+        run: Box::new(move || flythrough::run(f.clone())),
+    }
+}
+
+/// The viewer window on `source` (a URL or the database directory), playing the track.
+pub fn view_stage(source: String) -> Stage {
+    let v = view::Args {
+        db: source,
+        track: None,
+        frames: None,
+        screenshot: None,
+        play: true,
+        strategy: "both".into(),
+        no_prefetch: false,
+        memory_mib: 512.0,
+        requests: 6,
+        target_fps: 10.0,
+    };
+    Stage {
+        name: "view",
+        command: vec!["view".into(), v.db.clone(), "--play".into()],
+        outputs: vec![],
+        requires: vec!["build"],
+        run: Box::new(move || view::run(v.clone())),
+    }
+}
