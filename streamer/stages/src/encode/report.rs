@@ -5,7 +5,9 @@ use serde::{Deserialize, Serialize};
 use crate::knobs::{CullChoice, Knobs, SlabSpec};
 
 /// Bytes at each stage (raw RGBA8 unless stated), and the baseline they are weighed against.
+/// A field missing from a report read back (an older build's) reads as 0.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct Sizes {
     pub panoramas_rgba: u64,
     pub slab_layers_rgba: u64,
@@ -79,8 +81,10 @@ impl From<&Knobs> for BuildConfig {
     }
 }
 
-/// `build.json`: what a build made, how large each stage's output is, and what it cost.
+/// `build.json`: what a build made, how large each stage's output is, and what it cost. A
+/// field missing from a report read back (an older build's) reads as its default.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct BuildReport {
     pub scene: String,
     pub track: String,

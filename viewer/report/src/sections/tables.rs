@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use occlusion::cull::Variant;
 use occlusion::report::{CullReport, RunReport};
 use prerender::store::PrerenderReport;
-use serde_json::Value;
 use slabs::report::SlabsReport;
+use stages::encode::BuildReport;
 
 use super::{fmt_int, fmt_mb, fmt_num, pngs_in, read_json, reduction, Ctx};
 use crate::doc::{Block, Figure, Table};
@@ -192,8 +192,7 @@ pub(super) fn sizes(
 ) {
     c.section("sizes", "Database size per stage");
     if let Some(path) = c.layout.find("build.json") {
-        // build.json: typed once stages::BuildReport is public
-        match read_json::<Value>(&path) {
+        match read_json::<BuildReport>(&path) {
             Ok(build) => {
                 build_sizes(c, &build);
                 return;
@@ -204,13 +203,8 @@ pub(super) fn sizes(
     estimated_sizes(c, pre, slabs, cull);
 }
 
-/// A number of `build.json` by its field name.
-fn num(v: &Value, key: &str) -> Option<f64> {
-    v.get(key).and_then(Value::as_f64)
-}
-
 /// Sizes and timings from the build stage's own report (`build.json`).
-fn build_sizes(c: &mut Ctx, build: &Value) {
+fn build_sizes(c: &mut Ctx, build: &BuildReport) {
     let db = c.layout.db();
     let cmd = c.command(
         "build",
@@ -224,11 +218,11 @@ fn build_sizes(c: &mut Ctx, build: &Value) {
         ),
     );
     c.push(Block::Command(cmd));
-    let culling = build
-        .get("culling")
-        .and_then(Value::as_str)
-        .unwrap_or("?")
-        .to_string();
+    let culling = if build.culling.is_empty() {
+        "?"
+    } else {
+        build.culling.as_str()
+    };
     c.push(Block::Para(format!(
         "Colour as raw RGBA8 (4 bytes per pixel, the paper's Size unit) up to culling ({culling}), \
          then as stored: PTM levels range-coded, meshes in their compact coded form, and \
@@ -237,45 +231,42 @@ fn build_sizes(c: &mut Ctx, build: &Value) {
          PNG of its colour plus a 16-bit PNG of its disparity-quantised depth, what a viewer \
          with one depth map per panorama ships, measured on the same prerender directory."
     )));
-    let sizes = build.get("sizes").cloned().unwrap_or(Value::Null);
-    let raw = num(&sizes, "panoramas_rgba").filter(|r| *r > 0.0);
-    let baseline = num(&sizes, "baseline").filter(|b| *b > 0.0);
-    if let (Some(db), Some(b)) = (num(&sizes, "database_objects"), baseline) {
+    let sizes = &build.sizes;
+    let raw = Some(sizes.panoramas_rgba as f64).filter(|r| *r > 0.0);
+    let baseline = Some(sizes.baseline as f64).filter(|b| *b > 0.0);
+    if let Some(b) = baseline {
+        let db = sizes.database_objects as f64;
         c.push(Block::Para(format!(
             "Database {} MB = {:.2}× the baseline of {} MB (PNG colour {} MB, PNG16 depth {} MB).",
             fmt_mb(db),
             db / b,
             fmt_mb(b),
-            num(&sizes, "baseline_colour_png").map_or("–".into(), fmt_mb),
-            num(&sizes, "baseline_depth_png16").map_or("–".into(), fmt_mb),
+            fmt_mb(sizes.baseline_colour_png as f64),
+            fmt_mb(sizes.baseline_depth_png16 as f64),
         )));
     }
     let rows: Vec<Vec<String>> = [
-        ("raw panoramas", "panoramas_rgba"),
-        ("slab layers", "slab_layers_rgba"),
-        ("empty tiles removed", "nonempty_tiles_rgba"),
-        ("culled", "kept_tiles_rgba"),
-        ("PTM compressed (kept tiles)", "kept_tiles_ptm"),
-        ("meshes", "meshes"),
-        ("backgrounds (PTM)", "backgrounds_ptm"),
-        ("repeated payloads stored once (saved)", "bytes_shared"),
-        ("database objects on disk", "database_objects"),
-        ("baseline: PNG colour", "baseline_colour_png"),
-        ("baseline: PNG16 disparity", "baseline_depth_png16"),
-        ("baseline", "baseline"),
+        ("raw panoramas", sizes.panoramas_rgba),
+        ("slab layers", sizes.slab_layers_rgba),
+        ("empty tiles removed", sizes.nonempty_tiles_rgba),
+        ("culled", sizes.kept_tiles_rgba),
+        ("PTM compressed (kept tiles)", sizes.kept_tiles_ptm),
+        ("meshes", sizes.meshes),
+        ("backgrounds (PTM)", sizes.backgrounds_ptm),
+        ("repeated payloads stored once (saved)", sizes.bytes_shared),
+        ("database objects on disk", sizes.database_objects),
+        ("baseline: PNG colour", sizes.baseline_colour_png),
+        ("baseline: PNG16 disparity", sizes.baseline_depth_png16),
+        ("baseline", sizes.baseline),
     ]
     .iter()
-    .filter_map(|(label, key)| {
-        let b = num(&sizes, key)?;
+    .map(|&(label, bytes)| {
+        let b = bytes as f64;
         let rel = raw.map_or("–".into(), |r| format!("{:.1}%", 100.0 * b / r));
         let ratio = baseline.map_or("–".into(), |r| format!("{:.2}×", b / r));
-        Some(vec![label.to_string(), fmt_mb(b), rel, ratio])
+        vec![label.to_string(), fmt_mb(b), rel, ratio]
     })
     .collect();
-    if rows.is_empty() {
-        c.missing("build.json has no sizes".into());
-        return;
-    }
     c.push(Block::Table(Table {
         id: "db-sizes".into(),
         caption: "Size per stage (MB; share of the raw panoramas; ÷ the baseline)".into(),
@@ -285,14 +276,9 @@ fn build_sizes(c: &mut Ctx, build: &Value) {
         rows,
     }));
     let times: Vec<Vec<String>> = build
-        .get("seconds")
-        .and_then(Value::as_array)
-        .into_iter()
-        .flatten()
-        .filter_map(|p| {
-            let name = p.get(0)?.as_str()?;
-            Some(vec![name.to_string(), fmt_num(p.get(1)?.as_f64(), 1)])
-        })
+        .seconds
+        .iter()
+        .map(|(name, s)| vec![name.clone(), fmt_num(Some(*s), 1)])
         .collect();
     if !times.is_empty() {
         c.push(Block::Table(Table {
