@@ -38,10 +38,18 @@ fn sources(dir: &Path, out: &mut Vec<PathBuf>) {
             if !name.starts_with('.') && !skipped.contains(&name.as_str()) {
                 sources(&path, out);
             }
-        } else if name.ends_with(".rs") && name != "tests.rs" && name != "build.rs" {
+        } else if name.ends_with(".rs") && name != "tests.rs" && !is_build_script(&path) {
             out.push(path);
         }
     }
+}
+
+/// A package's build script (`build.rs` beside its `Cargo.toml`), not a module named `build`.
+fn is_build_script(path: &Path) -> bool {
+    path.file_name().is_some_and(|n| n == "build.rs")
+        && path
+            .parent()
+            .is_some_and(|dir| dir.join("Cargo.toml").is_file())
 }
 
 /// The lines of a file up to its unit-test module.

@@ -126,43 +126,11 @@ fn pitches(text: &str) -> anyhow::Result<Vec<f64>> {
 /// For a database directory, the level-group counts (1, 2) below the most any tile's PTM has:
 /// the partial loads worth evaluating. Nothing for other sources.
 fn coarse_level_groups(db: &str) -> anyhow::Result<Vec<usize>> {
-    let dir = Path::new(db);
-    if !dir.join(db::MANIFEST_FILE).is_file() {
+    if !Path::new(db).join(db::MANIFEST_FILE).is_file() {
         return Ok(Vec::new());
     }
-    let db = db::Database::open(dir)?;
-    let most = db
-        .manifest()
-        .tracks
-        .iter()
-        .flat_map(|t| &t.viewpoints)
-        .flat_map(|v| v.tiles.iter().filter_map(|t| t.ptm.as_ref()))
-        .map(|p| p.levels.len())
-        .max()
-        .unwrap_or(0);
+    let most = db::Database::open(Path::new(db))?.most_level_groups();
     Ok((1..=2).filter(|&g| g < most).collect())
-}
-
-/// How a database codes its textures, read from its first PTM's header: `lossless` or
-/// `lossy near=N`.
-fn texture_coding(db: &str) -> anyhow::Result<String> {
-    let db = db::Database::open(std::path::Path::new(db))?;
-    let first = db
-        .manifest()
-        .tracks
-        .iter()
-        .flat_map(|t| &t.viewpoints)
-        .flat_map(|v| v.tiles.iter().filter_map(|t| t.ptm.as_ref()))
-        .next();
-    let Some(p) = first else {
-        return Ok("no textures".into());
-    };
-    let mut dec = codec::ptm::Decoder::new(codec::ptm::Limits::default());
-    dec.push(&db.read_level(p, 0)?)?;
-    Ok(match dec.header().map_or(0, |h| h.near) {
-        0 => "lossless".into(),
-        n => format!("lossy near={n}"),
-    })
 }
 
 /// One walkthrough to evaluate with its renderer budgets.
@@ -190,23 +158,7 @@ fn runs(args: &Args, walk: Walkthrough) -> anyhow::Result<Vec<Run>> {
         },
     }];
     if args.db == "synth:street" {
-        use viewer::headless::synth_street_spaced;
-        use viewer::synth::Scene;
-        let one = [tracks::SlabRange {
-            near: 0.0,
-            far: f64::INFINITY,
-        }];
-        let base = viewer::LayerMeshing::default();
-        let step4 = viewer::LayerMeshing { step: 4, ..base };
-        let slabs3 = Scene::street_slabs();
-        for (name, walk) in [
-            ("db slabs=1", synth_street_spaced(64, &one, base, 1.5)?),
-            ("db step=4", synth_street_spaced(64, &slabs3, step4, 1.5)?),
-            (
-                "db spacing=2.25",
-                synth_street_spaced(64, &slabs3, base, 2.25)?,
-            ),
-        ] {
+        for (name, walk) in viewer::headless::synth_street_variants()? {
             runs.push(Run {
                 walk,
                 configs: full(name),
@@ -233,7 +185,8 @@ fn runs(args: &Args, walk: Walkthrough) -> anyhow::Result<Vec<Run>> {
     }
     let scene = runs[0].walk.scene.clone();
     for other in &args.also {
-        let name = format!("also {other} ({})", texture_coding(other)?);
+        let coding = db::Database::open(Path::new(other))?.texture_coding()?;
+        let name = format!("also {other} ({coding})");
         let walk = open(other, args.track.as_deref(), LoadOptions::default())
             .with_context(|| format!("opening {other}"))?;
         anyhow::ensure!(

@@ -168,13 +168,6 @@ pub fn check_png_name(path: &std::path::Path, flag: &str) -> anyhow::Result<()> 
 
 /// Write a frame as PNG atomically (temporary file + rename).
 pub fn save_png(path: &std::path::Path, frame: &viewer::gpu::Frame) -> anyhow::Result<()> {
-    let img = image::RgbaImage::from_raw(frame.width, frame.height, frame.rgba.clone())
-        .context("frame buffer size")?;
-    let mut bytes = Vec::new();
-    img.write_to(
-        &mut std::io::Cursor::new(&mut bytes),
-        image::ImageFormat::Png,
-    )?;
-    prerender::store::write_atomic(path, &bytes)?;
+    prerender::store::write_atomic(path, &frame.png()?)?;
     Ok(())
 }

@@ -284,16 +284,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 fn write_synthetic(args: &Args, dir: &Path) -> anyhow::Result<()> {
     check_u64("--synthetic-face", args.synthetic_face as u64, 8, 4096)?;
     check_f64("--synthetic-length (m)", args.synthetic_length, 0.1, 1000.0)?;
-    let params = synth::SynthParams {
-        face_size: args.synthetic_face,
-        tile_size: 1 << (args.synthetic_face / 4).ilog2(),
-        levels: (args.synthetic_face / 4)
-            .ilog2()
-            .saturating_sub(1)
-            .clamp(1, 4),
-        length_m: args.synthetic_length,
-        ..synth::SynthParams::default()
-    };
+    let params = synth::SynthParams::for_face(args.synthetic_face, args.synthetic_length);
     synth::write_synthetic(dir, &params)
         .with_context(|| format!("writing a synthetic database to {}", dir.display()))?;
     Ok(())

@@ -15,4 +15,18 @@ impl Frame {
         let n = (self.width as usize * self.height as usize).max(1);
         self.rgba.chunks(4).filter(|p| p[3] == 0).count() as f64 / n as f64
     }
+
+    /// The frame as PNG bytes (RGBA; alpha 0 marks holes).
+    pub fn png(&self) -> Result<Vec<u8>, image::ImageError> {
+        let mut bytes = Vec::new();
+        image::write_buffer_with_format(
+            &mut std::io::Cursor::new(&mut bytes),
+            &self.rgba,
+            self.width,
+            self.height,
+            image::ExtendedColorType::Rgba8,
+            image::ImageFormat::Png,
+        )?;
+        Ok(bytes)
+    }
 }

@@ -36,6 +36,27 @@ pub fn synth_street(
     synth_street_spaced(face_size, slabs, params, 1.5)
 }
 
+/// Other databases of the synthetic street at faces of 64 px, named by how they differ
+/// from the default: one slab, a coarser mesh, wider spacing (what `railview eval
+/// synth:street` weighs against each other).
+pub fn synth_street_variants() -> Result<Vec<(&'static str, Walkthrough)>, HeadlessError> {
+    let one = [SlabRange {
+        near: 0.0,
+        far: f64::INFINITY,
+    }];
+    let base = LayerMeshing::default();
+    let step4 = LayerMeshing { step: 4, ..base };
+    let slabs3 = Scene::street_slabs();
+    Ok(vec![
+        ("db slabs=1", synth_street_spaced(64, &one, base, 1.5)?),
+        ("db step=4", synth_street_spaced(64, &slabs3, step4, 1.5)?),
+        (
+            "db spacing=2.25",
+            synth_street_spaced(64, &slabs3, base, 2.25)?,
+        ),
+    ])
+}
+
 /// The synthetic street with samples `spacing_m` apart.
 pub fn synth_street_spaced(
     face_size: u32,

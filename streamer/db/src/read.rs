@@ -113,6 +113,34 @@ impl Database {
         Ok(bytes)
     }
 
+    /// Every tile's PTM, in track and viewpoint order.
+    fn ptms(&self) -> impl Iterator<Item = &PtmRef> {
+        let viewpoints = self.manifest().tracks.iter().flat_map(|t| &t.viewpoints);
+        viewpoints.flat_map(|v| v.tiles.iter().filter_map(|t| t.ptm.as_ref()))
+    }
+
+    /// The most level groups any tile's PTM has (0 without textures).
+    pub fn most_level_groups(&self) -> usize {
+        self.ptms().map(|p| p.levels.len()).max().unwrap_or(0)
+    }
+
+    /// How the textures are coded, from the first PTM's header: `lossless`, `lossy near=N`,
+    /// or `no textures`.
+    pub fn texture_coding(&self) -> Result<String, DbError> {
+        let Some(first) = self.ptms().next() else {
+            return Ok("no textures".into());
+        };
+        let bytes = self.read_level(first, 0)?;
+        let mut dec = codec::ptm::Decoder::new(codec::ptm::Limits::default());
+        let path = self.object_path(&first.object.hash).unwrap_or_default();
+        dec.push(&bytes)
+            .map_err(|e| DbError::format(&path, format!("PTM header: {e}")))?;
+        Ok(match dec.header().map_or(0, |h| h.near) {
+            0 => "lossless".into(),
+            n => format!("lossy near={n}"),
+        })
+    }
+
     /// Stream chunk `group` of a PTM (0 = header + lowest level), checked against its hash.
     pub fn read_level(&self, ptm: &PtmRef, group: usize) -> Result<Vec<u8>, DbError> {
         let l = ptm.levels.get(group).ok_or_else(|| {

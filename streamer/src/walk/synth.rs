@@ -37,6 +37,21 @@ pub struct SynthParams {
     pub backgrounds: bool,
 }
 
+impl SynthParams {
+    /// The default database at faces of `face_size` px along `length_m`: tiles of a quarter
+    /// face (a power of two), as many PTM levels as that allows (1 to 4).
+    pub fn for_face(face_size: u32, length_m: f64) -> SynthParams {
+        let quarter = (face_size / 4).max(1);
+        SynthParams {
+            face_size,
+            tile_size: 1 << quarter.ilog2(),
+            levels: quarter.ilog2().saturating_sub(1).clamp(1, 4),
+            length_m,
+            ..SynthParams::default()
+        }
+    }
+}
+
 impl Default for SynthParams {
     fn default() -> Self {
         SynthParams {
