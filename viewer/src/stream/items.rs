@@ -42,7 +42,7 @@ pub(super) struct ItemState {
     /// What the decoder may allocate (a fresh decoder after eviction takes the same).
     pub(super) limits: Limits,
     pub(super) decoder: Decoder,
-    pub(super) mesh: Option<crate::refview::TileMesh>,
+    pub(super) mesh: Option<tracks::TileMesh>,
     /// Finest level shown.
     pub(super) level: Option<u32>,
     pub(super) loaded_at: Option<Instant>,
@@ -270,7 +270,7 @@ pub(super) fn decode_parts(
     Ok(Some(d))
 }
 
-pub(super) fn mesh_bytes(m: &crate::refview::TileMesh) -> u64 {
+pub(super) fn mesh_bytes(m: &tracks::TileMesh) -> u64 {
     (std::mem::size_of_val(&m.vertices[..]) + std::mem::size_of_val(&m.indices[..])) as u64
 }
 
