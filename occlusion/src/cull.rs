@@ -279,7 +279,8 @@ pub fn cull_viewpoint(
         let first_new = joined.len();
         for (t, kept) in layer.tiles.iter().zip(keep) {
             if kept {
-                joined.push((t.id.face, grid.pixel_rect(t.id)));
+                let r = grid.pixel_rect(t.id);
+                joined.push((r.face, (r.x0, r.y0, r.x1, r.y1)));
                 any_occluder = true;
                 d.kept.push(*t);
             } else {
@@ -396,7 +397,7 @@ impl TileCtx<'_> {
     /// Keep unless the tile's opaque pixels are hidden from every point of the cell: as one
     /// block, or else quadrant by quadrant (see the module doc).
     fn keep_conservative(&self, t: &TileInfo) -> bool {
-        let (x0, y0, x1, y1) = self.grid.pixel_rect(t.id);
+        let tracks::PixelRect { x0, y0, x1, y1, .. } = self.grid.pixel_rect(t.id);
         !self.block_hidden(t.id.face, (x0, y0, x1, y1), self.params.subdivisions)
     }
 

@@ -31,7 +31,7 @@ pub struct SlabLayer {
 
 /// Bytes of a tile when stored as raw RGBA8 (the paper's tables: 32² × 4 = 4 KiB a tile).
 pub fn raw_rgba_bytes(grid: &TileGrid, id: TileId) -> u64 {
-    let (x0, y0, x1, y1) = grid.pixel_rect(id);
+    let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(id);
     (x1 - x0) as u64 * (y1 - y0) as u64 * 4
 }
 
@@ -59,7 +59,7 @@ impl SlabLayer {
         }
         let mut tiles = Vec::new();
         for id in grid.tiles() {
-            let (x0, y0, x1, y1) = grid.pixel_rect(id);
+            let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(id);
             let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
             for y in y0..y1 {
                 for x in x0..x1 {

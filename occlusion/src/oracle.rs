@@ -348,7 +348,7 @@ pub fn score(decision: &ViewpointCull, grid: &TileGrid, vis: &Visibility) -> Vec
         .iter()
         .map(|d| {
             let seen = |id| {
-                let (x0, y0, x1, y1) = grid.pixel_rect(id);
+                let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(id);
                 let mut c = 0u64;
                 for y in y0..y1 {
                     for x in x0..x1 {

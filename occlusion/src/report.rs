@@ -394,7 +394,7 @@ pub fn atlas_png(
             if let Some(vis) = vis.and_then(|x| x.get(row)) {
                 let seen = |i: u32| {
                     grid.tile_at(i as usize).is_some_and(|id| {
-                        let (x0, y0, x1, y1) = grid.pixel_rect(id);
+                        let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(id);
                         (y0..y1).any(|y| (x0..x1).any(|x| vis.is_visible(st.slab, id.face, x, y)))
                     })
                 };

@@ -36,7 +36,7 @@ pub struct UvRect {
 impl UvRect {
     /// The footprint of a tile on its face.
     pub fn of_tile(grid: &TileGrid, tile: TileId) -> UvRect {
-        let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+        let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(tile);
         let n = grid.face_size as f64;
         UvRect {
             u0: 2.0 * x0 as f64 / n - 1.0,

@@ -36,7 +36,7 @@ fn check(
     for d in &cull.slabs {
         let layer = &layers[d.slab];
         for t in &d.culled {
-            let (x0, y0, x1, y1) = grid.pixel_rect(t.id);
+            let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(t.id);
             for y in y0..y1 {
                 for x in x0..x1 {
                     if *layer.alpha.get(t.id.face, x, y) < 128 {

@@ -63,7 +63,7 @@ fn brute_force(s: &Scene, p: &Prepared, i: usize, cull: &ViewpointCull) -> Optio
     for d in &cull.slabs {
         let layer = &p.layers[i][d.slab];
         for t in &d.culled {
-            let (x0, y0, x1, y1) = p.grid.pixel_rect(t.id);
+            let tracks::PixelRect { x0, y0, x1, y1, .. } = p.grid.pixel_rect(t.id);
             for y in y0..y1 {
                 for x in x0..x1 {
                     if *layer.alpha.get(t.id.face, x, y) < 128 {

@@ -63,7 +63,7 @@ fn reached(s: &Scene, track: &[DVec3], ranges: &str) -> (u64, Option<String>) {
     for d in &cull.slabs {
         let layer = &layers[d.slab];
         for t in &d.culled {
-            let (x0, y0, x1, y1) = grid.pixel_rect(t.id);
+            let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(t.id);
             for y in y0..y1 {
                 for x in x0..x1 {
                     if *layer.alpha.get(t.id.face, x, y) < 128 {
@@ -222,7 +222,7 @@ fn brute_force_finds_what_a_wrong_scene_culls() {
         .culled
         .first()
         .expect("something culled behind the wall");
-    let (x0, y0, _, _) = grid.pixel_rect(t.id);
+    let tracks::PixelRect { x0, y0, .. } = grid.pixel_rect(t.id);
     let r = *layers[2].depth.get(t.id.face, x0, y0) as f64;
     let q = track[1] + tracks::cubemap::pixel_dir(t.id.face, x0, y0, FACE) * r;
     let to = q - track[1];

@@ -28,7 +28,7 @@
 
 use serde::{Deserialize, Serialize};
 use tracks::cubemap::pixel_dir;
-use tracks::{CubeMap, Face, TileGrid, TileId};
+use tracks::{CubeMap, Face, PixelRect, TileGrid, TileId};
 
 mod adaptive;
 mod field;
@@ -371,18 +371,18 @@ pub fn mesh_tile(
     let rect = grid.pixel_rect(tile);
     if only != Some(MeshKind::Adaptive) {
         out.grid = grid_mesh(&f, params.step);
-        cover_lone_pixels(&mut out.grid, depth, mask, tile.face, rect);
+        cover_lone_pixels(&mut out.grid, depth, mask, rect);
         out.grid_stats = mesh_stats(&f, &out.grid);
     }
     if only != Some(MeshKind::Grid) {
         out.adaptive = adaptive_mesh(&f, params.max_error_px);
-        cover_lone_pixels(&mut out.adaptive, depth, mask, tile.face, rect);
+        cover_lone_pixels(&mut out.adaptive, depth, mask, rect);
         out.adaptive_stats = mesh_stats(&f, &out.adaptive);
     }
     out
 }
 
-/// Give every opaque pixel of the tile (`rect` on `face`) that no triangle covers a quad of
+/// Give every opaque pixel of the tile (`rect`) that no triangle covers a quad of
 /// its own, corner to corner at its depth. A surface one or two pixels thin between two
 /// depth discontinuities (a pole, a window frame, a roof edge seen end on) has vertices but
 /// no triangle, since none may span a discontinuity; without the quad the slab behind showed
@@ -392,9 +392,15 @@ pub fn cover_lone_pixels(
     mesh: &mut TileMesh,
     depth: &CubeMap<f32>,
     mask: &CubeMap<bool>,
-    face: Face,
-    (x0, y0, x1, y1): (u32, u32, u32, u32),
+    rect: PixelRect,
 ) {
+    let PixelRect {
+        face,
+        x0,
+        y0,
+        x1,
+        y1,
+    } = rect;
     let (w, h) = ((x1 - x0) as usize, (y1 - y0) as usize);
     let mut covered = vec![false; w * h];
     for tri in mesh.indices.chunks_exact(3) {
@@ -629,7 +635,7 @@ mod tests {
             let f = Field::new(&depth, &mask, grid, t, &p);
             let mesh = adaptive_mesh(&f, bound);
             let mut worst = 0.0f64;
-            let (x0, y0, x1, y1) = grid.pixel_rect(t);
+            let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(t);
             let w = (x1 - x0) as usize;
             let got = rasterise_3d(&mesh, t.face, n, (x0, y0, w, (y1 - y0) as usize));
             for (k, r) in got.iter().enumerate() {

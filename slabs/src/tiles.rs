@@ -159,7 +159,7 @@ fn tile_one(
     t: TileId,
     params: &TileParams,
 ) -> Option<SlabTile> {
-    let (x0, y0, x1, y1) = grid.pixel_rect(t);
+    let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(t);
     let mut lo = f32::INFINITY;
     let mut hi = 0.0f32;
     let mut count = 0u32;

@@ -95,7 +95,7 @@ fn one_pixel_objects() {
         assert_eq!(tile.adaptive_stats.uncovered_pixels, 0, "{:?}", tile.tile);
         assert_eq!(tile.adaptive_stats.covered_pixels, 1, "{:?}", tile.tile);
         assert!(tile.adaptive_stats.max_error_px < 1e-3);
-        let (x0, y0, x1, _) = t.grid.pixel_rect(tile.tile);
+        let tracks::PixelRect { x0, y0, x1, .. } = t.grid.pixel_rect(tile.tile);
         let w = x1 - x0;
         let (dx, dy) = if tile.tile.face == Face::PosX {
             (3 - x0, 3 - y0)

@@ -371,7 +371,7 @@ pub fn frustum_half_angle(camera: &PerspectiveCamera) -> f64 {
 
 /// Centre direction, angular radius and nearest depth of a tile seen from its viewpoint.
 fn tile_cone(grid: TileGrid, t: tracks::TileId, depth_min: f64) -> (DVec3, f64, f64) {
-    let (x0, y0, x1, y1) = grid.pixel_rect(t);
+    let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(t);
     let n = grid.face_size;
     let centre = subpixel_dir(t.face, 0.5 * (x0 + x1) as f64, 0.5 * (y0 + y1) as f64, n);
     let radius = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]

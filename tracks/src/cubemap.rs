@@ -19,6 +19,8 @@
 //! from the top row; on disk the same order is one image of `N × 6N` pixels.
 
 use glam::DVec3;
+
+use crate::rect::PixelRect;
 use serde::{Deserialize, Serialize};
 
 /// One of the six cube faces.
@@ -352,16 +354,17 @@ impl TileGrid {
         }
     }
 
-    /// Pixel rectangle `(x0, y0, x1, y1)` (exclusive end) covered by a tile.
-    pub fn pixel_rect(&self, t: TileId) -> (u32, u32, u32, u32) {
+    /// The pixels a tile covers (ends exclusive).
+    pub fn pixel_rect(&self, t: TileId) -> PixelRect {
         let x0 = t.tx * self.tile_size;
         let y0 = t.ty * self.tile_size;
-        (
+        PixelRect {
+            face: t.face,
             x0,
             y0,
-            (x0 + self.tile_size).min(self.face_size),
-            (y0 + self.tile_size).min(self.face_size),
-        )
+            x1: (x0 + self.tile_size).min(self.face_size),
+            y1: (y0 + self.tile_size).min(self.face_size),
+        }
     }
 }
 
@@ -425,7 +428,8 @@ mod tests {
         assert_eq!(g.tiles_per_side(), 3);
         assert_eq!(g.tile_count(), 54);
         let t = g.tile_of_pixel(Face::NegY, 9, 5);
-        assert_eq!(g.pixel_rect(t), (8, 4, 10, 8));
+        let r = g.pixel_rect(t);
+        assert_eq!((r.x0, r.y0, r.x1, r.y1), (8, 4, 10, 8));
         for i in 0..g.tile_count() {
             assert_eq!(g.tile_index(g.tile_at(i).unwrap()), i);
         }

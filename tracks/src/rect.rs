@@ -2,7 +2,7 @@
 //! workspace (a tile's pixels, the texels a streamed tile changed, the pixels a culling
 //! window covers).
 
-use crate::cubemap::{Face, TileGrid, TileId};
+use crate::cubemap::Face;
 
 /// A pixel rectangle `[x0, x1) × [y0, y1)` on one face (ends exclusive).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -15,18 +15,6 @@ pub struct PixelRect {
 }
 
 impl PixelRect {
-    /// The face pixels of tile `tile` of `grid` ([`TileGrid::pixel_rect`]).
-    pub fn of_tile(grid: TileGrid, tile: TileId) -> PixelRect {
-        let (x0, y0, x1, y1) = grid.pixel_rect(tile);
-        PixelRect {
-            face: tile.face,
-            x0,
-            y0,
-            x1,
-            y1,
-        }
-    }
-
     /// Pixels covered (0 when empty).
     pub fn area(&self) -> u64 {
         u64::from(self.x1.saturating_sub(self.x0)) * u64::from(self.y1.saturating_sub(self.y0))
@@ -64,6 +52,7 @@ impl PixelRect {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::{TileGrid, TileId};
 
     #[test]
     fn a_tile_rect_grows_within_the_face_and_covers_coarser_texels() {
@@ -73,7 +62,7 @@ mod tests {
             tx: 2,
             ty: 1,
         };
-        let r = PixelRect::of_tile(grid, tile);
+        let r = grid.pixel_rect(tile);
         assert_eq!((r.face, r.x0, r.y0, r.x1, r.y1), (Face::NegY, 8, 4, 10, 8));
         assert_eq!(r.area(), 8);
         let g = r.grown(2, 10);

@@ -365,7 +365,7 @@ pub fn tile_mesh(
     tile: TileId,
     params: LayerMeshing,
 ) -> Option<TileMesh> {
-    let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+    let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(tile);
     let face = tile.face;
     let step = params.step.max(1);
     let xs: Vec<u32> = (x0..x1).step_by(step as usize).chain([x1]).collect();
@@ -698,10 +698,10 @@ mod tests {
                     .iter()
                     .map(|&i| pos_in_face(m.vertices[i as usize]))
                     .filter(|v| {
-                        v[0] == rect.0 as f32
-                            || v[0] == rect.2 as f32
-                            || v[1] == rect.1 as f32
-                            || v[1] == rect.3 as f32
+                        v[0] == rect.x0 as f32
+                            || v[0] == rect.x1 as f32
+                            || v[1] == rect.y0 as f32
+                            || v[1] == rect.y1 as f32
                     })
                     .map(|v| [v[0] as u32, v[1] as u32])
                     .collect();
@@ -711,12 +711,7 @@ mod tests {
             };
             let mut prev = m.indices.len();
             for level in 1..=MESH_LEVELS {
-                let idx = decimated_indices(
-                    &m,
-                    PixelRect::of_tile(grid, t),
-                    mesh_cell(16, level),
-                    p.jump,
-                );
+                let idx = decimated_indices(&m, grid.pixel_rect(t), mesh_cell(16, level), p.jump);
                 assert!(idx.len() < prev, "{t:?} level {level}");
                 assert!(idx.iter().all(|&i| (i as usize) < m.vertices.len()));
                 prev = idx.len();
@@ -724,10 +719,10 @@ mod tests {
                 // only (never invents any), so neighbours agree.
                 let e = edge_vertices(&idx);
                 for corner in [
-                    [rect.0, rect.1],
-                    [rect.2, rect.1],
-                    [rect.0, rect.3],
-                    [rect.2, rect.3],
+                    [rect.x0, rect.y0],
+                    [rect.x1, rect.y0],
+                    [rect.x0, rect.y1],
+                    [rect.x1, rect.y1],
                 ] {
                     assert!(e.contains(&corner), "{t:?} lost corner {corner:?}");
                 }
@@ -757,12 +752,7 @@ mod tests {
         };
         let shared = |t: TileId, level: u32| {
             let m = tile_mesh(&d, &grid, t, p).unwrap();
-            let idx = decimated_indices(
-                &m,
-                PixelRect::of_tile(grid, t),
-                mesh_cell(16, level),
-                p.jump,
-            );
+            let idx = decimated_indices(&m, grid.pixel_rect(t), mesh_cell(16, level), p.jump);
             let mut e: Vec<u32> = idx
                 .iter()
                 .map(|&i| pos_in_face(m.vertices[i as usize]))
@@ -808,7 +798,7 @@ mod tests {
             },
         )
         .unwrap();
-        let idx = decimated_indices(&m, PixelRect::of_tile(grid, t), 16, 0.1);
+        let idx = decimated_indices(&m, grid.pixel_rect(t), 16, 0.1);
         for tri in idx.chunks(3) {
             let ds: Vec<f32> = tri.iter().map(|&i| m.vertices[i as usize][2]).collect();
             let (lo, hi) = ds

@@ -184,7 +184,7 @@ pub fn paste_tile(
     (rgba, w, h, level): (&[u8], u32, u32, u32),
     what: &str,
 ) -> Result<(), SourceError> {
-    let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+    let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(tile);
     let scale = 1u32 << level.min(16);
     if w == 0
         || h == 0

@@ -255,7 +255,7 @@ fn tile_region_uploads_match_a_full_upload() {
     let t = views[v].tiles[p.passes[0].visible[0]].clone();
     let layer = t.slab as usize + 1;
     let grid = TileGrid::new(views[v].face_size, views[v].tile_size).unwrap();
-    let (x0, y0, x1, y1) = grid.pixel_rect(t.tile);
+    let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(t.tile);
     // Level 0 of a layer is its dense map dilated; dilating again changes nothing.
     let mut dense = views[v].layers[layer].levels[0].clone();
     for y in y0..y1 {

@@ -77,7 +77,7 @@ fn write_db_with(walk: &Walkthrough, dir: &Path, opts: EncodeOptions, share: boo
         let mut tiles = Vec::new();
         for t in &v.tiles {
             let layer = &v.layers[t.slab as usize + 1].levels[0];
-            let (x0, y0, x1, y1) = grid.pixel_rect(t.tile);
+            let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(t.tile);
             let mut px = Vec::new();
             let mut opaque = 0;
             for y in y0..y1 {
@@ -120,7 +120,7 @@ fn write_db_with(walk: &Walkthrough, dir: &Path, opts: EncodeOptions, share: boo
             for ty in 0..grid.tiles_per_side() {
                 for tx in 0..grid.tiles_per_side() {
                     let tile = tracks::TileId { face, tx, ty };
-                    let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+                    let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(tile);
                     let mut px: Vec<u8> = (y0..y1)
                         .flat_map(|y| (x0..x1).map(move |x| (x, y)))
                         .flat_map(|(x, y)| *sky.get(face, x, y))

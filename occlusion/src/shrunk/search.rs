@@ -124,7 +124,7 @@ impl Ctx<'_> {
         let layer = &self.layers[k];
         let n = self.grid.face_size;
         let rr = self.params.content.search_radius;
-        let (x0, y0, x1, y1) = self.grid.pixel_rect(id);
+        let tracks::PixelRect { x0, y0, x1, y1, .. } = self.grid.pixel_rect(id);
         let mut depth = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
         let mut any = false;
         for y in y0..y1 {

@@ -57,7 +57,7 @@ impl Field {
         components: bool,
     ) -> Field {
         let n = grid.face_size;
-        let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+        let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(tile);
         let xe = x1.min(n - 1);
         let ye = y1.min(n - 1);
         let (w, h) = ((xe - x0 + 1) as usize, (ye - y0 + 1) as usize);

@@ -166,7 +166,7 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
         let mut tiles = Vec::new();
         let mut background = Vec::new();
         for tile in grid.tiles() {
-            let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+            let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(tile);
             // Depth range from a 3×3 probe of the tile.
             let mut dmin = f64::INFINITY;
             let mut dmax: f64 = 0.0;

@@ -53,7 +53,7 @@ pub(super) fn time_uploads(
     };
     let grid = tracks::TileGrid::new(views[0].face_size, views[0].tile_size)
         .ok_or(BenchError::TileGrid)?;
-    let rect = tracks::PixelRect::of_tile(grid, tile);
+    let rect = grid.pixel_rect(tile);
     // Level 0 is the dense map dilated; dilating it again changes nothing.
     let dense = views[0].layers[1].levels[0].clone();
     let index = views[0].index;
@@ -144,15 +144,6 @@ fn view_coarse_triangles(view: &RefView, level: u32) -> usize {
     let jump = LayerMeshing::default().jump;
     view.tiles
         .iter()
-        .map(|t| {
-            decimated_indices(
-                &t.mesh,
-                tracks::PixelRect::of_tile(grid, t.tile),
-                cell,
-                jump,
-            )
-            .len()
-                / 3
-        })
+        .map(|t| decimated_indices(&t.mesh, grid.pixel_rect(t.tile), cell, jump).len() / 3)
         .sum()
 }

@@ -706,7 +706,7 @@ fn decimated_levels(view: &RefView) -> Vec<Vec<Vec<u32>>> {
             (0..MESH_LEVELS)
                 .map(|k| {
                     let cell = mesh_cell(view.tile_size, k + 1);
-                    decimated_indices(&tile.mesh, PixelRect::of_tile(grid, tile.tile), cell, jump)
+                    decimated_indices(&tile.mesh, grid.pixel_rect(tile.tile), cell, jump)
                 })
                 .collect()
         })

@@ -65,7 +65,7 @@ pub fn view_skirts(view: &RefView) -> Vec<(Vec<[f32; 3]>, Vec<u32>)> {
                 x >= 0 && y >= 0 && kept.contains(&(t.slab, f, x as u32, y as u32))
             };
             let shared = [has(-1, 0), has(0, -1), has(1, 0), has(0, 1)];
-            skirt(&t.mesh, n, PixelRect::of_tile(grid, t.tile), shared)
+            skirt(&t.mesh, n, grid.pixel_rect(t.tile), shared)
         })
         .collect()
 }

@@ -157,7 +157,7 @@ impl StreamedWalkthrough {
                 let it = &mut self.items[item];
                 it.level = Some(d.level);
                 it.loaded_at = Some(now);
-                Ok(Some((0, PixelRect::of_tile(self.grid, tile))))
+                Ok(Some((0, self.grid.pixel_rect(tile))))
             }
             Kind::Tile { tile, slab } => {
                 let joined = self.tile_items[view].iter().position(|&i| i == item);
@@ -184,7 +184,7 @@ impl StreamedWalkthrough {
                         self.tile_items[view].insert(slot, item);
                     }
                 }
-                Ok(Some((layer, PixelRect::of_tile(self.grid, tile))))
+                Ok(Some((layer, self.grid.pixel_rect(tile))))
             }
         }
     }

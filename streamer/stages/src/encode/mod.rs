@@ -376,7 +376,7 @@ fn ach(
         let tiles: Vec<AchTile> = crops
             .iter()
             .map(|(vi, t, d)| {
-                let (x0, y0, x1, y1) = grid.pixel_rect(t.tile);
+                let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(t.tile);
                 AchTile {
                     viewpoint: *vi,
                     slab: t.slab,

@@ -62,7 +62,7 @@ pub(super) fn all_present(stage: &Path, v: &ViewpointEntry) -> bool {
 
 /// The pixels of tile `t`, row by row.
 pub(super) fn crop<T: Copy>(map: &CubeMap<T>, grid: &TileGrid, t: TileId) -> Vec<T> {
-    let (x0, y0, x1, y1) = grid.pixel_rect(t);
+    let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(t);
     let mut out = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
     for y in y0..y1 {
         for x in x0..x1 {
@@ -99,7 +99,7 @@ pub(super) fn encode_sample(
         let color = store::read_rgba_png(&dir.slab_color_png(i, k))?;
         let (mut ne, mut kept_bytes) = (0u64, 0u64);
         for (rec, mesh) in layer.tiles.iter().zip(layer_meshes) {
-            let (x0, y0, x1, y1) = grid.pixel_rect(rec.tile);
+            let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(rec.tile);
             let bytes = ((x1 - x0) * (y1 - y0) * 4) as u64;
             ne += bytes;
             let culled = is_culled(decisions, i, k, grid.tile_index(rec.tile) as u32);
@@ -197,7 +197,7 @@ fn background(
                 if px.iter().all(|p| p[3] == 0) {
                     continue;
                 }
-                let (x0, y0, x1, y1) = grid.pixel_rect(tile);
+                let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(tile);
                 let mut px: Vec<u8> = px.into_iter().flatten().collect();
                 slabs::tiles::coarsen_colour(&mut px, x1 - x0, y1 - y0, coding.drop_levels);
                 let img = Image::new(x1 - x0, y1 - y0, 4, px)?;
