@@ -5,12 +5,11 @@
 //! walk streams from it over loopback HTTP; with an `http://` URL it streams from there.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::Context;
 use streamer::client::{BudgetParams, RetryPolicy, SchedulerConfig, ServerUrl};
-use streamer::server::{self, parse_duration, parse_rate, ServedDb, ServerConfig, ServerStats};
+use streamer::server::{self, parse_duration, parse_rate, ServedDb};
 use streamer::walk::{self, synth, Strategy, WalkConfig, WalkEvent};
 use tracks::limits::{check_f64, check_u64};
 
@@ -217,19 +216,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                         return Err(e.into());
                     }
                 };
-                let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-                let url = ServerUrl::parse(&format!("http://{}", listener.local_addr()?))?;
-                let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-                let task = tokio::spawn(server::run(
-                    listener,
-                    db,
-                    ServerConfig::default(),
-                    Arc::new(ServerStats::default()),
-                    async {
-                        let _ = stop_rx.await;
-                    },
-                ));
-                (url, Some((stop_tx, task)))
+                let server = server::Loopback::start(db).await?;
+                (server.url.clone(), Some(server))
             }
         };
         let bar = indicatif::ProgressBar::hidden();
@@ -255,9 +243,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         })
         .await;
         bar.finish_and_clear();
-        if let Some((stop, task)) = server {
-            let _ = stop.send(());
-            task.await.context("server task")??;
+        if let Some(server) = server {
+            server.stop().await?;
         }
         anyhow::Ok(result)
     })?;

@@ -37,6 +37,7 @@ mod admit;
 mod body;
 mod bundle;
 mod guard;
+mod loopback;
 mod range;
 mod routes;
 mod shape;
@@ -61,6 +62,7 @@ use guard::Guarded;
 
 pub use body::{ServeBody, CHUNK_BYTES};
 pub use bundle::{bundle_query, parse_bundle_query, BundleEntry, BundleError};
+pub use loopback::Loopback;
 pub use range::{multipart_body, parse_range, parse_ranges, RangeError};
 pub use routes::MAX_RANGES;
 pub use shape::{parse_duration, parse_rate, Shaped};
@@ -153,6 +155,12 @@ pub enum ServerError {
     Manifest { path: PathBuf, message: String },
     #[error("accepting connections: {0}")]
     Accept(std::io::Error),
+    /// A loopback server could not bind its port.
+    #[error("binding a port on 127.0.0.1: {0}")]
+    Bind(std::io::Error),
+    /// A loopback server's task ended abnormally.
+    #[error("server task: {0}")]
+    Task(String),
 }
 
 /// For a database whose files are damaged: where to find every problem.

@@ -3,12 +3,11 @@
 //! unlimited --strategy ach+prefetch --pause 1` does).
 
 use std::path::Path;
-use std::sync::Arc;
 use std::time::Duration;
 
 use stages::progress::{BarKind, Reporter};
-use streamer::client::{RetryPolicy, ServerUrl};
-use streamer::server::{self, ServedDb, ServerConfig, ServerStats};
+use streamer::client::RetryPolicy;
+use streamer::server::{self, ServedDb};
 use streamer::walk::{self, Strategy, WalkConfig, WalkEvent};
 
 use crate::error::{Context, Error, Result};
@@ -52,21 +51,9 @@ pub fn standard_walk(db: &Path, out: &Path, speed_mps: f64, progress: &Reporter)
                 return Err(Error::from(e));
             }
         };
-        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-        let url = ServerUrl::parse(&format!("http://{}", listener.local_addr()?))?;
-        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-        let task = tokio::spawn(server::run(
-            listener,
-            served,
-            ServerConfig::default(),
-            Arc::new(ServerStats::default()),
-            async {
-                // A dropped sender also stops the server.
-                let _ = stop_rx.await;
-            },
-        ));
+        let server = server::Loopback::start(served).await?;
         let mut bar = None;
-        let result = walk::run_walk(&url, &config, &strategies, &bandwidths, |e| match e {
+        let result = walk::run_walk(&server.url, &config, &strategies, &bandwidths, |e| match e {
             WalkEvent::Planned {
                 runs,
                 frames_per_run,
@@ -88,10 +75,7 @@ pub fn standard_walk(db: &Path, out: &Path, speed_mps: f64, progress: &Reporter)
         if let Some(b) = &bar {
             b.finish();
         }
-        let _ = stop_tx.send(());
-        task.await
-            .map_err(|e| Error::Outcome(e.to_string()))
-            .context("server task")??;
+        server.stop().await?;
         Ok(result)
     })?;
     // walk.json is written whatever happened: the finished runs and what a failed one
