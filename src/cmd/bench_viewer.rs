@@ -63,7 +63,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         width,
         height,
         frames: super::count("--frames", args.frames, 100_000)?,
-        throughput_frames: super::count("--throughput-frames", args.throughput_frames, 100_000)?,
+        // 0 skips the throughput run, as the help says.
+        throughput_frames: tracks::limits::check_u64(
+            "--throughput-frames",
+            args.throughput_frames as u64,
+            0,
+            100_000,
+        )? as usize,
         core: args.core,
         uploads: args.uploads,
         fragments: args.fragments,
