@@ -11,6 +11,7 @@
 //! - [`erode`]: segments against solids shrunk by a distance (occluder shrinking for culling).
 //! - [`render`]: cube maps of colour + radial depth, slab layers in one pass, low-res depth,
 //!   perspective views.
+//! - [`sky`]: the complete sky of a track (rendered alone, or assembled from the panoramas).
 //! - [`truth`]: anti-aliased ground truth of any scene kind (built-in, TOML, POV-Ray import)
 //!   from any camera, by the renderer that made the panoramas.
 
@@ -25,6 +26,7 @@ pub mod runlog;
 pub mod scene;
 pub mod scenes;
 mod shade;
+pub mod sky;
 pub mod store;
 pub mod truth;
 

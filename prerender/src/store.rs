@@ -154,6 +154,10 @@ impl PrerenderDir {
     pub fn track_toml(&self) -> PathBuf {
         self.root.join("track.toml")
     }
+    /// The sky alone in every direction (`crate::sky`), where the renderer can draw it.
+    pub fn sky_png(&self) -> PathBuf {
+        self.root.join("sky.png")
+    }
     pub fn sample_dir(&self, index: usize) -> PathBuf {
         self.root.join("samples").join(format!("{index:04}"))
     }

@@ -235,16 +235,23 @@ fn encode_all(
         tiling.mesh_params.baseline_m,
         params.depth_error_px,
     );
+    let (sky, sky_source) =
+        prerender::sky::load_or_assemble(dir, pre).context("the track's complete sky")?;
+    report.sky = format!("{sky_source:?}").to_lowercase();
+    let sky_digest = sky.as_ref().map_or(0, |s| {
+        fnv64(&s.as_slice().iter().flatten().copied().collect::<Vec<u8>>())
+    });
     let coding = Coding {
         opts: &opts,
         mesh: &mesh_coding,
         drop_levels: params.drop_levels,
+        sky: sky.as_ref(),
     };
     // `db{TOP_VERSION}`: a format's rule on the PTMs' content (format 5 clears the colour
     // under the mask) re-encodes samples encoded under another; so does any other knob, and
     // tiles meshed with other parameters.
     let key = format!(
-        "ptm-v{} db{} {:?} zstd{} near{} mesh-v{} depth{} tiles:{}/{}/{:?}/{:?} cull:{} drop:{}",
+        "ptm-v{} db{} {:?} zstd{} near{} mesh-v{} depth{} tiles:{}/{}/{:?}/{:?} cull:{} drop:{} sky:{:016x}",
         ptm::FORMAT_VERSION,
         db::TOP_VERSION,
         params.method,
@@ -257,7 +264,8 @@ fn encode_all(
         tiling.mesh_kind,
         tiling.mesh_params,
         culling.summary,
-        params.drop_levels
+        params.drop_levels,
+        sky_digest
     );
     let enc_dir = work.join("encode");
     let mut viewpoints = Vec::new();

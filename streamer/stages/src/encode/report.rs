@@ -93,6 +93,10 @@ pub struct BuildReport {
     pub samples: usize,
     /// The culling the database got, in words (`shrunk, α = 1`).
     pub culling: String,
+    /// Where the background behind occluders came from (`prerender::sky::SkySource`, in
+    /// lower case: `rendered`, `assembled`, `none`).
+    #[serde(default)]
+    pub sky: String,
     pub config: BuildConfig,
     pub sizes: Sizes,
     pub slabs: Vec<SlabRow>,
@@ -121,7 +125,7 @@ impl BuildReport {
         let r = self;
         let s = &r.sizes;
         let mut m = format!(
-            "# railview build: {} / {}\n\n{} reference viewpoints, faces {} px, tiles {} px. Culling: {}.\n\n\
+            "# railview build: {} / {}\n\n{} reference viewpoints, faces {} px, tiles {} px. Culling: {}. Sky behind occluders: {}.\n\n\
              **Database {} = {:.2}× the baseline** ({}: every reference panorama as a PNG of its colour, {}, \
              and a 16-bit PNG of its disparity-quantised depth, {}).\n\n## Sizes per stage\n\n\
              | stage | bytes | of raw panoramas | ÷ baseline |\n|---|---|---|---|\n",
@@ -131,6 +135,7 @@ impl BuildReport {
             r.face_size,
             r.tile_size,
             r.culling,
+            r.sky,
             mib(s.database_objects),
             s.db_over_baseline,
             mib(s.baseline),

@@ -33,6 +33,8 @@ pub(super) struct Coding<'a> {
     pub opts: &'a EncodeOptions,
     pub mesh: &'a MeshCoding,
     pub drop_levels: u32,
+    /// The track's complete sky at the panoramas' face size (`prerender::sky`), if any.
+    pub sky: Option<&'a CubeMap<[u8; 3]>>,
 }
 
 fn is_culled(d: Option<&TileDecisions>, viewpoint: usize, slab: usize, index: u32) -> bool {
@@ -160,8 +162,12 @@ pub(super) fn encode_sample(
     })
 }
 
-/// Background: the sky where the panorama's depth is infinite (alpha 255), else clear, cut
-/// into the tiles of the same grid; tiles without sky are left out.
+/// Background: the panorama's own colour where its depth is infinite (so a view at the
+/// sample shows exactly the panorama), elsewhere the track's complete sky (`sky`, the sky
+/// behind this viewpoint's occluders: `prerender::sky`), cut into the tiles of the same grid.
+/// Without a complete sky (no panorama of the track sees any), only the panorama's own sky,
+/// and tiles without any are left out. Tiles wholly behind occluders hold the complete sky
+/// alone, the same bytes at every viewpoint, stored once.
 fn background(
     dir: &PrerenderDir,
     i: usize,
@@ -172,15 +178,23 @@ fn background(
 ) -> Result<Vec<BackgroundTile>> {
     let color = store::read_rgb_png(&dir.color_png(i))?;
     let depth = store::read_depth_exr(&dir.depth_exr(i))?;
+    let behind = |k: usize| match coding.sky {
+        Some(s) => {
+            let c = s.as_slice()[k];
+            [c[0], c[1], c[2], 255]
+        }
+        None => [0, 0, 0, 0],
+    };
     let sky = CubeMap::from_vec(
         n,
         color
             .as_slice()
             .iter()
             .zip(depth.as_slice())
-            .map(|(c, d)| {
+            .enumerate()
+            .map(|(k, (c, d))| {
                 if d.is_finite() {
-                    [0, 0, 0, 0]
+                    behind(k)
                 } else {
                     [c[0], c[1], c[2], 255]
                 }

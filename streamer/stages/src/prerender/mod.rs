@@ -227,6 +227,10 @@ fn builtin(
     // Every shard writes the same bytes here; written only when it differs, so a shard
     // starting later never replaces the file under one already running.
     store::write_if_changed(&dir.track_toml(), one.to_toml().as_bytes())?;
+    // The sky alone, in every direction (the background behind occluders); the same bytes
+    // from every shard.
+    let sky = prerender::render::render_sky(&scene, params.face_size, opts.supersample);
+    store::write_if_changed(&dir.sky_png(), &store::encode_rgb_png(&sky))?;
 
     let report_input = ReportInput {
         scene: &params.scene,
