@@ -490,3 +490,51 @@ proptest! {
         }
     }
 }
+
+/// The time of one warp at the size eval uses (128×96 from 6×128² panoramas); run with
+/// `cargo test --release -p bound -- --ignored --nocapture one_warp_time`.
+#[test]
+#[ignore = "a timing, not a check"]
+fn one_warp_time() {
+    let pillar = Shape::Box {
+        min: DVec3::new(-0.6, -1.0, -3.5),
+        max: DVec3::new(0.6, 2.0, -2.5),
+        color: [200, 40, 40],
+    };
+    let floor = Shape::Plane {
+        normal: DVec3::Y,
+        offset: -1.7,
+        gap: 0.0,
+    };
+    let scene = [gap_scene()[0], pillar, floor];
+    let (pa, pb) = (DVec3::new(-1.0, 0.0, 0.0), DVec3::new(1.0, 0.0, 0.0));
+    let (ca, da) = panorama(&scene, pa, 128);
+    let (cb, db) = panorama(&scene, pb, 128);
+    let a = Reference {
+        position: pa,
+        color: &ca,
+        depth: &da,
+    };
+    let b = Reference {
+        position: pb,
+        color: &cb,
+        depth: &db,
+    };
+    let cam = camera(DVec3::new(0.2, 0.1, -0.3), 8.0, -5.0);
+    for filter in [Filter::Bilinear, Filter::Bicubic] {
+        let opts = WarpOptions {
+            filter,
+            ..WarpOptions::default()
+        };
+        let runs = 20;
+        let start = std::time::Instant::now();
+        for _ in 0..runs {
+            std::hint::black_box(exact_warp(&a, &b, 0.6, &cam, &opts).unwrap());
+        }
+        let ms = start.elapsed().as_secs_f64() * 1e3 / runs as f64;
+        eprintln!(
+            "{filter:?}: {ms:.1} ms per warp ({} threads)",
+            rayon::current_num_threads()
+        );
+    }
+}
