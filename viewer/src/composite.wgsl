@@ -117,14 +117,45 @@ fn blend_at(pos: vec2<f32>) -> Blended {
     return out;
 }
 
+// The composite's colour and the reversed-Z depth of the nearer view's surface (NEAR_M /
+// distance; the sky's SKY_DISTANCE gives less than render.wgsl's SKY_DEPTH, a hole 0), for
+// the fill pass that follows (`fs_fill` in render.wgsl reads it as a fused frame's depth).
+struct CompositeOut {
+    @location(0) color: vec4<f32>,
+    @builtin(frag_depth) depth: f32,
+};
+
+const NEAR_M: f32 = 0.01;
+
+fn nearer_depth(pos: vec2<f32>) -> f32 {
+    let p = vec2<i32>(pos);
+    let a = textureLoad(color0, p, 0).a;
+    var b = 0.0;
+    if comp.weights.z > 1.5 {
+        b = textureLoad(color1, p, 0).a;
+    }
+    let d = select(max(a, b), min(a, b), a > 0.0 && b > 0.0);
+    return select(0.0, NEAR_M / d, d > 0.0);
+}
+
 // Without overlays: touches neither tile ids nor tile buffers.
 @fragment
-fn fs_composite(in: FullOut) -> @location(0) vec4<f32> {
-    return blend_at(in.pos.xy).color;
+fn fs_composite(in: FullOut) -> CompositeOut {
+    var out: CompositeOut;
+    out.color = blend_at(in.pos.xy).color;
+    out.depth = nearer_depth(in.pos.xy);
+    return out;
 }
 
 @fragment
-fn fs_composite_overlays(in: FullOut) -> @location(0) vec4<f32> {
+fn fs_composite_overlays(in: FullOut) -> CompositeOut {
+    var out: CompositeOut;
+    out.color = overlays_color(in);
+    out.depth = nearer_depth(in.pos.xy);
+    return out;
+}
+
+fn overlays_color(in: FullOut) -> vec4<f32> {
     let r = blend_at(in.pos.xy);
     if r.color.a == 0.0 {
         if (comp.flags.x & OVERLAY_HOLES) != 0u {

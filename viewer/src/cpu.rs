@@ -14,6 +14,7 @@ use tracks::Face;
 
 use crate::frame::Frame;
 use crate::plan::{FramePlan, ViewPass, NEAR_M};
+use crate::refview::stretch::{split_stretched, STRETCH_PUSH};
 use crate::refview::RefView;
 use crate::texture::{linear_to_srgb, Layer};
 
@@ -93,25 +94,35 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
         let tile_lod = lod.max(pass.tile_min_level.get(ti).copied().unwrap_or(0) as f32);
         let (fw, r, up) = basis(face);
         let (skirt_verts, skirt_idx) = &skirts[ti];
-        let verts: Vec<(Vec4, Vec3)> = tile
+        // Stretched triangles on their own vertices, pushed back (`refview::stretch`, as
+        // `vs_mesh`): clip z divided, the distance multiplied by STRETCH_PUSH.
+        let (stretched, full) = split_stretched(&tile.mesh, face, view.face_size);
+        let (own, skirt_n) = (tile.mesh.vertices.len() as u32, skirt_verts.len() as u32);
+        let verts: Vec<(Vec4, Vec3, f32)> = tile
             .mesh
             .vertices
             .iter()
             .chain(skirt_verts)
-            .map(|v| {
+            .map(|v| (v, 1.0))
+            .chain(stretched.iter().map(|v| (v, STRETCH_PUSH)))
+            .map(|(v, push)| {
                 let uu = 2.0 * v[0] / n - 1.0;
                 let vv = 1.0 - 2.0 * v[1] / n;
                 let p = (fw + uu * r + vv * up).normalize() * v[2];
-                (m * (p + origin).extend(1.0), p)
+                let mut c = m * (p + origin).extend(1.0);
+                c.z /= push;
+                (c, p, push)
             })
             .collect();
-        let indices: Vec<u32> = tile.mesh.indices.iter().chain(skirt_idx).copied().collect();
+        let indices: Vec<u32> = full
+            .iter()
+            .map(|&i| if i >= own { i + skirt_n } else { i })
+            .chain(skirt_idx.iter().copied())
+            .collect();
         for tri in indices.chunks_exact(3) {
-            let poly = clip_near([
-                verts[tri[0] as usize],
-                verts[tri[1] as usize],
-                verts[tri[2] as usize],
-            ]);
+            let push = verts[tri[0] as usize].2;
+            let at = |i: u32| (verts[i as usize].0, verts[i as usize].1);
+            let poly = clip_near([at(tri[0]), at(tri[1]), at(tri[2])]);
             for k in 1..poly.len().saturating_sub(1) {
                 raster(
                     [poly[0], poly[k], poly[k + 1]],
@@ -133,7 +144,7 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
                         if c[3] >= cut {
                             fragments.kept += 1;
                             depth[idx] = z;
-                            let dist = (p + origin).length().clamp(1e-3, SKY_DISTANCE);
+                            let dist = ((p + origin).length() * push).clamp(1e-3, SKY_DISTANCE);
                             color[idx] = [c[0], c[1], c[2], dist];
                             tile_id[idx] = ti as u32 + 1;
                         }
@@ -152,7 +163,7 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
                 let f = face_of(d);
                 let (px, py) = pixel_on_face(f, d, n);
                 let c = bg.sample(lod, f, px, py);
-                if c[3] > 0.0 && depth[y * w + x] == 0.0 {
+                if c[3] > SEEN_SKY && depth[y * w + x] == 0.0 {
                     color[y * w + x] = [c[0], c[1], c[2], SKY_DISTANCE];
                 }
             }
@@ -250,6 +261,14 @@ fn raster(tri: [(Vec4, Vec3); 3], size: (u32, u32), frag: &mut impl FnMut(usize,
 
 /// Distance written for the sky (as `SKY_DISTANCE` in `cube.wgsl`).
 pub const SKY_DISTANCE: f32 = 60000.0;
+/// A background texel's alpha above which its reference sees sky itself (as `SEEN_SKY` in
+/// `cube.wgsl`; below: the sky behind its occluders, for the fill alone).
+pub const SEEN_SKY: f32 = 0.998;
+/// How far the fill seeks a covered pixel in each direction (as `FILL_REACH` in
+/// `render.wgsl`).
+pub const FILL_REACH: usize = 48;
+/// Output alpha of a filled pixel (as `FILLED_ALPHA` in `render.wgsl`).
+pub const FILLED_ALPHA: u8 = 128;
 /// Depth preference of the blend (as `SHARPNESS` in `composite.wgsl`).
 pub const SHARPNESS: f32 = 20.0;
 
@@ -301,21 +320,117 @@ pub fn blend(passes: &[(f32, Vec<[f32; 4]>)], width: u32, height: u32) -> Frame 
     }
 }
 
-/// Execute a plan on the CPU.
+/// Execute a plan on the CPU: both view passes, their blend, then the fill ([`fill`]).
 pub fn render(plan: &FramePlan, views: &[RefView]) -> Frame {
-    let passes: Vec<(f32, Vec<[f32; 4]>)> = plan
+    let drawn: Vec<(&ViewPass, &RefView)> = plan
         .passes
         .iter()
         .take(2)
-        .filter_map(|p| {
-            let v = views.get(p.view)?;
-            Some((
+        .filter_map(|p| Some((p, views.get(p.view)?)))
+        .collect();
+    let passes: Vec<(f32, Vec<[f32; 4]>)> = drawn
+        .iter()
+        .map(|(p, v)| {
+            (
                 p.weight as f32,
                 view_pass(p, v, plan.width, plan.height).color,
-            ))
+            )
         })
         .collect();
-    blend(&passes, plan.width, plan.height)
+    let mut frame = blend(&passes, plan.width, plan.height);
+    // The heavier view's complete sky (the first of equal weights), as the GPU's group 0.
+    let heavy = match drawn.len() {
+        2 if drawn[1].0.weight > drawn[0].0.weight => Some(drawn[1]),
+        0 => None,
+        _ => Some(drawn[0]),
+    };
+    if let Some((p, v)) = heavy {
+        let sky = complete_sky(p, v, plan.width, plan.height);
+        let distance: Vec<f32> = (0..frame.rgba.len() / 4)
+            .map(|i| {
+                passes
+                    .iter()
+                    .map(|(_, c)| c[i][3])
+                    .filter(|d| *d > 0.0)
+                    .fold(0.0f32, |m, d| if m == 0.0 { d } else { m.min(d) })
+            })
+            .collect();
+        fill(&mut frame, &distance, &sky);
+    }
+    frame
+}
+
+/// The background of `view` in the direction of every pixel of `pass`'s camera (linear
+/// RGB), where it has any sky, seen or behind its occluders.
+fn complete_sky(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Vec<Option<[f32; 3]>> {
+    let u = &pass.uniforms;
+    let v3 = |a: [f32; 4]| Vec3::new(a[0], a[1], a[2]);
+    let Some(bg) = view.layers.first() else {
+        return vec![None; (width * height) as usize];
+    };
+    let mut out = Vec::with_capacity((width * height) as usize);
+    for y in 0..height {
+        for x in 0..width {
+            let ndc_x = (x as f32 + 0.5) / width as f32 * 2.0 - 1.0;
+            let ndc_y = 1.0 - (y as f32 + 0.5) / height as f32 * 2.0;
+            let d = v3(u.ray_forward) + ndc_x * v3(u.ray_right) + ndc_y * v3(u.ray_up);
+            let f = face_of(d);
+            let (px, py) = pixel_on_face(f, d, u.origin_rel[3]);
+            let c = bg.sample(u.params[0], f, px, py);
+            out.push((c[3] > 0.0).then_some([c[0], c[1], c[2]]));
+        }
+    }
+    out
+}
+
+/// Fill the pixels no view covers (alpha 0) from the farther side, as `fs_fill`: the
+/// nearest covered pixel to the left, right, above and below (up to [`FILL_REACH`]); of
+/// those the farthest (`distance`, 0 = none; sky at [`SKY_DISTANCE`]) gives its colour, or,
+/// where it is sky or none is found, `sky` in the pixel's own direction where there is
+/// any. Filled pixels get alpha [`FILLED_ALPHA`].
+pub fn fill(frame: &mut Frame, distance: &[f32], sky: &[Option<[f32; 3]>]) {
+    let (w, h) = (frame.width as i64, frame.height as i64);
+    let covered = |x: i64, y: i64, rgba: &[u8]| rgba[((y * w + x) * 4 + 3) as usize] > 0;
+    let src = frame.rgba.clone();
+    for y in 0..h {
+        for x in 0..w {
+            if covered(x, y, &src) {
+                continue;
+            }
+            let mut best: Option<(f32, i64)> = None;
+            for (dx, dy) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
+                for k in 1..=FILL_REACH as i64 {
+                    let (qx, qy) = (x + dx * k, y + dy * k);
+                    if qx < 0 || qy < 0 || qx >= w || qy >= h {
+                        break;
+                    }
+                    if covered(qx, qy, &src) {
+                        let q = qy * w + qx;
+                        let d = distance[q as usize];
+                        if best.is_none_or(|(bd, _)| d > bd) {
+                            best = Some((d, q));
+                        }
+                        break;
+                    }
+                }
+            }
+            let i = ((y * w + x) * 4) as usize;
+            let from_sky = best.is_none_or(|(d, _)| d >= SKY_DISTANCE);
+            let own_sky = sky[(y * w + x) as usize];
+            if let (true, Some(c)) = (from_sky, own_sky) {
+                frame.rgba[i..i + 4].copy_from_slice(&[
+                    linear_to_srgb(c[0]),
+                    linear_to_srgb(c[1]),
+                    linear_to_srgb(c[2]),
+                    FILLED_ALPHA,
+                ]);
+            } else if let Some((_, q)) = best {
+                let j = (q * 4) as usize;
+                let c = [src[j], src[j + 1], src[j + 2]];
+                frame.rgba[i..i + 4].copy_from_slice(&[c[0], c[1], c[2], FILLED_ALPHA]);
+            }
+        }
+    }
 }
 
 /// The plain panorama of the first pass's view, as `fs_panorama`.

@@ -5,6 +5,11 @@
 // farther than anything (f16 keeps values up to 65504).
 const SKY_DISTANCE: f32 = 60000.0;
 
+// Background alpha: 1 (255) where the reference sees sky itself, 254/255 where it holds the
+// sky behind its own occluders (db::SKY_BEHIND_ALPHA), drawn only by the fill pass. A
+// filtered lookup above SEEN_SKY is sky the reference sees.
+const SEEN_SKY: f32 = 0.998;
+
 // Depth-aware blend of two views (composite.wgsl and the fused second-view pass of
 // render.wgsl): a view's weight is scaled by exp(-SHARPNESS (d / d_min - 1)).
 const SHARPNESS: f32 = 20.0;

@@ -16,6 +16,7 @@ use tracks::{CubeMap, PixelRect, TileGrid, TileId};
 use crate::texture::{dilate_masked, Layer};
 
 mod skirt;
+pub mod stretch;
 pub use skirt::{skirt, view_skirts};
 
 /// Errors building a reference view from layers.

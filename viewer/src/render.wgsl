@@ -37,14 +37,15 @@ struct PassOut {
 };
 
 // Background layer (sky) of view `v`, drawn after the meshes where none drew: alpha
-// SKY_DISTANCE, or 0 (hole) where the background has no sky either. No `discard`: the depth test alone
+// SKY_DISTANCE where the view sees sky itself, else 0 (a hole; the sky behind the view's
+// occluders is for the fill pass alone, `fs_fill`). No `discard`: the depth test alone
 // decides, before shading.
 fn background_of(v: View, tex: texture_2d_array<f32>, s: sampler, pos: vec2<f32>) -> vec4<f32> {
     let d = pixel_ray(v.ray_right.xyz, v.ray_up.xyz, v.ray_forward.xyz, v.params.yz, pos);
     let f = face_of(d);
     let n = v.origin_rel.w;
     let c = sample_face(tex, s, n, v.params.w, 0u, f, pixel_on_face(f, d, n), v.params.x);
-    return select(vec4<f32>(0.0), vec4<f32>(c.rgb, SKY_DISTANCE), c.a > 0.0);
+    return select(vec4<f32>(0.0), vec4<f32>(c.rgb, SKY_DISTANCE), c.a > SEEN_SKY);
 }
 
 fn background_color(pos: vec2<f32>) -> vec4<f32> {
@@ -84,6 +85,10 @@ fn fs_background_ids(in: FullOut) -> PassOut {
     return out;
 }
 
+// refview::stretch: the flag of a stretched triangle's vertices and how much farther it counts.
+const STRETCHED_BIT: u32 = 0x80000000u;
+const STRETCH_PUSH: f32 = 2.0;
+
 struct MeshIn {
     @location(0) pos_in_face: vec2<f32>,
     @location(1) depth_m: f32,
@@ -115,12 +120,15 @@ fn vs_mesh(v: MeshIn) -> MeshOut {
     let w = 1.0 - 2.0 * v.pos_in_face.y / n;
     let scale = v.depth_m / length(vec3<f32>(u, w, 1.0));
     let d = (face_forward(f) + u * face_right(f) + w * face_up(f)) * scale;
-    let tile = v.packed >> 3u;
+    let tile = (v.packed >> 3u) & 0x0fffffffu;
     let info = textureLoad(tile_info, tile_texel(tile), 0);
+    // A stretched triangle (refview::stretch) counts STRETCH_PUSH times farther, in the
+    // depth test (reversed Z: z / STRETCH_PUSH) and in the blend (its distance).
+    let push = select(1.0, STRETCH_PUSH, (v.packed & STRETCHED_BIT) != 0u);
     var out: MeshOut;
     out.pos = view.clip_from_cam * vec4<f32>(d + view.origin_rel.xyz, 1.0);
-    out.pos.z = out.pos.z * depth_scale;
-    out.cam_rel = d + view.origin_rel.xyz;
+    out.pos.z = out.pos.z * depth_scale / push;
+    out.cam_rel = (d + view.origin_rel.xyz) * push;
     out.ref_rufw = vec3<f32>(u, w, 1.0) * scale;
     let level = clamp(max(view.params.x, f32(info.y)), 0.0, view.params.w - 1.0);
     out.per_tile = vec4<u32>(tile, info.x, bitcast<u32>(level), bitcast<u32>(face_margin(n, level)));
@@ -339,4 +347,72 @@ fn fs_mesh_over_half(in: MeshOut) -> @location(0) vec4<f32> {
 @fragment
 fn fs_background_over_half(in: FullOut) -> @location(0) vec4<f32> {
     return blend_half(in.pos.xy, background_color(in.pos.xy));
+}
+
+// The fill pass, last in a fused frame: a pixel that neither view covers (no mesh, and no
+// sky that a reference sees there: the output's alpha is 0) takes the colour of the farther
+// side. From the pixel, the nearest covered pixel is sought to the left, right, above and
+// below, up to FILL_REACH pixels; of those found the farthest wins (smallest reversed-Z
+// depth; sky, at SKY_DEPTH or the cleared 0 of a one-view frame's sky, is the farthest).
+// Where that is sky, or nothing is found, the pixel shows the complete sky of the heavier
+// view (group 0) in its own direction, the sky behind the references' occluders (where the
+// background has none there, the sky pixel found); else the colour of the pixel found. Filled pixels get alpha FILLED_ALPHA (eval counts them apart
+// from covered ones); a pixel stays a hole (alpha 0) only where nothing is found and there
+// is no sky. Group 1: `half_second` holds a copy of the output, `first_depth` the final
+// depth of the frame (the layout of the second view's group). Covered pixels return at
+// once; the search loops run only in blocks that hold a hole.
+const FILL_REACH: i32 = 48;
+const FILLED_ALPHA: f32 = 128.0 / 255.0;
+
+@fragment
+fn fs_fill(in: FullOut) -> @location(0) vec4<f32> {
+    let p = vec2<i32>(in.pos.xy);
+    if textureLoad(half_second, p, 0).a > 0.0 {
+        discard;
+    }
+    let size = vec2<i32>(textureDimensions(half_second));
+    var steps = array<vec2<i32>, 4>(vec2<i32>(1, 0), vec2<i32>(-1, 0), vec2<i32>(0, 1), vec2<i32>(0, -1));
+    var open = vec4<bool>(true, true, true, true);
+    var best_z = 2.0;
+    var best_p = vec2<i32>(-1, -1);
+    for (var k = 1; k <= FILL_REACH; k++) {
+        for (var d = 0; d < 4; d++) {
+            if open[d] {
+                let q = p + steps[d] * k;
+                if any(q < vec2<i32>(0)) || any(q >= size) {
+                    open[d] = false;
+                } else if textureLoad(half_second, q, 0).a > 0.0 {
+                    open[d] = false;
+                    let z = textureLoad(first_depth, q, 0).x;
+                    if z < best_z {
+                        best_z = z;
+                        best_p = q;
+                    }
+                }
+            }
+        }
+        if !any(open) {
+            break;
+        }
+    }
+    let sky = sample_face_dir(in.pos.xy);
+    let has_sky = sky.a > 0.0;
+    if best_p.x < 0 {
+        return select(vec4<f32>(0.0), vec4<f32>(sky.rgb, FILLED_ALPHA), has_sky);
+    }
+    // The farther side is sky: the sky in the pixel's own direction where the background
+    // has it, else the sky pixel found.
+    let found = vec4<f32>(textureLoad(half_second, best_p, 0).rgb, FILLED_ALPHA);
+    if best_z <= SKY_DEPTH * 1.5 && has_sky {
+        return vec4<f32>(sky.rgb, FILLED_ALPHA);
+    }
+    return found;
+}
+
+// The background of the pass's view in the direction of pixel `pos`, alpha as stored.
+fn sample_face_dir(pos: vec2<f32>) -> vec4<f32> {
+    let d = pixel_ray(view.ray_right.xyz, view.ray_up.xyz, view.ray_forward.xyz, view.params.yz, pos);
+    let f = face_of(d);
+    let n = view.origin_rel.w;
+    return sample_face(layers, samp, n, view.params.w, 0u, f, pixel_on_face(f, d, n), view.params.x);
 }

@@ -95,7 +95,7 @@ fn castle_between_samples_automatic_slabs_leave_fewer_holes_than_one_slab() {
         let v = views(&castle.scene, &samples, slabs);
         r.forget_views();
         let plan = plan_frame(&v, &camera, s, budget).unwrap();
-        holes.push(r.render(&plan, &v).unwrap().hole_fraction());
+        holes.push(r.render(&plan, &v).unwrap().uncovered_fraction());
     }
     eprintln!(
         "castle hole fraction at s = {s:.2}: one slab {}, automatic slabs {}",

@@ -511,6 +511,15 @@ pub fn ptm_ref(object: ObjectRef, enc: &ptm::Encoded, channels: u8) -> PtmRef {
     }
 }
 
+/// Alpha of a background texel where the viewpoint sees sky itself (its panorama's depth is
+/// infinite there).
+pub const SKY_SEEN_ALPHA: u8 = 255;
+/// Alpha of a background texel holding the sky behind the viewpoint's own occluders (the
+/// track's complete sky, `prerender::sky`): a renderer draws it only to fill what no
+/// reference covers. One below [`SKY_SEEN_ALPHA`], so that the coarse levels' division by
+/// the alpha ([`unpremultiply`]) changes its colour by at most one step.
+pub const SKY_BEHIND_ALPHA: u8 = 254;
+
 /// Clear the colour of every RGBA texel whose alpha is 0, as format 5 stores every PTM.
 ///
 /// The PTM pyramid averages each channel on its own (eq. 1), so a coarse level's colour is

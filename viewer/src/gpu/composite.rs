@@ -46,6 +46,13 @@ impl Renderer {
             }
         }
         self.encode_composite(enc, targets, plan, views, drawn.len());
+        // The fill as in fused frames, unless the hole overlay is to show the holes.
+        if !plan.overlays.holes {
+            let passes = self.drawn_passes(plan, views);
+            if let Some(heavy) = super::fused::heavier(&passes) {
+                self.encode_fill(enc, targets, heavy);
+            }
+        }
     }
 
     /// A composite frame with the heat map on a device without compute: the view passes,
@@ -180,7 +187,13 @@ impl Renderer {
         let Some(bg) = self.composite_groups.get(&(index(0), index(1))) else {
             return;
         };
-        let mut rp = begin(enc, "composite", &[color(&targets.output_view, true)], None);
+        // The composite writes the nearer view's depth (`fs_composite`) for the fill.
+        let mut rp = begin(
+            enc,
+            "composite",
+            &[color(&targets.output_view, true)],
+            depth(&targets.depth_view, true, true),
+        );
         rp.set_bind_group(0, bg, &[]);
         self.draw_full(
             &mut rp,

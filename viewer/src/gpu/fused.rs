@@ -2,7 +2,7 @@
 
 use super::passes::{begin, color, depth, pass_weights, DrawnPass};
 use super::pipelines::Pipe;
-use super::{CompositeUniforms, Renderer, Targets, SECOND_VIEW_MIN_WEIGHT};
+use super::{CompositeUniforms, GpuView, Renderer, Targets, SECOND_VIEW_MIN_WEIGHT};
 use crate::plan::FramePlan;
 use crate::refview::RefView;
 
@@ -42,6 +42,38 @@ impl Renderer {
         for slot in 0..passes.len() {
             self.encode_fused_view(enc, targets, plan, &passes, slot);
         }
+        if let Some(heavy) = heavier(&passes) {
+            self.encode_fill(enc, targets, heavy);
+        }
+    }
+
+    /// The fill pass, last in every frame (fused, half-resolution, composite without the
+    /// hole overlay): every pixel that no view covers (no mesh, no sky its panorama sees;
+    /// alpha 0) takes the colour of the farther side (`fs_fill`), read from a copy of the
+    /// output, the farther side found in the frame's final depth; where that is sky, the
+    /// complete sky of `heavy`, the heavier view (group 0).
+    pub(super) fn encode_fill(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        targets: &Targets,
+        heavy: &GpuView,
+    ) {
+        let copy = |texture| wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        };
+        enc.copy_texture_to_texture(
+            copy(&targets.output),
+            copy(&targets.fill_color),
+            targets.output.size(),
+        );
+        // Group 0: the heavier view (its uniforms, written for its pass, and its layers).
+        let mut rp = begin(enc, "fill", &[color(&targets.output_view, false)], None);
+        rp.set_bind_group(0, &heavy.bind_group, &[]);
+        rp.set_bind_group(1, &targets.fill_group, &[]);
+        self.draw_full(&mut rp, Pipe::Fill);
     }
 
     /// View pass `slot` of a fused frame: the first view writes the output and the depth;
@@ -91,8 +123,9 @@ impl Renderer {
             },
             // The first view clears the output, the second blends into it.
             &[color(&targets.output_view, slot == 0)],
-            // The shader copy writes every pixel.
-            depth(depth_view, slot == 0 || !copies, slot == 0 && two),
+            // The shader copy writes every pixel. Stored: the second view reads the first
+            // view's, the fill pass the final one.
+            depth(depth_view, slot == 0 || !copies, true),
         );
         rp.set_bind_group(0, &g.bind_group, &[]);
         if slot == 1 {
@@ -183,16 +216,21 @@ impl Renderer {
             self.draw_full(&mut rp, Pipe::Background);
         }
         // Every output pixel is written (the background pass has no discard): no clear.
-        let mut rp = begin(
-            enc,
-            "first view over the second",
-            &[color(&targets.output_view, false)],
-            depth(&targets.depth_view, true, false),
-        );
-        rp.set_bind_group(0, &full.1.bind_group, &[]);
-        rp.set_bind_group(1, &targets.half_group, &[]);
-        self.draw_meshes(&mut rp, plan, full, Pipe::MeshOverHalf);
-        self.draw_full(&mut rp, Pipe::BackgroundOverHalf);
+        // The full-resolution view's depth is stored for the fill (the half-resolution
+        // view's own surfaces are not in it: there the fill's farther side counts as sky).
+        {
+            let mut rp = begin(
+                enc,
+                "first view over the second",
+                &[color(&targets.output_view, false)],
+                depth(&targets.depth_view, true, true),
+            );
+            rp.set_bind_group(0, &full.1.bind_group, &[]);
+            rp.set_bind_group(1, &targets.half_group, &[]);
+            self.draw_meshes(&mut rp, plan, full, Pipe::MeshOverHalf);
+            self.draw_full(&mut rp, Pipe::BackgroundOverHalf);
+        }
+        self.encode_fill(enc, targets, full.1);
     }
 
     /// Feedback frames without overlays: per view pass, its tile ids alone (depth + R32
@@ -219,5 +257,14 @@ impl Renderer {
                 self.draw_meshes(&mut rp, plan, drawn, Pipe::MeshIdOnly);
             }
         }
+    }
+}
+
+/// The view with the larger weight of a frame's drawn passes (the first of equal weights).
+pub(super) fn heavier<'a>(passes: &[DrawnPass<'a>]) -> Option<&'a GpuView> {
+    match passes {
+        [a, b, ..] if b.0.weight > a.0.weight => Some(b.1),
+        [a, ..] => Some(a.1),
+        [] => None,
     }
 }

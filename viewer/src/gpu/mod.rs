@@ -261,6 +261,10 @@ struct Targets {
     half_view: wgpu::TextureView,
     half_depth: wgpu::TextureView,
     half_group: wgpu::BindGroup,
+    /// The fill pass (`fs_fill`): a copy of the output once both views are drawn, and the
+    /// bind group 1 holding it and the final depth.
+    fill_color: wgpu::Texture,
+    fill_group: wgpu::BindGroup,
     output: wgpu::Texture,
     output_view: wgpu::TextureView,
     /// The same texels as plain UNORM (sRGB-encoded bytes), for UIs that expect them;

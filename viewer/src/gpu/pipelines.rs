@@ -70,6 +70,9 @@ pub(super) enum Pipe {
     /// pass) written into the attached depth, every pixel; the output untouched
     /// (`fs_copy_depth`).
     CopyDepth,
+    /// Fused frames, last: pixels no view covers filled from the farther side
+    /// (`fs_fill`), reading a copy of the output and the final depth (group 1).
+    Fill,
 }
 
 /// The shader module a pipeline's entry points are in.
@@ -167,7 +170,7 @@ const fn mesh(pipe: Pipe, label: &'static str, fs: &'static str, targets: Target
 }
 
 /// Every render pipeline, in [`Pipe`] order.
-const PIPELINES: [PipelineRow; 20] = [
+const PIPELINES: [PipelineRow; 21] = [
     PipelineRow {
         targets: Targets::ViewAndIds,
         ..full(
@@ -299,13 +302,13 @@ const PIPELINES: [PipelineRow; 20] = [
     PipelineRow {
         shader: Shader::Composite,
         layout: Layout::Composite,
-        depth: None,
+        depth: Some((Always, true)),
         ..full(Pipe::Composite, "composite", "vs_full", "fs_composite")
     },
     PipelineRow {
         shader: Shader::Composite,
         layout: Layout::Composite,
-        depth: None,
+        depth: Some((Always, true)),
         ..full(
             Pipe::CompositeOverlays,
             "composite+overlays",
@@ -322,6 +325,16 @@ const PIPELINES: [PipelineRow; 20] = [
             "first view's depth, copied by a shader",
             "vs_full",
             "fs_copy_depth",
+        )
+    },
+    PipelineRow {
+        layout: Layout::Second,
+        depth: None,
+        ..full(
+            Pipe::Fill,
+            "fill what no view covers (fused)",
+            "vs_full",
+            "fs_fill",
         )
     },
 ];

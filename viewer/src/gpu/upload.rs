@@ -10,6 +10,7 @@ use super::{
 use tracks::PixelRect;
 
 use crate::plan::ViewUniforms;
+use crate::refview::stretch::{split_stretched, STRETCHED_BIT};
 use crate::refview::{decimated_indices, mesh_cell, RefView, MESH_LEVELS};
 
 impl Renderer {
@@ -420,10 +421,13 @@ impl Renderer {
             tex("view 0", view_format, VIEW_USAGE),
             tex("view 1", view_format, VIEW_USAGE),
         ];
+        // Read by the fill pass once the views are drawn (`fs_fill`).
         let depth = tex(
             "depth",
             DEPTH_FORMAT,
-            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::COPY_SRC
+                | wgpu::TextureUsages::TEXTURE_BINDING,
         );
         // Written by a copy, or (without depth copies) drawn into by the first view.
         let depth_copy = tex(
@@ -469,6 +473,18 @@ impl Renderer {
         )
         .create_view(&Default::default());
         let half_group = self.second_group(&half_view, &depth_copy_view);
+        // The fill pass: a copy of the output and the final depth (`fs_fill`).
+        let fill_color = target(
+            device,
+            "output (copy for the fill)",
+            (width, height),
+            OUTPUT_FORMAT,
+            wgpu::TextureUsages::COPY_DST | wgpu::TextureUsages::TEXTURE_BINDING,
+            false,
+        );
+        let depth_view = depth.create_view(&Default::default());
+        let fill_group =
+            self.second_group(&fill_color.create_view(&Default::default()), &depth_view);
         // The fused second view reads the first view's depth, not binding 1.
         let second_group = self.second_group(&half_view, &depth_copy_view);
         Targets {
@@ -480,8 +496,10 @@ impl Renderer {
             half_view,
             half_depth,
             half_group,
-            depth_view: depth.create_view(&Default::default()),
+            depth_view,
             depth,
+            fill_color,
+            fill_group,
             output_view: output.create_view(&Default::default()),
             output_view_unorm: view_formats.then(|| {
                 output.create_view(&wgpu::TextureViewDescriptor {
@@ -669,18 +687,28 @@ fn mesh_arrays(view: &RefView, skirts: bool) -> MeshArrays {
             cidx.extend(skirt_idx.iter().map(|i| base + i));
         }
         let face = tile.tile.face.index() as u32;
+        let vertex = |v: &[f32; 3], flag: u32| GpuVertex {
+            pos_in_face: [v[0], v[1]],
+            depth_m: v[2],
+            packed: ((ti as u32) << 3) | face | flag,
+        };
+        // Stretched triangles on copies of their vertices, after the skirt's, flagged
+        // (`refview::stretch`); the coarser levels keep the shared vertices.
+        let (stretched, full) = split_stretched(&tile.mesh, tile.tile.face, view.face_size);
+        let (own, skirt_n) = (tile.mesh.vertices.len() as u32, skirt_verts.len() as u32);
         verts.extend(
             tile.mesh
                 .vertices
                 .iter()
                 .chain(skirt_verts)
-                .map(|v| GpuVertex {
-                    pos_in_face: [v[0], v[1]],
-                    depth_m: v[2],
-                    packed: ((ti as u32) << 3) | face,
-                }),
+                .map(|v| vertex(v, 0))
+                .chain(stretched.iter().map(|v| vertex(v, STRETCHED_BIT))),
         );
-        idx.extend(tile.mesh.indices.iter().chain(skirt_idx).map(|i| base + i));
+        idx.extend(
+            full.iter()
+                .map(|&i| base + if i >= own { i + skirt_n } else { i })
+                .chain(skirt_idx.iter().map(|i| base + i)),
+        );
         face_layer.push(face | ((tile.slab + 1) << 8));
     }
     index_start.push(idx.len() as u32);

@@ -251,7 +251,7 @@ fn encode_all(
     // under the mask) re-encodes samples encoded under another; so does any other knob, and
     // tiles meshed with other parameters.
     let key = format!(
-        "ptm-v{} db{} {:?} zstd{} near{} mesh-v{} depth{} tiles:{}/{}/{:?}/{:?} cull:{} drop:{} sky:{:016x}",
+        "ptm-v{} db{} {:?} zstd{} near{} mesh-v{} depth{} tiles:{}/{}/{:?}/{:?} cull:{} drop:{} sky:{:016x}/{}",
         ptm::FORMAT_VERSION,
         db::TOP_VERSION,
         params.method,
@@ -265,7 +265,8 @@ fn encode_all(
         tiling.mesh_params,
         culling.summary,
         params.drop_levels,
-        sky_digest
+        sky_digest,
+        db::SKY_BEHIND_ALPHA
     );
     let enc_dir = work.join("encode");
     let mut viewpoints = Vec::new();

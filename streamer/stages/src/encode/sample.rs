@@ -163,8 +163,9 @@ pub(super) fn encode_sample(
 }
 
 /// Background: the panorama's own colour where its depth is infinite (so a view at the
-/// sample shows exactly the panorama), elsewhere the track's complete sky (`sky`, the sky
-/// behind this viewpoint's occluders: `prerender::sky`), cut into the tiles of the same grid.
+/// sample shows exactly the panorama; alpha [`db::SKY_SEEN_ALPHA`]), elsewhere the track's
+/// complete sky (the sky behind this viewpoint's occluders: `prerender::sky`; alpha
+/// [`db::SKY_BEHIND_ALPHA`]), cut into the tiles of the same grid.
 /// Without a complete sky (no panorama of the track sees any), only the panorama's own sky,
 /// and tiles without any are left out. Tiles wholly behind occluders hold the complete sky
 /// alone, the same bytes at every viewpoint, stored once.
@@ -181,7 +182,7 @@ fn background(
     let behind = |k: usize| match coding.sky {
         Some(s) => {
             let c = s.as_slice()[k];
-            [c[0], c[1], c[2], 255]
+            [c[0], c[1], c[2], db::SKY_BEHIND_ALPHA]
         }
         None => [0, 0, 0, 0],
     };
@@ -196,7 +197,7 @@ fn background(
                 if d.is_finite() {
                     behind(k)
                 } else {
-                    [c[0], c[1], c[2], 255]
+                    [c[0], c[1], c[2], db::SKY_SEEN_ALPHA]
                 }
             })
             .collect(),
