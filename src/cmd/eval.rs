@@ -67,6 +67,10 @@ pub struct Args {
     /// Track name (default: the first).
     #[arg(long)]
     pub track: Option<String>,
+    /// Evaluate the sampling bound beside (the exact warp of the reference panoramas, from
+    /// the prerender directory when it is at hand): `--bound false` leaves it out.
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    pub bound: bool,
     /// Other databases of the same scene and track (other build options: a lossy build,
     /// another depth bound, another tile size), evaluated beside it as configurations named
     /// after their directory and texture coding, so their points share the plots.
@@ -249,10 +253,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .iter()
         .map(|r| views_of(&r.walk).len() * r.configs.len())
         .sum();
+    // The sampling bound, for the first walkthrough, from its prerender directory.
+    let mut bound = match eval::prerender_dir(&args.db, &runs[0].walk, args.prerender.as_deref()) {
+        Some(dir) if args.bound => {
+            Some((eval::bound::BoundSource::open(&dir)?, Default::default()))
+        }
+        _ => None,
+    };
     let mut renderer = Renderer::new(Gpu::new()?)?;
     let bar = indicatif::ProgressBar::new(total as u64);
     let mut rows: Vec<EvalRow> = Vec::new();
-    for r in &runs {
+    for (ri, r) in runs.iter().enumerate() {
         let views = views_of(&r.walk);
         rows.extend(evaluate(
             &mut renderer,
@@ -265,6 +276,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 size,
                 fov_deg: args.fov,
                 timed_draws: args.timed_draws,
+                bound: bound
+                    .as_mut()
+                    .filter(|_| ri == 0)
+                    .map(|(source, tally)| (source, tally)),
             },
             |_| bar.inc(1),
         )?);
@@ -328,6 +343,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         summary,
         worst,
         rows,
+        classes: bound.map(|(_, tally)| tally),
     };
     prerender::store::write_json(&args.out.join("eval.json"), &rep)?;
     prerender::store::write_atomic(

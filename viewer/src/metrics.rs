@@ -72,6 +72,17 @@ pub fn split_rgba(rgba: &[u8]) -> (Vec<[u8; 3]>, f64) {
     (rgb, fraction)
 }
 
+/// The fraction of an RGBA frame's pixels filled from the farther side (alpha strictly
+/// between 0 and 255: `FILLED_ALPHA` of `render.wgsl`).
+pub fn filled_fraction(rgba: &[u8]) -> f64 {
+    let n = rgba.len() / 4;
+    let filled = rgba
+        .chunks_exact(4)
+        .filter(|p| p[3] > 0 && p[3] < 255)
+        .count();
+    filled as f64 / n.max(1) as f64
+}
+
 /// The resampling floor: a full cube map (e.g. the reference colour) bilinearly resampled
 /// into `camera` with no geometry — what any image-based view at that position can at best
 /// reach against a ray-traced ground truth at this cube-map resolution.

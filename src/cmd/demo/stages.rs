@@ -188,6 +188,7 @@ fn eval_stage(layout: &Layout) -> Stage {
         worst: 3,
         timed_draws: 1,
         track: None,
+        bound: true,
         also: Vec::new(),
     };
     Stage {

@@ -27,6 +27,7 @@ use crate::plan::{plan_frame, DrawBudget, FramePlan};
 use crate::source::Walkthrough;
 use crate::synth::Scene as SynthScene;
 
+pub mod bound;
 pub mod report;
 
 /// The exact renderer of a walkthrough's scene.
@@ -106,23 +107,13 @@ impl Truth {
                 .map(Truth::Scene)
                 .map_err(err)
         };
-        if let Some(dir) = prerender {
-            return from_dir(dir);
-        }
-        let path = Path::new(spec);
-        if PrerenderDir::new(path).report_json().is_file() {
-            return from_dir(path);
-        }
-        let mut beside = path.as_os_str().to_owned();
-        beside.push(".work");
-        let beside = PathBuf::from(beside).join("prerender");
-        let made_it = PrerenderDir::new(&beside)
-            .read_report()
-            .is_ok_and(|r| r.scene == walk.scene);
-        if made_it {
-            return from_dir(&beside);
+        if let Some(dir) = prerender_dir(spec, walk, prerender) {
+            return from_dir(&dir);
         }
         if walk.scene.ends_with(".pov") {
+            let mut beside = Path::new(spec).as_os_str().to_owned();
+            beside.push(".work");
+            let beside = PathBuf::from(beside).join("prerender");
             return Err(HeadlessError::Parameter(format!(
                 "no ground truth for `{}`: it is a POV-Ray import, whose truth POV-Ray renders \
                  with the import's settings from its prerender directory; none was found at {} \
@@ -135,6 +126,27 @@ impl Truth {
             .map(Truth::Scene)
             .map_err(err)
     }
+}
+
+/// The prerender directory of a walkthrough opened from `spec`: `prerender` when given; `spec`
+/// itself when it is one; the build's work directory beside a database
+/// (`DB.work/prerender`) when it made this scene; else none.
+pub fn prerender_dir(spec: &str, walk: &Walkthrough, prerender: Option<&Path>) -> Option<PathBuf> {
+    use prerender::store::PrerenderDir;
+    if let Some(dir) = prerender {
+        return Some(dir.to_path_buf());
+    }
+    let path = Path::new(spec);
+    if PrerenderDir::new(path).report_json().is_file() {
+        return Some(path.to_path_buf());
+    }
+    let mut beside = path.as_os_str().to_owned();
+    beside.push(".work");
+    let beside = PathBuf::from(beside).join("prerender");
+    PrerenderDir::new(&beside)
+        .read_report()
+        .is_ok_and(|r| r.scene == walk.scene)
+        .then_some(beside)
 }
 
 /// Truth pictures on disk, one PNG per camera (and scene and supersampling), so repeated
@@ -391,7 +403,12 @@ pub struct EvalRow {
     pub ssim: f64,
     #[serde(deserialize_with = "nan_from_null")]
     pub hole_fraction: f64,
-    /// Mean GPU frame time (plan + draw + wait, no readback), milliseconds.
+    /// Pixels no reference covered, filled from the farther side (`fs_fill`).
+    #[serde(default)]
+    pub filled_fraction: f64,
+    /// Mean GPU frame time (plan + draw + wait, no readback), milliseconds; NaN (`null`)
+    /// for the sampling bound's rows.
+    #[serde(deserialize_with = "nan_from_null")]
     pub frame_ms: f64,
     /// Database bytes of the configuration's walkthrough.
     pub db_bytes: u64,
@@ -440,6 +457,11 @@ pub struct EvalInput<'a> {
     pub fov_deg: f64,
     /// Draws timed per view and configuration, after one untimed draw.
     pub timed_draws: usize,
+    /// The sampling bound: the exact warp of the reference panoramas, evaluated beside the
+    /// configurations at every view between samples (rows [`bound::EXACT_BLACK`],
+    /// [`bound::EXACT_FILLED`], [`bound::ORACLE`]), and the first configuration's error
+    /// per pixel class against it.
+    pub bound: Option<(&'a mut bound::BoundSource, &'a mut bound::ClassTally)>,
 }
 
 /// Evaluate every configuration at every view: one row per (view, configuration).
@@ -452,10 +474,15 @@ pub fn evaluate(
     renderer.forget_views();
     let walk = input.walk;
     let mut rows = Vec::new();
+    let mut bound_input = input.bound;
     for view in input.views {
         let cam = camera(walk, view, input.size, input.fov_deg);
         let gt = input.cache.get(&walk.scene, &cam, input.truth)?;
-        for cfg in input.configs {
+        let warp = match bound_input.as_mut() {
+            Some((source, _)) => source.warp(walk, view, &cam, &gt)?,
+            None => None,
+        };
+        for (ci, cfg) in input.configs.iter().enumerate() {
             let rgba = draw(renderer, walk, &cam, view.s, cfg.budget)?;
             let reps = input.timed_draws.max(1);
             let t0 = Instant::now();
@@ -466,6 +493,9 @@ pub fn evaluate(
             }
             let frame_ms = t0.elapsed().as_secs_f64() * 1e3 / reps as f64;
             let (rgb, hole_fraction) = split_rgba(&rgba);
+            if let (0, Some(w), Some((_, tally))) = (ci, &warp, bound_input.as_mut()) {
+                tally.add(&rgb, w, &gt);
+            }
             let row = EvalRow {
                 config: cfg.name.clone(),
                 view: *view,
@@ -473,11 +503,37 @@ pub fn evaluate(
                 psnr_db: psnr(&rgb, &gt).min(99.0),
                 ssim: ssim(&rgb, &gt, input.size.0, input.size.1),
                 hole_fraction,
+                filled_fraction: crate::metrics::filled_fraction(&rgba),
                 frame_ms,
                 db_bytes: walk.bytes,
             };
             progress(&row);
             rows.push(row);
+        }
+        if let Some(w) = &warp {
+            for (name, rgb, holes) in [
+                (bound::EXACT_BLACK, &w.black, w.hole_fraction),
+                (bound::EXACT_FILLED, &w.filled, 0.0),
+                (bound::ORACLE, &w.oracle, 0.0),
+            ] {
+                let row = EvalRow {
+                    config: name.into(),
+                    view: *view,
+                    position: cam.position.to_array(),
+                    psnr_db: psnr(rgb, &gt).min(99.0),
+                    ssim: ssim(rgb, &gt, input.size.0, input.size.1),
+                    hole_fraction: holes,
+                    filled_fraction: if name == bound::EXACT_FILLED {
+                        w.hole_fraction
+                    } else {
+                        0.0
+                    },
+                    frame_ms: f64::NAN,
+                    db_bytes: 0,
+                };
+                progress(&row);
+                rows.push(row);
+            }
         }
     }
     Ok(rows)
@@ -567,6 +623,7 @@ pub struct ConfigSummary {
     pub config: String,
     pub at_samples: ErrorStats,
     pub between: ErrorStats,
+    #[serde(deserialize_with = "nan_from_null")]
     pub frame_ms: f64,
     pub db_bytes: u64,
 }
@@ -722,6 +779,7 @@ mod tests {
             psnr_db: p,
             ssim: 1.0,
             hole_fraction: 0.0,
+            filled_fraction: 0.0,
             frame_ms: 2.0,
             db_bytes: 5,
         };

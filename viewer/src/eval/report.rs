@@ -29,17 +29,21 @@ pub struct EvalReport {
     /// The worst views between samples of the first configuration, worst first.
     pub worst: Vec<EvalRow>,
     pub rows: Vec<EvalRow>,
+    /// The first configuration's error per pixel class against the sampling bound (when the
+    /// prerender directory was at hand).
+    #[serde(default)]
+    pub classes: Option<super::bound::ClassTally>,
 }
 
 /// One line per row.
 pub fn csv(rows: &[EvalRow]) -> String {
     let mut s = String::from(
-        "config,s_m,segment,yaw_deg,pitch_deg,at_reference,x,y,z,psnr_db,ssim,hole_fraction,frame_ms,db_bytes\n",
+        "config,s_m,segment,yaw_deg,pitch_deg,at_reference,x,y,z,psnr_db,ssim,hole_fraction,filled_fraction,frame_ms,db_bytes\n",
     );
     for r in rows {
         let _ = writeln!(
             s,
-            "{},{:.4},{},{:.2},{:.2},{},{:.4},{:.4},{:.4},{:.3},{:.4},{:.6},{:.3},{}",
+            "{},{:.4},{},{:.2},{:.2},{},{:.4},{:.4},{:.4},{:.3},{:.4},{:.6},{:.6},{:.3},{}",
             r.config,
             r.view.s,
             r.view.segment,
@@ -52,6 +56,7 @@ pub fn csv(rows: &[EvalRow]) -> String {
             r.psnr_db,
             r.ssim,
             r.hole_fraction,
+            r.filled_fraction,
             r.frame_ms,
             r.db_bytes
         );
@@ -87,12 +92,19 @@ pub fn markdown(r: &EvalReport, figures: &[(String, String)]) -> String {
         r.truth,
         r.adapter
     );
-    m += "| config | views between | PSNR mean (dB) | PSNR worst 5 % (dB) | PSNR worst (dB) | SSIM mean | SSIM worst 5 % | holes mean % | holes worst 5 % | PSNR at samples (dB) | frame ms | DB bytes |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    m += "| config | views between | PSNR mean (dB) | PSNR worst 5 % (dB) | PSNR worst (dB) | SSIM mean | SSIM worst 5 % | holes mean % | holes worst 5 % | filled mean % | PSNR at samples (dB) | frame ms | DB bytes |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     for s in &r.summary {
         let b = &s.between;
+        let filled: Vec<f64> = r
+            .rows
+            .iter()
+            .filter(|x| x.config == s.config && !x.view.at_reference)
+            .map(|x| x.filled_fraction)
+            .collect();
+        let filled = filled.iter().sum::<f64>() / filled.len().max(1) as f64;
         let _ = writeln!(
             m,
-            "| {} | {} | {} | {} | {} | {:.4} | {:.4} | {:.3} | {:.3} | {} | {:.2} | {} |",
+            "| {} | {} | {} | {} | {} | {:.4} | {:.4} | {:.3} | {:.3} | {:.3} | {} | {} | {} |",
             s.config,
             b.views,
             db(b.psnr_mean_db),
@@ -102,10 +114,29 @@ pub fn markdown(r: &EvalReport, figures: &[(String, String)]) -> String {
             b.ssim_worst5,
             b.holes_mean * 100.0,
             b.holes_worst5 * 100.0,
+            filled * 100.0,
             db(s.at_samples.psnr_mean_db),
-            s.frame_ms,
+            if s.frame_ms.is_finite() {
+                format!("{:.2}", s.frame_ms)
+            } else {
+                "–".into()
+            },
             s.db_bytes
         );
+    }
+    if r.summary
+        .iter()
+        .any(|s| s.config == super::bound::EXACT_FILLED)
+    {
+        m += "\nThe sampling bound (rows `exact warp`): the same two reference panoramas warped \
+              exactly into each view between samples with their exact depth, on the CPU \
+              (`bound::exact_warp`), holes left black or filled from the farther side; the \
+              oracle takes per pixel the better of the two references (unreachable). Where \
+              railview is near the filled bound, only more or better samples help.\n";
+    }
+    if let Some(c) = &r.classes {
+        m += "\n## Where the error is (first configuration, by the exact warp's pixel classes)\n\n";
+        m += &c.markdown();
     }
     if !r.worst.is_empty() {
         m += "\n## Worst views between samples\n\n| rank | config | s (m) | position (m) | yaw (°) | pitch (°) | PSNR (dB) | SSIM | holes % | picture |\n|---|---|---|---|---|---|---|---|---|---|\n";
@@ -146,6 +177,7 @@ pub fn figures(r: &EvalReport) -> Vec<(String, String, Figure)> {
             .summary
             .iter()
             .enumerate()
+            .filter(|(_, s)| x(s).is_finite())
             .flat_map(|(i, s)| {
                 [
                     Series::points(s.config.clone(), vec![(x(s), s.between.psnr_mean_db)]).color(i),

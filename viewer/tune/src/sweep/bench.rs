@@ -42,6 +42,13 @@ pub(super) struct EvalRecord {
     pub error: ErrorSummary,
     pub frame_ms: f64,
     pub resolution_ratio: f64,
+    /// The sampling bound's mean PSNR between samples (the exact warp of this database's
+    /// reference panoramas, holes black and filled), where its prerender directory was at
+    /// hand.
+    #[serde(default)]
+    pub bound_black_db: Option<f64>,
+    #[serde(default)]
+    pub bound_filled_db: Option<f64>,
 }
 
 /// The instruments, made once.
@@ -111,7 +118,13 @@ impl Bench {
 
     /// Evaluate the database in `dir` on the sweep's views (or read the evaluation made
     /// before).
-    pub fn evaluate(&mut self, dir: &Path, progress: &Reporter) -> Result<EvalRecord> {
+    /// The sampling bound comes from the configuration's own panoramas (`pre_dir`).
+    pub fn evaluate(
+        &mut self,
+        dir: &Path,
+        pre_dir: &Path,
+        progress: &Reporter,
+    ) -> Result<EvalRecord> {
         let db = dir.join("db");
         let path = dir.join("eval.json");
         if let Ok(r) = prerender::store::read_json::<EvalRecord>(&path) {
@@ -129,6 +142,10 @@ impl Bench {
             budget: viewer::DrawBudget::default(),
         }];
         let bar = progress.bar(views.len() as u64, "evaluating", BarKind::Steps);
+        let mut bound = match eval::bound::BoundSource::open(pre_dir) {
+            Ok(source) => Some((source, eval::bound::ClassTally::default())),
+            Err(_) => None,
+        };
         let rows = eval::evaluate(
             &mut self.renderer,
             EvalInput {
@@ -140,12 +157,18 @@ impl Bench {
                 size: self.size,
                 fov_deg: self.fov,
                 timed_draws: 2,
+                bound: bound.as_mut().map(|(source, tally)| (source, tally)),
             },
             |_| bar.inc(1),
         )?;
         bar.finish();
-        let s = eval::summarize(&rows);
-        let s = s
+        let all = eval::summarize(&rows);
+        let bound_mean = |name: &str| {
+            all.iter()
+                .find(|c| c.config == name)
+                .map(|c| c.between.psnr_mean_db)
+        };
+        let s = all
             .first()
             .ok_or_else(|| Error::Outcome("no views evaluated".into()))?;
         let face = walk.views.first().map_or(self.base_face, |v| v.face_size);
@@ -164,6 +187,8 @@ impl Bench {
             },
             frame_ms: s.frame_ms,
             resolution_ratio: eval::resolution_ratio(face, self.fov, self.size.0),
+            bound_black_db: bound_mean(eval::bound::EXACT_BLACK),
+            bound_filled_db: bound_mean(eval::bound::EXACT_FILLED),
         };
         prerender::store::write_json(&path, &r)?;
         Ok(r)

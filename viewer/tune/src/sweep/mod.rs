@@ -239,7 +239,7 @@ impl Sweep {
             )?);
         }
         let bench = self.bench.as_mut().expect("made above");
-        bench.evaluate(dir, &self.progress)
+        bench.evaluate(dir, pre_dir, &self.progress)
     }
 
     /// Bytes the standard walk streams (or the walk made before).
