@@ -145,8 +145,10 @@ impl Scene {
         ]
     }
 
-    /// Background cube map (sky where nothing is hit, alpha 255 there) and one dense layer per
-    /// slab (colour with mask, radial depth) at viewpoint `pos`.
+    /// Background cube map (the complete sky, as databases hold it: alpha
+    /// [`db::SKY_SEEN_ALPHA`] where nothing is hit, [`db::SKY_BEHIND_ALPHA`] behind the
+    /// surfaces) and one dense layer per slab (colour with mask, radial depth) at viewpoint
+    /// `pos`.
     pub fn cube_layers(
         &self,
         pos: DVec3,
@@ -155,9 +157,10 @@ impl Scene {
     ) -> (CubeMap<[u8; 4]>, Vec<SlabLayer>) {
         let background = CubeMap::from_fn(face_size, |f, x, y| {
             let d = pixel_dir(f, x, y, face_size);
+            let [r, g, b] = self.sky;
             match self.hit(pos, d, 0.0) {
-                Some(_) => [0, 0, 0, 0],
-                None => [self.sky[0], self.sky[1], self.sky[2], 255],
+                Some(_) => [r, g, b, db::SKY_BEHIND_ALPHA],
+                None => [r, g, b, db::SKY_SEEN_ALPHA],
             }
         });
         let layers = slabs
@@ -253,7 +256,10 @@ mod tests {
                     d.is_finite() && s.contains(d)
                 })
                 .collect();
-            assert!(b[3] == 255 || first.iter().any(|&x| x), "texel {i}");
+            assert!(
+                b[3] == db::SKY_SEEN_ALPHA || first.iter().any(|&x| x),
+                "texel {i}"
+            );
         }
     }
 }

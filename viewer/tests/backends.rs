@@ -15,14 +15,15 @@
 //! deliberate change of the picture, `RAILVIEW_UPDATE_GOLDEN=1` rewrites them from the
 //! `vulkan` configuration (and the test then still compares every configuration with them).
 //!
-//! Why each was last rewritten (2026-12-02): pixels no view covers are filled from the
-//! farther side (`fs_fill`), and a background texel counts as sky a view sees only above
-//! `SEEN_SKY`; before, such pixels stayed holes (`street_one_view`: 172 holes, now filled)
-//! or took the background's partly covered texels along sky edges (`street_sample`,
-//! `street_near_sample`, `street_between`, `street_half_res`: about 90 pixels each, now
-//! filled). `street_overlays` draws the hole overlay, which the fill leaves alone: those
-//! sky-edge pixels now show as holes (magenta). Stretched triangles count farther
-//! (`refview::stretch`), which moves a few silhouette pixels.
+//! Why each was last rewritten (2026-12-02), against the goldens before: pixels no view
+//! covers are filled from the farther side (`fs_fill`) and the street's background holds
+//! the complete sky (alpha 255 where a reference sees it, 254 behind its surfaces).
+//! `street_one_view`: its 172 holes (disocclusions of one view) are filled, 214 pixels
+//! changed; `street_between`, `street_near_sample`, `street_half_res`, `street_sample`:
+//! 42, 18, 38 and 2 pixels, cracks along silhouettes and sky edges now filled instead of
+//! left black or taking partly covered sky texels; `street_overlays` (the hole overlay,
+//! which the fill leaves alone): 30 pixels, sky edges now shown as holes. Stretched
+//! triangles counting farther (`refview::stretch`) move a few silhouette pixels besides.
 //!
 //! A backend that is missing fails the test with the message of what to install (CI
 //! installs Mesa's Vulkan driver; GL comes with Mesa's EGL); `RAILVIEW_SKIP_GPU_TESTS=1`

@@ -623,13 +623,14 @@ fn texture_face_size(view: &RefView) -> u32 {
         .map_or(view.face_size, |l| l.face_size())
 }
 
-/// Whether `view`'s background layer has sky (alpha > 0) at every texel of its finest level;
-/// then every coarser level has too (alpha averages of four), and so has any filtered lookup.
+/// Whether `view`'s background layer has sky its reference sees (alpha 255, not the sky
+/// behind its occluders) at every texel of its finest level; then every coarser level has
+/// too (alpha averages of four), and so has any filtered lookup.
 fn sky_whole(view: &RefView) -> bool {
     view.layers
         .first()
         .and_then(|l| l.levels.first())
-        .is_some_and(|m| m.as_slice().iter().all(|p| p[3] > 0))
+        .is_some_and(|m| m.as_slice().iter().all(|p| p[3] == db::SKY_SEEN_ALPHA))
 }
 
 /// A view's per-tile textures ([`Renderer::tile_textures`]) and their bytes.
