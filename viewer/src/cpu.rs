@@ -264,9 +264,9 @@ pub const SKY_DISTANCE: f32 = 60000.0;
 /// A background texel's alpha above which its reference sees sky itself (as `SEEN_SKY` in
 /// `cube.wgsl`; below: the sky behind its occluders, for the fill alone).
 pub const SEEN_SKY: f32 = 0.998;
-/// How far the fill seeks a covered pixel in each direction (as `FILL_REACH` in
-/// `render.wgsl`).
-pub const FILL_REACH: usize = 48;
+/// The offsets at which the fill probes each direction for a covered pixel (as
+/// `FILL_STEPS` in `render.wgsl`).
+pub const FILL_STEPS: [i64; 12] = [1, 2, 3, 4, 6, 8, 11, 16, 22, 30, 40, 48];
 /// Output alpha of a filled pixel (as `FILLED_ALPHA` in `render.wgsl`).
 pub const FILLED_ALPHA: u8 = 128;
 /// Depth preference of the blend (as `SHARPNESS` in `composite.wgsl`).
@@ -384,7 +384,7 @@ fn complete_sky(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Vec
 }
 
 /// Fill the pixels no view covers (alpha 0) from the farther side, as `fs_fill`: the
-/// nearest covered pixel to the left, right, above and below (up to [`FILL_REACH`]); of
+/// first covered pixel probed to the left, right, above and below (at [`FILL_STEPS`]); of
 /// those the farthest (`distance`, 0 = none; sky at [`SKY_DISTANCE`]) gives its colour, or,
 /// where it is sky or none is found, `sky` in the pixel's own direction where there is
 /// any. Filled pixels get alpha [`FILLED_ALPHA`].
@@ -399,7 +399,7 @@ pub fn fill(frame: &mut Frame, distance: &[f32], sky: &[Option<[f32; 3]>]) {
             }
             let mut best: Option<(f32, i64)> = None;
             for (dx, dy) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
-                for k in 1..=FILL_REACH as i64 {
+                for k in FILL_STEPS {
                     let (qx, qy) = (x + dx * k, y + dy * k);
                     if qx < 0 || qy < 0 || qx >= w || qy >= h {
                         break;

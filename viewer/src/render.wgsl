@@ -222,12 +222,16 @@ fn fs_mesh_first(in: MeshOut) -> @location(0) vec4<f32> {
 }
 
 // The sky of a one-view frame where its meshes left the pixel empty (depth test, no depth
-// write, no `discard`, so the rasteriser skips covered blocks before shading); a hole writes
-// the cleared alpha 0.
+// test, so the rasteriser skips covered blocks before shading), writing SKY_DEPTH
+// (`vs_sky_depth`) where there is sky so that the fill's depth test passes holes alone; a
+// hole keeps alpha 0 and depth 0.
 @fragment
 fn fs_sky_first(in: FullOut) -> @location(0) vec4<f32> {
     let c = background_color(in.pos.xy);
-    return vec4<f32>(c.rgb, select(0.0, 1.0, c.a > 0.0));
+    if c.a == 0.0 {
+        discard;
+    }
+    return vec4<f32>(c.rgb, 1.0);
 }
 
 // The first view's distance along the ray of the second view's fragment `in`, whose own
@@ -346,42 +350,58 @@ fn fs_mesh_over_half(in: MeshOut) -> @location(0) vec4<f32> {
 
 @fragment
 fn fs_background_over_half(in: FullOut) -> @location(0) vec4<f32> {
-    return blend_half(in.pos.xy, background_color(in.pos.xy));
+    // At SKY_DEPTH (`vs_sky_depth`) where anything is drawn, for the fill's depth test; a
+    // hole keeps depth 0.
+    let c = blend_half(in.pos.xy, background_color(in.pos.xy));
+    if c.a == 0.0 {
+        discard;
+    }
+    return c;
 }
 
 // The fill pass, last in a fused frame: a pixel that neither view covers (no mesh, and no
 // sky that a reference sees there: the output's alpha is 0) takes the colour of the farther
-// side. From the pixel, the nearest covered pixel is sought to the left, right, above and
-// below, up to FILL_REACH pixels; of those found the farthest wins (smallest reversed-Z
-// depth; sky, at SKY_DEPTH or the cleared 0 of a one-view frame's sky, is the farthest).
+// side. From the pixel, a covered pixel (output alpha above 0) is sought to the left,
+// right, above and below, at FILL_STEPS up to 48 pixels; of those found the farthest wins
+// (smallest reversed-Z depth; the sky, at SKY_DEPTH, or at the cleared 0 where the second
+// part of a two-view sky wrote no depth, is the farthest).
 // Where that is sky, or nothing is found, the pixel shows the complete sky of the heavier
 // view (group 0) in its own direction, the sky behind the references' occluders (where the
 // background has none there, the sky pixel found); else the colour of the pixel found. Filled pixels get alpha FILLED_ALPHA (eval counts them apart
 // from covered ones); a pixel stays a hole (alpha 0) only where nothing is found and there
 // is no sky. Group 1: `half_second` holds a copy of the output, `first_depth` the final
-// depth of the frame (the layout of the second view's group). Covered pixels return at
-// once; the search loops run only in blocks that hold a hole.
-const FILL_REACH: i32 = 48;
+// depth of the frame (a copy of it where the device copies depth; the layout of the second
+// view's group). Where it does, the frame's depth is attached read-only and tested equal to
+// the cleared 0: covered pixels (all but the few of a two-view sky's second part) are
+// skipped before shading, as software rasterisers skip whole blocks; elsewhere (GL) every
+// pixel runs the shader and a covered one leaves at once.
+// The offsets probed in each direction (every pixel near, then wider steps: the first
+// covered pixel may lie up to a third past the nearest one).
+const FILL_STEP_COUNT: i32 = 12;
+const FILL_STEPS = array<i32, 12>(1, 2, 3, 4, 6, 8, 11, 16, 22, 30, 40, 48);
 const FILLED_ALPHA: f32 = 128.0 / 255.0;
 
 @fragment
 fn fs_fill(in: FullOut) -> @location(0) vec4<f32> {
     let p = vec2<i32>(in.pos.xy);
-    if textureLoad(half_second, p, 0).a > 0.0 {
-        discard;
-    }
-    let size = vec2<i32>(textureDimensions(half_second));
-    var steps = array<vec2<i32>, 4>(vec2<i32>(1, 0), vec2<i32>(-1, 0), vec2<i32>(0, 1), vec2<i32>(0, -1));
-    var open = vec4<bool>(true, true, true, true);
+    // Covered pixels start with every direction closed, so the search loop ends at once for
+    // a block of them (software rasterisers run a loop while any lane of the block runs it,
+    // discarded lanes included); they discard after it.
+    let covered = textureLoad(half_second, p, 0).a > 0.0;
+    let size = vec2<i32>(textureDimensions(first_depth));
+    var dirs = array<vec2<i32>, 4>(vec2<i32>(1, 0), vec2<i32>(-1, 0), vec2<i32>(0, 1), vec2<i32>(0, -1));
+    var reach = FILL_STEPS;
+    var open = vec4<bool>(!covered);
     var best_z = 2.0;
     var best_p = vec2<i32>(-1, -1);
-    for (var k = 1; k <= FILL_REACH; k++) {
+    for (var k = 0; k < FILL_STEP_COUNT; k++) {
         for (var d = 0; d < 4; d++) {
             if open[d] {
-                let q = p + steps[d] * k;
+                let q = p + dirs[d] * reach[k];
                 if any(q < vec2<i32>(0)) || any(q >= size) {
                     open[d] = false;
                 } else if textureLoad(half_second, q, 0).a > 0.0 {
+                    // Covered; depth 0 there is the other view's sky (no depth written).
                     open[d] = false;
                     let z = textureLoad(first_depth, q, 0).x;
                     if z < best_z {
@@ -394,6 +414,9 @@ fn fs_fill(in: FullOut) -> @location(0) vec4<f32> {
         if !any(open) {
             break;
         }
+    }
+    if covered {
+        discard;
     }
     let sky = sample_face_dir(in.pos.xy);
     let has_sky = sky.a > 0.0;

@@ -69,11 +69,37 @@ impl Renderer {
             copy(&targets.fill_color),
             targets.output.size(),
         );
+        let tested = self.gpu.caps.depth_copy;
+        if tested {
+            // The fill reads a copy of the depth it is tested against.
+            enc.copy_texture_to_texture(
+                copy(&targets.depth),
+                copy(&targets.depth_copy),
+                targets.depth.size(),
+            );
+        }
+        let read_only = wgpu::RenderPassDepthStencilAttachment {
+            view: &targets.depth_view,
+            depth_ops: None,
+            stencil_ops: None,
+        };
+        let mut rp = begin(
+            enc,
+            "fill",
+            &[color(&targets.output_view, false)],
+            tested.then_some(read_only),
+        );
         // Group 0: the heavier view (its uniforms, written for its pass, and its layers).
-        let mut rp = begin(enc, "fill", &[color(&targets.output_view, false)], None);
         rp.set_bind_group(0, &heavy.bind_group, &[]);
         rp.set_bind_group(1, &targets.fill_group, &[]);
-        self.draw_full(&mut rp, Pipe::Fill);
+        self.draw_full(
+            &mut rp,
+            if tested {
+                Pipe::Fill
+            } else {
+                Pipe::FillUntested
+            },
+        );
     }
 
     /// View pass `slot` of a fused frame: the first view writes the output and the depth;

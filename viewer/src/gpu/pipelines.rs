@@ -13,7 +13,7 @@ use super::{
     VIEW_FORMAT,
 };
 
-use wgpu::CompareFunction::{Always, Greater, GreaterEqual};
+use wgpu::CompareFunction::{Always, Equal, Greater, GreaterEqual};
 
 /// The renderer's render pipelines, each built from its row of [`PIPELINES`] and fetched
 /// with [`Renderer::pipeline`].
@@ -70,9 +70,13 @@ pub(super) enum Pipe {
     /// pass) written into the attached depth, every pixel; the output untouched
     /// (`fs_copy_depth`).
     CopyDepth,
-    /// Fused frames, last: pixels no view covers filled from the farther side
-    /// (`fs_fill`), reading a copy of the output and the final depth (group 1).
+    /// Last in every frame: pixels no view covers filled from the farther side (`fs_fill`),
+    /// reading a copy of the output and of the final depth (group 1), the depth attached
+    /// read-only and tested equal to the cleared 0 (only holes are shaded).
     Fill,
+    /// The same on devices without depth copies: no depth attachment, the final depth
+    /// itself read.
+    FillUntested,
 }
 
 /// The shader module a pipeline's entry points are in.
@@ -170,7 +174,7 @@ const fn mesh(pipe: Pipe, label: &'static str, fs: &'static str, targets: Target
 }
 
 /// Every render pipeline, in [`Pipe`] order.
-const PIPELINES: [PipelineRow; 21] = [
+const PIPELINES: [PipelineRow; 22] = [
     PipelineRow {
         targets: Targets::ViewAndIds,
         ..full(
@@ -222,12 +226,15 @@ const PIPELINES: [PipelineRow; 21] = [
         "fs_mesh_first",
         Targets::Output,
     ),
-    full(
-        Pipe::FirstSky,
-        "one-view sky (fused)",
-        "vs_full",
-        "fs_sky_first",
-    ),
+    PipelineRow {
+        depth: Some((Greater, true)),
+        ..full(
+            Pipe::FirstSky,
+            "one-view sky (fused)",
+            "vs_sky_depth",
+            "fs_sky_first",
+        )
+    },
     PipelineRow {
         layout: Layout::Second,
         depth_scale: Some(SECOND_VIEW_DEPTH_SCALE),
@@ -288,10 +295,11 @@ const PIPELINES: [PipelineRow; 21] = [
     },
     PipelineRow {
         layout: Layout::Second,
+        depth: Some((Greater, true)),
         ..full(
             Pipe::BackgroundOverHalf,
             "background over the half-resolution second view",
-            "vs_full",
+            "vs_sky_depth",
             "fs_background_over_half",
         )
     },
@@ -329,10 +337,15 @@ const PIPELINES: [PipelineRow; 21] = [
     },
     PipelineRow {
         layout: Layout::Second,
+        depth: Some((Equal, false)),
+        ..full(Pipe::Fill, "fill what no view covers", "vs_full", "fs_fill")
+    },
+    PipelineRow {
+        layout: Layout::Second,
         depth: None,
         ..full(
-            Pipe::Fill,
-            "fill what no view covers (fused)",
+            Pipe::FillUntested,
+            "fill what no view covers (no depth copies)",
             "vs_full",
             "fs_fill",
         )

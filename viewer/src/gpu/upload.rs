@@ -483,8 +483,15 @@ impl Renderer {
             false,
         );
         let depth_view = depth.create_view(&Default::default());
+        // The fill reads a copy of the final depth where the device copies depth, else the
+        // depth itself (not attached then).
+        let fill_depth = if self.gpu.caps.depth_copy {
+            &depth_copy_view
+        } else {
+            &depth_view
+        };
         let fill_group =
-            self.second_group(&fill_color.create_view(&Default::default()), &depth_view);
+            self.second_group(&fill_color.create_view(&Default::default()), fill_depth);
         // The fused second view reads the first view's depth, not binding 1.
         let second_group = self.second_group(&half_view, &depth_copy_view);
         Targets {
