@@ -32,17 +32,27 @@ pub enum SkySource {
     None,
 }
 
+/// A track's complete sky and where it came from.
+pub struct TrackSky {
+    /// `None` when no panorama sees any sky.
+    pub sky: Option<CubeMap<[u8; 3]>>,
+    pub source: SkySource,
+}
+
 /// The complete sky of a prerender directory: its `sky.png` when the renderer wrote one (at
 /// the report's face size), else assembled from its samples' panoramas.
 pub fn load_or_assemble(
     dir: &PrerenderDir,
     report: &PrerenderReport,
-) -> Result<(Option<CubeMap<[u8; 3]>>, SkySource), StoreError> {
+) -> Result<TrackSky, StoreError> {
     let path = dir.sky_png();
     if path.is_file() {
         let sky = store::read_rgb_png(&path)?;
         if sky.face_size() == report.face_size {
-            return Ok((Some(sky), SkySource::Rendered));
+            return Ok(TrackSky {
+                sky: Some(sky),
+                source: SkySource::Rendered,
+            });
         }
     }
     let mut acc = SkyAccumulator::new(report.face_size);
@@ -56,8 +66,14 @@ pub fn load_or_assemble(
             })?;
     }
     Ok(match acc.finish() {
-        Some(sky) => (Some(sky), SkySource::Assembled),
-        None => (None, SkySource::None),
+        Some(sky) => TrackSky {
+            sky: Some(sky),
+            source: SkySource::Assembled,
+        },
+        None => TrackSky {
+            sky: None,
+            source: SkySource::None,
+        },
     })
 }
 

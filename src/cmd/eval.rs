@@ -288,44 +288,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     let summary = eval::summarize(&rows);
     let first = &runs[0];
-    let worst: Vec<EvalRow> = eval::worst_views(&rows, &first.configs[0].name, args.worst)
-        .into_iter()
-        .cloned()
-        .collect();
-    // Pictures of the worst views, beside their truth and the difference; and of the worst
-    // view at a reference sample (what limits the floor).
-    renderer.forget_views();
-    let at_sample = rows
-        .iter()
-        .filter(|r| r.config == first.configs[0].name && r.view.at_reference)
-        .min_by(|a, b| a.psnr_db.total_cmp(&b.psnr_db))
-        .cloned();
-    let named: Vec<(String, &EvalRow)> = worst
-        .iter()
-        .enumerate()
-        .map(|(i, w)| (format!("worst-{}.png", i + 1), w))
-        .chain(
-            at_sample
-                .as_ref()
-                .map(|w| ("worst-at-sample.png".to_string(), w)),
-        )
-        .collect();
-    for (file, w) in named {
-        let cam = eval::camera(&first.walk, &w.view, size, args.fov);
-        let gt = cache.get(&first.walk.scene, &cam, &mut truth)?;
-        let rgba = eval::draw(
-            &mut renderer,
-            &first.walk,
-            &cam,
-            w.view.s,
-            first.configs[0].budget,
-        )?;
-        let (rgb, _) = viewer::metrics::split_rgba(&rgba);
-        let img = eval::triptych(&rgb, &gt, size.0, size.1);
-        let mut bytes = std::io::Cursor::new(Vec::new());
-        img.write_to(&mut bytes, image::ImageFormat::Png)?;
-        prerender::store::write_atomic(&args.out.join(file), bytes.get_ref())?;
-    }
+    let worst = eval::pictures::worst_pictures(
+        eval::pictures::PictureInput {
+            renderer: &mut renderer,
+            walk: &first.walk,
+            config: &first.configs[0].name,
+            budget: first.configs[0].budget,
+            size,
+            fov_deg: args.fov,
+            cache: &cache,
+            truth: &mut truth,
+        },
+        &rows,
+        args.worst,
+        &args.out,
+    )?;
     let rep = EvalReport {
         db: args.db.clone(),
         scene: first.walk.scene.clone(),

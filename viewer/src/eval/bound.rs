@@ -206,3 +206,40 @@ impl ClassTally {
         m
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn class_tally_sums_errors_per_class() {
+        let bound = BoundViews {
+            black: vec![[0; 3]; 3],
+            filled: vec![[10, 10, 10], [0, 0, 0], [5, 5, 5]],
+            oracle: vec![[0; 3]; 3],
+            class: vec![PixelClass::Hole, PixelClass::Interior, PixelClass::Interior],
+            hole_fraction: 1.0 / 3.0,
+        };
+        let truth = vec![[0u8; 3]; 3];
+        let railview = vec![[20, 20, 20], [1, 1, 1], [0, 0, 0]];
+        let mut t = ClassTally::default();
+        t.add(&railview, &bound, &truth);
+        let hole = t.rows.iter().find(|r| r.class == "hole (filled)").unwrap();
+        assert_eq!(
+            (hole.pixels, hole.railview_sse, hole.bound_sse),
+            (1, 1200.0, 300.0)
+        );
+        let interior = t
+            .rows
+            .iter()
+            .find(|r| r.class == "smooth interior")
+            .unwrap();
+        assert_eq!(interior.pixels, 2);
+        assert_eq!((interior.railview_sse, interior.bound_sse), (3.0, 75.0));
+        let md = t.markdown();
+        assert!(
+            md.contains("| hole (filled) | 33.33 | 99.8 | 4.00 |"),
+            "{md}"
+        );
+    }
+}

@@ -28,6 +28,7 @@ use crate::source::Walkthrough;
 use crate::synth::Scene as SynthScene;
 
 pub mod bound;
+pub mod pictures;
 pub mod report;
 
 /// The exact renderer of a walkthrough's scene.

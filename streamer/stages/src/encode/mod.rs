@@ -235,8 +235,10 @@ fn encode_all(
         tiling.mesh_params.baseline_m,
         params.depth_error_px,
     );
-    let (sky, sky_source) =
-        prerender::sky::load_or_assemble(dir, pre).context("the track's complete sky")?;
+    let prerender::sky::TrackSky {
+        sky,
+        source: sky_source,
+    } = prerender::sky::load_or_assemble(dir, pre).context("the track's complete sky")?;
     report.sky = format!("{sky_source:?}").to_lowercase();
     let sky_digest = sky.as_ref().map_or(0, |s| {
         fnv64(&s.as_slice().iter().flatten().copied().collect::<Vec<u8>>())
