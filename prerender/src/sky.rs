@@ -17,8 +17,10 @@
 //!   filling the gaps of finer ones), faces with no sky at all by the mean of the rest.
 //!   Where a scene has no sky in any panorama (an interior) there is no sky to assemble.
 
+use glam::DVec3;
 use tracks::{CubeMap, Face};
 
+use crate::shade::{srgb8_to_linear, to_srgb8};
 use crate::store::{self, PrerenderDir, PrerenderReport, StoreError};
 
 /// Where a track's sky came from.
@@ -82,25 +84,6 @@ pub struct SkyAccumulator {
     sum: CubeMap<[f32; 4]>,
 }
 
-fn to_linear(v: u8) -> f32 {
-    let c = v as f32 / 255.0;
-    if c <= 0.040_45 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
-
-fn to_srgb(l: f32) -> u8 {
-    let l = if l.is_nan() { 0.0 } else { l.clamp(0.0, 1.0) };
-    let c = if l <= 0.003_130_8 {
-        l * 12.92
-    } else {
-        1.055 * l.powf(1.0 / 2.4) - 0.055
-    };
-    (c * 255.0).round() as u8
-}
-
 impl SkyAccumulator {
     pub fn new(face_size: u32) -> Self {
         SkyAccumulator {
@@ -137,7 +120,7 @@ impl SkyAccumulator {
                     let c = color.get(f, x, y);
                     let s = self.sum.get_mut(f, x, y);
                     for k in 0..3 {
-                        s[k] += to_linear(c[k]);
+                        s[k] += srgb8_to_linear(c[k]);
                     }
                     s[3] += 1.0;
                 }
@@ -185,7 +168,7 @@ impl SkyAccumulator {
                 .collect();
             let filled = push_pull(&avg, n as usize, mean);
             for (o, c) in out.face_mut(f).iter_mut().zip(filled) {
-                *o = [to_srgb(c[0]), to_srgb(c[1]), to_srgb(c[2])];
+                *o = to_srgb8(DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64));
             }
         }
         Some(out)

@@ -50,6 +50,24 @@ fn pixel_on_face(f: Face, d: Vec3, n: f32) -> (f64, f64) {
     (((uu + 1.0) * 0.5 * n) as f64, ((1.0 - vv) * 0.5 * n) as f64)
 }
 
+/// A view's background layer `bg` along the ray through the centre of pixel `(x, y)` of a
+/// `width × height` frame with the pass uniforms `u`, at the frame's level of detail (as
+/// `background_of` in `render.wgsl`).
+fn background_at(
+    u: &crate::plan::ViewUniforms,
+    bg: &Layer,
+    (x, y): (u32, u32),
+    (width, height): (u32, u32),
+) -> [f32; 4] {
+    let v3 = |a: [f32; 4]| Vec3::new(a[0], a[1], a[2]);
+    let ndc_x = (x as f32 + 0.5) / width as f32 * 2.0 - 1.0;
+    let ndc_y = 1.0 - (y as f32 + 0.5) / height as f32 * 2.0;
+    let d = v3(u.ray_forward) + ndc_x * v3(u.ray_right) + ndc_y * v3(u.ray_up);
+    let f = face_of(d);
+    let (px, py) = pixel_on_face(f, d, u.origin_rel[3]);
+    bg.sample(u.params[0], f, px, py)
+}
+
 /// One view pass: colour (linear RGB) with the distance to the camera in alpha (0 = hole),
 /// and the drawn tile per pixel (index + 1, 0 = none).
 pub struct PassImage {
@@ -157,12 +175,7 @@ pub fn view_pass(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Pa
     if let Some(bg) = view.layers.first() {
         for y in 0..h {
             for x in 0..w {
-                let ndc_x = (x as f32 + 0.5) / width as f32 * 2.0 - 1.0;
-                let ndc_y = 1.0 - (y as f32 + 0.5) / height as f32 * 2.0;
-                let d = v3(u.ray_forward) + ndc_x * v3(u.ray_right) + ndc_y * v3(u.ray_up);
-                let f = face_of(d);
-                let (px, py) = pixel_on_face(f, d, n);
-                let c = bg.sample(lod, f, px, py);
+                let c = background_at(u, bg, (x as u32, y as u32), (width, height));
                 if c[3] > SEEN_SKY && depth[y * w + x] == 0.0 {
                     color[y * w + x] = [c[0], c[1], c[2], SKY_DISTANCE];
                 }
@@ -363,20 +376,13 @@ pub fn render(plan: &FramePlan, views: &[RefView]) -> Frame {
 /// The background of `view` in the direction of every pixel of `pass`'s camera (linear
 /// RGB), where it has any sky, seen or behind its occluders.
 fn complete_sky(pass: &ViewPass, view: &RefView, width: u32, height: u32) -> Vec<Option<[f32; 3]>> {
-    let u = &pass.uniforms;
-    let v3 = |a: [f32; 4]| Vec3::new(a[0], a[1], a[2]);
     let Some(bg) = view.layers.first() else {
         return vec![None; (width * height) as usize];
     };
     let mut out = Vec::with_capacity((width * height) as usize);
     for y in 0..height {
         for x in 0..width {
-            let ndc_x = (x as f32 + 0.5) / width as f32 * 2.0 - 1.0;
-            let ndc_y = 1.0 - (y as f32 + 0.5) / height as f32 * 2.0;
-            let d = v3(u.ray_forward) + ndc_x * v3(u.ray_right) + ndc_y * v3(u.ray_up);
-            let f = face_of(d);
-            let (px, py) = pixel_on_face(f, d, u.origin_rel[3]);
-            let c = bg.sample(u.params[0], f, px, py);
+            let c = background_at(&pass.uniforms, bg, (x, y), (width, height));
             out.push((c[3] > 0.0).then_some([c[0], c[1], c[2]]));
         }
     }
@@ -451,16 +457,9 @@ pub fn render_panorama(plan: &FramePlan, views: &[RefView]) -> Frame {
             rgba,
         };
     };
-    let u = &pass.uniforms;
-    let v3 = |a: [f32; 4]| Vec3::new(a[0], a[1], a[2]);
     for y in 0..h {
         for x in 0..w {
-            let ndc_x = (x as f32 + 0.5) / w as f32 * 2.0 - 1.0;
-            let ndc_y = 1.0 - (y as f32 + 0.5) / h as f32 * 2.0;
-            let d = v3(u.ray_forward) + ndc_x * v3(u.ray_right) + ndc_y * v3(u.ray_up);
-            let f = face_of(d);
-            let (px, py) = pixel_on_face(f, d, u.origin_rel[3]);
-            let c = layer.sample(u.params[0], f, px, py);
+            let c = background_at(&pass.uniforms, layer, (x, y), (w, h));
             let i = ((y * w + x) * 4) as usize;
             rgba[i..i + 4].copy_from_slice(&[
                 linear_to_srgb(c[0]),

@@ -58,23 +58,17 @@ impl Renderer {
         targets: &Targets,
         heavy: &GpuView,
     ) {
-        let copy = |texture| wgpu::TexelCopyTextureInfo {
-            texture,
-            mip_level: 0,
-            origin: wgpu::Origin3d::ZERO,
-            aspect: wgpu::TextureAspect::All,
-        };
         enc.copy_texture_to_texture(
-            copy(&targets.output),
-            copy(&targets.fill_color),
+            targets.output.as_image_copy(),
+            targets.fill_color.as_image_copy(),
             targets.output.size(),
         );
         let tested = self.gpu.caps.depth_copy;
         if tested {
             // The fill reads a copy of the depth it is tested against.
             enc.copy_texture_to_texture(
-                copy(&targets.depth),
-                copy(&targets.depth_copy),
+                targets.depth.as_image_copy(),
+                targets.depth_copy.as_image_copy(),
                 targets.depth.size(),
             );
         }
@@ -123,15 +117,9 @@ impl Renderer {
         if slot == 1 && copies {
             // The second view's weights need the first view's depth where it is itself
             // depth-tested against (and writes) the same attachment: a copy.
-            let copy = |texture| wgpu::TexelCopyTextureInfo {
-                texture,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            };
             enc.copy_texture_to_texture(
-                copy(&targets.depth),
-                copy(&targets.depth_copy),
+                targets.depth.as_image_copy(),
+                targets.depth_copy.as_image_copy(),
                 targets.depth.size(),
             );
         }
