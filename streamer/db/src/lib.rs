@@ -1,6 +1,6 @@
 //! db: the walkthrough database — a directory of immutable content-addressed objects plus a
 //! manifest (types in [`tracks::manifest`]) — and everything that reads or writes it; no
-//! network, no async. Stored split ([`split`], format 6): a small top manifest, one binary
+//! network, no async. Stored split ([`split`], format 7): a small top manifest, one binary
 //! tile table per viewpoint ([`table`]), one pack per viewpoint ([`pack`]) holding its tiles'
 //! meshes and PTM level groups, and the ACH lists of the segments starting at each viewpoint
 //! ([`ach`]); tables, ACH lists and packs are objects. The payloads' own formats are
@@ -31,7 +31,7 @@
 //! ```
 //!
 //! ```text
-//! DB/manifest.json          the TopManifest (format 6), written last, atomically
+//! DB/manifest.json          the TopManifest (format 7), written last, atomically
 //! DB/manifest.json.blake3   lowercase hex BLAKE3 of manifest.json (so a flipped byte in the
 //!                           manifest is caught too), written right after it
 //! DB/manifest.json.gz       gzip of manifest.json's exact bytes, written after it: what a

@@ -261,7 +261,7 @@ pub fn read_limited(path: &Path, limit: u64) -> Result<Vec<u8>, DbError> {
     Ok(out)
 }
 
-/// Parses top-manifest bytes read from `path` and checks the version: format 6 is read;
+/// Parses top-manifest bytes read from `path` and checks the version: format 7 is read;
 /// older ones are refused with a request to rebuild the database.
 pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
     #[derive(serde::Deserialize)]
@@ -272,9 +272,9 @@ pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
         .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
     if !(OLDEST_READ_VERSION..=TOP_VERSION).contains(&v.version) {
         let hint = if v.version < OLDEST_READ_VERSION {
-            " (format 6 codes textures and meshes several times smaller and stores each \
-             payload once): rebuild the database with `railview build` (it resumes from its \
-             work directory and re-encodes only)"
+            " (format 7 codes meshes up to five times smaller where thin surfaces leave \
+             pixels to quads of their own): rebuild the database with `railview build` (it \
+             resumes from its work directory and re-encodes only)"
         } else {
             ""
         };

@@ -1,4 +1,4 @@
-//! The split manifest (format 6; older formats are refused with a request to rebuild): a
+//! The split manifest (format 7; older formats are refused with a request to rebuild): a
 //! small top-level [`TopManifest`] plus one content-addressed tile table per viewpoint ([`ViewTable`]), so a client needs the top and the tables of the
 //! viewpoints around it before its first frame, not the whole database's entries.
 //!
@@ -33,12 +33,14 @@ use tracks::SlabRange;
 /// 5: the layout of 4, and every PTM's colour is 0 wherever its alpha is 0, see
 /// [`super::clear_masked`]; 6: PTMs of format 3 (range-coded levels, a compact header),
 /// meshes of format 2 (range-coded, depth within a parallax bound), every payload stored
-/// once — a table may name ranges of earlier viewpoints' packs).
-pub const TOP_VERSION: u32 = 6;
+/// once — a table may name ranges of earlier viewpoints' packs; 7: the layout of 6, meshes of
+/// format 3 — pixel quads coded apart, so no mesh of a slab stage falls back to the plain
+/// layout).
+pub const TOP_VERSION: u32 = 7;
 
-/// The oldest format this crate reads: the PTM and mesh formats of format 6 are new, so
-/// older databases are refused with a request to rebuild them.
-pub const OLDEST_READ_VERSION: u32 = 6;
+/// The oldest format this crate reads: the mesh format of format 7 is new, so older
+/// databases are refused with a request to rebuild them.
+pub const OLDEST_READ_VERSION: u32 = 7;
 
 pub use super::table::{
     decode_ach, decode_table, encode_ach, encode_table, TableError, MAX_TABLE_BYTES,

@@ -11,7 +11,7 @@
 //! error at baseline `B` to `e` pixels of `θ` radians ([`MeshCoding::for_parallax`]).
 //! Positions are exact on pixel centres (u = 1), within 1/16 pixel otherwise.
 //!
-//! ## Layout (format 2)
+//! ## Layout (format 3)
 //!
 //! Varints are LEB128 (7 bits a byte, least significant group first, high bit = more
 //! follows); zigzag maps `v` to `2v` (v ≥ 0) or `−2v − 1` (v < 0); floats and integers of
@@ -19,17 +19,22 @@
 //!
 //! ```text
 //! 0  4  magic "RMSH"
-//! 4  1  version (2)
+//! 4  1  version (3)
 //! 5  1  lattice unit u: 1 (vertices on pixel centres), 8 (eighths of a pixel) or 0 (plain)
 //! 6  …  varint face size N; zigzag varints X0, Y0; varints W, H (the lattice box); varint V
-//!       (vertices); varint T (triangles); f32 δ (1/metres)
+//!       (vertices); varint T (triangles); varint P (pixel quads), and when P > 0 zigzag
+//!       varints PX0, PY0 and varints PW, PH (the pixel quads' box); f32 δ (1/metres)
 //! then one range-coded stream to the end of the bytes (zeros read past it):
-//!   occupancy, triangles, depths (below)
+//!   occupancy, triangles, depths, pixel quads (below)
 //! ```
+//!
+//! Format 3 adds the pixel quads to format 2; a decoder refuses format 2 with a request to
+//! rebuild the database.
 //!
 //! A decoder checks before allocating: `1 ≤ N ≤ 2²⁰`, `|X0|, |Y0| ≤ 2⁴⁰`, `W, H ≤ 2¹⁵`,
 //! `W·H ≤ 2²⁴` ([`MAX_CELLS`], [`MAX_BOX_SIDE`]), `V ≤ W·H`, `T ≤ 2V`, `V·T ≤ 2²⁸`
-//! ([`MAX_WORK`]) and `10⁻⁹ ≤ δ ≤ 10⁹`.
+//! ([`MAX_WORK`]), `10⁻⁹ ≤ δ ≤ 10⁹`, and with pixel quads `|PX0|, |PY0| ≤ 2⁴⁰`,
+//! `1 ≤ PW, PH ≤ 2¹⁵` and `P ≤ min(PW·PH, 2²²)` ([`MAX_QUADS`]).
 //!
 //! **Occupancy.** The `W × H` lattice cells in raster order, one decision each with the
 //! model `occ[ctx]` (16 bits), `ctx = L + 2·UL + 4·U + 8·UR` from the left, upper-left,
@@ -89,10 +94,32 @@
 //! A decoded `Q` outside 1 ..= 2³¹ − 1 is damage; `r = √(1 + U² + V²) / (Q·δ)` (δ as the f32
 //! read, in f64), stored as f32.
 //!
+//! **Pixel quads** (after the depths; nothing when `P = 0`). `slabs` gives an opaque pixel
+//! that no triangle covers (a pole or a frame one pixel thin between two discontinuities) a
+//! quad of its own: four vertices on the pixel's corners at one radial depth, two triangles.
+//! Neighbouring quads share corners at different depths, which no lattice holds, so the
+//! encoder splits them off (module `quads`): four consecutive vertices `(x, y, r)`,
+//! `(x + 1, y, r)`, `(x + 1, y + 1, r)`, `(x, y + 1, r)` with `x, y` whole, whose only
+//! triangles are two over them (either diagonal). The rest must fit the lattice. Coded:
+//!
+//! - *Mask*: the `PW × PH` pixels of the box in raster order, one decision each with the
+//!   model `quad[ctx]` (16 bits, fresh, the occupancy's context rule over the mask) until `P`
+//!   are set. Set pixel `(X, Y)` is the quad of pixel `(X + PX0, Y + PY0)`.
+//! - *Depths*, per quad in raster order: `Q = round(1 / (r·δ))` (inverse *radial* depth,
+//!   clamped to 1 ..= 2³¹ − 1, so every corner keeps one depth) as `Q − pred` with a
+//!   [`Signed`] model per predictor, the first that applies: the quad above (pixel
+//!   `(x, y − 1)`), the quad to the left, the quad before in raster order, and for the first
+//!   quad `round(1 / (r·δ))` of the last lattice vertex as decoded (0 without one).
+//!   A decoded `Q` outside 1 ..= 2³¹ − 1 is damage; `r = 1 / (Q·δ)` (f64, stored as f32).
+//!
+//! A decoder appends each quad after the lattice vertices: its four corners in the order
+//! above and the triangles `[0, 1, 2]`, `[0, 2, 3]` over them; the depth bound is the
+//! lattice's, `|1/r − 1/r'| ≤ δ/2`.
+//!
 //! ## Plain layout (lattice unit 0)
-//! A mesh the lattice cannot hold (two vertices at one lattice position, as where a pixel no
-//! triangle covers gets a quad of its own at its depth, or triangles that are not part of a
-//! planar triangulation) is stored plain and exact:
+//! A mesh the lattice cannot hold once its pixel quads are split off (two vertices at one
+//! lattice position, or triangles that are not part of a planar triangulation; no mesh of
+//! the built-in scenes or the measured POV-Ray imports) is stored plain and exact:
 //!
 //! ```text
 //! 6  …  varint face size N (1 ..= 2²⁰); varint V (≤ 2²⁴); varint T (≤ 2²⁵);
@@ -102,9 +129,11 @@
 //! Every vertex finite with `r > 0`, every index below `V`.
 
 mod connect;
+mod quads;
 
 use crate::entropy::{Bit, Decoder, Encoder, Signed};
 
+pub use quads::MAX_QUADS;
 pub use tracks::TileMesh;
 
 /// Why a mesh could not be encoded or decoded.
@@ -125,7 +154,7 @@ pub enum MeshError {
 
 const MAGIC: [u8; 4] = *b"RMSH";
 /// The format written and read.
-pub const MESH_VERSION: u8 = 2;
+pub const MESH_VERSION: u8 = 3;
 /// Most lattice cells a mesh's box may hold (the occupancy is a bit per cell).
 pub const MAX_CELLS: u64 = 1 << 24;
 /// Most vertices × triangles of a mesh: growing the connectivity scans the vertices on one
@@ -316,7 +345,7 @@ fn adjacency(vertices: usize, tris: &[[u32; 3]]) -> Adjacency {
 
 /// Encodes a mesh: vertices finite with depth > 0, indices in range. On the lattice when no
 /// two vertices share a lattice position and the triangles are part of a planar
-/// triangulation; plain (exact, larger) otherwise.
+/// triangulation once the pixel quads are split off; plain (exact, larger) otherwise.
 pub fn encode_mesh(mesh: &TileMesh, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
     if !mesh.indices.len().is_multiple_of(3) {
         return Err(MeshError::Ragged(mesh.indices.len()));
@@ -347,7 +376,8 @@ pub fn encode_mesh(mesh: &TileMesh, coding: &MeshCoding) -> Result<Vec<u8>, Mesh
             });
         }
     }
-    encode_lattice(mesh, coding).or_else(|_| encode_plain(mesh, coding))
+    let (rest, pixel_quads) = quads::split(mesh);
+    encode_lattice(&rest, &pixel_quads, coding).or_else(|_| encode_plain(mesh, coding))
 }
 
 /// The plain layout (lattice unit 0), exact: for meshes the lattice cannot hold.
@@ -437,7 +467,11 @@ fn decode_plain(b: &[u8]) -> Result<TileMesh, MeshError> {
 
 /// The lattice layout: compact, for vertices on distinct lattice positions of a planar
 /// triangulation (what `slabs` meshes are, apart from the quads of uncovered pixels).
-fn encode_lattice(mesh: &TileMesh, coding: &MeshCoding) -> Result<Vec<u8>, MeshError> {
+fn encode_lattice(
+    mesh: &TileMesh,
+    pixel_quads: &[quads::PixelQuad],
+    coding: &MeshCoding,
+) -> Result<Vec<u8>, MeshError> {
     let n = mesh.vertices.len();
     let step = coding.depth_step;
     // The lattice: pixel centres when every vertex is on one, else eighths of a pixel.
@@ -467,6 +501,7 @@ fn encode_lattice(mesh: &TileMesh, coding: &MeshCoding) -> Result<Vec<u8>, MeshE
     };
     let tris = mesh.indices.len() as u64 / 3;
     check_counts(w, h, n as u64, tris).map_err(MeshError::Coding)?;
+    let quad_box = quads::QuadBox::around(pixel_quads).map_err(MeshError::Coding)?;
     // Vertices in raster order.
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_unstable_by_key(|&i| (lattice[i].1, lattice[i].0));
@@ -501,6 +536,7 @@ fn encode_lattice(mesh: &TileMesh, coding: &MeshCoding) -> Result<Vec<u8>, MeshE
     put_varint(&mut out, h);
     put_varint(&mut out, n as u64);
     put_varint(&mut out, tris);
+    quad_box.put(&mut out);
     out.extend_from_slice(&(step as f32).to_le_bytes());
     let step = step as f32 as f64;
 
@@ -541,6 +577,13 @@ fn encode_lattice(mesh: &TileMesh, coding: &MeshCoding) -> Result<Vec<u8>, MeshE
         let (pred, how) = predict(k, &pts, &q, &grown, &adj);
         models[how as usize].encode(&mut e, (q[k] - pred) as i32);
     }
+    // The last vertex as the decoder rebuilds it: the first quad's depth is predicted from it.
+    let last = (n > 0).then(|| {
+        let (x, y) = position(pts[n - 1], x0, y0, unit);
+        let r = planar_norm(x as f64, y as f64, coding.face_size) / (q[n - 1] as f64 * step);
+        (x, y, r as f32)
+    });
+    quads::encode(&mut e, &quad_box, pixel_quads, last, step);
     out.extend_from_slice(&e.finish());
     Ok(out)
 }
@@ -575,13 +618,13 @@ fn check_counts(w: u64, h: u64, vertices: u64, triangles: u64) -> Result<(), Str
 }
 
 /// A cursor over the header.
-struct Header<'a> {
+pub(super) struct Header<'a> {
     b: &'a [u8],
     at: usize,
 }
 
 impl Header<'_> {
-    fn varint(&mut self, what: &str) -> Result<u64, MeshError> {
+    pub(super) fn varint(&mut self, what: &str) -> Result<u64, MeshError> {
         let mut v = 0u64;
         for shift in (0..64).step_by(7) {
             let byte = *self
@@ -630,6 +673,7 @@ pub fn decode_mesh(b: &[u8]) -> Result<TileMesh, MeshError> {
     let h = hd.varint("box height")?;
     let n = hd.varint("vertex count")?;
     let tris = hd.varint("triangle count")?;
+    let quad_box = quads::QuadBox::read(&mut hd)?;
     if face_size == 0 || face_size > MAX_SIDE {
         return Err(fmt(format!("face size {face_size}")));
     }
@@ -684,10 +728,14 @@ pub fn decode_mesh(b: &[u8]) -> Result<TileMesh, MeshError> {
         let r = planar_norm(x as f64, y as f64, face_size as u32) / (v as f64 * step);
         vertices.push([x, y, r as f32]);
     }
-    Ok(TileMesh {
+    let mut mesh = TileMesh {
         vertices,
         indices: grown.into_iter().flatten().collect(),
-    })
+    };
+    let last = mesh.vertices.last().map(|v| (v[0], v[1], v[2]));
+    let pixel_quads = quads::decode(&mut d, &quad_box, last, step)?;
+    quads::append(&mut mesh, &pixel_quads);
+    Ok(mesh)
 }
 
 #[cfg(test)]

@@ -73,7 +73,7 @@ fn canonical(m: &TileMesh) -> Canon {
         .collect();
     tris.sort_unstable();
     let mut verts: Vec<((u32, u32), f32)> = m.vertices.iter().map(|&v| (key(v), v[2])).collect();
-    verts.sort_by_key(|a| a.0);
+    verts.sort_by(|a, b| (a.0, a.1).partial_cmp(&(b.0, b.1)).unwrap());
     (tris, verts)
 }
 
@@ -92,11 +92,19 @@ fn assert_round_trip(m: &TileMesh, step: f64) -> Vec<u8> {
         let (x, y) = (f32::from_bits(a.0 .0) as f64, f32::from_bits(a.0 .1) as f64);
         let norm = planar_norm(x, y, FACE);
         let (qa, qb) = (norm / a.1 as f64, norm / b.1 as f64);
-        let bound = if qa >= step32 / 2.0 {
-            step32 / 2.0
+        // Pixel quads (corners on whole pixels) quantise inverse radial depth: its bound
+        // times the planar norm in inverse planar depth.
+        let scale = if x.fract() == 0.0 && y.fract() == 0.0 {
+            norm
         } else {
-            step32
+            1.0
         };
+        let bound = scale
+            * if qa / scale >= step32 / 2.0 {
+                step32 / 2.0
+            } else {
+                step32
+            };
         assert!(
             (qa - qb).abs() <= bound * 1.0001 + qa * 1e-6,
             "q {qa} → {qb}, step {step32}"
@@ -232,8 +240,8 @@ fn bad_meshes_are_refused() {
 #[test]
 fn hostile_counts_are_refused_before_allocating() {
     let header = |w: u64, h: u64, v: u64, t: u64| {
-        let mut b = b"RMSH\x02\x01".to_vec();
-        for x in [256, 0, 0, w, h, v, t] {
+        let mut b = b"RMSH\x03\x01".to_vec();
+        for x in [256, 0, 0, w, h, v, t, 0] {
             put_varint(&mut b, x);
         }
         b.extend_from_slice(&1e-3f32.to_le_bytes());
@@ -251,6 +259,87 @@ fn hostile_counts_are_refused_before_allocating() {
     }
     // Counts within the limits but a stream that holds nothing: an error, not a panic.
     assert!(decode_mesh(&header(4, 4, 16, 18)).is_err());
+    // Pixel quads: more than the box holds, more than the limit, a box too wide.
+    let quads = |p: u64, w: u64, h: u64| {
+        let mut b = b"RMSH\x03\x01".to_vec();
+        for x in [256, 0, 0, 0, 0, 0, 0, p, 0, 0, w, h] {
+            put_varint(&mut b, x);
+        }
+        b.extend_from_slice(&1e-3f32.to_le_bytes());
+        b
+    };
+    for (p, w, h) in [
+        (17, 4, 4),
+        (MAX_CELLS, 1 << 12, 1 << 12),
+        (1, 1 << 16, 1),
+        (1, 0, 1),
+    ] {
+        let e = decode_mesh(&quads(p, w, h)).unwrap_err();
+        assert!(matches!(e, MeshError::Format(_)), "{e}");
+    }
+    assert!(decode_mesh(&quads(16, 4, 4)).is_err());
+}
+
+/// Appends the quad `slabs` gives an uncovered pixel `(x, y)`.
+fn push_quad(m: &mut TileMesh, x: u32, y: u32, r: f32) {
+    let base = m.vertices.len() as u32;
+    let (x, y) = (x as f32, y as f32);
+    m.vertices.extend([
+        [x, y, r],
+        [x + 1.0, y, r],
+        [x + 1.0, y + 1.0, r],
+        [x, y + 1.0, r],
+    ]);
+    m.indices
+        .extend([base, base + 1, base + 2, base, base + 2, base + 3]);
+}
+
+#[test]
+fn pixel_quads_beside_a_mesh_stay_on_the_lattice() {
+    // A pole one pixel wide in front of a wall: a column of quads sharing corners (two
+    // vertices at one position, at different depths from the wall's), one quad alone.
+    let mut m = grid(6, 6, |x, y| 8.0 + 0.1 * x as f32 + 0.02 * y as f32);
+    for y in 3..9 {
+        push_quad(&mut m, 7, y, 2.0 + 0.01 * y as f32);
+    }
+    push_quad(&mut m, 8, 3, 2.5);
+    push_quad(&mut m, 20, 1, 30.0);
+    let bytes = assert_round_trip(&m, 1e-3);
+    assert_eq!(bytes[5], 1, "on the lattice, not plain");
+    let plain = 12 * (m.vertices.len() + m.indices.len() / 3);
+    assert!(
+        bytes.len() * 8 < plain,
+        "{} B against {plain} B plain",
+        bytes.len()
+    );
+    // Quads alone, and a quad at a negative position.
+    let mut alone = TileMesh::default();
+    push_quad(&mut alone, 0, 0, 4.0);
+    push_quad(&mut alone, 1, 0, 4.0);
+    assert_round_trip(&alone, 1e-3);
+    let mut neg = grid(2, 2, |_, _| 3.0);
+    neg.vertices.extend([
+        [-1.0, -2.0, 5.0],
+        [0.0, -2.0, 5.0],
+        [0.0, -1.0, 5.0],
+        [-1.0, -1.0, 5.0],
+    ]);
+    let b = neg.vertices.len() as u32 - 4;
+    neg.indices.extend([b, b + 1, b + 2, b, b + 2, b + 3]);
+    assert_round_trip(&neg, 1e-3);
+}
+
+#[test]
+fn a_quad_sharing_its_vertices_with_other_triangles_is_not_split_off() {
+    // The four corners look like a quad but a third triangle, overlapping it, uses two of
+    // them: not a planar mesh plus quads, so it is stored plain, exactly.
+    let mut m = TileMesh::default();
+    push_quad(&mut m, 4, 4, 3.0);
+    m.vertices.push([4.25, 4.75, 3.0]);
+    m.indices.extend([0, 2, 4]);
+    let bytes = encode_mesh(&m, &coding(1e-3)).unwrap();
+    assert_eq!(bytes[5], 0);
+    assert_eq!(decode_mesh(&bytes).unwrap(), m);
 }
 
 fn random_mesh() -> impl Strategy<Value = (TileMesh, f64)> {
@@ -263,24 +352,30 @@ fn random_mesh() -> impl Strategy<Value = (TileMesh, f64)> {
         proptest::collection::vec(0.5f32..400.0, 144),
         prop_oneof![Just(1e-5), Just(1e-3), Just(0.1)],
         any::<bool>(),
+        proptest::collection::vec((0u32..40, 0u32..40, 0.5f32..400.0), 0..4),
     )
-        .prop_map(|(nx, ny, spacing, keep, diag, depth, step, smooth)| {
-            let m = grid_with(
-                nx,
-                ny,
-                spacing as f32,
-                |x, y| {
-                    if smooth {
-                        3.0 + 0.1 * x as f32 + 0.05 * y as f32
-                    } else {
-                        depth[(y * 12 + x) as usize]
-                    }
-                },
-                |x, y| keep[(y * 11 + x) as usize],
-                |x, y| diag[(y * 11 + x) as usize],
-            );
-            (m, step)
-        })
+        .prop_map(
+            |(nx, ny, spacing, keep, diag, depth, step, smooth, quads)| {
+                let mut m = grid_with(
+                    nx,
+                    ny,
+                    spacing as f32,
+                    |x, y| {
+                        if smooth {
+                            3.0 + 0.1 * x as f32 + 0.05 * y as f32
+                        } else {
+                            depth[(y * 12 + x) as usize]
+                        }
+                    },
+                    |x, y| keep[(y * 11 + x) as usize],
+                    |x, y| diag[(y * 11 + x) as usize],
+                );
+                for (x, y, r) in quads {
+                    push_quad(&mut m, x, y, r);
+                }
+                (m, step)
+            },
+        )
 }
 
 proptest! {
@@ -293,7 +388,7 @@ proptest! {
     fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..200), head in any::<bool>()) {
         let mut b = bytes;
         if head && b.len() >= 6 {
-            b[..6].copy_from_slice(b"RMSH\x02\x01");
+            b[..6].copy_from_slice(b"RMSH\x03\x01");
         }
         if let Ok(m) = decode_mesh(&b) {
             prop_assert!(m.indices.iter().all(|&i| (i as usize) < m.vertices.len()));
