@@ -288,7 +288,7 @@ fn predict(
 ) -> (i64, usize) {
     if i >= w && mask[i - w] {
         (q[i - w], 0)
-    } else if i % w > 0 && mask[i - 1] {
+    } else if !i.is_multiple_of(w) && mask[i - 1] {
         (q[i - 1], 1)
     } else if let Some(p) = prev {
         (p, 2)
