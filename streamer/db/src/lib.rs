@@ -66,7 +66,7 @@ use codec::ptm;
 
 pub use read::{parse_top, read_limited, read_manifest, read_tables, read_top, Database};
 pub use split::{TopManifest, ViewTable, OLDEST_READ_VERSION, TOP_VERSION};
-pub use verify::{verify, verify_with, Problem, Report, VerifyOptions};
+pub use verify::{prune, verify, verify_with, Problem, Pruned, Report, VerifyOptions};
 
 /// Name of the manifest file in a database directory.
 pub const MANIFEST_FILE: &str = "manifest.json";

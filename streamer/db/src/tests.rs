@@ -194,6 +194,44 @@ fn write_open_read_levels() {
 }
 
 #[test]
+fn prune_removes_only_what_the_manifest_does_not_reference_and_only_when_intact() {
+    let dir = tmpdir("prune");
+    let (m, mut w) = build(&dir);
+    w.finish(&m).unwrap();
+    // A writer still holding the directory: nothing is removed under it.
+    assert!(prune(&dir).is_err());
+    drop(w);
+    let before = verify(&dir).unwrap();
+    assert_eq!(before.unreferenced.len(), 10, "the tiles' own objects");
+    let pruned = prune(&dir).unwrap();
+    assert_eq!(pruned.objects, 10);
+    assert_eq!(
+        pruned.bytes,
+        before.unreferenced.iter().map(|u| u.1).sum::<u64>()
+    );
+    let after = verify(&dir).unwrap();
+    assert!(after.is_intact() && after.unreferenced.is_empty() && after.notes.is_empty());
+    assert_eq!(after.objects_referenced, before.objects_referenced);
+    assert!(Database::open(&dir).is_ok());
+    // A database with a missing object is not pruned: an error naming it, nothing removed.
+    let stray = dir.join(object_rel_path(&hash_hex(b"stray")).unwrap());
+    write_atomic(&stray, b"stray").unwrap();
+    let table = dir.join(m_table_path(&dir));
+    fs::remove_file(&table).unwrap();
+    let err = prune(&dir).unwrap_err().to_string();
+    assert!(err.contains("nothing pruned"), "{err}");
+    assert!(stray.exists());
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The path of the first viewpoint's table.
+fn m_table_path(dir: &Path) -> PathBuf {
+    let db = Database::open(dir).unwrap();
+    let v = &db.top().tracks[0].viewpoints[0];
+    dir.join(object_rel_path(&v.table.hash).unwrap())
+}
+
+#[test]
 fn a_flipped_byte_in_any_file_is_caught_and_named() {
     let dir = tmpdir("flip");
     build(&dir);
@@ -524,9 +562,9 @@ fn older_and_newer_formats_are_refused_with_what_to_do() {
         let _ = fs::remove_file(dir.join(format!("{MANIFEST_FILE}.gz")));
     };
     // Formats 4 and 5 (PTMs of format 2, uncompressed meshes, a payload in every pack that
-    // uses it): rebuild.
+    // uses it) and 6 (meshes of format 2): rebuild.
     let mut top = db.top().clone();
-    for old in [4, 5] {
+    for old in [4, 5, 6] {
         top.version = old;
         write_top(&top);
         let err = Database::open(&dir).unwrap_err().to_string();

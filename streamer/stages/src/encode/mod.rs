@@ -192,6 +192,18 @@ pub fn run(
     report.objects_reused = writer.objects_reused;
     report.sizes.payloads_shared = writer.payloads_shared;
     report.sizes.bytes_shared = writer.bytes_shared;
+    drop(writer);
+    // Objects an earlier build wrote here that the new manifest does not reference (another
+    // format or setting): removed, so the directory is the database and its size is true.
+    let pruned = db::prune(&dirs.out).context("removing objects no manifest references")?;
+    if pruned.objects > 0 {
+        progress.message(&format!(
+            "      removed {} object(s), {} bytes, of an earlier build that the manifest no \
+             longer references",
+            pruned.objects, pruned.bytes
+        ));
+    }
+    report.objects_pruned = pruned.objects as u64;
     report.sizes.database_objects = walk_size(&dirs.out.join("objects"));
 
     // The baseline, from the same prerender directory.

@@ -107,6 +107,10 @@ pub struct BuildReport {
     pub cpu_seconds: Vec<(String, f64)>,
     pub objects_written: u64,
     pub objects_reused: u64,
+    /// Objects of an earlier build into the same directory that the new manifest does not
+    /// reference, removed.
+    #[serde(default)]
+    pub objects_pruned: u64,
     /// With a PSNR target: the target, the choice, what it left out and saved, the sweep.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub target: Option<serde_json::Value>,
@@ -181,8 +185,9 @@ impl BuildReport {
             c.zstd_level
         );
         m += &format!(
-            "\nObjects written {}, reused {} (a rebuild reuses everything already written).\n",
-            r.objects_written, r.objects_reused
+            "\nObjects written {}, reused {} (a rebuild reuses everything already written), \
+             {} of an earlier build no longer referenced removed.\n",
+            r.objects_written, r.objects_reused, r.objects_pruned
         );
         if let Some(t) = &r.target {
             m += &format!(
