@@ -18,18 +18,22 @@
 //! fixed width are little-endian.
 //!
 //! ```text
-//! 0  4  magic "RMSH"
-//! 4  1  version (3)
-//! 5  1  lattice unit u: 1 (vertices on pixel centres), 8 (eighths of a pixel) or 0 (plain)
-//! 6  …  varint face size N; zigzag varints X0, Y0; varints W, H (the lattice box); varint V
+//! 0  1  version (3)
+//! 1  1  lattice unit u: 1 (vertices on pixel centres), 8 (eighths of a pixel) or 0 (plain)
+//! 2  …  varint face size N; zigzag varints X0, Y0; varints W, H (the lattice box); varint V
 //!       (vertices); varint T (triangles); varint P (pixel quads), and when P > 0 zigzag
-//!       varints PX0, PY0 and varints PW, PH (the pixel quads' box); f32 δ (1/metres)
+//!       varints PX0, PY0 and varints PW, PH (the pixel quads' box); the depth step δ
+//!       (1/metres) as two bytes k, m: δ = (256 + m) · 2^(k − 136)
 //! then one range-coded stream to the end of the bytes (zeros read past it):
 //!   occupancy, triangles, depths, pixel quads (below)
 //! ```
 //!
-//! Format 3 adds the pixel quads to format 2; a decoder refuses format 2 with a request to
-//! rebuild the database.
+//! A mesh is found through a table that says what it is, so it has no magic. The encoder
+//! writes the largest δ the two bytes hold that is at most the one asked for, and quantises
+//! with it, so the depth bound holds for the δ asked.
+//!
+//! Format 3 adds the pixel quads to format 2 and drops its magic and f32 δ; a decoder
+//! refuses other formats with a request to rebuild the database.
 //!
 //! A decoder checks before allocating: `1 ≤ N ≤ 2²⁰`, `|X0|, |Y0| ≤ 2⁴⁰`, `W, H ≤ 2¹⁵`,
 //! `W·H ≤ 2²⁴` ([`MAX_CELLS`], [`MAX_BOX_SIDE`]), `V ≤ W·H`, `T ≤ 2V`, `V·T ≤ 2²⁸`
@@ -72,7 +76,7 @@
 //! The triangles come out in this order, each sorted.
 //!
 //! **Depths.** Per vertex `k` in order the quantised inverse *planar* depth
-//! `Q = round((√(1 + U² + V²) / r) / δ)` (f64, δ as the f32 written), clamped to
+//! `Q = round((√(1 + U² + V²) / r) / δ)` (f64, δ as written), clamped to
 //! 1 ..= 2³¹ − 1, where
 //! `U = 2x/N − 1`, `V = 1 − 2y/N` (so `Q` is affine in face pixels over a flat surface), is
 //! coded as `Q − pred` with a [`Signed`] model of its own per
@@ -91,7 +95,7 @@
 //!    (smaller index): its `Q`.
 //! 4. *Previous*: `Q` of vertex `k − 1`, or 0 for the first.
 //!
-//! A decoded `Q` outside 1 ..= 2³¹ − 1 is damage; `r = √(1 + U² + V²) / (Q·δ)` (δ as the f32
+//! A decoded `Q` outside 1 ..= 2³¹ − 1 is damage; `r = √(1 + U² + V²) / (Q·δ)` (δ as
 //! read, in f64), stored as f32.
 //!
 //! **Pixel quads** (after the depths; nothing when `P = 0`). `slabs` gives an opaque pixel
@@ -122,7 +126,7 @@
 //! the built-in scenes or the measured POV-Ray imports) is stored plain and exact:
 //!
 //! ```text
-//! 6  …  varint face size N (1 ..= 2²⁰); varint V (≤ 2²⁴); varint T (≤ 2²⁵);
+//! 2  …  varint face size N (1 ..= 2²⁰); varint V (≤ 2²⁴); varint T (≤ 2²⁵);
 //!       V × (x, y, r) f32; T × 3 u32 — exactly 12·(V + T) bytes to the end
 //! ```
 //!
@@ -152,7 +156,6 @@ pub enum MeshError {
     Format(String),
 }
 
-const MAGIC: [u8; 4] = *b"RMSH";
 /// The format written and read.
 pub const MESH_VERSION: u8 = 3;
 /// Most lattice cells a mesh's box may hold (the occupancy is a bit per cell).
@@ -193,6 +196,29 @@ impl MeshCoding {
 fn planar_norm(x: f64, y: f64, face_size: u32) -> f64 {
     let (u, v) = tracks::cubemap::uv_from_pixel_f(x, y, face_size);
     (1.0 + u * u + v * v).sqrt()
+}
+
+/// The depth step written (its exponent and mantissa bytes, see the layout) and its value:
+/// the largest that two bytes hold and is at most `step` (so the depth bound still holds).
+fn step_code(step: f64) -> ([u8; 2], f64) {
+    let mut e = step.log2().floor() as i32;
+    while 2f64.powi(e) > step {
+        e -= 1;
+    }
+    while 2f64.powi(e + 1) <= step {
+        e += 1;
+    }
+    let k = (e + 128).clamp(0, 255);
+    let m = ((step / 2f64.powi(k - 128) - 1.0) * 256.0)
+        .floor()
+        .clamp(0.0, 255.0) as u8;
+    let code = [k as u8, m];
+    (code, step_value(code))
+}
+
+/// `δ = (256 + m) · 2^(k − 136)` for the bytes `[k, m]`.
+fn step_value([k, m]: [u8; 2]) -> f64 {
+    (256 + m as i32) as f64 * 2f64.powi(k as i32 - 136)
 }
 
 fn put_varint(out: &mut Vec<u8>, mut v: u64) {
@@ -385,7 +411,6 @@ fn encode_plain(mesh: &TileMesh, coding: &MeshCoding) -> Result<Vec<u8>, MeshErr
     let (n, tris) = (mesh.vertices.len() as u64, mesh.indices.len() as u64 / 3);
     check_plain_counts(n, tris).map_err(MeshError::Coding)?;
     let mut out = Vec::with_capacity(32 + 12 * (n + tris) as usize);
-    out.extend_from_slice(&MAGIC);
     out.push(MESH_VERSION);
     out.push(0);
     put_varint(&mut out, coding.face_size as u64);
@@ -416,7 +441,7 @@ fn check_plain_counts(vertices: u64, triangles: u64) -> Result<(), String> {
 /// Decodes the plain layout after its first 6 bytes.
 fn decode_plain(b: &[u8]) -> Result<TileMesh, MeshError> {
     let fmt = |m: String| MeshError::Format(m);
-    let mut hd = Header { b, at: 6 };
+    let mut hd = Header { b, at: 2 };
     let face_size = hd.varint("face size")?;
     let n = hd.varint("vertex count")?;
     let tris = hd.varint("triangle count")?;
@@ -526,7 +551,6 @@ fn encode_lattice(
         .collect();
 
     let mut out = Vec::with_capacity(64 + 4 * n);
-    out.extend_from_slice(&MAGIC);
     out.push(MESH_VERSION);
     out.push(unit as u8);
     put_varint(&mut out, coding.face_size as u64);
@@ -537,8 +561,8 @@ fn encode_lattice(
     put_varint(&mut out, n as u64);
     put_varint(&mut out, tris);
     quad_box.put(&mut out);
-    out.extend_from_slice(&(step as f32).to_le_bytes());
-    let step = step as f32 as f64;
+    let (code, step) = step_code(step);
+    out.extend_from_slice(&code);
 
     let mut e = Encoder::new();
     let mut occupied = vec![false; (w * h) as usize];
@@ -644,27 +668,24 @@ impl Header<'_> {
 /// Decodes a mesh; every count is checked against the limits before allocating.
 pub fn decode_mesh(b: &[u8]) -> Result<TileMesh, MeshError> {
     let fmt = |m: String| MeshError::Format(m);
-    if b.len() < 6 {
+    if b.len() < 2 {
         return Err(fmt(format!(
             "{} bytes, shorter than any mesh header",
             b.len()
         )));
     }
-    if b[0..4] != MAGIC {
-        return Err(fmt("bad magic (not a railview mesh)".into()));
-    }
-    if b[4] != MESH_VERSION {
+    if b[0] != MESH_VERSION {
         return Err(fmt(format!(
             "format {} (this build reads format {MESH_VERSION}; rebuild the database with `railview build`)",
-            b[4]
+            b[0]
         )));
     }
-    let unit = match b[5] {
+    let unit = match b[1] {
         0 => return decode_plain(b),
         u @ (1 | 8) => u as i64,
         u => return Err(fmt(format!("lattice unit {u} (0, 1 or 8)"))),
     };
-    let mut hd = Header { b, at: 6 };
+    let mut hd = Header { b, at: 2 };
     let face_size = hd.varint("face size")?;
     let unzig = |v: u64| ((v >> 1) as i64) ^ -((v & 1) as i64);
     let x0 = unzig(hd.varint("x0")?);
@@ -683,14 +704,13 @@ pub fn decode_mesh(b: &[u8]) -> Result<TileMesh, MeshError> {
     }
     check_counts(w, h, n, tris).map_err(fmt)?;
     let step_bytes = b
-        .get(hd.at..hd.at + 4)
+        .get(hd.at..hd.at + 2)
         .ok_or_else(|| fmt("ends inside the header (depth step)".into()))?;
-    let step =
-        f32::from_le_bytes([step_bytes[0], step_bytes[1], step_bytes[2], step_bytes[3]]) as f64;
+    let step = step_value([step_bytes[0], step_bytes[1]]);
     if !(1e-9..=1e9).contains(&step) {
         return Err(fmt(format!("depth step {step}")));
     }
-    let mut d = Decoder::new(&b[hd.at + 4..]);
+    let mut d = Decoder::new(&b[hd.at + 2..]);
     let n = n as usize;
     let cells = (w * h) as usize;
     let mut occupied = vec![false; cells];

@@ -86,7 +86,8 @@ fn assert_round_trip(m: &TileMesh, step: f64) -> Vec<u8> {
     let (tb, vb) = canonical(&back);
     assert_eq!(ta, tb, "triangles");
     assert_eq!(va.len(), vb.len());
-    let step32 = step as f32 as f64;
+    let step32 = step_code(step).1;
+    assert!(step32 <= step && step32 > step * 0.996);
     for (a, b) in va.iter().zip(&vb) {
         assert_eq!(a.0, b.0);
         let (x, y) = (f32::from_bits(a.0 .0) as f64, f32::from_bits(a.0 .1) as f64);
@@ -152,7 +153,7 @@ fn flat_empty_isolated_and_eighth_pixel_meshes() {
         v[0] += 0.125;
     }
     let bytes = encode_mesh(&eighth, &coding(1e-3)).unwrap();
-    assert_eq!(bytes[5], 8);
+    assert_eq!(bytes[1], 8);
     assert_round_trip(&eighth, 1e-3);
 }
 
@@ -203,7 +204,7 @@ fn bad_meshes_are_refused() {
     twice.indices.extend_from_slice(&[0, 1, 2]);
     for m in [&shared, &line, &twice] {
         let b = encode_mesh(m, &c).unwrap();
-        assert_eq!(b[5], 0, "stored plain");
+        assert_eq!(b[1], 0, "stored plain");
         assert_eq!(&decode_mesh(&b).unwrap(), m);
         // Every shorter prefix, and one byte more, is refused.
         for cut in 0..b.len() {
@@ -227,24 +228,32 @@ fn bad_meshes_are_refused() {
     ));
     // Decoding: short, foreign, old, damaged headers.
     let good = encode_mesh(&grid(3, 3, |x, _| 1.0 + x as f32), &c).unwrap();
-    assert!(matches!(decode_mesh(&good[..5]), Err(MeshError::Format(_))));
-    let mut old = good.clone();
-    old[4] = 1;
-    let e = decode_mesh(&old).unwrap_err().to_string();
-    assert!(e.contains("rebuild"), "{e}");
+    for cut in 0..8 {
+        assert!(matches!(
+            decode_mesh(&good[..cut]),
+            Err(MeshError::Format(_))
+        ));
+    }
+    // Format 2 began with the magic "RMSH" then its version: refused, asking for a rebuild.
+    for old in [b"RMSH\x02\x01".to_vec(), vec![2, 1]] {
+        let mut old = old;
+        old.extend_from_slice(&good[2..]);
+        let e = decode_mesh(&old).unwrap_err().to_string();
+        assert!(e.contains("rebuild"), "{e}");
+    }
     let mut bad = good.clone();
-    bad[0] = b'X';
+    bad[1] = 3;
     assert!(matches!(decode_mesh(&bad), Err(MeshError::Format(_))));
 }
 
 #[test]
 fn hostile_counts_are_refused_before_allocating() {
     let header = |w: u64, h: u64, v: u64, t: u64| {
-        let mut b = b"RMSH\x03\x01".to_vec();
+        let mut b = b"\x03\x01".to_vec();
         for x in [256, 0, 0, w, h, v, t, 0] {
             put_varint(&mut b, x);
         }
-        b.extend_from_slice(&1e-3f32.to_le_bytes());
+        b.extend_from_slice(&step_code(1e-3).0);
         b
     };
     for (w, h, v, t) in [
@@ -261,11 +270,11 @@ fn hostile_counts_are_refused_before_allocating() {
     assert!(decode_mesh(&header(4, 4, 16, 18)).is_err());
     // Pixel quads: more than the box holds, more than the limit, a box too wide.
     let quads = |p: u64, w: u64, h: u64| {
-        let mut b = b"RMSH\x03\x01".to_vec();
+        let mut b = b"\x03\x01".to_vec();
         for x in [256, 0, 0, 0, 0, 0, 0, p, 0, 0, w, h] {
             put_varint(&mut b, x);
         }
-        b.extend_from_slice(&1e-3f32.to_le_bytes());
+        b.extend_from_slice(&step_code(1e-3).0);
         b
     };
     for (p, w, h) in [
@@ -305,7 +314,7 @@ fn pixel_quads_beside_a_mesh_stay_on_the_lattice() {
     push_quad(&mut m, 8, 3, 2.5);
     push_quad(&mut m, 20, 1, 30.0);
     let bytes = assert_round_trip(&m, 1e-3);
-    assert_eq!(bytes[5], 1, "on the lattice, not plain");
+    assert_eq!(bytes[1], 1, "on the lattice, not plain");
     let plain = 12 * (m.vertices.len() + m.indices.len() / 3);
     assert!(
         bytes.len() * 8 < plain,
@@ -338,7 +347,7 @@ fn a_quad_sharing_its_vertices_with_other_triangles_is_not_split_off() {
     m.vertices.push([4.25, 4.75, 3.0]);
     m.indices.extend([0, 2, 4]);
     let bytes = encode_mesh(&m, &coding(1e-3)).unwrap();
-    assert_eq!(bytes[5], 0);
+    assert_eq!(bytes[1], 0);
     assert_eq!(decode_mesh(&bytes).unwrap(), m);
 }
 
@@ -387,8 +396,8 @@ proptest! {
     #[test]
     fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..200), head in any::<bool>()) {
         let mut b = bytes;
-        if head && b.len() >= 6 {
-            b[..6].copy_from_slice(b"RMSH\x03\x01");
+        if head && b.len() >= 2 {
+            b[..2].copy_from_slice(b"\x03\x01");
         }
         if let Ok(m) = decode_mesh(&b) {
             prop_assert!(m.indices.iter().all(|&i| (i as usize) < m.vertices.len()));
