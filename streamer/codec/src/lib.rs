@@ -8,7 +8,7 @@
 //! - [`ptm`]: progressive texture maps (format 3) — lossless (or near-lossless) mip levels
 //!   sent coarse to fine, level group by level group ([`ptm::encode`], the streaming
 //!   [`ptm::Decoder`] bounded by [`ptm::Limits`]).
-//! - [`mesh`]: compact tile meshes (format 2) — lattice occupancy, connectivity grown edge by
+//! - [`mesh`]: compact tile meshes (format 4) — lattice occupancy, connectivity grown edge by
 //!   edge and inverse planar depth quantised to a bound in pixels of parallax
 //!   ([`mesh::encode_mesh`], [`mesh::decode_mesh`]).
 //!

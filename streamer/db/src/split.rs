@@ -34,7 +34,7 @@ use tracks::SlabRange;
 /// [`super::clear_masked`]; 6: PTMs of format 3 (range-coded levels, a compact header),
 /// meshes of format 2 (range-coded, depth within a parallax bound), every payload stored
 /// once — a table may name ranges of earlier viewpoints' packs; 7: the layout of 6, meshes of
-/// format 3 — pixel quads coded apart, so no mesh of a slab stage falls back to the plain
+/// format 4 — pixel quads coded apart, so no mesh of a slab stage falls back to the plain
 /// layout).
 pub const TOP_VERSION: u32 = 7;
 

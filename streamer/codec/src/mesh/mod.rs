@@ -11,14 +11,14 @@
 //! error at baseline `B` to `e` pixels of `θ` radians ([`MeshCoding::for_parallax`]).
 //! Positions are exact on pixel centres (u = 1), within 1/16 pixel otherwise.
 //!
-//! ## Layout (format 3)
+//! ## Layout (format 4)
 //!
 //! Varints are LEB128 (7 bits a byte, least significant group first, high bit = more
 //! follows); zigzag maps `v` to `2v` (v ≥ 0) or `−2v − 1` (v < 0); floats and integers of
 //! fixed width are little-endian.
 //!
 //! ```text
-//! 0  1  version (3)
+//! 0  1  version (4)
 //! 1  1  lattice unit u: 1 (vertices on pixel centres), 8 (eighths of a pixel) or 0 (plain)
 //! 2  …  varint face size N; zigzag varints X0, Y0; varints W, H (the lattice box); varint V
 //!       (vertices); varint T (triangles); varint P (pixel quads), and when P > 0 zigzag
@@ -32,7 +32,7 @@
 //! writes the largest δ the two bytes hold that is at most the one asked for, and quantises
 //! with it, so the depth bound holds for the δ asked.
 //!
-//! Format 3 adds the pixel quads to format 2 and drops its magic and f32 δ; a decoder
+//! Format 4 adds the pixel quads to format 2 and drops its magic and f32 δ; a decoder
 //! refuses other formats with a request to rebuild the database.
 //!
 //! A decoder checks before allocating: `1 ≤ N ≤ 2²⁰`, `|X0|, |Y0| ≤ 2⁴⁰`, `W, H ≤ 2¹⁵`,
@@ -157,7 +157,7 @@ pub enum MeshError {
 }
 
 /// The format written and read.
-pub const MESH_VERSION: u8 = 3;
+pub const MESH_VERSION: u8 = 4;
 /// Most lattice cells a mesh's box may hold (the occupancy is a bit per cell).
 pub const MAX_CELLS: u64 = 1 << 24;
 /// Most vertices × triangles of a mesh: growing the connectivity scans the vertices on one

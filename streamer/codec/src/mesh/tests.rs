@@ -234,8 +234,9 @@ fn bad_meshes_are_refused() {
             Err(MeshError::Format(_))
         ));
     }
-    // Format 2 began with the magic "RMSH" then its version: refused, asking for a rebuild.
-    for old in [b"RMSH\x02\x01".to_vec(), vec![2, 1]] {
+    // Format 2 began with the magic "RMSH" then its version; format 3 had the magic too:
+    // refused, asking for a rebuild.
+    for old in [b"RMSH\x02\x01".to_vec(), vec![2, 1], vec![3, 1]] {
         let mut old = old;
         old.extend_from_slice(&good[2..]);
         let e = decode_mesh(&old).unwrap_err().to_string();
@@ -249,7 +250,7 @@ fn bad_meshes_are_refused() {
 #[test]
 fn hostile_counts_are_refused_before_allocating() {
     let header = |w: u64, h: u64, v: u64, t: u64| {
-        let mut b = b"\x03\x01".to_vec();
+        let mut b = b"\x04\x01".to_vec();
         for x in [256, 0, 0, w, h, v, t, 0] {
             put_varint(&mut b, x);
         }
@@ -270,7 +271,7 @@ fn hostile_counts_are_refused_before_allocating() {
     assert!(decode_mesh(&header(4, 4, 16, 18)).is_err());
     // Pixel quads: more than the box holds, more than the limit, a box too wide.
     let quads = |p: u64, w: u64, h: u64| {
-        let mut b = b"\x03\x01".to_vec();
+        let mut b = b"\x04\x01".to_vec();
         for x in [256, 0, 0, 0, 0, 0, 0, p, 0, 0, w, h] {
             put_varint(&mut b, x);
         }
@@ -397,7 +398,7 @@ proptest! {
     fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..200), head in any::<bool>()) {
         let mut b = bytes;
         if head && b.len() >= 2 {
-            b[..2].copy_from_slice(b"\x03\x01");
+            b[..2].copy_from_slice(b"\x04\x01");
         }
         if let Ok(m) = decode_mesh(&b) {
             prop_assert!(m.indices.iter().all(|&i| (i as usize) < m.vertices.len()));
