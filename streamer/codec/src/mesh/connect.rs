@@ -175,11 +175,16 @@ impl<'a> Growth<'a> {
         if ya > yb {
             return;
         }
-        let (first, end) = (self.rows[ya as usize], self.rows[yb as usize + 1]);
-        self.cands.extend((first..end).filter(|&p| {
-            let q = pts[p as usize];
-            q.0 >= x0 && q.0 <= x1 && p != u && p != v && side_of(pts, u, v, p) == Some(left)
-        }));
+        // Each row's vertices are sorted by x: only those inside the box's columns are tested.
+        for y in ya..=yb {
+            let (first, end) = (self.rows[y as usize], self.rows[y as usize + 1]);
+            let row = &pts[first as usize..end as usize];
+            let lo = first + row.partition_point(|q| q.0 < x0) as u32;
+            let hi = first + row.partition_point(|q| q.0 <= x1) as u32;
+            self.cands.extend(
+                (lo..hi).filter(|&p| p != u && p != v && side_of(pts, u, v, p) == Some(left)),
+            );
+        }
     }
 
     /// The first search box of an edge: its bounding box grown by its longer extent.
