@@ -11,7 +11,8 @@
 //! every table, assembled into one [`tracks::manifest::Manifest`] whose tiles point into their
 //! viewpoint's pack — and reads objects, byte ranges and single PTM level groups with their
 //! checksums), [`verify()`] → [`Report`] (every file's hash and size, every table, every
-//! range's checksum), [`split::TopManifest`] / [`split::ViewTable`], [`ach`] (average
+//! range's checksum), [`prune()`] (removes the objects an earlier build left that the
+//! manifest no longer references), [`split::TopManifest`] / [`split::ViewTable`], [`ach`] (average
 //! coverage hints per track segment) and [`baseline`] (what a database is weighed against:
 //! each panorama as PNG colour and PNG16 disparity). Ranges inside a pack carry 32-bit
 //! checksums ([`range_hash32`]; background PTMs, listed in the top, 128-bit ones,
@@ -50,6 +51,7 @@
 pub mod ach;
 pub mod baseline;
 pub mod pack;
+mod prune;
 mod read;
 pub mod split;
 pub mod table;
@@ -64,9 +66,10 @@ use tracks::manifest::{object_rel_path, LevelRef, Manifest, ObjectRef, PtmRef};
 
 use codec::ptm;
 
+pub use prune::{prune, Pruned};
 pub use read::{parse_top, read_limited, read_manifest, read_tables, read_top, Database};
 pub use split::{TopManifest, ViewTable, OLDEST_READ_VERSION, TOP_VERSION};
-pub use verify::{prune, verify, verify_with, Problem, Pruned, Report, VerifyOptions};
+pub use verify::{verify, verify_with, Problem, Report, VerifyOptions};
 
 /// Name of the manifest file in a database directory.
 pub const MANIFEST_FILE: &str = "manifest.json";
