@@ -527,3 +527,67 @@ fn perspective_truth_matches_the_cube_faces() {
         }
     }
 }
+
+/// Regression (the balcony's black specks in the sky): under a scene's own ground fog (the
+/// balcony's, copied here) the depth pass is decoded with the fog-only pass subtracted at
+/// half strength, and a slab ray that hits nothing before the slab's far end decoded 1e-4
+/// short of it (4.4995 of 4.5 here, 7.4246 of 7.4254 on the balcony), so it counted as a hit
+/// at the far plane: an opaque pixel coloured by a ray that saw nothing. Every layer
+/// must be empty wherever the panorama sees sky, and where a layer holds what the panorama
+/// sees, it holds the panorama's colour (its fog, its light, its anti-aliasing).
+#[test]
+fn fogged_sky_leaves_every_slab_empty_and_layers_keep_the_panoramas_colour() {
+    let out = tmp("fogged");
+    let scene = out.join("fogged.pov");
+    fs::write(
+        &scene,
+        format!(
+            "#include \"{}\"\nfog {{ fog_type 2 fog_alt 1.2 fog_offset 0 color rgbt <0.6, 0.68, 0.82, 0> distance 700 up y }}\n",
+            repo_file("scenes/pov/analytic.pov").display()
+        ),
+    )
+    .unwrap();
+    let dir = PrerenderDir::new(&out);
+    let mut import = PovImport::new(&scene, options(&out)).unwrap();
+    let slabs = SlabRange::parse_list("0-4.5,4.5-inf").unwrap();
+    for v in [vp(0, [0.0, 1.2, 0.0]), vp(1, [1.0, 0.8, 1.5])] {
+        import.render_base(&v, &dir).unwrap();
+        import.render_slabs(&v, &slabs, &dir).unwrap();
+        let depth = store::read_depth_exr(&dir.depth_exr(v.index)).unwrap();
+        let color = store::read_rgb_png(&dir.color_png(v.index)).unwrap();
+        let sky = depth.as_slice().iter().filter(|d| d.is_infinite()).count();
+        assert!(sky > 300, "sample {}: {sky} sky pixels", v.index);
+        for k in 0..slabs.len() {
+            let layer = store::read_rgba_png(&dir.slab_color_png(v.index, k)).unwrap();
+            let layer_depth = store::read_depth_exr(&dir.slab_depth_exr(v.index, k)).unwrap();
+            let mut seen = 0;
+            for (i, (&d, px)) in depth.as_slice().iter().zip(layer.as_slice()).enumerate() {
+                if d.is_infinite() {
+                    assert_eq!(
+                        px[3],
+                        0,
+                        "sample {} slab {k} pixel {i}: opaque ({:?}, depth {}) where the \
+                         panorama sees sky",
+                        v.index,
+                        px,
+                        layer_depth.as_slice()[i]
+                    );
+                } else if px[3] > 0 && (layer_depth.as_slice()[i] - d).abs() <= 1e-3 * d {
+                    seen += 1;
+                    assert_eq!(
+                        px[..3],
+                        color.as_slice()[i][..],
+                        "sample {} slab {k} pixel {i}: the panorama's surface in another colour",
+                        v.index
+                    );
+                }
+            }
+            assert!(
+                seen > 50,
+                "sample {} slab {k}: {seen} pixels the panorama sees",
+                v.index
+            );
+        }
+    }
+    fs::remove_dir_all(&out).ok();
+}

@@ -64,6 +64,10 @@ impl FogScales {
 pub struct FogDepth {
     /// Distance along each ray from its origin; `+inf` where the ray hit nothing.
     pub t: Vec<f64>,
+    /// The largest distance each pixel's code allows (the upper end of the chosen channel's
+    /// interval; `+inf` with `t`): a slab's hit whose interval reaches the slab's far end
+    /// cannot be told from a ray cut there ([`slab_depth`]).
+    pub t_hi: Vec<f64>,
     /// Pixels whose channels disagree.
     pub inconsistent: usize,
     /// Hit pixels that decode to distance 0.
@@ -83,6 +87,7 @@ pub fn decode_fog(p1: &[[u16; 3]], fog_only: Option<&[[u16; 3]]>, s: &FogScales)
     let e = steps / 65535.0 / s.k;
     let mut out = FogDepth {
         t: Vec::with_capacity(p1.len()),
+        t_hi: Vec::with_capacity(p1.len()),
         inconsistent: 0,
         zero: 0,
         hits: 0,
@@ -95,6 +100,7 @@ pub fn decode_fog(p1: &[[u16; 3]], fog_only: Option<&[[u16; 3]]>, s: &FogScales)
         });
         if v.iter().all(|&x| x >= 1.0 - e) {
             out.t.push(f64::INFINITY);
+            out.t_hi.push(f64::INFINITY);
             continue;
         }
         let dist = |c: usize, x: f64| -> f64 {
@@ -141,10 +147,12 @@ pub fn decode_fog(p1: &[[u16; 3]], fog_only: Option<&[[u16; 3]]>, s: &FogScales)
             // starting underground): nothing to decode; counted, and treated as a miss.
             out.clipped += 1;
             out.t.push(f64::INFINITY);
+            out.t_hi.push(f64::INFINITY);
             continue;
         }
         if !t.is_finite() {
             out.t.push(f64::INFINITY);
+            out.t_hi.push(f64::INFINITY);
             continue;
         }
         let slack = 1e-9 * t;
@@ -159,8 +167,44 @@ pub fn decode_fog(p1: &[[u16; 3]], fog_only: Option<&[[u16; 3]]>, s: &FogScales)
         }
         out.hits += 1;
         out.t.push(t);
+        out.t_hi.push(intervals[best].1.max(t));
     }
     out
+}
+
+/// The colour of a slab layer's pixel: the panorama's where the layer holds the surface the
+/// panorama sees there (both depths finite and within 1e-3 of each other: the panorama's
+/// first hit lies in the slab, and the slab's ray, starting nearer, hits it too), else the
+/// slab render's own (a surface behind nearer slabs, or nothing). A slab render differs from
+/// the panorama where it should not: the scene's fog and media are integrated from the
+/// slab's near sphere rather than the camera, radiosity is sampled anew in every render,
+/// and the panorama may be anti-aliased at edges the layer cuts. A view at the sample then
+/// shows POV-Ray's own render of it.
+pub fn layer_colour(slab: [u8; 3], slab_depth: f64, pano: [u8; 3], pano_depth: f64) -> [u8; 3] {
+    let same = slab_depth.is_finite()
+        && pano_depth.is_finite()
+        && (slab_depth - pano_depth).abs() <= 1e-3 * pano_depth;
+    if same {
+        pano
+    } else {
+        slab
+    }
+}
+
+/// A slab ray's decoded distance `t` (upper bound `t_hi`, [`FogDepth`]) as the layer's radial
+/// depth: `near + t`, or `+inf` for nothing in the slab. A ray that hits nothing before the
+/// slab's far end is cut there and decodes to about `range` (`far − near`; 0 for an
+/// unbounded slab), within the decoding error — which a scene's own fog, subtracted at half
+/// strength, makes as large as a few 1e-4 of `range`. So a hit whose code allows `range`
+/// is empty, as is one within 1e-4 of it; a surface that close to the far end belongs to the
+/// next slab's near edge.
+pub fn slab_depth(near: f64, range: f64, t: f64, t_hi: f64) -> f64 {
+    let cut = range > 0.0 && (t_hi >= range || t >= range * (1.0 - 1e-4));
+    if !t.is_finite() || cut {
+        f64::INFINITY
+    } else {
+        near + t
+    }
 }
 
 /// Read a PNG POV-Ray wrote, checking its size.
@@ -348,6 +392,53 @@ mod tests {
         assert_eq!(r.t[0], f64::INFINITY);
         assert_eq!(r.inconsistent, 1, "a grey object colour is not a fog code");
         assert_eq!((r.zero, r.hits), (1, 2));
+    }
+
+    proptest! {
+        /// A ray cut at the slab's far end under a scene's fog decodes as empty however the
+        /// two passes round; a hit 1e-3 short of it stays a hit.
+        #[test]
+        fn a_ray_cut_at_the_far_end_under_scene_fog_is_empty(
+            range in 0.5f64..50.0, f in 0.0f64..0.45, bias in -2.0f64..2.0,
+        ) {
+            let s = FogScales::for_slab(range, 0.5);
+            let p0 = [f, f * 0.95, f * 0.9];
+            let q0: [u16; 3] = std::array::from_fn(|c| (p0[c] * 65535.0).round() as u16);
+            // The cut ray, with up to two codes of disagreement between the passes.
+            let cut: [u16; 3] = std::array::from_fn(|c| {
+                let v = s.k * (1.0 - (-range / s.d[c]).exp()) + p0[c];
+                (v * 65535.0 + bias).round().clamp(0.0, 65535.0) as u16
+            });
+            let near_end = encode(range * (1.0 - 1e-3), &s, p0);
+            let r = decode_fog(&[cut, near_end], Some(&[q0, q0]), &s);
+            prop_assert_eq!(slab_depth(1.0, range, r.t[0], r.t_hi[0]), f64::INFINITY);
+            let hit = slab_depth(1.0, range, r.t[1], r.t_hi[1]);
+            prop_assert!((hit - 1.0 - range * (1.0 - 1e-3)).abs() < 1e-3 * range, "{}", hit);
+        }
+    }
+
+    #[test]
+    fn layers_take_the_panoramas_colour_only_on_its_surface() {
+        let (slab, pano) = ([10, 20, 30], [200, 210, 220]);
+        assert_eq!(layer_colour(slab, 5.0, pano, 5.004), pano);
+        assert_eq!(
+            layer_colour(slab, 5.0, pano, 4.0),
+            slab,
+            "behind a nearer surface"
+        );
+        assert_eq!(layer_colour(slab, 5.0, pano, f64::INFINITY), slab);
+        assert_eq!(layer_colour(slab, f64::INFINITY, pano, f64::INFINITY), slab);
+    }
+
+    #[test]
+    fn unbounded_slabs_and_misses() {
+        assert_eq!(slab_depth(2.0, 0.0, 1e6, 1e6), 2.0 + 1e6);
+        assert_eq!(
+            slab_depth(2.0, 5.0, f64::INFINITY, f64::INFINITY),
+            f64::INFINITY
+        );
+        assert_eq!(slab_depth(2.0, 5.0, 4.9994, 4.9996), 2.0 + 4.9994);
+        assert_eq!(slab_depth(2.0, 5.0, 4.9994, 5.0001), f64::INFINITY);
     }
 
     #[test]

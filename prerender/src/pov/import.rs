@@ -53,11 +53,6 @@ pub struct DepthSummary {
 /// Called after every finished render.
 type ProgressFn = Box<dyn FnMut(&RenderRecord)>;
 
-/// Empty slab pixels decode to the slab's ray range (POV-Ray reports the maximum ray distance
-/// as the depth); with `D₃ = range/2` the decoding error there is ~3e-5, so a hit within 1e-4
-/// of `far` cannot be told from an empty pixel and counts as empty.
-const EMPTY_FRACTION: f64 = 1.0 - 1e-4;
-
 /// A POV-Ray scene prepared for import. See the module docs of [`super`].
 pub struct PovImport {
     scene: PathBuf,
@@ -546,8 +541,10 @@ impl PovImport {
 
     /// Render a sample's slab layers (colour + depth per slab) and write them with the
     /// layers marker last. Needs the sample's base pass (its low-resolution depth sets the
-    /// fog scales of an unbounded last slab). Pixels with nothing in a slab get alpha 0 and
-    /// depth `+inf`; their colour is what the ray saw (background or sky) and is kept.
+    /// fog scales of an unbounded last slab; where a layer holds the surface the panorama
+    /// sees, its colour is the panorama's, [`decode::layer_colour`]). Pixels with nothing in
+    /// a slab get alpha 0 and depth `+inf`; their colour is what the ray saw (background or
+    /// sky) and is kept.
     pub fn render_slabs(
         &mut self,
         vp: &ReferenceViewpoint,
@@ -572,6 +569,9 @@ impl PovImport {
         );
         let fog = self.scene_fog(vp)?;
         let k = if fog { 0.5 } else { 1.0 };
+        // Where a layer holds the surface the panorama sees, it takes the panorama's colour.
+        let base_colour = store::read_rgb_png(&dir.color_png(vp.index))?;
+        let base_depth = store::read_depth_exr(&dir.depth_exr(vp.index))?;
         let pov = self.opts.up.pov_from_railview(vp.position);
         let n = self.opts.face_size;
         for (i, slab) in slabs.iter().enumerate() {
@@ -592,20 +592,23 @@ impl PovImport {
             };
             let d = self.depth_pass(vp.index, &format!("slab{i}-depth"), n, view, &scales, fog)?;
             let color = self.color_pass(vp.index, &format!("slab{i}-color"), view)?;
-            let depth = to_cube(n, &d.t, |t| {
-                if !t.is_finite() || (range > 0.0 && t >= range * EMPTY_FRACTION) {
-                    f64::INFINITY
-                } else {
-                    slab.near + t
-                }
-            })?;
+            let t: Vec<f64> = (0..d.t.len())
+                .map(|i| decode::slab_depth(slab.near, range, d.t[i], d.t_hi[i]))
+                .collect();
+            let depth = to_cube(n, &t, |t| t)?;
             let rgba = CubeMap::from_vec(
                 n,
-                color
-                    .as_slice()
-                    .iter()
-                    .zip(depth.as_slice())
-                    .map(|(c, z)| [c[0], c[1], c[2], if z.is_finite() { 255 } else { 0 }])
+                (0..depth.as_slice().len())
+                    .map(|i| {
+                        let z = depth.as_slice()[i];
+                        let c = decode::layer_colour(
+                            color.as_slice()[i],
+                            z as f64,
+                            base_colour.as_slice()[i],
+                            base_depth.as_slice()[i] as f64,
+                        );
+                        [c[0], c[1], c[2], if z.is_finite() { 255 } else { 0 }]
+                    })
                     .collect(),
             )
             .ok_or_else(|| PovError::Output {
