@@ -61,6 +61,11 @@ pub struct TilesFile {
     /// Length of `tiles.bin`.
     pub mesh_bytes: u64,
     pub layers: Vec<LayerRecord>,
+    /// A digest of the slab layer files the tiles were cut from, set by the caller (the
+    /// build's slabs stage: BLAKE3 of every `slab_K/color.png` and `depth.exr`): layers
+    /// rendered again make the tiles stale.
+    #[serde(default)]
+    pub layers_digest: String,
 }
 
 /// Encode the meshes of `tiles` into `tiles.bin` bytes and the matching `tiles.json`.
@@ -115,6 +120,7 @@ pub fn encode_tiles(
         mesh_kind,
         mesh_bytes: bin.len() as u64,
         layers,
+        layers_digest: String::new(),
     };
     (file, bin)
 }

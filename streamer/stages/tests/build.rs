@@ -84,6 +84,36 @@ fn builds_verifies_and_resumes() {
     assert_eq!(typed.config.cull_variant, CullChoice::Auto);
     assert_eq!(report["config"]["cull_variant"], "auto");
     assert_eq!(report["config"]["slabs"], "auto");
+
+    // Layers rendered again (here: slab 1 of sample 0 emptied) make that sample's tiles
+    // stale: it is tiled and encoded again, and the objects the new manifest no longer
+    // references are removed, with an unrelated one an earlier build left.
+    let dir = prerender::store::PrerenderDir::new(work.join("prerender"));
+    let tiles_before = std::fs::read(slabs::io::tiles_json(&dir, 0)).unwrap();
+    let layer = prerender::store::read_rgba_png(&dir.slab_color_png(0, 1)).unwrap();
+    let emptied = tracks::CubeMap::from_fn(layer.face_size(), |f, x, y| {
+        let p = *layer.get(f, x, y);
+        [p[0], p[1], p[2], 0]
+    });
+    prerender::store::write_atomic(
+        &dir.slab_color_png(0, 1),
+        &prerender::store::encode_rgba_png(&emptied),
+    )
+    .unwrap();
+    let old = b"an object of an earlier build";
+    let stray = out.join(tracks::manifest::object_rel_path(&blake3::hash(old).to_hex()).unwrap());
+    std::fs::create_dir_all(stray.parent().unwrap()).unwrap();
+    std::fs::write(&stray, old).unwrap();
+    run().unwrap();
+    let tiles_after = std::fs::read(slabs::io::tiles_json(&dir, 0)).unwrap();
+    assert_ne!(tiles_after, tiles_before, "stale tiles were kept");
+    let report: stages::encode::BuildReport =
+        serde_json::from_slice(&std::fs::read(work.join("build.json")).unwrap()).unwrap();
+    assert!(report.objects_written > 0);
+    assert!(report.objects_pruned >= 1);
+    assert!(!stray.exists());
+    let v = db::verify(&out).unwrap();
+    assert!(v.is_intact() && v.notes.is_empty(), "{v:?}");
     std::fs::remove_dir_all(&out).unwrap();
     std::fs::remove_dir_all(&work).unwrap();
 }

@@ -195,15 +195,24 @@ pub fn run(
     drop(writer);
     // Objects an earlier build wrote here that the new manifest does not reference (another
     // format or setting): removed, so the directory is the database and its size is true.
-    let pruned = db::prune(&dirs.out).context("removing objects no manifest references")?;
-    if pruned.objects > 0 {
-        progress.message(&format!(
-            "      removed {} object(s), {} bytes, of an earlier build that the manifest no \
-             longer references",
-            pruned.objects, pruned.bytes
-        ));
+    // A database that is not intact (a damaged file left by something else) is not pruned;
+    // the build still succeeds and says so (`railview verify` names the file).
+    match db::prune(&dirs.out) {
+        Ok(pruned) => {
+            if pruned.objects > 0 {
+                progress.message(&format!(
+                    "      removed {} object(s), {} bytes, of an earlier build that the \
+                     manifest no longer references",
+                    pruned.objects, pruned.bytes
+                ));
+            }
+            report.objects_pruned = pruned.objects as u64;
+        }
+        Err(e) => progress.message(&format!(
+            "      objects of earlier builds not removed: {e} (see `railview verify {}`)",
+            dirs.out.display()
+        )),
     }
-    report.objects_pruned = pruned.objects as u64;
     report.sizes.database_objects = walk_size(&dirs.out.join("objects"));
 
     // The baseline, from the same prerender directory.

@@ -306,7 +306,9 @@ fn tile_all(
     let bar = progress.bar(pre.viewpoints.len() as u64, "tiling", BarKind::Steps);
     let mut resumed = 0usize;
     for i in pre.viewpoints.iter().map(|v| v.index) {
-        // Resume: a sample whose tiles files match these parameters is not tiled again.
+        let digest = layers_digest(dir, i, choice.slabs.len())?;
+        // Resume: a sample whose tiles files match these parameters and layers is not tiled
+        // again.
         if let Ok((file, _)) = sio::read_tiles(dir, i) {
             // Tiles cut from panoramas of another face size (a work directory prerendered
             // again) are stale.
@@ -319,6 +321,7 @@ fn tile_all(
                     .iter()
                     .map(|l| l.range)
                     .eq(choice.slabs.iter().copied())
+                && file.layers_digest == digest
                 && !missing.contains(&i);
             if same {
                 report.add_tiles_file(&file);
@@ -335,13 +338,38 @@ fn tile_all(
             .map(|(depth, mask)| LayerInput { depth, mask })
             .collect();
         let tiles = tile_sample(i, &inputs, tp).with_context(|| format!("sample {i}: tiling"))?;
-        let (file, bin) = sio::encode_tiles(&tiles, &choice.slabs, tp.mesh, tp.keep);
+        let (mut file, bin) = sio::encode_tiles(&tiles, &choice.slabs, tp.mesh, tp.keep);
+        file.layers_digest = digest;
         sio::write_tiles(dir, i, &file, &bin)?;
         report.add_sample(&tiles);
         bar.inc(1);
     }
     bar.finish();
     Ok(resumed)
+}
+
+/// BLAKE3 of sample `i`'s slab layer files (colour and depth of each of `slabs`): tiles cut
+/// from other layers (a sample's layers rendered again) are stale. A missing file counts as
+/// empty; tiling then reports it.
+fn layers_digest(dir: &PrerenderDir, i: usize, slabs: usize) -> Result<String> {
+    let mut h = blake3::Hasher::new();
+    for k in 0..slabs {
+        for path in [dir.slab_color_png(i, k), dir.slab_depth_exr(i, k)] {
+            match std::fs::read(&path) {
+                Ok(bytes) => {
+                    h.update(&(bytes.len() as u64).to_le_bytes());
+                    h.update(&bytes);
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    h.update(&u64::MAX.to_le_bytes());
+                }
+                Err(e) => {
+                    return Err(e).with_context(|| format!("reading {}", path.display()));
+                }
+            }
+        }
+    }
+    Ok(h.finalize().to_hex().to_string())
 }
 
 /// `slabs.json`, `slabs.md` and the histogram figure.
