@@ -446,7 +446,7 @@ fn antialiased_colour_is_the_same_view() {
         .render_base(&v, &plain_dir)
         .unwrap();
     let mut opts = options(&out);
-    opts.antialias = true;
+    opts.supersample = 2;
     PovImport::new(&scene, opts)
         .unwrap()
         .render_base(&v, &aa_dir)

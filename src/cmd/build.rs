@@ -67,7 +67,8 @@ pub struct Args {
     #[arg(long)]
     pub spacing: Option<f64>,
     /// Colour rays per pixel along each axis of the panoramas, averaged in linear light
-    /// (anti-aliasing). Built-in and scene-file scenes; with --pov, 2 is --aa.
+    /// (anti-aliasing). With --pov at most 4 (POV-Ray renders colour at that many times the
+    /// face size); --aa is 2.
     #[arg(long, default_value_t = 1)]
     pub supersample: u32,
     /// Slab boundaries: `auto`, `fewer`, `more`, `auto-N`, `auto+N`, or ranges
@@ -159,7 +160,7 @@ fn params(args: &Args) -> anyhow::Result<BuildParams> {
             scene: p.clone(),
             pov: PovParams {
                 up: args.up,
-                antialias: args.aa,
+                supersample: if args.aa { 2 } else { 1 },
                 timeout_secs: args.timeout_secs,
                 povray: args.povray.clone(),
                 ..PovParams::default()

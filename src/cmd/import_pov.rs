@@ -32,6 +32,10 @@ pub struct Args {
     /// Anti-aliased colour (2×2 supersampling; 4× the colour render time).
     #[arg(long)]
     pub aa: bool,
+    /// Colour rays per pixel along each axis, 1 to 4, box-filtered in linear light (N² times
+    /// the colour render time; --aa is 2).
+    #[arg(long, default_value_t = 1)]
+    pub supersample: u32,
     /// Face size of the low-resolution depth pass.
     #[arg(long, default_value_t = 32)]
     pub lowres_face_size: u32,
@@ -92,7 +96,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         merge: args.merge,
         renderer: Renderer::PovRay(PovParams {
             up: Some(args.up),
-            antialias: args.aa,
+            supersample: if args.aa {
+                args.supersample.max(2)
+            } else {
+                args.supersample
+            },
             timeout_secs: args.timeout_secs,
             povray: Some(args.povray),
             threads: args.threads,

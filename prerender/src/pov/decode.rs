@@ -309,18 +309,21 @@ pub fn box_filter(fine: &[u8], w: u32, h: u32, ss: u32) -> Vec<[u8; 3]> {
         .collect()
 }
 
-/// Average 2×2 blocks of a cube map of `2N` into one of `N`, in linear light.
-pub fn downsample_2x(fine: &CubeMap<[u8; 3]>) -> CubeMap<[u8; 3]> {
-    let n = fine.face_size() / 2;
+/// Average `ss × ss` blocks of a cube map of `ss·N` into one of `N`, in linear light.
+pub fn downsample(fine: &CubeMap<[u8; 3]>, ss: u32) -> CubeMap<[u8; 3]> {
+    let ss = ss.max(1);
+    let n = fine.face_size() / ss;
     CubeMap::from_fn(n, |face, x, y| {
         let mut acc = [0.0f64; 3];
-        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-            let p = fine.get(face, 2 * x + dx, 2 * y + dy);
-            for c in 0..3 {
-                acc[c] += srgb_to_linear(p[c]);
+        for dy in 0..ss {
+            for dx in 0..ss {
+                let p = fine.get(face, ss * x + dx, ss * y + dy);
+                for c in 0..3 {
+                    acc[c] += srgb_to_linear(p[c]);
+                }
             }
         }
-        acc.map(|a| linear_to_srgb(a / 4.0))
+        acc.map(|a| linear_to_srgb(a / (ss * ss) as f64))
     })
 }
 
@@ -444,8 +447,13 @@ mod tests {
     #[test]
     fn downsample_of_uniform_is_identity() {
         let fine = CubeMap::filled(4, [10u8, 128, 250]);
-        let coarse = downsample_2x(&fine);
+        let coarse = downsample(&fine, 2);
         assert_eq!(coarse.face_size(), 2);
+        assert_eq!(downsample(&fine, 4).face_size(), 1);
+        assert!(downsample(&fine, 4)
+            .as_slice()
+            .iter()
+            .all(|p| *p == [10, 128, 250]));
         assert!(coarse.as_slice().iter().all(|p| *p == [10, 128, 250]));
     }
 }

@@ -50,6 +50,9 @@ pub struct DepthSummary {
     pub fog_scales: FogScales,
 }
 
+/// Most colour rays per pixel along each axis (16 a pixel).
+pub const MAX_SUPERSAMPLE: u32 = 4;
+
 /// Called after every finished render.
 type ProgressFn = Box<dyn FnMut(&RenderRecord)>;
 
@@ -160,9 +163,11 @@ impl PovImport {
         let mut opts = PovOptions::new(pre.face_size, work_dir);
         opts.lowres_face_size = pre.lowres_face_size;
         opts.up = up;
-        opts.antialias = field("antialias")
-            .and_then(|v| v.as_bool())
-            .unwrap_or(false);
+        // Older prerender directories record only whether colour was anti-aliased (2×2).
+        opts.supersample = match field("supersample").and_then(|v| v.as_u64()) {
+            Some(s) => (s as u32).clamp(1, MAX_SUPERSAMPLE),
+            None => 1 + u32::from(field("antialias").and_then(|v| v.as_bool()) == Some(true)),
+        };
         if let Some(p) = field("povray").and_then(|v| v.as_str()) {
             opts.povray = PathBuf::from(p);
         }
@@ -382,7 +387,7 @@ impl PovImport {
         Ok(decoded)
     }
 
-    /// Colour through the mesh camera (2×2 supersampled with `antialias`).
+    /// Colour through the mesh camera (supersampled `supersample`² and box-filtered).
     fn color_pass(
         &mut self,
         sample: usize,
@@ -390,12 +395,13 @@ impl PovImport {
         view: View,
     ) -> Result<CubeMap<[u8; 3]>, PovError> {
         let n = self.opts.face_size;
-        let fine = if self.opts.antialias { 2 * n } else { n };
+        let ss = self.opts.supersample.clamp(1, MAX_SUPERSAMPLE);
+        let fine = ss * n;
         let path = self.render(sample, pass, PassKind::Color, fine, view, None)?;
         let map = decode::read_mesh_png8(&path, &MeshLayout::new(fine))?;
         remove(&path)?;
-        Ok(if self.opts.antialias {
-            decode::downsample_2x(&map)
+        Ok(if ss > 1 {
+            decode::downsample(&map, ss)
         } else {
             map
         })

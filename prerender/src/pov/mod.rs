@@ -42,7 +42,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 pub use frame::UpAxis;
-pub use import::{DepthSummary, PovImport, RenderRecord};
+pub use import::{DepthSummary, PovImport, RenderRecord, MAX_SUPERSAMPLE};
 pub use runner::RenderStats;
 
 use crate::store::StoreError;
@@ -98,8 +98,10 @@ pub struct PovOptions {
     pub lowres_face_size: u32,
     /// The scene's up axis.
     pub up: UpAxis,
-    /// Colour at 2×2 supersampling (the mesh camera cannot anti-alias within a pixel).
-    pub antialias: bool,
+    /// Colour rays per pixel along each axis, 1 to 4, box-filtered in linear light (the mesh
+    /// camera cannot anti-alias within a pixel, so colour is rendered at this many times the
+    /// face size).
+    pub supersample: u32,
     /// The `povray` binary (a name looked up on `PATH`, or a path).
     pub povray: PathBuf,
     /// Render threads (`+WT`).
@@ -119,7 +121,7 @@ impl PovOptions {
             face_size,
             lowres_face_size: 32,
             up: UpAxis::Y,
-            antialias: false,
+            supersample: 1,
             povray: PathBuf::from("povray"),
             threads: std::thread::available_parallelism().map_or(2, |n| n.get()),
             timeout: None,

@@ -41,8 +41,8 @@ use crate::slabs::{SlabsParams, Tiling};
 pub enum BuildScene {
     /// A built-in scene name or a scene TOML file: the built-in tracer.
     Tracer(String),
-    /// A POV-Ray 3.7 scene (`.pov`), with how POV-Ray renders it (its `antialias` is also
-    /// on at 2×2 supersampling).
+    /// A POV-Ray 3.7 scene (`.pov`), with how POV-Ray renders it (`--supersample` above 1
+    /// sets its `supersample`).
     PovRay { scene: PathBuf, pov: PovParams },
 }
 
@@ -120,11 +120,12 @@ impl BuildParams {
         })
     }
 
-    /// Whether the panoramas are anti-aliased by POV-Ray (`--aa`, or 2×2 supersampling).
-    pub fn pov_antialias(&self) -> bool {
+    /// Colour rays per pixel along each axis of POV-Ray's panoramas (`--supersample N`, or
+    /// `--aa` for 2); 1 for the tracer, whose knob is `supersample` itself.
+    pub fn pov_supersample(&self) -> u32 {
         match &self.scene {
-            BuildScene::PovRay { pov, .. } => pov.antialias || self.knobs.supersample == 2,
-            BuildScene::Tracer(_) => false,
+            BuildScene::PovRay { pov, .. } => self.knobs.supersample.max(pov.supersample).max(1),
+            BuildScene::Tracer(_) => 1,
         }
     }
 
@@ -172,9 +173,10 @@ impl BuildParams {
                 k.supersample
             ));
         }
-        if self.scene.is_pov() && k.supersample > 2 {
+        let most = prerender::pov::MAX_SUPERSAMPLE;
+        if self.scene.is_pov() && k.supersample > most {
             return Err(parameter!(
-                "--supersample {} with --pov: POV-Ray imports anti-alias 2×2 (--supersample 2 or --aa) or not at all",
+                "--supersample {} with --pov: POV-Ray imports render colour at most {most}×{most} rays a pixel",
                 k.supersample
             ));
         }
@@ -265,7 +267,7 @@ impl BuildParams {
                 }
                 let resampled = track != self.track;
                 let pov = PovParams {
-                    antialias: self.pov_antialias(),
+                    supersample: self.pov_supersample(),
                     ..pov.clone()
                 };
                 (
@@ -323,9 +325,13 @@ fn check_panoramas(work: &Path, params: &BuildParams) -> Result<()> {
         supersample: u32,
         aa: bool,
     }
+    let ss = match params.scene {
+        BuildScene::PovRay { .. } => params.pov_supersample(),
+        BuildScene::Tracer(_) => params.knobs.supersample,
+    };
     let want = Panoramas {
-        supersample: params.knobs.supersample,
-        aa: params.pov_antialias(),
+        supersample: ss,
+        aa: params.scene.is_pov() && ss > 1,
     };
     let path = work.join("panoramas.json");
     if let Ok(had) = store::read_json::<Panoramas>(&path) {

@@ -62,8 +62,8 @@ impl SweepSpec {
         }
     }
 
-    /// Every configuration's knobs in range (`pov`: POV-Ray renders the panoramas, which
-    /// anti-alias 2×2 or not at all).
+    /// Every configuration's knobs in range (`pov`: POV-Ray renders the panoramas, at most
+    /// [`prerender::pov::MAX_SUPERSAMPLE`] colour rays a pixel along each axis).
     pub fn check(&self, pov: bool) -> Result<()> {
         let bad = |m: String| Err(Error::Parameter(m));
         for k in self.configs() {
@@ -73,10 +73,16 @@ impl SweepSpec {
             if !(8..=4096).contains(&k.face_size) {
                 return bad(format!("face size {} out of 8..=4096", k.face_size));
             }
-            if !((1..=16).contains(&k.supersample) && (!pov || k.supersample <= 2)) {
+            let most = if pov {
+                prerender::pov::MAX_SUPERSAMPLE
+            } else {
+                16
+            };
+            if !(1..=most).contains(&k.supersample) {
                 return bad(format!(
-                    "supersampling {} out of range (POV-Ray imports: 1 or 2)",
-                    k.supersample
+                    "supersampling {} out of range (1 to {most}{})",
+                    k.supersample,
+                    if pov { " for POV-Ray imports" } else { "" }
                 ));
             }
             if !(k.tile_size.is_power_of_two() && (4..=1024).contains(&k.tile_size)) {

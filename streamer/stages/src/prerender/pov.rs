@@ -21,8 +21,9 @@ use crate::progress::Reporter;
 pub struct PovParams {
     /// The scene's up axis (default: y).
     pub up: Option<UpAxis>,
-    /// Anti-aliased colour (2×2 supersampling; 4× the colour render time).
-    pub antialias: bool,
+    /// Colour rays per pixel along each axis (0 or 1: none; 2 is `--aa`; at most
+    /// [`prerender::pov::MAX_SUPERSAMPLE`]); `n²` times the colour render time.
+    pub supersample: u32,
     /// Kill and fail a single render that runs longer than this many seconds.
     pub timeout_secs: Option<f64>,
     /// The POV-Ray binary (default: `povray`).
@@ -61,8 +62,8 @@ impl PovParams {
         if let Some(up) = self.up {
             v.extend(["--up".into(), up.name().into()]);
         }
-        if self.antialias {
-            v.push("--aa".into());
+        if self.supersample > 1 {
+            v.extend(["--supersample".into(), self.supersample.to_string()]);
         }
         if let Some(b) = &self.povray {
             v.extend(["--povray".into(), b.display().to_string()]);
@@ -120,6 +121,13 @@ fn read_track(params: &PrerenderParams) -> Result<(tracks::Track, String)> {
 
 /// The import with its options.
 fn import(params: &PrerenderParams, pov: &PovParams, progress: &Reporter) -> Result<PovImport> {
+    let most = prerender::pov::MAX_SUPERSAMPLE;
+    if pov.supersample > most {
+        return Err(parameter!(
+            "--supersample {}: POV-Ray imports render colour at most {most}×{most} rays a pixel",
+            pov.supersample
+        ));
+    }
     // Generated includes, wrappers and POV-Ray's own images: one work directory per shard, so
     // a shard finishing (it deletes its mesh includes) never pulls files from under another.
     let work = match params.shard {
@@ -132,7 +140,7 @@ fn import(params: &PrerenderParams, pov: &PovParams, progress: &Reporter) -> Res
     let mut opts = PovOptions::new(params.face_size, work);
     opts.lowres_face_size = params.lowres();
     opts.up = pov.up();
-    opts.antialias = pov.antialias;
+    opts.supersample = pov.supersample.max(1);
     opts.povray = pov.povray();
     if let Some(t) = pov.threads {
         opts.threads = t.max(1);
@@ -397,7 +405,8 @@ fn write_report(facts: &Facts, import: &PovImport, progress: &Reporter) -> Resul
     let extra = serde_json::json!({
         "povray_version": import.povray_version(),
         "up": pov.up().name(),
-        "antialias": pov.antialias,
+        "antialias": pov.supersample > 1,
+        "supersample": pov.supersample.max(1),
         "povray": pov.povray().display().to_string(),
         "threads": pov.threads,
         "timeout_secs": pov.timeout_secs,

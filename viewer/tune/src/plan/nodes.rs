@@ -154,7 +154,7 @@ fn prerender(setup: &Setup, knobs: &Knobs, track_file: &Path, out: &Path) -> Pre
             scene.display().to_string(),
             Renderer::PovRay(PovParams {
                 up: pov.up,
-                antialias: knobs.supersample == 2,
+                supersample: knobs.supersample,
                 ..PovParams::default()
             }),
         ),
@@ -183,7 +183,7 @@ fn build(setup: &Setup, knobs: &Knobs, track_file: &Path, dir: &Path) -> BuildPa
                 scene: scene.clone(),
                 pov: PovParams {
                     up: pov.up,
-                    antialias: knobs.supersample == 2,
+                    supersample: knobs.supersample,
                     ..PovParams::default()
                 },
             },
@@ -230,8 +230,8 @@ pub(super) fn build_command(p: &BuildParams) -> Vec<String> {
             if let Some(up) = pov.up {
                 v.extend(["--up".into(), up.name().into()]);
             }
-            if pov.antialias {
-                v.push("--aa".into());
+            if pov.supersample > 1 {
+                v.extend(["--supersample".into(), pov.supersample.to_string()]);
             }
             v
         }
