@@ -229,6 +229,11 @@ fn put_varint(out: &mut Vec<u8>, mut v: u64) {
     out.push(v as u8);
 }
 
+/// The inverse of [`zigzag`].
+fn unzigzag(v: u64) -> i64 {
+    ((v >> 1) as i64) ^ -((v & 1) as i64)
+}
+
 fn zigzag(v: i64) -> u64 {
     ((v << 1) ^ (v >> 63)) as u64
 }
@@ -438,7 +443,7 @@ fn check_plain_counts(vertices: u64, triangles: u64) -> Result<(), String> {
     Ok(())
 }
 
-/// Decodes the plain layout after its first 6 bytes.
+/// Decodes the plain layout after its first 2 bytes.
 fn decode_plain(b: &[u8]) -> Result<TileMesh, MeshError> {
     let fmt = |m: String| MeshError::Format(m);
     let mut hd = Header { b, at: 2 };
@@ -601,13 +606,12 @@ fn encode_lattice(
         let (pred, how) = predict(k, &pts, &q, &grown, &adj);
         models[how as usize].encode(&mut e, (q[k] - pred) as i32);
     }
-    // The last vertex as the decoder rebuilds it: the first quad's depth is predicted from it.
-    let last = (n > 0).then(|| {
+    // The last vertex's depth as the decoder rebuilds it: the first quad's is predicted from it.
+    let last_r = (n > 0).then(|| {
         let (x, y) = position(pts[n - 1], x0, y0, unit);
-        let r = planar_norm(x as f64, y as f64, coding.face_size) / (q[n - 1] as f64 * step);
-        (x, y, r as f32)
+        (planar_norm(x as f64, y as f64, coding.face_size) / (q[n - 1] as f64 * step)) as f32
     });
-    quads::encode(&mut e, &quad_box, pixel_quads, last, step);
+    quads::encode(&mut e, &quad_box, pixel_quads, last_r, step);
     out.extend_from_slice(&e.finish());
     Ok(out)
 }
@@ -687,9 +691,8 @@ pub fn decode_mesh(b: &[u8]) -> Result<TileMesh, MeshError> {
     };
     let mut hd = Header { b, at: 2 };
     let face_size = hd.varint("face size")?;
-    let unzig = |v: u64| ((v >> 1) as i64) ^ -((v & 1) as i64);
-    let x0 = unzig(hd.varint("x0")?);
-    let y0 = unzig(hd.varint("y0")?);
+    let x0 = unzigzag(hd.varint("x0")?);
+    let y0 = unzigzag(hd.varint("y0")?);
     let w = hd.varint("box width")?;
     let h = hd.varint("box height")?;
     let n = hd.varint("vertex count")?;
@@ -752,8 +755,8 @@ pub fn decode_mesh(b: &[u8]) -> Result<TileMesh, MeshError> {
         vertices,
         indices: grown.into_iter().flatten().collect(),
     };
-    let last = mesh.vertices.last().map(|v| (v[0], v[1], v[2]));
-    let pixel_quads = quads::decode(&mut d, &quad_box, last, step)?;
+    let last_r = mesh.vertices.last().map(|v| v[2]);
+    let pixel_quads = quads::decode(&mut d, &quad_box, last_r, step)?;
     quads::append(&mut mesh, &pixel_quads);
     Ok(mesh)
 }

@@ -54,15 +54,11 @@ pub(super) fn split(mesh: &TileMesh) -> (TileMesh, Vec<PixelQuad>) {
         let mut ts: Vec<u32> = (b..b + 4).flat_map(|i| users[i].iter().copied()).collect();
         ts.sort_unstable();
         ts.dedup();
-        let (b32, own) = (b as u32, |t: u32| {
-            tri(t)
-                .iter()
-                .all(|&i| (b as u32..b as u32 + 4).contains(&i))
-        });
-        let square = ts.len() == 2 && ts.iter().all(|&t| own(t)) && {
-            let (s, t) = (tri(ts[0]), tri(ts[1]));
-            let rel = |s: [u32; 3]| s.map(|i| i - b32);
-            let pair = [rel(s), rel(t)];
+        // Relative to the first corner (a triangle with a vertex below it wraps to a large
+        // index and matches no pair).
+        let rel = |t: u32| tri(t).map(|i| i.wrapping_sub(b as u32));
+        let square = ts.len() == 2 && {
+            let pair = [rel(ts[0]), rel(ts[1])];
             // Either diagonal: 0–2 ([0,1,2] + [0,2,3]) or 1–3 ([0,1,3] + [1,2,3]).
             pair == [[0, 1, 2], [0, 2, 3]] || pair == [[0, 1, 3], [1, 2, 3]]
         };
@@ -215,11 +211,10 @@ impl QuadBox {
                 h: 0,
             });
         }
-        let unzig = |v: u64| ((v >> 1) as i64) ^ -((v & 1) as i64);
         let b = QuadBox {
             count,
-            x0: unzig(hd.varint("pixel quad x0")?),
-            y0: unzig(hd.varint("pixel quad y0")?),
+            x0: super::unzigzag(hd.varint("pixel quad x0")?),
+            y0: super::unzigzag(hd.varint("pixel quad y0")?),
             w: hd.varint("pixel quad box width")?,
             h: hd.varint("pixel quad box height")?,
         };
@@ -234,7 +229,7 @@ fn quantise(r: f32, step: f64) -> i64 {
 }
 
 /// Predictors of a quad's depth: the quad above, the quad to the left, the quad before in
-/// raster order, the last lattice vertex (first quad only).
+/// raster order, the last lattice vertex's radial depth (first quad only).
 const PREDICTORS: usize = 4;
 
 /// Codes the quads' pixels (a mask over the box, contexts as the lattice occupancy's) and
@@ -243,7 +238,7 @@ pub(super) fn encode(
     e: &mut Encoder,
     qb: &QuadBox,
     quads: &[PixelQuad],
-    last: Option<(f32, f32, f32)>,
+    last_r: Option<f32>,
     step: f64,
 ) {
     if quads.is_empty() {
@@ -270,7 +265,7 @@ pub(super) fn encode(
     for quad in quads {
         let i = cell(quad);
         let v = quantise(quad.r, step);
-        let (pred, how) = predict(&mask, &q, w, i, prev, last, step);
+        let (pred, how) = predict(&mask, &q, w, i, prev, last_r, step);
         models[how].encode(e, (v - pred) as i32);
         q[i] = v;
         prev = Some(v);
@@ -283,7 +278,7 @@ fn predict(
     w: usize,
     i: usize,
     prev: Option<i64>,
-    last: Option<(f32, f32, f32)>,
+    last_r: Option<f32>,
     step: f64,
 ) -> (i64, usize) {
     if i >= w && mask[i - w] {
@@ -293,7 +288,7 @@ fn predict(
     } else if let Some(p) = prev {
         (p, 2)
     } else {
-        (last.map_or(0, |l| quantise(l.2, step)), 3)
+        (last_r.map_or(0, |r| quantise(r, step)), 3)
     }
 }
 
@@ -301,7 +296,7 @@ fn predict(
 pub(super) fn decode(
     d: &mut Decoder,
     qb: &QuadBox,
-    last: Option<(f32, f32, f32)>,
+    last_r: Option<f32>,
     step: f64,
 ) -> Result<Vec<PixelQuad>, super::MeshError> {
     if qb.count == 0 {
@@ -331,7 +326,7 @@ pub(super) fn decode(
     let mut prev = None;
     let mut out = Vec::with_capacity(count);
     for (k, &i) in cells.iter().enumerate() {
-        let (pred, how) = predict(&mask, &q, w, i, prev, last, step);
+        let (pred, how) = predict(&mask, &q, w, i, prev, last_r, step);
         let v = pred + models[how].decode(d) as i64;
         if !(1..=i32::MAX as i64).contains(&v) {
             return Err(super::MeshError::Format(format!(
