@@ -1,6 +1,7 @@
 //! `railview cull --oracle` on a POV-Ray import: the oracle renders depth with POV-Ray at the
 //! positions between the reference viewpoints (faces of 16 px keep it fast), and the
-//! conservative variant at α = 1 has no false culls while α = 0.8 is judged by the same marks.
+//! conservative variant at α = 1 and the rendered variant (POV-Ray's depth renders from balls
+//! along the segment) have no false culls while α = 0.8 is judged by the same marks.
 
 mod common;
 
@@ -53,7 +54,7 @@ fn oracle_renders_depth_with_povray() {
         "--oracle-per-segment",
         "2",
         "--variant",
-        "conservative",
+        "conservative,rendered",
         "--alpha",
         "1.0,0.8",
     ]);
@@ -62,15 +63,27 @@ fn oracle_renders_depth_with_povray() {
     let r: serde_json::Value = serde_json::from_str(&t).unwrap();
     assert_eq!(r["oracle"]["source"], "depth-renders (POV-Ray)", "{t}");
     let runs = r["runs"].as_array().unwrap();
-    let one = runs.iter().find(|x| x["alpha"] == 1.0).unwrap();
-    let slabs = one["slabs"].as_array().unwrap();
-    assert_eq!(slabs.len(), 3, "{t}");
-    for s in slabs {
-        assert_eq!(s["false_culls"], 0, "{t}");
-        // The oracle saw something of every slab from somewhere.
-        assert!(s["visible_tiles"].as_u64().unwrap() > 0, "{t}");
-        assert!(s["never_visible"].as_u64().is_some(), "{t}");
+    for variant in ["conservative", "rendered"] {
+        let one = runs
+            .iter()
+            .find(|x| x["alpha"] == 1.0 && x["variant"] == variant)
+            .unwrap();
+        let slabs = one["slabs"].as_array().unwrap();
+        assert_eq!(slabs.len(), 3, "{t}");
+        for s in slabs {
+            assert_eq!(s["false_culls"], 0, "{variant}: {t}");
+            // The oracle saw something of every slab from somewhere.
+            assert!(s["visible_tiles"].as_u64().unwrap() > 0, "{t}");
+            assert!(s["never_visible"].as_u64().is_some(), "{t}");
+        }
     }
+    // The rendered variant ran at α = 1 only, on POV-Ray's depth renders.
+    let rendered: Vec<_> = runs.iter().filter(|x| x["variant"] == "rendered").collect();
+    assert_eq!(rendered.len(), 1, "{t}");
+    assert!(
+        rendered[0]["rendered"]["renders"].as_u64().unwrap() > 0,
+        "{t}"
+    );
     // The scratch renders are gone.
     assert!(!dir.join("cull-oracle").exists());
     // An import has no solids for the shrunk variant: asked for by name, it is refused.

@@ -72,6 +72,10 @@ pub enum Variant {
     /// including openings and occluders finer than a pixel. Needs the scene's geometry
     /// ([`crate::shrunk::cull_viewpoint_shrunk`]); α does not apply (always 1).
     Shrunk,
+    /// Image-space occluder shrinking in depth renders from balls covering the cell
+    /// ([`crate::rendered`]): for scenes whose solids are not at hand (POV-Ray imports).
+    /// Needs the renders ([`crate::rendered::cull_viewpoint_rendered`]); α does not apply.
+    Rendered,
 }
 
 impl Variant {
@@ -80,18 +84,30 @@ impl Variant {
             Variant::Conservative => "conservative",
             Variant::Paper => "paper",
             Variant::Shrunk => "shrunk",
+            Variant::Rendered => "rendered",
         }
     }
 
     /// Every variant, in the order reports show them.
-    pub const ALL: [Variant; 3] = [Variant::Shrunk, Variant::Conservative, Variant::Paper];
+    pub const ALL: [Variant; 4] = [
+        Variant::Shrunk,
+        Variant::Rendered,
+        Variant::Conservative,
+        Variant::Paper,
+    ];
 
-    /// Parse `shrunk`, `conservative` or `paper`.
+    /// Whether α applies (the window-opacity variants); the others run at α = 1.
+    pub fn takes_alpha(self) -> bool {
+        matches!(self, Variant::Conservative | Variant::Paper)
+    }
+
+    /// Parse `shrunk`, `rendered`, `conservative` or `paper`.
     pub fn parse(s: &str) -> Option<Variant> {
         match s.trim() {
             "conservative" => Some(Variant::Conservative),
             "paper" => Some(Variant::Paper),
             "shrunk" => Some(Variant::Shrunk),
+            "rendered" => Some(Variant::Rendered),
             _ => None,
         }
     }
@@ -119,6 +135,8 @@ pub struct CullParams {
     pub subdivisions: u32,
     /// Shrunk variant: sampling and refinement.
     pub shrunk: crate::shrunk::ShrunkParams,
+    /// Rendered variant: depth renders per segment and what a pixel holds.
+    pub rendered: crate::rendered::RenderedParams,
 }
 
 impl CullParams {
@@ -138,6 +156,7 @@ impl CullParams {
             motion_steps: 4,
             subdivisions: 2,
             shrunk: crate::shrunk::ShrunkParams::default(),
+            rendered: crate::rendered::RenderedParams::default(),
         })
     }
 }
@@ -182,10 +201,14 @@ pub fn cull_viewpoint(
     params: &CullParams,
 ) -> Result<ViewpointCull, OcclusionError> {
     check_inputs(cell, grid, layers)?;
-    if params.variant == Variant::Shrunk {
+    if !params.variant.takes_alpha() {
         return Err(OcclusionError::Parameter {
             name: "variant",
-            message: "the shrunk variant needs the scene's solids (cull_viewpoint_shrunk)".into(),
+            message: format!(
+                "the {} variant needs the scene's solids or depth renders \
+                 (cull_viewpoint_shrunk, cull_viewpoint_rendered)",
+                params.variant.name()
+            ),
         });
     }
     let n = grid.face_size;
@@ -224,7 +247,7 @@ pub fn cull_viewpoint(
             vec![true; layer.tiles.len()]
         } else {
             let q = match params.variant {
-                Variant::Conservative | Variant::Shrunk => {
+                Variant::Conservative | Variant::Shrunk | Variant::Rendered => {
                     match punch_buf {
                         Some(p) if punched => p.update(map, &joined),
                         Some(p) => p.rebuild(map, params.discontinuity, radius),
@@ -266,7 +289,9 @@ pub fn cull_viewpoint(
                 .tiles
                 .par_iter()
                 .map(|t| match params.variant {
-                    Variant::Conservative | Variant::Shrunk => ctx.keep_conservative(t),
+                    Variant::Conservative | Variant::Shrunk | Variant::Rendered => {
+                        ctx.keep_conservative(t)
+                    }
                     Variant::Paper => ctx.keep_paper(t),
                 })
                 .collect()

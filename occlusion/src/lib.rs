@@ -15,6 +15,10 @@
 //!   ([`SceneSolids`]): occluder shrinking against exact solids along the track, refined where
 //!   visibility changes; conservative for every point of the cell, openings and occluders
 //!   finer than a pixel included (the argument is in its module docs).
+//! - [`rendered`]: the fourth variant, [`cull_viewpoint_rendered`] with depth renders from
+//!   balls covering the cell ([`BallView`]): image-space occluder shrinking for scenes whose
+//!   solids are not at hand (POV-Ray imports); as good as the renders' sampling (its module
+//!   docs say where).
 //! - [`oracle`]: [`Geometry`] (exact first hits) or depth renders ([`DepthSource`]) at dense
 //!   positions along each segment (offset from where the shrunk variant samples) →
 //!   [`Visibility`] of every layer pixel → [`score`]: false culls and tightness per slab.
@@ -54,6 +58,7 @@ pub mod cull;
 pub mod input;
 pub mod maps;
 pub mod oracle;
+pub mod rendered;
 pub mod report;
 pub mod shrunk;
 pub mod synth;
@@ -65,6 +70,9 @@ pub use maps::DiscontinuityRule;
 pub use oracle::{
     mark_visible, oracle_track, score, DepthRenders, DepthSource, Geometry, MatchRule, RayCast,
     SlabScore, Visibility,
+};
+pub use rendered::{
+    cull_viewpoint_rendered, render_balls, Ball, BallView, RenderedParams, RenderedStats,
 };
 pub use shrunk::{cull_viewpoint_shrunk, SceneSolids, ShrunkParams, ShrunkStats, Solids};
 

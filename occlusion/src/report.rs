@@ -82,6 +82,9 @@ pub struct RunReport {
     /// The shrunk variant: how its tiles were decided and the tests it cast.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shrunk: Option<ShrunkStats>,
+    /// The rendered variant: tiles decided and culled, renders and tests.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rendered: Option<crate::rendered::RenderedStats>,
 }
 
 impl RunReport {
@@ -97,6 +100,7 @@ impl RunReport {
                 .collect(),
             seconds: 0.0,
             shrunk: None,
+            rendered: None,
         }
     }
 
@@ -278,6 +282,14 @@ pub fn markdown(report: &CullReport) -> String {
                 st.culled,
                 st.block_tests,
                 st.see_tests
+            );
+        }
+        for st in runs.iter().filter_map(|r| r.rendered) {
+            s += &format!(
+                "\nLater-slab tiles: {} decided, {} culled (every pixel hidden behind a \
+                 continuous surface in every depth render); {} depth renders, {} \
+                 (pixel, render) tests.\n",
+                st.tiles, st.culled, st.renders, st.tests
             );
         }
     }

@@ -89,9 +89,9 @@ pub struct Args {
     #[arg(long, default_value = "arith")]
     pub ptm_method: String,
     /// Culling variant for the database: `shrunk` (conservative for every track point,
-    /// against the scene's solids), `conservative`, `paper`, `none` (keep every non-empty
-    /// tile), or `auto`: shrunk at α = 1 for built-in and TOML scenes, conservative otherwise
-    /// (POV-Ray imports, α < 1).
+    /// against the scene's solids), `rendered` (from depth renders along the track),
+    /// `conservative`, `paper`, `none` (keep every non-empty tile), or `auto`: at α = 1 shrunk
+    /// for built-in and TOML scenes and rendered for POV-Ray imports, conservative at α < 1.
     #[arg(long, default_value = "auto")]
     pub cull_variant: String,
     /// Leave out the N finest texture levels: each tile's colour is kept at 1/2^N of its

@@ -16,13 +16,14 @@ pub struct Args {
     /// Opacity thresholds α, comma-separated (1 = fully opaque windows only).
     #[arg(long, default_value = "1.0,0.9,0.8")]
     pub alpha: String,
-    /// Variants, comma-separated: `shrunk`, `conservative`, `paper`; `all` for the three
-    /// (`shrunk` only where the scene's geometry is at hand), `both` for the last two.
+    /// Variants, comma-separated: `shrunk`, `rendered`, `conservative`, `paper`; `all` for
+    /// the four (`shrunk` only where the scene's geometry is at hand), `both` for the last
+    /// two.
     #[arg(long, default_value = "all")]
     pub variant: String,
     /// Also run the exact oracle: built-in or TOML scenes cast rays through the geometry;
-    /// POV-Ray imports render depth with POV-Ray at every oracle position (use a small
-    /// `--oracle-face-size`: each position is one POV-Ray base pass).
+    /// POV-Ray imports render depth with POV-Ray at every oracle position (a depth pass,
+    /// two where the scene's fog shows, several runs at a time).
     #[arg(long)]
     pub oracle: bool,
     /// Oracle positions per track segment besides its two ends, at offset fractions of its
@@ -64,7 +65,9 @@ fn parse_variants(s: &str) -> anyhow::Result<Variants> {
     let mut out = Vec::new();
     for part in s.split(',') {
         let v = Variant::parse(part).with_context(|| {
-            format!("--variant `{part}`: expected shrunk, conservative, paper, all or both")
+            format!(
+                "--variant `{part}`: expected shrunk, rendered, conservative, paper, all or both"
+            )
         })?;
         if !out.contains(&v) {
             out.push(v);

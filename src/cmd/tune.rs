@@ -55,8 +55,8 @@ pub struct Args {
     /// Base configuration: mesh error, parallax pixels.
     #[arg(long, default_value_t = 0.5)]
     pub mesh_error: f64,
-    /// Base configuration: culling `VARIANT:ALPHA` (`auto`, `shrunk`, `conservative`,
-    /// `paper`) or `none`.
+    /// Base configuration: culling `VARIANT:ALPHA` (`auto`, `shrunk`, `rendered`,
+    /// `conservative`, `paper`) or `none`.
     #[arg(long, default_value = "conservative:1")]
     pub cull: String,
 
@@ -152,19 +152,24 @@ fn cull(text: &str, flag: &str, pov: bool) -> anyhow::Result<(CullChoice, f64)> 
         .filter(|x: &f64| *x > 0.0 && *x <= 1.0)
         .with_context(|| format!("--{flag} `{text}`: α must be in (0, 1]"))?;
     let variant = if v == "auto" {
-        if pov || alpha != 1.0 {
-            occlusion::Variant::Conservative
-        } else {
-            occlusion::Variant::Shrunk
-        }
+        CullChoice::Auto
+            .resolve(pov, alpha)
+            .unwrap_or(occlusion::Variant::Conservative)
     } else {
         occlusion::Variant::parse(v).with_context(|| {
-            format!("--{flag} `{text}`: expected auto, shrunk, conservative, paper or none")
+            format!(
+                "--{flag} `{text}`: expected auto, shrunk, rendered, conservative, paper or none"
+            )
         })?
     };
     anyhow::ensure!(
-        variant != occlusion::Variant::Shrunk || (alpha == 1.0 && !pov),
-        "--{flag} `{text}`: the shrunk variant runs at α = 1 on scenes with solids (not --pov)"
+        variant.takes_alpha() || alpha == 1.0,
+        "--{flag} `{text}`: the {} variant runs at α = 1 only",
+        variant.name()
+    );
+    anyhow::ensure!(
+        variant != occlusion::Variant::Shrunk || !pov,
+        "--{flag} `{text}`: the shrunk variant needs a scene's solids (not --pov)"
     );
     Ok((CullChoice::Variant(variant), alpha))
 }

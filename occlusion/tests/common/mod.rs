@@ -5,9 +5,11 @@
 #![allow(dead_code)]
 
 use glam::DVec3;
+use occlusion::oracle::depth_from_geometry;
 use occlusion::{
-    cull_viewpoint, cull_viewpoint_shrunk, oracle_track, raw_rgba_bytes, score, Cell, CullParams,
-    MatchRule, RayCast, ShrunkStats, SlabLayer, Variant, ViewpointCull, Visibility,
+    cull_viewpoint, cull_viewpoint_rendered, cull_viewpoint_shrunk, oracle_track, raw_rgba_bytes,
+    render_balls, score, BallView, Cell, CullParams, MatchRule, RayCast, RenderedParams,
+    ShrunkStats, SlabLayer, Variant, ViewpointCull, Visibility,
 };
 use prerender::scene::Scene;
 use tracks::{SlabRange, TileGrid};
@@ -131,9 +133,20 @@ pub fn run_with(
     let mut culls = Vec::new();
     let mut stats = ShrunkStats::default();
     let solids = occlusion::SceneSolids::new(scene);
+    let views = if variant == Variant::Rendered {
+        rendered_views(p, scene, &params.rendered)
+    } else {
+        Vec::new()
+    };
     for i in 0..p.positions.len() {
         let cell = Cell::straight(&p.positions, i);
         let c = match variant {
+            Variant::Rendered => {
+                let near = views_of(&views, i);
+                cull_viewpoint_rendered(&cell, &p.grid, &p.layers[i], &near, &params.rendered)
+                    .unwrap()
+                    .0
+            }
             Variant::Shrunk => {
                 let (c, s) =
                     cull_viewpoint_shrunk(&cell, &p.grid, &p.layers[i], &params.shrunk, &solids)
@@ -153,6 +166,36 @@ pub fn run_with(
         culls.push(c);
     }
     (Rows(rows), culls, stats)
+}
+
+/// Per segment of the track, its balls and their depth renders (rays through the scene at
+/// the layers' face size), for the rendered variant.
+pub fn rendered_views(p: &Prepared, scene: &Scene, params: &RenderedParams) -> Vec<Vec<BallView>> {
+    let n = p.grid.face_size;
+    if p.positions.len() == 1 {
+        let one = render_balls(&p.positions, params, |c| {
+            Ok::<_, ()>(depth_from_geometry(scene, c, n))
+        });
+        return vec![one.unwrap()];
+    }
+    p.positions
+        .windows(2)
+        .map(|w| {
+            render_balls(w, params, |c| Ok::<_, ()>(depth_from_geometry(scene, c, n))).unwrap()
+        })
+        .collect()
+}
+
+/// The views whose balls cover the cell of viewpoint `i` (its two segments).
+pub fn views_of(views: &[Vec<BallView>], i: usize) -> Vec<&BallView> {
+    let mut out: Vec<&BallView> = Vec::new();
+    if i > 0 {
+        out.extend(views[i - 1].iter());
+    }
+    if let Some(v) = views.get(i) {
+        out.extend(v.iter());
+    }
+    out
 }
 
 /// The reference viewpoints of a built-in scene's main track.

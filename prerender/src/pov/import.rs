@@ -17,7 +17,10 @@ use super::{PovError, PovOptions};
 use crate::runlog::{LayersTiming, RunEvent, RunLog, SampleTiming};
 use crate::store::{self, LayersMeta, PrerenderDir, SampleMeta};
 
+mod depths;
 mod views;
+
+pub use depths::{DepthRequest, MAX_PARALLEL_RUNS};
 
 /// One finished POV-Ray render, for progress and the report.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -61,8 +64,8 @@ pub struct PovImport {
     scene: PathBuf,
     scene_sdl: String,
     info: SceneInfo,
-    opts: PovOptions,
-    povray: PovRay,
+    pub(super) opts: PovOptions,
+    pub(super) povray: PovRay,
     version: String,
     records: Vec<RenderRecord>,
     progress: Option<ProgressFn>,
@@ -72,15 +75,17 @@ pub struct PovImport {
     has_fog: HashMap<usize, bool>,
     /// Perspective views rendered so far (names their temporary files).
     truth_renders: u64,
+    /// Depth renders from free positions so far (names their temporary files).
+    pub(super) depth_renders: u64,
 }
 
 /// Camera position and ray range of one mesh-camera render.
 #[derive(Clone, Copy)]
-struct View {
-    pov: DVec3,
-    near: f64,
+pub(super) struct View {
+    pub pov: DVec3,
+    pub near: f64,
     /// `far − near`, or 0 for no limit.
-    range: f64,
+    pub range: f64,
 }
 
 impl PovImport {
@@ -134,6 +139,7 @@ impl PovImport {
             log: None,
             has_fog: HashMap::new(),
             truth_renders: 0,
+            depth_renders: 0,
         })
     }
 
@@ -231,7 +237,7 @@ impl PovImport {
         t
     }
 
-    fn file_gamma(&self) -> f64 {
+    pub(super) fn file_gamma(&self) -> f64 {
         self.opts.file_gamma.unwrap_or(self.info.assumed_gamma)
     }
 
@@ -283,9 +289,24 @@ impl PovImport {
         view: View,
         fog: Option<&FogScales>,
     ) -> Result<PathBuf, PovError> {
+        let job = self.job(&format!("s{sample:04}_{pass}"), kind, face_size, view, fog)?;
+        let stats = self.povray.run(&job)?;
+        self.record(sample, pass, face_size, &job, stats)?;
+        Ok(job.output)
+    }
+
+    /// The POV-Ray job of one mesh-camera render, its files named after `stem` (its
+    /// wrapper written if it is not yet).
+    pub(super) fn job(
+        &mut self,
+        stem: &str,
+        kind: PassKind,
+        face_size: u32,
+        view: View,
+        fog: Option<&FogScales>,
+    ) -> Result<RenderJob, PovError> {
         let wrapper = self.wrapper(kind, face_size)?;
         let (width, height) = MeshLayout::new(face_size).image_size();
-        let stem = format!("s{sample:04}_{pass}");
         let output = self.opts.work_dir.join(format!("{stem}.png"));
         let mut declares = vec![
             (names::CAM_X, view.pov.x),
@@ -308,10 +329,10 @@ impl PovImport {
                 file_gamma: self.file_gamma(),
             },
         };
-        let job = RenderJob {
-            name: format!("sample {sample} {pass} ({})", self.scene.display()),
+        Ok(RenderJob {
+            name: format!("{stem} ({})", self.scene.display()),
             wrapper,
-            output: output.clone(),
+            output,
             log: self.opts.work_dir.join("logs").join(format!("{stem}.log")),
             width,
             height,
@@ -324,13 +345,23 @@ impl PovImport {
                 .into_iter()
                 .collect(),
             declares,
-        };
-        let stats = self.povray.run(&job)?;
+        })
+    }
+
+    /// Record a finished render: progress, run log, the import's records.
+    pub(super) fn record(
+        &mut self,
+        sample: usize,
+        pass: &str,
+        face_size: u32,
+        job: &RenderJob,
+        stats: RenderStats,
+    ) -> Result<(), PovError> {
         let record = RenderRecord {
             sample,
             pass: pass.to_string(),
             face_size,
-            pixels: width as u64 * height as u64,
+            pixels: job.width as u64 * job.height as u64,
             stats,
             depth: None,
         };
@@ -339,7 +370,7 @@ impl PovImport {
         }
         self.log(RunEvent::Povray(record.clone()))?;
         self.records.push(record);
-        Ok(output)
+        Ok(())
     }
 
     /// Render and decode a fog-trick depth pass (with the fog-only pass when `fog`).
@@ -408,7 +439,7 @@ impl PovImport {
     }
 
     /// Whether the scene's own fog shows at this viewpoint (a cheap low-res fog-only pass).
-    fn scene_fog(&mut self, vp: &ReferenceViewpoint) -> Result<bool, PovError> {
+    pub fn scene_fog(&mut self, vp: &ReferenceViewpoint) -> Result<bool, PovError> {
         if let Some(f) = self.has_fog.get(&vp.index) {
             return Ok(*f);
         }
@@ -678,7 +709,7 @@ fn finite_range(t: &[f64]) -> (f64, f64) {
         })
 }
 
-fn to_cube(n: u32, t: &[f64], f: impl Fn(f64) -> f64) -> Result<CubeMap<f32>, PovError> {
+pub(super) fn to_cube(n: u32, t: &[f64], f: impl Fn(f64) -> f64) -> Result<CubeMap<f32>, PovError> {
     CubeMap::from_vec(n, t.iter().map(|&x| f(x) as f32).collect()).ok_or_else(|| PovError::Output {
         path: PathBuf::from(format!("depth pass of face size {n}")),
         message: format!("{} pixels do not form a cube map", t.len()),

@@ -3,7 +3,8 @@
 //!
 //! - [`PovImport`]: one scene and its options; [`PovImport::render_base`] renders a sample's
 //!   colour, radial depth and low-resolution depth, [`PovImport::render_slabs`] its slab
-//!   layers, [`PovImport::render_preview`] an equirectangular preview.
+//!   layers, [`PovImport::render_depths`] depth alone from free positions (for culling),
+//!   [`PovImport::render_preview`] an equirectangular preview.
 //! - [`PovOptions`]: face sizes, the scene's [`UpAxis`], anti-aliasing, the `povray` binary,
 //!   threads, per-render timeout and the work directory for generated files.
 //! - [`PovError`]: every failure, each naming its cause (file and line for POV-Ray's own
@@ -42,7 +43,9 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 pub use frame::UpAxis;
-pub use import::{DepthSummary, PovImport, RenderRecord, MAX_SUPERSAMPLE};
+pub use import::{
+    DepthRequest, DepthSummary, PovImport, RenderRecord, MAX_PARALLEL_RUNS, MAX_SUPERSAMPLE,
+};
 pub use runner::RenderStats;
 
 use crate::store::StoreError;

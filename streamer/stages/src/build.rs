@@ -133,18 +133,20 @@ impl BuildParams {
     /// that cannot run with these knobs is an error.
     pub fn cull_variant(&self) -> Result<Option<Variant>> {
         let k = &self.knobs;
-        if k.cull == CullChoice::Variant(Variant::Shrunk) {
-            if k.alpha != 1.0 {
+        if let CullChoice::Variant(v) = k.cull {
+            if !v.takes_alpha() && k.alpha != 1.0 {
                 return Err(parameter!(
-                    "--cull-variant shrunk runs at α = 1 only (found --alpha {})",
+                    "--cull-variant {} runs at α = 1 only (found --alpha {})",
+                    v.name(),
                     k.alpha
                 ));
             }
-            if self.scene.is_pov() {
-                return Err(parameter!(
-                    "--cull-variant shrunk needs the scene's solids: not with --pov"
-                ));
-            }
+        }
+        if k.cull == CullChoice::Variant(Variant::Shrunk) && self.scene.is_pov() {
+            return Err(parameter!(
+                "--cull-variant shrunk needs the scene's solids: not with --pov (the rendered \
+                 variant works from POV-Ray's depth renders)"
+            ));
         }
         Ok(k.cull.resolve(self.scene.is_pov(), k.alpha))
     }

@@ -63,8 +63,8 @@ impl FromStr for SlabSpec {
 /// Which culling a database gets.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum CullChoice {
-    /// The shrunk variant at α = 1 for scenes whose solids the tracer has (built-in and
-    /// TOML scenes), the conservative one otherwise (POV-Ray imports, α < 1).
+    /// At α = 1 the shrunk variant for scenes whose solids the tracer has (built-in and TOML
+    /// scenes) and the rendered one for POV-Ray imports; the conservative one at α < 1.
     #[default]
     Auto,
     /// Keep every non-empty tile.
@@ -79,10 +79,10 @@ impl CullChoice {
     pub fn resolve(self, pov: bool, alpha: f64) -> Option<Variant> {
         match self {
             CullChoice::Off => None,
-            CullChoice::Auto => Some(if !pov && alpha == 1.0 {
-                Variant::Shrunk
-            } else {
-                Variant::Conservative
+            CullChoice::Auto => Some(match (pov, alpha == 1.0) {
+                (false, true) => Variant::Shrunk,
+                (true, true) => Variant::Rendered,
+                (_, false) => Variant::Conservative,
             }),
             CullChoice::Variant(v) => Some(v),
         }
@@ -101,13 +101,14 @@ impl fmt::Display for CullChoice {
 
 impl FromStr for CullChoice {
     type Err = String;
-    /// `auto`, `none`, `shrunk`, `conservative` or `paper` (surrounding blanks ignored).
+    /// `auto`, `none`, `shrunk`, `rendered`, `conservative` or `paper` (surrounding blanks
+    /// ignored).
     fn from_str(s: &str) -> Result<Self, String> {
         match s.trim() {
             "auto" => Ok(CullChoice::Auto),
             "none" => Ok(CullChoice::Off),
             t => Variant::parse(t).map(CullChoice::Variant).ok_or_else(|| {
-                format!("`{t}`: expected auto, shrunk, conservative, paper or none")
+                format!("`{t}`: expected auto, shrunk, rendered, conservative, paper or none")
             }),
         }
     }
@@ -330,7 +331,14 @@ mod tests {
         let err = |t: &str| t.parse::<SlabSpec>().unwrap_err();
         assert!(err("autox").contains("--slabs `autox`"));
         assert!(err("some").starts_with("--slabs: slab 0"));
-        for text in ["auto", "none", "shrunk", "conservative", "paper"] {
+        for text in [
+            "auto",
+            "none",
+            "shrunk",
+            "rendered",
+            "conservative",
+            "paper",
+        ] {
             let c: CullChoice = text.parse().unwrap();
             assert_eq!(c.to_string(), text);
         }

@@ -3,6 +3,8 @@
 //!
 //! Variants: `shrunk` (occluder shrinking against the scene's exact solids, α = 1 only; it
 //! needs the geometry of a built-in or TOML scene and is left out for POV-Ray imports),
+//! `rendered` (image-space occluder shrinking in depth renders from balls along every
+//! segment, α = 1 only: rays through the scene, or POV-Ray's depth passes for an import),
 //! `conservative` and `paper` (both on the slab layers alone, every α).
 //!
 //! Writes (each atomically):
@@ -29,13 +31,13 @@ use occlusion::report::{
     TileDecisions, ViewpointDecisions,
 };
 use occlusion::{
-    cull_viewpoint, cull_viewpoint_shrunk, mark_visible, score, CullParams as RunParams, MatchRule,
-    SceneSolids, Visibility,
+    cull_viewpoint, cull_viewpoint_rendered, cull_viewpoint_shrunk, mark_visible, score, BallView,
+    CullParams as RunParams, MatchRule, SceneSolids, Visibility,
 };
 use prerender::runlog::RunLog;
 use prerender::scene::Scene;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
-use tracks::{SlabRange, TileGrid};
+use tracks::{CubeMap, SlabRange, TileGrid};
 
 pub use occlusion::Variant;
 
@@ -47,7 +49,7 @@ use crate::progress::{BarKind, Reporter};
 /// Which variants run.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Variants {
-    /// The three; `shrunk` only where the scene's geometry is at hand.
+    /// The four; `shrunk` only where the scene's geometry is at hand.
     All,
     /// `conservative` and `paper`.
     Both,
@@ -169,12 +171,13 @@ pub fn run(params: &CullParams, progress: &Reporter) -> Result<CullReport> {
     let log = RunLog::create(&params.dir, "cull", None)?;
     let (variants, solids) = variants_and_solids(params, &pre, progress)?;
     let solids = solids.as_deref().map(SceneSolids::new);
-    // α-acceleration is a threshold on window opacity; the shrunk variant runs at α = 1.
+    // α-acceleration is a threshold on window opacity; the shrunk and rendered variants
+    // run at α = 1.
     let runs: Vec<RunParams> = variants
         .iter()
-        .flat_map(|&v| match v {
-            Variant::Shrunk => vec![(1.0, v)],
-            _ => params.alphas.iter().map(|&a| (a, v)).collect(),
+        .flat_map(|&v| match v.takes_alpha() {
+            false => vec![(1.0, v)],
+            true => params.alphas.iter().map(|&a| (a, v)).collect(),
         })
         .map(|(a, v)| RunParams::new(a, v))
         .collect::<std::result::Result<_, _>>()?;
@@ -187,16 +190,21 @@ pub fn run(params: &CullParams, progress: &Reporter) -> Result<CullReport> {
             crate::check_face_size("--oracle-face-size", n)?;
         }
     }
-    let geometry = match params.oracle {
-        Some(o) => Some(OracleSource::load(&dir, &pre, o.face_size)?),
-        None => None,
+    let rendered = variants.contains(&Variant::Rendered);
+    let renderer = if params.oracle.is_some() || rendered {
+        let face = params.oracle.and_then(|o| o.face_size);
+        Some(OracleSource::load(&dir, &pre, face)?)
+    } else {
+        None
     };
     let mut culling = Culling {
         count: pre.viewpoints.len(),
         path: TrackPath::new(&dir, &pre),
         runs: &runs,
         solids: solids.as_ref(),
-        oracle: params.oracle.zip(geometry),
+        oracle: params.oracle,
+        renderer,
+        views: Vec::new(),
         reports: Vec::new(),
         decisions: runs
             .iter()
@@ -210,8 +218,17 @@ pub fn run(params: &CullParams, progress: &Reporter) -> Result<CullReport> {
         first: None,
         load_seconds: 0.0,
         oracle_seconds: 0.0,
+        render_seconds: 0.0,
+        inside: 0,
     };
     culling.all(&dir, &pre, progress)?;
+    if culling.inside > 0 {
+        progress.message(&format!(
+            "note: {} depth-render positions between the viewpoints are inside a solid (the \
+             track passes through an object): they see nothing, and prove nothing hidden",
+            culling.inside
+        ));
+    }
     let report = culling.report()?;
     write_outputs(params, &report, &culling, &variants, progress)?;
     log.end(&[
@@ -219,6 +236,8 @@ pub fn run(params: &CullParams, progress: &Reporter) -> Result<CullReport> {
         ("runs", report.runs.len().into()),
         ("load_seconds", culling.load_seconds.into()),
         ("oracle_seconds", culling.oracle_seconds.into()),
+        ("render_seconds", culling.render_seconds.into()),
+        ("positions_inside_solids", culling.inside.into()),
     ])?;
     progress.output(&format!(
         "wrote {}, cull.md, cull_tiles.json, cull/*.png ({:.2} s)\n",
@@ -290,7 +309,12 @@ struct Culling<'a> {
     path: TrackPath,
     runs: &'a [RunParams],
     solids: Option<&'a SceneSolids<'a, Scene>>,
-    oracle: Option<(OracleParams, OracleSource)>,
+    oracle: Option<OracleParams>,
+    /// Depth renders for the oracle and the rendered variant.
+    renderer: Option<OracleSource>,
+    /// The rendered variant: per segment, its balls and their depth renders (dropped once
+    /// both viewpoints of the segment are decided).
+    views: Vec<Option<Vec<BallView>>>,
     reports: Vec<RunReport>,
     decisions: Vec<RunDecisions>,
     vis_all: Vec<Visibility>,
@@ -298,6 +322,10 @@ struct Culling<'a> {
     first: Option<(TileGrid, Vec<SlabRange>)>,
     load_seconds: f64,
     oracle_seconds: f64,
+    /// Depth renders of the rendered variant.
+    render_seconds: f64,
+    /// Positions of depth renders found inside a solid (the track passes through an object).
+    inside: usize,
 }
 
 impl Culling<'_> {
@@ -338,7 +366,7 @@ impl Culling<'_> {
                     }
                 }
             }
-            let cur_vis = self.trace(k, count, vp.position, &cur, prev.as_ref())?;
+            let cur_vis = self.trace(dir, pre, k, &cur, prev.as_ref())?;
             if let Some((p, pv)) = prev.take() {
                 self.finish(&p, k - 1, pv)?;
                 pb.inc(1);
@@ -353,17 +381,54 @@ impl Culling<'_> {
         Ok(())
     }
 
-    /// The oracle's positions of the segment ending at viewpoint `k` marked visible in the
-    /// previous viewpoint and this one; this one's visibility so far.
+    /// The segment ending at viewpoint `k`: the rendered variant's depth renders from its
+    /// balls, and the oracle's positions marked visible in the previous viewpoint and this
+    /// one; this one's visibility so far.
     fn trace(
         &mut self,
+        dir: &PrerenderDir,
+        pre: &PrerenderReport,
         k: usize,
-        count: usize,
-        position: glam::DVec3,
         cur: &Loaded,
         prev: Option<&(Loaded, Option<Visibility>)>,
     ) -> Result<Option<Visibility>> {
-        let Some((o, source)) = &mut self.oracle else {
+        let count = pre.viewpoints.len();
+        let ends: Vec<&tracks::ReferenceViewpoint> = match k {
+            0 => vec![&pre.viewpoints[0]],
+            _ => vec![&pre.viewpoints[k - 1], &pre.viewpoints[k]],
+        };
+        if let Some(p) = self.runs.iter().find(|p| p.variant == Variant::Rendered) {
+            let path = match k {
+                0 if count == 1 => vec![self.path.position(0)],
+                0 => Vec::new(),
+                _ => self.path.between(k - 1),
+            };
+            if !path.is_empty() {
+                let t = Instant::now();
+                let balls = occlusion::rendered::cover(&path, p.rendered.per_segment);
+                let centres: Vec<glam::DVec3> = balls.iter().map(|b| b.centre).collect();
+                let renderer = self
+                    .renderer
+                    .as_mut()
+                    .ok_or_else(|| input!("no depth renderer"))?;
+                let n = cur.grid.face_size;
+                let depths = renderer.depths(dir, &centres, n, &ends)?;
+                self.inside += depths.iter().filter(|d| d.is_none()).count();
+                // A ball whose centre is inside a solid shows nothing and proves nothing.
+                let views = balls
+                    .into_iter()
+                    .zip(depths)
+                    .map(|(b, d)| {
+                        let d = d.unwrap_or_else(|| CubeMap::filled(n, f32::INFINITY));
+                        BallView::new(b, d, p.rendered.discontinuity)
+                    })
+                    .collect();
+                self.views.resize_with(k.max(1), || None);
+                self.views[k.max(1) - 1] = Some(views);
+                self.render_seconds += t.elapsed().as_secs_f64();
+            }
+        }
+        let (Some(o), Some(source)) = (self.oracle, self.renderer.as_mut()) else {
             return Ok(None);
         };
         let cur_vis = Visibility::new(cur.grid.face_size, cur.layers.len());
@@ -372,11 +437,16 @@ impl Culling<'_> {
         let n = o.face_size.unwrap_or(cur.grid.face_size);
         let positions = match prev {
             Some(_) => oracle_positions(&self.path.between(k - 1), o.per_segment),
-            None if count == 1 => vec![position],
+            None if count == 1 => vec![self.path.position(k)],
             None => Vec::new(),
         };
-        for x in positions {
-            let depth = source.depth_from(x, n)?;
+        let depths = source.depths(dir, &positions, n, &ends)?;
+        for (x, depth) in positions.into_iter().zip(depths) {
+            // A position inside a solid sees nothing.
+            let Some(depth) = depth else {
+                self.inside += 1;
+                continue;
+            };
             if let Some((p, Some(pv))) = prev {
                 mark_visible(x, &depth, self.path.position(k - 1), &p.layers, &rule, pv);
             }
@@ -398,17 +468,30 @@ impl Culling<'_> {
         let cell = self.path.cell(k);
         for (j, p) in self.runs.iter().enumerate() {
             let t = Instant::now();
-            let (c, stats) = match (p.variant, self.solids) {
+            let (mut stats, mut rstats) = (None, None);
+            let c = match (p.variant, self.solids) {
                 (Variant::Shrunk, Some(scene)) => {
                     let (c, s) = cull_viewpoint_shrunk(&cell, &l.grid, &l.layers, &p.shrunk, scene)
                         .with_context(|| format!("culling viewpoint {}", l.index))?;
-                    (c, Some(s))
+                    stats = Some(s);
+                    c
                 }
-                _ => (
-                    cull_viewpoint(&cell, &l.grid, &l.layers, p)
-                        .with_context(|| format!("culling viewpoint {}", l.index))?,
-                    None,
-                ),
+                (Variant::Rendered, _) => {
+                    // The balls of the segments before and after the viewpoint.
+                    let near: Vec<&BallView> = [k.checked_sub(1), Some(k)]
+                        .into_iter()
+                        .flatten()
+                        .filter_map(|j| self.views.get(j).and_then(|v| v.as_ref()))
+                        .flatten()
+                        .collect();
+                    let (c, s) =
+                        cull_viewpoint_rendered(&cell, &l.grid, &l.layers, &near, &p.rendered)
+                            .with_context(|| format!("culling viewpoint {}", l.index))?;
+                    rstats = Some(s);
+                    c
+                }
+                _ => cull_viewpoint(&cell, &l.grid, &l.layers, p)
+                    .with_context(|| format!("culling viewpoint {}", l.index))?,
             };
             let secs = t.elapsed().as_secs_f64();
             if self.reports.len() <= j {
@@ -419,6 +502,9 @@ impl Culling<'_> {
             if let Some(s) = stats {
                 run.shrunk.get_or_insert_with(Default::default).add(&s);
             }
+            if let Some(s) = rstats {
+                run.rendered.get_or_insert_with(Default::default).add(&s);
+            }
             let scores = vis.as_ref().map(|v| score(&c, &l.grid, v));
             run.add(&c, scores.as_deref());
             run.seconds += secs;
@@ -428,6 +514,10 @@ impl Culling<'_> {
         }
         if let Some(v) = vis {
             self.vis_all.push(v);
+        }
+        // The segment before this viewpoint is not needed again.
+        if let Some(v) = k.checked_sub(1).and_then(|j| self.views.get_mut(j)) {
+            *v = None;
         }
         Ok(())
     }
@@ -444,12 +534,15 @@ impl Culling<'_> {
             tile_size: grid.tile_size,
             slab_ranges: ranges,
             runs: self.reports.clone(),
-            oracle: self.oracle.as_ref().map(|(o, source)| OracleInfo {
-                per_segment: o.per_segment,
-                face_size: o.face_size.unwrap_or(grid.face_size),
-                source: source.name().into(),
-                seconds: self.oracle_seconds,
-            }),
+            oracle: self
+                .oracle
+                .zip(self.renderer.as_ref())
+                .map(|(o, source)| OracleInfo {
+                    per_segment: o.per_segment,
+                    face_size: o.face_size.unwrap_or(grid.face_size),
+                    source: source.name().into(),
+                    seconds: self.oracle_seconds,
+                }),
             load_seconds: self.load_seconds,
         })
     }

@@ -4,7 +4,7 @@
 
 use glam::DVec3;
 use occlusion::{raw_rgba_bytes, Cell, SlabLayer, TileInfo};
-use prerender::pov::PovImport;
+use prerender::pov::{DepthRequest, PovImport};
 use prerender::scene::Scene;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
 use slabs::io::{self as sio, TilesFile};
@@ -63,16 +63,16 @@ pub(super) fn load_viewpoint(dir: &PrerenderDir, index: usize) -> Result<Loaded>
     })
 }
 
-/// Where the oracle's depth maps come from.
+/// Where depth maps from free positions come from (the oracle's, and the rendered
+/// variant's).
 pub(super) enum OracleSource {
     /// Ray casting through the exact geometry of a built-in or TOML scene.
     Geometry(Box<Scene>),
-    /// POV-Ray base passes at the oracle positions (a POV-Ray import), written to a scratch
-    /// prerender directory that is removed afterwards.
+    /// POV-Ray depth passes (a POV-Ray import), written to a scratch prerender directory
+    /// that is removed afterwards.
     Pov {
         import: Box<PovImport>,
         scratch: PrerenderDir,
-        renders: usize,
     },
 }
 
@@ -90,11 +90,10 @@ impl OracleSource {
             at_size.face_size = face_size.unwrap_or(pre.face_size);
             at_size.lowres_face_size = pre.lowres_face_size.min(at_size.face_size);
             let import = crate::slabs::pov_import_from_report(&scratch, &at_size)
-                .context("--oracle: POV-Ray depth renders at the oracle positions")?;
+                .context("POV-Ray depth renders along the track")?;
             return Ok(OracleSource::Pov {
                 import: Box::new(import),
                 scratch,
-                renders: 0,
             });
         }
         Ok(OracleSource::Geometry(Box::new(load_geometry(pre)?)))
@@ -107,31 +106,51 @@ impl OracleSource {
         }
     }
 
-    /// Radial depth seen from `x` at `n` pixels a face side (POV-Ray: the import's size).
-    pub fn depth_from(&mut self, x: DVec3, n: u32) -> Result<CubeMap<f32>> {
+    /// Radial depth seen from each of `positions`, `n` pixels a face side (`None` for one
+    /// inside a solid, which sees nothing: a track through an object). `ends`: the
+    /// reference viewpoints of the segment they lie on — a POV-Ray import takes the fog
+    /// scales from their low-resolution depth (widened by the segment's length: no surface
+    /// is nearer to a point of the segment than the nearest one to an end minus that) and
+    /// renders the fog-only pass where the scene's fog shows at either end.
+    pub fn depths(
+        &mut self,
+        dir: &PrerenderDir,
+        positions: &[DVec3],
+        n: u32,
+        ends: &[&tracks::ReferenceViewpoint],
+    ) -> Result<Vec<Option<CubeMap<f32>>>> {
         match self {
-            OracleSource::Geometry(scene) => {
-                Ok(occlusion::oracle::depth_from_geometry(scene.as_ref(), x, n))
-            }
-            OracleSource::Pov {
-                import,
-                scratch,
-                renders,
-            } => {
-                let vp = tracks::ReferenceViewpoint {
-                    index: *renders,
-                    s: 0.0,
-                    position: x,
+            OracleSource::Geometry(scene) => Ok(positions
+                .iter()
+                .map(|&x| Some(occlusion::oracle::depth_from_geometry(scene.as_ref(), x, n)))
+                .collect()),
+            OracleSource::Pov { import, .. } => {
+                let (mut lo, mut hi, mut fog) = (f64::INFINITY, 0.0f64, false);
+                for vp in ends {
+                    let path = dir.lowres_depth_exr(vp.index);
+                    let low = store::read_depth_exr(&path)
+                        .with_context(|| format!("reading {}", path.display()))?;
+                    for &d in low.as_slice().iter().filter(|d| d.is_finite() && **d > 0.0) {
+                        lo = lo.min(d as f64);
+                        hi = hi.max(d as f64);
+                    }
+                    fog |= import
+                        .scene_fog(vp)
+                        .with_context(|| format!("the scene's fog at viewpoint {}", vp.index))?;
+                }
+                let reach = ends
+                    .iter()
+                    .flat_map(|a| positions.iter().map(|p| p.distance(a.position)))
+                    .fold(0.0, f64::max);
+                let req = DepthRequest {
+                    face_size: n,
+                    nearest: (lo - reach).max(lo * 1e-3),
+                    farthest: hi + reach,
+                    fog,
                 };
-                *renders += 1;
-                import
-                    .render_base(&vp, scratch)
-                    .with_context(|| format!("--oracle: POV-Ray depth at {x}"))?;
-                let path = scratch.depth_exr(vp.index);
-                let depth = store::read_depth_exr(&path)
-                    .with_context(|| format!("--oracle: reading {}", path.display()))?;
-                std::fs::remove_dir_all(scratch.sample_dir(vp.index)).ok();
-                Ok(depth)
+                Ok(import
+                    .render_depths(positions, req)
+                    .context("POV-Ray depth renders along the track")?)
             }
         }
     }

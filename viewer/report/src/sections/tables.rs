@@ -435,11 +435,12 @@ fn layer_sizes(
     }
 }
 
-/// The database's culling: the shrunk run (α = 1) where there is one, else the conservative
-/// one at α = 1, else any at α = 1, else the first.
+/// The database's culling: the shrunk run (α = 1) where there is one, else the rendered one
+/// (an import's), else the conservative one at α = 1, else any at α = 1, else the first.
 fn database_run(runs: &[RunReport]) -> Option<&RunReport> {
     let of = |v: Variant| runs.iter().filter(move |r| r.variant == v);
     of(Variant::Shrunk)
+        .chain(of(Variant::Rendered))
         .chain(of(Variant::Conservative))
         .chain(runs.iter())
         .find(|r| r.alpha == 1.0)
