@@ -1,6 +1,8 @@
 //! Prerendering: cube-map colour, radial depth and slab layers at reference viewpoints.
 //!
 //! - [`store`]: the prerender directory layout shared with later stages.
+//! - [`agreement`]: how two reference panoramas agree on the surfaces both see (lighting
+//!   computed per render shows there).
 //! - [`pov`]: POV-Ray import: unmodified `.pov` scenes rendered into the same layout.
 //! - [`scene`]: the scene model ([`scene::Scene`], [`scene::Shape`], materials, lights, sky)
 //!   with exact f64 ray queries ([`scene::Scene::first_hit`]).
@@ -16,6 +18,7 @@
 //!   from any camera, by the renderer that made the panoramas.
 
 mod accel;
+pub mod agreement;
 pub mod erode;
 mod geom;
 pub mod job;

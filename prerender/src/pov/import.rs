@@ -18,9 +18,11 @@ use crate::runlog::{LayersTiming, RunEvent, RunLog, SampleTiming};
 use crate::store::{self, LayersMeta, PrerenderDir, SampleMeta};
 
 mod depths;
+mod radiosity;
 mod views;
 
 pub use depths::{DepthRequest, MAX_PARALLEL_RUNS};
+pub use radiosity::radiosity_file;
 
 /// One finished POV-Ray render, for progress and the report.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -77,6 +79,8 @@ pub struct PovImport {
     truth_renders: u64,
     /// Depth renders from free positions so far (names their temporary files).
     pub(super) depth_renders: u64,
+    /// The track's shared radiosity samples, loaded by every colour render ([`radiosity`]).
+    radiosity: Option<PathBuf>,
 }
 
 /// Camera position and ray range of one mesh-camera render.
@@ -140,13 +144,14 @@ impl PovImport {
             has_fog: HashMap::new(),
             truth_renders: 0,
             depth_renders: 0,
+            radiosity: None,
         })
     }
 
     /// The import that wrote the prerender directory `dir` (report `pre`), re-created from
     /// what `import-pov` recorded in `prerender.json` (scene path, up axis, face sizes,
-    /// anti-aliasing, gamma, binary, threads and timeout), with generated files in
-    /// `work_dir`.
+    /// anti-aliasing, gamma, binary, threads and timeout, the shared radiosity samples),
+    /// with generated files in `work_dir`.
     pub fn from_report(
         dir: &PrerenderDir,
         pre: &store::PrerenderReport,
@@ -189,7 +194,13 @@ impl PovImport {
         opts.file_gamma = field("gamma")
             .or_else(|| field("file_gamma"))
             .and_then(|v| v.as_f64());
-        PovImport::new(&pre.scene, opts)
+        let mut import = PovImport::new(&pre.scene, opts)?;
+        // Colour renders after the import (slab layers) load the track's shared radiosity.
+        let file = radiosity::radiosity_file(dir);
+        if import.info.radiosity && file.is_file() {
+            import.radiosity = Some(file);
+        }
+        Ok(import)
     }
 
     /// Call `f` after every finished POV-Ray render.
@@ -289,7 +300,8 @@ impl PovImport {
         view: View,
         fog: Option<&FogScales>,
     ) -> Result<PathBuf, PovError> {
-        let job = self.job(&format!("s{sample:04}_{pass}"), kind, face_size, view, fog)?;
+        let mut job = self.job(&format!("s{sample:04}_{pass}"), kind, face_size, view, fog)?;
+        job.name = format!("sample {sample} {pass} ({})", self.scene.display());
         let stats = self.povray.run(&job)?;
         self.record(sample, pass, face_size, &job, stats)?;
         Ok(job.output)
@@ -345,6 +357,10 @@ impl PovImport {
                 .into_iter()
                 .collect(),
             declares,
+            extra: match kind {
+                PassKind::Color => self.radiosity_args(),
+                PassKind::Depth | PassKind::FogOnly => Vec::new(),
+            },
         })
     }
 

@@ -44,7 +44,8 @@ use std::time::Duration;
 
 pub use frame::UpAxis;
 pub use import::{
-    DepthRequest, DepthSummary, PovImport, RenderRecord, MAX_PARALLEL_RUNS, MAX_SUPERSAMPLE,
+    radiosity_file, DepthRequest, DepthSummary, PovImport, RenderRecord, MAX_PARALLEL_RUNS,
+    MAX_SUPERSAMPLE,
 };
 pub use runner::RenderStats;
 

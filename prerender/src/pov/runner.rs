@@ -33,6 +33,8 @@ pub struct RenderJob {
     pub library_dirs: Vec<PathBuf>,
     /// `Declare=NAME=VALUE` pairs.
     pub declares: Vec<(&'static str, f64)>,
+    /// Further options, after every other one (so they win): e.g. a radiosity file.
+    pub extra: Vec<String>,
 }
 
 /// POV-Ray's own timings for one render, from its statistics stream.
@@ -123,6 +125,7 @@ impl PovRay {
         for (name, value) in &job.declares {
             a.push(format!("Declare={name}={value}"));
         }
+        a.extend(job.extra.iter().cloned());
         a
     }
 

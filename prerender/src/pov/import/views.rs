@@ -53,6 +53,7 @@ impl PovImport {
                 (names::CAM_Y, pov.y),
                 (names::CAM_Z, pov.z),
             ],
+            extra: self.radiosity_args(),
         };
         let stats = self.povray.run(&job)?;
         let record = RenderRecord {
@@ -136,6 +137,7 @@ impl PovImport {
                 .into_iter()
                 .collect(),
             declares,
+            extra: self.radiosity_args(),
         };
         let stats = self.povray.run(&job)?;
         let record = RenderRecord {

@@ -90,6 +90,8 @@ fn pass_group(pass: &str) -> &'static str {
         "slabs"
     } else if pass == "color" {
         "color"
+    } else if pass == "radiosity" {
+        "radiosity"
     } else if pass == "preview" {
         "preview"
     } else {
@@ -214,7 +216,14 @@ pub(super) fn run(
         .iter()
         .filter(|vp| shard.is_none_or(|(k, n)| vp.index % n == k))
         .collect();
+    // Radiosity sampled once for the whole track (every shard gathers the same file), so
+    // that every colour render is lit alike and reproducibly.
+    if import.prepare_radiosity(&dir, &viewpoints)? {
+        progress.message("radiosity: samples gathered once for the track, shared by every render");
+    }
     let mut resumed = 0usize;
+    // Seconds of the samples rendered so far, for an estimate of the rest from the first on.
+    let (mut spent, mut rendered) = (0.0f64, 0usize);
     for (done, vp) in mine.iter().enumerate() {
         progress.message(&format!(
             "viewpoint {} ({}/{}) at {}",
@@ -223,9 +232,22 @@ pub(super) fn run(
             mine.len(),
             vp.position
         ));
+        let t = std::time::Instant::now();
         if render_sample(&facts, &mut import, vp)? {
             resumed += 1;
             progress.message("  already complete, skipped");
+            continue;
+        }
+        spent += t.elapsed().as_secs_f64();
+        rendered += 1;
+        let left = mine.len() - done - 1;
+        if left > 0 {
+            progress.message(&format!(
+                "  {:.1} s; about {:.0} s left for {left} more (at {:.1} s a viewpoint so far)",
+                t.elapsed().as_secs_f64(),
+                spent / rendered as f64 * left as f64,
+                spent / rendered as f64
+            ));
         }
     }
     import.remove_mesh_includes()?;
@@ -351,6 +373,40 @@ fn latest_renders(dir: &PrerenderDir, complete: &[SampleMeta]) -> Result<Vec<Ren
     Ok(latest.into_values().collect())
 }
 
+/// How neighbouring complete samples agree on the surfaces both see
+/// ([`prerender::agreement`]): per pair, and the mean over all points.
+fn neighbour_agreement(dir: &PrerenderDir, complete: &[SampleMeta]) -> Result<serde_json::Value> {
+    let load = |m: &SampleMeta| -> Result<_> {
+        let colour = store::read_rgb_png(&dir.color_png(m.index))?;
+        let depth = store::read_depth_exr(&dir.depth_exr(m.index))?;
+        Ok((m.position, colour, depth))
+    };
+    let mut pairs = Vec::new();
+    let (mut pixels, mut sum) = (0u64, 0.0);
+    let mut prev = None;
+    for m in complete {
+        let cur = load(m)?;
+        if let Some((i, (pa, ca, da))) = &prev {
+            let pano = |p, c, d| prerender::agreement::Panorama {
+                position: p,
+                colour: c,
+                depth: d,
+            };
+            let a =
+                prerender::agreement::agreement(&pano(*pa, ca, da), &pano(cur.0, &cur.1, &cur.2));
+            pixels += a.pixels;
+            sum += a.mean * a.pixels as f64;
+            pairs.push(serde_json::json!({"from": i, "to": m.index, "agreement": a}));
+        }
+        prev = Some((m.index, cur));
+    }
+    Ok(serde_json::json!({
+        "pairs": pairs,
+        "pixels": pixels,
+        "mean": (pixels > 0).then(|| sum / pixels as f64),
+    }))
+}
+
 /// Seconds per pass group of every sample, for the timing table.
 fn per_sample(records: &[RenderRecord]) -> Vec<serde_json::Value> {
     let mut per_sample: BTreeMap<usize, serde_json::Map<String, serde_json::Value>> =
@@ -425,6 +481,8 @@ fn write_report(facts: &Facts, import: &PovImport, progress: &Reporter) -> Resul
         "radiosity_seconds": total.radiosity_seconds,
         "trace_seconds": total.trace_seconds,
         "per_sample": per_sample(&records),
+        "radiosity_shared": import.radiosity().is_some(),
+        "agreement": neighbour_agreement(dir, &complete)?,
         "render_log": records,
     });
     let seconds = work
@@ -479,7 +537,7 @@ fn markdown(
         "# POV-Ray import\n\nscene `{}` (up {}), track `{}`, {} samples ({} complete), \
          face {} px, low-res {} px, slabs: {}\n\n{} — {} renders, {:.1} s of rendering \
          (POV-Ray parse {:.1} s, radiosity {:.1} s, trace {:.1} s)\n\n\
-         | sample | depth s | colour s | slabs s |\n|---|---|---|---|\n",
+         | sample | depth s | colour s | slabs s | radiosity s |\n|---|---|---|---|---|\n",
         report.scene,
         facts.pov.up().name(),
         report.track,
@@ -502,11 +560,29 @@ fn markdown(
     for s in report.extra["per_sample"].as_array().into_iter().flatten() {
         let g = |k: &str| s[k].as_f64().unwrap_or(0.0);
         md.push_str(&format!(
-            "| {} | {:.2} | {:.2} | {:.2} |\n",
+            "| {} | {:.2} | {:.2} | {:.2} | {:.2} |\n",
             s["sample"],
             g("depth_seconds"),
             g("color_seconds"),
-            g("slabs_seconds")
+            g("slabs_seconds"),
+            g("radiosity_seconds")
+        ));
+    }
+    let a = &report.extra["agreement"];
+    if let Some(mean) = a["mean"].as_f64() {
+        md.push_str(&format!(
+            "\nNeighbouring references on the surfaces both see: colour differs by {mean:.2} \
+             levels of 255 on average over {} points ({}; radiosity {}).\n",
+            a["pixels"],
+            a["pairs"].as_array().map_or(0, |p| p.len()),
+            match (
+                report.extra["scene_radiosity"].as_bool(),
+                report.extra["radiosity_shared"].as_bool()
+            ) {
+                (Some(true), Some(true)) => "sampled once for the track",
+                (Some(true), _) => "sampled in every render",
+                _ => "none",
+            }
         ));
     }
     if !work.shards.is_empty() {
