@@ -14,10 +14,11 @@ use super::frame::{self, MeshLayout, NEAR_NAME};
 use super::runner::{OutputFormat, PovRay, RenderJob, RenderStats};
 use super::sdl::{self, names, PassKind, SceneInfo};
 use super::{PovError, PovOptions};
-use crate::runlog::{LayersTiming, RunEvent, RunLog, SampleTiming};
-use crate::store::{self, LayersMeta, PrerenderDir, SampleMeta};
+use crate::runlog::{RunEvent, RunLog, SampleTiming};
+use crate::store::{self, PrerenderDir, SampleMeta};
 
 mod depths;
+mod layers;
 mod radiosity;
 mod views;
 
@@ -55,8 +56,27 @@ pub struct DepthSummary {
     pub fog_scales: FogScales,
 }
 
+impl DepthSummary {
+    fn of(d: &FogDepth, scales: &FogScales) -> DepthSummary {
+        let (min, max) = finite_range(&d.t);
+        DepthSummary {
+            hits: d.hits,
+            sky: d.t.len() - d.hits,
+            inconsistent: d.inconsistent,
+            zero: d.zero,
+            clipped: d.clipped,
+            min: min.is_finite().then_some(min),
+            max: max.is_finite().then_some(max),
+            fog_scales: *scales,
+        }
+    }
+}
+
 /// Most colour rays per pixel along each axis (16 a pixel).
 pub const MAX_SUPERSAMPLE: u32 = 4;
+
+/// A colour cube map as the import decodes it.
+type Colour = CubeMap<[u8; 3]>;
 
 /// Called after every finished render.
 type ProgressFn = Box<dyn FnMut(&RenderRecord)>;
@@ -389,69 +409,70 @@ impl PovImport {
         Ok(())
     }
 
-    /// Render and decode a fog-trick depth pass (with the fog-only pass when `fog`).
+    /// Render and decode a fog-trick depth pass (with the fog-only pass when `fog`) and, with
+    /// `colour`, the colour pass through the same camera (supersampled `supersample`² and
+    /// box-filtered): independent renders, run at once ([`PovImport::run_parallel`]).
     fn depth_pass(
         &mut self,
         sample: usize,
-        pass: &str,
-        face_size: u32,
+        (pass, face_size): (&str, u32),
         view: View,
         scales: &FogScales,
         fog: bool,
-    ) -> Result<FogDepth, PovError> {
-        let p0 = if fog {
-            let path = self.render(
-                sample,
-                &format!("{pass}-fog"),
-                PassKind::FogOnly,
-                face_size,
-                view,
-                None,
-            )?;
-            let px = decode::read_mesh_png16(&path, &MeshLayout::new(face_size))?;
-            remove(&path)?;
-            Some(px)
-        } else {
-            None
-        };
-        let path = self.render(sample, pass, PassKind::Depth, face_size, view, Some(scales))?;
-        let p1 = decode::read_mesh_png16(&path, &MeshLayout::new(face_size))?;
-        remove(&path)?;
-        let decoded = decode::decode_fog(&p1, p0.as_deref(), scales);
-        let (min, max) = finite_range(&decoded.t);
-        if let Some(last) = self.records.last_mut() {
-            last.depth = Some(DepthSummary {
-                hits: decoded.hits,
-                sky: decoded.t.len() - decoded.hits,
-                inconsistent: decoded.inconsistent,
-                zero: decoded.zero,
-                clipped: decoded.clipped,
-                min: min.is_finite().then_some(min),
-                max: max.is_finite().then_some(max),
-                fog_scales: *scales,
-            });
-        }
-        Ok(decoded)
-    }
-
-    /// Colour through the mesh camera (supersampled `supersample`² and box-filtered).
-    fn color_pass(
-        &mut self,
-        sample: usize,
-        pass: &str,
-        view: View,
-    ) -> Result<CubeMap<[u8; 3]>, PovError> {
-        let n = self.opts.face_size;
+        colour: Option<&str>,
+    ) -> Result<(FogDepth, Option<Colour>), PovError> {
         let ss = self.opts.supersample.clamp(1, MAX_SUPERSAMPLE);
-        let fine = ss * n;
-        let path = self.render(sample, pass, PassKind::Color, fine, view, None)?;
-        let map = decode::read_mesh_png8(&path, &MeshLayout::new(fine))?;
-        remove(&path)?;
-        Ok(if ss > 1 {
-            decode::downsample(&map, ss)
-        } else {
-            map
-        })
+        let fine = ss * self.opts.face_size;
+        let mut passes = Vec::new();
+        if fog {
+            passes.push((format!("{pass}-fog"), PassKind::FogOnly, face_size));
+        }
+        passes.push((pass.to_string(), PassKind::Depth, face_size));
+        if let Some(c) = colour {
+            passes.push((c.to_string(), PassKind::Color, fine));
+        }
+        let mut jobs = Vec::with_capacity(passes.len());
+        for (name, kind, size) in &passes {
+            let f = (*kind == PassKind::Depth).then_some(scales);
+            let mut job = self.job(&format!("s{sample:04}_{name}"), *kind, *size, view, f)?;
+            job.name = format!("sample {sample} {name} ({})", self.scene.display());
+            jobs.push(job);
+        }
+        let stats = self.run_parallel(&jobs)?;
+        let (mut p0, mut decoded, mut map) = (None, None, None);
+        for ((name, kind, size), (job, st)) in passes.iter().zip(jobs.iter().zip(stats)) {
+            self.record(sample, name, *size, job, st)?;
+            match kind {
+                PassKind::FogOnly => {
+                    p0 = Some(decode::read_mesh_png16(
+                        &job.output,
+                        &MeshLayout::new(*size),
+                    )?)
+                }
+                PassKind::Depth => {
+                    let p1 = decode::read_mesh_png16(&job.output, &MeshLayout::new(*size))?;
+                    let d = decode::decode_fog(&p1, p0.as_deref(), scales);
+                    if let Some(last) = self.records.last_mut() {
+                        last.depth = Some(DepthSummary::of(&d, scales));
+                    }
+                    decoded = Some(d);
+                }
+                PassKind::Color => {
+                    let m = decode::read_mesh_png8(&job.output, &MeshLayout::new(*size))?;
+                    map = Some(if ss > 1 {
+                        decode::downsample(&m, ss)
+                    } else {
+                        m
+                    });
+                }
+            }
+            remove(&job.output)?;
+        }
+        let decoded = decoded.ok_or_else(|| PovError::Output {
+            path: self.opts.work_dir.clone(),
+            message: format!("sample {sample}: the {pass} pass gave no image"),
+        })?;
+        Ok((decoded, map))
     }
 
     /// Whether the scene's own fog shows at this viewpoint (a cheap low-res fog-only pass).
@@ -560,13 +581,18 @@ impl PovImport {
         let k = if fog { 0.5 } else { 1.0 };
         let (n, nl) = (self.opts.face_size, self.opts.lowres_face_size);
 
-        let low = self.depth_pass(vp.index, "lowres-depth", nl, view, &FogScales::wide(k), fog)?;
+        let wide = FogScales::wide(k);
+        let (low, _) = self.depth_pass(vp.index, ("lowres-depth", nl), view, &wide, fog, None)?;
         self.check_depth(vp, "low-resolution depth", &low)?;
         let (min, max) = finite_range(&low.t);
         let scales = FogScales::for_range(min, max, k);
-        let full = self.depth_pass(vp.index, "depth", n, view, &scales, fog)?;
+        let (full, color) =
+            self.depth_pass(vp.index, ("depth", n), view, &scales, fog, Some("color"))?;
         self.check_depth(vp, "depth", &full)?;
-        let color = self.color_pass(vp.index, "color", view)?;
+        let color = color.ok_or_else(|| PovError::Output {
+            path: dir.color_png(vp.index),
+            message: "the colour pass gave no image".into(),
+        })?;
 
         let lowres = to_cube(nl, &low.t, |t| t)?;
         let depth = to_cube(n, &full.t, |t| t)?;
@@ -588,100 +614,6 @@ impl PovImport {
             lowres_face_size: nl,
             seconds: start.elapsed().as_secs_f64(),
             primary_rays: meta.primary_rays,
-        }))?;
-        Ok(meta)
-    }
-
-    /// Render a sample's slab layers (colour + depth per slab) and write them with the
-    /// layers marker last. Needs the sample's base pass (its low-resolution depth sets the
-    /// fog scales of an unbounded last slab; where a layer holds the surface the panorama
-    /// sees, its colour is the panorama's, [`decode::layer_colour`]). Pixels with nothing in
-    /// a slab get alpha 0 and depth `+inf`; their colour is what the ray saw (background or
-    /// sky) and is kept.
-    pub fn render_slabs(
-        &mut self,
-        vp: &ReferenceViewpoint,
-        slabs: &[SlabRange],
-        dir: &PrerenderDir,
-    ) -> Result<LayersMeta, PovError> {
-        let start = Instant::now();
-        remove(&dir.layers_json(vp.index))?;
-        store::remove_temporaries(&dir.sample_dir(vp.index))?;
-        for i in 0..slabs.len() {
-            if let Some(d) = dir.slab_color_png(vp.index, i).parent() {
-                store::remove_temporaries(d)?;
-            }
-        }
-        let lowres = store::read_depth_exr(&dir.lowres_depth_exr(vp.index))?;
-        let (min, max) = finite_range(
-            &lowres
-                .as_slice()
-                .iter()
-                .map(|&d| d as f64)
-                .collect::<Vec<_>>(),
-        );
-        let fog = self.scene_fog(vp)?;
-        let k = if fog { 0.5 } else { 1.0 };
-        // Where a layer holds the surface the panorama sees, it takes the panorama's colour.
-        let base_colour = store::read_rgb_png(&dir.color_png(vp.index))?;
-        let base_depth = store::read_depth_exr(&dir.depth_exr(vp.index))?;
-        let pov = self.opts.up.pov_from_railview(vp.position);
-        let n = self.opts.face_size;
-        for (i, slab) in slabs.iter().enumerate() {
-            let range = if slab.far.is_finite() {
-                slab.far - slab.near
-            } else {
-                0.0
-            };
-            let view = View {
-                pov,
-                near: slab.near,
-                range,
-            };
-            let scales = if range > 0.0 {
-                FogScales::for_slab(range, k)
-            } else {
-                FogScales::for_range(min, max, k)
-            };
-            let d = self.depth_pass(vp.index, &format!("slab{i}-depth"), n, view, &scales, fog)?;
-            let color = self.color_pass(vp.index, &format!("slab{i}-color"), view)?;
-            let t: Vec<f64> = (0..d.t.len())
-                .map(|i| decode::slab_depth(slab.near, range, d.t[i], d.t_hi[i]))
-                .collect();
-            let depth = to_cube(n, &t, |t| t)?;
-            let rgba = CubeMap::from_vec(
-                n,
-                (0..depth.as_slice().len())
-                    .map(|i| {
-                        let z = depth.as_slice()[i];
-                        let c = decode::layer_colour(
-                            color.as_slice()[i],
-                            z as f64,
-                            base_colour.as_slice()[i],
-                            base_depth.as_slice()[i] as f64,
-                        );
-                        [c[0], c[1], c[2], if z.is_finite() { 255 } else { 0 }]
-                    })
-                    .collect(),
-            )
-            .ok_or_else(|| PovError::Output {
-                path: dir.slab_color_png(vp.index, i),
-                message: "colour and depth sizes differ".into(),
-            })?;
-            store::write_atomic(
-                &dir.slab_color_png(vp.index, i),
-                &store::encode_rgba_png(&rgba),
-            )?;
-            store::write_depth_exr(&dir.slab_depth_exr(vp.index, i), &depth)?;
-        }
-        let meta = LayersMeta {
-            slabs: slabs.to_vec(),
-        };
-        store::write_json(&dir.layers_json(vp.index), &meta)?;
-        self.log(RunEvent::Layers(LayersTiming {
-            index: vp.index,
-            slabs: slabs.to_vec(),
-            seconds: start.elapsed().as_secs_f64(),
         }))?;
         Ok(meta)
     }

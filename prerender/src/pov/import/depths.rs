@@ -80,7 +80,8 @@ impl PovImport {
             )?;
             jobs.push((i, "free-depth", job));
         }
-        let stats = self.run_parallel(&jobs)?;
+        let only: Vec<RenderJob> = jobs.iter().map(|(_, _, j)| j.clone()).collect();
+        let stats = self.run_parallel(&only)?;
         let layout = MeshLayout::new(req.face_size);
         let mut out = Vec::with_capacity(positions.len());
         let mut fog_px: Option<Vec<[u16; 3]>> = None;
@@ -103,12 +104,10 @@ impl PovImport {
         Ok(out)
     }
 
-    /// Run `jobs` with several POV-Ray processes at a time; their statistics in order. The
-    /// first failure is returned once the runs under way have finished.
-    fn run_parallel(
-        &self,
-        jobs: &[(usize, &'static str, RenderJob)],
-    ) -> Result<Vec<RenderStats>, PovError> {
+    /// Run `jobs` with several POV-Ray processes at a time (up to twice the cores, at most
+    /// [`MAX_PARALLEL_RUNS`]); their statistics in order. The first failure is returned
+    /// once the runs under way have finished.
+    pub(super) fn run_parallel(&self, jobs: &[RenderJob]) -> Result<Vec<RenderStats>, PovError> {
         let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
         let workers = (2 * cores).clamp(1, MAX_PARALLEL_RUNS).min(jobs.len());
         let next = AtomicUsize::new(0);
@@ -123,7 +122,7 @@ impl PovImport {
                         break;
                     }
                     let j = next.fetch_add(1, Ordering::Relaxed);
-                    let Some((_, _, job)) = jobs.get(j) else {
+                    let Some(job) = jobs.get(j) else {
                         break;
                     };
                     let r = povray.run(job);
@@ -138,7 +137,7 @@ impl PovImport {
         });
         let all = results.into_inner().unwrap_or_default();
         let mut out = Vec::with_capacity(jobs.len());
-        for (r, (_, _, job)) in all.into_iter().zip(jobs) {
+        for (r, job) in all.into_iter().zip(jobs) {
             match r {
                 Some(r) => out.push(r?),
                 None => {
