@@ -33,6 +33,10 @@ pub struct Args {
     /// Oracle rays per face side (default: the layers' face size).
     #[arg(long)]
     pub oracle_face_size: Option<u32>,
+    /// The rendered variant: depth renders per track segment, from the middle of as many
+    /// equal pieces (default 32).
+    #[arg(long)]
+    pub renders_per_segment: Option<usize>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -49,6 +53,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             per_segment: args.oracle_per_segment,
             face_size: args.oracle_face_size,
         }),
+        renders_per_segment: args.renders_per_segment,
     };
     stages::cull::run(&params, &crate::progress::terminal())?;
     Ok(())

@@ -55,6 +55,7 @@ pub fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
             per_segment: 8,
             face_size: None,
         }),
+        renders_per_segment: None,
     };
     let mut cull_command = vec![
         "cull".into(),

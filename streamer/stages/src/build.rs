@@ -460,6 +460,7 @@ fn cull(
                     alphas: vec![alpha],
                     variants: Variants::These(vec![v]),
                     oracle: None,
+                    renders_per_segment: None,
                 };
                 match crate::cull::run(&cull, progress).map_err(in_stage(cull.command_line())) {
                     Ok(_) => cull_decisions(pre_root, alpha, v).filter(fits),

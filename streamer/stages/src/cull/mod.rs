@@ -89,6 +89,9 @@ pub struct CullParams {
     /// Also run the exact oracle: built-in or TOML scenes cast rays through the geometry;
     /// POV-Ray imports render depth with POV-Ray at every oracle position.
     pub oracle: Option<OracleParams>,
+    /// The rendered variant: depth renders per segment (default
+    /// [`occlusion::RenderedParams`]'s 32).
+    pub renders_per_segment: Option<usize>,
 }
 
 impl CullParams {
@@ -119,6 +122,9 @@ impl CullParams {
             if let Some(n) = o.face_size {
                 v.extend(["--oracle-face-size".into(), n.to_string()]);
             }
+        }
+        if let Some(n) = self.renders_per_segment {
+            v.extend(["--renders-per-segment".into(), n.to_string()]);
         }
         v
     }
@@ -179,8 +185,20 @@ pub fn run(params: &CullParams, progress: &Reporter) -> Result<CullReport> {
             false => vec![(1.0, v)],
             true => params.alphas.iter().map(|&a| (a, v)).collect(),
         })
-        .map(|(a, v)| RunParams::new(a, v))
+        .map(|(a, v)| {
+            let mut p = RunParams::new(a, v)?;
+            if let Some(n) = params.renders_per_segment {
+                p.rendered.per_segment = n;
+            }
+            Ok::<_, occlusion::OcclusionError>(p)
+        })
         .collect::<std::result::Result<_, _>>()?;
+    if let Some(n) = params.renders_per_segment {
+        crate::check_count("--renders-per-segment", n, 1024)?;
+        if n == 0 {
+            return Err(parameter!("--renders-per-segment must be at least 1"));
+        }
+    }
     if pre.viewpoints.is_empty() {
         return Err(input!("{}: no viewpoints", dir.report_json().display()));
     }

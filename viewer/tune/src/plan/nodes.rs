@@ -125,6 +125,7 @@ pub fn nodes(setup: &Setup, knobs: &Knobs, track_file: &Path, track_text: &str) 
                     alphas: vec![knobs.alpha],
                     variants: Variants::These(vec![variant]),
                     oracle: None,
+                    renders_per_segment: None,
                 }),
             });
             d_cull
