@@ -107,6 +107,18 @@ pub fn cover(path: &[DVec3], pieces: usize) -> Vec<Ball> {
         .collect()
 }
 
+/// The two balls covering the halves of piece `j` of [`cover`]`(path, pieces)`: where the
+/// piece's own ball cannot be rendered (its centre inside a solid), its halves may be.
+pub fn halves(path: &[DVec3], pieces: usize, j: usize) -> [Ball; 2] {
+    let arc = tracks::segment::arc_lengths(path);
+    let len = *arc.last().unwrap_or(&0.0);
+    let h = len / pieces.max(1) as f64;
+    [0.25, 0.75].map(|f| Ball {
+        centre: tracks::segment::point_at(path, &arc, h * (j as f64 + f)),
+        radius: 0.25 * h * (1.0 + 1e-9) + 1e-12,
+    })
+}
+
 /// The balls covering `path` ([`cover`], `per_segment` of them) with their depth renders,
 /// made by `render` from each ball's centre.
 pub fn render_balls<E>(

@@ -31,8 +31,8 @@ use occlusion::report::{
     TileDecisions, ViewpointDecisions,
 };
 use occlusion::{
-    cull_viewpoint, cull_viewpoint_rendered, cull_viewpoint_shrunk, mark_visible, score, BallView,
-    CullParams as RunParams, MatchRule, SceneSolids, Visibility,
+    cull_viewpoint, cull_viewpoint_rendered, cull_viewpoint_shrunk, mark_visible, score, Ball,
+    BallView, CullParams as RunParams, MatchRule, SceneSolids, Visibility,
 };
 use prerender::runlog::RunLog;
 use prerender::scene::Scene;
@@ -431,11 +431,23 @@ impl Culling<'_> {
                     .ok_or_else(|| input!("no depth renderer"))?;
                 let n = cur.grid.face_size;
                 let depths = renderer.depths(dir, &centres, n, &ends)?;
-                self.inside += depths.iter().filter(|d| d.is_none()).count();
-                // A ball whose centre is inside a solid shows nothing and proves nothing.
-                let views = balls
+                // A ball whose centre is inside a solid (a track through an object) is
+                // replaced by the balls of its two halves; one of those inside a solid too
+                // shows nothing and proves nothing.
+                let mut renders: Vec<(Ball, Option<CubeMap<f32>>)> = Vec::new();
+                for (j, (b, d)) in balls.into_iter().zip(depths).enumerate() {
+                    if d.is_some() {
+                        renders.push((b, d));
+                        continue;
+                    }
+                    let hs = occlusion::rendered::halves(&path, p.rendered.per_segment, j);
+                    let hc: Vec<glam::DVec3> = hs.iter().map(|b| b.centre).collect();
+                    let hd = renderer.depths(dir, &hc, n, &ends)?;
+                    renders.extend(hs.into_iter().zip(hd));
+                }
+                self.inside += renders.iter().filter(|(_, d)| d.is_none()).count();
+                let views = renders
                     .into_iter()
-                    .zip(depths)
                     .map(|(b, d)| {
                         let d = d.unwrap_or_else(|| CubeMap::filled(n, f32::INFINITY));
                         BallView::new(b, d, p.rendered.discontinuity)
