@@ -138,40 +138,9 @@ fn list<T: std::str::FromStr>(text: &str, flag: &str) -> anyhow::Result<Vec<T>> 
         .collect()
 }
 
-/// A culling choice, `VARIANT:ALPHA` or `none`; `auto` is `railview build`'s default: the
-/// shrunk variant at α = 1 for scenes whose solids the tracer has, the conservative one
-/// otherwise.
+/// A culling choice, `VARIANT:ALPHA` or `none` (`CullChoice::parse_with_alpha`).
 fn cull(text: &str, flag: &str, pov: bool) -> anyhow::Result<(CullChoice, f64)> {
-    if text == "none" {
-        return Ok((CullChoice::Off, 1.0));
-    }
-    let (v, a) = text.split_once(':').unwrap_or((text, "1"));
-    let alpha: f64 = a
-        .parse()
-        .ok()
-        .filter(|x: &f64| *x > 0.0 && *x <= 1.0)
-        .with_context(|| format!("--{flag} `{text}`: α must be in (0, 1]"))?;
-    let variant = if v == "auto" {
-        CullChoice::Auto
-            .resolve(pov, alpha)
-            .unwrap_or(occlusion::Variant::Conservative)
-    } else {
-        occlusion::Variant::parse(v).with_context(|| {
-            format!(
-                "--{flag} `{text}`: expected auto, shrunk, rendered, conservative, paper or none"
-            )
-        })?
-    };
-    anyhow::ensure!(
-        variant.takes_alpha() || alpha == 1.0,
-        "--{flag} `{text}`: the {} variant runs at α = 1 only",
-        variant.name()
-    );
-    anyhow::ensure!(
-        variant != occlusion::Variant::Shrunk || !pov,
-        "--{flag} `{text}`: the shrunk variant needs a scene's solids (not --pov)"
-    );
-    Ok((CullChoice::Variant(variant), alpha))
+    CullChoice::parse_with_alpha(text, pov).map_err(|e| anyhow::anyhow!("--{flag} `{text}`: {e}"))
 }
 
 impl Args {

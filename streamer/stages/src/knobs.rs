@@ -99,6 +99,37 @@ impl fmt::Display for CullChoice {
     }
 }
 
+impl CullChoice {
+    /// `VARIANT:ALPHA` (`auto`, `shrunk`, `rendered`, `conservative`, `paper`; α 1 when left
+    /// out) or `none`, for a POV-Ray import (`pov`) or not: `auto` resolved, a variant that
+    /// cannot run there refused.
+    pub fn parse_with_alpha(text: &str, pov: bool) -> Result<(CullChoice, f64), String> {
+        if text == "none" {
+            return Ok((CullChoice::Off, 1.0));
+        }
+        let (v, a) = text.split_once(':').unwrap_or((text, "1"));
+        let alpha: f64 = a
+            .parse()
+            .ok()
+            .filter(|x: &f64| *x > 0.0 && *x <= 1.0)
+            .ok_or("α must be in (0, 1]")?;
+        let variant = match v {
+            "auto" => CullChoice::Auto
+                .resolve(pov, alpha)
+                .unwrap_or(Variant::Conservative),
+            _ => Variant::parse(v)
+                .ok_or("expected auto, shrunk, rendered, conservative, paper or none")?,
+        };
+        if !variant.takes_alpha() && alpha != 1.0 {
+            return Err(format!("the {} variant runs at α = 1 only", variant.name()));
+        }
+        if variant == Variant::Shrunk && pov {
+            return Err("the shrunk variant needs a scene's solids (not --pov)".into());
+        }
+        Ok((CullChoice::Variant(variant), alpha))
+    }
+}
+
 impl FromStr for CullChoice {
     type Err = String;
     /// `auto`, `none`, `shrunk`, `rendered`, `conservative` or `paper` (surrounding blanks
