@@ -81,6 +81,11 @@ fn build_pov_analytic_end_to_end_and_verify() {
     // The last slab reaches infinity (written as null), so the sky belongs to a layer.
     assert!(slabs.last().unwrap()["far"].is_null(), "{pre}");
 
+    // The sky behind every occluder was rendered alone by POV-Ray (rays starting past every
+    // object) and matched the panoramas' own sky where they see it.
+    assert!(pre_dir.join("sky.png").is_file());
+    let build = json(&stages.join("build.json"));
+    assert_eq!(build["sky"], "rendered", "{build}");
     // Culling ran from POV-Ray's depth renders along the track (`auto` for an import);
     // the database has a track with segments.
     let build = json(&stages.join("build.json"));
@@ -189,6 +194,8 @@ fn radiosity_is_sampled_once_and_two_builds_are_byte_identical() {
         assert!(o.status.success(), "{}", text(&o));
         let pre = stages.join("prerender");
         assert!(pre.join("radiosity.rad").is_file());
+        // A closed room: no panorama sees sky, so there is no sky to render alone.
+        assert!(!pre.join("sky.png").exists());
         let report = json(&pre.join("prerender.json"));
         assert_eq!(report["extra"]["radiosity_shared"], true, "{report}");
         let a = &report["extra"]["agreement"];

@@ -7,10 +7,13 @@
 //!
 //! - Built-in scenes and scene files: the tracer renders the sky alone
 //!   ([`crate::render::render_sky`]), exactly, into `sky.png` of the prerender directory.
-//! - POV-Ray imports: POV-Ray cannot render a scene's sky or background alone (it has no
-//!   switch that hides every object, and the objects of an unmodified scene file cannot be
-//!   told apart from its sky by the importer). The sky is assembled instead from every
-//!   reference panorama ([`SkyAccumulator`]): each direction averages, in linear light, the
+//! - POV-Ray imports: POV-Ray has no switch that hides every object, but a ray that starts
+//!   past every object sees only what lies at infinity. The import renders the sky so
+//!   ([`crate::pov::PovImport::render_sky`]: rays starting twice as far out as anything the
+//!   references see) into `sky.png`, and keeps it only where it matches the panoramas'
+//!   own sky (within [`SKY_MATCH`] levels on average where they see it).
+//! - Otherwise (a POV-Ray sky that did not match, or an older prerender directory) the sky is
+//!   assembled from every reference panorama ([`SkyAccumulator`]): each direction averages, in linear light, the
 //!   samples that see sky there away from any silhouette (a sky pixel whose 8 neighbours on
 //!   its face are sky too, so anti-aliased edges do not tint it); directions no sample sees
 //!   as sky are filled by push-pull over each face (a pyramid of averages, coarse levels
@@ -22,6 +25,37 @@ use tracks::{CubeMap, Face};
 
 use crate::shade::{srgb8_to_linear, to_srgb8};
 use crate::store::{self, PrerenderDir, PrerenderReport, StoreError};
+
+/// How far (mean over the directions the panoramas see as clear sky, levels of 255) a sky
+/// rendered alone may differ from the panoramas' own to be used.
+pub const SKY_MATCH: f64 = 4.0;
+
+/// Mean difference (levels of 255, over the three channels) between `sky` and the
+/// panoramas' clear sky gathered in `acc`, over the directions they see; `None` where they
+/// see none.
+pub fn difference(sky: &CubeMap<[u8; 3]>, acc: &SkyAccumulator) -> Option<f64> {
+    let seen = acc.finish()?;
+    let n = sky.face_size();
+    if seen.face_size() != n {
+        return None;
+    }
+    let (mut sum, mut count) = (0.0, 0u64);
+    for f in Face::ALL {
+        for y in 0..n {
+            for x in 0..n {
+                if acc.is_covered(f, x, y) {
+                    let (a, b) = (sky.get(f, x, y), seen.get(f, x, y));
+                    sum += (0..3)
+                        .map(|k| (a[k] as f64 - b[k] as f64).abs())
+                        .sum::<f64>()
+                        / 3.0;
+                    count += 1;
+                }
+            }
+        }
+    }
+    (count > 0).then(|| sum / count as f64)
+}
 
 /// Where a track's sky came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -129,6 +163,11 @@ impl SkyAccumulator {
         Ok(())
     }
 
+    /// Whether some panorama saw this direction as clear sky.
+    pub fn is_covered(&self, face: Face, x: u32, y: u32) -> bool {
+        self.sum.get(face, x, y)[3] > 0.0
+    }
+
     /// Directions some panorama saw as clear sky.
     pub fn covered(&self) -> usize {
         self.sum.as_slice().iter().filter(|s| s[3] > 0.0).count()
@@ -232,6 +271,28 @@ fn push_pull(img: &[[f32; 4]], n: usize, fallback: [f32; 3]) -> Vec<[f32; 3]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A sky rendered alone is compared with the panoramas' only where they see clear sky:
+    /// what it shows behind their occluders does not count, a wrong sky does.
+    #[test]
+    fn a_sky_rendered_alone_is_judged_where_the_panoramas_see_sky() {
+        let n = 8;
+        let blue = CubeMap::filled(n, [40u8, 80, 200]);
+        let depth = CubeMap::from_fn(n, |_, x, _| if x < 4 { 3.0f32 } else { f32::INFINITY });
+        let mut acc = SkyAccumulator::new(n);
+        acc.add(&blue, &depth).unwrap();
+        // Right where they see sky, anything behind their occluder.
+        let alone = CubeMap::from_fn(n, |_, x, _| if x < 4 { [0, 0, 0] } else { [40, 80, 200] });
+        assert_eq!(difference(&alone, &acc), Some(0.0));
+        let wrong = CubeMap::filled(n, [46u8, 86, 206]);
+        assert_eq!(difference(&wrong, &acc), Some(6.0));
+        assert!(difference(&wrong, &acc).unwrap() > SKY_MATCH);
+        // No sky seen: nothing to judge by.
+        let closed = CubeMap::filled(n, 3.0f32);
+        let mut none = SkyAccumulator::new(n);
+        none.add(&blue, &closed).unwrap();
+        assert_eq!(difference(&alone, &none), None);
+    }
 
     #[test]
     fn sky_behind_an_occluder_comes_from_another_panorama() {

@@ -20,6 +20,7 @@ use crate::store::{self, PrerenderDir, SampleMeta};
 mod depths;
 mod layers;
 mod radiosity;
+mod sky;
 mod views;
 
 pub use depths::{DepthRequest, MAX_PARALLEL_RUNS};

@@ -92,6 +92,8 @@ fn pass_group(pass: &str) -> &'static str {
         "color"
     } else if pass == "radiosity" {
         "radiosity"
+    } else if pass == "sky" {
+        "sky"
     } else if pass == "preview" {
         "preview"
     } else {
@@ -207,7 +209,7 @@ pub(super) fn run(
         slabs: &slabs,
     };
     if params.merge {
-        return merge(&facts, &import, progress);
+        return merge(&facts, &mut import, progress);
     }
     let shard = params.shard.map(|s| s.pair());
     let log = Arc::new(RunLog::create(out, "import-pov", shard)?);
@@ -273,6 +275,7 @@ pub(super) fn run(
         ));
         return Ok(done);
     }
+    sky_alone(&facts, &mut import, progress)?;
     done.report = Some(write_report(&facts, &import, progress)?);
     progress.message(&format!(
         "wrote {} ({} samples, {} resumed, {:.1} s)",
@@ -309,6 +312,55 @@ fn render_sample(facts: &Facts, import: &mut PovImport, vp: &ReferenceViewpoint)
     Ok(false)
 }
 
+/// The sky rendered alone (`sky.png`, the background behind every occluder), kept where it
+/// matches the panoramas' own sky ([`prerender::sky::SKY_MATCH`]); removed where they see
+/// no sky or it does not match, so that the sky is assembled from them instead.
+fn sky_alone(facts: &Facts, import: &mut PovImport, progress: &Reporter) -> Result<()> {
+    let dir = facts.dir;
+    let path = dir.sky_png();
+    let n = facts.params.face_size;
+    let mut acc = prerender::sky::SkyAccumulator::new(n);
+    let mut far = 0.0f64;
+    let mut done = Vec::new();
+    for vp in facts
+        .viewpoints
+        .iter()
+        .filter(|vp| import.base_done(dir, vp))
+    {
+        let colour = store::read_rgb_png(&dir.color_png(vp.index))?;
+        let depth = store::read_depth_exr(&dir.depth_exr(vp.index))?;
+        acc.add(&colour, &depth)
+            .map_err(|e| input!("{}: {e}", dir.color_png(vp.index).display()))?;
+        far = depth
+            .as_slice()
+            .iter()
+            .filter(|d| d.is_finite())
+            .fold(far, |a, &d| a.max(d as f64));
+        done.push(vp.position);
+    }
+    std::fs::remove_file(&path).ok();
+    let (Some(first), true) = (done.first(), acc.covered() > 0) else {
+        return Ok(());
+    };
+    let reach = done.iter().map(|p| p.distance(*first)).fold(0.0, f64::max);
+    let sky = import.render_sky(*first, 2.0 * far.max(1.0) + reach)?;
+    match prerender::sky::difference(&sky, &acc) {
+        Some(d) if d <= prerender::sky::SKY_MATCH => {
+            store::write_atomic(&path, &store::encode_rgb_png(&sky))?;
+            progress.message(&format!(
+                "sky: rendered alone, {d:.2} levels from the panoramas' own where they see it"
+            ));
+        }
+        d => progress.message(&format!(
+            "sky: rendered alone it differs from the panoramas' own sky by {:.1} levels (more \
+             than {}): assembled from the panoramas instead",
+            d.unwrap_or(f64::NAN),
+            prerender::sky::SKY_MATCH
+        )),
+    }
+    Ok(())
+}
+
 /// What the report of an import is made from.
 struct Facts<'a> {
     params: &'a PrerenderParams,
@@ -320,7 +372,7 @@ struct Facts<'a> {
 }
 
 /// After the shards: every sample complete, then the report.
-fn merge(facts: &Facts, import: &PovImport, progress: &Reporter) -> Result<Prerendered> {
+fn merge(facts: &Facts, import: &mut PovImport, progress: &Reporter) -> Result<Prerendered> {
     let p = facts.params;
     let (base, layers) = job::missing_samples(
         facts.dir,
@@ -342,6 +394,7 @@ fn merge(facts: &Facts, import: &PovImport, progress: &Reporter) -> Result<Prere
             )));
         }
     }
+    sky_alone(facts, import, progress)?;
     let report = write_report(facts, import, progress)?;
     progress.message(&format!(
         "merged {}: all {} samples complete; {:.1} s of POV-Ray rendering",
