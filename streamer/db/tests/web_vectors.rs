@@ -124,7 +124,7 @@ fn mesh(seed: u64, side: u32, offset: (f32, f32), quads: bool) -> TileMesh {
     let mut index = vec![vec![u32::MAX; side as usize]; side as usize];
     for y in 0..side {
         for x in 0..side {
-            if r.next() % 7 == 0 && x % 3 == 1 {
+            if r.next().is_multiple_of(7) && x % 3 == 1 {
                 continue;
             }
             index[y as usize][x as usize] = vertices.len() as u32;
@@ -144,7 +144,7 @@ fn mesh(seed: u64, side: u32, offset: (f32, f32), quads: bool) -> TileMesh {
             if [a, b, c, d].contains(&u32::MAX) {
                 continue;
             }
-            if r.next() % 2 == 0 {
+            if r.next().is_multiple_of(2) {
                 indices.extend([a, b, d, a, d, c]);
             } else {
                 indices.extend([a, b, c, b, d, c]);
@@ -239,7 +239,7 @@ fn tile(k: u32, slab: u32, ranges: usize, mesh: bool) -> TileEntry {
         depth_min: 3.0 + k as f64 * 0.37,
         depth_max: 9.0 + k as f64 * 1.5,
         opaque_pixels: 100 + k * 3,
-        kept: k % 5 != 0,
+        kept: !k.is_multiple_of(5),
         ptm: (ranges > 0).then(|| PtmRef {
             object: ObjectRef {
                 hash: String::new(),

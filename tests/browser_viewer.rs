@@ -1,0 +1,294 @@
+//! The browser viewer (`viewer/web/`) in Debian's headless Chromium (SwiftShader WebGL2),
+//! driven over the DevTools protocol (`common::cdp`): on the castle database, its frame at a
+//! sample and between samples against `railview render` from the same camera (PSNR and hole
+//! masks), the same view over `railview serve` and over nginx with the README's configuration
+//! (the database folder as `railview build` wrote it, viewer included), and a walk along the
+//! whole track with no errors and the decoded memory within its budget.
+//!
+//! Needs Chromium and nginx (`scripts/test.sh` installs them); `RAILVIEW_SKIP_BROWSER=1` or
+//! `RAILVIEW_SKIP_NGINX_TESTS=1` mark these tests ignored. About a minute.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use common::cdp::{base64_decode, Browser};
+use common::nginx::{readme_server_block, Nginx};
+use common::{railview, scratch_dir, stderr};
+
+/// The fidelity the browser must keep against `railview render` (issue 36): PSNR of the
+/// colour, and the share of pixels whose hole flag differs.
+const MIN_PSNR_DB: f64 = 35.0;
+const MAX_HOLE_DISAGREEMENT: f64 = 0.001;
+/// Frames are compared at this size (CSS pixels at device scale 1).
+const SIZE: (u32, u32) = (480, 270);
+/// Longest a view may take to arrive on loopback.
+const READY_WITHIN: Duration = Duration::from_secs(90);
+
+/// The castle database of the README at face 128 (built once per test binary, ~15 s).
+fn castle() -> &'static Path {
+    static DB: OnceLock<PathBuf> = OnceLock::new();
+    DB.get_or_init(|| {
+        let dir = scratch_dir("browser", "castle");
+        let db = dir.join("site").join("castle");
+        let o = railview(&[
+            "build",
+            "--scene",
+            "castle",
+            "--track",
+            "main",
+            "--face-size",
+            "128",
+            "--out",
+            db.to_str().unwrap(),
+            "--work",
+            dir.join("work").to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        db
+    })
+}
+
+struct Server {
+    child: std::process::Child,
+    url: String,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// `railview serve DB` on a free loopback port.
+fn serve(db: &Path, extra: &[&str]) -> Server {
+    use std::io::{BufRead, BufReader};
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_railview"))
+        .args(["serve", db.to_str().unwrap(), "--addr", "127.0.0.1:0"])
+        .args(extra)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("start railview serve");
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let line = lines.next().unwrap().unwrap();
+    let addr = line
+        .split("http://")
+        .nth(1)
+        .and_then(|a| a.split_whitespace().next())
+        .unwrap_or_else(|| panic!("no address in `{line}`"))
+        .to_string();
+    std::thread::spawn(move || for _ in lines {});
+    Server {
+        child,
+        url: format!("http://{addr}/"),
+    }
+}
+
+/// An RGBA frame, rows top to bottom.
+struct Frame {
+    width: u32,
+    height: u32,
+    rgba: Vec<u8>,
+}
+
+/// What the page says about itself once ready.
+fn page_state(b: &mut Browser) -> serde_json::Value {
+    b.eval(
+        "({ state: window.railview, errors: window.railviewErrors, \
+           shown: document.getElementById('error').textContent })",
+    )
+}
+
+fn frame_of(b: &mut Browser) -> Frame {
+    let px = b.eval("window.railviewPixels()");
+    Frame {
+        width: px["width"].as_u64().unwrap() as u32,
+        height: px["height"].as_u64().unwrap() as u32,
+        rgba: base64_decode(px["rgba"].as_str().unwrap()),
+    }
+}
+
+/// Opens `url?at=…` in a fresh browser, waits for `railview: ready` and returns the frame.
+fn browse(url: &str, view: (f64, f64, f64, f64), tag: &str) -> Frame {
+    let (at, yaw, pitch, fov) = view;
+    let mut b = Browser::start(&scratch_dir("browser-profile", tag), SIZE.0, SIZE.1);
+    b.navigate(&format!("{url}?at={at}&yaw={yaw}&pitch={pitch}&fov={fov}"));
+    let title = b.wait_title(READY_WITHIN, |t| {
+        t == "railview: ready" || t.contains("missing")
+    });
+    let state = page_state(&mut b);
+    assert_eq!(title, "railview: ready", "{state}");
+    assert_eq!(state["errors"], serde_json::json!([]), "{state}");
+    assert_eq!(state["shown"], "", "{state}");
+    let f = frame_of(&mut b);
+    assert_eq!((f.width, f.height), SIZE, "the canvas fills the window");
+    f
+}
+
+/// `railview render` of the same camera.
+fn native(db: &Path, view: (f64, f64, f64, f64), out: &Path) -> Frame {
+    let (at, yaw, pitch, fov) = view;
+    let o = railview(&[
+        "render",
+        db.to_str().unwrap(),
+        "--at",
+        &at.to_string(),
+        "--yaw",
+        &yaw.to_string(),
+        "--pitch",
+        &pitch.to_string(),
+        "--fov",
+        &fov.to_string(),
+        "--size",
+        &format!("{}x{}", SIZE.0, SIZE.1),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let img = image::open(out).unwrap().to_rgba8();
+    Frame {
+        width: img.width(),
+        height: img.height(),
+        rgba: img.into_raw(),
+    }
+}
+
+/// PSNR of the colour and the share of pixels whose hole flag (alpha 0) differs.
+fn compare(a: &Frame, b: &Frame) -> (f64, f64) {
+    assert_eq!((a.width, a.height), (b.width, b.height));
+    let (mut se, mut holes) = (0.0f64, 0usize);
+    for (p, q) in a.rgba.chunks_exact(4).zip(b.rgba.chunks_exact(4)) {
+        for k in 0..3 {
+            let d = p[k] as f64 - q[k] as f64;
+            se += d * d;
+        }
+        holes += usize::from((p[3] == 0) != (q[3] == 0));
+    }
+    let n = (a.width * a.height) as f64;
+    let mse = se / (3.0 * n);
+    let psnr = if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        10.0 * (255.0f64 * 255.0 / mse).log10()
+    };
+    (psnr, holes as f64 / n)
+}
+
+/// Views on the castle's main track (samples every 2 m): at a sample and between samples,
+/// along the track and across it.
+const VIEWS: &[(f64, f64, f64, f64)] = &[
+    (2.0, 0.0, 0.0, 90.0),
+    (3.0, 0.0, 0.0, 90.0),
+    (17.3, 0.0, -5.0, 80.0),
+    (30.0, 180.0, 0.0, 100.0),
+];
+
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+fn browser_frames_match_railview_render_at_and_between_samples() {
+    let db = castle();
+    let server = serve(db, &[]);
+    let out = scratch_dir("browser", "render");
+    for (i, &view) in VIEWS.iter().enumerate() {
+        let web = browse(&server.url, view, &format!("render-{i}"));
+        let nat = native(db, view, &out.join(format!("native-{i}.png")));
+        let (psnr, holes) = compare(&web, &nat);
+        eprintln!(
+            "view {view:?}: {psnr:.2} dB, hole masks differ at {:.4} %",
+            holes * 100.0
+        );
+        assert!(
+            psnr >= MIN_PSNR_DB,
+            "view {view:?}: {psnr:.2} dB against railview render (at least {MIN_PSNR_DB})"
+        );
+        assert!(
+            holes <= MAX_HOLE_DISAGREEMENT,
+            "view {view:?}: hole masks differ at {:.3} % of pixels",
+            holes * 100.0
+        );
+    }
+}
+
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+#[cfg_attr(
+    railview_skip_nginx,
+    ignore = "RAILVIEW_SKIP_NGINX_TESTS=1: nginx is not available"
+)]
+fn nginx_with_the_readme_configuration_serves_the_same_view_as_railview_serve() {
+    let db = castle();
+    // `railview build` wrote the viewer beside the manifest: the folder is the website.
+    for f in ["index.html", "main.js", "worker.js"] {
+        assert!(db.join(f).is_file(), "{f} is not beside the manifest");
+    }
+    let site = db.parent().unwrap();
+    let nginx = Nginx::start(&scratch_dir("browser", "nginx"), |port| {
+        readme_server_block(site, port)
+    });
+    let server = serve(db, &[]);
+    let view = (5.0, 20.0, 3.0, 90.0);
+    let a = browse(&server.url, view, "serve");
+    let b = browse(&nginx.url("/castle/"), view, "nginx");
+    let (psnr, holes) = compare(&a, &b);
+    assert!(
+        psnr.is_infinite() && holes == 0.0,
+        "the same view over nginx differs: {psnr:.2} dB, holes {holes}; nginx: {}",
+        nginx.errors()
+    );
+}
+
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+fn a_walk_along_the_whole_track_stays_within_its_memory_budget_without_errors() {
+    let db = castle();
+    let server = serve(db, &[]);
+    let mut b = Browser::start(&scratch_dir("browser-profile", "walk"), SIZE.0, SIZE.1);
+    // A view of this database holds about 3.5 MB decoded (five layers of 128² × 6 texels
+    // with their mip chains, and its meshes): 16 MB holds four, so a walk past 36 views must
+    // evict, while the drawn pair and the next view (never evicted) fit.
+    let budget_mb = 16;
+    b.navigate(&format!("{}?at=0&budget={budget_mb}", server.url));
+    b.wait_title(READY_WITHIN, |t| t == "railview: ready");
+    let length = b.eval("window.railviewGo(0)").as_f64().unwrap();
+    let (mut s, mut peak, mut steps, mut most_views) = (0.0, 0u64, 0, 0);
+    while s <= length {
+        b.eval(&format!("window.railviewGo({s})"));
+        let title = b.wait_title(READY_WITHIN, |t| {
+            t == "railview: ready" || t.contains("missing")
+        });
+        let state = page_state(&mut b);
+        assert_eq!(title, "railview: ready", "at s = {s}: {state}");
+        assert_eq!(
+            state["errors"],
+            serde_json::json!([]),
+            "at s = {s}: {state}"
+        );
+        peak = peak.max(state["state"]["memory"].as_u64().unwrap());
+        most_views = most_views.max(b.eval("window.railviewApp.views.size").as_u64().unwrap());
+        s += 1.5;
+        steps += 1;
+    }
+    let state = page_state(&mut b);
+    eprintln!("walk of {steps} steps: peak decoded memory {peak} bytes; {state}");
+    assert!(
+        peak <= budget_mb * 1_000_000,
+        "decoded memory reached {peak} bytes, over the budget of {budget_mb} MB"
+    );
+    assert_eq!(state["state"]["missing"], 0);
+    assert!(
+        most_views < 10,
+        "{most_views} views held at once: nothing was evicted"
+    );
+}
