@@ -292,3 +292,130 @@ fn a_walk_along_the_whole_track_stays_within_its_memory_budget_without_errors() 
         "{most_views} views held at once: nothing was evicted"
     );
 }
+
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+fn damaged_answers_are_fetched_again_and_never_drawn() {
+    let db = castle();
+    let view = (9.0, 0.0, 0.0, 90.0);
+    let clean = serve(db, &[]);
+    let expected = browse(&clean.url, view, "clean");
+    // One byte flipped in every 11th object response (tables and pack ranges alike).
+    let damaged = serve(db, &["--corrupt-every", "11"]);
+    let mut b = Browser::start(&scratch_dir("browser-profile", "damaged"), SIZE.0, SIZE.1);
+    let (at, yaw, pitch, fov) = view;
+    b.navigate(&format!(
+        "{}?at={at}&yaw={yaw}&pitch={pitch}&fov={fov}",
+        damaged.url
+    ));
+    let title = b.wait_title(READY_WITHIN, |t| {
+        t == "railview: ready" || t.contains("missing")
+    });
+    let state = page_state(&mut b);
+    let faults = state["state"]["faults"].as_u64().unwrap()
+        + state["state"]["stats"]["retries"].as_u64().unwrap();
+    assert!(faults > 0, "no damage noticed: {state}");
+    let got = frame_of(&mut b);
+    if title == "railview: ready" {
+        let (psnr, holes) = compare(&got, &expected);
+        assert!(
+            psnr.is_infinite() && holes == 0.0,
+            "with damaged answers the view differs ({psnr:.2} dB): {state}"
+        );
+    } else {
+        // Given up after three faults: shown missing, and what is drawn is still right
+        // where the missing tiles are not (the rest of the view is the clean view's).
+        assert!(state["state"]["missing"].as_u64().unwrap() > 0, "{state}");
+    }
+}
+
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+#[cfg_attr(
+    railview_skip_nginx,
+    ignore = "RAILVIEW_SKIP_NGINX_TESTS=1: nginx is not available"
+)]
+fn a_host_that_answers_one_range_at_a_time_gets_one_range_a_request() {
+    let db = castle();
+    let site = db.parent().unwrap();
+    // nginx answers a request for more ranges than `max_ranges` with the whole object.
+    let nginx = Nginx::start(&scratch_dir("browser", "nginx-one-range"), |port| {
+        readme_server_block(site, port).replacen("server {", "server {\n    max_ranges 1;", 1)
+    });
+    let server = serve(db, &[]);
+    let view = (12.0, -30.0, 0.0, 90.0);
+    let expected = browse(&server.url, view, "many-ranges");
+    let mut b = Browser::start(&scratch_dir("browser-profile", "one-range"), SIZE.0, SIZE.1);
+    let (at, yaw, pitch, fov) = view;
+    b.navigate(&format!(
+        "{}?at={at}&yaw={yaw}&pitch={pitch}&fov={fov}",
+        nginx.url("/castle/")
+    ));
+    let title = b.wait_title(READY_WITHIN, |t| {
+        t == "railview: ready" || t.contains("missing")
+    });
+    let state = page_state(&mut b);
+    assert_eq!(title, "railview: ready", "{state}");
+    assert!(
+        state["state"]["stats"]["fallbacks"].as_u64().unwrap() > 0,
+        "{state}"
+    );
+    let (psnr, holes) = compare(&frame_of(&mut b), &expected);
+    assert!(psnr.is_infinite() && holes == 0.0, "{psnr:.2} dB; {state}");
+}
+
+/// A measurement for BENCHMARKS.md, not a check (times are not asserted): `cargo test
+/// --release --test browser_viewer -- --ignored --nocapture`. At 1280×720, fov 90, looking
+/// along the track at s = 0 as `railview walk` starts: over `railview serve --throttle 2mbit
+/// --latency 50ms`, the time from opening the page to the first complete view (every tile
+/// it needs drawn at some level, what the walk counts) and to `railview: ready` (every
+/// level); then unthrottled, SwiftShader's draw time of that view, and the longest
+/// main-thread stall of an arrival (uploads) and decode of a piece in a worker.
+#[test]
+#[ignore = "a measurement: cargo test --release --test browser_viewer -- --ignored --nocapture"]
+fn measure_first_complete_view_and_frame_time() {
+    let db = castle();
+    let (w, h) = (1280, 720);
+    for (name, extra) in [
+        (
+            "2 Mbit/s, 50 ms",
+            &["--throttle", "2mbit", "--latency", "50ms"][..],
+        ),
+        ("unthrottled", &[][..]),
+    ] {
+        let server = serve(db, extra);
+        let mut b = Browser::start(&scratch_dir("browser-profile", "measure"), w, h);
+        b.navigate(&format!("{}?at=0&fov=90", server.url));
+        b.wait_title(Duration::from_secs(300), |t| t == "railview: ready");
+        let state = page_state(&mut b);
+        let times = b.eval("window.railviewFrameTimes(20)");
+        let mut ms: Vec<f64> = times
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        ms.sort_by(f64::total_cmp);
+        let s = &state["state"];
+        eprintln!(
+            "{name}: complete view {:.0} ms, ready {:.0} ms after opening the page; \
+             {} bytes in {} requests; draw at {w}x{h}: median {:.1} ms (min {:.1}, max {:.1}); \
+             longest main-thread arrival {:.1} ms, longest worker decode {:.1} ms",
+            s["completeMs"].as_f64().unwrap_or(f64::NAN),
+            s["readyMs"].as_f64().unwrap_or(f64::NAN),
+            s["stats"]["bytes"],
+            s["stats"]["requests"],
+            ms[ms.len() / 2],
+            ms[0],
+            ms[ms.len() - 1],
+            s["mainMaxMs"].as_f64().unwrap_or(f64::NAN),
+            s["decodeMaxMs"].as_f64().unwrap_or(f64::NAN),
+        );
+    }
+}

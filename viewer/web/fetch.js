@@ -121,7 +121,12 @@ export class Store {
       throw new FetchError(`${obj.hash}: ${e.message}`, true);
     }
     if (res.status === 200) {
-      // The whole object (a host that ignores Range).
+      // The whole object: a host that ignores Range, or one that answers several ranges so
+      // (nginx beyond its max_ranges). Later requests ask for one range at a time.
+      if (batch.length > 1 && this.multi) {
+        this.multi = false;
+        this.stats.fallbacks++;
+      }
       const b = new Uint8Array(await res.arrayBuffer());
       this.stats.bytes += b.length;
       if (b.length !== obj.size) throw new FetchError(`${obj.hash}: ${b.length} bytes, expected ${obj.size}`, true);

@@ -223,6 +223,9 @@ class App {
       t.state = "missing";
       this.stats.missing++;
       console.warn(`tile ${tileKey(t.e)} of viewpoint ${v.vi} is missing: ${e.message ?? e}`);
+    } else {
+      // Asked for again after a wait that doubles with each fault.
+      setTimeout(() => this.requeue(), 100 * 2 ** t.faults);
     }
     this.dirty = true;
   }
@@ -348,6 +351,10 @@ class App {
     }
     if (!this.dirty) return;
     this.dirty = false;
+    this.render(cam);
+  }
+
+  render(cam) {
     const views = [];
     for (const [vi, weight] of this.pair) {
       const v = this.views.get(vi);
@@ -365,12 +372,14 @@ class App {
       return;
     }
     this.frameMs.push(performance.now() - t0);
+    if (this.frameMs.length > 200) this.frameMs.splice(0, 100);
     this.status(cam);
   }
 
   status() {
     let need = 0;
     let have = 0;
+    let coarse = 0;
     let missing = 0;
     let pairLoaded = true;
     for (const [vi] of this.pair) {
@@ -384,6 +393,7 @@ class App {
         if (t.needed === false) continue;
         need++;
         if (t.state === "done") have++;
+        if (t.decoded > 0 && t.meshDone) coarse++;
         if (t.state === "missing") missing++;
       }
     }
@@ -392,6 +402,12 @@ class App {
     statusText.textContent = `s ${this.cam.s.toFixed(2)} m · detail ${pct}% (${have}/${need} tiles${missing ? `, ${missing} missing` : ""}) · ${(st.bytes / 1e6).toFixed(2)} MB in ${st.requests} requests`;
     bar.style.width = `${pct}%`;
     window.railview = { need, have, missing, memory: this.memoryBytes(), budget: MEMORY_BUDGET, stats: st, faults: this.stats.faults, decodeMaxMs: this.workers.maxMs, mainMaxMs: this.mainMaxMs ?? 0, frameMs: this.frameMs.slice(-50) };
+    // Times since the page was opened: every needed tile drawn at some level (what the
+    // native walk counts as a complete frame), and at every level.
+    if (pairLoaded && coarse === need && this.completeMs === undefined) this.completeMs = performance.now();
+    if (pairLoaded && have === need && this.readyMs === undefined) this.readyMs = performance.now();
+    window.railview.completeMs = this.completeMs;
+    window.railview.readyMs = this.readyMs;
     if (pairLoaded && have === need) document.title = "railview: ready";
     else if (pairLoaded && have + missing === need) document.title = `railview: ${missing} tiles missing`;
     else document.title = `railview: ${pct}%`;
@@ -480,6 +496,19 @@ try {
   window.railviewApp = app;
   app.start().catch(showError);
   // Moves the camera to arc length s (and optionally a direction), as the keys do.
+  // Draws the current view n times, each waited for (gl.finish), and returns the draw
+  // times in milliseconds.
+  window.railviewFrameTimes = (n) => {
+    const gl = canvas.getContext("webgl2");
+    const out = [];
+    for (let i = 0; i < n; i++) {
+      const t0 = performance.now();
+      app.render(app.camera());
+      gl.finish();
+      out.push(performance.now() - t0);
+    }
+    return out;
+  };
   window.railviewGo = (s, yaw) => {
     if (yaw !== undefined) app.cam.yaw = yaw;
     app.cam.s = Math.min(Math.max(s, 0), app.track.length);
