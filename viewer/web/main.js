@@ -31,28 +31,49 @@ function showError(e) {
   console.error(e);
 }
 
+// A pool of decoding workers, each given one job at a time; waiting jobs go out by
+// priority (the drawn pair's visible tiles before the rest), not in arrival order.
 class Workers {
   constructor(n) {
     this.pool = Array.from({ length: n }, () => new Worker(new URL("./worker.js", import.meta.url), { type: "module" }));
-    this.next = 0;
-    this.waiting = new Map();
+    this.idle = [...this.pool];
+    this.jobs = [];
     this.id = 0;
     this.maxMs = 0;
+    this.totalMs = 0;
+    this.count = 0;
     for (const w of this.pool) {
       w.onmessage = (ev) => {
-        const cb = this.waiting.get(ev.data.id);
-        this.waiting.delete(ev.data.id);
         this.maxMs = Math.max(this.maxMs, ev.data.ms ?? 0);
+        this.totalMs += ev.data.ms ?? 0;
+        this.count++;
+        const cb = w.job.resolve;
+        w.job = null;
+        this.idle.push(w);
+        this.next();
         cb(ev.data);
       };
     }
   }
-  run(msg) {
+  run(msg, pri = 0) {
     return new Promise((resolve) => {
-      const id = ++this.id;
-      this.waiting.set(id, resolve);
-      this.pool[this.next++ % this.pool.length].postMessage({ ...msg, id });
+      this.jobs.push({ msg: { ...msg, id: ++this.id }, resolve, pri, order: this.id });
+      this.next();
     });
+  }
+  next() {
+    while (this.idle.length && this.jobs.length) {
+      let best = 0;
+      for (let i = 1; i < this.jobs.length; i++) {
+        const a = this.jobs[i];
+        const b = this.jobs[best];
+        if (a.pri < b.pri || (a.pri === b.pri && a.order < b.order)) best = i;
+      }
+      const job = this.jobs.splice(best, 1)[0];
+      const w = this.idle.pop();
+      w.job = job;
+      w.postMessage(job.msg);
+    }
   }
 }
 
@@ -65,7 +86,8 @@ class App {
     this.base = new URL(".", location.href).href;
     this.store = new Store(this.base);
     this.renderer = new Renderer(canvas);
-    this.workers = new Workers(Math.max(1, Math.min(4, (navigator.hardwareConcurrency || 2) - 1)));
+    // At least two workers: one decodes while the other's result is uploaded.
+    this.workers = new Workers(Math.max(2, Math.min(4, (navigator.hardwareConcurrency || 2) - 1)));
     this.views = new Map();
     this.queue = [];
     this.inFlight = 0;
@@ -74,7 +96,14 @@ class App {
     this.frameMs = [];
   }
 
+  // The first time each stage was reached (ms since the page was opened), for measurements.
+  mark(name) {
+    this.marks ??= {};
+    this.marks[name] ??= Math.round(performance.now());
+  }
+
   async start() {
+    this.mark("start");
     const bytes = await this.store.get(`${this.base}manifest.json`, MAX_MANIFEST_BYTES);
     this.manifest = checkManifest(JSON.parse(new TextDecoder().decode(bytes)));
     const name = q.get("track");
@@ -84,6 +113,7 @@ class App {
     this.arcs = tr.viewpoints.map((v) => v.s);
     const s = Math.min(Math.max(num("at", 0), 0), this.track.length);
     this.cam = { s, yaw: num("yaw", this.track.yawAlong(s)), pitch: num("pitch", 0), fov: num("fov", 90) };
+    this.mark("manifest");
     this.bindInput();
     this.update();
     requestAnimationFrame(() => this.frame());
@@ -130,10 +160,12 @@ class App {
     }
     const table = await decodeTable(bytes, this.trackEntry.viewpoints[v.vi].index);
     if (this.views.get(v.vi) !== v) return;
+    this.mark("table");
     v.table = table;
     const m = this.manifest;
     v.levels = Math.round(Math.log2(m.tile_size)) + 1;
     v.tex = this.renderer.createLayers(m.face_size, m.slabs.length + 1, v.levels);
+    this.mark("texture");
     v.bytes = (m.face_size * 6 * m.face_size * 4 * (m.slabs.length + 1) * 4) / 3;
     const entries = [...v.table.background.map((t) => ({ ...t, background: true })), ...v.table.tiles.filter((t) => t.kept && t.ptm)];
     for (const e of entries) {
@@ -179,6 +211,8 @@ class App {
 
   pump() {
     while (this.inFlight < IN_FLIGHT && this.queue.length) {
+      // The rest of the pair and the prefetch wait while the view's own tiles travel.
+      if (this.queue[0].pri >= 2 && this.urgentInFlight > 0) break;
       const first = this.queue.shift();
       const batch = [first];
       // Parts of the same pack at the same priority travel in one request.
@@ -191,14 +225,20 @@ class App {
       });
       for (const p of batch) (p.t.pending ??= new Set()).add(p.k);
       this.inFlight++;
+      const urgent = first.pri < 2;
+      if (urgent) this.urgentInFlight = (this.urgentInFlight ?? 0) + 1;
+      this.mark("ranges asked");
       this.store.ranges(first.obj, batch.map((p) => [p.start, p.end]))
         .then((got) => {
+          this.mark("ranges arrived");
+          this.marks["last ranges arrived"] = Math.round(performance.now());
           for (const p of batch) {
             const g = got.find((r) => r.start <= p.start && r.end >= p.end);
             p.t.pending.delete(p.k);
             p.t.parts.set(p.k, g.bytes.slice(p.start - g.start, p.end - g.start));
-            this.arrived(p.v, p.t);
           }
+          // Each tile once, with every part of it this answer brought.
+          for (const t of new Set(batch.map((p) => p.t))) this.arrived(batch.find((p) => p.t === t).v, t);
         })
         .catch((e) => {
           for (const p of batch) {
@@ -208,6 +248,7 @@ class App {
         })
         .finally(() => {
           this.inFlight--;
+          if (urgent) this.urgentInFlight--;
           this.pump();
           if (!this.queue.length && this.inFlight === 0) this.requeue();
         });
@@ -234,18 +275,22 @@ class App {
     const m = this.manifest;
     if (t.parts.has("mesh") && !t.meshBusy && !t.mesh) {
       t.meshBusy = true;
+      this.mark("mesh job");
       const T = m.tile_size;
       const rect = { x0: t.e.tx * T, y0: t.e.ty * T, x1: Math.min((t.e.tx + 1) * T, m.face_size), y1: Math.min((t.e.ty + 1) * T, m.face_size) };
       const kept = (dx, dy) => v.tiles.has(tileKey({ slab: t.e.slab, face: t.e.face, tx: t.e.tx + dx, ty: t.e.ty + dy }));
       const shared = [kept(-1, 0), kept(0, -1), kept(1, 0), kept(0, 1)];
-      this.workers.run({ kind: "mesh", parts: [t.parts.get("mesh")], hashes: [t.e.mesh.hash], face: t.e.face, faceSize: m.face_size, rect, shared })
+      this.workers.run({ kind: "mesh", parts: [t.parts.get("mesh")], hashes: [t.e.mesh.hash], face: t.e.face, faceSize: m.face_size, rect, shared }, t.needed ? 0 : 1 + v.rank)
         .then((r) => this.timed(() => {
           t.meshBusy = false;
+          this.mark("mesh result");
+          this.marks["last mesh result"] = Math.round(performance.now());
           if (r.error) return this.fault(v, t, new Error(r.error));
           if (!v.tex) return;
           t.pos = r.mesh.pos;
           t.stretched = r.mesh.stretched;
           t.mesh = this.renderer.createMesh(t.pos, this.info(t));
+          this.mark("mesh");
           t.meshDone = true;
           this.settle(v, t);
         }));
@@ -257,7 +302,7 @@ class App {
       t.ptmBusy = true;
       const parts = Array.from({ length: n }, (_, i) => t.parts.get(i));
       const hashes = t.e.ptm.levels.slice(0, n).map((l) => l.hash);
-      this.workers.run({ kind: "ptm", parts, hashes }).then((r) => this.timed(() => {
+      this.workers.run({ kind: "ptm", parts, hashes }, (t.needed ? 0 : 1 + v.rank) + (t.decoded ? 0.5 : 0)).then((r) => this.timed(() => {
         t.ptmBusy = false;
         if (r.error) return this.fault(v, t, new Error(r.error));
         if (!v.tex) return;
@@ -269,9 +314,13 @@ class App {
           this.renderer.upload(v.tex, t.layer, l.level, x, y, l.width, l.height, l.rgba);
           t.minLevel = Math.min(t.minLevel, l.level);
         }
+        this.mark("ptm");
+        this.marks["last ptm"] = Math.round(performance.now());
         t.decoded = n;
-        if (t.mesh) this.renderer.deleteMesh(t.mesh);
-        if (t.pos) t.mesh = this.renderer.createMesh(t.pos, this.info(t));
+        if (t.pos && t.meshLevel !== t.minLevel) {
+          if (t.mesh) this.renderer.deleteMesh(t.mesh);
+          t.mesh = this.renderer.createMesh(t.pos, this.info(t));
+        }
         this.settle(v, t);
         this.arrived(v, t);
       }));
@@ -282,10 +331,13 @@ class App {
   timed(f) {
     const t0 = performance.now();
     f();
-    this.mainMaxMs = Math.max(this.mainMaxMs ?? 0, performance.now() - t0);
+    const ms = performance.now() - t0;
+    this.mainMaxMs = Math.max(this.mainMaxMs ?? 0, ms);
+    this.mainTotalMs = (this.mainTotalMs ?? 0) + ms;
   }
 
   info(t) {
+    t.meshLevel = t.minLevel;
     const n = t.pos.length / 3;
     const out = new Uint32Array(n);
     const base = t.e.face | (t.layer << 3) | (Math.min(t.minLevel, 15) << 8);
@@ -365,6 +417,7 @@ class App {
     if (!views.length) return this.status(cam);
     if (views.length === 1) views[0].weight = 1;
     const t0 = performance.now();
+    this.mark("first draw");
     try {
       this.renderer.draw(cam, views);
     } catch (e) {
@@ -372,6 +425,7 @@ class App {
       return;
     }
     this.frameMs.push(performance.now() - t0);
+    this.mark("first draw done");
     if (this.frameMs.length > 200) this.frameMs.splice(0, 100);
     this.status(cam);
   }
@@ -401,12 +455,13 @@ class App {
     const st = this.store.stats;
     statusText.textContent = `s ${this.cam.s.toFixed(2)} m · detail ${pct}% (${have}/${need} tiles${missing ? `, ${missing} missing` : ""}) · ${(st.bytes / 1e6).toFixed(2)} MB in ${st.requests} requests`;
     bar.style.width = `${pct}%`;
-    window.railview = { need, have, missing, memory: this.memoryBytes(), budget: MEMORY_BUDGET, stats: st, faults: this.stats.faults, decodeMaxMs: this.workers.maxMs, mainMaxMs: this.mainMaxMs ?? 0, frameMs: this.frameMs.slice(-50) };
+    window.railview = { need, have, missing, memory: this.memoryBytes(), budget: MEMORY_BUDGET, stats: st, faults: this.stats.faults, decodeMaxMs: this.workers.maxMs, decodeTotalMs: this.workers.totalMs, decodes: this.workers.count, mainMaxMs: this.mainMaxMs ?? 0, mainTotalMs: this.mainTotalMs ?? 0, frameMs: this.frameMs.slice(-50) };
     // Times since the page was opened: every needed tile drawn at some level (what the
     // native walk counts as a complete frame), and at every level.
     if (pairLoaded && coarse === need && this.completeMs === undefined) this.completeMs = performance.now();
     if (pairLoaded && have === need && this.readyMs === undefined) this.readyMs = performance.now();
     window.railview.completeMs = this.completeMs;
+    window.railview.marks = this.marks;
     window.railview.readyMs = this.readyMs;
     if (pairLoaded && have === need) document.title = "railview: ready";
     else if (pairLoaded && have + missing === need) document.title = `railview: ${missing} tiles missing`;
@@ -496,15 +551,16 @@ try {
   window.railviewApp = app;
   app.start().catch(showError);
   // Moves the camera to arc length s (and optionally a direction), as the keys do.
-  // Draws the current view n times, each waited for (gl.finish), and returns the draw
-  // times in milliseconds.
+  // Draws the current view n times, each waited for (a pixel read back: gl.finish alone
+  // returns before Chromium's GPU process has drawn), and returns the draw times in ms.
   window.railviewFrameTimes = (n) => {
     const gl = canvas.getContext("webgl2");
+    const px = new Uint8Array(4);
     const out = [];
     for (let i = 0; i < n; i++) {
       const t0 = performance.now();
       app.render(app.camera());
-      gl.finish();
+      gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
       out.push(performance.now() - t0);
     }
     return out;

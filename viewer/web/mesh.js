@@ -56,7 +56,8 @@ function sideOf(pts, u, v, p) {
   return c === 0 ? null : c > 0;
 }
 
-const sideKey = (a, b, left) => `${a},${b},${left ? 1 : 0}`;
+// A side as one number (vertex indices are below 2^24).
+const sideKey = (a, b, left) => (a * 16777216 + b) * 2 + (left ? 1 : 0);
 
 function occupancyCtx(cells, w, i) {
   const x = i % w;
@@ -284,6 +285,22 @@ function divRound(num, den) {
   return q;
 }
 
+// divRound for numbers whose products stay exact (|num| < 2^50, |den| < 2^31).
+function divRoundNumber(num, den) {
+  let n = num;
+  let d = den;
+  if (d < 0) {
+    n = -n;
+    d = -d;
+  }
+  const x = 2 * n + d;
+  const y = 2 * d;
+  let q = Math.floor(x / y);
+  if (q * y > x) q--;
+  else if ((q + 1) * y <= x) q++;
+  return q;
+}
+
 function adjacency(n, tris) {
   const incident = Array.from({ length: n }, () => []);
   const across = new Map();
@@ -321,17 +338,22 @@ function predict(v, pts, q, tris, adj) {
       if (tj === ti) continue;
       const c = tris[tj].find((p) => p !== a && p !== b);
       if (c === undefined || c >= v) continue;
-      const D = (o, s, t) =>
-        BigInt(s[0] - o[0]) * BigInt(t[1] - o[1]) - BigInt(s[1] - o[1]) * BigInt(t[0] - o[0]);
       const [pa, pb, pc, pv] = [pts[a], pts[b], pts[c], pts[v]];
+      // Lattice coordinates are below 2^15, so each D is exact in a double.
+      const D = (o, s, t) => (s[0] - o[0]) * (t[1] - o[1]) - (s[1] - o[1]) * (t[0] - o[0]);
       const den = D(pa, pb, pc);
-      if (den === 0n) continue;
-      const [qa, qb, qc] = [BigInt(q[a]), BigInt(q[b]), BigInt(q[c])];
-      const num = (qb - qa) * D(pa, pv, pc) + (qc - qa) * D(pa, pb, pv);
-      let pred = qa + divRound(num, den);
-      if (pred < 1n) pred = 1n;
-      if (pred > 2147483647n) pred = 2147483647n;
-      return [Number(pred), 0];
+      if (den === 0) continue;
+      const d1 = D(pa, pv, pc);
+      const d2 = D(pa, pb, pv);
+      const [qa, qb, qc] = [q[a], q[b], q[c]];
+      let pred;
+      if (Math.abs(qb - qa) * Math.abs(d1) + Math.abs(qc - qa) * Math.abs(d2) < 2 ** 50) {
+        pred = qa + divRoundNumber((qb - qa) * d1 + (qc - qa) * d2, den);
+      } else {
+        const num = BigInt(qb - qa) * BigInt(d1) + BigInt(qc - qa) * BigInt(d2);
+        pred = Number(BigInt(qa) + divRound(num, BigInt(den)));
+      }
+      return [Math.min(Math.max(pred, 1), 2147483647), 0];
     }
   }
   if (edge) return [Math.floor((q[edge[0]] + q[edge[1]] + 1) / 2), 1];

@@ -184,17 +184,18 @@ function arithLevel(d, m, hd, level, parent, out, w, h) {
         const hi = within && colour ? alpha : 255;
         // Prediction and activity.
         const masked = within && colour;
-        const usable = (j) => !masked || out[j - ch + alphaCh] > 0;
-        const hasW = x > 0 && usable(i - C);
-        const hasN = y > 0 && usable(i - row);
+        // A neighbour sample j is usable unless masked and its pixel's alpha is 0.
+        const off = alphaCh - ch;
+        const hasW = x > 0 && (!masked || out[i - C + off] > 0);
+        const hasN = y > 0 && (!masked || out[i - row + off] > 0);
         const wv = hasW ? out[i - C] : 0;
         const nv = hasN ? out[i - row] : 0;
         const edge = masked && (alpha < 255 || (x > 0 && !hasW) || (y > 0 && !hasN));
         let pred;
         let act = 0;
         if (hasW && hasN) {
-          const c = x > 0 && y > 0 && usable(i - row - C) ? out[i - row - C] : (wv + nv) >> 1;
-          const ne = x + 1 < w && usable(i - row + C) ? out[i - row + C] : nv;
+          const c = !masked || out[i - row - C + off] > 0 ? out[i - row - C] : (wv + nv) >> 1;
+          const ne = x + 1 < w && (!masked || out[i - row + C + off] > 0) ? out[i - row + C] : nv;
           pred = Math.min(Math.max(wv + nv - c, Math.min(wv, nv)), Math.max(wv, nv));
           act = Math.abs(wv - c) + Math.abs(nv - c) + Math.abs(nv - ne);
         } else if (hasW) pred = wv;
@@ -222,7 +223,7 @@ function arithLevel(d, m, hd, level, parent, out, w, h) {
         if (lossy) {
           let p = pred;
           if (rebuilt) {
-            const [others, cnt] = blockOthers(out, x, y, w, h, row, C, ch);
+            const { others, n: cnt } = blockOthers(out, x, y, w, h, row, C, ch);
             const pvv = pv >= 0 ? pv : 0;
             const lo = cnt * pvv - others;
             const top = cnt * pvv + cnt - 1 - others;
@@ -247,20 +248,31 @@ function arithLevel(d, m, hd, level, parent, out, w, h) {
   }
 }
 
+// The sum of the other samples of (x, y)'s block and its pixel count, in `block` (no
+// allocation per sample).
+const block = { others: 0, n: 1 };
 function blockOthers(out, x, y, w, h, row, C, ch) {
   const x0 = x & ~1;
   const y0 = y & ~1;
   const twoCols = x0 + 1 < w;
   const twoRows = y0 + 1 < h;
   const base = y0 * row + x0 * C + ch;
-  if (twoCols && twoRows) return [out[base] + out[base + C] + out[base + row], 4];
-  if (twoCols || twoRows) return [out[base], 2];
-  return [0, 1];
+  if (twoCols && twoRows) {
+    block.others = out[base] + out[base + C] + out[base + row];
+    block.n = 4;
+  } else if (twoCols || twoRows) {
+    block.others = out[base];
+    block.n = 2;
+  } else {
+    block.others = 0;
+    block.n = 1;
+  }
+  return block;
 }
 
 function rebuiltLossless(d, m, out, x, y, w, h, row, C, ch, cls, pv, pred, act, level) {
   const p = pv >= 0 ? pv : 0;
-  const [others, n] = blockOthers(out, x, y, w, h, row, C, ch);
+  const { others, n } = blockOthers(out, x, y, w, h, row, C, ch);
   if (n === 1) return p;
   const guess = Math.min(Math.max(others + pred - n * p, 0), n - 1);
   const r = m.residual;
@@ -301,7 +313,7 @@ function rawLevel(payload, hd, parent, w, h, level) {
       if (!isRebuilt(x, y, w, h)) continue;
       const pidx = ((y >> 1) * pw + (x >> 1)) * C;
       for (let c = 0; c < C; c++) {
-        const [others, n] = blockOthers(out, x, y, w, h, w * C, C, c);
+        const { others, n } = blockOthers(out, x, y, w, h, w * C, C, c);
         const k = pidx + c;
         const eps = (payload[k >> 2] >> ((k & 3) * 2)) & 3;
         const v = n * parent.data[k] + eps - others;

@@ -80,17 +80,21 @@ function decodeLevels(parts) {
 
 const FWD = [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]];
 const UP = [[0, 1, 0], [0, 1, 0], [0, 0, 1], [0, 0, -1], [0, 1, 0], [0, 1, 0]];
-const crossv = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
 
-function posFromRef(x, y, r, face, n) {
+// The point (x, y, r) of a face's mesh relative to the reference viewpoint, into p at k.
+function posFromRef(x, y, r, face, n, p, k) {
   const u = (2 * x) / n - 1;
   const v = 1 - (2 * y) / n;
   const f = FWD[face];
   const up = UP[face];
-  const right = crossv(f, up);
-  const len = Math.sqrt(u * u + v * v + 1);
-  const s = r / len;
-  return [0, 1, 2].map((k) => (f[k] + u * right[k] + v * up[k]) * s);
+  const s = r / Math.sqrt(u * u + v * v + 1);
+  // right = f × up
+  const rx = f[1] * up[2] - f[2] * up[1];
+  const ry = f[2] * up[0] - f[0] * up[2];
+  const rz = f[0] * up[1] - f[1] * up[0];
+  p[k] = (f[0] + u * rx + v * up[0]) * s;
+  p[k + 1] = (f[1] + u * ry + v * up[1]) * s;
+  p[k + 2] = (f[2] + u * rz + v * up[2]) * s;
 }
 
 const onCentre = (c) => Math.abs(c - Math.floor(c) - 0.5) < 1e-4;
@@ -172,22 +176,27 @@ function meshArrays(bytes, face, faceSize, rect, shared) {
   skirts.forEach((tri, i) => {
     for (let k = 0; k < 3; k++) pos.set(tri[k], 9 * (own + i) + 3 * k);
   });
+  const p = new Float64Array(9);
   for (let i = 0; i < own; i++) {
-    const p = [];
     for (let k = 0; k < 3; k++) {
-      const v = m.indices[3 * i + k];
-      pos.set(m.vertices.subarray(3 * v, 3 * v + 3), 9 * i + 3 * k);
-      p.push(posFromRef(m.vertices[3 * v], m.vertices[3 * v + 1], m.vertices[3 * v + 2], face, faceSize));
+      const vi = m.indices[3 * i + k];
+      const x = m.vertices[3 * vi];
+      const y = m.vertices[3 * vi + 1];
+      const r = m.vertices[3 * vi + 2];
+      pos[9 * i + 3 * k] = x;
+      pos[9 * i + 3 * k + 1] = y;
+      pos[9 * i + 3 * k + 2] = r;
+      posFromRef(x, y, r, face, faceSize, p, 3 * k);
     }
-    const e1 = [0, 1, 2].map((k) => p[1][k] - p[0][k]);
-    const e2 = [0, 1, 2].map((k) => p[2][k] - p[0][k]);
-    const nrm = crossv(e1, e2);
-    const c = [0, 1, 2].map((k) => (p[0][k] + p[1][k] + p[2][k]) / 3);
-    const nl = Math.hypot(...nrm);
-    const cl = Math.hypot(...c);
+    // Normal and centroid of the triangle (refview::stretch::is_stretched).
+    const e1x = p[3] - p[0], e1y = p[4] - p[1], e1z = p[5] - p[2];
+    const e2x = p[6] - p[0], e2y = p[7] - p[1], e2z = p[8] - p[2];
+    const nx = e1y * e2z - e1z * e2y, ny = e1z * e2x - e1x * e2z, nz = e1x * e2y - e1y * e2x;
+    const cx = (p[0] + p[3] + p[6]) / 3, cy = (p[1] + p[4] + p[7]) / 3, cz = (p[2] + p[5] + p[8]) / 3;
+    const nl = Math.sqrt(nx * nx + ny * ny + nz * nz);
+    const cl = Math.sqrt(cx * cx + cy * cy + cz * cz);
     if (nl > 0 && cl > 0 && Number.isFinite(nl) && Number.isFinite(cl)) {
-      const cos = Math.abs(nrm[0] * c[0] + nrm[1] * c[1] + nrm[2] * c[2]) / (nl * cl);
-      if (cos < STRETCH_COS) stretched.fill(1, 3 * i, 3 * i + 3);
+      if (Math.abs(nx * cx + ny * cy + nz * cz) / (nl * cl) < STRETCH_COS) stretched.fill(1, 3 * i, 3 * i + 3);
     }
   }
   return { pos, stretched };
