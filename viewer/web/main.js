@@ -402,8 +402,16 @@ class App {
       this.dirty = true;
     }
     if (!this.dirty) return;
+    // The frame-time budget: at most half the time drawing, so that a slow rasteriser
+    // (SwiftShader: a third of a second at 1280×720) leaves the decoders the rest while
+    // tiles arrive; a moving camera is drawn at once.
+    const now = performance.now();
+    const last = this.frameMs[this.frameMs.length - 1] ?? 0;
+    if (!this.moved && now - (this.lastDrawEnd ?? 0) < last) return;
+    this.moved = false;
     this.dirty = false;
     this.render(cam);
+    this.lastDrawEnd = performance.now();
   }
 
   render(cam) {
@@ -469,6 +477,7 @@ class App {
   }
 
   move(ds) {
+    this.moved = true;
     this.cam.s = Math.min(Math.max(this.cam.s + ds, 0), this.track.length);
     this.update();
   }
@@ -515,6 +524,7 @@ class App {
   }
 
   look(dyaw, dpitch) {
+    this.moved = true;
     this.cam.yaw += dyaw;
     this.cam.pitch = Math.min(Math.max(this.cam.pitch + dpitch, -89), 89);
     this.requeue();
