@@ -211,8 +211,9 @@ class App {
 
   pump() {
     while (this.inFlight < IN_FLIGHT && this.queue.length) {
-      // The rest of the pair and the prefetch wait while the view's own tiles travel.
-      if (this.queue[0].pri >= 2 && this.urgentInFlight > 0) break;
+      // Finer levels, the rest of the pair and the prefetch wait while the coarsest levels
+      // and meshes of the view's own tiles travel (a complete view first, then detail).
+      if (this.queue[0].pri >= 1 && this.urgentInFlight > 0) break;
       const first = this.queue.shift();
       const batch = [first];
       // Parts of the same pack at the same priority travel in one request.
@@ -225,7 +226,7 @@ class App {
       });
       for (const p of batch) (p.t.pending ??= new Set()).add(p.k);
       this.inFlight++;
-      const urgent = first.pri < 2;
+      const urgent = first.pri < 1;
       if (urgent) this.urgentInFlight = (this.urgentInFlight ?? 0) + 1;
       this.mark("ranges asked");
       this.store.ranges(first.obj, batch.map((p) => [p.start, p.end]))
