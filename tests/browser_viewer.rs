@@ -2,8 +2,9 @@
 //! driven over the DevTools protocol (`common::cdp`): on the castle database, its frame at a
 //! sample and between samples against `railview render` from the same camera (PSNR and hole
 //! masks), the same view over `railview serve` and over nginx with the README's configuration
-//! (the database folder as `railview build` wrote it, viewer included), and a walk along the
-//! whole track with no errors and the decoded memory within its budget.
+//! (the database folder as `railview build` wrote it, viewer included), a walk along the
+//! whole track with no errors and the decoded memory within its budget, and hosts that answer
+//! badly: damaged answers, one range at a time, objects lost.
 //!
 //! Needs Chromium and nginx (`scripts/test.sh` installs them); `RAILVIEW_SKIP_BROWSER=1` or
 //! `RAILVIEW_SKIP_NGINX_TESTS=1` mark these tests ignored. About a minute.
@@ -418,4 +419,64 @@ fn measure_first_complete_view_and_frame_time() {
             s["decodeMaxMs"].as_f64().unwrap_or(f64::NAN),
         );
     }
+}
+
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+#[cfg_attr(
+    railview_skip_nginx,
+    ignore = "RAILVIEW_SKIP_NGINX_TESTS=1: nginx is not available"
+)]
+fn tiles_of_a_missing_object_are_asked_again_then_shown_missing() {
+    let db = castle();
+    // The database as a host that lost one viewpoint's pack: a copy without that object.
+    let site = scratch_dir("browser", "lost-pack");
+    let copy = site.join("castle");
+    let o = std::process::Command::new("cp")
+        .arg("-a")
+        .arg(db)
+        .arg(&copy)
+        .status()
+        .unwrap();
+    assert!(o.success());
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(copy.join("manifest.json")).unwrap()).unwrap();
+    // Every object viewpoint 5's tiles take their textures from (its pack, and the earlier
+    // packs it points into) is gone.
+    let vp = &manifest["tracks"][0]["viewpoints"][5];
+    let table_hash = vp["table"]["hash"].as_str().unwrap();
+    let objects = copy.join("objects");
+    let table = std::fs::read(objects.join(&table_hash[..2]).join(table_hash)).unwrap();
+    let table = db::table::decode_table(&table, vp["index"].as_u64().unwrap() as usize).unwrap();
+    let lost: std::collections::BTreeSet<String> = table
+        .tiles
+        .iter()
+        .filter_map(|t| t.ptm.as_ref())
+        .map(|p| p.object.hash.clone())
+        .collect();
+    assert!(!lost.is_empty());
+    for h in &lost {
+        std::fs::remove_file(objects.join(&h[..2]).join(h)).unwrap();
+    }
+    let nginx = Nginx::start(&scratch_dir("browser", "nginx-lost"), |port| {
+        readme_server_block(&site, port)
+    });
+    let mut b = Browser::start(&scratch_dir("browser-profile", "lost"), SIZE.0, SIZE.1);
+    b.navigate(&format!("{}?at=10&yaw=0", nginx.url("/castle/")));
+    let title = b.wait_title(READY_WITHIN, |t| {
+        t == "railview: ready" || t.contains("missing")
+    });
+    let state = page_state(&mut b);
+    assert!(title.contains("tiles missing"), "{title}: {state}");
+    assert!(state["state"]["missing"].as_u64().unwrap() > 0, "{state}");
+    // Each missing tile was asked for three times before it was given up.
+    assert!(
+        state["state"]["faults"].as_u64().unwrap()
+            >= 3 * state["state"]["missing"].as_u64().unwrap(),
+        "{state}"
+    );
+    assert_eq!(state["shown"], "", "{state}");
 }
