@@ -13,10 +13,11 @@ cd "$(dirname "$0")/.."
 # POV-Ray and its scenes; Mesa's Vulkan and GL drivers (the renderer is tested on both);
 # Xvfb (and xauth, which xvfb-run needs) for the window; Chromium for the report page;
 # Slurm and munge for the batch-prerender test's single-node cluster; nginx for the static
-# host and caching proxy tests (started by the tests themselves on loopback, unprivileged).
+# host and caching proxy tests (started by the tests themselves on loopback, unprivileged);
+# Node.js for the browser viewer's decoder tests (tests only: the viewer needs no Node).
 ensure_packages strict povray povray-includes povray-examples \
   mesa-vulkan-drivers libvulkan1 libegl1 libegl-mesa0 libgl1-mesa-dri \
-  xvfb xauth chromium slurm-wlm munge nginx
+  xvfb xauth chromium slurm-wlm munge nginx nodejs
 ensure_runtime_dir
 
 cargo fmt --all --check

@@ -240,5 +240,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             tune::target::build_for_target(&params, &target, &progress)?;
         }
     }
+    // The browser viewer beside the manifest: the database folder is a website.
+    viewer::web::write_site(&args.out)
+        .with_context(|| format!("writing the browser viewer into {}", args.out.display()))?;
     Ok(())
 }

@@ -104,6 +104,7 @@ pub fn config(args: &Args) -> anyhow::Result<ServerConfig> {
             .context("--latency")?,
         corrupt_every: args.corrupt_every,
         bundles: !args.no_bundles,
+        site: viewer::web::SITE,
         ..ServerConfig::default()
     })
 }

@@ -4,6 +4,7 @@
 // Each test file uses some of them.
 #![allow(dead_code)]
 
+pub mod cdp;
 pub mod nginx;
 
 use std::path::PathBuf;

@@ -41,6 +41,7 @@ pub mod source;
 pub mod stream;
 pub mod synth;
 pub mod texture;
+pub mod web;
 
 pub use frame::Frame;
 pub use plan::{plan_frame, DrawBudget, FramePlan, PlanError};

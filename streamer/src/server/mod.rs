@@ -104,6 +104,28 @@ pub struct ServerConfig {
     pub corrupt_every: Option<u64>,
     /// How long a graceful shutdown waits for open connections.
     pub drain_timeout: Duration,
+    /// Static files served beside the database (the browser viewer: `/` is `index.html`).
+    pub site: &'static [SiteFile],
+}
+
+/// A static file served at `/NAME` (and `index.html` at `/` too), e.g. the browser viewer's.
+#[derive(Clone, Copy, Debug)]
+pub struct SiteFile {
+    pub name: &'static str,
+    pub body: &'static str,
+}
+
+impl SiteFile {
+    /// The `Content-Type` of the file, from its extension.
+    pub fn content_type(&self) -> &'static str {
+        match self.name.rsplit('.').next() {
+            Some("html") => "text/html; charset=utf-8",
+            Some("js" | "mjs") => "text/javascript; charset=utf-8",
+            Some("css") => "text/css; charset=utf-8",
+            Some("json") => "application/json",
+            _ => "application/octet-stream",
+        }
+    }
 }
 
 impl Default for ServerConfig {
@@ -124,6 +146,7 @@ impl Default for ServerConfig {
             latency: Duration::ZERO,
             corrupt_every: None,
             drain_timeout: Duration::from_secs(5),
+            site: &[],
         }
     }
 }

@@ -103,6 +103,17 @@ async fn route(s: &Shared, req: &Request<Incoming>) -> Resp {
         object(s, rest, req).await.unwrap_or_else(|r| r)
     } else if path == "/bundle" && s.config.bundles {
         bundle(s, req).await.unwrap_or_else(|r| r)
+    } else if let Some(f) = site_file(s, path) {
+        let mut r = Response::new(ServeBody::full(bytes::Bytes::from_static(
+            f.body.as_bytes(),
+        )));
+        let h = r.headers_mut();
+        h.insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static(f.content_type()),
+        );
+        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+        r
     } else {
         reply(
             StatusCode::NOT_FOUND,
@@ -121,6 +132,15 @@ async fn route(s: &Shared, req: &Request<Incoming>) -> Resp {
         }
     }
     resp
+}
+
+/// The site file at `path` (`/` is `index.html`).
+fn site_file(s: &Shared, path: &str) -> Option<super::SiteFile> {
+    let name = match path {
+        "/" => "index.html",
+        p => p.strip_prefix('/')?,
+    };
+    s.config.site.iter().find(|f| f.name == name).copied()
 }
 
 /// `resp` with `Connection: close`.

@@ -1,0 +1,588 @@
+// The browser viewer: the manifest, the two reference views around the camera, their tiles
+// streamed as byte ranges of the packs (visible tiles first, coarse levels before fine
+// ones, then the next segment's as prefetch), decoded in workers, drawn with the blend rule.
+// URL contract: ?at=S&yaw=Y&pitch=P&fov=F opens that view; when every tile the view needs
+// has arrived and been drawn, document.title becomes "railview: ready".
+import { Renderer } from "./render.js";
+import { Track, blendPair } from "./track.js";
+import { Store, FetchError } from "./fetch.js";
+import { decodeTable } from "./table.js";
+import { blake3Hex } from "./blake3.js";
+import { checkManifest, visibleTiles, tileKey } from "./plan.js";
+
+const MAX_MANIFEST_BYTES = 64 << 20;
+const MAX_TABLE_OBJECT = 64 << 20;
+const MAX_FAULTS = 3;
+const IN_FLIGHT = 4;
+// Decoded bytes kept (textures and meshes; views beyond the drawn pair and the next are
+// evicted, least recently wanted first): `?budget=MB`, 512 MB by default.
+
+const q = new URLSearchParams(location.search);
+const num = (k, d) => (q.has(k) && Number.isFinite(Number(q.get(k))) ? Number(q.get(k)) : d);
+const MEMORY_BUDGET = Math.min(Math.max(num("budget", 512), 1), 16384) * 1e6;
+const canvas = document.getElementById("view");
+const statusText = document.getElementById("status-text");
+const bar = document.getElementById("bar");
+
+function showError(e) {
+  const el = document.getElementById("error");
+  el.style.display = "block";
+  el.textContent = String(e.message ?? e);
+  console.error(e);
+}
+
+// A pool of decoding workers, each given one job at a time; waiting jobs go out by
+// priority (the drawn pair's visible tiles before the rest), not in arrival order.
+class Workers {
+  constructor(n) {
+    this.pool = Array.from({ length: n }, () => new Worker(new URL("./worker.js", import.meta.url), { type: "module" }));
+    this.idle = [...this.pool];
+    this.jobs = [];
+    this.id = 0;
+    this.maxMs = 0;
+    this.totalMs = 0;
+    this.count = 0;
+    for (const w of this.pool) {
+      w.onmessage = (ev) => {
+        this.maxMs = Math.max(this.maxMs, ev.data.ms ?? 0);
+        this.totalMs += ev.data.ms ?? 0;
+        this.count++;
+        const cb = w.job.resolve;
+        w.job = null;
+        this.idle.push(w);
+        this.next();
+        cb(ev.data);
+      };
+    }
+  }
+  run(msg, pri = 0) {
+    return new Promise((resolve) => {
+      this.jobs.push({ msg: { ...msg, id: ++this.id }, resolve, pri, order: this.id });
+      this.next();
+    });
+  }
+  next() {
+    while (this.idle.length && this.jobs.length) {
+      let best = 0;
+      for (let i = 1; i < this.jobs.length; i++) {
+        const a = this.jobs[i];
+        const b = this.jobs[best];
+        if (a.pri < b.pri || (a.pri === b.pri && a.order < b.order)) best = i;
+      }
+      const job = this.jobs.splice(best, 1)[0];
+      const w = this.idle.pop();
+      w.job = job;
+      w.postMessage(job.msg);
+    }
+  }
+}
+
+// A tile mesh's bytes: positions and depths (f32) and the info word per vertex on the GPU,
+// the positions and stretch flags kept to rebuild the info words as finer levels arrive.
+const meshBytes = (t) => (t.pos ? t.pos.length * 8 + (t.pos.length / 3) * 4 + t.stretched.length : 0);
+
+class App {
+  constructor() {
+    this.base = new URL(".", location.href).href;
+    this.store = new Store(this.base);
+    this.renderer = new Renderer(canvas);
+    // At least two workers: one decodes while the other's result is uploaded.
+    this.workers = new Workers(Math.max(2, Math.min(4, (navigator.hardwareConcurrency || 2) - 1)));
+    this.views = new Map();
+    this.queue = [];
+    this.inFlight = 0;
+    this.dirty = true;
+    this.stats = { missing: 0, faults: 0 };
+    this.frameMs = [];
+  }
+
+  // The first time each stage was reached (ms since the page was opened), for measurements.
+  mark(name) {
+    this.marks ??= {};
+    this.marks[name] ??= Math.round(performance.now());
+  }
+
+  async start() {
+    this.mark("start");
+    const bytes = await this.store.get(`${this.base}manifest.json`, MAX_MANIFEST_BYTES);
+    this.manifest = checkManifest(JSON.parse(new TextDecoder().decode(bytes)));
+    const name = q.get("track");
+    const tr = (name && this.manifest.tracks.find((t) => t.name === name)) || this.manifest.tracks[0];
+    this.trackEntry = tr;
+    this.track = new Track(tr.track_toml);
+    this.arcs = tr.viewpoints.map((v) => v.s);
+    const s = Math.min(Math.max(num("at", 0), 0), this.track.length);
+    this.cam = { s, yaw: num("yaw", this.track.yawAlong(s)), pitch: num("pitch", 0), fov: num("fov", 90) };
+    this.mark("manifest");
+    this.bindInput();
+    this.update();
+    requestAnimationFrame(() => this.frame());
+  }
+
+  // The pair around the camera, the views to prefetch, and the tiles each view needs.
+  update() {
+    const [a, b, wb] = blendPair(this.arcs, this.cam.s);
+    this.pair = b !== a ? [[a, 1 - wb], [b, wb]] : [[a, 1]];
+    const ahead = b >= a ? Math.max(a, b) + 1 : Math.min(a, b) - 1;
+    const next = Math.min(Math.max(ahead, 0), this.arcs.length - 1);
+    for (const v of this.views.values()) v.rank = 2;
+    this.want(next, 1);
+    for (const [vi] of this.pair) this.want(vi, 0);
+    this.evict();
+    this.requeue();
+    this.dirty = true;
+  }
+
+  want(vi, rank) {
+    let v = this.views.get(vi);
+    if (!v) {
+      v = { vi, rank, table: null, tiles: new Map(), tex: null, bytes: 0, loading: null, used: 0 };
+      this.views.set(vi, v);
+    }
+    v.rank = rank;
+    v.used = performance.now();
+    if (!v.table && !v.loading) v.loading = this.loadTable(v).catch((e) => showError(e));
+  }
+
+  async loadTable(v) {
+    const ref = this.trackEntry.viewpoints[v.vi].table;
+    let bytes;
+    for (let attempt = 0; ; attempt++) {
+      try {
+        bytes = await this.store.get(this.store.url(ref.hash), MAX_TABLE_OBJECT);
+        if (bytes.length !== ref.size || blake3Hex(bytes) !== ref.hash) throw new FetchError(`table of viewpoint ${v.vi}: damaged`, true);
+        break;
+      } catch (e) {
+        if (!e.retry || attempt + 1 >= MAX_FAULTS) throw e;
+        this.store.stats.retries++;
+        await new Promise((r) => setTimeout(r, 200 * 2 ** attempt));
+      }
+    }
+    const table = await decodeTable(bytes, this.trackEntry.viewpoints[v.vi].index);
+    if (this.views.get(v.vi) !== v) return;
+    this.mark("table");
+    v.table = table;
+    const m = this.manifest;
+    v.levels = Math.round(Math.log2(m.tile_size)) + 1;
+    v.tex = this.renderer.createLayers(m.face_size, m.slabs.length + 1, v.levels);
+    this.mark("texture");
+    v.bytes = (m.face_size * 6 * m.face_size * 4 * (m.slabs.length + 1) * 4) / 3;
+    const entries = [...v.table.background.map((t) => ({ ...t, background: true })), ...v.table.tiles.filter((t) => t.kept && t.ptm)];
+    for (const e of entries) {
+      v.tiles.set(tileKey(e), {
+        e, layer: e.background ? 0 : e.slab + 1, parts: new Map(), have: 0, decoded: 0, mesh: null,
+        meshDone: !e.mesh, state: "idle", faults: 0, minLevel: 15, stretched: null, pos: null,
+      });
+    }
+    this.evict();
+    this.requeue();
+    this.dirty = true;
+  }
+
+  // Priorities: the drawn pair's visible tiles (the heavier view first), coarse ranges
+  // first; then the rest of the pair's tiles in view of the track ahead; then prefetch.
+  requeue() {
+    const parts = [];
+    const cam = this.camera();
+    for (const v of this.views.values()) {
+      if (!v.table) continue;
+      const pairRank = this.pair.findIndex(([vi]) => vi === v.vi);
+      const visible = new Set(visibleTiles(this.manifest, this.trackEntry.viewpoints[v.vi].position, cam, [...v.tiles.values()].map((t) => t.e)).map(tileKey));
+      if (v.rank > 1) continue;
+      for (const [key, t] of v.tiles) {
+        const inView = visible.has(key);
+        t.needed = pairRank >= 0 && inView;
+        if (t.state === "missing" || t.state === "done") continue;
+        const base = pairRank >= 0 ? (inView ? 0 : 2) + (pairRank === 0 && this.pair[0][1] >= 0.5 ? 0 : 0.5) : 4 + v.rank;
+        const ranges = t.e.ptm.levels;
+        if (t.e.mesh && !t.parts.has("mesh") && !t.pending?.has("mesh")) {
+          parts.push({ v, t, k: "mesh", obj: t.e.mesh.object, start: t.e.mesh.offset, end: t.e.mesh.offset + t.e.mesh.len, pri: base });
+        }
+        ranges.forEach((l, i) => {
+          if (t.parts.has(i) || t.pending?.has(i)) return;
+          parts.push({ v, t, k: i, obj: t.e.ptm.object, start: l.offset, end: l.offset + l.len, pri: base + (i === 0 ? 0 : 1) });
+        });
+      }
+    }
+    parts.sort((a, b) => a.pri - b.pri);
+    this.queue = parts;
+    this.pump();
+  }
+
+  pump() {
+    while (this.inFlight < IN_FLIGHT && this.queue.length) {
+      // Finer levels, the rest of the pair and the prefetch wait while the coarsest levels
+      // and meshes of the view's own tiles travel (a complete view first, then detail).
+      if (this.queue[0].pri >= 1 && this.urgentInFlight > 0) break;
+      const first = this.queue.shift();
+      const batch = [first];
+      // Parts of the same pack at the same priority travel in one request.
+      this.queue = this.queue.filter((p) => {
+        if (batch.length < 256 && p.obj.hash === first.obj.hash && Math.floor(p.pri) === Math.floor(first.pri)) {
+          batch.push(p);
+          return false;
+        }
+        return true;
+      });
+      for (const p of batch) (p.t.pending ??= new Set()).add(p.k);
+      this.inFlight++;
+      const urgent = first.pri < 1;
+      if (urgent) this.urgentInFlight = (this.urgentInFlight ?? 0) + 1;
+      this.mark("ranges asked");
+      this.store.ranges(first.obj, batch.map((p) => [p.start, p.end]))
+        .then((got) => {
+          this.mark("ranges arrived");
+          this.marks["last ranges arrived"] = Math.round(performance.now());
+          for (const p of batch) {
+            const g = got.find((r) => r.start <= p.start && r.end >= p.end);
+            p.t.pending.delete(p.k);
+            p.t.parts.set(p.k, g.bytes.slice(p.start - g.start, p.end - g.start));
+          }
+          // Each tile once, with every part of it this answer brought.
+          for (const t of new Set(batch.map((p) => p.t))) this.arrived(batch.find((p) => p.t === t).v, t);
+        })
+        .catch((e) => {
+          for (const p of batch) {
+            p.t.pending.delete(p.k);
+            this.fault(p.v, p.t, e);
+          }
+        })
+        .finally(() => {
+          this.inFlight--;
+          if (urgent) this.urgentInFlight--;
+          this.pump();
+          if (!this.queue.length && this.inFlight === 0) this.requeue();
+        });
+    }
+  }
+
+  fault(v, t, e) {
+    t.faults++;
+    this.stats.faults++;
+    t.parts.clear();
+    t.decoded = 0;
+    if (t.faults >= MAX_FAULTS) {
+      t.state = "missing";
+      this.stats.missing++;
+      console.warn(`tile ${tileKey(t.e)} of viewpoint ${v.vi} is missing: ${e.message ?? e}`);
+    } else {
+      // Asked for again after a wait that doubles with each fault.
+      setTimeout(() => this.requeue(), 100 * 2 ** t.faults);
+    }
+    this.dirty = true;
+  }
+
+  arrived(v, t) {
+    const m = this.manifest;
+    if (t.parts.has("mesh") && !t.meshBusy && !t.mesh) {
+      t.meshBusy = true;
+      this.mark("mesh job");
+      const T = m.tile_size;
+      const rect = { x0: t.e.tx * T, y0: t.e.ty * T, x1: Math.min((t.e.tx + 1) * T, m.face_size), y1: Math.min((t.e.ty + 1) * T, m.face_size) };
+      const kept = (dx, dy) => v.tiles.has(tileKey({ slab: t.e.slab, face: t.e.face, tx: t.e.tx + dx, ty: t.e.ty + dy }));
+      const shared = [kept(-1, 0), kept(0, -1), kept(1, 0), kept(0, 1)];
+      this.workers.run({ kind: "mesh", parts: [t.parts.get("mesh")], hashes: [t.e.mesh.hash], face: t.e.face, faceSize: m.face_size, rect, shared }, t.needed ? 0 : 1 + v.rank)
+        .then((r) => this.timed(() => {
+          t.meshBusy = false;
+          this.mark("mesh result");
+          this.marks["last mesh result"] = Math.round(performance.now());
+          if (r.error) return this.fault(v, t, new Error(r.error));
+          if (!v.tex) return;
+          t.pos = r.mesh.pos;
+          t.stretched = r.mesh.stretched;
+          t.mesh = this.renderer.createMesh(t.pos, this.info(t));
+          this.mark("mesh");
+          t.meshDone = true;
+          this.settle(v, t);
+        }));
+    }
+    // The PTM's ranges arrived so far, in order.
+    let n = 0;
+    while (t.parts.has(n)) n++;
+    if (n > t.decoded && !t.ptmBusy) {
+      t.ptmBusy = true;
+      const parts = Array.from({ length: n }, (_, i) => t.parts.get(i));
+      const hashes = t.e.ptm.levels.slice(0, n).map((l) => l.hash);
+      this.workers.run({ kind: "ptm", parts, hashes }, (t.needed ? 0 : 1 + v.rank) + (t.decoded ? 0.5 : 0)).then((r) => this.timed(() => {
+        t.ptmBusy = false;
+        if (r.error) return this.fault(v, t, new Error(r.error));
+        if (!v.tex) return;
+        const T = m.tile_size;
+        for (const l of r.levels) {
+          if (l.level >= v.levels) continue;
+          const x = (t.e.tx * T) >> l.level;
+          const y = (t.e.face * m.face_size + t.e.ty * T) >> l.level;
+          this.renderer.upload(v.tex, t.layer, l.level, x, y, l.width, l.height, l.rgba);
+          t.minLevel = Math.min(t.minLevel, l.level);
+        }
+        this.mark("ptm");
+        this.marks["last ptm"] = Math.round(performance.now());
+        t.decoded = n;
+        if (t.pos && t.meshLevel !== t.minLevel) {
+          if (t.mesh) this.renderer.deleteMesh(t.mesh);
+          t.mesh = this.renderer.createMesh(t.pos, this.info(t));
+        }
+        this.settle(v, t);
+        this.arrived(v, t);
+      }));
+    }
+  }
+
+  // Runs an arrival's main-thread work (uploads, buffers) and keeps the longest such stall.
+  timed(f) {
+    const t0 = performance.now();
+    f();
+    const ms = performance.now() - t0;
+    this.mainMaxMs = Math.max(this.mainMaxMs ?? 0, ms);
+    this.mainTotalMs = (this.mainTotalMs ?? 0) + ms;
+  }
+
+  info(t) {
+    t.meshLevel = t.minLevel;
+    const n = t.pos.length / 3;
+    const out = new Uint32Array(n);
+    const base = t.e.face | (t.layer << 3) | (Math.min(t.minLevel, 15) << 8);
+    for (let i = 0; i < n; i++) out[i] = base | (t.stretched[i] << 12);
+    return out;
+  }
+
+  settle(v, t) {
+    if (t.meshDone && t.decoded === t.e.ptm.levels.length) t.state = "done";
+    this.evict();
+    this.dirty = true;
+  }
+
+  // Views beyond the pair and the next go back to nothing when over the memory budget,
+  // least recently wanted first.
+  evict() {
+    const bytes = (v) => v.bytes + [...v.tiles.values()].reduce((a, t) => a + meshBytes(t), 0);
+    let total = [...this.views.values()].reduce((a, v) => a + bytes(v), 0);
+    const byAge = [...this.views.values()].filter((v) => v.rank > 1).sort((a, b) => a.used - b.used);
+    for (const v of byAge) {
+      if (total <= MEMORY_BUDGET) break;
+      total -= bytes(v);
+      this.dropView(v);
+    }
+  }
+
+  dropView(v) {
+    if (v.tex) this.renderer.deleteTexture(v.tex);
+    v.tex = null;
+    for (const t of v.tiles.values()) {
+      if (t.mesh) this.renderer.deleteMesh(t.mesh);
+      t.mesh = null;
+      t.pos = null;
+    }
+    this.views.delete(v.vi);
+  }
+
+  // Decoded bytes held: the views' textures (with their mip chains) and mesh buffers
+  // (12 bytes of position and depth, 4 of tile info, per vertex; the stretch flags).
+  memoryBytes() {
+    let b = 0;
+    for (const v of this.views.values()) {
+      b += v.bytes;
+      for (const t of v.tiles.values()) b += meshBytes(t);
+    }
+    return b;
+  }
+
+  camera() {
+    const dpr = window.devicePixelRatio || 1;
+    const w = Math.max(1, Math.round(canvas.clientWidth * dpr));
+    const h = Math.max(1, Math.round(canvas.clientHeight * dpr));
+    return { position: this.track.positionAt(this.cam.s), yaw: this.cam.yaw, pitch: this.cam.pitch, fov: this.cam.fov, width: w, height: h };
+  }
+
+  frame() {
+    requestAnimationFrame(() => this.frame());
+    const cam = this.camera();
+    if (canvas.width !== cam.width || canvas.height !== cam.height) {
+      canvas.width = cam.width;
+      canvas.height = cam.height;
+      this.dirty = true;
+    }
+    if (!this.dirty) return;
+    // The frame-time budget: at most half the time drawing, so that a slow rasteriser
+    // (SwiftShader: a third of a second at 1280×720) leaves the decoders the rest while
+    // tiles arrive; a moving camera is drawn at once.
+    const now = performance.now();
+    const last = this.frameMs[this.frameMs.length - 1] ?? 0;
+    if (!this.moved && now - (this.lastDrawEnd ?? 0) < last) return;
+    this.moved = false;
+    this.dirty = false;
+    this.render(cam);
+    this.lastDrawEnd = performance.now();
+  }
+
+  render(cam) {
+    const views = [];
+    for (const [vi, weight] of this.pair) {
+      const v = this.views.get(vi);
+      if (!v || !v.tex) continue;
+      const meshes = [...v.tiles.values()].filter((t) => t.mesh).sort((a, b) => a.layer - b.layer).map((t) => t.mesh);
+      views.push({ weight, position: this.trackEntry.viewpoints[vi].position, faceSize: this.manifest.face_size, levels: v.levels, tex: v.tex, meshes });
+    }
+    if (!views.length) return this.status(cam);
+    if (views.length === 1) views[0].weight = 1;
+    const t0 = performance.now();
+    this.mark("first draw");
+    try {
+      this.renderer.draw(cam, views);
+    } catch (e) {
+      showError(e);
+      return;
+    }
+    this.frameMs.push(performance.now() - t0);
+    this.mark("first draw done");
+    if (this.frameMs.length > 200) this.frameMs.splice(0, 100);
+    this.status(cam);
+  }
+
+  status() {
+    let need = 0;
+    let have = 0;
+    let coarse = 0;
+    let missing = 0;
+    let pairLoaded = true;
+    for (const [vi] of this.pair) {
+      const v = this.views.get(vi);
+      if (!v || !v.table) {
+        pairLoaded = false;
+        continue;
+      }
+      for (const t of v.tiles.values()) {
+        if (!t.needed && t.state !== "done") continue;
+        if (t.needed === false) continue;
+        need++;
+        if (t.state === "done") have++;
+        if (t.decoded > 0 && t.meshDone) coarse++;
+        if (t.state === "missing") missing++;
+      }
+    }
+    const pct = need ? Math.floor((100 * have) / need) : pairLoaded ? 100 : 0;
+    const st = this.store.stats;
+    statusText.textContent = `s ${this.cam.s.toFixed(2)} m · detail ${pct}% (${have}/${need} tiles${missing ? `, ${missing} missing` : ""}) · ${(st.bytes / 1e6).toFixed(2)} MB in ${st.requests} requests`;
+    bar.style.width = `${pct}%`;
+    window.railview = { need, have, missing, memory: this.memoryBytes(), budget: MEMORY_BUDGET, stats: st, faults: this.stats.faults, decodeMaxMs: this.workers.maxMs, decodeTotalMs: this.workers.totalMs, decodes: this.workers.count, mainMaxMs: this.mainMaxMs ?? 0, mainTotalMs: this.mainTotalMs ?? 0, frameMs: this.frameMs.slice(-50) };
+    // Times since the page was opened: every needed tile drawn at some level (what the
+    // native walk counts as a complete frame), and at every level.
+    if (pairLoaded && coarse === need && this.completeMs === undefined) this.completeMs = performance.now();
+    if (pairLoaded && have === need && this.readyMs === undefined) this.readyMs = performance.now();
+    window.railview.completeMs = this.completeMs;
+    window.railview.marks = this.marks;
+    window.railview.readyMs = this.readyMs;
+    if (pairLoaded && have === need) document.title = "railview: ready";
+    else if (pairLoaded && have + missing === need) document.title = `railview: ${missing} tiles missing`;
+    else document.title = `railview: ${pct}%`;
+  }
+
+  move(ds) {
+    this.moved = true;
+    this.cam.s = Math.min(Math.max(this.cam.s + ds, 0), this.track.length);
+    this.update();
+  }
+
+  bindInput() {
+    const step = 0.25;
+    addEventListener("keydown", (e) => {
+      const k = e.key;
+      if (k === "ArrowUp" || k === "w") this.move(step);
+      else if (k === "ArrowDown" || k === "s") this.move(-step);
+      else if (k === "ArrowLeft" || k === "a") this.look(-5, 0);
+      else if (k === "ArrowRight" || k === "d") this.look(5, 0);
+      else if (k === "PageUp") this.look(0, 5);
+      else if (k === "PageDown") this.look(0, -5);
+    });
+    canvas.addEventListener("wheel", (e) => {
+      e.preventDefault();
+      this.move(-Math.sign(e.deltaY) * step);
+    }, { passive: false });
+    let last = null;
+    canvas.addEventListener("pointerdown", (e) => {
+      last = [e.clientX, e.clientY];
+      canvas.setPointerCapture(e.pointerId);
+    });
+    canvas.addEventListener("pointerup", () => (last = null));
+    canvas.addEventListener("pointermove", (e) => {
+      if (!last) return;
+      const deg = this.cam.fov / canvas.clientWidth;
+      this.look(-(e.clientX - last[0]) * deg, (e.clientY - last[1]) * deg);
+      last = [e.clientX, e.clientY];
+    });
+    // Two fingers: move along the track by their vertical travel.
+    let pinch = null;
+    canvas.addEventListener("touchstart", (e) => {
+      if (e.touches.length === 2) pinch = (e.touches[0].clientY + e.touches[1].clientY) / 2;
+    });
+    canvas.addEventListener("touchmove", (e) => {
+      if (e.touches.length !== 2 || pinch === null) return;
+      const y = (e.touches[0].clientY + e.touches[1].clientY) / 2;
+      this.move((y - pinch) * 0.02);
+      pinch = y;
+    });
+    canvas.addEventListener("touchend", () => (pinch = null));
+  }
+
+  look(dyaw, dpitch) {
+    this.moved = true;
+    this.cam.yaw += dyaw;
+    this.cam.pitch = Math.min(Math.max(this.cam.pitch + dpitch, -89), 89);
+    this.requeue();
+    this.dirty = true;
+  }
+}
+
+// Test hooks: errors seen, and the canvas's pixels (RGBA rows top to bottom, base64).
+window.railviewErrors = [];
+addEventListener("error", (e) => window.railviewErrors.push(String(e.message)));
+addEventListener("unhandledrejection", (e) => window.railviewErrors.push(String(e.reason?.message ?? e.reason)));
+const consoleError = console.error.bind(console);
+console.error = (...a) => {
+  window.railviewErrors.push(a.map(String).join(" "));
+  consoleError(...a);
+};
+window.railviewPixels = () => {
+  const gl = canvas.getContext("webgl2");
+  const w = canvas.width;
+  const h = canvas.height;
+  const px = new Uint8Array(w * h * 4);
+  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  gl.readPixels(0, 0, w, h, gl.RGBA, gl.UNSIGNED_BYTE, px);
+  let s = "";
+  for (let y = h - 1; y >= 0; y--) {
+    const row = px.subarray(y * w * 4, (y + 1) * w * 4);
+    for (let i = 0; i < row.length; i += 0x8000) s += String.fromCharCode(...row.subarray(i, i + 0x8000));
+  }
+  return { width: w, height: h, rgba: btoa(s) };
+};
+
+try {
+  const app = new App();
+  window.railviewApp = app;
+  app.start().catch(showError);
+  // Moves the camera to arc length s (and optionally a direction), as the keys do.
+  // Draws the current view n times, each waited for (a pixel read back: gl.finish alone
+  // returns before Chromium's GPU process has drawn), and returns the draw times in ms.
+  window.railviewFrameTimes = (n) => {
+    const gl = canvas.getContext("webgl2");
+    const px = new Uint8Array(4);
+    const out = [];
+    for (let i = 0; i < n; i++) {
+      const t0 = performance.now();
+      app.render(app.camera());
+      gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
+      out.push(performance.now() - t0);
+    }
+    return out;
+  };
+  window.railviewGo = (s, yaw) => {
+    if (yaw !== undefined) app.cam.yaw = yaw;
+    app.cam.s = Math.min(Math.max(s, 0), app.track.length);
+    document.title = "railview: moving";
+    app.update();
+    return app.track.length;
+  };
+} catch (e) {
+  showError(e);
+}

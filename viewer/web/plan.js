@@ -1,0 +1,91 @@
+// What a frame needs: the manifest checked against stated limits before anything is sized
+// by it (db::TopManifest::check_limits), and the tiles of a view that reach into the
+// camera's frustum (viewer::plan::frustum_tiles, with a tile's bounding sphere from its
+// corners at its depth bounds).
+
+export const LIMITS = { maxFace: 16384, maxSlabs: 64, maxTracks: 1024, maxViewpoints: 1 << 20, maxCoord: 1e7 };
+const NEAR_M = 0.01;
+
+const fail = (m) => {
+  throw new Error(`manifest: ${m}`);
+};
+
+export function checkManifest(m) {
+  if (typeof m !== "object" || m === null) fail("not an object");
+  if (m.version !== 7) fail(`format ${m.version}; this viewer reads format 7 (rebuild the database with \`railview build\`)`);
+  const pow2 = (v) => Number.isInteger(v) && v > 0 && (v & (v - 1)) === 0;
+  if (!Number.isInteger(m.face_size) || m.face_size < 1 || m.face_size > LIMITS.maxFace) fail(`face_size ${m.face_size}`);
+  if (!pow2(m.tile_size) || m.tile_size > m.face_size) fail(`tile_size ${m.tile_size}`);
+  if (!Array.isArray(m.slabs) || m.slabs.length > LIMITS.maxSlabs) fail("slabs");
+  if (!Array.isArray(m.tracks) || m.tracks.length < 1 || m.tracks.length > LIMITS.maxTracks) fail("tracks");
+  for (const t of m.tracks) {
+    if (typeof t.track_toml !== "string" || !Array.isArray(t.viewpoints) || t.viewpoints.length < 1 || t.viewpoints.length > LIMITS.maxViewpoints) {
+      fail(`track ${t.name}: viewpoints`);
+    }
+    let prev = -Infinity;
+    for (const v of t.viewpoints) {
+      const p = v.position;
+      if (!Array.isArray(p) || p.length !== 3 || !p.every((x) => Number.isFinite(x) && Math.abs(x) <= LIMITS.maxCoord)) fail(`viewpoint ${v.index}: position`);
+      if (!(Number.isFinite(v.s) && v.s >= prev)) fail(`viewpoint ${v.index}: arc length ${v.s}`);
+      prev = v.s;
+      if (!v.table || !/^[0-9a-f]{64}$/.test(v.table.hash) || !Number.isInteger(v.table.size)) fail(`viewpoint ${v.index}: table`);
+    }
+  }
+  return m;
+}
+
+export const tileKey = (e) => `${e.background ? "b" : e.slab}/${e.face}/${e.tx}/${e.ty}`;
+
+const FWD = [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]];
+const UP = [[0, 1, 0], [0, 1, 0], [0, 0, 1], [0, 0, -1], [0, 1, 0], [0, 1, 0]];
+const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+
+function dirOf(face, x, y, n) {
+  const u = (2 * x) / n - 1;
+  const v = 1 - (2 * y) / n;
+  const f = FWD[face];
+  const up = UP[face];
+  const r = cross(f, up);
+  const d = [0, 1, 2].map((k) => f[k] + u * r[k] + v * up[k]);
+  const l = Math.hypot(...d);
+  return d.map((c) => c / l);
+}
+
+// The entries of a view whose bounding spheres reach into the camera's frustum.
+export function visibleTiles(manifest, refPos, cam, entries) {
+  const n = manifest.face_size;
+  const T = manifest.tile_size;
+  const yaw = (cam.yaw * Math.PI) / 180;
+  const pitch = (cam.pitch * Math.PI) / 180;
+  const f = [Math.sin(yaw) * Math.cos(pitch), Math.sin(pitch), -Math.cos(yaw) * Math.cos(pitch)];
+  const r = [Math.cos(yaw), 0, Math.sin(yaw)];
+  const u = cross(r, f);
+  const t = Math.tan((cam.fov * Math.PI) / 360);
+  const ty = (t * cam.height) / cam.width;
+  const side = (a, b, c) => {
+    const l = Math.hypot(a, b, c);
+    return [a / l, b / l, c / l];
+  };
+  const planes = [side(-1, 0, -t), side(1, 0, -t), side(0, -1, -ty), side(0, 1, -ty)];
+  const rel = [0, 1, 2].map((k) => refPos[k] - cam.position[k]);
+  return entries.filter((e) => {
+    const x0 = e.tx * T;
+    const y0 = e.ty * T;
+    const x1 = Math.min(x0 + T, n);
+    const y1 = Math.min(y0 + T, n);
+    const near = e.background || !Number.isFinite(e.depthMin) ? 1e4 : Math.max(e.depthMin, 1e-3);
+    const far = e.background || !Number.isFinite(e.depthMax) ? 1e4 : Math.max(e.depthMax, near);
+    const pts = [];
+    for (const [x, y] of [[x0, y0], [x1, y0], [x0, y1], [x1, y1], [(x0 + x1) / 2, (y0 + y1) / 2]]) {
+      const d = dirOf(e.face, x, y, n);
+      for (const depth of [near, far]) pts.push(d.map((c) => c * depth));
+    }
+    const c = [0, 1, 2].map((k) => pts.reduce((a, p) => a + p[k], 0) / pts.length);
+    const rad = Math.max(...pts.map((p) => Math.hypot(p[0] - c[0], p[1] - c[1], p[2] - c[2]))) * (1 + 1e-6) + 1e-6;
+    const cc = [0, 1, 2].map((k) => c[k] + rel[k]);
+    const cv = [dot(cc, r), dot(cc, u), -dot(cc, f)];
+    if (-cv[2] + rad < NEAR_M) return false;
+    return planes.every((p) => dot(p, cv) >= -rad);
+  });
+}
