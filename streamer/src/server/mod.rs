@@ -204,6 +204,8 @@ pub struct ServerStats {
     pub requests: AtomicU64,
     pub client_errors: AtomicU64,
     pub bytes_sent: AtomicU64,
+    /// Responses that read object files (what `corrupt_every` counts), and those corrupted.
+    pub object_responses: AtomicU64,
     pub corrupted: AtomicU64,
     /// Connections open now, and the most at once.
     pub open: AtomicU64,

@@ -198,11 +198,13 @@ fn not_modified(req: &Request<Incoming>, etag: &str) -> Option<Resp> {
     })
 }
 
-/// Fault injection (`ServerConfig::corrupt_every`): the request number whose body gets one
-/// byte flipped, if this request is one.
+/// Fault injection (`ServerConfig::corrupt_every`): this object response's number, if its
+/// body gets one byte flipped. Object responses are counted on their own, each taking its
+/// number once, so that every Nth one is corrupted whatever else (the manifest, the
+/// viewer's files) is asked for and however requests interleave.
 fn flip_for(s: &Shared) -> Option<u64> {
     let n = s.config.corrupt_every.filter(|&n| n > 0)?;
-    let k = s.stats.requests.load(Ordering::Relaxed);
+    let k = s.stats.object_responses.fetch_add(1, Ordering::Relaxed) + 1;
     k.is_multiple_of(n).then_some(k)
 }
 
