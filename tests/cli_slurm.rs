@@ -109,13 +109,16 @@ impl Cluster {
         chmod(&munge, "700");
         chmod(&munge.join("key"), "600");
         let socket = munge.join("socket");
-        let free_port = || {
-            std::net::TcpListener::bind("127.0.0.1:0")
-                .unwrap()
-                .local_addr()
-                .unwrap()
-                .port()
-        };
+        // Two free ports, both held until both are known: a port released and asked for
+        // again at once can come back the same, and slurmd would then take slurmctld's.
+        let listeners: Vec<std::net::TcpListener> = (0..2)
+            .map(|_| std::net::TcpListener::bind("127.0.0.1:0").unwrap())
+            .collect();
+        let ports: Vec<u16> = listeners
+            .iter()
+            .map(|l| l.local_addr().unwrap().port())
+            .collect();
+        drop(listeners);
         let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
             .unwrap()
             .trim()
@@ -159,8 +162,8 @@ impl Cluster {
                  NodeName=railview-node NodeHostname={host} NodeAddr=127.0.0.1 CPUs={cpus} \
                  RealMemory={mem_mb} State=UNKNOWN\n\
                  PartitionName=railview Nodes=railview-node Default=YES MaxTime=INFINITE State=UP\n",
-                free_port(),
-                free_port(),
+                ports[0],
+                ports[1],
                 socket.display(),
                 state.display(),
                 spool.display(),
