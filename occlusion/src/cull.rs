@@ -338,6 +338,63 @@ thread_local! {
     static SCRATCH: std::cell::Cell<Option<Box<Scratch>>> = const { std::cell::Cell::new(None) };
 }
 
+/// The oracle's depth tolerance at `face_size` (`depth_tolerance + per_pixel_angle` pixel
+/// angles), checked to lie in `[0, 0.5)`.
+pub(crate) fn content_tolerance(
+    rule: &crate::oracle::MatchRule,
+    face_size: u32,
+) -> Result<f64, OcclusionError> {
+    let tol = rule.depth_tolerance
+        + rule.per_pixel_angle * std::f64::consts::FRAC_PI_2 / face_size as f64;
+    if !(tol.is_finite() && (0.0..0.5).contains(&tol)) {
+        return Err(OcclusionError::Parameter {
+            name: "content",
+            message: format!("depth tolerance {tol} must be in [0, 0.5)"),
+        });
+    }
+    Ok(tol)
+}
+
+/// Every tile of the later slabs decided on its own, in parallel, by `keep` (whether to keep
+/// it, and what it cost); the nearest slab kept whole. The result does not depend on thread
+/// count or order. Returns the decisions and each later tile's cost, in slab and tile order.
+pub(crate) fn decide_later_tiles<S: Send>(
+    layers: &[SlabLayer],
+    keep: impl Fn(usize, &TileInfo) -> (bool, S) + Sync,
+) -> (ViewpointCull, Vec<S>) {
+    use rayon::prelude::*;
+    let jobs: Vec<(usize, usize)> = layers
+        .iter()
+        .enumerate()
+        .skip(1)
+        .flat_map(|(k, l)| (0..l.tiles.len()).map(move |i| (k, i)))
+        .collect();
+    let results: Vec<(bool, S)> = jobs
+        .par_iter()
+        .map(|&(k, i)| keep(k, &layers[k].tiles[i]))
+        .collect();
+    let mut out: Vec<SlabDecision> = layers
+        .iter()
+        .enumerate()
+        .map(|(k, l)| SlabDecision {
+            slab: k,
+            kept: if k == 0 { l.tiles.clone() } else { Vec::new() },
+            culled: Vec::new(),
+        })
+        .collect();
+    let mut costs = Vec::with_capacity(jobs.len());
+    for (&(k, i), (kept, cost)) in jobs.iter().zip(results) {
+        let t = layers[k].tiles[i];
+        if kept {
+            out[k].kept.push(t);
+        } else {
+            out[k].culled.push(t);
+        }
+        costs.push(cost);
+    }
+    (ViewpointCull { slabs: out }, costs)
+}
+
 pub(crate) fn check_inputs(
     cell: &Cell,
     grid: &TileGrid,

@@ -56,12 +56,11 @@
 //! about 2e-5 relative; the tests leave a 1e-4 relative margin.
 
 use glam::DVec3;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use tracks::cubemap::subpixel_dir;
 use tracks::{CubeMap, Face, FaceCoord, TileGrid};
 
-use crate::cull::{SlabDecision, ViewpointCull};
+use crate::cull::ViewpointCull;
 use crate::input::{Cell, SlabLayer, TileInfo};
 use crate::maps::{hole_punched, DiscontinuityRule, OcclusionMap};
 use crate::oracle::MatchRule;
@@ -336,62 +335,20 @@ pub fn cull_viewpoint_rendered(
     params: &RenderedParams,
 ) -> Result<(ViewpointCull, RenderedStats), OcclusionError> {
     crate::cull::check_inputs(cell, grid, layers)?;
-    let n = grid.face_size;
-    let tol = params.content.depth_tolerance
-        + params.content.per_pixel_angle * std::f64::consts::FRAC_PI_2 / n as f64;
-    if !(tol.is_finite() && (0.0..0.5).contains(&tol)) {
-        return Err(OcclusionError::Parameter {
-            name: "content",
-            message: format!("depth tolerance {tol} must be in [0, 0.5)"),
-        });
-    }
-    let v = cell.viewpoint;
-    let jobs: Vec<(usize, usize)> = layers
-        .iter()
-        .enumerate()
-        .skip(1)
-        .flat_map(|(k, l)| (0..l.tiles.len()).map(move |i| (k, i)))
-        .collect();
-    let results: Vec<(bool, u64)> = jobs
-        .par_iter()
-        .map(|&(k, i)| {
-            let tile = &layers[k].tiles[i];
-            hidden_tile(
-                v,
-                grid,
-                &layers[k],
-                tile,
-                views,
-                tol,
-                params.content.search_radius,
-            )
-        })
-        .collect();
-    let mut stats = RenderedStats {
+    let tol = crate::cull::content_tolerance(&params.content, grid.face_size)?;
+    let search = params.content.search_radius;
+    let (cull, costs) = crate::cull::decide_later_tiles(layers, |k, tile| {
+        let (hidden, tests) =
+            hidden_tile(cell.viewpoint, grid, &layers[k], tile, views, tol, search);
+        (!hidden, (hidden, tests))
+    });
+    let stats = RenderedStats {
+        tiles: costs.len() as u64,
+        culled: costs.iter().filter(|(hidden, _)| *hidden).count() as u64,
         renders: views.len() as u64,
-        ..RenderedStats::default()
+        tests: costs.iter().map(|(_, t)| t).sum(),
     };
-    let mut out: Vec<SlabDecision> = layers
-        .iter()
-        .enumerate()
-        .map(|(k, l)| SlabDecision {
-            slab: k,
-            kept: if k == 0 { l.tiles.clone() } else { Vec::new() },
-            culled: Vec::new(),
-        })
-        .collect();
-    for (&(k, i), &(hidden, tests)) in jobs.iter().zip(&results) {
-        stats.tiles += 1;
-        stats.tests += tests;
-        let t = layers[k].tiles[i];
-        if hidden {
-            stats.culled += 1;
-            out[k].culled.push(t);
-        } else {
-            out[k].kept.push(t);
-        }
-    }
-    Ok((ViewpointCull { slabs: out }, stats))
+    Ok((cull, stats))
 }
 
 /// Whether every opaque pixel of `tile` is hidden from every ball; the tests made.

@@ -103,11 +103,10 @@
 //! counts only as far as some pixel's band reaches it — as for the oracle.
 
 use glam::DVec3;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use tracks::TileGrid;
 
-use crate::cull::{SlabDecision, ViewpointCull};
+use crate::cull::ViewpointCull;
 use crate::input::{Cell, SlabLayer};
 use crate::oracle::MatchRule;
 use crate::OcclusionError;
@@ -278,15 +277,7 @@ pub fn cull_viewpoint_shrunk(
     solids: &dyn Solids,
 ) -> Result<(ViewpointCull, ShrunkStats), OcclusionError> {
     crate::cull::check_inputs(cell, grid, layers)?;
-    let n = grid.face_size;
-    let tol = params.content.depth_tolerance
-        + params.content.per_pixel_angle * std::f64::consts::FRAC_PI_2 / n as f64;
-    if !(tol.is_finite() && (0.0..0.5).contains(&tol)) {
-        return Err(OcclusionError::Parameter {
-            name: "content",
-            message: format!("depth tolerance {tol} must be in [0, 0.5)"),
-        });
-    }
+    let tol = crate::cull::content_tolerance(&params.content, grid.face_size)?;
     if params.base_intervals == 0 || params.min_interval_m.is_nan() || params.min_interval_m <= 0.0
     {
         return Err(OcclusionError::Parameter {
@@ -309,34 +300,10 @@ pub fn cull_viewpoint_shrunk(
         solids,
         tol,
     };
-    let jobs: Vec<(usize, usize)> = layers
-        .iter()
-        .enumerate()
-        .skip(1)
-        .flat_map(|(k, l)| (0..l.tiles.len()).map(move |i| (k, i)))
-        .collect();
-    let results: Vec<(bool, ShrunkStats)> = jobs
-        .par_iter()
-        .map(|&(k, i)| ctx.decide(k, &layers[k].tiles[i]))
-        .collect();
+    let (cull, costs) = crate::cull::decide_later_tiles(layers, |k, t| ctx.decide(k, t));
     let mut stats = ShrunkStats::default();
-    let mut out: Vec<SlabDecision> = layers
-        .iter()
-        .enumerate()
-        .map(|(k, l)| SlabDecision {
-            slab: k,
-            kept: if k == 0 { l.tiles.clone() } else { Vec::new() },
-            culled: Vec::new(),
-        })
-        .collect();
-    for (&(k, i), (keep, s)) in jobs.iter().zip(&results) {
+    for s in &costs {
         stats.add(s);
-        let t = layers[k].tiles[i];
-        if *keep {
-            out[k].kept.push(t);
-        } else {
-            out[k].culled.push(t);
-        }
     }
-    Ok((ViewpointCull { slabs: out }, stats))
+    Ok((cull, stats))
 }
