@@ -37,6 +37,7 @@ pub mod cubemap;
 pub mod limits;
 pub mod manifest;
 pub mod mesh;
+pub mod network;
 pub mod rect;
 pub mod segment;
 pub mod slab;

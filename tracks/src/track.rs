@@ -93,7 +93,7 @@ pub struct ReferenceViewpoint {
 }
 
 /// A named track: the curve (as a dense polyline) and its sampling.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Track {
     pub name: String,
     /// Control points as given.
@@ -104,6 +104,35 @@ pub struct Track {
     curve: Vec<DVec3>,
     /// Cumulative arc length at each curve vertex.
     arc: Vec<f64>,
+    /// Where the track was read (for messages that name the file and line); not part of what
+    /// the track is.
+    #[serde(skip)]
+    origin: Origin,
+}
+
+/// Where a track was read: the source's name and the line of its `[[track]]` table (0 for a
+/// track built in code).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Origin {
+    pub source_name: String,
+    pub line: usize,
+}
+
+impl std::fmt::Display for Origin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&at(&self.source_name, self.line))
+    }
+}
+
+impl PartialEq for Track {
+    /// Two tracks are equal when their names, points, smoothing and sampling are; where they
+    /// were read does not matter.
+    fn eq(&self, o: &Track) -> bool {
+        self.name == o.name
+            && self.points == o.points
+            && self.smooth == o.smooth
+            && self.sampling == o.sampling
+    }
 }
 
 #[derive(Deserialize)]
@@ -239,7 +268,31 @@ impl Track {
             sampling,
             curve,
             arc,
+            origin: Origin {
+                source_name: source_name.to_string(),
+                line,
+            },
         })
+    }
+
+    /// Where the track was read.
+    pub fn origin(&self) -> &Origin {
+        &self.origin
+    }
+
+    /// Cumulative arc length at each vertex of [`Track::curve`].
+    pub fn curve_arcs(&self) -> &[f64] {
+        &self.arc
+    }
+
+    /// Arc length of control point `i` along the curve (control points lie on the curve:
+    /// vertex `i` unsmoothed, vertex `i × 32` when smoothed).
+    pub fn point_arc(&self, i: usize) -> f64 {
+        let v = match self.smooth {
+            Smoothing::None => i,
+            Smoothing::CatmullRom => i * SMOOTH_SUBDIVISIONS,
+        };
+        self.arc.get(v).copied().unwrap_or_else(|| self.length())
     }
 
     /// Total arc length, metres.
@@ -315,7 +368,7 @@ fn syntax(text: &str, source_name: &str, e: &toml::de::Error) -> TrackError {
 
 /// Viewpoints that `spacing` puts on a track of `len` metres (both ends included), as a
 /// float so that absurd spacings can be compared with the limit before anything is sized.
-fn viewpoint_count(len: f64, spacing: f64) -> f64 {
+pub(crate) fn viewpoint_count(len: f64, spacing: f64) -> f64 {
     (len / spacing - 1e-9).ceil().max(1.0) + 1.0
 }
 
