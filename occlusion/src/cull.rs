@@ -395,18 +395,54 @@ pub(crate) fn decide_later_tiles<S: Send>(
     (ViewpointCull { slabs: out }, costs)
 }
 
+/// [`decide_later_tiles`] without threads, by slab and tile position: `keep(k, i)`.
+pub(crate) fn decide_later_tiles_seq(
+    layers: &[SlabLayer],
+    keep: impl Fn(usize, usize) -> bool,
+) -> (ViewpointCull, ()) {
+    let slabs = layers
+        .iter()
+        .enumerate()
+        .map(|(k, l)| {
+            let mut d = SlabDecision {
+                slab: k,
+                kept: Vec::new(),
+                culled: Vec::new(),
+            };
+            for (i, t) in l.tiles.iter().enumerate() {
+                if k == 0 || keep(k, i) {
+                    d.kept.push(*t);
+                } else {
+                    d.culled.push(*t);
+                }
+            }
+            d
+        })
+        .collect();
+    (ViewpointCull { slabs }, ())
+}
+
 pub(crate) fn check_inputs(
     cell: &Cell,
     grid: &TileGrid,
     layers: &[SlabLayer],
 ) -> Result<(), OcclusionError> {
+    if !cell.viewpoint.is_finite() || cell.paths.iter().flatten().any(|p| !p.is_finite()) {
+        return Err(OcclusionError::Input {
+            what: "culling input".into(),
+            message: "cell positions must be finite".into(),
+        });
+    }
+    check_layers(grid, layers)
+}
+
+/// The layers fit the grid, their slabs follow each other, their tiles' depth ranges are
+/// numbers.
+pub(crate) fn check_layers(grid: &TileGrid, layers: &[SlabLayer]) -> Result<(), OcclusionError> {
     let bad = |message: String| OcclusionError::Input {
         what: "culling input".into(),
         message,
     };
-    if !cell.viewpoint.is_finite() || cell.paths.iter().flatten().any(|p| !p.is_finite()) {
-        return Err(bad("cell positions must be finite".into()));
-    }
     for (k, l) in layers.iter().enumerate() {
         if l.alpha.face_size() != grid.face_size || l.depth.face_size() != grid.face_size {
             return Err(bad(format!(

@@ -15,10 +15,11 @@
 //!   ([`SceneSolids`]): occluder shrinking against exact solids along the track, refined where
 //!   visibility changes; conservative for every point of the cell, openings and occluders
 //!   finer than a pixel included (the argument is in its module docs).
-//! - [`rendered`]: the fourth variant, [`cull_viewpoint_rendered`] with depth renders from
-//!   balls covering the cell ([`BallView`]): image-space occluder shrinking for scenes whose
-//!   solids are not at hand (POV-Ray imports); as good as the renders' sampling (its module
-//!   docs say where).
+//! - [`rendered`]: the fourth variant, a segment at a time ([`hidden_from_segment`]: depth
+//!   renders from balls along the segment, split where a tile needs smaller ones) and a
+//!   viewpoint from the segments that touch it ([`cull_from_segments`]): image-space occluder
+//!   shrinking for scenes whose solids are not at hand (POV-Ray imports); as good as the
+//!   renders' sampling (its module docs say where).
 //! - [`oracle`]: [`Geometry`] (exact first hits) or depth renders ([`DepthSource`]) at dense
 //!   positions along each segment (offset from where the shrunk variant samples) →
 //!   [`Visibility`] of every layer pixel → [`score`]: false culls and tightness per slab.
@@ -72,7 +73,8 @@ pub use oracle::{
     SlabScore, Visibility,
 };
 pub use rendered::{
-    cull_viewpoint_rendered, render_balls, Ball, BallView, RenderedParams, RenderedStats,
+    cull_from_segments, hidden_from_segment, Ball, BallDepth, BallView, RenderedParams,
+    RenderedStats, SegmentEnd, SegmentVerdict,
 };
 pub use shrunk::{cull_viewpoint_shrunk, SceneSolids, ShrunkParams, ShrunkStats, Solids};
 

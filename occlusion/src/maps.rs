@@ -343,7 +343,8 @@ impl HolePunch {
 
 /// The punching rule on inverse depths.
 struct PunchCtx<'a> {
-    inv: &'a CubeMap<f64>,
+    /// The whole map of inverse depths (`None` where they are read one by one).
+    inv: Option<&'a CubeMap<f64>>,
     n: u32,
     rule: DiscontinuityRule,
     cell_radius: f64,
@@ -354,7 +355,7 @@ impl PunchCtx<'_> {
     fn new(inv: &CubeMap<f64>, rule: DiscontinuityRule, cell_radius: f64) -> PunchCtx<'_> {
         let n = inv.face_size();
         PunchCtx {
-            inv,
+            inv: Some(inv),
             n,
             rule,
             cell_radius,
@@ -388,7 +389,10 @@ impl PunchCtx<'_> {
     /// Whether the occluder pixel `(x, y)` of `face` is the nearer side of a gap.
     fn gap(&self, face: Face, x: u32, y: u32) -> bool {
         let n = self.n;
-        let fi = self.inv.face(face);
+        let Some(map) = self.inv else {
+            return false;
+        };
+        let fi = map.face(face);
         let nu = n as usize;
         let i = y as usize * nu + x as usize;
         let wp = fi[i];
@@ -422,8 +426,22 @@ impl PunchCtx<'_> {
             }
             return false;
         }
+        let inv = |f: Face, x: u32, y: u32| *map.get(f, x, y);
+        self.gap_by(&inv, face, x, y, wp)
+    }
+
+    /// [`PunchCtx::gap`] through any inverse-depth lookup (NaN: no occluder), face edges
+    /// included.
+    fn gap_by(
+        &self,
+        inv: &dyn Fn(Face, u32, u32) -> f64,
+        face: Face,
+        x: u32,
+        y: u32,
+        wp: f64,
+    ) -> bool {
         let w = |(f, x, y): (Face, u32, u32)| {
-            let v = *self.inv.get(f, x, y);
+            let v = inv(f, x, y);
             (!v.is_nan()).then_some(v)
         };
         for (dx, dy) in [(-1i32, 0i32), (1, 0), (0, -1), (0, 1)] {
@@ -442,6 +460,27 @@ impl PunchCtx<'_> {
         }
         false
     }
+}
+
+/// Whether the occluder pixel `at` is the nearer side of a gap under `rule` for a cell of
+/// `cell_radius` ([`hole_punched`]'s rule), with inverse depths read through `inv` (NaN: no
+/// occluder) — for maps filled in on demand.
+pub(crate) fn gap_at(
+    inv: &dyn Fn(Face, u32, u32) -> f64,
+    n: u32,
+    rule: DiscontinuityRule,
+    cell_radius: f64,
+    at: (Face, u32, u32),
+) -> bool {
+    let ctx = PunchCtx {
+        inv: None,
+        n,
+        rule,
+        cell_radius,
+        min_parallax: rule.min_parallax_px * std::f64::consts::FRAC_PI_2 / n as f64,
+    };
+    let wp = inv(at.0, at.1, at.2);
+    !wp.is_nan() && ctx.gap_by(inv, at.0, at.1, at.2, wp)
 }
 
 /// Per-face summed-area table of opacity and block-minimum occluder depth.

@@ -113,7 +113,7 @@ impl Visibility {
         (face.index() * n + y as usize) * n + x as usize
     }
 
-    fn mark(&self, slab: usize, face: Face, x: u32, y: u32) {
+    pub(crate) fn mark(&self, slab: usize, face: Face, x: u32, y: u32) {
         let i = self.index(face, x, y);
         self.bits[slab][i / 64].fetch_or(1 << (i % 64), Ordering::Relaxed);
     }

@@ -11,8 +11,8 @@ mod common;
 use common::Prepared;
 use glam::DVec3;
 use occlusion::{
-    cull_viewpoint, cull_viewpoint_rendered, cull_viewpoint_shrunk, score, Cell, CullParams,
-    SceneSolids, Variant, ViewpointCull,
+    cull_viewpoint, cull_viewpoint_shrunk, score, Cell, CullParams, SceneSolids, Variant,
+    ViewpointCull,
 };
 use prerender::scene::{Scene, Shape};
 use tracks::cubemap::subpixel_dir;
@@ -121,8 +121,12 @@ struct Verdict {
 fn judge(s: &Scene, p: &Prepared, variant: Variant) -> Verdict {
     let params = CullParams::new(1.0, variant).unwrap();
     let solids = SceneSolids::new(s);
-    let views = if variant == Variant::Rendered {
-        common::rendered_views(p, s, &params.rendered)
+    let verdicts = if variant == Variant::Rendered {
+        let (v, st) = common::rendered_verdicts(p, s, &params.rendered);
+        if std::env::var("HARD_DEBUG").is_ok() {
+            eprintln!("rendered: {st:?}");
+        }
+        v
     } else {
         Vec::new()
     };
@@ -143,16 +147,7 @@ fn judge(s: &Scene, p: &Prepared, variant: Variant) -> Verdict {
                 }
                 c
             }
-            Variant::Rendered => {
-                let near = common::views_of(&views, i);
-                let (c, st) =
-                    cull_viewpoint_rendered(&cell, &p.grid, &p.layers[i], &near, &params.rendered)
-                        .unwrap();
-                if std::env::var("HARD_DEBUG").is_ok() {
-                    eprintln!("viewpoint {i}: {st:?}");
-                }
-                c
-            }
+            Variant::Rendered => common::rendered_cull(p, &verdicts, i),
             _ => cull_viewpoint(&cell, &p.grid, &p.layers[i], &params).unwrap(),
         };
         for sc in score(&c, &p.grid, &p.vis[i]) {

@@ -33,8 +33,9 @@ pub struct Args {
     /// Oracle rays per face side (default: the layers' face size).
     #[arg(long)]
     pub oracle_face_size: Option<u32>,
-    /// The rendered variant: depth renders per track segment, from the middle of as many
-    /// equal pieces (default 32).
+    /// The rendered variant: balls per track segment at the finest level (default 64),
+    /// halved from 2 only where a tile needs smaller ones; depth is rendered (POV-Ray) or
+    /// cast (built-in and TOML scenes) only for the balls some tile still needs.
     #[arg(long)]
     pub renders_per_segment: Option<usize>,
 }

@@ -199,6 +199,31 @@ impl Network {
         Ok(Network::from_stops(tracks, viewpoints, stops))
     }
 
+    /// A network of one track `name`: straight pieces through `positions` (at least two,
+    /// consecutive ones distinct), a viewpoint at each.
+    pub fn polyline(name: &str, positions: &[DVec3]) -> Result<Network, TrackError> {
+        let track = Track::new(
+            name,
+            positions.to_vec(),
+            crate::track::Smoothing::None,
+            Sampling::Count(positions.len()),
+            "viewpoints",
+        )?;
+        let stops = positions
+            .iter()
+            .enumerate()
+            .map(|(i, _)| Stop {
+                viewpoint: i,
+                s: track.point_arc(i),
+            })
+            .collect();
+        Ok(Network::from_stops(
+            vec![track],
+            positions.to_vec(),
+            vec![stops],
+        ))
+    }
+
     fn from_stops(tracks: Vec<Track>, viewpoints: Vec<DVec3>, stops: Vec<Vec<Stop>>) -> Network {
         let mut segments = Vec::new();
         let mut first_segment = Vec::with_capacity(tracks.len());

@@ -5,11 +5,10 @@
 #![allow(dead_code)]
 
 use glam::DVec3;
-use occlusion::oracle::depth_from_geometry;
 use occlusion::{
-    cull_viewpoint, cull_viewpoint_rendered, cull_viewpoint_shrunk, oracle_track, raw_rgba_bytes,
-    render_balls, score, BallView, Cell, CullParams, MatchRule, RayCast, RenderedParams,
-    ShrunkStats, SlabLayer, Variant, ViewpointCull, Visibility,
+    cull_from_segments, cull_viewpoint, cull_viewpoint_shrunk, hidden_from_segment, oracle_track,
+    raw_rgba_bytes, score, BallDepth, Cell, CullParams, MatchRule, RayCast, RenderedParams,
+    RenderedStats, SegmentEnd, ShrunkStats, SlabLayer, Variant, ViewpointCull, Visibility,
 };
 use prerender::scene::Scene;
 use tracks::{SlabRange, TileGrid};
@@ -133,20 +132,15 @@ pub fn run_with(
     let mut culls = Vec::new();
     let mut stats = ShrunkStats::default();
     let solids = occlusion::SceneSolids::new(scene);
-    let views = if variant == Variant::Rendered {
-        rendered_views(p, scene, &params.rendered)
+    let verdicts = if variant == Variant::Rendered {
+        rendered_verdicts(p, scene, &params.rendered).0
     } else {
         Vec::new()
     };
     for i in 0..p.positions.len() {
         let cell = Cell::straight(&p.positions, i);
         let c = match variant {
-            Variant::Rendered => {
-                let near = views_of(&views, i);
-                cull_viewpoint_rendered(&cell, &p.grid, &p.layers[i], &near, &params.rendered)
-                    .unwrap()
-                    .0
-            }
+            Variant::Rendered => rendered_cull(p, &verdicts, i),
             Variant::Shrunk => {
                 let (c, s) =
                     cull_viewpoint_shrunk(&cell, &p.grid, &p.layers[i], &params.shrunk, &solids)
@@ -168,34 +162,62 @@ pub fn run_with(
     (Rows(rows), culls, stats)
 }
 
-/// Per segment of the track, its balls and their depth renders (rays through the scene at
-/// the layers' face size), for the rendered variant.
-pub fn rendered_views(p: &Prepared, scene: &Scene, params: &RenderedParams) -> Vec<Vec<BallView>> {
-    let n = p.grid.face_size;
-    if p.positions.len() == 1 {
-        let one = render_balls(&p.positions, params, |c| {
-            Ok::<_, ()>(depth_from_geometry(scene, c, n))
-        });
-        return vec![one.unwrap()];
-    }
-    p.positions
-        .windows(2)
-        .map(|w| {
-            render_balls(w, params, |c| Ok::<_, ()>(depth_from_geometry(scene, c, n))).unwrap()
+/// Per segment of the track (one for a track of one viewpoint), which later tiles of its two
+/// ends the rendered variant hides from it (depth renders by rays through the scene at the
+/// layers' face size); the stats summed.
+pub fn rendered_verdicts(
+    p: &Prepared,
+    scene: &Scene,
+    params: &RenderedParams,
+) -> (Vec<Vec<Vec<Vec<bool>>>>, RenderedStats) {
+    let render = |cs: &[DVec3]| {
+        Ok::<_, ()>(
+            cs.iter()
+                .map(|_| Some(BallDepth::Rays(scene as &dyn occlusion::Geometry)))
+                .collect(),
+        )
+    };
+    let end = |i: usize| SegmentEnd {
+        viewpoint: p.positions[i],
+        grid: &p.grid,
+        layers: &p.layers[i],
+    };
+    let mut stats = RenderedStats::default();
+    let pieces: Vec<(Vec<DVec3>, Vec<usize>)> = if p.positions.len() == 1 {
+        vec![(p.positions.clone(), vec![0])]
+    } else {
+        (0..p.positions.len() - 1)
+            .map(|i| (p.positions[i..i + 2].to_vec(), vec![i, i + 1]))
+            .collect()
+    };
+    let verdicts = pieces
+        .iter()
+        .map(|(path, ends)| {
+            let ends: Vec<SegmentEnd> = ends.iter().map(|&i| end(i)).collect();
+            let v = hidden_from_segment(path, &ends, params, render)
+                .unwrap()
+                .unwrap();
+            stats.add(&v.stats);
+            v.hidden
         })
-        .collect()
+        .collect();
+    (verdicts, stats)
 }
 
-/// The views whose balls cover the cell of viewpoint `i` (its two segments).
-pub fn views_of(views: &[Vec<BallView>], i: usize) -> Vec<&BallView> {
-    let mut out: Vec<&BallView> = Vec::new();
-    if i > 0 {
-        out.extend(views[i - 1].iter());
+/// Viewpoint `i`'s decisions from the verdicts of its segments ([`rendered_verdicts`]).
+pub fn rendered_cull(p: &Prepared, verdicts: &[Vec<Vec<Vec<bool>>>], i: usize) -> ViewpointCull {
+    let mut hidden: Vec<&[Vec<bool>]> = Vec::new();
+    if p.positions.len() == 1 {
+        hidden.push(&verdicts[0][0]);
+    } else {
+        if i > 0 {
+            hidden.push(&verdicts[i - 1][1]);
+        }
+        if i + 1 < p.positions.len() {
+            hidden.push(&verdicts[i][0]);
+        }
     }
-    if let Some(v) = views.get(i) {
-        out.extend(v.iter());
-    }
-    out
+    cull_from_segments(&p.layers[i], &hidden).unwrap()
 }
 
 /// The reference viewpoints of a built-in scene's main track.

@@ -33,6 +33,7 @@ pub mod cull;
 pub mod encode;
 pub mod error;
 pub mod knobs;
+pub mod network;
 pub mod prerender;
 pub mod progress;
 pub mod scene;

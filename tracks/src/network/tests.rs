@@ -23,7 +23,13 @@ fn one_track_is_numbered_as_alone() {
     assert_eq!(n.viewpoints.len(), alone.len());
     for (v, a) in alone.iter().enumerate() {
         assert_eq!(n.viewpoints[v], a.position, "viewpoint {v}");
-        assert_eq!(n.stops[0][v], Stop { viewpoint: v, s: a.s });
+        assert_eq!(
+            n.stops[0][v],
+            Stop {
+                viewpoint: v,
+                s: a.s
+            }
+        );
     }
     assert!(n.junctions.is_empty());
     assert_eq!(n.segments.len(), alone.len() - 1);
@@ -61,7 +67,10 @@ fn a_crossing_of_two_straight_tracks_is_one_viewpoint_with_four_branches() {
     assert_eq!(n.neighbours(j.viewpoint).len(), 4);
     let headings: Vec<DVec3> = j.branches.iter().map(|b| n.branch_heading(b)).collect();
     for h in [DVec3::X, -DVec3::X, DVec3::Z, -DVec3::Z] {
-        assert!(headings.iter().any(|g| g.distance(h) < 1e-12), "{h} missing");
+        assert!(
+            headings.iter().any(|g| g.distance(h) < 1e-12),
+            "{h} missing"
+        );
     }
     // Five pieces each side of the crossing on each track (11 stops), one viewpoint shared.
     assert_eq!(n.viewpoints.len(), 21);
@@ -125,7 +134,10 @@ fn count_is_shared_between_the_pieces_of_a_track() {
         "#)
     .unwrap_err()
     .to_string();
-    assert!(few.contains("streets.toml:2") && few.contains("count"), "{few}");
+    assert!(
+        few.contains("streets.toml:2") && few.contains("count"),
+        "{few}"
+    );
 }
 
 #[test]
@@ -162,7 +174,10 @@ fn tracks_that_cross_without_a_shared_point_are_refused() {
         "#)
     .unwrap_err()
     .to_string();
-    assert!(e.contains("crosses track `b`") && e.contains("streets.toml:2"), "{e}");
+    assert!(
+        e.contains("crosses track `b`") && e.contains("streets.toml:2"),
+        "{e}"
+    );
     let near = net(r#"
         [[track]]
         name = "a"

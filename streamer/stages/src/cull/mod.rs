@@ -22,6 +22,7 @@
 
 mod oracle;
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -31,18 +32,21 @@ use occlusion::report::{
     TileDecisions, ViewpointDecisions,
 };
 use occlusion::{
-    cull_viewpoint, cull_viewpoint_rendered, cull_viewpoint_shrunk, mark_visible, score, Ball,
-    BallView, CullParams as RunParams, MatchRule, SceneSolids, Visibility,
+    cull_from_segments, cull_viewpoint, cull_viewpoint_shrunk, hidden_from_segment, mark_visible,
+    score, BallDepth, Cell, CullParams as RunParams, MatchRule, SceneSolids, SegmentEnd,
+    Visibility,
 };
 use prerender::runlog::RunLog;
 use prerender::scene::Scene;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
-use tracks::{CubeMap, SlabRange, TileGrid};
+use tracks::network::Network;
+use tracks::{SlabRange, TileGrid};
 
 pub use occlusion::Variant;
 
-use self::oracle::{load_viewpoint, same_geometry, Loaded, OracleSource, TrackPath};
+use self::oracle::{load_viewpoint, same_geometry, Loaded, OracleSource};
 use crate::error::{input, parameter, Context, Result};
+use crate::network::network_of;
 use crate::prerender::RenderedBy;
 use crate::progress::{BarKind, Reporter};
 
@@ -89,8 +93,8 @@ pub struct CullParams {
     /// Also run the exact oracle: built-in or TOML scenes cast rays through the geometry;
     /// POV-Ray imports render depth with POV-Ray at every oracle position.
     pub oracle: Option<OracleParams>,
-    /// The rendered variant: depth renders per segment (default
-    /// [`occlusion::RenderedParams`]'s 32).
+    /// The rendered variant: balls per segment at the finest level (default
+    /// [`occlusion::RenderedParams`]'s 64; renders are made only where tiles need them).
     pub renders_per_segment: Option<usize>,
 }
 
@@ -216,13 +220,13 @@ pub fn run(params: &CullParams, progress: &Reporter) -> Result<CullReport> {
         None
     };
     let mut culling = Culling {
-        count: pre.viewpoints.len(),
-        path: TrackPath::new(&dir, &pre),
+        net: network_of(&dir, &pre)?,
+        pre: &pre,
         runs: &runs,
         solids: solids.as_ref(),
         oracle: params.oracle,
         renderer,
-        views: Vec::new(),
+        open: BTreeMap::new(),
         reports: Vec::new(),
         decisions: runs
             .iter()
@@ -233,13 +237,14 @@ pub fn run(params: &CullParams, progress: &Reporter) -> Result<CullReport> {
             })
             .collect(),
         vis_all: Vec::new(),
+        vis_done: Vec::new(),
         first: None,
         load_seconds: 0.0,
         oracle_seconds: 0.0,
         render_seconds: 0.0,
         inside: 0,
     };
-    culling.all(&dir, &pre, progress)?;
+    culling.all(&dir, progress)?;
     if culling.inside > 0 {
         progress.message(&format!(
             "note: {} depth-render positions between the viewpoints are inside a solid (the \
@@ -287,7 +292,7 @@ fn write_outputs(
             runs: culling.decisions.clone(),
         },
     )?;
-    let vis = (!culling.vis_all.is_empty()).then_some(culling.vis_all.as_slice());
+    let vis = (!culling.vis_done.is_empty()).then_some(culling.vis_done.as_slice());
     for d in &culling.decisions {
         let name = format!("{}-a{}.png", d.variant.name(), d.alpha);
         store::write_atomic(
@@ -321,21 +326,32 @@ fn write_outputs(
     Ok(())
 }
 
-/// The culling of every viewpoint, one after the other.
+/// A viewpoint whose segments are still being traced: its layers, the oracle's marks so far
+/// and the rendered variant's verdict from each segment done.
+struct Open {
+    loaded: Loaded,
+    vis: Option<Visibility>,
+    hidden: Vec<Vec<Vec<bool>>>,
+    /// Segments that touch it and are not traced yet.
+    left: usize,
+}
+
+/// The culling of a network a segment at a time: a viewpoint is loaded when the first segment
+/// that touches it is traced and decided once the last one is.
 struct Culling<'a> {
-    count: usize,
-    path: TrackPath,
+    net: Network,
+    pre: &'a PrerenderReport,
     runs: &'a [RunParams],
     solids: Option<&'a SceneSolids<'a, Scene>>,
     oracle: Option<OracleParams>,
     /// Depth renders for the oracle and the rendered variant.
     renderer: Option<OracleSource>,
-    /// The rendered variant: per segment, its balls and their depth renders (dropped once
-    /// both viewpoints of the segment are decided).
-    views: Vec<Option<Vec<BallView>>>,
+    open: BTreeMap<usize, Open>,
     reports: Vec<RunReport>,
     decisions: Vec<RunDecisions>,
-    vis_all: Vec<Visibility>,
+    vis_all: Vec<(usize, Visibility)>,
+    /// The oracle's marks per viewpoint in order, once every viewpoint is decided.
+    vis_done: Vec<Visibility>,
     /// The tile grid and slab ranges every viewpoint must share.
     first: Option<(TileGrid, Vec<SlabRange>)>,
     load_seconds: f64,
@@ -347,158 +363,236 @@ struct Culling<'a> {
 }
 
 impl Culling<'_> {
-    /// Every viewpoint: loaded, traced by the oracle, culled.
-    fn all(
-        &mut self,
-        dir: &PrerenderDir,
-        pre: &PrerenderReport,
-        progress: &Reporter,
-    ) -> Result<()> {
-        let count = pre.viewpoints.len();
+    /// Every segment traced, every viewpoint decided.
+    fn all(&mut self, dir: &PrerenderDir, progress: &Reporter) -> Result<()> {
+        let count = self.net.viewpoints.len();
         let pb = progress.bar(count as u64, "cull", BarKind::Steps);
-        // Viewpoint i is finished once the segment to i + 1 has been traced (oracle) — keep
-        // the previous one loaded until then.
-        let mut prev: Option<(Loaded, Option<Visibility>)> = None;
-        for (k, vp) in pre.viewpoints.iter().enumerate() {
-            let t = Instant::now();
-            let cur = load_viewpoint(dir, vp.index)?;
-            self.load_seconds += t.elapsed().as_secs_f64();
-            if let Some(s) = self.solids {
-                same_geometry(s.scene(), vp.position, &cur.layers).with_context(|| {
-                    format!(
-                        "viewpoint {}: the shrunk variant needs scene `{}`",
-                        vp.index, pre.scene
-                    )
-                })?;
+        for e in 0..self.net.segments.len() {
+            let sg = self.net.segments[e];
+            for v in [sg.from, sg.to] {
+                self.load(dir, v)?;
             }
-            let ranges: Vec<SlabRange> = cur.layers.iter().map(|l| l.range).collect();
-            match &self.first {
-                None => self.first = Some((cur.grid, ranges)),
-                Some((g, r)) => {
-                    if *g != cur.grid || *r != ranges {
-                        return Err(input!(
-                            "viewpoint {}: tile grid or slab ranges differ from viewpoint {} (re-run `railview slabs`)",
-                            vp.index,
-                            pre.viewpoints[0].index
-                        ));
-                    }
+            self.trace(dir, Some(e))?;
+            let ends = if sg.from == sg.to {
+                vec![sg.from]
+            } else {
+                vec![sg.from, sg.to]
+            };
+            for v in ends {
+                let done = self.open.get_mut(&v).is_some_and(|o| {
+                    o.left = o.left.saturating_sub(1);
+                    o.left == 0
+                });
+                if done {
+                    self.finish(v)?;
+                    pb.inc(1);
                 }
             }
-            let cur_vis = self.trace(dir, pre, k, &cur, prev.as_ref())?;
-            if let Some((p, pv)) = prev.take() {
-                self.finish(&p, k - 1, pv)?;
+        }
+        // Viewpoints no segment touches (a track of one viewpoint).
+        for v in 0..count {
+            if self.net.incident(v).is_empty() {
+                self.load(dir, v)?;
+                self.trace(dir, None)?;
+                self.finish(v)?;
                 pb.inc(1);
             }
-            prev = Some((cur, cur_vis));
-        }
-        if let Some((p, pv)) = prev.take() {
-            self.finish(&p, count - 1, pv)?;
-            pb.inc(1);
         }
         pb.finish();
+        self.decisions
+            .iter_mut()
+            .for_each(|d| d.viewpoints.sort_by_key(|x| x.index));
+        self.vis_all.sort_by_key(|x| x.0);
+        self.vis_done = std::mem::take(&mut self.vis_all)
+            .into_iter()
+            .map(|x| x.1)
+            .collect();
         Ok(())
     }
 
-    /// The segment ending at viewpoint `k`: the rendered variant's depth renders from its
-    /// balls, and the oracle's positions marked visible in the previous viewpoint and this
-    /// one; this one's visibility so far.
-    fn trace(
-        &mut self,
-        dir: &PrerenderDir,
-        pre: &PrerenderReport,
-        k: usize,
-        cur: &Loaded,
-        prev: Option<&(Loaded, Option<Visibility>)>,
-    ) -> Result<Option<Visibility>> {
-        let count = pre.viewpoints.len();
-        let ends: Vec<&tracks::ReferenceViewpoint> = match k {
-            0 => vec![&pre.viewpoints[0]],
-            _ => vec![&pre.viewpoints[k - 1], &pre.viewpoints[k]],
-        };
-        if let Some(p) = self.runs.iter().find(|p| p.variant == Variant::Rendered) {
-            let path = match k {
-                0 if count == 1 => vec![self.path.position(0)],
-                0 => Vec::new(),
-                _ => self.path.between(k - 1),
-            };
-            if !path.is_empty() {
-                let t = Instant::now();
-                let balls = occlusion::rendered::cover(&path, p.rendered.per_segment);
-                let centres: Vec<glam::DVec3> = balls.iter().map(|b| b.centre).collect();
-                let renderer = self
-                    .renderer
-                    .as_mut()
-                    .ok_or_else(|| input!("no depth renderer"))?;
-                let n = cur.grid.face_size;
-                let depths = renderer.depths(dir, &centres, n, &ends)?;
-                // A ball whose centre is inside a solid (a track through an object) is
-                // replaced by the balls of its two halves; one of those inside a solid too
-                // shows nothing and proves nothing.
-                let mut renders: Vec<(Ball, Option<CubeMap<f32>>)> = Vec::new();
-                for (j, (b, d)) in balls.into_iter().zip(depths).enumerate() {
-                    if d.is_some() {
-                        renders.push((b, d));
-                        continue;
-                    }
-                    let hs = occlusion::rendered::halves(&path, p.rendered.per_segment, j);
-                    let hc: Vec<glam::DVec3> = hs.iter().map(|b| b.centre).collect();
-                    let hd = renderer.depths(dir, &hc, n, &ends)?;
-                    renders.extend(hs.into_iter().zip(hd));
-                }
-                self.inside += renders.iter().filter(|(_, d)| d.is_none()).count();
-                let views = renders
-                    .into_iter()
-                    .map(|(b, d)| {
-                        let d = d.unwrap_or_else(|| CubeMap::filled(n, f32::INFINITY));
-                        BallView::new(b, d, p.rendered.discontinuity)
-                    })
+    /// Viewpoint `v`'s layers, loaded (and checked against the first's grid and slabs) unless
+    /// they already are.
+    fn load(&mut self, dir: &PrerenderDir, v: usize) -> Result<()> {
+        if self.open.contains_key(&v) {
+            return Ok(());
+        }
+        let vp = &self.pre.viewpoints[v];
+        let t = Instant::now();
+        let cur = load_viewpoint(dir, vp.index)?;
+        self.load_seconds += t.elapsed().as_secs_f64();
+        if let Some(s) = self.solids {
+            same_geometry(s.scene(), vp.position, &cur.layers).with_context(|| {
+                format!(
+                    "viewpoint {}: the shrunk variant needs scene `{}`",
+                    vp.index, self.pre.scene
+                )
+            })?;
+        }
+        let ranges: Vec<SlabRange> = cur.layers.iter().map(|l| l.range).collect();
+        match &self.first {
+            None => {
+                self.first = Some((cur.grid, ranges));
+                self.reports = self
+                    .runs
+                    .iter()
+                    .map(|p| RunReport::new(p.alpha, p.variant, cur.layers.len()))
                     .collect();
-                self.views.resize_with(k.max(1), || None);
-                self.views[k.max(1) - 1] = Some(views);
-                self.render_seconds += t.elapsed().as_secs_f64();
+            }
+            Some((g, r)) => {
+                if *g != cur.grid || *r != ranges {
+                    return Err(input!(
+                        "viewpoint {}: tile grid or slab ranges differ from viewpoint {} (re-run `railview slabs`)",
+                        vp.index,
+                        self.pre.viewpoints[0].index
+                    ));
+                }
+            }
+        }
+        let vis = self
+            .oracle
+            .map(|_| Visibility::new(cur.grid.face_size, cur.layers.len()));
+        self.open.insert(
+            v,
+            Open {
+                loaded: cur,
+                vis,
+                hidden: Vec::new(),
+                left: self.net.incident(v).len(),
+            },
+        );
+        Ok(())
+    }
+
+    /// Segment `e` (or, with `None`, the one viewpoint of a track without segments, the last
+    /// one loaded): the oracle's positions marked in both ends' layers, and the rendered
+    /// variant's verdict on both ends' tiles.
+    fn trace(&mut self, dir: &PrerenderDir, e: Option<usize>) -> Result<()> {
+        let (path, ends): (Vec<glam::DVec3>, Vec<usize>) = match e {
+            Some(e) => {
+                let sg = self.net.segments[e];
+                let ends = if sg.from == sg.to {
+                    vec![sg.from]
+                } else {
+                    vec![sg.from, sg.to]
+                };
+                (self.net.segment_path(e), ends)
+            }
+            None => {
+                let v = *self
+                    .open
+                    .keys()
+                    .find(|&&v| self.net.incident(v).is_empty())
+                    .ok_or_else(|| input!("no viewpoint to trace"))?;
+                (vec![self.pre.viewpoints[v].position], vec![v])
+            }
+        };
+        let refs: Vec<tracks::ReferenceViewpoint> =
+            ends.iter().map(|&v| self.pre.viewpoints[v]).collect();
+        let ref_list: Vec<&tracks::ReferenceViewpoint> = refs.iter().collect();
+        let grid = self
+            .first
+            .as_ref()
+            .map(|f| f.0)
+            .ok_or_else(|| input!("no viewpoint was loaded"))?;
+        if let Some(j) = self
+            .runs
+            .iter()
+            .position(|p| p.variant == Variant::Rendered)
+        {
+            let p = self.runs[j].rendered;
+            let renderer = self
+                .renderer
+                .as_mut()
+                .ok_or_else(|| input!("no depth renderer"))?;
+            let seg_ends: Vec<SegmentEnd> = ends
+                .iter()
+                .map(|&v| SegmentEnd {
+                    viewpoint: self.pre.viewpoints[v].position,
+                    grid: &self.open[&v].loaded.grid,
+                    layers: &self.open[&v].loaded.layers,
+                })
+                .collect();
+            let t = Instant::now();
+            let (mut render_s, mut inside) = (0.0, 0usize);
+            // Built-in and TOML scenes: rays cast where the tests look; POV-Ray: whole renders.
+            let verdict = match renderer {
+                OracleSource::Geometry(scene) => {
+                    let g: &dyn occlusion::Geometry = &**scene;
+                    hidden_from_segment(&path, &seg_ends, &p, |centres| {
+                        Ok::<_, crate::Error>(
+                            centres.iter().map(|_| Some(BallDepth::Rays(g))).collect(),
+                        )
+                    })?
+                }
+                source => hidden_from_segment(&path, &seg_ends, &p, |centres| {
+                    let t = Instant::now();
+                    let d = source.depths(dir, centres, grid.face_size, &ref_list);
+                    render_s += t.elapsed().as_secs_f64();
+                    if let Ok(d) = &d {
+                        inside += d.iter().filter(|x| x.is_none()).count();
+                    }
+                    Ok::<_, crate::Error>(d?.into_iter().map(|d| d.map(BallDepth::Map)).collect())
+                })?,
+            }
+            .context("the rendered variant")?;
+            let total = t.elapsed().as_secs_f64();
+            self.render_seconds += render_s;
+            self.inside += inside;
+            let run = &mut self.reports[j];
+            run.seconds += (total - render_s).max(0.0);
+            run.rendered
+                .get_or_insert_with(Default::default)
+                .add(&verdict.stats);
+            for (v, h) in ends.iter().zip(verdict.hidden) {
+                if let Some(o) = self.open.get_mut(v) {
+                    o.hidden.push(h);
+                }
             }
         }
         let (Some(o), Some(source)) = (self.oracle, self.renderer.as_mut()) else {
-            return Ok(None);
+            return Ok(());
         };
-        let cur_vis = Visibility::new(cur.grid.face_size, cur.layers.len());
         let rule = MatchRule::default();
         let t = Instant::now();
-        let n = o.face_size.unwrap_or(cur.grid.face_size);
-        let positions = match prev {
-            Some(_) => oracle_positions(&self.path.between(k - 1), o.per_segment),
-            None if count == 1 => vec![self.path.position(k)],
-            None => Vec::new(),
-        };
-        let depths = source.depths(dir, &positions, n, &ends)?;
+        let n = o.face_size.unwrap_or(grid.face_size);
+        let positions = oracle_positions(&path, o.per_segment);
+        let depths = source.depths(dir, &positions, n, &ref_list)?;
         for (x, depth) in positions.into_iter().zip(depths) {
             // A position inside a solid sees nothing.
             let Some(depth) = depth else {
                 self.inside += 1;
                 continue;
             };
-            if let Some((p, Some(pv))) = prev {
-                mark_visible(x, &depth, self.path.position(k - 1), &p.layers, &rule, pv);
+            for &v in &ends {
+                let at = self.pre.viewpoints[v].position;
+                if let Some(Open {
+                    loaded,
+                    vis: Some(vis),
+                    ..
+                }) = self.open.get(&v)
+                {
+                    mark_visible(x, &depth, at, &loaded.layers, &rule, vis);
+                }
             }
-            mark_visible(
-                x,
-                &depth,
-                self.path.position(k),
-                &cur.layers,
-                &rule,
-                &cur_vis,
-            );
         }
         self.oracle_seconds += t.elapsed().as_secs_f64();
-        Ok(Some(cur_vis))
+        Ok(())
     }
 
-    /// Run every (α, variant) on one loaded viewpoint and record the results.
-    fn finish(&mut self, l: &Loaded, k: usize, vis: Option<Visibility>) -> Result<()> {
-        let cell = self.path.cell(k);
+    /// Run every (α, variant) on viewpoint `v`, whose segments are all traced, and record the
+    /// results.
+    fn finish(&mut self, v: usize) -> Result<()> {
+        let Some(open) = self.open.remove(&v) else {
+            return Ok(());
+        };
+        let l = &open.loaded;
+        let cell = Cell {
+            viewpoint: self.pre.viewpoints[v].position,
+            paths: self.net.cell_paths(v),
+        };
         for (j, p) in self.runs.iter().enumerate() {
             let t = Instant::now();
-            let (mut stats, mut rstats) = (None, None);
+            let mut stats = None;
             let c = match (p.variant, self.solids) {
                 (Variant::Shrunk, Some(scene)) => {
                     let (c, s) = cull_viewpoint_shrunk(&cell, &l.grid, &l.layers, &p.shrunk, scene)
@@ -507,47 +601,28 @@ impl Culling<'_> {
                     c
                 }
                 (Variant::Rendered, _) => {
-                    // The balls of the segments before and after the viewpoint.
-                    let near: Vec<&BallView> = [k.checked_sub(1), Some(k)]
-                        .into_iter()
-                        .flatten()
-                        .filter_map(|j| self.views.get(j).and_then(|v| v.as_ref()))
-                        .flatten()
-                        .collect();
-                    let (c, s) =
-                        cull_viewpoint_rendered(&cell, &l.grid, &l.layers, &near, &p.rendered)
-                            .with_context(|| format!("culling viewpoint {}", l.index))?;
-                    rstats = Some(s);
-                    c
+                    let hidden: Vec<&[Vec<bool>]> =
+                        open.hidden.iter().map(|h| h.as_slice()).collect();
+                    cull_from_segments(&l.layers, &hidden)
+                        .with_context(|| format!("culling viewpoint {}", l.index))?
                 }
                 _ => cull_viewpoint(&cell, &l.grid, &l.layers, p)
                     .with_context(|| format!("culling viewpoint {}", l.index))?,
             };
             let secs = t.elapsed().as_secs_f64();
-            if self.reports.len() <= j {
-                self.reports
-                    .push(RunReport::new(p.alpha, p.variant, l.layers.len()));
-            }
             let run = &mut self.reports[j];
             if let Some(s) = stats {
                 run.shrunk.get_or_insert_with(Default::default).add(&s);
             }
-            if let Some(s) = rstats {
-                run.rendered.get_or_insert_with(Default::default).add(&s);
-            }
-            let scores = vis.as_ref().map(|v| score(&c, &l.grid, v));
+            let scores = open.vis.as_ref().map(|vis| score(&c, &l.grid, vis));
             run.add(&c, scores.as_deref());
             run.seconds += secs;
             self.decisions[j]
                 .viewpoints
                 .push(ViewpointDecisions::new(l.index, &l.grid, &c));
         }
-        if let Some(v) = vis {
-            self.vis_all.push(v);
-        }
-        // The segment before this viewpoint is not needed again.
-        if let Some(v) = k.checked_sub(1).and_then(|j| self.views.get_mut(j)) {
-            *v = None;
+        if let Some(vis) = open.vis {
+            self.vis_all.push((v, vis));
         }
         Ok(())
     }
@@ -559,7 +634,7 @@ impl Culling<'_> {
             .clone()
             .ok_or_else(|| input!("no viewpoint was loaded"))?;
         Ok(CullReport {
-            viewpoints: self.count,
+            viewpoints: self.net.viewpoints.len(),
             face_size: grid.face_size,
             tile_size: grid.tile_size,
             slab_ranges: ranges,

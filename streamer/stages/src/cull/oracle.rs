@@ -3,12 +3,12 @@
 //! oracle's depth maps.
 
 use glam::DVec3;
-use occlusion::{raw_rgba_bytes, Cell, SlabLayer, TileInfo};
+use occlusion::{raw_rgba_bytes, SlabLayer, TileInfo};
 use prerender::pov::{DepthRequest, PovImport};
 use prerender::scene::Scene;
 use prerender::store::{self, PrerenderDir, PrerenderReport};
 use slabs::io::{self as sio, TilesFile};
-use tracks::{CubeMap, TileGrid, TrackSet};
+use tracks::{CubeMap, TileGrid};
 
 use crate::error::{input, parameter, Context, Result};
 use crate::prerender::RenderedBy;
@@ -218,69 +218,4 @@ pub(super) fn load_geometry(pre: &PrerenderReport) -> Result<Scene> {
         ));
     }
     crate::scene::load_geometry(&pre.scene, "--oracle")
-}
-
-/// The track between the reference viewpoints: the curve from `DIR/track.toml` when it
-/// matches the report, else straight segments.
-pub(super) struct TrackPath {
-    positions: Vec<DVec3>,
-    arcs: Vec<f64>,
-    curve: Option<(Vec<DVec3>, Vec<f64>)>,
-}
-
-impl TrackPath {
-    pub fn new(dir: &PrerenderDir, pre: &PrerenderReport) -> TrackPath {
-        let positions: Vec<DVec3> = pre.viewpoints.iter().map(|v| v.position).collect();
-        let arcs: Vec<f64> = pre.viewpoints.iter().map(|v| v.s).collect();
-        let curve = std::fs::read_to_string(dir.track_toml())
-            .ok()
-            .and_then(|t| TrackSet::parse(&t, "track.toml").ok())
-            .and_then(|set| {
-                let t = set.get(&pre.track).or_else(|| set.tracks.first())?.clone();
-                let c = t.curve().to_vec();
-                let a = tracks::segment::arc_lengths(&c);
-                // Use the curve only if it reproduces the viewpoints.
-                let ok = positions.iter().zip(&arcs).all(|(p, &s)| {
-                    tracks::segment::point_at(&c, &a, s).distance(*p) <= 1e-6 * (1.0 + p.length())
-                });
-                ok.then_some((c, a))
-            });
-        TrackPath {
-            positions,
-            arcs,
-            curve,
-        }
-    }
-
-    pub fn position(&self, k: usize) -> DVec3 {
-        self.positions[k]
-    }
-
-    pub fn cell(&self, k: usize) -> Cell {
-        match &self.curve {
-            Some((c, a)) => {
-                let mut cell = Cell::along_curve(c, a, &self.arcs, k);
-                cell.viewpoint = self.positions[k];
-                cell
-            }
-            None => Cell::straight(&self.positions, k),
-        }
-    }
-
-    /// The polyline from viewpoint `k` to `k + 1`, both ends included.
-    pub fn between(&self, k: usize) -> Vec<DVec3> {
-        let (a, b) = (self.positions[k], self.positions[k + 1]);
-        let mut out = vec![a];
-        if let Some((c, arc)) = &self.curve {
-            let (s0, s1) = (self.arcs[k], self.arcs[k + 1]);
-            out.extend(
-                c.iter()
-                    .zip(arc)
-                    .filter(|(_, &s)| s > s0 && s < s1)
-                    .map(|(p, _)| *p),
-            );
-        }
-        out.push(b);
-        out
-    }
 }
