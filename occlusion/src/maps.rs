@@ -447,6 +447,11 @@ impl PunchCtx<'_> {
         for (dx, dy) in [(-1i32, 0i32), (1, 0), (0, -1), (0, 1)] {
             let q = self.step(face, x, y, dx, dy);
             let Some(wq) = w(q) else { continue };
+            // Most pairs are no gap (the first tests of `is_gap`, which need no neighbour
+            // beyond): same surface, or opening too little.
+            if wp - wq <= 0.0 || self.cell_radius * (wp - wq) <= self.min_parallax {
+                continue;
+            }
             let before = w(self.step(face, x, y, -dx, -dy)).map_or(0.0, |wb| (wb - wp).abs());
             // Past a face edge the direction of travel turns: no "after" step.
             let after = if q.0 == face {

@@ -145,7 +145,7 @@ impl Default for RenderedParams {
         RenderedParams {
             per_segment: 64,
             coarse_per_segment: 2,
-            max_parallax_px: 8.0,
+            max_parallax_px: 16.0,
             discontinuity: DiscontinuityRule::default(),
             content: MatchRule::default(),
         }

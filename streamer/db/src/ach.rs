@@ -66,34 +66,56 @@ pub fn segment_ach(
     tiles: &[AchTile],
     params: AchParams,
 ) -> Vec<AchEntry> {
+    use rayon::prelude::*;
     let cs = params.camera_size.max(1);
     let samples = params.samples.max(1);
+    // Each sample point's pixel counts on its own (in parallel), then summed in sample order
+    // so the result does not depend on the threads.
+    // Each tile pixel's point and footprint, once for all the samples.
+    let points: Vec<Vec<SplatPoint>> = tiles
+        .par_iter()
+        .map(|tile| {
+            let origin = if tile.viewpoint == from.index {
+                from.position
+            } else {
+                to.position
+            };
+            points_of(tile, origin)
+        })
+        .collect();
+    let per_sample: Vec<Vec<(f64, Vec<u64>)>> = (0..samples)
+        .into_par_iter()
+        .map(|s| {
+            let t = (s as f64 + 0.5) / samples as f64;
+            let eye = from.position.lerp(to.position, t);
+            let mut zbuf = vec![(f32::INFINITY, u32::MAX); 6 * cs as usize * cs as usize];
+            let mut out = Vec::with_capacity(2);
+            for (end, w) in [(from, 1.0 - t), (to, t)] {
+                if from.index == to.index && end.index == to.index && w == t {
+                    continue; // a degenerate segment: count its one viewpoint once
+                }
+                zbuf.fill((f32::INFINITY, u32::MAX));
+                for (i, tile) in tiles.iter().enumerate() {
+                    if tile.viewpoint == end.index {
+                        splat(&points[i], i as u32, eye, cs, &mut zbuf);
+                    }
+                }
+                let mut counts = vec![0u64; tiles.len()];
+                for &(_, i) in &zbuf {
+                    if i != u32::MAX {
+                        counts[i as usize] += 1;
+                    }
+                }
+                let w = if from.index == to.index { 1.0 } else { w };
+                out.push((w, counts));
+            }
+            out
+        })
+        .collect();
     let mut weighted = vec![0f64; tiles.len()];
-    let mut zbuf = vec![(f32::INFINITY, u32::MAX); 6 * cs as usize * cs as usize];
-    let mut counts = vec![0u64; tiles.len()];
-    for s in 0..samples {
-        let t = (s as f64 + 0.5) / samples as f64;
-        let eye = from.position.lerp(to.position, t);
-        for (end, w) in [(from, 1.0 - t), (to, t)] {
-            if from.index == to.index && end.index == to.index && w == t {
-                continue; // a degenerate segment: count its one viewpoint once
-            }
-            zbuf.fill((f32::INFINITY, u32::MAX));
-            for (i, tile) in tiles.iter().enumerate() {
-                if tile.viewpoint == end.index {
-                    splat(tile, i as u32, end.position, eye, cs, &mut zbuf);
-                }
-            }
-            counts.fill(0);
-            for &(_, i) in &zbuf {
-                if i != u32::MAX {
-                    counts[i as usize] += 1;
-                }
-            }
-            let w = if from.index == to.index { 1.0 } else { w };
-            for (acc, &c) in weighted.iter_mut().zip(&counts) {
-                *acc += w * c as f64;
-            }
+    for (w, counts) in per_sample.iter().flatten() {
+        for (acc, &c) in weighted.iter_mut().zip(counts) {
+            *acc += w * c as f64;
         }
     }
     let total: f64 = weighted.iter().sum();
@@ -116,48 +138,67 @@ pub fn segment_ach(
     out
 }
 
-/// Reprojects a tile's pixels into the six cameras at `eye` with a depth test; each pixel is
-/// splatted as a square as large as its footprint seen from `eye`.
-fn splat(tile: &AchTile, id: u32, origin: DVec3, eye: DVec3, cs: u32, zbuf: &mut [(f32, u32)]) {
+/// A tile pixel lifted to 3D: its point and its radial depth times the angle it spans seen from
+/// its viewpoint.
+#[derive(Clone, Copy, Debug)]
+struct SplatPoint {
+    p: DVec3,
+    extent: f64,
+}
+
+/// The points of a tile's pixels with a usable depth, seen from `origin`.
+fn points_of(tile: &AchTile, origin: DVec3) -> Vec<SplatPoint> {
     // Angular pixel sizes on a cube face: 2/N / √(1+u²+v²) across, 2/N / (1+u²+v²) along the
     // radius. Overestimating the source and underestimating the target keeps splats hole-free.
     let n_src = tile.face_size.max(1) as f64;
+    let mut out = Vec::with_capacity((tile.width * tile.height) as usize);
     for ty in 0..tile.height {
         for tx in 0..tile.width {
             let Some(&r) = tile.depth.get((ty * tile.width + tx) as usize) else {
-                return;
+                return out;
             };
             if !(r.is_finite() && r > 0.0) {
                 continue;
             }
             let dir = pixel_dir(tile.tile.face, tile.x0 + tx, tile.y0 + ty, tile.face_size);
-            let p = origin + dir * r as f64;
-            let d = p - eye;
-            let dist = d.length();
-            let Some(fc) = FaceCoord::from_dir(d) else {
-                continue;
-            };
-            let (px, py) = fc.to_pixel_f(cs);
             let (us, vs) = (
                 2.0 * (tile.x0 + tx) as f64 / n_src + 1.0 / n_src - 1.0,
                 1.0 - 2.0 * (tile.y0 + ty) as f64 / n_src - 1.0 / n_src,
             );
             let src_angle = 2.0 / n_src / (1.0 + us * us + vs * vs).sqrt();
-            let dst_angle = 2.0 / cs as f64 / (1.0 + fc.u * fc.u + fc.v * fc.v);
-            let size = (r as f64 * src_angle / dist.max(1e-9) / dst_angle).clamp(1.0, 16.0);
-            let half = size * 0.5;
-            let x_lo = (px - half).round().clamp(0.0, cs as f64 - 1.0) as u32;
-            let x_hi = ((px + half).round() as u32).clamp(x_lo + 1, cs);
-            let y_lo = (py - half).round().clamp(0.0, cs as f64 - 1.0) as u32;
-            let y_hi = ((py + half).round() as u32).clamp(y_lo + 1, cs);
-            let base = fc.face.index() * (cs * cs) as usize;
-            let z = dist as f32;
-            for y in y_lo..y_hi {
-                for x in x_lo..x_hi {
-                    let cell = &mut zbuf[base + (y * cs + x) as usize];
-                    if z < cell.0 {
-                        *cell = (z, id);
-                    }
+            out.push(SplatPoint {
+                p: origin + dir * r as f64,
+                extent: r as f64 * src_angle,
+            });
+        }
+    }
+    out
+}
+
+/// Reprojects a tile's points into the six cameras at `eye` with a depth test; each is
+/// splatted as a square as large as its footprint seen from `eye`.
+fn splat(points: &[SplatPoint], id: u32, eye: DVec3, cs: u32, zbuf: &mut [(f32, u32)]) {
+    for pt in points {
+        let d = pt.p - eye;
+        let dist = d.length();
+        let Some(fc) = FaceCoord::from_dir(d) else {
+            continue;
+        };
+        let (px, py) = fc.to_pixel_f(cs);
+        let dst_angle = 2.0 / cs as f64 / (1.0 + fc.u * fc.u + fc.v * fc.v);
+        let size = (pt.extent / dist.max(1e-9) / dst_angle).clamp(1.0, 16.0);
+        let half = size * 0.5;
+        let x_lo = (px - half).round().clamp(0.0, cs as f64 - 1.0) as u32;
+        let x_hi = ((px + half).round() as u32).clamp(x_lo + 1, cs);
+        let y_lo = (py - half).round().clamp(0.0, cs as f64 - 1.0) as u32;
+        let y_hi = ((py + half).round() as u32).clamp(y_lo + 1, cs);
+        let base = fc.face.index() * (cs * cs) as usize;
+        let z = dist as f32;
+        for y in y_lo..y_hi {
+            for x in x_lo..x_hi {
+                let cell = &mut zbuf[base + (y * cs + x) as usize];
+                if z < cell.0 {
+                    *cell = (z, id);
                 }
             }
         }

@@ -277,11 +277,15 @@ impl DbWriter {
             hash,
             size: bytes.len() as u64,
         };
-        if fs::metadata(&path).is_ok_and(|m| m.is_file() && m.len() == obj.size) {
+        // An object of the name and size is reused once its bytes are checked: objects are
+        // written unsynced, so one a crash cut off before the build's flush may be torn.
+        if fs::metadata(&path).is_ok_and(|m| m.is_file() && m.len() == obj.size)
+            && fs::read(&path).is_ok_and(|b| hash_hex(&b) == obj.hash)
+        {
             self.objects_reused += 1;
             return Ok(obj);
         }
-        write_atomic(&path, bytes)?;
+        railview_files::write_unsynced(&path, bytes).map_err(|e| DbError::io(&path, e))?;
         self.objects_written += 1;
         self.bytes_written += obj.size;
         Ok(obj)
@@ -347,6 +351,12 @@ impl DbWriter {
         let mut json =
             serde_json::to_vec(&top).map_err(|e| DbError::format(&path, e.to_string()))?;
         json.push(b'\n');
+        // Every object on the disk before the manifest that names them.
+        for root in [self.stage_root().to_path_buf(), self.root.clone()] {
+            if root.is_dir() {
+                railview_files::sync_file_system(&root).map_err(|e| DbError::io(&root, e))?;
+            }
+        }
         write_atomic(&path, &json)?;
         write_atomic(
             &self.root.join(MANIFEST_HASH_FILE),

@@ -64,6 +64,48 @@ pub fn write_with(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -
     Ok(())
 }
 
+/// Write `bytes` to `path` whole, as [`write`] does but without flushing it to the disk: for
+/// the many small files of a step that ends with [`sync_file_system`] before anything that
+/// names them is written (a database's objects before its manifest). After a crash before
+/// that flush such a file may hold other bytes than written, so a reader that reuses one
+/// checks its content.
+pub fn write_unsynced(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    let (dir, name) = parent_and_name(path)?;
+    fs::create_dir_all(dir)?;
+    let prefix = format!(".{name}{TEMP_MARK}");
+    let mut tmp = builder(&prefix, "").tempfile_in(dir)?;
+    tmp.as_file_mut().write_all(bytes)?;
+    tmp.as_file_mut().flush()?;
+    tmp.persist(path).map_err(|e| e.error)?;
+    Ok(())
+}
+
+/// Flushes everything written to the file system that holds `dir` to the disk (Linux's
+/// `syncfs`; elsewhere every file under `dir`, one by one).
+pub fn sync_file_system(dir: &Path) -> io::Result<()> {
+    #[cfg(target_os = "linux")]
+    {
+        let handle = File::open(dir)?;
+        rustix::fs::syncfs(&handle)?;
+        Ok(())
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        fn walk(dir: &Path) -> io::Result<()> {
+            for e in fs::read_dir(dir)? {
+                let e = e?;
+                if e.file_type()?.is_dir() {
+                    walk(&e.path())?;
+                } else {
+                    File::open(e.path())?.sync_all()?;
+                }
+            }
+            Ok(())
+        }
+        walk(dir)
+    }
+}
+
 /// Write `bytes` to `path` whole (see [`write_with`]).
 pub fn write(path: &Path, bytes: &[u8]) -> io::Result<()> {
     write_with(path, |f| f.write_all(bytes))

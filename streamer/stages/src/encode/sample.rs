@@ -1,6 +1,7 @@
 //! One reference viewpoint encoded: its kept tiles' PTMs and meshes and its sky's tiles,
 //! staged as objects, and the record of what produced them (`encode/NNNN.json`).
 
+use rayon::prelude::*;
 use std::path::Path;
 
 use codec::mesh::{encode_mesh, MeshCoding};
@@ -100,35 +101,55 @@ pub(super) fn encode_sample(
         let k = layer.slab;
         let color = store::read_rgba_png(&dir.slab_color_png(i, k))?;
         let (mut ne, mut kept_bytes) = (0u64, 0u64);
-        for (rec, mesh) in layer.tiles.iter().zip(layer_meshes) {
+        // The kept tiles' PTMs and meshes coded in parallel, then stored in tile order.
+        let coded: Vec<Option<Result<(ptm::Encoded, Option<Vec<u8>>)>>> = layer
+            .tiles
+            .par_iter()
+            .zip(layer_meshes.par_iter())
+            .map(|(rec, mesh)| {
+                if is_culled(decisions, i, k, grid.tile_index(rec.tile) as u32) {
+                    return None;
+                }
+                let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(rec.tile);
+                let code = || -> Result<(ptm::Encoded, Option<Vec<u8>>)> {
+                    let mut px: Vec<u8> = crop(&color, &grid, rec.tile)
+                        .into_iter()
+                        .flatten()
+                        .collect();
+                    slabs::tiles::coarsen_colour(&mut px, x1 - x0, y1 - y0, coding.drop_levels);
+                    // Colour 0 under the mask (format 5): coarse levels are colour × coverage.
+                    db::clear_masked(&mut px);
+                    let img = Image::new(x1 - x0, y1 - y0, 4, px)?;
+                    let enc = ptm::encode(&img, coding.opts)?;
+                    let mesh_bytes = if mesh.indices.is_empty() {
+                        None
+                    } else {
+                        Some(encode_mesh(mesh, coding.mesh).with_context(|| {
+                            format!("sample {i} slab {k} tile {:?}: mesh", rec.tile)
+                        })?)
+                    };
+                    Ok((enc, mesh_bytes))
+                };
+                Some(code())
+            })
+            .collect();
+        for (rec, coded) in layer.tiles.iter().zip(coded) {
             let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(rec.tile);
             let bytes = ((x1 - x0) * (y1 - y0) * 4) as u64;
             ne += bytes;
-            let culled = is_culled(decisions, i, k, grid.tile_index(rec.tile) as u32);
-            let (ptm, mesh_ref) = if culled {
-                (None, None)
-            } else {
-                kept_bytes += bytes;
-                let mut px: Vec<u8> = crop(&color, &grid, rec.tile)
-                    .into_iter()
-                    .flatten()
-                    .collect();
-                slabs::tiles::coarsen_colour(&mut px, x1 - x0, y1 - y0, coding.drop_levels);
-                // Colour 0 under the mask (format 5): coarse levels are colour × coverage.
-                db::clear_masked(&mut px);
-                let img = Image::new(x1 - x0, y1 - y0, 4, px)?;
-                let enc = ptm::encode(&img, coding.opts)?;
-                let ptm = writer.put_ptm_staged(&enc, 4)?;
-                let mesh_ref = if mesh.indices.is_empty() {
-                    None
-                } else {
-                    Some(
-                        writer.put_staged(&encode_mesh(mesh, coding.mesh).with_context(
-                            || format!("sample {i} slab {k} tile {:?}: mesh", rec.tile),
-                        )?)?,
-                    )
-                };
-                (Some(ptm), mesh_ref)
+            let culled = coded.is_none();
+            let (ptm, mesh_ref) = match coded {
+                None => (None, None),
+                Some(c) => {
+                    kept_bytes += bytes;
+                    let (enc, mesh_bytes) = c?;
+                    let ptm = writer.put_ptm_staged(&enc, 4)?;
+                    let mesh_ref = match mesh_bytes {
+                        Some(m) => Some(writer.put_staged(&m)?),
+                        None => None,
+                    };
+                    (Some(ptm), mesh_ref)
+                }
             };
             tiles.push(TileEntry {
                 tile: rec.tile,
