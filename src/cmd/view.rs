@@ -96,7 +96,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
             .with_context(|| format!("opening {}", args.db))?;
-        Source::Local(walk)
+        Source::Local(Box::new(walk))
     };
     let opts = WindowOptions {
         quit_after: args.frames,

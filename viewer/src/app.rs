@@ -38,7 +38,7 @@ const FEEDBACK_EVERY: u64 = 5;
 /// Where the app's reference views come from.
 pub enum Source {
     /// Decoded up front (a directory or `synth:street`).
-    Local(Walkthrough),
+    Local(Box<Walkthrough>),
     /// Filled from a server while shown.
     Stream(Box<StreamedWalkthrough>),
 }

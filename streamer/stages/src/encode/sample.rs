@@ -83,6 +83,9 @@ pub(super) fn fnv64(bytes: &[u8]) -> u64 {
 }
 
 /// Encode one viewpoint's kept tiles and sky into staged objects.
+/// A kept tile's PTM and, unless it has none, its mesh's bytes.
+type Coded = (ptm::Encoded, Option<Vec<u8>>);
+
 pub(super) fn encode_sample(
     dir: &PrerenderDir,
     vp: &tracks::ReferenceViewpoint,
@@ -102,7 +105,7 @@ pub(super) fn encode_sample(
         let color = store::read_rgba_png(&dir.slab_color_png(i, k))?;
         let (mut ne, mut kept_bytes) = (0u64, 0u64);
         // The kept tiles' PTMs and meshes coded in parallel, then stored in tile order.
-        let coded: Vec<Option<Result<(ptm::Encoded, Option<Vec<u8>>)>>> = layer
+        let coded: Vec<Option<Result<Coded>>> = layer
             .tiles
             .par_iter()
             .zip(layer_meshes.par_iter())
@@ -111,7 +114,7 @@ pub(super) fn encode_sample(
                     return None;
                 }
                 let tracks::PixelRect { x0, y0, x1, y1, .. } = grid.pixel_rect(rec.tile);
-                let code = || -> Result<(ptm::Encoded, Option<Vec<u8>>)> {
+                let code = || -> Result<Coded> {
                     let mut px: Vec<u8> = crop(&color, &grid, rec.tile)
                         .into_iter()
                         .flatten()
