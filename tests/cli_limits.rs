@@ -239,7 +239,7 @@ fn messages_name_the_right_thing() {
     let db = dir.join("db");
     let m = synth::write_synthetic(&db, &synth::SynthParams::default()).unwrap();
     let top = db::read_top(&db).unwrap();
-    let rel = top.tracks[0].viewpoints[1].table.rel_path().unwrap();
+    let rel = top.viewpoints[1].table.rel_path().unwrap();
     let mut bytes = std::fs::read(db.join(&rel)).unwrap();
     bytes[3] ^= 1;
     std::fs::write(db.join(&rel), &bytes).unwrap();

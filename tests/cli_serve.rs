@@ -99,7 +99,7 @@ fn a_normal_client_is_served_within_a_second_while_400_slow_and_256_stalled_clie
     let copies = ((8u64 << 20) / size).clamp(2, 256) as usize;
     let server = serve(&db, &[]);
     let addr = server.addr;
-    let table = ItemTable::new(&m, 0).unwrap();
+    let table = ItemTable::new(&m).unwrap();
     let parts: Vec<_> = table.items.iter().flat_map(|i| i.parts.clone()).collect();
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

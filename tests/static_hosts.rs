@@ -162,7 +162,7 @@ fn nginx_with_the_readme_configuration_streams_as_well_as_railview_serve() {
     assert_eq!(m.header("content-encoding"), Some("gzip"), "gzip_static");
     assert_eq!(m.header("cache-control"), Some("no-cache"));
     let top = db::read_top(&db).unwrap();
-    let table = &top.tracks[0].viewpoints[0].table;
+    let table = &top.viewpoints[0].table;
     let path = format!(
         "/castle/{}",
         tracks::manifest::object_rel_path(&table.hash).unwrap()
@@ -274,7 +274,7 @@ fn a_caching_proxy_serves_the_second_client_from_its_cache() {
     // What a CDN needs, through the cache: the origin's ETag and `immutable`, a hit,
     // conditional requests and ranges answered from the cache.
     let top = db::read_top(&db).unwrap();
-    let table = &top.tracks[0].viewpoints[1].table;
+    let table = &top.viewpoints[1].table;
     let path = format!(
         "/{}",
         tracks::manifest::object_rel_path(&table.hash).unwrap()

@@ -107,8 +107,10 @@ mod tests {
             cull_variant: None,
             tracks: vec![tracks::manifest::TrackEntry {
                 name: "main".into(),
-                track_toml: String::new(),
-                length: 0.0,
+                track_toml:
+                    "[[track]]\nname = \"main\"\npoints = [[0, 0, 0], [1, 0, 0]]\ncount = 1\n"
+                        .into(),
+                length: 1.0,
                 viewpoints: vec![tracks::manifest::ViewpointEntry {
                     index: 0,
                     s: 0.0,
@@ -150,13 +152,13 @@ mod tests {
         bytes[3] ^= 1;
         std::fs::write(&path, &bytes).unwrap();
         run(args()).unwrap();
-        // A missing viewpoint table is named by track and viewpoint.
+        // A missing viewpoint table is named by viewpoint.
         let top = db::read_top(&dir).unwrap();
-        let table = dir.join(top.tracks[0].viewpoints[0].table.rel_path().unwrap());
+        let table = dir.join(top.viewpoints[0].table.rel_path().unwrap());
         std::fs::remove_file(&table).unwrap();
         let err = format!("{:#}", run(args()).unwrap_err());
         assert!(
-            err.contains("table of track `main` viewpoint 0") && err.contains("missing"),
+            err.contains("table of viewpoint 0") && err.contains("missing"),
             "{err}"
         );
         std::fs::remove_dir_all(&dir).unwrap();

@@ -45,7 +45,7 @@ fn largest_object(db: &Path) -> std::io::Result<(String, u64)> {
 /// `n` level-group requests of track 0 (`/objects/HH/HASH bytes=A-B`), spread over it.
 fn print_paths(db: &Path, n: usize) -> Result<(), String> {
     let d = db::Database::open(db).map_err(|e| e.to_string())?;
-    let table = ItemTable::new(d.manifest(), 0).map_err(|e| e.to_string())?;
+    let table = ItemTable::new(d.manifest()).map_err(|e| e.to_string())?;
     let parts: Vec<_> = table.items.iter().flat_map(|i| i.parts.iter()).collect();
     if parts.is_empty() {
         return Err("no parts in track 0".into());

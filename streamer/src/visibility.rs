@@ -1,8 +1,8 @@
 //! CPU reference of the viewer's tile-visibility pass: which tiles (and backgrounds) cover the
 //! pixels of a camera, how many pixels each covers, and which PTM level those pixels need.
 //!
-//! [`SceneIndex`] indexes one track of a manifest (per viewpoint, per slab, a dense tile
-//! table). [`SceneIndex::count`] casts one ray per sample of the camera image and, for each
+//! [`SceneIndex`] indexes the viewpoints of a manifest (per viewpoint, by id, per slab, a dense
+//! tile table). [`SceneIndex::count`] casts one ray per sample of the camera image and, for each
 //! given reference viewpoint (the two ends of the current segment, with their blend weights),
 //! finds what that viewpoint's layers show along the ray:
 //!
@@ -28,7 +28,7 @@
 use glam::DVec3;
 use rayon::prelude::*;
 use tracks::cubemap::subpixel_dir;
-use tracks::manifest::{Manifest, TrackEntry};
+use tracks::manifest::Manifest;
 use tracks::{FaceCoord, PerspectiveCamera, TileGrid};
 
 /// Levels tracked per histogram (level 0 .. `MAX_LEVELS − 1`; coarser needs are clamped).
@@ -107,14 +107,43 @@ pub struct SceneIndex {
 }
 
 impl SceneIndex {
-    /// `None` when the manifest's face/tile sizes are not a valid grid or the track is absent.
-    pub fn new(m: &Manifest, track: usize) -> Option<SceneIndex> {
+    /// Every viewpoint of `m` (each once, by id: a network's junctions are listed by every
+    /// track through them). `None` when the manifest's face/tile sizes are not a valid grid.
+    pub fn new(m: &Manifest) -> Option<SceneIndex> {
         let grid = TileGrid::new(m.face_size, m.tile_size)?;
-        let t: &TrackEntry = m.tracks.get(track)?;
         let slabs = m.slabs.len().max(1);
-        let viewpoints = t
-            .viewpoints
+        // By id: a gap in the ids (a manifest that skips one) is a viewpoint without tiles.
+        let listed = db::split::unique_viewpoints(m);
+        let count = listed.last().map_or(0, |v| v.index + 1);
+        if count > tracks::limits::MAX_VIEWPOINTS {
+            return None;
+        }
+        let mut by_id: Vec<Option<&tracks::manifest::ViewpointEntry>> = vec![None; count];
+        for v in listed {
+            by_id[v.index] = Some(v);
+        }
+        let empty = |index: usize| tracks::manifest::ViewpointEntry {
+            index,
+            s: 0.0,
+            position: DVec3::ZERO,
+            background: Vec::new(),
+            tiles: Vec::new(),
+        };
+        let owned: Vec<tracks::manifest::ViewpointEntry> = by_id
             .iter()
+            .enumerate()
+            .filter(|(_, v)| v.is_none())
+            .map(|(i, _)| empty(i))
+            .collect();
+        let all: Vec<&tracks::manifest::ViewpointEntry> = by_id
+            .iter()
+            .enumerate()
+            .map(|(i, v)| {
+                v.unwrap_or_else(|| &owned[owned.iter().position(|o| o.index == i).unwrap_or(0)])
+            })
+            .collect();
+        let viewpoints = all
+            .into_iter()
             .map(|vp| {
                 let mut layers: Vec<Layer> = (0..slabs)
                     .map(|_| Layer {
@@ -400,7 +429,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("railview-vis-{name}-{}", std::process::id()));
         let m = crate::walk::synth::write_synthetic(&dir, &Default::default()).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
-        (SceneIndex::new(&m, 0).unwrap(), m)
+        (SceneIndex::new(&m).unwrap(), m)
     }
 
     fn cam_at(m: &Manifest, vp: usize, width: u32) -> PerspectiveCamera {

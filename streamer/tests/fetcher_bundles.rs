@@ -68,7 +68,7 @@ async fn start(dir: &Path, config: ServerConfig) -> Running {
 /// Every part of the first track (meshes as whole objects, PTM levels as ranges) with its
 /// length; priorities descend in table order.
 fn all_parts(m: &Manifest) -> Vec<(FetchRequest, Option<u64>)> {
-    let table = ItemTable::new(m, 0).unwrap();
+    let table = ItemTable::new(m).unwrap();
     let parts: Vec<_> = table.items.iter().flat_map(|i| i.parts.iter()).collect();
     let n = parts.len();
     parts

@@ -113,7 +113,7 @@ async fn closed_within(s: &mut TcpStream, within: Duration) -> bool {
 /// One level group of the database, fetched and checked on a new connection: how long it
 /// took.
 async fn normal_fetch(addr: SocketAddr, m: &Manifest) -> Duration {
-    let table = ItemTable::new(m, 0).unwrap();
+    let table = ItemTable::new(m).unwrap();
     let part = table.items[0].parts.last().unwrap().clone();
     let url = ServerUrl::parse(&format!("http://{addr}")).unwrap();
     let mut c = Connection::new(

@@ -164,7 +164,7 @@ fn run_until(
 /// Bytes of every part of track 0 of the database in `dir` (all tables included).
 fn total_bytes(dir: &Path) -> u64 {
     let db = db::Database::open(dir).unwrap();
-    streamer::client::ItemTable::new(db.manifest(), 0)
+    streamer::client::ItemTable::new(db.manifest())
         .unwrap()
         .items
         .iter()
@@ -376,8 +376,7 @@ fn tables_arrive_nearest_first_and_the_session_grows_with_them() {
         .collect();
     let len = session.manifest().tracks[0].length;
     let more = run_until(&mut session, len, Duration::from_secs(20), |s| {
-        (0..s.top().tracks[0].viewpoints.len()).all(|v| s.has_table(v))
-            && s.stats().coarse_fraction >= 1.0
+        (0..s.top().viewpoints.len()).all(|v| s.has_table(v)) && s.stats().coarse_fraction >= 1.0
     });
     // Every part held was handed to every item that uses it.
     let got: Vec<Arrival> = arrivals.into_iter().chain(more).collect();
@@ -389,7 +388,7 @@ fn tables_arrive_nearest_first_and_the_session_grows_with_them() {
         .map(|it| (it.viewpoint, it.tile))
         .collect();
     assert_eq!(&after[..before.len()], &before[..]);
-    let n = session.top().tracks[0].viewpoints.len();
+    let n = session.top().viewpoints.len();
     assert_eq!(session.tables_loaded(), (n, n));
     // With every table in, the session's manifest is the database's.
     let db = db::Database::open(&dir).unwrap();
@@ -415,11 +414,10 @@ fn identical_parts_are_fetched_once_and_handed_to_every_tile() {
     config.schedule.max_pieces = 1;
     let mut session = LiveSession::connect(&srv.url(), None, config).unwrap();
     let arrivals = run_until(&mut session, 0.5, Duration::from_secs(20), |s| {
-        s.stats().coarse_fraction >= 1.0
-            && (0..s.top().tracks[0].viewpoints.len()).all(|v| s.has_table(v))
+        s.stats().coarse_fraction >= 1.0 && (0..s.top().viewpoints.len()).all(|v| s.has_table(v))
     });
     let table = session.table();
-    let last = table.vp_s.len() - 1;
+    let last = session.top().viewpoints.len() - 1;
     let mut users: std::collections::HashMap<&streamer::client::FetchKey, usize> =
         std::collections::HashMap::new();
     for it in &table.items {
@@ -497,9 +495,9 @@ fn a_replayed_walk_asks_for_what_the_simulator_asks_for() {
         let mut session =
             LiveSession::connect_with_clock(&srv.url(), None, config, clock.clone()).unwrap();
         session.record_requests();
-        let t = &session.manifest().tracks[0];
-        let track = TrackSet::parse(&t.track_toml, "manifest").unwrap().tracks[0].clone();
-        for f in walk::walk_frames(&track, &cfg) {
+        let net = session.top().network().unwrap();
+        let route = walk::route_of(&net, &cfg).unwrap();
+        for f in walk::walk_frames(&net, &route, &cfg) {
             clock.set(f.t_s);
             let arrivals = session.update(f.s_m, &f.camera, None);
             check(&session, &arrivals);

@@ -378,14 +378,14 @@ async fn the_first_frame_needs_the_nearest_tables_and_their_tiles_only() {
     let m = synth::write_synthetic(&dir, &params).expect("database");
     let db = db::Database::open(&dir).unwrap();
     let top = db.top().clone();
-    let vps = &top.tracks[0].viewpoints;
+    let vps = &top.viewpoints;
     assert!(vps.len() >= 6, "{} viewpoints", vps.len());
     let all_tables: u64 = vps.iter().map(|v| v.table.size).sum();
     // The current segment's two tables, and the next segment's once the view has no holes
     // (prefetch starts when the coarse levels are in, before the frame is complete).
     let near_tables: u64 = vps[..4].iter().map(|v| v.table.size).sum();
     // Every part of the first four viewpoints' items (all levels) and every background.
-    let table = streamer::client::ItemTable::new(&m, 0).unwrap();
+    let table = streamer::client::ItemTable::new(&m).unwrap();
     let tiles: u64 = table
         .items
         .iter()
@@ -436,7 +436,7 @@ async fn the_first_frame_needs_the_nearest_tables_and_their_tiles_only() {
 #[test]
 fn an_item_table_grown_in_any_order_equals_the_one_built_at_once() {
     let (dir, m) = temp_db("grown-table");
-    let whole = streamer::client::ItemTable::new(&m, 0).unwrap();
+    let whole = streamer::client::ItemTable::new(&m).unwrap();
     assert!(
         whole.segment_ach.iter().any(|l| !l.is_empty()),
         "the synthetic database has ACH lists"
@@ -452,7 +452,7 @@ fn an_item_table_grown_in_any_order_equals_the_one_built_at_once() {
     };
     // Tables far end first, ACH lists of every other viewpoint before its table (they wait
     // for the tiles they name), the rest with their tables.
-    let mut grown = streamer::client::ItemTable::empty(&m, 0).unwrap();
+    let mut grown = streamer::client::ItemTable::empty(&m).unwrap();
     for vi in (0..n).step_by(2) {
         grown.add_segments(vi, &segments_from(vi));
     }

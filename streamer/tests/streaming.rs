@@ -315,7 +315,7 @@ async fn slow_header_senders_are_cut_off_and_connections_are_bounded() {
 }
 
 fn level_requests(m: &Manifest, n: usize) -> Vec<FetchRequest> {
-    let table = ItemTable::new(m, 0).unwrap();
+    let table = ItemTable::new(m).unwrap();
     table
         .items
         .iter()
@@ -390,7 +390,7 @@ async fn a_running_request_can_be_cancelled_and_the_worker_goes_on() {
         ..ServerConfig::default()
     };
     let srv = start(&dir, slow, "127.0.0.1:0").await;
-    let table = ItemTable::new(&m, 0).unwrap();
+    let table = ItemTable::new(&m).unwrap();
     let whole = table.items[0].parts.last().unwrap();
     let mut f = Fetcher::new(
         srv.url(),
@@ -611,7 +611,7 @@ async fn client_recovers_when_the_server_is_killed_and_restarted() {
     while done < 20 {
         let out = f.next().await.unwrap();
         let data = out.result.unwrap();
-        let _ = cache.insert(out.key, data, 0.0);
+        let _ = cache.insert(out.key, data, 0);
         done += 1;
     }
     // Kill the server, queue more work, bring a new server up on the same port later.
@@ -628,7 +628,7 @@ async fn client_recovers_when_the_server_is_killed_and_restarted() {
             .expect("recovered in time")
             .unwrap();
         let data = out.result.expect("fetched after the restart");
-        let _ = cache.insert(out.key, data, 0.0);
+        let _ = cache.insert(out.key, data, 0);
         done += 1;
     }
     // New connections to the restarted server (bundled requests need only a few).

@@ -206,7 +206,7 @@ async fn damaged_and_truncated_packs_are_counted_per_tile_and_never_end_the_walk
     let (addr, stop, task) = start(&dir).await;
     // A table damaged after the server opened the database (the server checked it then).
     let top = db::read_top(&dir).unwrap();
-    let table = dir.join(top.tracks[0].viewpoints[2].table.rel_path().unwrap());
+    let table = dir.join(top.viewpoints[2].table.rel_path().unwrap());
     let mut bytes = std::fs::read(&table).unwrap();
     bytes[7] ^= 0x01;
     std::fs::write(&table, &bytes).unwrap();

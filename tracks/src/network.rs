@@ -199,6 +199,56 @@ impl Network {
         Ok(Network::from_stops(tracks, viewpoints, stops))
     }
 
+    /// The network of tracks whose viewpoints are already placed: `viewpoints` by global id,
+    /// and per track its stops (ids and arc lengths, non-decreasing). The stops are checked
+    /// (ids in range, arc lengths finite, not decreasing, within the track); the message names
+    /// the first that is not.
+    pub fn from_parts(
+        tracks: Vec<Track>,
+        viewpoints: Vec<DVec3>,
+        stops: Vec<Vec<Stop>>,
+    ) -> Result<Network, String> {
+        if stops.len() != tracks.len() {
+            return Err(format!(
+                "{} tracks but stops for {}",
+                tracks.len(),
+                stops.len()
+            ));
+        }
+        for (t, st) in tracks.iter().zip(&stops) {
+            if st.is_empty() {
+                return Err(format!("track `{}`: no stops", t.name));
+            }
+            let mut last = f64::NEG_INFINITY;
+            for (k, x) in st.iter().enumerate() {
+                if x.viewpoint >= viewpoints.len() {
+                    return Err(format!(
+                        "track `{}` stop {k}: viewpoint {} of {}",
+                        t.name,
+                        x.viewpoint,
+                        viewpoints.len()
+                    ));
+                }
+                let len = t.length();
+                if !(x.s.is_finite()
+                    && x.s >= last
+                    && x.s >= 0.0
+                    && x.s <= len * (1.0 + 1e-9) + 1e-6)
+                {
+                    return Err(format!(
+                        "track `{}` stop {k}: arc length {} is not in order within 0..{len}",
+                        t.name, x.s
+                    ));
+                }
+                last = x.s;
+            }
+        }
+        if let Some(p) = viewpoints.iter().find(|p| !p.is_finite()) {
+            return Err(format!("viewpoint at {p} is not a finite position"));
+        }
+        Ok(Network::from_stops(tracks, viewpoints, stops))
+    }
+
     /// A network of one track `name`: straight pieces through `positions` (at least two,
     /// consecutive ones distinct), a viewpoint at each.
     pub fn polyline(name: &str, positions: &[DVec3]) -> Result<Network, TrackError> {
@@ -405,6 +455,19 @@ impl Network {
         Some((st[a].viewpoint, st[b].viewpoint, w))
     }
 
+    /// The blend weights at arc length `s` of track `t` ([`crate::segment::blend_weights`] in
+    /// global ids).
+    pub fn blend_weights(&self, t: usize, s: f64) -> Vec<(usize, f64)> {
+        let Some(st) = self.stops.get(t) else {
+            return Vec::new();
+        };
+        let arcs: Vec<f64> = st.iter().map(|x| x.s).collect();
+        crate::segment::blend_weights(&arcs, s)
+            .into_iter()
+            .map(|(k, w)| (st[k].viewpoint, w))
+            .collect()
+    }
+
     /// Global id of the segment of track `t` that holds arc length `s`.
     pub fn segment_at(&self, t: usize, s: f64) -> Option<usize> {
         let k = crate::segment::segment_at(&self.stop_arcs(t), s)?;
@@ -422,6 +485,55 @@ impl Network {
                     .collect()
             })
             .unwrap_or_default()
+    }
+
+    /// Distance along the network from the nearest of `sources` (viewpoint id and its
+    /// distance) to every viewpoint: shortest paths over the segments, each as long as its
+    /// arc length; `INFINITY` where none reaches.
+    pub fn distances_from(&self, sources: &[(usize, f64)]) -> Vec<f64> {
+        use std::cmp::Reverse;
+        use std::collections::BinaryHeap;
+        let mut dist = vec![f64::INFINITY; self.viewpoints.len()];
+        // Ordered by distance through its bits (distances are finite and non-negative).
+        let mut heap: BinaryHeap<Reverse<(u64, usize)>> = BinaryHeap::new();
+        for &(v, d) in sources {
+            if v < dist.len() && d.is_finite() && d >= 0.0 && d < dist[v] {
+                dist[v] = d;
+                heap.push(Reverse((d.to_bits(), v)));
+            }
+        }
+        while let Some(Reverse((bits, v))) = heap.pop() {
+            let d = f64::from_bits(bits);
+            if d > dist[v] {
+                continue;
+            }
+            for &e in self.incident(v) {
+                let sg = &self.segments[e];
+                let w = if sg.from == v { sg.to } else { sg.from };
+                let nd = d + (sg.s1 - sg.s0).abs();
+                if nd < dist[w] {
+                    dist[w] = nd;
+                    heap.push(Reverse((nd.to_bits(), w)));
+                }
+            }
+        }
+        dist
+    }
+
+    /// Distance along the network from arc length `s` of track `t` to every viewpoint.
+    pub fn distances_from_position(&self, t: usize, s: f64) -> Vec<f64> {
+        let Some(st) = self.stops.get(t) else {
+            return vec![f64::INFINITY; self.viewpoints.len()];
+        };
+        let arcs: Vec<f64> = st.iter().map(|x| x.s).collect();
+        match crate::segment::locate(&arcs, s) {
+            Some(p) => {
+                let (a, b) = (&st[p.index], &st[p.index + 1]);
+                let s = s.clamp(a.s, b.s);
+                self.distances_from(&[(a.viewpoint, s - a.s), (b.viewpoint, b.s - s)])
+            }
+            None => self.distances_from(&[(st[0].viewpoint, 0.0)]),
+        }
     }
 
     /// The direction (unit, in the world) a walker leaving along `branch` starts in.

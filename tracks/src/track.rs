@@ -457,6 +457,17 @@ impl TrackSet {
         for spanned in file.track {
             let line = line_of(spanned.span().start);
             let t = spanned.into_inner();
+            if t.name == "all" {
+                return Err(TrackError::Invalid {
+                    source_name: source_name.to_string(),
+                    line,
+                    track: t.name,
+                    field: "name",
+                    message: "`all` names every track of a file (a network); give the track \
+                              another name"
+                        .into(),
+                });
+            }
             if tracks.iter().any(|o| o.name == t.name) {
                 return Err(TrackError::Invalid {
                     source_name: source_name.to_string(),

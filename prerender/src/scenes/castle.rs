@@ -95,7 +95,7 @@ pub fn generate(seed: u64) -> (crate::scene::SceneDesc, TrackSet) {
     (
         b.desc,
         TrackSet {
-            tracks: vec![main_track()],
+            tracks: [vec![main_track()], street_tracks()].concat(),
         },
     )
 }
@@ -432,6 +432,30 @@ fn trees(b: &mut Builder, rng: &mut Rng) {
 }
 
 /// Track `main`: in through the gate, along the middle street, then right and back.
+/// The town's street network beside `main`, along streets the generator leaves open with this
+/// seed (checked by a test): `west` (x = −14) and `cross` (z = 0) cross at (−14, 0); `cross`
+/// ends on `main`'s corner at (0, 0); `south` (z = −14) starts at `west`'s end and crosses
+/// `main`'s last leg at (14, −14); `north` (z = 14) leaves `main` at (0, 14). Every junction on
+/// `main` is one of its viewpoints (2 m apart), so `main` is sampled as alone.
+fn street_tracks() -> Vec<Track> {
+    let street = |name: &str, points: &[[f64; 2]]| {
+        Track::new(
+            name,
+            points.iter().map(|p| DVec3::new(p[0], EYE, p[1])).collect(),
+            Smoothing::None,
+            Sampling::Spacing(2.0),
+            "builtin:castle",
+        )
+        .expect("castle street is valid")
+    };
+    vec![
+        street("west", &[[-14.0, -14.0], [-14.0, 0.0], [-14.0, 14.0]]),
+        street("cross", &[[-24.0, 0.0], [0.0, 0.0]]),
+        street("south", &[[-14.0, -14.0], [14.0, -14.0], [24.0, -14.0]]),
+        street("north", &[[0.0, 14.0], [24.0, 14.0]]),
+    ]
+}
+
 fn main_track() -> Track {
     let points = vec![
         DVec3::new(0.0, EYE, INNER + 14.0),

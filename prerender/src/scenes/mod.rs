@@ -168,4 +168,43 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn the_castle_streets_form_a_network_along_open_streets() {
+        let b = builtin("castle").unwrap();
+        let main = b.tracks.get("main").unwrap().clone();
+        let net = tracks::network::Network::new(b.tracks.tracks.clone()).unwrap();
+        assert_eq!(net.tracks.len(), 5);
+        assert!(net.junctions.len() >= 3, "{}", net.junctions.len());
+        // A crossing of two straight tracks: four branches on two tracks.
+        assert!(net.junctions.iter().any(|j| {
+            let mut t: Vec<usize> = j.branches.iter().map(|b| b.track).collect();
+            t.dedup();
+            j.branches.len() == 4
+                && t.len() == 2
+                && t.iter().all(|&k| net.tracks[k].points.len() <= 3)
+        }));
+        // `main` is sampled as alone (up to rounding: a junction is the other track's point).
+        let alone = main.viewpoints();
+        let m = net.track_index("main").unwrap();
+        assert_eq!(net.stops[m].len(), alone.len());
+        for (stop, vp) in net.stops[m].iter().zip(&alone) {
+            assert!(net.viewpoints[stop.viewpoint].distance(vp.position) < 1e-9);
+            assert!((stop.s - vp.s).abs() < 1e-9);
+        }
+        // Every segment runs along an open street at eye height, and every viewpoint is
+        // outside the buildings.
+        for e in 0..net.segments.len() {
+            let p = net.segment_path(e);
+            for w in p.windows(2) {
+                let d = w[1] - w[0];
+                let hit = b.scene.first_hit(w[0], d.normalize(), d.length());
+                assert!(hit.is_none(), "segment {e} {:?}: {hit:?}", net.segments[e]);
+            }
+        }
+        for v in &net.viewpoints {
+            let down = b.scene.first_hit(*v, DVec3::NEG_Y, f64::INFINITY);
+            assert!(down.is_some_and(|d| d > 0.5 && d < 10.0), "{v} {down:?}");
+        }
+    }
 }

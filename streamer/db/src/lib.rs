@@ -62,7 +62,7 @@ use std::fs;
 use std::io::{self, Read, Write};
 use std::path::{Path, PathBuf};
 
-use tracks::manifest::{object_rel_path, LevelRef, Manifest, ObjectRef, PtmRef};
+use tracks::manifest::{object_rel_path, LevelRef, Manifest, ObjectRef, PtmRef, ViewpointEntry};
 
 use codec::ptm;
 
@@ -318,8 +318,24 @@ impl DbWriter {
     pub fn finish(&mut self, manifest: &Manifest) -> Result<Manifest, DbError> {
         let mut packed = manifest.clone();
         let mut payloads = pack::Payloads::default();
-        for t in &mut packed.tracks {
-            for v in &mut t.viewpoints {
+        // Each viewpoint packed once, in id order (a junction is listed by every track
+        // through it); the packed entry replaces it on every track.
+        let mut done: HashMap<usize, ViewpointEntry> = HashMap::new();
+        let mut order: Vec<(usize, usize)> = packed
+            .tracks
+            .iter()
+            .enumerate()
+            .flat_map(|(ti, t)| t.viewpoints.iter().enumerate().map(move |(vi, _)| (ti, vi)))
+            .collect();
+        order.sort_by_key(|&(ti, vi)| (packed.tracks[ti].viewpoints[vi].index, ti, vi));
+        for (ti, vi) in order {
+            let v = &mut packed.tracks[ti].viewpoints[vi];
+            if let Some(p) = done.get(&v.index) {
+                v.background = p.background.clone();
+                v.tiles = p.tiles.clone();
+                continue;
+            }
+            {
                 if !self.share_across_viewpoints {
                     payloads.forget_placed();
                 }
@@ -335,6 +351,7 @@ impl DbWriter {
                 }
                 v.background = background;
                 v.tiles = tiles;
+                done.insert(v.index, v.clone());
             }
         }
         self.payloads_shared = payloads.shared;
@@ -342,7 +359,7 @@ impl DbWriter {
         let path = self.root.join(MANIFEST_FILE);
         let (top, tables) =
             split::split(&packed).map_err(|e| DbError::format(&path, e.to_string()))?;
-        for v in tables.iter().flatten() {
+        for v in &tables {
             self.put(&v.table)?;
             if let Some(ach) = &v.ach {
                 self.put(ach)?;

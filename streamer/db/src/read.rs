@@ -182,36 +182,22 @@ pub fn read_tables(dir: &Path, top: &TopManifest) -> Result<Manifest, DbError> {
         top: top.clone(),
         manifest: split::assemble(top, &[]),
     };
-    let mut tables = Vec::with_capacity(top.tracks.len());
-    for t in &top.tracks {
-        let mut row = Vec::with_capacity(t.viewpoints.len());
-        for v in &t.viewpoints {
-            let bytes = db.read_object(&v.table)?;
-            let path = db.object_path(&v.table.hash).unwrap_or_default();
-            let mut table = split::decode_table(&bytes, v.index).map_err(|e| {
-                DbError::format(
-                    &path,
-                    format!("track `{}` viewpoint {}: {e}", t.name, v.index),
-                )
+    let mut tables = Vec::with_capacity(top.viewpoints.len());
+    for v in &top.viewpoints {
+        let bytes = db.read_object(&v.table)?;
+        let path = db.object_path(&v.table.hash).unwrap_or_default();
+        let mut table = split::decode_table(&bytes, v.index)
+            .map_err(|e| DbError::format(&path, format!("viewpoint {}: {e}", v.index)))?;
+        if let Some(ach) = &v.ach {
+            let bytes = db.read_object(ach)?;
+            let path = db.object_path(&ach.hash).unwrap_or_default();
+            table.segments = split::decode_ach(&bytes, v.index).map_err(|e| {
+                DbError::format(&path, format!("ACH lists of viewpoint {}: {e}", v.index))
             })?;
-            if let Some(ach) = &v.ach {
-                let bytes = db.read_object(ach)?;
-                let path = db.object_path(&ach.hash).unwrap_or_default();
-                table.segments = split::decode_ach(&bytes, v.index).map_err(|e| {
-                    DbError::format(
-                        &path,
-                        format!("ACH lists of track `{}` viewpoint {}: {e}", t.name, v.index),
-                    )
-                })?;
-            }
-            row.push(table);
         }
-        tables.push(row);
+        tables.push(table);
     }
-    let refs: Vec<Vec<Option<&ViewTable>>> = tables
-        .iter()
-        .map(|row| row.iter().map(Some).collect())
-        .collect();
+    let refs: Vec<Option<&ViewTable>> = tables.iter().map(Some).collect();
     Ok(split::assemble(top, &refs))
 }
 
@@ -272,9 +258,9 @@ pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
         .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
     if !(OLDEST_READ_VERSION..=TOP_VERSION).contains(&v.version) {
         let hint = if v.version < OLDEST_READ_VERSION {
-            " (format 7 codes meshes up to five times smaller where thin surfaces leave \
-             pixels to quads of their own): rebuild the database with `railview build` (it \
-             resumes from its work directory and re-encodes only)"
+            " (format 8 holds the graph of a network of tracks: viewpoints once, each track's \
+             stops, the junctions): rebuild the database with `railview build` (it resumes \
+             from its work directory and re-encodes only)"
         } else {
             ""
         };
@@ -295,5 +281,7 @@ pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
         .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
     top.check_limits()
         .map_err(|e| DbError::format(path, format!("{e} (limits of this build)")))?;
+    top.network()
+        .map_err(|e| DbError::format(path, format!("the graph of tracks: {e}")))?;
     Ok(top)
 }

@@ -105,7 +105,9 @@ fn build(dir: &Path) -> (Manifest, DbWriter) {
         cull_variant: Some("conservative".into()),
         tracks: vec![TrackEntry {
             name: "main".into(),
-            track_toml: String::new(),
+            track_toml:
+                "[[track]]\nname = \"main\"\npoints = [[0, 1.7, 0], [2, 1.7, 0]]\ncount = 2\n"
+                    .into(),
             length: 2.0,
             viewpoints,
             segments: vec![SegmentEntry {
@@ -227,7 +229,7 @@ fn prune_removes_only_what_the_manifest_does_not_reference_and_only_when_intact(
 /// The path of the first viewpoint's table.
 fn m_table_path(dir: &Path) -> PathBuf {
     let db = Database::open(dir).unwrap();
-    let v = &db.top().tracks[0].viewpoints[0];
+    let v = &db.top().viewpoints[0];
     dir.join(object_rel_path(&v.table.hash).unwrap())
 }
 
@@ -393,10 +395,10 @@ fn a_missing_or_damaged_table_is_reported_by_viewpoint() {
     let dir = tmpdir("tables");
     build(&dir);
     let top = read_top(&dir).unwrap();
-    let v1 = &top.tracks[0].viewpoints[1];
+    let v1 = &top.viewpoints[1];
     let path = dir.join(v1.table.rel_path().unwrap());
     let orig = fs::read(&path).unwrap();
-    // Damaged: the hash names it, by track and viewpoint.
+    // Damaged: the hash names it, by viewpoint.
     let mut bad = orig.clone();
     let mid = bad.len() / 2;
     bad[mid] ^= 1;
@@ -405,7 +407,7 @@ fn a_missing_or_damaged_table_is_reported_by_viewpoint() {
     let p = r
         .problems
         .iter()
-        .find(|p| p.path == path && p.what.contains("table of track `main` viewpoint 1"))
+        .find(|p| p.path == path && p.what.contains("table of viewpoint 1"))
         .unwrap_or_else(|| panic!("{:?}", r.problems));
     assert!(p.what.contains("damaged"), "{}", p.what);
     assert_eq!(r.tables_checked, 1);
@@ -434,7 +436,7 @@ fn a_table_that_does_not_decode_is_reported() {
     let mut w = DbWriter::create(&dir).unwrap();
     let junk = w.put(&gzip(b"{\"not\":\"a table\"}").unwrap()).unwrap();
     let (mut top, _) = split::split(&m).unwrap();
-    top.tracks[0].viewpoints[0].table = junk.clone();
+    top.viewpoints[0].table = junk.clone();
     let mut json = serde_json::to_vec(&top).unwrap();
     json.push(b'\n');
     write_atomic(&dir.join(MANIFEST_FILE), &json).unwrap();
@@ -488,10 +490,10 @@ fn split_and_assemble_round_trip_and_partial_tables_leave_tiles_out() {
     let (m, _) = build(&dir);
     let (top, bytes) = split::split(&m).unwrap();
     assert_eq!(top.version, TOP_VERSION);
-    let tables: Vec<ViewTable> = top.tracks[0]
+    let tables: Vec<ViewTable> = top
         .viewpoints
         .iter()
-        .zip(&bytes[0])
+        .zip(&bytes)
         .map(|(v, b)| {
             assert_eq!(hash_hex(&b.table), v.table.hash);
             let mut t = split::decode_table(&b.table, v.index).unwrap();
@@ -506,12 +508,10 @@ fn split_and_assemble_round_trip_and_partial_tables_leave_tiles_out() {
             t
         })
         .collect();
-    assert_eq!(
-        split::assemble(&top, &[tables.iter().map(Some).collect()]),
-        m
-    );
+    let all: Vec<Option<&ViewTable>> = tables.iter().map(Some).collect();
+    assert_eq!(split::assemble(&top, &all), m);
     // Only viewpoint 1's table: viewpoint 0 has no tiles, the segment (in 0's table) no ACH.
-    let part = split::assemble(&top, &[vec![None, Some(&tables[1])]]);
+    let part = split::assemble(&top, &[None, Some(&tables[1])]);
     assert!(part.tracks[0].viewpoints[0].tiles.is_empty());
     assert_eq!(
         part.tracks[0].viewpoints[1].tiles,
@@ -519,7 +519,7 @@ fn split_and_assemble_round_trip_and_partial_tables_leave_tiles_out() {
     );
     assert!(part.tracks[0].segments[0].ach.is_empty());
     // A table is never taken for another viewpoint.
-    assert!(split::decode_table(&bytes[0][0].table, 1).is_err());
+    assert!(split::decode_table(&bytes[0].table, 1).is_err());
     assert!(split::decode_table(b"garbage", 0).is_err());
     fs::remove_dir_all(&dir).unwrap();
 }

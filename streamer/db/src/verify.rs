@@ -91,10 +91,7 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
         None => (Vec::new(), Vec::new()),
     };
     let manifest: Option<Manifest> = top.as_ref().map(|top| {
-        let refs: Vec<Vec<Option<&ViewTable>>> = tables
-            .iter()
-            .map(|row| row.iter().map(|t| t.as_ref()).collect())
-            .collect();
+        let refs: Vec<Option<&ViewTable>> = tables.iter().map(|t| t.as_ref()).collect();
         assemble(top, &refs)
     });
     let wanted = wanted_objects(dir, &table_refs, manifest.as_ref(), &mut report);
@@ -179,47 +176,40 @@ fn read_top_checked(dir: &Path, report: &mut Report) -> Option<TopManifest> {
 }
 
 /// Every viewpoint's table: present, hash, decode; a bad one is named by viewpoint. Returns
-/// the objects the top names (tables and ACH objects) and the tables by track and viewpoint.
+/// the objects the top names (tables and ACH objects) and the tables by viewpoint.
 fn check_tables(
     dir: &Path,
     top: &TopManifest,
     report: &mut Report,
-) -> (Vec<ObjectRef>, Vec<Vec<Option<ViewTable>>>) {
+) -> (Vec<ObjectRef>, Vec<Option<ViewTable>>) {
     let mut table_refs: Vec<ObjectRef> = Vec::new();
-    let mut tables: Vec<Vec<Option<ViewTable>>> = Vec::new();
-    for t in &top.tracks {
-        let mut row = Vec::new();
-        for v in &t.viewpoints {
-            table_refs.push(v.table.clone());
-            table_refs.extend(v.ach.clone());
-            let (path, got) = check_table(dir, &v.table, v.index);
-            match got {
-                Ok(mut table) => {
-                    report.tables_checked += 1;
-                    if let Some(ach) = &v.ach {
-                        match check_ach(dir, ach, v.index) {
-                            (_, Ok(segments)) => table.segments = segments,
-                            (path, Err(what)) => report.problems.push(problem(
-                                path,
-                                format!(
-                                    "ACH lists of track `{}` viewpoint {}: {what}",
-                                    t.name, v.index
-                                ),
-                            )),
-                        }
+    let mut tables: Vec<Option<ViewTable>> = Vec::new();
+    for v in &top.viewpoints {
+        table_refs.push(v.table.clone());
+        table_refs.extend(v.ach.clone());
+        let (path, got) = check_table(dir, &v.table, v.index);
+        match got {
+            Ok(mut table) => {
+                report.tables_checked += 1;
+                if let Some(ach) = &v.ach {
+                    match check_ach(dir, ach, v.index) {
+                        (_, Ok(segments)) => table.segments = segments,
+                        (path, Err(what)) => report.problems.push(problem(
+                            path,
+                            format!("ACH lists of viewpoint {}: {what}", v.index),
+                        )),
                     }
-                    row.push(Some(table));
                 }
-                Err(what) => {
-                    report.problems.push(problem(
-                        path,
-                        format!("table of track `{}` viewpoint {}: {what}", t.name, v.index),
-                    ));
-                    row.push(None);
-                }
+                tables.push(Some(table));
+            }
+            Err(what) => {
+                report.problems.push(problem(
+                    path,
+                    format!("table of viewpoint {}: {what}", v.index),
+                ));
+                tables.push(None);
             }
         }
-        tables.push(row);
     }
     (table_refs, tables)
 }
@@ -751,18 +741,16 @@ fn for_each_object<'m>(
     m: &'m Manifest,
     f: &mut dyn FnMut(&'m ObjectRef, Option<&'m PtmRef>, Option<&'m PackRange>),
 ) {
-    for t in &m.tracks {
-        for v in &t.viewpoints {
-            for b in &v.background {
-                f(&b.ptm.object, Some(&b.ptm), None);
+    for v in crate::split::unique_viewpoints(m) {
+        for b in &v.background {
+            f(&b.ptm.object, Some(&b.ptm), None);
+        }
+        for tile in &v.tiles {
+            if let Some(p) = &tile.ptm {
+                f(&p.object, Some(p), None);
             }
-            for tile in &v.tiles {
-                if let Some(p) = &tile.ptm {
-                    f(&p.object, Some(p), None);
-                }
-                if let Some((o, r)) = tile.mesh_at() {
-                    f(o, None, r);
-                }
+            if let Some((o, r)) = tile.mesh_at() {
+                f(o, None, r);
             }
         }
     }

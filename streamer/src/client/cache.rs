@@ -1,11 +1,12 @@
 //! The RAM cache: downloaded, checked bytes under a byte budget.
 //!
 //! Entries are keyed by [`FetchKey`] (content-addressed, so a group shared by several tiles
-//! is stored once). Each entry remembers the track positions (arc length `s`) of the
-//! viewpoints that use it and counts its current users (`refs`). When room is needed, entries
-//! nobody uses are evicted farthest-first from the current position along the track (the
-//! city paper's eviction by adjacency depth, on a track); entries in use are never evicted,
-//! and an insert that cannot fit is refused, so the budget is never exceeded.
+//! is stored once). Each entry remembers the viewpoints (ids) that use it and counts its
+//! current users (`refs`). When room is needed, entries nobody uses are evicted farthest-first
+//! from the walker, by the distance along the network the caller gives per viewpoint
+//! ([`Cache::set_distances`]: the city paper's eviction by adjacency depth, on a graph of
+//! tracks); entries in use are never evicted, and an insert that cannot fit is refused, so the
+//! budget is never exceeded.
 
 use bytes::Bytes;
 
@@ -14,16 +15,16 @@ use super::http::{FetchKey, KeyMap};
 #[derive(Debug)]
 struct Entry {
     data: Bytes,
-    /// Arc lengths of the viewpoints whose tiles use this entry.
-    positions: Vec<f64>,
+    /// The viewpoints whose tiles use this entry.
+    viewpoints: Vec<usize>,
     refs: u32,
 }
 
 impl Entry {
-    fn distance(&self, s: f64) -> f64 {
-        self.positions
+    fn distance(&self, distances: &[f64]) -> f64 {
+        self.viewpoints
             .iter()
-            .map(|p| (p - s).abs())
+            .map(|&v| distances.get(v).copied().unwrap_or(f64::INFINITY))
             .fold(f64::INFINITY, f64::min)
     }
 }
@@ -40,7 +41,8 @@ pub enum CacheError {
 pub struct Cache {
     budget: u64,
     used: u64,
-    position: f64,
+    /// Per viewpoint, its distance from the walker.
+    distances: Vec<f64>,
     entries: KeyMap<Entry>,
     evictions: u64,
     /// Keys evicted since the last [`Cache::take_evicted`], when recording.
@@ -54,7 +56,7 @@ impl Cache {
         Cache {
             budget: budget_bytes,
             used: 0,
-            position: 0.0,
+            distances: Vec::new(),
             entries: KeyMap::default(),
             evictions: 0,
             evicted: None,
@@ -89,11 +91,10 @@ impl Cache {
         self.evictions
     }
 
-    /// The current position along the track (arc length), used to rank evictions.
-    pub fn set_position(&mut self, s: f64) {
-        if s.is_finite() {
-            self.position = s;
-        }
+    /// Per viewpoint id, its distance from the walker (metres along the network), which
+    /// ranks evictions; a viewpoint without one counts as infinitely far.
+    pub fn set_distances(&mut self, distances: Vec<f64>) {
+        self.distances = distances;
     }
 
     pub fn contains(&self, key: &FetchKey) -> bool {
@@ -104,13 +105,18 @@ impl Cache {
         self.entries.get(key).map(|e| &e.data)
     }
 
-    /// Insert checked bytes used by a viewpoint at arc length `s`. A key already present
-    /// only gains the position. Evicts unused entries farthest from the current position
-    /// until the bytes fit; refuses when they cannot.
-    pub fn insert(&mut self, key: FetchKey, data: Bytes, s: f64) -> Result<(), CacheError> {
+    /// Insert checked bytes used by viewpoint `viewpoint`. A key already present only gains
+    /// the viewpoint. Evicts unused entries farthest from the walker until the bytes fit;
+    /// refuses when they cannot.
+    pub fn insert(
+        &mut self,
+        key: FetchKey,
+        data: Bytes,
+        viewpoint: usize,
+    ) -> Result<(), CacheError> {
         if let Some(e) = self.entries.get_mut(&key) {
-            if !e.positions.contains(&s) {
-                e.positions.push(s);
+            if !e.viewpoints.contains(&viewpoint) {
+                e.viewpoints.push(viewpoint);
             }
             return Ok(());
         }
@@ -122,7 +128,7 @@ impl Cache {
             key,
             Entry {
                 data,
-                positions: vec![s],
+                viewpoints: vec![viewpoint],
                 refs: 0,
             },
         );
@@ -141,12 +147,12 @@ impl Cache {
                 pinned,
             });
         }
-        let s = self.position;
+        let distances = &self.distances;
         let mut victims: Vec<(f64, FetchKey)> = self
             .entries
             .iter()
             .filter(|(_, e)| e.refs == 0)
-            .map(|(k, e)| (e.distance(s), k.clone()))
+            .map(|(k, e)| (e.distance(distances), k.clone()))
             .collect();
         // Farthest first; ties broken by key so eviction is deterministic.
         victims.sort_by(|a, b| b.0.total_cmp(&a.0).then_with(|| a.1.cmp(&b.1)));
@@ -235,11 +241,12 @@ mod tests {
     #[test]
     fn evicts_farthest_from_the_position_first() {
         let mut c = Cache::new(300);
-        c.insert(key(1), Bytes::from(vec![0; 100]), 0.0).unwrap();
-        c.insert(key(2), Bytes::from(vec![0; 100]), 10.0).unwrap();
-        c.insert(key(3), Bytes::from(vec![0; 100]), 20.0).unwrap();
-        c.set_position(18.0);
-        c.insert(key(4), Bytes::from(vec![0; 100]), 18.0).unwrap();
+        c.insert(key(1), Bytes::from(vec![0; 100]), 0).unwrap();
+        c.insert(key(2), Bytes::from(vec![0; 100]), 1).unwrap();
+        c.insert(key(3), Bytes::from(vec![0; 100]), 2).unwrap();
+        // Viewpoints at 0, 10, 20 and 18 m along a track, the walker at 18 m.
+        c.set_distances(vec![18.0, 8.0, 2.0, 0.0]);
+        c.insert(key(4), Bytes::from(vec![0; 100]), 3).unwrap();
         assert!(!c.contains(&key(1)), "the entry farthest behind goes");
         assert!(c.contains(&key(2)) && c.contains(&key(3)) && c.contains(&key(4)));
         assert_eq!(c.used(), 300);
@@ -249,7 +256,7 @@ mod tests {
     fn evicted_keys_are_reported_once_when_recording() {
         let fill = |c: &mut Cache| {
             for i in 1..=4 {
-                c.insert(key(i), Bytes::from(vec![0; 100]), i as f64)
+                c.insert(key(i), Bytes::from(vec![0; 100]), i as usize)
                     .unwrap();
             }
         };
@@ -258,7 +265,7 @@ mod tests {
         assert!(quiet.take_evicted().is_empty(), "not recording");
         let mut c = Cache::new(200);
         c.record_evictions();
-        c.set_position(4.0);
+        c.set_distances((0..5).map(|i| (4 - i) as f64).collect());
         fill(&mut c);
         assert_eq!(c.take_evicted(), vec![key(1), key(2)]);
         assert!(c.take_evicted().is_empty());
@@ -269,42 +276,45 @@ mod tests {
     #[test]
     fn entries_in_use_are_never_evicted_and_overflow_is_refused() {
         let mut c = Cache::new(200);
-        c.insert(key(1), Bytes::from(vec![0; 100]), 0.0).unwrap();
-        c.insert(key(2), Bytes::from(vec![0; 100]), 0.0).unwrap();
+        c.insert(key(1), Bytes::from(vec![0; 100]), 0).unwrap();
+        c.insert(key(2), Bytes::from(vec![0; 100]), 0).unwrap();
         assert!(c.acquire(&key(1)));
         assert!(c.acquire(&key(2)));
-        let err = c.insert(key(3), Bytes::from(vec![0; 50]), 0.0).unwrap_err();
+        let err = c.insert(key(3), Bytes::from(vec![0; 50]), 0).unwrap_err();
         assert!(matches!(err, CacheError::NoRoom { pinned: 200, .. }));
         c.release(&key(2));
-        c.insert(key(3), Bytes::from(vec![0; 50]), 0.0).unwrap();
+        c.insert(key(3), Bytes::from(vec![0; 50]), 0).unwrap();
         assert!(c.contains(&key(1)) && !c.contains(&key(2)));
     }
 
     #[test]
     fn shared_entries_count_their_users() {
         let mut c = Cache::new(100);
-        c.insert(key(1), Bytes::from(vec![0; 60]), 0.0).unwrap();
+        c.insert(key(1), Bytes::from(vec![0; 60]), 0).unwrap();
         // A second tile at another viewpoint uses the same bytes: stored once.
-        c.insert(key(1), Bytes::from(vec![0; 60]), 5.0).unwrap();
+        c.insert(key(1), Bytes::from(vec![0; 60]), 5).unwrap();
         assert_eq!(c.used(), 60);
         c.acquire(&key(1));
         c.acquire(&key(1));
         c.release(&key(1));
         assert_eq!(c.refs(&key(1)), 1);
-        assert!(c.insert(key(2), Bytes::from(vec![0; 60]), 0.0).is_err());
+        assert!(c.insert(key(2), Bytes::from(vec![0; 60]), 0).is_err());
         c.release(&key(1));
-        c.insert(key(2), Bytes::from(vec![0; 60]), 0.0).unwrap();
+        c.insert(key(2), Bytes::from(vec![0; 60]), 0).unwrap();
     }
 
     proptest! {
         #[test]
-        fn never_exceeds_the_budget(ops in proptest::collection::vec((0u32..20, 1usize..120, 0.0f64..50.0, 0u8..4), 1..200)) {
+        fn never_exceeds_the_budget(ops in proptest::collection::vec((0u32..20, 1usize..120, 0usize..50, 0u8..4), 1..200)) {
             let mut c = Cache::new(500);
-            for (k, len, s, op) in ops {
+            for (k, len, v, op) in ops {
                 match op {
-                    0 | 1 => { let _ = c.insert(key(k), Bytes::from(vec![1; len]), s); }
+                    0 | 1 => { let _ = c.insert(key(k), Bytes::from(vec![1; len]), v); }
                     2 => { c.acquire(&key(k)); }
-                    _ => { c.release(&key(k)); c.set_position(s); }
+                    _ => {
+                        c.release(&key(k));
+                        c.set_distances((0..50).map(|i| (i as f64 - v as f64).abs()).collect());
+                    }
                 }
                 prop_assert!(c.used() <= c.budget());
                 let sum: u64 = (0..20).filter_map(|i| c.get(&key(i))).map(|b| b.len() as u64).sum();

@@ -1,7 +1,8 @@
-//! A track of a manifest flattened into streamable items (tiles and background tiles), each a
-//! list of checked parts, plus the ACH lists of its segments in item numbers. The table grows
-//! as viewpoints' tables arrive: a tile whose table is missing has no item yet and so cannot
-//! be requested.
+//! The viewpoints of a manifest (every track of a network, each viewpoint once, by id)
+//! flattened into streamable items (tiles and background tiles), each a list of checked parts,
+//! plus the ACH lists of the network's segments in item numbers. The table grows as
+//! viewpoints' tables arrive: a tile whose table is missing has no item yet and so cannot be
+//! requested.
 
 use std::collections::HashMap;
 
@@ -27,46 +28,41 @@ pub struct Part {
 /// A tile (or a tile of a viewpoint's background) and its parts: mesh first, then PTM groups.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Item {
-    /// Position of the viewpoint in the track's `viewpoints`.
+    /// The viewpoint's id.
     pub viewpoint: usize,
     /// Position in that viewpoint's `tiles`; `None` for a background tile.
     pub tile: Option<usize>,
     /// Position in that viewpoint's `background`; `None` for a tile.
     pub background: Option<usize>,
-    /// Arc length of the viewpoint.
-    pub s: f64,
     pub parts: Vec<Part>,
     pub info: ItemInfo,
 }
 
-/// A segment's `(from, to)` viewpoint positions and its raw ACH list once its table is in.
+/// A segment's `(from, to)` viewpoint ids and its raw ACH list once its table is in.
 type SegmentSlot = ((usize, usize), Option<Vec<AchEntry>>);
 
-/// The items of one track. It grows as viewpoints' tables arrive ([`ItemTable::add_viewpoint`]):
-/// items are only ever appended, so an item number stays valid for the whole session.
+/// The items of every viewpoint of a manifest. It grows as viewpoints' tables arrive
+/// ([`ItemTable::add_viewpoint`]): items are only ever appended, so an item number stays valid
+/// for the whole session.
 #[derive(Clone, Debug)]
 pub struct ItemTable {
     pub items: Vec<Item>,
-    /// Arc length of each viewpoint.
-    pub vp_s: Vec<f64>,
-    /// Per segment, `(item, ach)` in the manifest's (descending) order; entries whose tile's
-    /// table has not arrived yet are left out (they come in when it does).
+    /// Per segment of the network (track by track, in order), `(item, ach)` in the
+    /// manifest's (descending) order; entries whose tile's table has not arrived yet are left
+    /// out (they come in when it does).
     pub segment_ach: Vec<Vec<(usize, f64)>>,
     by_tile: FastMap<(usize, usize), usize>,
-    /// `(viewpoint position, background tile position)` → item.
+    /// `(viewpoint, background tile position)` → item.
     by_background: FastMap<(usize, usize), usize>,
     /// Whether each viewpoint's table has been added.
     loaded: Vec<bool>,
-    /// Per viewpoint (by `ViewpointEntry::index`), its position in the track.
-    index_of: FastMap<usize, usize>,
-    /// `(viewpoint position, slab, tile)` → position in that viewpoint's tiles.
+    /// `(viewpoint, slab, tile)` → position in that viewpoint's tiles.
     key_to_tile: FastMap<(usize, u32, tracks::TileId), usize>,
-    /// Per segment: its `(from, to)` positions and its raw ACH list once known.
+    /// Per segment: its `(from, to)` ids and its raw ACH list once known.
     segments: Vec<SegmentSlot>,
-    /// Per segment: the viewpoint positions its raw ACH list names (sorted, distinct), so a
-    /// table that arrives re-resolves only the lists that name it.
+    /// Per segment: the viewpoints its raw ACH list names (sorted, distinct), so a table that
+    /// arrives re-resolves only the lists that name it.
     segment_refs: Vec<Vec<usize>>,
-    track: usize,
     /// Whether parts with the same checksum and length share one key
     /// ([`ItemTable::set_share_parts`]), and the key of each such pair so far.
     share_parts: bool,
@@ -74,57 +70,50 @@ pub struct ItemTable {
 }
 
 impl ItemTable {
-    /// Flatten track `track` of `m`, every viewpoint's tiles included. Tiles that were culled
-    /// or have no PTM are skipped.
-    pub fn new(m: &Manifest, track: usize) -> Result<ItemTable, ClientError> {
-        let mut table = ItemTable::empty(m, track)?;
-        let t = &m.tracks[track];
-        for (vi, vp) in t.viewpoints.iter().enumerate() {
-            let segs: Vec<SegmentEntry> = t
-                .segments
+    /// Every viewpoint of `m` with its tiles. Tiles that were culled or have no PTM are
+    /// skipped.
+    pub fn new(m: &Manifest) -> Result<ItemTable, ClientError> {
+        let mut table = ItemTable::empty(m)?;
+        for vp in db::split::unique_viewpoints(m) {
+            let segs: Vec<SegmentEntry> = m
+                .tracks
                 .iter()
+                .flat_map(|t| &t.segments)
                 .filter(|s| s.from == vp.index)
                 .cloned()
                 .collect();
-            table.add_viewpoint(vi, &vp.background, &vp.tiles, &segs)?;
+            table.add_viewpoint(vp.index, &vp.background, &vp.tiles, &segs)?;
         }
         Ok(table)
     }
 
-    /// No items yet, the track's viewpoints and segments known (`m`'s tiles, backgrounds and
-    /// ACH lists are ignored: they come with the viewpoints' tables).
-    pub fn empty(m: &Manifest, track: usize) -> Result<ItemTable, ClientError> {
-        let t = m
+    /// No items yet, the viewpoints and segments known (`m`'s tiles, backgrounds and ACH lists
+    /// are ignored: they come with the viewpoints' tables).
+    pub fn empty(m: &Manifest) -> Result<ItemTable, ClientError> {
+        let count = db::split::unique_viewpoints(m)
+            .last()
+            .map_or(0, |v| v.index + 1);
+        if count > tracks::limits::MAX_VIEWPOINTS {
+            return Err(ClientError::Manifest(format!(
+                "{count} viewpoints; at most {}",
+                tracks::limits::MAX_VIEWPOINTS
+            )));
+        }
+        let segments: Vec<SegmentSlot> = m
             .tracks
-            .get(track)
-            .ok_or_else(|| ClientError::Manifest(format!("no track {track}")))?;
-        let index_of: FastMap<usize, usize> = t
-            .viewpoints
             .iter()
-            .enumerate()
-            .map(|(i, v)| (v.index, i))
+            .flat_map(|t| &t.segments)
+            .map(|seg| ((seg.from, seg.to), None))
             .collect();
-        let segments = t
-            .segments
-            .iter()
-            .map(|seg| {
-                let from = index_of.get(&seg.from).copied().unwrap_or(usize::MAX);
-                let to = index_of.get(&seg.to).copied().unwrap_or(usize::MAX);
-                ((from, to), None)
-            })
-            .collect::<Vec<_>>();
         Ok(ItemTable {
             items: Vec::new(),
-            vp_s: t.viewpoints.iter().map(|v| v.s).collect(),
             segment_ach: vec![Vec::new(); segments.len()],
             segment_refs: vec![Vec::new(); segments.len()],
             by_tile: FastMap::default(),
             by_background: FastMap::default(),
-            loaded: vec![false; t.viewpoints.len()],
-            index_of,
+            loaded: vec![false; count],
             key_to_tile: FastMap::default(),
             segments,
-            track,
             share_parts: true,
             shared: FastMap::default(),
         })
@@ -142,6 +131,11 @@ impl ItemTable {
     /// unchecked is ever shown.
     pub fn set_share_parts(&mut self, on: bool) {
         self.share_parts = on;
+    }
+
+    /// Viewpoints (by id), loaded or not.
+    pub fn viewpoints(&self) -> usize {
+        self.loaded.len()
     }
 
     /// Whether viewpoint `vp`'s table has been added.
@@ -169,21 +163,16 @@ impl ItemTable {
     ) -> Result<std::ops::Range<usize>, ClientError> {
         let start = self.items.len();
         if vi >= self.loaded.len() {
-            return Err(ClientError::Manifest(format!(
-                "track {}: no viewpoint {vi}",
-                self.track
-            )));
+            return Err(ClientError::Manifest(format!("no viewpoint {vi}")));
         }
         if self.loaded[vi] {
             return Ok(start..start);
         }
-        let s = self.vp_s[vi];
         let mut new_background = Vec::with_capacity(background.len());
         for (bi, bg) in background.iter().enumerate() {
-            let track = self.track;
-            let field = || format!("tracks[{track}].viewpoints[{vi}].background[{bi}]");
+            let field = || format!("viewpoints[{vi}].background[{bi}]");
             let (parts, levels) = ptm_parts(&bg.ptm, &|| format!("{}.ptm", field()))?;
-            new_background.push(make_item(vi, None, Some(bi), s, parts, 0, levels));
+            new_background.push(make_item(vi, None, Some(bi), parts, 0, levels));
         }
         let mut new_items = Vec::new();
         for (ti, tile) in tiles.iter().enumerate() {
@@ -192,8 +181,7 @@ impl ItemTable {
             };
             // Field names only for the error messages: built when one is needed (a manifest
             // of 22 000 tiles made 130 000 of them, a fifth of adding its tables).
-            let track = self.track;
-            let field = || format!("tracks[{track}].viewpoints[{vi}].tiles[{ti}]");
+            let field = || format!("viewpoints[{vi}].tiles[{ti}]");
             let (mut parts, levels) = ptm_parts(ptm, &|| format!("{}.ptm", field()))?;
             let mut first = 0;
             let mesh = match tile.mesh_at() {
@@ -228,7 +216,7 @@ impl ItemTable {
                 parts.insert(0, m);
                 first = 1;
             }
-            new_items.push((ti, make_item(vi, Some(ti), None, s, parts, first, levels)));
+            new_items.push((ti, make_item(vi, Some(ti), None, parts, first, levels)));
         }
         for (ti, tile) in tiles.iter().enumerate() {
             self.key_to_tile.insert((vi, tile.slab, tile.tile), ti);
@@ -268,18 +256,16 @@ impl ItemTable {
     /// Adds the ACH lists of segments starting at viewpoint `vi` (its ACH object), whether or
     /// not its table is in; entries whose tile's table has not arrived wait for it.
     pub fn add_segments(&mut self, vi: usize, segments: &[SegmentEntry]) {
-        let from = self.vp_index(vi);
-        for seg in segments.iter().filter(|sg| Some(sg.from) == from) {
-            let to = self.index_of.get(&seg.to).copied();
-            if let Some(k) = self
-                .segments
-                .iter()
-                .position(|((f, t), _)| *f == vi && Some(*t) == to)
-            {
+        for seg in segments.iter().filter(|sg| sg.from == vi) {
+            let found: Vec<usize> = (0..self.segments.len())
+                .filter(|&k| self.segments[k].0 == (vi, seg.to))
+                .collect();
+            for k in found {
                 let mut refs: Vec<usize> = seg
                     .ach
                     .iter()
-                    .filter_map(|a| self.index_of.get(&a.viewpoint).copied())
+                    .map(|a| a.viewpoint)
+                    .filter(|&v| v < self.loaded.len())
                     .collect();
                 refs.sort_unstable();
                 refs.dedup();
@@ -290,13 +276,6 @@ impl ItemTable {
         }
     }
 
-    fn vp_index(&self, vi: usize) -> Option<usize> {
-        self.index_of
-            .iter()
-            .find(|(_, &p)| p == vi)
-            .map(|(&index, _)| index)
-    }
-
     /// Recomputes `segment_ach[k]` from its raw list and the tiles known so far.
     fn resolve_segment(&mut self, k: usize) {
         let Some((_, Some(raw))) = self.segments.get(k) else {
@@ -305,7 +284,7 @@ impl ItemTable {
         self.segment_ach[k] = raw
             .iter()
             .filter_map(|a| {
-                let vi = *self.index_of.get(&a.viewpoint)?;
+                let vi = a.viewpoint;
                 let ti = *self.key_to_tile.get(&(vi, a.slab, a.tile))?;
                 let item = *self.by_tile.get(&(vi, ti))?;
                 (a.ach.is_finite() && a.ach > 0.0).then_some((item, a.ach))
@@ -313,12 +292,12 @@ impl ItemTable {
             .collect();
     }
 
-    /// Item of tile `tile` (position in `viewpoints[vp].tiles`).
+    /// Item of tile `tile` (position in viewpoint `vp`'s `tiles`).
     pub fn tile_item(&self, vp: usize, tile: usize) -> Option<usize> {
         self.by_tile.get(&(vp, tile)).copied()
     }
 
-    /// Item of background tile `tile` (position in `viewpoints[vp].background`).
+    /// Item of background tile `tile` (position in viewpoint `vp`'s `background`).
     pub fn background_item(&self, vp: usize, tile: usize) -> Option<usize> {
         self.by_background.get(&(vp, tile)).copied()
     }
@@ -399,7 +378,6 @@ fn make_item(
     viewpoint: usize,
     tile: Option<usize>,
     background: Option<usize>,
-    s: f64,
     parts: Vec<Part>,
     first_level_part: usize,
     levels: Vec<u32>,
@@ -414,7 +392,6 @@ fn make_item(
         viewpoint,
         tile,
         background,
-        s,
         parts,
         info,
     }
@@ -500,7 +477,7 @@ mod tests {
 
     fn keys(share: bool, meshes: [&str; 2]) -> Vec<Vec<FetchKey>> {
         let m = manifest(meshes);
-        let mut table = ItemTable::empty(&m, 0).unwrap();
+        let mut table = ItemTable::empty(&m).unwrap();
         table.set_share_parts(share);
         for (vi, v) in m.tracks[0].viewpoints.iter().enumerate() {
             table
@@ -520,13 +497,13 @@ mod tests {
         let tile = &mut m.tracks[0].viewpoints[1].tiles[0];
         tile.ptm.as_mut().unwrap().levels[0].hash = "zz".into();
         let v = &m.tracks[0].viewpoints[1];
-        let mut table = ItemTable::empty(&m, 0).unwrap();
+        let mut table = ItemTable::empty(&m).unwrap();
         let e = table
             .add_viewpoint(1, &v.background, &v.tiles, &[])
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("tracks[0].viewpoints[1].tiles[0].ptm.levels[0].hash: `zz`"),
+            e.contains("viewpoints[1].tiles[0].ptm.levels[0].hash: `zz`"),
             "{e}"
         );
         // Nothing was added.
@@ -538,13 +515,13 @@ mod tests {
             .unwrap()
             .len = 1 << 40;
         let v = &m.tracks[0].viewpoints[0];
-        let e = ItemTable::empty(&m, 0)
+        let e = ItemTable::empty(&m)
             .unwrap()
             .add_viewpoint(0, &v.background, &v.tiles, &[])
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("tracks[0].viewpoints[0].tiles[0].mesh_range: range 0+1099511627776"),
+            e.contains("viewpoints[0].tiles[0].mesh_range: range 0+1099511627776"),
             "{e}"
         );
     }

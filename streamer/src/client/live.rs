@@ -257,6 +257,11 @@ impl LiveSession {
         self.scheduler.cache()
     }
 
+    /// The branch the user chose for the next junction (`None`: the one nearest the view).
+    pub fn set_branch(&mut self, branch: Option<tracks::network::Branch>) {
+        self.scheduler.set_branch(branch);
+    }
+
     pub fn scheduler(&self) -> &Scheduler {
         &self.scheduler
     }
@@ -367,6 +372,21 @@ impl LiveSession {
         camera: &PerspectiveCamera,
         live: Option<&[LiveCount]>,
     ) -> Vec<Arrival> {
+        let pos = crate::client::NetPos {
+            track: self.scheduler.track(),
+            s,
+        };
+        self.update_at(pos, camera, live)
+    }
+
+    /// [`LiveSession::update`] at a position on the network (a walker that turned at a
+    /// junction is on another track).
+    pub fn update_at(
+        &mut self,
+        pos: crate::client::NetPos,
+        camera: &PerspectiveCamera,
+        live: Option<&[LiveCount]>,
+    ) -> Vec<Arrival> {
         let now = self.clock.now_s();
         let mut done = Vec::new();
         while let Some(c) = self.pool.try_next() {
@@ -403,7 +423,7 @@ impl LiveSession {
         self.scheduler.set_bundles(self.pool.bundles_supported());
         let running = self.pool.running_keys();
         self.progress.observe(now, waiting, arrived);
-        let actions = self.scheduler.tick(now, s, camera, live, &running);
+        let actions = self.scheduler.tick_at(now, pos, camera, live, &running);
         self.pool.cancel(&actions.cancel);
         self.pool.set_queue(actions.wants, actions.limits);
         self.update_stats(now);

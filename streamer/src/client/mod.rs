@@ -15,13 +15,16 @@
 //! - [`failures`]: [`FailureBook`] — per-key object faults (retried later, then given up)
 //!   and [`ProgressClock`] — time without progress, on any clock; what a scheduler keeps.
 //! - [`cache`]: [`Cache`] — checked bytes under a byte budget, evicted by distance along the
-//!   track, with reference counts for shared entries.
+//!   network, with reference counts for shared entries.
+//! - [`route`]: [`Walker`] — a position on a network of tracks and the branch taken at a
+//!   junction (the user's, else the one nearest the view), [`branch_weights`] for prefetch,
+//!   [`Route`] — a walk through named tracks.
 //! - [`budget`]: [`plan`] — the PTM memory/time budget rules, live pixel counts, prefetch;
 //!   plain functions, no I/O.
 //! - [`predict`]: [`MotionTracker`] — speed, stillness and the next segment from recent
 //!   positions.
-//! - [`items`]: [`ItemTable`] — a manifest flattened into streamable items and parts, grown
-//!   as viewpoints' tables arrive.
+//! - [`items`]: [`ItemTable`] — a manifest's viewpoints flattened into streamable items and
+//!   parts, grown as viewpoints' tables arrive.
 //! - [`live`]: [`LiveSession`] — the scheduler and the pool on a [`Clock`] for an interactive
 //!   viewer.
 
@@ -36,6 +39,7 @@ pub mod items;
 pub mod live;
 pub mod pool;
 pub mod predict;
+pub mod route;
 pub mod schedule;
 pub mod transport;
 
@@ -54,6 +58,7 @@ pub use items::{ItemTable, Part};
 pub use live::{LiveConfig, LiveError, LiveSession, LiveStats};
 pub use pool::{Completion, Pool};
 pub use predict::{next_segment, segment_at, MotionTracker};
+pub use route::{branch_weights, NetPos, Route, Turn, Walker};
 pub use schedule::{
     Actions, Arrival, Batch, DispatchLimits, Dispatcher, Piece, Scheduler, SchedulerConfig,
     Strategy, ViewStats, Want, WantClass,

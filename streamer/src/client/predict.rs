@@ -37,6 +37,16 @@ impl MotionTracker {
         }
     }
 
+    /// The most recent position and its time, `(s, t)`.
+    pub fn last(&self) -> Option<(f64, f64)> {
+        self.fifo.last().map(|&(t, s)| (s, t))
+    }
+
+    /// Forgets every position (the walker went onto another track).
+    pub fn clear(&mut self) {
+        self.fifo.clear();
+    }
+
     /// Seconds since the viewpoint last moved.
     pub fn still_s(&self) -> f64 {
         if self.fifo.is_empty() {

@@ -50,6 +50,7 @@ use db::split::{assemble, TopManifest, ViewTable};
 
 mod config;
 mod dispatch;
+mod network;
 mod prefetch;
 mod tables;
 mod tick;
@@ -113,19 +114,32 @@ struct CpuCounts {
     counts: Vec<LiveCount>,
 }
 
-/// A prefetch list and what it was computed for: (segment, yaw and pitch in 10° steps).
-type PrefetchMemo = ((usize, i64, i64), Vec<(usize, f64)>);
+/// A merged prefetch list, what it was computed for (the segments with their likelihoods in
+/// thousandths, yaw and pitch in 10° steps) and the level each item is needed at.
+type PrefetchMemo = (
+    (Vec<(usize, i64)>, i64, i64),
+    Vec<(usize, f64)>,
+    HashMap<usize, u32>,
+);
+
+/// Shortest distances along the network from the two ends of a segment: (segment, from its
+/// `from` end, from its `to` end).
+type DistMemo = (usize, Vec<f64>, Vec<f64>);
 
 /// The request policy (see the module docs).
 pub struct Scheduler {
     config: SchedulerConfig,
     top: TopManifest,
+    /// The track the walker is on.
     track: usize,
-    /// The track's curve (positions of predicted cameras).
-    path: tracks::Track,
+    /// The graph of tracks (curves, viewpoints, junctions).
+    net: tracks::network::Network,
+    /// The branch the user chose for the next junction.
+    chosen: Option<tracks::network::Branch>,
+    dist_memo: Option<DistMemo>,
     /// The manifest as far as the tables go.
     manifest: Manifest,
-    /// Tables that have arrived, per viewpoint of the track.
+    /// Tables that have arrived, per viewpoint (by id).
     tables: Vec<Option<ViewTable>>,
     /// ACH lists that have arrived, per viewpoint.
     achs: Vec<Option<Vec<SegmentEntry>>>,
@@ -177,21 +191,22 @@ pub struct Scheduler {
 }
 
 impl Scheduler {
-    /// A scheduler for track `track` of `top` (no table yet: they come as requests).
+    /// A scheduler for `top`'s network, the walker starting on track `track` (no table yet:
+    /// they come as requests).
     pub fn new(
         top: TopManifest,
         track: usize,
         config: SchedulerConfig,
     ) -> Result<Scheduler, ClientError> {
         let manifest = assemble(&top, &[]);
-        let entry = top
-            .tracks
-            .get(track)
-            .ok_or_else(|| ClientError::Manifest(format!("no track {track}")))?;
-        let path = track_path(&entry.track_toml, &entry.name)
-            .map_err(|e| ClientError::Manifest(format!("track `{}`: {e}", entry.name)))?;
+        if track >= top.tracks.len() {
+            return Err(ClientError::Manifest(format!("no track {track}")));
+        }
+        let net = top
+            .network()
+            .map_err(|e| ClientError::Manifest(format!("the graph of tracks: {e}")))?;
         let naive = config.strategy == Strategy::Naive;
-        let mut table = ItemTable::empty(&manifest, track)?;
+        let mut table = ItemTable::empty(&manifest)?;
         table.set_share_parts(config.share_parts && !naive);
         let infos = table.infos();
         let mut users: KeyMap<Vec<(usize, usize)>> = KeyMap::default();
@@ -200,18 +215,18 @@ impl Scheduler {
                 users.entry(part.key.clone()).or_default().push((i, p));
             }
         }
-        let n_vp = entry.viewpoints.len();
+        let n_vp = top.viewpoints.len();
         let mut table_keys = KeyMap::default();
         let mut ach_keys = KeyMap::default();
-        for (vi, v) in entry.viewpoints.iter().enumerate() {
-            table_keys.insert(whole(&v.table.hash), vi);
+        for v in &top.viewpoints {
+            table_keys.insert(whole(&v.table.hash), v.index);
             if let Some(a) = &v.ach {
-                ach_keys.insert(whole(&a.hash), vi);
+                ach_keys.insert(whole(&a.hash), v.index);
             }
         }
         let mut cache = Cache::new(if naive { u64::MAX } else { config.cache_bytes });
         cache.record_evictions();
-        let index = SceneIndex::new(&manifest, track);
+        let index = SceneIndex::new(&manifest);
         let held = vec![0; table.items.len()];
         let link = LinkEstimate::new(config.prior_bps, config.prior_latency_s);
         let config_failures = config.failures;
@@ -220,7 +235,9 @@ impl Scheduler {
             config,
             top,
             track,
-            path,
+            net,
+            chosen: None,
+            dist_memo: None,
             manifest,
             tables: vec![None; n_vp],
             achs: vec![None; n_vp],
@@ -264,7 +281,7 @@ impl Scheduler {
         &self.top
     }
 
-    /// Position of the scheduler's track in the manifest.
+    /// Position of the track the walker is on in the manifest.
     pub fn track(&self) -> usize {
         self.track
     }
@@ -300,7 +317,7 @@ impl Scheduler {
         &self.held
     }
 
-    /// `(tables arrived, viewpoints)` of the track.
+    /// `(tables arrived, viewpoints)` of the network.
     pub fn tables_loaded(&self) -> (usize, usize) {
         (
             self.tables.iter().filter(|t| t.is_some()).count(),
@@ -308,7 +325,7 @@ impl Scheduler {
         )
     }
 
-    /// Whether viewpoint `vp`'s table has arrived (position in the track).
+    /// Whether viewpoint `vp`'s table has arrived (by id).
     pub fn has_table(&self, vp: usize) -> bool {
         self.tables.get(vp).is_some_and(|t| t.is_some())
     }
@@ -411,10 +428,10 @@ impl Scheduler {
                 let fresh = !self.cache.contains(&done.key);
                 let mut stored = !fresh;
                 for &(item, _) in &users {
-                    let s_item = self.table.items[item].s;
+                    let vp = self.table.items[item].viewpoint;
                     stored |= self
                         .cache
-                        .insert(done.key.clone(), data.clone(), s_item)
+                        .insert(done.key.clone(), data.clone(), vp)
                         .is_ok();
                 }
                 if fresh && stored {
@@ -516,15 +533,6 @@ fn whole_piece(hash: &str, size: u64) -> Piece {
         hash: hash.to_string(),
         len: size,
     }
-}
-
-/// The track of a manifest's `track_toml`.
-fn track_path(toml: &str, name: &str) -> Result<tracks::Track, String> {
-    let set = tracks::TrackSet::parse(toml, "manifest track_toml").map_err(|e| e.to_string())?;
-    set.get(name)
-        .or(set.tracks.first())
-        .cloned()
-        .ok_or_else(|| "track_toml holds no track".to_string())
 }
 
 /// The client's item shown by a surface of the visibility pass (`None`: not known yet).

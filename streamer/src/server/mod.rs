@@ -287,14 +287,12 @@ impl ServedDb {
             });
         }
         let mut objects = manifest_objects(&manifest);
-        for t in &top.tracks {
-            objects.extend(t.viewpoints.iter().map(|v| v.table.hash.clone()));
-            objects.extend(
-                t.viewpoints
-                    .iter()
-                    .filter_map(|v| v.ach.as_ref().map(|a| a.hash.clone())),
-            );
-        }
+        objects.extend(top.viewpoints.iter().map(|v| v.table.hash.clone()));
+        objects.extend(
+            top.viewpoints
+                .iter()
+                .filter_map(|v| v.ach.as_ref().map(|a| a.hash.clone())),
+        );
         if let Some(bad) = objects.iter().find(|h| object_rel_path(h).is_none()) {
             return Err(ServerError::Manifest {
                 path,

@@ -32,7 +32,7 @@ pub async fn run_load(
     let stats = Arc::new(ClientStats::default());
     let mut first = Connection::new(url.clone(), RetryPolicy::default(), stats.clone());
     let manifest = first.manifest().await?;
-    let table = ItemTable::new(&manifest, 0)?;
+    let table = ItemTable::new(&manifest)?;
     let parts: Arc<Vec<Part>> = Arc::new(
         table
             .items

@@ -1,7 +1,8 @@
 //! The walk simulator: a scripted walk along a track, streamed over real HTTP, measured.
 //!
-//! [`run_walk`] walks track 0 of the database served at a URL at a given speed, looking
-//! around like a person (a scripted yaw/pitch path, [`look_at`]), once per
+//! [`run_walk`] walks a track of the database served at a URL (or a route through several,
+//! turning at their junctions: [`WalkConfig::route`]) at a given speed, looking around like a
+//! person (a scripted yaw/pitch path, [`look_at`]), once per
 //! ([`Strategy`], bandwidth). The client is the viewer's: the same [`crate::client::Scheduler`]
 //! decides every request, and its requests go out by the same [`crate::client::Dispatcher`]
 //! rule as the viewer's worker pool, so a walk measures what `railview view URL` does (the
@@ -49,10 +50,11 @@ use serde::{Deserialize, Serialize};
 use tracks::manifest::Manifest;
 
 use db::split::{assemble, TopManifest, ViewTable};
-use tracks::{PerspectiveCamera, TrackSet};
+use tracks::network::Network;
+use tracks::PerspectiveCamera;
 
 use crate::client::{
-    ClientError, ClientStats, Connection, FetchKey, ItemTable, RetryPolicy, SchedulerConfig,
+    ClientError, ClientStats, Connection, FetchKey, ItemTable, RetryPolicy, Route, SchedulerConfig,
     ServerUrl, Source,
 };
 use crate::visibility::SceneIndex;
@@ -78,6 +80,11 @@ pub struct WalkConfig {
     pub samples_x: u32,
     pub samples_y: u32,
     pub track: usize,
+    /// Walk through these tracks instead (names; from the first's start into each next at
+    /// their junction, to the far end of the last): [`crate::client::Route`].
+    pub route: Option<Vec<String>>,
+    /// Frames within this many metres after a turn count as the turn's ([`RunReport::turns`]).
+    pub turn_window_m: f64,
     /// Keep every run's requests, in the order they went out ([`RunReport::request_log`]).
     pub record_requests: bool,
     /// Timeouts and retries of the real transfers.
@@ -133,6 +140,8 @@ impl Default for WalkConfig {
             samples_x: 64,
             samples_y: 36,
             track: 0,
+            route: None,
+            turn_window_m: 4.0,
             record_requests: false,
             retry: RetryPolicy::default(),
         }
@@ -196,21 +205,24 @@ pub fn look_at(heading_yaw_deg: f64, t: f64) -> (f64, f64) {
     (yaw, pitch)
 }
 
-/// One frame of the scripted walk: its time (from the start of the walk), arc length and
-/// camera.
+/// One frame of the scripted walk: its time (from the start of the walk), where on the network
+/// (`s_m` along `track`), how far along the walk, and the camera.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct WalkFrame {
     pub t_s: f64,
     pub s_m: f64,
+    pub track: usize,
+    /// Metres along the walk (the route).
+    pub d_m: f64,
     pub camera: PerspectiveCamera,
 }
 
-/// The frames of the scripted walk along `track`: every `frame_dt_s` from 0 to the end of
-/// the track at `speed_mps` and `pause_s` beyond, the camera on the track looking around the
-/// way of travel ([`look_at`]). The walk simulator runs these; a replay runs them through a
-/// live session.
-pub fn walk_frames(track: &tracks::Track, cfg: &WalkConfig) -> Vec<WalkFrame> {
-    let length = track.length();
+/// The frames of the scripted walk along `route` of `net`: every `frame_dt_s` from 0 to its
+/// end at `speed_mps` and `pause_s` beyond, the camera on the route looking around the way of
+/// travel ([`look_at`]). The walk simulator runs these; a replay runs them through a live
+/// session.
+pub fn walk_frames(net: &Network, route: &Route, cfg: &WalkConfig) -> Vec<WalkFrame> {
+    let length = route.length();
     let walk_s = if cfg.speed_mps > 0.0 {
         length / cfg.speed_mps
     } else {
@@ -222,15 +234,19 @@ pub fn walk_frames(track: &tracks::Track, cfg: &WalkConfig) -> Vec<WalkFrame> {
         .map(|k| k as f64 * dt)
         .take_while(|&t| t <= end_t + 1e-9)
         .map(|t| {
-            let s = (t * cfg.speed_mps).min(length);
-            let tan = track.tangent_at(s);
+            let d = (t * cfg.speed_mps).min(length);
+            let (pos, forward) = route.at(d);
+            let track = &net.tracks[pos.track];
+            let tan = track.tangent_at(pos.s) * if forward { 1.0 } else { -1.0 };
             let heading = tan.x.atan2(-tan.z).to_degrees();
             let (yaw, pitch) = look_at(heading, t);
             WalkFrame {
                 t_s: t,
-                s_m: s,
+                s_m: pos.s,
+                track: pos.track,
+                d_m: d,
                 camera: PerspectiveCamera {
-                    position: track.position_at(s),
+                    position: track.position_at(pos.s),
                     yaw_deg: yaw,
                     pitch_deg: pitch,
                     fov_deg: cfg.fov_deg,
@@ -242,11 +258,29 @@ pub fn walk_frames(track: &tracks::Track, cfg: &WalkConfig) -> Vec<WalkFrame> {
         .collect()
 }
 
+/// The walk a config asks for on `net`: its route, or the whole of its track.
+pub fn route_of(net: &Network, cfg: &WalkConfig) -> Result<Route, WalkError> {
+    let names: Vec<String> = match &cfg.route {
+        Some(r) => r.clone(),
+        None => vec![net
+            .tracks
+            .get(cfg.track)
+            .ok_or_else(|| WalkError::Config(format!("no track {}", cfg.track)))?
+            .name
+            .clone()],
+    };
+    let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    Route::new(net, &refs).map_err(|e| WalkError::Config(format!("--route: {e}")))
+}
+
 /// One frame of a run.
 #[derive(Clone, Debug, Serialize)]
 pub struct FrameRecord {
     pub t_s: f64,
     pub s_m: f64,
+    /// The track the walker is on, and metres along the walk.
+    pub track: usize,
+    pub d_m: f64,
     pub quality: f64,
     pub needed_fraction: f64,
     pub complete: bool,
@@ -312,6 +346,14 @@ pub struct RunReport {
     pub parts_given_up: u64,
     pub table_faults: u64,
     pub tables_given_up: u64,
+    /// Per turn of the route: where it is, and how the frames after it fared.
+    pub turns: Vec<TurnRecord>,
+    /// Frames without every visible pixel showable, within the turn window after a turn and
+    /// elsewhere, and the needed fraction's mean over each.
+    pub stalled_frames_at_turns: u64,
+    pub stalled_frames_elsewhere: u64,
+    pub mean_needed_fraction_at_turns: Option<f64>,
+    pub mean_needed_fraction_elsewhere: Option<f64>,
     /// Whether the run reached its end; `error` says what stopped it.
     pub completed: bool,
     pub error: Option<String>,
@@ -321,6 +363,23 @@ pub struct RunReport {
     /// went out.
     #[serde(skip)]
     pub request_log: Vec<Vec<FetchKey>>,
+}
+
+/// A turn of a walk and how the frames after it fared.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct TurnRecord {
+    /// The junction's viewpoint and the metres along the walk where it is.
+    pub viewpoint: usize,
+    pub d_m: f64,
+    pub from_track: String,
+    pub to_track: String,
+    /// Seconds from passing the junction to the first complete frame (`null`: none in the
+    /// turn window).
+    pub first_complete_after_s: Option<f64>,
+    /// Frames in the turn window, and of them not complete.
+    pub frames: u64,
+    pub stalled: u64,
 }
 
 /// All runs (`walk.json`). Read back, a field the file lacks takes its default.
@@ -387,31 +446,30 @@ pub(crate) struct Scene {
     manifest: Manifest,
     /// The top manifest the clients start from.
     top: TopManifest,
-    /// Every item of the track (what each frame's needs are measured against).
+    /// Every item of the database (what each frame's needs are measured against).
     table: ItemTable,
     /// Where the walk's needs come from: the whole database.
     index: SceneIndex,
-    track: tracks::Track,
+    /// The graph of tracks and the walk along it.
+    net: Network,
+    route: Route,
 }
 
-fn load_scene(top: &TopManifest, manifest: Manifest, track: usize) -> Result<Scene, WalkError> {
-    let table = ItemTable::new(&manifest, track)?;
-    let index = SceneIndex::new(&manifest, track)
-        .ok_or_else(|| WalkError::Database("face/tile sizes or track invalid".into()))?;
-    let entry = &manifest.tracks[track];
-    let set = TrackSet::parse(&entry.track_toml, "manifest track_toml")
-        .map_err(|e| WalkError::Database(e.to_string()))?;
-    let t = set
-        .get(&entry.name)
-        .or(set.tracks.first())
-        .cloned()
-        .ok_or_else(|| WalkError::Database("track_toml holds no track".into()))?;
+fn load_scene(top: &TopManifest, manifest: Manifest, cfg: &WalkConfig) -> Result<Scene, WalkError> {
+    let table = ItemTable::new(&manifest)?;
+    let index = SceneIndex::new(&manifest)
+        .ok_or_else(|| WalkError::Database("face/tile sizes invalid".into()))?;
+    let net = top
+        .network()
+        .map_err(|e| WalkError::Database(format!("the graph of tracks: {e}")))?;
+    let route = route_of(&net, cfg)?;
     Ok(Scene {
         top: top.clone(),
         manifest,
         table,
         index,
-        track: t,
+        net,
+        route,
     })
 }
 
@@ -442,8 +500,14 @@ pub async fn run_walk(
     };
     let (scene, cost) = scene;
     report.scene = scene.manifest.scene.clone();
-    report.track = scene.track.name.clone();
-    report.length_m = scene.track.length();
+    report.track = scene
+        .route
+        .legs
+        .iter()
+        .map(|l| scene.net.tracks[l.0].name.as_str())
+        .collect::<Vec<_>>()
+        .join(",");
+    report.length_m = scene.route.length();
     let frames_per_run = match config.frames_per_run(report.length_m) {
         Ok(n) => n,
         Err(e) => return Err(fail(report, WalkError::Config(e))),
@@ -486,42 +550,35 @@ async fn fetch_scene(
     // A table that is damaged or missing on the server is one the walker cannot see either
     // (its viewpoint shows nothing); the runs count it when they ask for it.
     let mut tables = Vec::new();
-    for t in &fetched.top.tracks {
-        let mut row = Vec::new();
-        for v in &t.viewpoints {
-            let mut table = match conn.fetch_table(&v.table, v.index).await {
-                Ok(t) => t,
-                Err(e) if e.is_object_fault() || matches!(e, ClientError::Manifest(_)) => {
-                    tracing::warn!("walk: viewpoint {}'s table unreadable: {e}", v.index);
-                    ViewTable {
-                        viewpoint: v.index,
-                        background: Vec::new(),
-                        tiles: Vec::new(),
-                        segments: Vec::new(),
-                    }
-                }
-                Err(e) => return Err(e.into()),
-            };
-            if let Some(ach) = &v.ach {
-                match conn.fetch_ach(ach, v.index).await {
-                    Ok(seg) => table.segments = seg,
-                    Err(e) if e.is_object_fault() || matches!(e, ClientError::Manifest(_)) => {
-                        tracing::warn!("walk: viewpoint {}'s ACH lists unreadable: {e}", v.index)
-                    }
-                    Err(e) => return Err(e.into()),
+    for v in &fetched.top.viewpoints {
+        let mut table = match conn.fetch_table(&v.table, v.index).await {
+            Ok(t) => t,
+            Err(e) if e.is_object_fault() || matches!(e, ClientError::Manifest(_)) => {
+                tracing::warn!("walk: viewpoint {}'s table unreadable: {e}", v.index);
+                ViewTable {
+                    viewpoint: v.index,
+                    background: Vec::new(),
+                    tiles: Vec::new(),
+                    segments: Vec::new(),
                 }
             }
-            row.push(table);
+            Err(e) => return Err(e.into()),
+        };
+        if let Some(ach) = &v.ach {
+            match conn.fetch_ach(ach, v.index).await {
+                Ok(seg) => table.segments = seg,
+                Err(e) if e.is_object_fault() || matches!(e, ClientError::Manifest(_)) => {
+                    tracing::warn!("walk: viewpoint {}'s ACH lists unreadable: {e}", v.index)
+                }
+                Err(e) => return Err(e.into()),
+            }
         }
-        tables.push(row);
+        tables.push(table);
     }
     conn.take_report();
-    let refs: Vec<Vec<Option<&ViewTable>>> = tables
-        .iter()
-        .map(|row| row.iter().map(Some).collect())
-        .collect();
+    let refs: Vec<Option<&ViewTable>> = tables.iter().map(Some).collect();
     let manifest = assemble(&fetched.top, &refs);
-    let scene = load_scene(&fetched.top, manifest, config.track)?;
+    let scene = load_scene(&fetched.top, manifest, config)?;
     Ok((scene, cost))
 }
 

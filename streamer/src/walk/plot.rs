@@ -69,6 +69,8 @@ mod tests {
                 .map(|i| FrameRecord {
                     t_s: i as f64,
                     s_m: i as f64,
+                    track: 0,
+                    d_m: i as f64,
                     quality: q * i as f64 / 4.0,
                     needed_fraction: 0.5,
                     complete: true,
@@ -114,6 +116,7 @@ mod tests {
             error: None,
             frames: frames(1.0),
             request_log: Vec::new(),
+            ..RunReport::default()
         };
         let r = WalkReport {
             scene: "castle".into(),

@@ -1,15 +1,15 @@
 //! One simulated run: the client's scheduler on a virtual clock and link, per-frame metrics.
 
 use super::{
-    walk_frames, FrameRecord, ManifestCost, RunReport, Scene, Strategy, VirtualLink, WalkConfig,
-    WalkError,
+    walk_frames, FrameRecord, ManifestCost, RunReport, Scene, Strategy, TurnRecord, VirtualLink,
+    WalkConfig, WalkError,
 };
 use crate::client::schedule::surface_item;
 use crate::client::{
-    segment_at, Batch, ClientError, Completion, Dispatcher, FetchKey, ItemTable, ProgressClock,
+    Batch, ClientError, Completion, Dispatcher, FetchKey, ItemTable, NetPos, ProgressClock,
     Scheduler, SchedulerConfig, Source, TransferReport, Transport, WantClass,
 };
-use crate::visibility::{blend_weights, Surface, SurfaceCount};
+use crate::visibility::{Surface, SurfaceCount};
 use bytes::Bytes;
 use tracks::PerspectiveCamera;
 
@@ -218,7 +218,8 @@ pub(crate) async fn run_one(
         strategy,
         ..cfg.schedule.clone()
     };
-    let mut sched = match Scheduler::new(scene.top.clone(), cfg.track, config) {
+    let start = scene.route.legs.first().map_or(cfg.track, |l| l.0);
+    let mut sched = match Scheduler::new(scene.top.clone(), start, config) {
         Ok(s) => s,
         Err(e) => {
             let report = RunReport {
@@ -234,7 +235,7 @@ pub(crate) async fn run_one(
     };
     let mut exec = Exec::new(source, cfg, bandwidth);
     let failures_before = exec.checksum_failures();
-    let length = scene.track.length();
+    let length = scene.route.length();
     let (walked, error) = walk(&mut exec, &mut sched, scene, cfg, t0, manifest, on_frame).await;
     let frames = walked.frames;
     let mean = |f: &dyn Fn(&FrameRecord) -> f64| {
@@ -242,6 +243,28 @@ pub(crate) async fn run_one(
     };
     let naive = strategy == Strategy::Naive;
     let stats = sched.stats().clone();
+    let turns = turn_records(scene, cfg, &frames);
+    let window = |f: &FrameRecord| {
+        scene
+            .route
+            .turn_distances()
+            .iter()
+            .any(|&d| f.d_m >= d && f.d_m < d + cfg.turn_window_m)
+    };
+    let part_mean = |at: bool| {
+        let v: Vec<f64> = frames
+            .iter()
+            .filter(|f| window(f) == at)
+            .map(|f| f.needed_fraction)
+            .collect();
+        (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+    };
+    let stalled = |at: bool| {
+        frames
+            .iter()
+            .filter(|f| window(f) == at && !f.complete)
+            .count() as u64
+    };
     let failures = exec.checksum_failures() - failures_before;
     let report = RunReport {
         strategy: strategy.name(),
@@ -284,6 +307,11 @@ pub(crate) async fn run_one(
         parts_given_up: stats.parts_given_up,
         table_faults: stats.table_faults,
         tables_given_up: stats.tables_given_up,
+        stalled_frames_at_turns: stalled(true),
+        stalled_frames_elsewhere: stalled(false),
+        mean_needed_fraction_at_turns: part_mean(true),
+        mean_needed_fraction_elsewhere: part_mean(false),
+        turns,
         completed: error.is_none(),
         error: error.as_ref().map(|e| e.to_string()),
         frames,
@@ -305,11 +333,19 @@ async fn walk(
 ) -> (Walked, Option<WalkError>) {
     let dt = cfg.frame_dt_s.max(1e-3);
     let mut walked = Walked::default();
-    for (k, frame) in walk_frames(&scene.track, cfg).into_iter().enumerate() {
-        let (t, s, cam) = (frame.t_s, frame.s_m, frame.camera);
+    let turns = scene.route.turn_distances();
+    for (k, frame) in walk_frames(&scene.net, &scene.route, cfg)
+        .into_iter()
+        .enumerate()
+    {
+        let (t, cam) = (frame.t_s, frame.camera);
+        let pos = NetPos {
+            track: frame.track,
+            s: frame.s_m,
+        };
         exec.arrive_until(t);
         exec.feed(t, sched);
-        let (quality, needed, complete) = measure_frame(scene, cfg, sched, s, &cam);
+        let (quality, needed, complete) = measure_frame(scene, cfg, sched, pos, &cam);
         if complete && walked.first_frame.is_none() {
             walked.first_frame = Some(t0 + t);
             walked.first_frame_bytes = Some((
@@ -319,14 +355,18 @@ async fn walk(
         }
         sched.set_bundles(exec.transport.bundles_supported());
         let running = exec.dispatcher.running_keys();
-        let actions = sched.tick(t, s, &cam, None, &running);
+        // The walker knows its way: the branch of the next turn is its choice.
+        sched.set_branch(next_branch(scene, frame.d_m, &turns));
+        let actions = sched.tick_at(t, pos, &cam, None, &running);
         exec.dispatcher.replace(actions.wants, actions.limits);
         let mut error = exec.send(t, sched).await.err();
         walked.max_cache = walked.max_cache.max(sched.cache().used());
         on_frame(k as u64);
         walked.frames.push(FrameRecord {
             t_s: t0 + t,
-            s_m: s,
+            s_m: pos.s,
+            track: pos.track,
+            d_m: frame.d_m,
             quality,
             needed_fraction: needed,
             complete,
@@ -353,20 +393,62 @@ async fn walk(
     (walked, None)
 }
 
-/// `(quality, needed fraction, complete)` of the frame at `s` seen by `cam`: the visibility
+/// The branch the route takes at its next turn after `d` metres (none past the last).
+fn next_branch(scene: &Scene, d: f64, turns: &[f64]) -> Option<tracks::network::Branch> {
+    let k = turns.iter().position(|&t| t >= d)?;
+    let (to_track, from, to) = scene.route.legs.get(k + 1).copied()?;
+    let j = scene.net.junction_at(*scene.route.turns.get(k)?)?;
+    j.branches
+        .iter()
+        .copied()
+        .find(|b| b.track == to_track && b.forward == (to >= from))
+}
+
+/// Per turn of the route, how the frames in the window after it fared.
+fn turn_records(scene: &Scene, cfg: &WalkConfig, frames: &[FrameRecord]) -> Vec<TurnRecord> {
+    let names = |t: usize| scene.net.tracks[t].name.clone();
+    scene
+        .route
+        .turn_distances()
+        .iter()
+        .enumerate()
+        .map(|(k, &d)| {
+            let win: Vec<&FrameRecord> = frames
+                .iter()
+                .filter(|f| f.d_m >= d && f.d_m < d + cfg.turn_window_m)
+                .collect();
+            let passed = win.first().map(|f| f.t_s);
+            TurnRecord {
+                viewpoint: scene.route.turns[k],
+                d_m: d,
+                from_track: names(scene.route.legs[k].0),
+                to_track: names(scene.route.legs[k + 1].0),
+                first_complete_after_s: win
+                    .iter()
+                    .find(|f| f.complete)
+                    .zip(passed)
+                    .map(|(f, p)| f.t_s - p),
+                frames: win.len() as u64,
+                stalled: win.iter().filter(|f| !f.complete).count() as u64,
+            }
+        })
+        .collect()
+}
+
+/// `(quality, needed fraction, complete)` of the frame at `pos` seen by `cam`: the visibility
 /// pass over the whole database at the scripted camera, against what the scheduler holds.
 fn measure_frame(
     scene: &Scene,
     cfg: &WalkConfig,
     sched: &Scheduler,
-    s: f64,
+    pos: NetPos,
     cam: &PerspectiveCamera,
 ) -> (f64, f64, bool) {
-    let weights = blend_weights(&scene.table.vp_s, s);
+    let weights = scene.net.blend_weights(pos.track, pos.s);
     let counts = scene
         .index
         .count(cam, &weights, cfg.samples_x, cfg.samples_y);
-    let seg = segment_at(&scene.table.vp_s, s).unwrap_or(0);
+    let seg = scene.net.segment_at(pos.track, pos.s).unwrap_or(0);
     // The paper's quality is measured against the segment's ACH list as the database has
     // it, whether or not the strategy fetched the lists: the client's item of each entry's
     // tile (`None` while its table is missing).

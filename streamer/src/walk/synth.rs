@@ -263,7 +263,7 @@ pub fn write_synthetic(root: &Path, p: &SynthParams) -> io::Result<Manifest> {
 /// ACH per segment: pixels per tile over the six 90° cameras of the rendering box at five
 /// positions along the segment (ends included), normalised to sum to 1, descending.
 fn synthetic_ach(m: &Manifest, track: &tracks::Track) -> Vec<SegmentEntry> {
-    let Some(index) = SceneIndex::new(m, 0) else {
+    let Some(index) = SceneIndex::new(m) else {
         return Vec::new();
     };
     let t = &m.tracks[0];

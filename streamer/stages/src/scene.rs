@@ -106,6 +106,29 @@ pub fn pick_track(spec: &str, scene_tracks: Option<&TrackSet>) -> Result<Track> 
     }
 }
 
+/// The tracks `spec` (and `name`) choose: `all` (or `name` `all`) for every track of the
+/// scene or file, else one track as [`pick_track`] finds it; the name for the report
+/// (`all` for a network).
+pub fn pick_tracks(
+    spec: &str,
+    name: Option<&str>,
+    scene_tracks: Option<&TrackSet>,
+) -> Result<(String, Vec<Track>)> {
+    use crate::network::{choose_tracks, ALL_TRACKS};
+    if spec == ALL_TRACKS && !Path::new(spec).is_file() {
+        let set = scene_tracks.ok_or_else(|| parameter!("--track all: the scene has no tracks"))?;
+        return choose_tracks(set, Some(ALL_TRACKS), "the scene", false);
+    }
+    if name.is_some() && Path::new(spec).is_file() {
+        let text =
+            read_text(Path::new(spec)).with_context(|| format!("reading track file {spec}"))?;
+        let set = TrackSet::parse(&text, spec)?;
+        return choose_tracks(&set, name, spec, false);
+    }
+    let t = pick_track(spec, scene_tracks)?;
+    Ok((t.name.clone(), vec![t]))
+}
+
 /// The track `track` names: a track file (its track `track_name`, `main` or its only one),
 /// or a track of the scene (built-in or scene file).
 pub fn resolve_track(scene: Option<&str>, track: &str, track_name: Option<&str>) -> Result<Track> {

@@ -35,22 +35,15 @@ impl Connection {
     /// needs them).
     pub async fn manifest(&mut self) -> Result<Manifest, ClientError> {
         let top = self.fetch_manifest().await?.top;
-        let mut tables = Vec::with_capacity(top.tracks.len());
-        for t in &top.tracks {
-            let mut row = Vec::with_capacity(t.viewpoints.len());
-            for v in &t.viewpoints {
-                let mut table = self.fetch_table(&v.table, v.index).await?;
-                if let Some(ach) = &v.ach {
-                    table.segments = self.fetch_ach(ach, v.index).await?;
-                }
-                row.push(table);
+        let mut tables = Vec::with_capacity(top.viewpoints.len());
+        for v in &top.viewpoints {
+            let mut table = self.fetch_table(&v.table, v.index).await?;
+            if let Some(ach) = &v.ach {
+                table.segments = self.fetch_ach(ach, v.index).await?;
             }
-            tables.push(row);
+            tables.push(table);
         }
-        let refs: Vec<Vec<Option<&ViewTable>>> = tables
-            .iter()
-            .map(|row| row.iter().map(Some).collect())
-            .collect();
+        let refs: Vec<Option<&ViewTable>> = tables.iter().map(Some).collect();
         Ok(assemble(&top, &refs))
     }
 

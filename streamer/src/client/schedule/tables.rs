@@ -6,7 +6,6 @@ use bytes::Bytes;
 
 use super::{whole, whole_piece, Scheduler, Want, WantClass};
 use crate::client::http::KeySet;
-use crate::client::predict::{next_segment, segment_at};
 use crate::client::schedule::Arrival;
 use crate::visibility::SceneIndex;
 use db::split::{assemble, decode_ach, decode_table, ViewTable};
@@ -15,7 +14,7 @@ impl Scheduler {
     /// The objects to fetch for viewpoint `v` that are neither in nor on the wire: its table,
     /// and its ACH object when the strategy ranks tiles by ACH.
     fn table_wants(&self, v: usize, class: WantClass, running: &KeySet) -> Vec<Want> {
-        let Some(vp) = self.top.tracks[self.track].viewpoints.get(v) else {
+        let Some(vp) = self.top.viewpoints.get(v) else {
             return Vec::new();
         };
         let mut out = Vec::new();
@@ -44,48 +43,73 @@ impl Scheduler {
     /// Whether viewpoint `v` needs nothing more (its table in or on the wire).
     fn table_requested(&self, v: usize, running: &KeySet) -> bool {
         self.tables[v].is_some()
-            || self.top.tracks[self.track]
+            || self
+                .top
                 .viewpoints
                 .get(v)
                 .is_some_and(|vp| running.contains(&whole(&vp.table.hash)))
     }
 
     /// The tables the walker needs now, nearest first, one request each: the current
-    /// segment's two viewpoints; with prefetch, the next segment's once the view has no
-    /// holes; and, whatever the strategy, the viewpoint after the current segment once the
-    /// walker would reach it before its table (two transfers and a round trip, to be safe)
-    /// could arrive — at speed there are always holes, and a table asked for on arrival
-    /// stalls every segment crossing.
-    pub(super) fn urgent_tables(&self, s: f64, holes: bool, running: &KeySet) -> Vec<Want> {
-        let vp_s = &self.table.vp_s;
-        let mut want: Vec<usize> = Vec::new();
-        if let Some(seg) = segment_at(vp_s, s) {
-            want.extend([seg, seg + 1]);
-        } else if !vp_s.is_empty() {
-            want.push(0);
-        }
-        let holes = holes
-            || want
-                .iter()
-                .any(|&v| v < vp_s.len() && !self.table.has_viewpoint(v));
-        if self.config.strategy.prefetches() {
-            if let Some(k) = next_segment(&self.motion, vp_s, s, self.config.prefetch_horizon_s)
-                .filter(|_| !holes)
-            {
-                want.extend([k, k + 1]);
+    /// segment's two viewpoints; with prefetch, those of the segments it may enter next (every
+    /// way out of a junction ahead) once the view has no holes; and, whatever the strategy,
+    /// the viewpoint after the current segment once the walker would reach it before its table
+    /// (two transfers and a round trip, to be safe) could arrive — at speed there are always
+    /// holes, and a table asked for on arrival stalls every segment crossing. `dist`: each
+    /// viewpoint's distance along the network.
+    pub(super) fn urgent_tables(
+        &self,
+        s: f64,
+        camera: &tracks::PerspectiveCamera,
+        holes: bool,
+        running: &KeySet,
+        dist: &[f64],
+    ) -> Vec<Want> {
+        let net = &self.net;
+        let n = self.tables.len();
+        let mut want: Vec<usize> = self.pair(s).into_iter().map(|w| w.0).collect();
+        let holes = holes || want.iter().any(|&v| v < n && !self.table.has_viewpoint(v));
+        let next = self.next_segments(s, camera);
+        if self.config.strategy.prefetches() && !holes {
+            for &(e, _) in &next {
+                let sg = net.segments[e];
+                want.extend([sg.from, sg.to]);
             }
         }
-        if let (Some(seg), Some(v)) = (segment_at(vp_s, s), self.motion.velocity()) {
-            let next = seg + 2;
-            if v > 0.0 && next < vp_s.len() && !self.table_requested(next, running) {
-                let (bps, latency) = self.link.get();
+        if let (Some(seg), Some(v)) = (self.segment(s), self.motion.velocity()) {
+            // The viewpoints at the far ends of the segments after the current one in the
+            // direction of travel (past a junction: of every way out).
+            let sg = net.segments[seg];
+            let (end, end_s) = if v > 0.0 {
+                (sg.to, sg.s1)
+            } else {
+                (sg.from, sg.s0)
+            };
+            let far: Vec<usize> = net
+                .incident(end)
+                .iter()
+                .filter(|&&e| e != seg)
+                .map(|&e| {
+                    let o = net.segments[e];
+                    if o.from == end {
+                        o.to
+                    } else {
+                        o.from
+                    }
+                })
+                .collect();
+            let (bps, latency) = self.link.get();
+            let reach_s = (end_s - s).abs() / v.abs().max(1e-9);
+            for next in far {
+                if next >= n || self.table_requested(next, running) {
+                    continue;
+                }
                 let bytes = self
                     .table_wants(next, WantClass::Table, running)
                     .iter()
                     .map(Want::bytes)
                     .sum::<u64>() as f64;
                 let fetch_s = latency + 2.0 * bytes * 8.0 / bps.max(1.0);
-                let reach_s = (vp_s[seg + 1] - s).max(0.0) / v;
                 // With holes in the view only in the last quarter second (the link estimate
                 // of the first seconds is too rough to time it closer).
                 if (!holes && reach_s < 2.0 * fetch_s) || reach_s < 0.25 {
@@ -93,43 +117,34 @@ impl Scheduler {
                 }
             }
         }
-        want.retain(|&v| v < vp_s.len());
-        want.sort_by(|&a, &b| {
-            (vp_s[a] - s)
-                .abs()
-                .total_cmp(&(vp_s[b] - s).abs())
-                .then(a.cmp(&b))
-        });
+        want.retain(|&v| v < n);
+        let d = |v: usize| dist.get(v).copied().unwrap_or(f64::INFINITY);
+        want.sort_by(|&a, &b| d(a).total_cmp(&d(b)).then(a.cmp(&b)));
         want.dedup();
         want.iter()
             .flat_map(|&v| self.table_wants(v, WantClass::Table, running))
             .collect()
     }
 
-    /// The nearest viewpoint whose table is neither in nor on the wire, as background
-    /// wants (one goes at a time).
-    pub(super) fn background_table(&self, s: f64, running: &KeySet) -> Option<Vec<Want>> {
-        let vp_s = &self.table.vp_s;
-        let v = (0..vp_s.len())
+    /// The nearest viewpoint (along the network) whose table is neither in nor on the wire,
+    /// as background wants (one goes at a time).
+    pub(super) fn background_table(&self, running: &KeySet, dist: &[f64]) -> Option<Vec<Want>> {
+        let d = |v: usize| dist.get(v).copied().unwrap_or(f64::INFINITY);
+        let v = (0..self.tables.len())
             .filter(|&v| !self.table_requested(v, running))
             .filter(|&v| {
                 !self
                     .table_wants(v, WantClass::BackgroundTable, running)
                     .is_empty()
             })
-            .min_by(|&a, &b| {
-                (vp_s[a] - s)
-                    .abs()
-                    .total_cmp(&(vp_s[b] - s).abs())
-                    .then(a.cmp(&b))
-            })?;
+            .min_by(|&a, &b| d(a).total_cmp(&d(b)).then(a.cmp(&b)))?;
         Some(self.table_wants(v, WantClass::BackgroundTable, running))
     }
 
     /// A checked table arrived: decoded and added to the item table. A table that does not
     /// decode is dropped (asked for again). Returns whether it was added.
     pub(super) fn table_arrived(&mut self, vi: usize, data: &Bytes) -> bool {
-        let Some(v) = self.top.tracks[self.track].viewpoints.get(vi) else {
+        let Some(v) = self.top.viewpoints.get(vi) else {
             return false;
         };
         let mut vt = match decode_table(data, v.index) {
@@ -163,7 +178,9 @@ impl Scheduler {
                 // A part identical to one already held (its key shared) arrives for the new
                 // item at once.
                 if let Some(data) = self.cache.get(&part.key).cloned() {
-                    let _ = self.cache.insert(part.key.clone(), data.clone(), it.s);
+                    let _ = self
+                        .cache
+                        .insert(part.key.clone(), data.clone(), it.viewpoint);
                     self.arrivals.push(Arrival {
                         item: i,
                         part: p,
@@ -183,7 +200,7 @@ impl Scheduler {
     /// A checked ACH object arrived: its lists join the item table. One that does not decode
     /// is dropped (asked for again). Returns whether it was added.
     pub(super) fn ach_arrived(&mut self, vi: usize, data: &Bytes) -> bool {
-        let Some(v) = self.top.tracks[self.track].viewpoints.get(vi) else {
+        let Some(v) = self.top.viewpoints.get(vi) else {
             return false;
         };
         let segments = match decode_ach(data, v.index) {
@@ -222,10 +239,8 @@ impl Scheduler {
                 .max(scaled.memory_static_bytes);
         }
         let row: Vec<Option<&ViewTable>> = self.tables.iter().map(|t| t.as_ref()).collect();
-        let mut rows: Vec<Vec<Option<&ViewTable>>> = vec![Vec::new(); self.top.tracks.len()];
-        rows[self.track] = row;
-        self.manifest = assemble(&self.top, &rows);
-        self.index = SceneIndex::new(&self.manifest, self.track);
+        self.manifest = assemble(&self.top, &row);
+        self.index = SceneIndex::new(&self.manifest);
         // New tiles and items: count, prefetch and pin again.
         self.cpu_counts = None;
         self.prefetch_memo = None;

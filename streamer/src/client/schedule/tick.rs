@@ -7,13 +7,14 @@ use super::{Actions, DispatchLimits, Piece, Scheduler, Strategy, Want, WantClass
 use crate::client::budget::{plan, LiveCount, Plan, PlanInput, PriorityMode};
 use crate::client::http::{FetchKey, KeySet};
 use crate::client::items::Part;
-use crate::client::predict::{next_segment, segment_at};
-use crate::visibility::blend_weights;
+use crate::client::route::NetPos;
 
 /// What one tick knows before the strategy's choice.
 struct TickState<'a> {
-    /// Position along the track.
+    /// Position along the walker's track.
     s: f64,
+    /// Each viewpoint's distance from the walker along the network.
+    dist: Vec<f64>,
     camera: &'a PerspectiveCamera,
     /// Keys on the wire.
     running: &'a KeySet,
@@ -31,8 +32,9 @@ struct TickState<'a> {
 }
 
 impl Scheduler {
-    /// One tick at time `now`: position `s`, `camera`, the caller's live counts (merged with
-    /// the CPU estimate) and the keys on the wire; returns what to request and cancel.
+    /// One tick at time `now`: position `s` along the walker's track ([`Scheduler::track`]),
+    /// `camera`, the caller's live counts (merged with the CPU estimate) and the keys on the
+    /// wire; returns what to request and cancel.
     pub fn tick(
         &mut self,
         now: f64,
@@ -41,7 +43,32 @@ impl Scheduler {
         live: Option<&[LiveCount]>,
         running: &KeySet,
     ) -> Actions {
-        let s = if s.is_finite() { s } else { 0.0 };
+        let pos = NetPos {
+            track: self.track,
+            s,
+        };
+        self.tick_at(now, pos, camera, live, running)
+    }
+
+    /// [`Scheduler::tick`] at a position on the network: a walker on another track than the
+    /// last tick's turned at a junction (its motion carries over).
+    pub fn tick_at(
+        &mut self,
+        now: f64,
+        pos: NetPos,
+        camera: &PerspectiveCamera,
+        live: Option<&[LiveCount]>,
+        running: &KeySet,
+    ) -> Actions {
+        let s = if pos.s.is_finite() { pos.s } else { 0.0 };
+        if pos.track != self.track && pos.track < self.net.tracks.len() {
+            self.rebase(NetPos {
+                track: pos.track,
+                s,
+            });
+            self.prefetch_memo = None;
+            self.cpu_counts = None;
+        }
         self.now = self.now.max(now);
         if std::mem::take(&mut self.tables_dirty) {
             // Once for all the tables of the tick (castle 256's 37 tables, rebuilt one by
@@ -49,7 +76,8 @@ impl Scheduler {
             self.tables_changed();
         }
         self.motion.observe(now, s);
-        self.cache.set_position(s);
+        let dist = self.distances(s);
+        self.cache.set_distances(dist.clone());
         self.live = self.count(s, camera, live);
         let have = self.held.clone();
         let mut downloading = vec![false; self.table.items.len()];
@@ -58,10 +86,12 @@ impl Scheduler {
                 downloading[i] = true;
             }
         }
-        let seg = segment_at(&self.table.vp_s, s).unwrap_or(0);
-        let seg_ach: Vec<(usize, f64)> =
-            self.table.segment_ach.get(seg).cloned().unwrap_or_default();
-        let backgrounds: Vec<usize> = blend_weights(&self.table.vp_s, s)
+        let seg_ach: Vec<(usize, f64)> = self
+            .segment(s)
+            .and_then(|k| self.table.segment_ach.get(k).cloned())
+            .unwrap_or_default();
+        let backgrounds: Vec<usize> = self
+            .pair(s)
             .iter()
             .flat_map(|&(vi, _)| self.table.background_items(vi))
             .collect();
@@ -71,6 +101,7 @@ impl Scheduler {
             .any(|c| have[c.item] < self.infos[c.item].min_parts());
         let t = TickState {
             s,
+            dist,
             camera,
             running,
             have,
@@ -83,7 +114,7 @@ impl Scheduler {
         let mut wants = Vec::new();
         let mut wanted_keys = KeySet::default();
         if !t.paused {
-            wants.extend(self.urgent_tables(s, t.holes, running));
+            wants.extend(self.urgent_tables(s, camera, t.holes, running, &t.dist));
         }
         let (tile_wants, mut background_table) = match self.config.strategy {
             Strategy::Naive => {
@@ -91,7 +122,7 @@ impl Scheduler {
                 if t.paused {
                     (Vec::new(), None)
                 } else {
-                    let background_table = self.background_table(s, running);
+                    let background_table = self.background_table(running, &t.dist);
                     (
                         self.naive_wants(&t.have, running, &mut wanted_keys),
                         background_table,
@@ -175,11 +206,9 @@ impl Scheduler {
             return (Vec::new(), None);
         }
         let tile_wants = self.plan_wants(&p, t.running);
-        let around = blend_weights(&self.table.vp_s, t.s)
-            .iter()
-            .all(|w| self.table.has_viewpoint(w.0));
+        let around = self.pair(t.s).iter().all(|w| self.table.has_viewpoint(w.0));
         let background_table = if !t.holes && around {
-            self.background_table(t.s, t.running)
+            self.background_table(t.running, &t.dist)
         } else {
             None
         };
@@ -197,19 +226,11 @@ impl Scheduler {
     ) -> (Plan, Vec<(usize, f64)>) {
         let (ach, wide) = self.frustum_ach(t.camera, &t.seg_ach, &t.backgrounds);
         let next = if prefetch {
-            next_segment(
-                &self.motion,
-                &self.table.vp_s,
-                t.s,
-                self.config.prefetch_horizon_s,
-            )
+            self.next_segments(t.s, t.camera)
         } else {
-            None
+            Vec::new()
         };
-        let pre = match next {
-            Some(k) => self.prefetch_list(t.camera, k, mode),
-            None => Vec::new(),
-        };
+        let pre = self.prefetch_lists(t.camera, &next, mode);
         let counts = if matches!(mode, PriorityMode::Ach) {
             Vec::new()
         } else {

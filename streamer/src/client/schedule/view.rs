@@ -7,7 +7,7 @@ use tracks::PerspectiveCamera;
 
 use super::{surface_item, CpuCounts, Scheduler};
 use crate::client::budget::{ItemInfo, LiveCount};
-use crate::visibility::{blend_weights, frustum_half_angle};
+use crate::visibility::frustum_half_angle;
 
 /// `(item, weight)` lists.
 type Weighted = Vec<(usize, f64)>;
@@ -64,7 +64,7 @@ impl Scheduler {
     ) -> Vec<LiveCount> {
         let mut by_item: HashMap<usize, LiveCount> = HashMap::new();
         if let Some(index) = &self.index {
-            let weights = blend_weights(&self.table.vp_s, s);
+            let weights = self.pair(s);
             let same = self
                 .cpu_counts
                 .as_ref()
@@ -137,7 +137,8 @@ impl Scheduler {
         };
         // A viewpoint of the segment whose table has not arrived counts as one item not
         // showable (its tiles are not even known yet).
-        let tables_missing = blend_weights(&self.table.vp_s, s)
+        let tables_missing = self
+            .pair(s)
             .iter()
             .filter(|w| !self.table.has_viewpoint(w.0))
             .count();

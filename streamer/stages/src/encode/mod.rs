@@ -169,8 +169,10 @@ pub fn run(
     report.stage_done("encode", m);
     let m = crate::cost::Meter::start();
     stage(progress, 5, "ACH per segment");
+    let net = crate::network::network_of(&dir, &pre)?;
     let segments = ach(
         &dir,
+        &net,
         &viewpoints,
         &grid,
         pre.slabs.len(),
@@ -180,8 +182,8 @@ pub fn run(
     report.stage_done("ach", m);
     stage(progress, 6, "manifest");
     manifest(
-        &dir,
         &pre,
+        &net,
         &grid,
         culling,
         viewpoints,
@@ -366,9 +368,11 @@ fn add_sample(sample: &EncodedSample, rows: &mut [SlabRow], report: &mut BuildRe
         .sum::<u64>();
 }
 
-/// ACH of every segment, from the kept tiles' depth at both ends.
+/// ACH of every segment of the network (in the network's order), from the kept tiles' depth
+/// at both ends; `viewpoints` by id.
 fn ach(
     dir: &PrerenderDir,
+    net: &tracks::network::Network,
     viewpoints: &[ViewpointEntry],
     grid: &TileGrid,
     nslabs: usize,
@@ -376,14 +380,10 @@ fn ach(
     progress: &Reporter,
 ) -> Result<Vec<SegmentEntry>> {
     let mut segments = Vec::new();
-    let b = progress.bar(
-        viewpoints.len().saturating_sub(1) as u64,
-        "ACH",
-        BarKind::Steps,
-    );
+    let b = progress.bar(net.segments.len() as u64, "ACH", BarKind::Steps);
     let mut depth_cache: Vec<(usize, Vec<CubeMap<f32>>)> = Vec::new();
-    for pair in viewpoints.windows(2) {
-        let (a, z) = (&pair[0], &pair[1]);
+    for sg in &net.segments {
+        let (a, z) = (&viewpoints[sg.from], &viewpoints[sg.to]);
         for v in [a, z] {
             if !depth_cache.iter().any(|(i, _)| *i == v.index) {
                 let maps = (0..nslabs)
@@ -437,22 +437,50 @@ fn ach(
     Ok(segments)
 }
 
-/// The manifest, last: the database is complete once it is written.
+/// The manifest, last: the database is complete once it is written. One track entry per
+/// track of the network, listing its stops' viewpoint entries (at its own arc lengths) and
+/// its segments with their ACH lists (`segments` in the network's order).
 fn manifest(
-    dir: &PrerenderDir,
     pre: &PrerenderReport,
+    net: &tracks::network::Network,
     grid: &TileGrid,
     culling: &Culling,
     viewpoints: Vec<ViewpointEntry>,
     segments: Vec<SegmentEntry>,
     writer: &mut DbWriter,
 ) -> Result<()> {
-    let track_toml = std::fs::read_to_string(dir.track_toml())
-        .with_context(|| format!("reading {}", dir.track_toml().display()))?;
-    let length = TrackSet::parse(&track_toml, &dir.track_toml().display().to_string())?
-        .get(&pre.track)
-        .map_or(0.0, |t| t.length());
     let decided = culling.decisions.as_ref();
+    let tracks = net
+        .tracks
+        .iter()
+        .enumerate()
+        .map(|(ti, t)| {
+            let one = TrackSet {
+                tracks: vec![t.clone()],
+            };
+            let entries = net.stops[ti]
+                .iter()
+                .map(|st| ViewpointEntry {
+                    s: st.s,
+                    ..viewpoints[st.viewpoint].clone()
+                })
+                .collect();
+            let segs = net
+                .track_segments(ti)
+                .iter()
+                .enumerate()
+                .filter_map(|(k, _)| net.segment_id(ti, k))
+                .map(|e| segments[e].clone())
+                .collect();
+            TrackEntry {
+                name: t.name.clone(),
+                track_toml: one.to_toml(),
+                length: t.length(),
+                viewpoints: entries,
+                segments: segs,
+            }
+        })
+        .collect();
     let manifest = Manifest {
         version: MANIFEST_VERSION,
         scene: pre.scene.clone(),
@@ -461,13 +489,7 @@ fn manifest(
         slabs: pre.slabs.clone(),
         cull_alpha: decided.map(|_| culling.alpha),
         cull_variant: decided.and(culling.variant).map(|v| v.name().to_string()),
-        tracks: vec![TrackEntry {
-            name: pre.track.clone(),
-            track_toml,
-            length,
-            viewpoints,
-            segments,
-        }],
+        tracks,
     };
     writer.finish(&manifest)?;
     Ok(())

@@ -61,10 +61,10 @@ impl RenderedBy {
 pub struct PrerenderParams {
     /// Built-in: a built-in scene name or a scene TOML file. POV-Ray: the `.pov` scene.
     pub scene: String,
-    /// Built-in: a track of the scene or a track TOML file. POV-Ray: a track TOML file in
-    /// railview coordinates.
+    /// Built-in: a track of the scene (`all` for every one, a network) or a track TOML file.
+    /// POV-Ray: a track TOML file in railview coordinates.
     pub track: String,
-    /// POV-Ray: which track of the file (default: the first).
+    /// Which track of the file (POV-Ray default: the first; `all`: every one, a network).
     pub track_name: Option<String>,
     /// Pixels along a cube face.
     pub face_size: u32,
@@ -197,10 +197,14 @@ fn builtin(
     progress: &Reporter,
 ) -> Result<Prerendered> {
     let (scene, scene_tracks) = crate::scene::load_scene(&params.scene)?;
-    let track = crate::scene::pick_track(&params.track, scene_tracks.as_ref())?;
+    let (track_name, tracks) = crate::scene::pick_tracks(
+        &params.track,
+        params.track_name.as_deref(),
+        scene_tracks.as_ref(),
+    )?;
     store::ensure_writable_dir(&params.out).context("output directory")?;
     let dir = PrerenderDir::new(&params.out);
-    let viewpoints = track.viewpoints();
+    let (_, viewpoints) = crate::network::network_of_tracks(tracks.clone())?;
     let lowres = params.lowres();
     // Without slabs asked for, a rerun keeps the slab layers an earlier run (or the slabs
     // stage) rendered at this face size, so the report never forgets them: those of the
@@ -221,9 +225,7 @@ fn builtin(
             })
             .unwrap_or_default(),
     };
-    let one = TrackSet {
-        tracks: vec![track.clone()],
-    };
+    let one = TrackSet { tracks };
     // Every shard writes the same bytes here; written only when it differs, so a shard
     // starting later never replaces the file under one already running.
     store::write_if_changed(&dir.track_toml(), one.to_toml().as_bytes())?;
@@ -235,7 +237,7 @@ fn builtin(
     let report_input = ReportInput {
         scene: &params.scene,
         renderer: "builtin",
-        track: &track.name,
+        track: &track_name,
         viewpoints: &viewpoints,
         face_size: params.face_size,
         lowres_face_size: lowres,

@@ -101,26 +101,18 @@ fn pass_group(pass: &str) -> &'static str {
     }
 }
 
-/// The track file's track: the one named, or the first.
-fn read_track(params: &PrerenderParams) -> Result<(tracks::Track, String)> {
+/// The track file's tracks: the one named (`all`: every one, a network), or the first; the
+/// name for the report, the viewpoints and the file's text.
+fn read_track(params: &PrerenderParams) -> Result<(String, Vec<ReferenceViewpoint>, String)> {
     let path = Path::new(&params.track);
     let text = crate::scene::read_text(path)
         .with_context(|| format!("cannot read track file {}", path.display()))?;
-    let set = TrackSet::parse(&text, &path.display().to_string())?;
-    let track = match &params.track_name {
-        Some(name) => set.get(name).ok_or_else(|| {
-            parameter!(
-                "{}: no track `{name}` (found: {})",
-                path.display(),
-                set.names().join(", ")
-            )
-        })?,
-        None => set
-            .tracks
-            .first()
-            .ok_or_else(|| input!("{}: no [[track]] in the file", path.display()))?,
-    };
-    Ok((track.clone(), text))
+    let source = path.display().to_string();
+    let set = TrackSet::parse(&text, &source)?;
+    let (name, tracks) =
+        crate::network::choose_tracks(&set, params.track_name.as_deref(), &source, true)?;
+    let (_, viewpoints) = crate::network::network_of_tracks(tracks)?;
+    Ok((name, viewpoints, text))
 }
 
 /// The import with its options.
@@ -180,8 +172,7 @@ pub(super) fn run(
     pov: &PovParams,
     progress: &Reporter,
 ) -> Result<Prerendered> {
-    let (track, track_text) = read_track(params)?;
-    let viewpoints = track.viewpoints();
+    let (track_name, viewpoints, track_text) = read_track(params)?;
     let out = &params.out;
     let dir = PrerenderDir::new(out);
     store::ensure_writable_dir(out).context("cannot use the output directory")?;
@@ -204,7 +195,7 @@ pub(super) fn run(
         params,
         pov,
         dir: &dir,
-        track: &track.name,
+        track: &track_name,
         viewpoints: &viewpoints,
         slabs: &slabs,
     };

@@ -166,10 +166,12 @@ pub fn run(params: &SlabsParams, progress: &Reporter) -> Result<Slabbed> {
     if indices.is_empty() {
         return Err(input!("{}: no viewpoints", dir.report_json().display()));
     }
-    let max_spacing = pre
-        .viewpoints
-        .windows(2)
-        .map(|w| w[0].position.distance(w[1].position))
+    // The longest segment of the network (of the track: consecutive viewpoints).
+    let net = crate::network::network_of(&dir, &pre)?;
+    let max_spacing = net
+        .segments
+        .iter()
+        .map(|sg| net.viewpoints[sg.from].distance(net.viewpoints[sg.to]))
         .fold(0.0, f64::max);
     let existing: Vec<Option<LayersMeta>> = indices.iter().map(|&i| dir.layers_meta(i)).collect();
     let choice = choose(params, &dir, &pre, &indices, &existing, max_spacing)?;
