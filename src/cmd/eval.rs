@@ -64,7 +64,8 @@ pub struct Args {
     /// Timed draws per view and configuration (after one untimed draw).
     #[arg(long, default_value_t = 3)]
     pub timed_draws: usize,
-    /// Track name (default: the first).
+    /// Track name (default: every track of a network, views of each; the only track of one
+    /// that is not).
     #[arg(long)]
     pub track: Option<String>,
     /// Evaluate the sampling bound beside (the exact warp of the reference panoramas, from
@@ -178,6 +179,7 @@ fn runs(args: &Args, walk: Walkthrough) -> anyhow::Result<Vec<Run>> {
             args.track.as_deref(),
             LoadOptions {
                 level_groups: Some(groups),
+                every_track: args.track.is_none(),
                 ..Default::default()
             },
         )
@@ -191,8 +193,12 @@ fn runs(args: &Args, walk: Walkthrough) -> anyhow::Result<Vec<Run>> {
     for other in &args.also {
         let coding = db::Database::open(Path::new(other))?.texture_coding()?;
         let name = format!("also {other} ({coding})");
-        let walk = open(other, args.track.as_deref(), LoadOptions::default())
-            .with_context(|| format!("opening {other}"))?;
+        let opts = LoadOptions {
+            every_track: args.track.is_none(),
+            ..LoadOptions::default()
+        };
+        let walk =
+            open(other, args.track.as_deref(), opts).with_context(|| format!("opening {other}"))?;
         anyhow::ensure!(
             walk.scene == scene,
             "--also {other}: scene `{}`, not `{}`",
@@ -209,7 +215,12 @@ fn runs(args: &Args, walk: Walkthrough) -> anyhow::Result<Vec<Run>> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     check(&args)?;
-    let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
+    // Without a track named, every track of a network is evaluated.
+    let opts = LoadOptions {
+        every_track: args.track.is_none(),
+        ..LoadOptions::default()
+    };
+    let mut walk = open(&args.db, args.track.as_deref(), opts)
         .with_context(|| format!("opening {}", args.db))?;
     let face = walk.views.first().map_or(0, |v| v.face_size);
     anyhow::ensure!(face > 0, "{}: no reference views", args.db);
@@ -239,19 +250,40 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         pitches_deg: pitches(&args.pitch)?,
         max_segments: args.segments,
     };
-    let arcs: Vec<f64> = walk.views.iter().map(|v| v.s).collect();
-    let between = views_between(&walk, &arcs, &spec);
-    let runs = runs(&args, walk)?;
-    let views_of = |w: &Walkthrough| -> Vec<EvalView> {
-        let mut v = views_at_samples(w, &spec);
+    // The views of every track evaluated (the one named, or each of a network), at its
+    // samples and between them.
+    let tracks: Vec<usize> = match &args.track {
+        Some(_) => vec![walk.current],
+        None => (0..walk.tracks.len()).collect(),
+    };
+    let start = walk.current;
+    let mut at_samples = Vec::new();
+    let mut between = Vec::new();
+    for &t in &tracks {
+        walk.set_track(t);
+        let (_, arcs) = walk.order_and_arcs();
+        at_samples.extend(views_at_samples(&walk, &spec));
+        between.extend(views_between(&walk, &arcs, &spec));
+    }
+    walk.set_track(start);
+    let mut runs = runs(&args, walk)?;
+    let views_of = |w: &mut Walkthrough| -> Vec<EvalView> {
+        let mut v = at_samples.clone();
         let mut b = between.clone();
-        mark_references(w, &mut b);
+        for &t in &tracks {
+            w.set_track(t);
+            let mut mine: Vec<EvalView> = b.iter().filter(|x| x.track == t).copied().collect();
+            mark_references(w, &mut mine);
+            for (x, m) in b.iter_mut().filter(|x| x.track == t).zip(mine) {
+                *x = m;
+            }
+        }
         v.extend(b);
         v
     };
     let total: usize = runs
-        .iter()
-        .map(|r| views_of(&r.walk).len() * r.configs.len())
+        .iter_mut()
+        .map(|r| views_of(&mut r.walk).len() * r.configs.len())
         .sum();
     // The sampling bound, for the first walkthrough, from its prerender directory.
     let mut bound = match eval::prerender_dir(&args.db, &runs[0].walk, args.prerender.as_deref()) {
@@ -263,12 +295,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut renderer = Renderer::new(Gpu::new()?)?;
     let bar = indicatif::ProgressBar::new(total as u64);
     let mut rows: Vec<EvalRow> = Vec::new();
-    for (ri, r) in runs.iter().enumerate() {
-        let views = views_of(&r.walk);
+    for (ri, r) in runs.iter_mut().enumerate() {
+        let views = views_of(&mut r.walk);
         rows.extend(evaluate(
             &mut renderer,
             EvalInput {
-                walk: &r.walk,
+                walk: &mut r.walk,
                 truth: &mut truth,
                 cache: &cache,
                 configs: &r.configs,
@@ -287,11 +319,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     bar.finish_and_clear();
 
     let summary = eval::summarize(&rows);
-    let first = &runs[0];
+    let first = &mut runs[0];
     let worst = eval::pictures::worst_pictures(
         eval::pictures::PictureInput {
             renderer: &mut renderer,
-            walk: &first.walk,
+            walk: &mut first.walk,
             config: &first.configs[0].name,
             budget: first.configs[0].budget,
             size,

@@ -7,7 +7,7 @@ use anyhow::Context;
 use viewer::gpu::{Gpu, Renderer};
 use viewer::headless::{open, parse_size, yaw_along};
 use viewer::source::LoadOptions;
-use viewer::{plan_frame, DrawBudget};
+use viewer::DrawBudget;
 
 /// Arguments of `railview flythrough`.
 #[derive(clap::Args, Clone)]
@@ -64,7 +64,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             height: h,
         };
         let t0 = Instant::now();
-        let mut plan = plan_frame(&walk.views, &camera, s, DrawBudget::default())?;
+        let mut plan = walk.plan(&camera, s, DrawBudget::default())?;
         // As the window shows it between feedback frames (no tile ids: fused passes).
         plan.tile_ids = false;
         renderer.draw(&plan, &walk.views)?;

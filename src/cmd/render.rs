@@ -6,7 +6,7 @@ use anyhow::Context;
 use viewer::gpu::{Gpu, Renderer};
 use viewer::headless::{open, parse_size, yaw_along};
 use viewer::source::LoadOptions;
-use viewer::{plan_frame, DrawBudget};
+use viewer::DrawBudget;
 
 /// Arguments of `railview render`.
 #[derive(clap::Args)]
@@ -104,7 +104,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         blend: !args.no_blend,
         ..Default::default()
     };
-    let mut plan = plan_frame(&walk.views, &camera, args.at, budget)?;
+    let mut plan = walk.plan(&camera, args.at, budget)?;
     // The frame as the window shows it between feedback frames (no tile ids: fused passes).
     plan.tile_ids = false;
     let mut renderer = Renderer::new(Gpu::new()?)?;

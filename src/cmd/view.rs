@@ -94,7 +94,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         Source::Stream(Box::new(stream))
     } else {
-        let walk = open(&args.db, args.track.as_deref(), LoadOptions::default())
+        let opts = LoadOptions {
+            every_track: true,
+            ..LoadOptions::default()
+        };
+        let walk = open(&args.db, args.track.as_deref(), opts)
             .with_context(|| format!("opening {}", args.db))?;
         Source::Local(Box::new(walk))
     };

@@ -67,6 +67,11 @@ pub struct Args {
     /// Seconds standing still at the end of the track (0..=3600).
     #[arg(long, default_value_t = 3.0)]
     pub pause: f64,
+    /// Walk through these tracks of a network, comma separated: along the first from its end
+    /// farther from the second into the second at their junction, and so on, to the far end
+    /// of the last (turn stalls are reported apart). Default: the first track, whole.
+    #[arg(long)]
+    pub route: Option<String>,
     /// Write a synthetic corridor database into the DB directory first (tests and demos).
     #[arg(long)]
     pub synthetic: bool,
@@ -154,6 +159,18 @@ fn config(args: &Args) -> anyhow::Result<WalkConfig> {
             ..defaults
         },
         retry,
+        route: match &args.route {
+            Some(r) => {
+                let names: Vec<String> = r.split(',').map(|x| x.trim().to_string()).collect();
+                anyhow::ensure!(
+                    names.iter().all(|n| !n.is_empty()),
+                    "--route {r}: track names separated by commas"
+                );
+                check_u64("--route (tracks)", names.len() as u64, 1, 1024)?;
+                Some(names)
+            }
+            None => None,
+        },
         ..WalkConfig::default()
     })
 }

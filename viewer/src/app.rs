@@ -1,5 +1,6 @@
 //! The interactive viewer (eframe/egui on the same wgpu device as the renderer): move along
-//! the track (W/S or arrow keys, slider, play with a speed), look around by dragging the view,
+//! the track (W/S or arrow keys, slider, play with a speed; on a network A/D or ←/→ choose the
+//! branch at the next junction, shown in the panel), look around by dragging the view,
 //! FOV; panels for frame time (plotted over time) and the frame-to-frame interval, GPU memory
 //! and the frame-time budget's current choice (slabs, texture level, second view, mesh
 //! level), made by a [`BudgetController`] from the view's draw times against the target rate.
@@ -20,12 +21,13 @@ use tracks::PerspectiveCamera;
 
 use crate::gpu::{device_limits, DeviceLimits, Gpu, GpuError, Renderer};
 use crate::headless::yaw_along;
-use crate::plan::{plan_frame, BudgetController, DrawBudget, Overlays};
+use crate::plan::{BudgetController, DrawBudget, Overlays};
 use crate::source::Walkthrough;
 use crate::stream::StreamedWalkthrough;
 use streamer::client::PriorityMode;
 
 mod blit;
+mod junction;
 mod streaming;
 
 pub use streaming::Strategy;
@@ -87,6 +89,8 @@ pub struct ViewerApp {
     error: Option<String>,
     /// An error of the GPU while drawing: the window closes and [`run`] returns it.
     failed: std::sync::Arc<std::sync::Mutex<Option<GpuError>>>,
+    /// On a network: the walker that turns at junctions.
+    junctions: Option<junction::Junctions>,
     /// Close after this many frames (screenshots and smoke tests).
     pub quit_after: Option<u64>,
     /// Save a screenshot of the window here a few frames before closing.
@@ -120,7 +124,9 @@ impl ViewerApp {
             Source::Stream(st) => st.session().prefetch(),
             Source::Local(_) => true,
         };
+        let junctions = junction::Junctions::of(&source);
         Ok(ViewerApp {
+            junctions,
             source,
             overlays: Overlays::default(),
             stream: StreamUi {
@@ -234,7 +240,7 @@ impl ViewerApp {
             // Streaming: where the views around the position have nothing yet, the nearest
             // that have (not a black frame).
             Source::Stream(st) => st.plan(&camera, self.s, self.budget),
-            _ => plan_frame(&walk.views, &camera, self.s, self.budget),
+            _ => walk.plan(&camera, self.s, self.budget),
         };
         let mut plan = match planned {
             Ok(p) => p,
@@ -284,6 +290,12 @@ impl ViewerApp {
             ));
     }
 
+    /// The view direction in the world, level.
+    fn view_dir(&self) -> glam::DVec3 {
+        let y = (yaw_along(self.source.walk(), self.s) + self.yaw_offset_deg).to_radians();
+        glam::DVec3::new(y.sin(), 0.0, -y.cos())
+    }
+
     /// The camera at the current position and view direction for a `w × h` image.
     fn camera(&self, w: u32, h: u32) -> PerspectiveCamera {
         let walk = self.source.walk();
@@ -308,6 +320,9 @@ impl ViewerApp {
             walk.views.len()
         ));
         ui.add(egui::Slider::new(&mut self.s, 0.0..=len.max(1e-6)).text("position m"));
+        if let Some(j) = &self.junctions {
+            ui.label(j.describe(self.view_dir()));
+        }
         ui.horizontal(|ui| {
             if ui
                 .button(if self.playing { "pause" } else { "play" })
@@ -405,10 +420,12 @@ impl eframe::App for ViewerApp {
             Self::push(&mut self.interval_s, interval);
         }
         let len = self.source.walk().track.length();
-        let (fwd, back) = ui.ctx().input(|i| {
+        let (fwd, back, left, right) = ui.ctx().input(|i| {
             (
                 i.key_down(egui::Key::W) || i.key_down(egui::Key::ArrowUp),
                 i.key_down(egui::Key::S) || i.key_down(egui::Key::ArrowDown),
+                i.key_pressed(egui::Key::A) || i.key_pressed(egui::Key::ArrowLeft),
+                i.key_pressed(egui::Key::D) || i.key_pressed(egui::Key::ArrowRight),
             )
         });
         let mut ds = 0.0;
@@ -418,7 +435,20 @@ impl eframe::App for ViewerApp {
         if back {
             ds -= self.speed_mps * dt;
         }
-        self.s = (self.s + ds).clamp(0.0, len);
+        if self.junctions.is_some() {
+            let view = self.view_dir();
+            if let Some(j) = &mut self.junctions {
+                if left {
+                    j.choose(-1, view);
+                }
+                if right {
+                    j.choose(1, view);
+                }
+            }
+            self.walk_network(ds);
+        } else {
+            self.s = (self.s + ds).clamp(0.0, len);
+        }
         if self.auto_budget {
             // The budget holds what it controls, the view's draw (the last frame's), within
             // the target frame time. The window's own panels and presentation come on top:

@@ -95,13 +95,13 @@ pub fn synth_street_spaced(
             (tex + mesh) as u64
         })
         .sum();
-    Ok(Walkthrough {
-        scene: "synth:street".into(),
+    Ok(Walkthrough::single(
+        "synth:street".into(),
         track,
         views,
-        slabs: slabs.to_vec(),
+        slabs.to_vec(),
         bytes,
-    })
+    ))
 }
 
 /// Open `spec`: `synth:street` or a directory (database or prerender output).

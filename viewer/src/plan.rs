@@ -255,30 +255,37 @@ pub fn plan_frame(
     plan_frame_among(views, camera, s, budget, &|_| true)
 }
 
-/// [`plan_frame`] drawing only views for which `usable` holds (positions in `views`) where
-/// the pair around `s` is not ([`blend_pair_among`]): a streamed walk draws the nearest views
-/// that received something rather than nothing where the pair around the camera has not.
-pub fn plan_frame_among(
+/// [`plan_frame`] for one track of a network: `order` holds the positions in `views` of the
+/// track's viewpoints in order along it (their `s` the arc lengths on this track); the other
+/// views are not drawn. The passes name positions in `views`, so a viewpoint several tracks
+/// share (a junction) is the same view whichever track the camera is on.
+pub fn plan_frame_on(
     views: &[RefView],
+    order: &[usize],
     camera: &PerspectiveCamera,
     s: f64,
     budget: DrawBudget,
     usable: &dyn Fn(usize) -> bool,
 ) -> Result<FramePlan, PlanError> {
     check_camera(camera)?;
-    if views.is_empty() {
+    if order.is_empty() || order.iter().any(|&i| i >= views.len()) {
         return Err(PlanError::NoViews);
     }
-    if let Some(i) = views
-        .windows(2)
-        .position(|w| w[0].s.partial_cmp(&w[1].s).is_none_or(|o| o.is_gt()))
-    {
+    if let Some(i) = order.windows(2).position(|w| {
+        views[w[0]]
+            .s
+            .partial_cmp(&views[w[1]].s)
+            .is_none_or(|o| o.is_gt())
+    }) {
         return Err(PlanError::Unsorted(i + 1));
     }
-    let arcs: Vec<f64> = views.iter().map(|v| v.s).collect();
-    let (a, b, wb) = blend_pair_among(&arcs, s, usable).ok_or(PlanError::NoViews)?;
+    let arcs: Vec<f64> = order.iter().map(|&i| views[i].s).collect();
+    let (a, b, wb) = blend_pair_among(&arcs, s, &|k| usable(order[k])).ok_or(PlanError::NoViews)?;
+    let (a, b) = (order[a], order[b]);
     let mut pairs = vec![(a, 1.0 - wb)];
-    if b != a && budget.blend {
+    // At a sample (the other weight 0) its own view alone: the same frame on every track
+    // through it (a junction).
+    if b != a && budget.blend && wb > 0.0 {
         pairs.push((b, wb));
     } else {
         pairs[0].1 = 1.0;
@@ -297,6 +304,20 @@ pub fn plan_frame_among(
         half_res_second: budget.half_res_second,
         id_scale: DEFAULT_ID_SCALE,
     })
+}
+
+/// [`plan_frame`] drawing only views for which `usable` holds (positions in `views`) where
+/// the pair around `s` is not ([`blend_pair_among`]): a streamed walk draws the nearest views
+/// that received something rather than nothing where the pair around the camera has not.
+pub fn plan_frame_among(
+    views: &[RefView],
+    camera: &PerspectiveCamera,
+    s: f64,
+    budget: DrawBudget,
+    usable: &dyn Fn(usize) -> bool,
+) -> Result<FramePlan, PlanError> {
+    let order: Vec<usize> = (0..views.len()).collect();
+    plan_frame_on(views, &order, camera, s, budget, usable)
 }
 
 /// The tiles of `view` (indices into `RefView::tiles`) of its first `max_slabs` slabs whose

@@ -151,6 +151,22 @@ pub struct DenseLayer<'a> {
 }
 
 impl RefView {
+    /// A view with nothing to draw (1×1 transparent layers, no tiles): a viewpoint of a track
+    /// that was not loaded.
+    pub fn empty(index: usize, s: f64, position: DVec3, tile_size: u32) -> RefView {
+        RefView {
+            index,
+            s,
+            position,
+            face_size: 1,
+            tile_size,
+            layers: vec![crate::texture::Layer::from_rgba(CubeMap::filled(
+                1, [0u8; 4],
+            ))],
+            tiles: Vec::new(),
+        }
+    }
+
     /// Build a view from a background cube map (alpha 255 where sky) and dense slab layers.
     pub fn from_layers(
         index: usize,

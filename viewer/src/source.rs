@@ -41,16 +41,27 @@ fn format_err(what: impl Into<String>, message: impl ToString) -> SourceError {
     }
 }
 
-/// Reference views along one track, with what is needed to place a camera and to evaluate.
+/// Reference views along the tracks of a source (one track, or a network of tracks that share
+/// viewpoints at junctions), with what is needed to place a camera and to evaluate. A camera
+/// is on one track at a time ([`Walkthrough::set_track`]): `track` is that track, and the
+/// `s` of its views are their arc lengths along it.
 pub struct Walkthrough {
     /// Scene name (`castle`, …) as recorded by the prerenderer.
     pub scene: String,
+    /// The track the camera is on.
     pub track: Track,
+    /// Every view of the source, by viewpoint id (`views[i].index == i`); on a network the
+    /// views of tracks that were not loaded are empty.
     pub views: Vec<RefView>,
     pub slabs: Vec<SlabRange>,
     /// Bytes of payload read (database payloads, each stored payload once however many tiles
     /// use it; or prerender files' decoded size).
     pub bytes: u64,
+    /// Every track, and per track its stops: view positions with arc lengths, in order.
+    pub tracks: Vec<Track>,
+    pub stops: Vec<Vec<(usize, f64)>>,
+    /// Position of `track` in `tracks`.
+    pub current: usize,
 }
 
 impl Walkthrough {
@@ -58,14 +69,93 @@ impl Walkthrough {
     pub fn position_at(&self, s: f64) -> DVec3 {
         self.track.position_at(s)
     }
+
+    /// The camera goes onto track `t`: its views take their arc lengths along it.
+    pub fn set_track(&mut self, t: usize) {
+        let (Some(track), Some(stops)) = (self.tracks.get(t), self.stops.get(t)) else {
+            return;
+        };
+        self.track = track.clone();
+        self.current = t;
+        for &(v, s) in stops {
+            if let Some(view) = self.views.get_mut(v) {
+                view.s = s;
+            }
+        }
+    }
+
+    /// The positions in `views` of the current track's views, in order along it.
+    pub fn order(&self) -> Vec<usize> {
+        self.stops
+            .get(self.current)
+            .map(|st| st.iter().map(|x| x.0).collect())
+            .unwrap_or_default()
+    }
+
+    /// The positions in `views` of the current track's views and their arc lengths.
+    pub fn order_and_arcs(&self) -> (Vec<usize>, Vec<f64>) {
+        self.stops
+            .get(self.current)
+            .map(|st| st.iter().copied().unzip())
+            .unwrap_or_default()
+    }
+
+    /// The frame at arc length `s` of the current track ([`crate::plan::plan_frame_on`]).
+    pub fn plan(
+        &self,
+        camera: &tracks::PerspectiveCamera,
+        s: f64,
+        budget: crate::plan::DrawBudget,
+    ) -> Result<crate::plan::FramePlan, crate::plan::PlanError> {
+        crate::plan::plan_frame_on(&self.views, &self.order(), camera, s, budget, &|_| true)
+    }
+
+    /// The network of the source's tracks (its junctions, segments and branches).
+    pub fn network(&self) -> Result<tracks::network::Network, String> {
+        tracks::network::Network::from_parts(
+            self.tracks.clone(),
+            self.views.iter().map(|v| v.position).collect(),
+            self.stops
+                .iter()
+                .map(|st| {
+                    st.iter()
+                        .map(|&(viewpoint, s)| tracks::network::Stop { viewpoint, s })
+                        .collect()
+                })
+                .collect(),
+        )
+    }
+
+    /// A source of one track whose views are `views` in order (their `s` along `track`).
+    pub fn single(
+        scene: String,
+        track: Track,
+        views: Vec<RefView>,
+        slabs: Vec<SlabRange>,
+        bytes: u64,
+    ) -> Walkthrough {
+        let stops = vec![views.iter().enumerate().map(|(i, v)| (i, v.s)).collect()];
+        Walkthrough {
+            scene,
+            tracks: vec![track.clone()],
+            track,
+            views,
+            slabs,
+            bytes,
+            stops,
+            current: 0,
+        }
+    }
 }
 
 /// How much of each PTM to use: `None` = all levels, `Some(g)` = the first `g` level groups
-/// (simulates tiles whose fine levels have not arrived yet).
+/// (simulates tiles whose fine levels have not arrived yet); and, on a network, whether the
+/// views of every track are decoded (to walk from track to track) or those of the chosen one.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct LoadOptions {
     pub level_groups: Option<usize>,
     pub mesh: LayerMeshing,
+    pub every_track: bool,
 }
 
 /// Open a database or prerender directory.
@@ -229,7 +319,28 @@ pub fn from_database(
 ) -> Result<Walkthrough, SourceError> {
     let m = db.manifest();
     let entry = pick_track(&m.tracks, track)?;
-    let track = manifest_track(entry)?;
+    let current = m
+        .tracks
+        .iter()
+        .position(|t| t.name == entry.name)
+        .unwrap_or(0);
+    let tracks: Vec<Track> = m
+        .tracks
+        .iter()
+        .map(manifest_track)
+        .collect::<Result<_, _>>()?;
+    let all = db::split::unique_viewpoints(m);
+    if all.iter().enumerate().any(|(i, v)| v.index != i) {
+        return Err(format_err(
+            "manifest.json viewpoints",
+            "viewpoint ids are not 0..n without gaps",
+        ));
+    }
+    let wanted: std::collections::HashSet<usize> = if opts.every_track {
+        all.iter().map(|v| v.index).collect()
+    } else {
+        entry.viewpoints.iter().map(|v| v.index).collect()
+    };
     let n = m.face_size;
     let grid = TileGrid::new(n, m.tile_size)
         .ok_or_else(|| format_err("manifest.json tile_size", m.tile_size))?;
@@ -238,10 +349,16 @@ pub fn from_database(
     // Bytes are counted once per stored payload (a payload may serve several tiles): the
     // ranges read, by object and offset.
     type Read = Vec<(String, u64, u64)>;
-    let loaded: Vec<Result<(RefView, Read), SourceError>> = entry
-        .viewpoints
+    let loaded: Vec<Result<(RefView, Read), SourceError>> = all
         .par_iter()
         .map(|vp| -> Result<(RefView, Read), SourceError> {
+            if !wanted.contains(&vp.index) {
+                // A viewpoint of a track not loaded: no tiles, 1×1 layers.
+                return Ok((
+                    RefView::empty(vp.index, vp.s, vp.position, m.tile_size),
+                    Vec::new(),
+                ));
+            }
             let mut read: Read = Vec::new();
             let ptm_read = |p: &PtmRef| {
                 let first = p.levels.first().map_or(0, |l| l.offset);
@@ -313,13 +430,23 @@ pub fn from_database(
         }
         views.push(view);
     }
-    Ok(Walkthrough {
+    let stops = m
+        .tracks
+        .iter()
+        .map(|t| t.viewpoints.iter().map(|v| (v.index, v.s)).collect())
+        .collect();
+    let mut walk = Walkthrough {
         scene: m.scene.clone(),
-        track,
+        track: tracks[current].clone(),
         views,
         slabs: m.slabs.clone(),
         bytes,
-    })
+        tracks,
+        stops,
+        current,
+    };
+    walk.set_track(current);
+    Ok(walk)
 }
 
 /// Views from a prerender directory: per-slab layers (`slab_K/`) meshed with `params`; the
@@ -334,11 +461,27 @@ pub fn from_prerender(
     let report = pd.read_report()?;
     let toml = std::fs::read_to_string(pd.track_toml())
         .map_err(|e| format_err(pd.track_toml().display().to_string(), e))?;
-    let track = parse_track(
-        &toml,
-        track.unwrap_or(&report.track),
-        &pd.track_toml().display().to_string(),
-    )?;
+    let source = pd.track_toml().display().to_string();
+    // A network (`all`): every track of the file, the viewpoints numbered over it.
+    let network = if report.track == "all" {
+        let set = TrackSet::parse(&toml, &source).map_err(|e| format_err(&source, e))?;
+        Some(tracks::network::Network::new(set.tracks).map_err(|e| format_err(&source, e))?)
+    } else {
+        None
+    };
+    let track = match &network {
+        Some(net) => {
+            let t = match track {
+                Some(n) => net.track_index(n).ok_or_else(|| {
+                    let names: Vec<&str> = net.tracks.iter().map(|t| t.name.as_str()).collect();
+                    SourceError::NoTrack(n.to_string(), names.join(", "))
+                })?,
+                None => 0,
+            };
+            net.tracks[t].clone()
+        }
+        None => parse_track(&toml, track.unwrap_or(&report.track), &source)?,
+    };
     let mut views = Vec::new();
     let mut bytes = 0u64;
     for vp in &report.viewpoints {
@@ -397,11 +540,40 @@ pub fn from_prerender(
     } else {
         report.slabs.clone()
     };
-    Ok(Walkthrough {
+    let Some(net) = network else {
+        return Ok(Walkthrough::single(
+            report.scene.clone(),
+            track,
+            views,
+            slabs,
+            bytes,
+        ));
+    };
+    if views.len() != net.viewpoints.len() {
+        return Err(format_err(
+            pd.report_json().display().to_string(),
+            format!(
+                "{} viewpoints, its tracks' network has {}",
+                views.len(),
+                net.viewpoints.len()
+            ),
+        ));
+    }
+    let current = net.track_index(&track.name).unwrap_or(0);
+    let mut walk = Walkthrough {
         scene: report.scene.clone(),
         track,
         views,
         slabs,
         bytes,
-    })
+        stops: net
+            .stops
+            .iter()
+            .map(|st| st.iter().map(|x| (x.viewpoint, x.s)).collect())
+            .collect(),
+        tracks: net.tracks,
+        current,
+    };
+    walk.set_track(current);
+    Ok(walk)
 }

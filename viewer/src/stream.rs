@@ -224,8 +224,16 @@ impl StreamedWalkthrough {
     /// Lay out the views of the session's track.
     pub fn with_session(session: LiveSession) -> Result<StreamedWalkthrough, StreamError> {
         let m = session.manifest();
-        let entry = &m.tracks[session.track()];
-        let track = manifest_track(entry)?;
+        let current = session.track();
+        let tracks: Vec<tracks::Track> = m
+            .tracks
+            .iter()
+            .map(manifest_track)
+            .collect::<Result<_, _>>()?;
+        let track = tracks
+            .get(current)
+            .cloned()
+            .ok_or_else(|| StreamError::Manifest(format!("no track {current}")))?;
         let n = m.face_size;
         let grid = TileGrid::new(n, m.tile_size).ok_or_else(|| {
             StreamError::Manifest(format!(
@@ -235,9 +243,8 @@ impl StreamedWalkthrough {
         })?;
         let layer_count = m.slabs.len() + 1;
         let premultiplied = session.top().coarse_levels_premultiplied();
-        let views: Vec<RefView> = entry
-            .viewpoints
-            .iter()
+        let views: Vec<RefView> = db::split::unique_viewpoints(m)
+            .into_iter()
             .map(|vp| RefView {
                 index: vp.index,
                 s: vp.s,
@@ -260,13 +267,22 @@ impl StreamedWalkthrough {
         let dense = vec![Vec::new(); views.len()];
         let tile_items = vec![Vec::new(); views.len()];
         let decoded_budget_bytes = 4 * full_view_bytes(n, layer_count);
-        let walk = Walkthrough {
+        let stops = m
+            .tracks
+            .iter()
+            .map(|t| t.viewpoints.iter().map(|v| (v.index, v.s)).collect())
+            .collect();
+        let mut walk = Walkthrough {
             scene: m.scene.clone(),
             track,
             views,
             slabs: m.slabs.clone(),
             bytes: 0,
+            tracks,
+            stops,
+            current,
         };
+        walk.set_track(current);
         Ok(StreamedWalkthrough {
             walk,
             session,
@@ -309,23 +325,34 @@ impl StreamedWalkthrough {
         self.layout_level
     }
 
+    /// The camera goes onto track `t` of the network (see [`Walkthrough::set_track`]); the
+    /// session follows at the next step.
+    pub fn set_track(&mut self, t: usize) {
+        self.walk.set_track(t);
+    }
+
+    /// The branch the user chose for the next junction, for the session's prefetch.
+    pub fn set_branch(&mut self, branch: Option<tracks::network::Branch>) {
+        self.session.set_branch(branch);
+    }
+
     /// Positions in `walk.views` of the pair around `s` (what arrives for them is kept) and
     /// of the views [`StreamedWalkthrough::plan`] draws for `camera` instead where that pair
     /// shows next to nothing ([`crate::plan::stand_ins`]).
     fn drawn_views(&self, s: f64, camera: &PerspectiveCamera) -> BTreeSet<usize> {
         let s = if s.is_finite() { s } else { 0.0 };
-        let vp_s: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
+        let (order, vp_s) = self.walk.order_and_arcs();
         let around = crate::plan::blend_pair(&vp_s, s);
         // Kept whenever they hold much more of the frustum than the pair around `s`, whether
         // drawn yet or not (the session's count of the pixels shown wavers from step to step,
         // and an evicted view would not come back without the server).
         let shown = self
             .stand_ins(camera, s, usize::MAX, 0.0)
-            .and_then(|ok| crate::plan::blend_pair_among(&vp_s, s, &|v| ok[v]));
+            .and_then(|ok| crate::plan::blend_pair_among(&vp_s, s, &|k| ok[order[k]]));
         around
             .into_iter()
             .chain(shown)
-            .flat_map(|(a, b, _)| [a, b])
+            .flat_map(|(a, b, _)| [order[a], order[b]])
             .collect()
     }
 
@@ -338,9 +365,19 @@ impl StreamedWalkthrough {
         max_slabs: usize,
         shown: f64,
     ) -> Option<Vec<bool>> {
-        let arcs: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
-        let counts = crate::plan::frustum_counts(&self.walk.views, camera, max_slabs);
-        crate::plan::stand_ins(&arcs, &counts, s, shown)
+        let (order, arcs) = self.walk.order_and_arcs();
+        let all = crate::plan::frustum_counts(&self.walk.views, camera, max_slabs);
+        let counts: Vec<usize> = order
+            .iter()
+            .map(|&v| all.get(v).copied().unwrap_or(0))
+            .collect();
+        let on_track = crate::plan::stand_ins(&arcs, &counts, s, shown)?;
+        // By position in `views`: only the current track's can stand in.
+        let mut ok = vec![false; self.walk.views.len()];
+        for (k, &v) in order.iter().enumerate() {
+            ok[v] = on_track[k];
+        }
+        Some(ok)
     }
 
     /// The frame at `s`: [`crate::plan_frame`], except that where the views around `s`
@@ -355,11 +392,12 @@ impl StreamedWalkthrough {
         budget: crate::DrawBudget,
     ) -> Result<FramePlan, crate::PlanError> {
         let shown = self.session.stats().visible_fraction;
+        let order = self.walk.order();
         match self.stand_ins(camera, s, budget.max_slabs, shown) {
             Some(ok) => {
-                crate::plan::plan_frame_among(&self.walk.views, camera, s, budget, &|v| ok[v])
+                crate::plan::plan_frame_on(&self.walk.views, &order, camera, s, budget, &|v| ok[v])
             }
-            None => crate::plan_frame(&self.walk.views, camera, s, budget),
+            None => self.walk.plan(camera, s, budget),
         }
     }
 
@@ -375,15 +413,15 @@ impl StreamedWalkthrough {
         let t = now.duration_since(self.start).as_secs_f64();
         let s = if s.is_finite() { s } else { 0.0 };
         self.motion.observe(t, s);
-        let vp_s: Vec<f64> = self.walk.views.iter().map(|v| v.s).collect();
+        let (order, vp_s) = self.walk.order_and_arcs();
         let mut out = drawn.clone();
         if self.session.prefetch() {
             let horizon = self.session.config().schedule.prefetch_horizon_s;
             if let Some(next) = next_segment(&self.motion, &vp_s, s, horizon) {
-                out.extend([next, next + 1]);
+                out.extend([order[next], order[next + 1]]);
             }
         }
-        out.retain(|&v| v < vp_s.len());
+        out.retain(|&v| v < self.walk.views.len());
         out
     }
 

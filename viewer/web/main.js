@@ -122,7 +122,8 @@ class App {
   // The pair around the camera, the views to prefetch, and the tiles each view needs.
   update() {
     const [a, b, wb] = blendPair(this.arcs, this.cam.s);
-    this.pair = b !== a ? [[a, 1 - wb], [b, wb]] : [[a, 1]];
+    // At a sample (the other weight 0) its own view alone, as the native renderer draws it.
+    this.pair = b !== a && wb > 0 ? [[a, 1 - wb], [b, wb]] : [[a, 1]];
     const ahead = b >= a ? Math.max(a, b) + 1 : Math.min(a, b) - 1;
     const next = Math.min(Math.max(ahead, 0), this.arcs.length - 1);
     for (const v of this.views.values()) v.rank = 2;

@@ -143,6 +143,7 @@ fn walk_stage(args: &Args, layout: &Layout) -> Stage {
         prefetch_horizon: 1.0,
         prefetch_coverage: 0.9,
         pause: 1.0,
+        route: None,
         synthetic: false,
         synthetic_face: 64,
         synthetic_length: 12.0,

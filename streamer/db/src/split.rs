@@ -179,6 +179,20 @@ impl TopManifest {
     /// the junctions checked against those the stops make. Call after
     /// [`TopManifest::check_limits`].
     pub fn network(&self) -> Result<Network, String> {
+        let net = self.graph()?;
+        if net.junctions != self.junctions {
+            return Err(format!(
+                "junctions: the manifest lists {} but its tracks' stops make {}",
+                self.junctions.len(),
+                net.junctions.len()
+            ));
+        }
+        Ok(net)
+    }
+
+    /// The graph of the tracks' curves, the viewpoints and the stops, its junctions derived
+    /// (not checked against the listed ones).
+    fn graph(&self) -> Result<Network, String> {
         let tracks = self
             .tracks
             .iter()
@@ -192,19 +206,11 @@ impl TopManifest {
                     .ok_or_else(|| format!("tracks[{ti}].track_toml holds no track"))
             })
             .collect::<Result<Vec<_>, String>>()?;
-        let net = Network::from_parts(
+        Network::from_parts(
             tracks,
             self.viewpoints.iter().map(|v| v.position).collect(),
             self.tracks.iter().map(|t| t.stops.clone()).collect(),
-        )?;
-        if net.junctions != self.junctions {
-            return Err(format!(
-                "junctions: the manifest lists {} but its tracks' stops make {}",
-                self.junctions.len(),
-                net.junctions.len()
-            ));
-        }
-        Ok(net)
+        )
     }
 }
 
@@ -365,10 +371,10 @@ pub fn split(m: &Manifest) -> Result<(TopManifest, TableBytes), TableError> {
         tracks,
         junctions: Vec::new(),
     };
-    top.junctions = match top.network() {
-        Ok(n) => n.junctions,
-        Err(_) => Vec::new(),
-    };
+    top.junctions = top
+        .graph()
+        .map_err(|e| TableError::Layout(format!("the graph of tracks: {e}")))?
+        .junctions;
     Ok((top, all))
 }
 

@@ -237,8 +237,8 @@ impl Walker {
     }
 }
 
-/// A walk through named tracks: along the first from its start into the second at their
-/// junction, and so on, to the far end of the last.
+/// A walk through named tracks: along the first from its end farther from the second into the
+/// second at their junction, and so on, to the far end of the last.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Route {
     /// Per leg: the track and the arc lengths it runs from and to.
@@ -286,7 +286,12 @@ impl Route {
             meets.push(m);
         }
         let mut legs = Vec::new();
-        let mut start = 0.0;
+        // The first leg starts at the end of its track farther from where it leaves it.
+        let first_len = net.tracks[ids[0]].length();
+        let mut start = match meets.first() {
+            Some(&(_, sa, _)) if sa < 0.5 * first_len => first_len,
+            _ => 0.0,
+        };
         for (i, &t) in ids.iter().enumerate() {
             let len = net.tracks[t].length();
             let to = match meets.get(i) {

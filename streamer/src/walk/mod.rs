@@ -80,7 +80,7 @@ pub struct WalkConfig {
     pub samples_x: u32,
     pub samples_y: u32,
     pub track: usize,
-    /// Walk through these tracks instead (names; from the first's start into each next at
+    /// Walk through these tracks instead (names; from the first's far end into each next at
     /// their junction, to the far end of the last): [`crate::client::Route`].
     pub route: Option<Vec<String>>,
     /// Frames within this many metres after a turn count as the turn's ([`RunReport::turns`]).
@@ -666,6 +666,39 @@ pub fn summary_markdown(r: &WalkReport) -> String {
                 "\n**{} at {} stopped early:** {e}\n\n",
                 run.strategy,
                 run.bandwidth_bps.map_or("unlimited".into(), format_bps)
+            );
+        }
+    }
+    if r.runs.iter().any(|run| !run.turns.is_empty()) {
+        s += "\n## Turns\n\nFrames in the window after each turn (stalled: not every visible pixel showable) \
+              against the rest of the walk, and the time from passing each junction to the \
+              first complete frame.\n\n\
+              | bandwidth | strategy | stalled at turns | stalled elsewhere | needed at turns | needed elsewhere | first complete after each turn (s) |\n\
+              |---|---|---|---|---|---|---|\n";
+        let opt = |v: Option<f64>| v.map_or("–".to_string(), |x| format!("{x:.3}"));
+        for run in &r.runs {
+            let after: Vec<String> = run
+                .turns
+                .iter()
+                .map(|t| {
+                    format!(
+                        "{}→{} {}",
+                        t.from_track,
+                        t.to_track,
+                        t.first_complete_after_s
+                            .map_or("never".into(), |x| format!("{x:.2}"))
+                    )
+                })
+                .collect();
+            s += &format!(
+                "| {} | {} | {} | {} | {} | {} | {} |\n",
+                run.bandwidth_bps.map_or("unlimited".into(), format_bps),
+                run.strategy,
+                run.stalled_frames_at_turns,
+                run.stalled_frames_elsewhere,
+                opt(run.mean_needed_fraction_at_turns),
+                opt(run.mean_needed_fraction_elsewhere),
+                after.join(", ")
             );
         }
     }

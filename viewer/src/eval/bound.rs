@@ -88,10 +88,14 @@ impl BoundSource {
         }
         // The walkthrough's own samples around the view (its spacing may differ from the
         // one the views were placed by).
-        let Some(k) = walk.views.iter().rposition(|v| v.s <= view.s) else {
+        let order = walk.order();
+        let Some(k) = order.iter().rposition(|&i| walk.views[i].s <= view.s) else {
             return Ok(None);
         };
-        let (Some(va), Some(vb)) = (walk.views.get(k), walk.views.get(k + 1)) else {
+        let (Some(va), Some(vb)) = (
+            order.get(k).and_then(|&i| walk.views.get(i)),
+            order.get(k + 1).and_then(|&i| walk.views.get(i)),
+        ) else {
             return Ok(None);
         };
         let len = vb.s - va.s;

@@ -23,7 +23,7 @@ use tracks::PerspectiveCamera;
 use crate::gpu::Renderer;
 use crate::headless::{yaw_along, HeadlessError};
 use crate::metrics::{psnr, split_rgba, ssim};
-use crate::plan::{plan_frame, DrawBudget, FramePlan};
+use crate::plan::{DrawBudget, FramePlan};
 use crate::source::Walkthrough;
 use crate::synth::Scene as SynthScene;
 
@@ -244,6 +244,9 @@ impl Default for ViewSpec {
 /// One camera pose of an evaluation.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EvalView {
+    /// The track (position in the source's tracks; 0 for a single track).
+    #[serde(default)]
+    pub track: usize,
     /// Arc length, metres.
     pub s: f64,
     /// The segment it lies in (between samples `segment` and `segment + 1`).
@@ -274,17 +277,43 @@ fn directions(walk: &Walkthrough, s: f64, spec: &ViewSpec) -> Vec<(f64, f64, f64
         .collect()
 }
 
+/// How far into a segment from a junction its extra views are, metres (at most a quarter of
+/// the segment).
+pub const JUNCTION_VIEW_M: f64 = 0.25;
+
 /// The views between the samples at arc lengths `arcs` (a walkthrough's reference samples):
-/// `spec.per_segment` positions inside every segment, each in `spec.directions` directions.
+/// `spec.per_segment` positions inside every segment, each in `spec.directions` directions;
+/// in a segment that starts or ends at a junction of the current track also one position
+/// [`JUNCTION_VIEW_M`] from that end, where the blend leaves one track for another.
 pub fn views_between(walk: &Walkthrough, arcs: &[f64], spec: &ViewSpec) -> Vec<EvalView> {
     let mut out = Vec::new();
     let segments = arcs.len().saturating_sub(1);
+    let order = walk.order();
+    let shared = |k: usize| {
+        order.get(k).is_some_and(|&v| {
+            walk.stops
+                .iter()
+                .enumerate()
+                .filter(|(t, _)| *t != walk.current)
+                .any(|(_, st)| st.iter().any(|x| x.0 == v))
+        })
+    };
     for i in 0..spec.max_segments.unwrap_or(segments).min(segments) {
         let (a, b) = (arcs[i], arcs[i + 1]);
-        for k in 1..=spec.per_segment {
-            let s = a + (b - a) * k as f64 / (spec.per_segment + 1) as f64;
+        let mut at: Vec<f64> = (1..=spec.per_segment)
+            .map(|k| a + (b - a) * k as f64 / (spec.per_segment + 1) as f64)
+            .collect();
+        let edge = JUNCTION_VIEW_M.min(0.25 * (b - a));
+        if shared(i) {
+            at.push(a + edge);
+        }
+        if shared(i + 1) {
+            at.push(b - edge);
+        }
+        for s in at {
             for (yaw, rel, pitch) in directions(walk, s, spec) {
                 out.push(EvalView {
+                    track: walk.current,
                     s,
                     segment: i,
                     yaw_deg: yaw,
@@ -301,16 +330,19 @@ pub fn views_between(walk: &Walkthrough, arcs: &[f64], spec: &ViewSpec) -> Vec<E
 /// The views at the walkthrough's own reference samples (of the first `max_segments`
 /// segments), in the same directions: the resampling floor.
 pub fn views_at_samples(walk: &Walkthrough, spec: &ViewSpec) -> Vec<EvalView> {
-    let n = walk.views.len();
+    let (_, arcs) = walk.order_and_arcs();
+    let n = arcs.len();
     let last = spec.max_segments.map_or(n, |m| (m + 1).min(n));
-    walk.views[..last]
+    let track = walk.current;
+    arcs[..last]
         .iter()
         .enumerate()
-        .flat_map(|(i, v)| {
-            directions(walk, v.s, spec)
+        .flat_map(|(i, &s)| {
+            directions(walk, s, spec)
                 .into_iter()
                 .map(move |(yaw, rel, pitch)| EvalView {
-                    s: v.s,
+                    track,
+                    s,
                     segment: i.min(n.saturating_sub(2)),
                     yaw_deg: yaw,
                     yaw_from_track_deg: rel,
@@ -323,8 +355,9 @@ pub fn views_at_samples(walk: &Walkthrough, spec: &ViewSpec) -> Vec<EvalView> {
 
 /// Mark the views that lie at one of `walk`'s samples (within a millimetre).
 pub fn mark_references(walk: &Walkthrough, views: &mut [EvalView]) {
+    let (_, arcs) = walk.order_and_arcs();
     for v in views {
-        v.at_reference = walk.views.iter().any(|r| (r.s - v.s).abs() < 1e-3);
+        v.at_reference = arcs.iter().any(|r| (r - v.s).abs() < 1e-3);
     }
 }
 
@@ -441,7 +474,7 @@ pub fn draw(
     s: f64,
     budget: DrawBudget,
 ) -> Result<Vec<u8>, HeadlessError> {
-    let mut plan: FramePlan = plan_frame(&walk.views, camera, s, budget)?;
+    let mut plan: FramePlan = walk.plan(camera, s, budget)?;
     plan.tile_ids = false;
     renderer.draw(&plan, &walk.views)?;
     Ok(renderer.read_output()?.rgba)
@@ -449,7 +482,8 @@ pub fn draw(
 
 /// Everything one evaluation needs besides the renderer.
 pub struct EvalInput<'a> {
-    pub walk: &'a Walkthrough,
+    /// The views' walkthrough; a view on another track of a network moves it there.
+    pub walk: &'a mut Walkthrough,
     pub truth: &'a mut Truth,
     pub cache: &'a TruthCache,
     pub configs: &'a [EvalConfig],
@@ -477,6 +511,10 @@ pub fn evaluate(
     let mut rows = Vec::new();
     let mut bound_input = input.bound;
     for view in input.views {
+        if view.track != walk.current {
+            walk.set_track(view.track);
+        }
+        let walk = &*walk;
         let cam = camera(walk, view, input.size, input.fov_deg);
         let gt = input.cache.get(&walk.scene, &cam, input.truth)?;
         let warp = match bound_input.as_mut() {
@@ -488,7 +526,7 @@ pub fn evaluate(
             let reps = input.timed_draws.max(1);
             let t0 = Instant::now();
             for _ in 0..reps {
-                let mut plan = plan_frame(&walk.views, &cam, view.s, cfg.budget)?;
+                let mut plan = walk.plan(&cam, view.s, cfg.budget)?;
                 plan.tile_ids = false;
                 renderer.draw(&plan, &walk.views)?;
             }
@@ -769,6 +807,7 @@ mod tests {
         let row = |s: f64, p: f64, at: bool| EvalRow {
             config: "full".into(),
             view: EvalView {
+                track: 0,
                 s,
                 segment: 0,
                 yaw_deg: 0.0,

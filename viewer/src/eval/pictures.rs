@@ -12,7 +12,8 @@ use crate::source::Walkthrough;
 /// What the pictures are drawn with.
 pub struct PictureInput<'a> {
     pub renderer: &'a mut Renderer,
-    pub walk: &'a Walkthrough,
+    /// The rows' walkthrough; a row on another track of a network moves it there.
+    pub walk: &'a mut Walkthrough,
     /// The configuration pictured and its budget.
     pub config: &'a str,
     pub budget: DrawBudget,
@@ -46,6 +47,9 @@ pub fn worst_pictures(
         .chain(at_sample.map(|w| ("worst-at-sample.png".to_string(), w)));
     let err = |e: String| HeadlessError::Parameter(format!("eval pictures: {e}"));
     for (file, w) in named {
+        if w.view.track != input.walk.current {
+            input.walk.set_track(w.view.track);
+        }
         let cam = camera(input.walk, &w.view, input.size, input.fov_deg);
         let gt = input.cache.get(&input.walk.scene, &cam, input.truth)?;
         let rgba = draw(input.renderer, input.walk, &cam, w.view.s, input.budget)?;

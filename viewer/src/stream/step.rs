@@ -28,7 +28,11 @@ impl StreamedWalkthrough {
         camera: &PerspectiveCamera,
         live: Option<&[LiveCount]>,
     ) -> StepReport {
-        let arrived = self.session.update(s, camera, live);
+        let pos = streamer::client::NetPos {
+            track: self.walk.current,
+            s,
+        };
+        let arrived = self.session.update_at(pos, camera, live);
         self.add_new_items();
         let now = Instant::now();
         let mut report = StepReport {

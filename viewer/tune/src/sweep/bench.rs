@@ -132,7 +132,7 @@ impl Bench {
                 return Ok(r);
             }
         }
-        let walk = viewer::headless::open(&db.display().to_string(), None, Default::default())?;
+        let mut walk = viewer::headless::open(&db.display().to_string(), None, Default::default())?;
         let mut views = eval::views_at_samples(&walk, &self.spec);
         let mut between = eval::views_between(&walk, &self.arcs, &self.spec);
         eval::mark_references(&walk, &mut between);
@@ -149,7 +149,7 @@ impl Bench {
         let rows = eval::evaluate(
             &mut self.renderer,
             EvalInput {
-                walk: &walk,
+                walk: &mut walk,
                 truth: &mut self.truth,
                 cache: &self.cache,
                 configs: &configs,
