@@ -3,34 +3,72 @@
 // camera's frustum (viewer::plan::frustum_tiles, with a tile's bounding sphere from its
 // corners at its depth bounds).
 
-export const LIMITS = { maxFace: 16384, maxSlabs: 64, maxTracks: 1024, maxViewpoints: 1 << 20, maxCoord: 1e7 };
+// tracks::limits
+export const LIMITS = {
+  maxFace: 8192, minTile: 4, maxTilesPerSide: 512, maxSlabs: 64, maxTracks: 1024, maxViewpoints: 100000,
+  maxTextBytes: 1 << 20, maxGridCells: 2 ** 26, maxCoord: 1e7,
+};
+export const FORMAT = 8;
 const NEAR_M = 0.01;
 
 const fail = (m) => {
   throw new Error(`manifest: ${m}`);
 };
+const isIndex = (v, n) => Number.isInteger(v) && v >= 0 && v < n;
+const isRef = (r) => typeof r === "object" && r !== null && /^[0-9a-f]{64}$/.test(r.hash) && Number.isInteger(r.size) && r.size >= 0;
+// A text's length in UTF-8 bytes, as Rust counts it.
+const textBytes = (t) => new TextEncoder().encode(t).length;
 
+// The top manifest (format 8: the viewpoints once by id, each track's stops, the junctions)
+// against the limits of db::TopManifest::check_limits, before anything is sized by it; other
+// formats are refused with a request to rebuild.
 export function checkManifest(m) {
   if (typeof m !== "object" || m === null) fail("not an object");
-  if (m.version !== 7) fail(`format ${m.version}; this viewer reads format 7 (rebuild the database with \`railview build\`)`);
+  if (m.version !== FORMAT) fail(`format ${m.version}; this viewer reads format ${FORMAT} (rebuild the database with \`railview build\`)`);
   const pow2 = (v) => Number.isInteger(v) && v > 0 && (v & (v - 1)) === 0;
   if (!Number.isInteger(m.face_size) || m.face_size < 1 || m.face_size > LIMITS.maxFace) fail(`face_size ${m.face_size}`);
-  if (!pow2(m.tile_size) || m.tile_size > m.face_size) fail(`tile_size ${m.tile_size}`);
+  if (!pow2(m.tile_size) || m.tile_size > m.face_size || m.tile_size < Math.min(LIMITS.minTile, m.face_size)) fail(`tile_size ${m.tile_size}`);
+  const perSide = Math.ceil(m.face_size / m.tile_size);
+  if (perSide > LIMITS.maxTilesPerSide) fail(`face_size / tile_size = ${perSide} tiles per side; at most ${LIMITS.maxTilesPerSide}`);
   if (!Array.isArray(m.slabs) || m.slabs.length > LIMITS.maxSlabs) fail("slabs");
-  if (!Array.isArray(m.tracks) || m.tracks.length < 1 || m.tracks.length > LIMITS.maxTracks) fail("tracks");
-  for (const t of m.tracks) {
-    if (typeof t.track_toml !== "string" || !Array.isArray(t.viewpoints) || t.viewpoints.length < 1 || t.viewpoints.length > LIMITS.maxViewpoints) {
-      fail(`track ${t.name}: viewpoints`);
-    }
-    let prev = -Infinity;
-    for (const v of t.viewpoints) {
-      const p = v.position;
-      if (!Array.isArray(p) || p.length !== 3 || !p.every((x) => Number.isFinite(x) && Math.abs(x) <= LIMITS.maxCoord)) fail(`viewpoint ${v.index}: position`);
-      if (!(Number.isFinite(v.s) && v.s >= prev)) fail(`viewpoint ${v.index}: arc length ${v.s}`);
-      prev = v.s;
-      if (!v.table || !/^[0-9a-f]{64}$/.test(v.table.hash) || !Number.isInteger(v.table.size)) fail(`viewpoint ${v.index}: table`);
-    }
-  }
+  m.slabs.forEach((sl, k) => {
+    if (!(typeof sl === "object" && sl !== null && Number.isFinite(sl.near) && Number.isFinite(sl.far) && sl.near >= 0 && sl.near < sl.far)) fail(`slabs[${k}] is not a depth range 0 ≤ near < far`);
+  });
+  const vps = m.viewpoints;
+  if (!Array.isArray(vps) || vps.length < 1 || vps.length > LIMITS.maxViewpoints) fail(`viewpoints: ${vps?.length} (1 to ${LIMITS.maxViewpoints})`);
+  const cells = 6 * perSide * perSide * Math.max(m.slabs.length, 1) * vps.length;
+  if (cells > LIMITS.maxGridCells) fail(`viewpoints: ${cells} tile cells; at most ${LIMITS.maxGridCells}`);
+  vps.forEach((v, i) => {
+    if (typeof v !== "object" || v === null || v.index !== i) fail(`viewpoints[${i}].index = ${v?.index}: viewpoints are listed by id`);
+    const p = v.position;
+    if (!Array.isArray(p) || p.length !== 3 || !p.every((x) => Number.isFinite(x) && Math.abs(x) <= LIMITS.maxCoord)) fail(`viewpoints[${i}].position`);
+    if (!isRef(v.table)) fail(`viewpoints[${i}].table`);
+  });
+  if (!Array.isArray(m.tracks) || m.tracks.length < 1 || m.tracks.length > LIMITS.maxTracks) fail(`tracks: ${m.tracks?.length} (1 to ${LIMITS.maxTracks})`);
+  m.tracks.forEach((t, ti) => {
+    if (typeof t !== "object" || t === null) fail(`tracks[${ti}]`);
+    if (typeof t.name !== "string" || textBytes(t.name) > LIMITS.maxTextBytes) fail(`tracks[${ti}].name`);
+    if (typeof t.track_toml !== "string" || textBytes(t.track_toml) > LIMITS.maxTextBytes) fail(`tracks[${ti}].track_toml`);
+    if (!(Number.isFinite(t.length) && t.length >= 0 && t.length <= LIMITS.maxCoord)) fail(`tracks[${ti}].length = ${t.length}`);
+    if (!Array.isArray(t.stops) || t.stops.length < 1 || t.stops.length > LIMITS.maxViewpoints) fail(`tracks[${ti}].stops: ${t.stops?.length} (1 to ${LIMITS.maxViewpoints})`);
+    let last = 0;
+    t.stops.forEach((st, k) => {
+      if (typeof st !== "object" || st === null || !isIndex(st.viewpoint, vps.length)) fail(`tracks[${ti}].stops[${k}].viewpoint = ${st?.viewpoint} names no viewpoint (there are ${vps.length})`);
+      if (!(Number.isFinite(st.s) && st.s >= last && st.s <= LIMITS.maxCoord)) fail(`tracks[${ti}].stops[${k}].s = ${st.s} (stops are in order along the track)`);
+      last = st.s;
+    });
+  });
+  const js = m.junctions ?? [];
+  if (!Array.isArray(js) || js.length > LIMITS.maxViewpoints) fail("junctions");
+  js.forEach((j, ji) => {
+    if (typeof j !== "object" || j === null || !isIndex(j.viewpoint, vps.length)) fail(`junctions[${ji}].viewpoint = ${j?.viewpoint} names no viewpoint`);
+    if (!Array.isArray(j.branches) || j.branches.length > LIMITS.maxViewpoints) fail(`junctions[${ji}].branches`);
+    j.branches.forEach((b, bi) => {
+      const ok = typeof b === "object" && b !== null && isIndex(b.track, m.tracks.length) && isIndex(b.stop, m.tracks[b.track].stops.length) &&
+        typeof b.forward === "boolean" && Number.isInteger(b.segment) && b.segment >= 0;
+      if (!ok) fail(`junctions[${ji}].branches[${bi}]`);
+    });
+  });
   return m;
 }
 

@@ -16,7 +16,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 
-use self::stages::{build_stages, use_stages, view_stage, Stage};
+use self::stages::{build_stages, network_stages, use_stages, view_stage, Stage};
 use report::{self, Layout, RunLog, StageRecord, StageStatus};
 
 #[derive(clap::Args)]
@@ -222,13 +222,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     set_runtime_dir();
     let window = !args.no_window && display_available();
     let start = Instant::now();
-    let first = build_stages(&args, &layout);
-    let steps = first.len() + use_stages(&args, &layout).len();
-    for (i, stage) in first.iter().enumerate() {
+    let all: Vec<Stage> = build_stages(&args, &layout)
+        .into_iter()
+        .chain(use_stages(&args, &layout))
+        .chain(network_stages(&args, &layout))
+        .collect();
+    let steps = all.len();
+    for (i, stage) in all.iter().enumerate() {
         run_stage(&layout, &mut log, stage, i + 1, steps);
-    }
-    for (i, stage) in use_stages(&args, &layout).iter().enumerate() {
-        run_stage(&layout, &mut log, stage, first.len() + i + 1, steps);
     }
     let written = report::write_report(&layout, &log).context("writing the report")?;
 

@@ -110,6 +110,134 @@ pub fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
     ]
 }
 
+/// Face size of the demo's network of tracks (every street of the scene: more viewpoints than
+/// its main track, so smaller faces).
+pub const NETWORK_FACE: u32 = 64;
+
+/// The route through the castle's network the demo walks: a turn at every junction it passes.
+pub const NETWORK_ROUTE: &str = "north,main,cross,west,south";
+
+/// The stages on the scene's network of tracks (every track: `--track all`): its database at
+/// faces of [`NETWORK_FACE`] px, its culling judged by the oracle (the junctions included),
+/// and a walk with a turn at every junction beside a straight one along `main`.
+pub fn network_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
+    let root = layout.network();
+    let db = root.join("db");
+    let work = root.join("work");
+    let face = args.face_size.min(NETWORK_FACE);
+    let build = BuildParams {
+        work: Some(work.clone()),
+        knobs: Knobs {
+            face_size: face,
+            cull: CullChoice::Auto,
+            ..Knobs::default()
+        },
+        ..BuildParams::new(BuildScene::Tracer(args.scene.clone()), "all", &db)
+    };
+    let cull = CullParams {
+        dir: work.join("prerender"),
+        alphas: vec![1.0],
+        variants: Variants::These(vec![
+            stages::cull::Variant::Shrunk,
+            stages::cull::Variant::Rendered,
+        ]),
+        oracle: Some(OracleParams {
+            per_segment: 16,
+            face_size: None,
+        }),
+        renders_per_segment: None,
+    };
+    let walk_of = |route: &str, out: PathBuf| walk::Args {
+        db: path_arg(&db),
+        speed: args.walk_speed,
+        bandwidth: "2mbit".into(),
+        strategy: "visibility+prefetch".into(),
+        out,
+        latency: "50ms".into(),
+        memory_mb: None,
+        memory_static_mb: None,
+        dt_max: 0.5,
+        dt_static: 20.0,
+        t_static: 1.0,
+        cache_mb: 64.0,
+        in_flight: 6,
+        prefetch_turn: 10.0,
+        prefetch_horizon: 1.0,
+        prefetch_coverage: 0.9,
+        pause: 1.0,
+        route: Some(route.into()),
+        synthetic: false,
+        synthetic_face: 64,
+        synthetic_length: 12.0,
+        response_timeout: "10s".into(),
+        stall_timeout: "10s".into(),
+        give_up_after: "30s".into(),
+    };
+    let walks = [
+        walk_of(NETWORK_ROUTE, root.join("walk-turns")),
+        walk_of("main", root.join("walk-straight")),
+    ];
+    let walk_stage = |name: &'static str, w: walk::Args| Stage {
+        name,
+        command: vec![
+            "walk".into(),
+            w.db.clone(),
+            "--route".into(),
+            w.route.clone().unwrap_or_default(),
+            "--speed".into(),
+            w.speed.to_string(),
+            "--bandwidth".into(),
+            w.bandwidth.clone(),
+            "--strategy".into(),
+            w.strategy.clone(),
+            "--pause".into(),
+            w.pause.to_string(),
+            "--out".into(),
+            path_arg(&w.out),
+        ],
+        outputs: vec![w.out.join("walk.json")],
+        requires: vec!["network"],
+        run: Box::new(move || walk::run(w.clone())),
+    };
+    let [turns, straight] = walks;
+    vec![
+        Stage {
+            name: "network",
+            command: vec![
+                "build".into(),
+                "--scene".into(),
+                args.scene.clone(),
+                "--track".into(),
+                "all".into(),
+                "--face-size".into(),
+                face.to_string(),
+                "--out".into(),
+                path_arg(&db),
+                "--work".into(),
+                path_arg(&work),
+            ],
+            outputs: vec![db.join("manifest.json"), work.join("build.json")],
+            requires: vec![],
+            run: Box::new(move || {
+                stages::build::run(&build, &crate::progress::terminal())?;
+                Ok(())
+            }),
+        },
+        Stage {
+            name: "network-cull",
+            command: cull.command_line(),
+            outputs: vec![cull.dir.join("cull.json")],
+            requires: vec!["network"],
+            run: Box::new(move || {
+                stages::cull::run(&cull, &crate::progress::terminal())?;
+                Ok(())
+            }),
+        },
+        walk_stage("network-walk-turns", turns),
+        walk_stage("network-walk-straight", straight),
+    ]
+}
+
 /// The PSNR (worst 5 % of views) the demo's small sweep chooses the smallest database for.
 const TUNE_TARGET_DB: f64 = 24.0;
 

@@ -133,6 +133,11 @@ impl Layout {
     pub fn tune(&self) -> PathBuf {
         self.root.join("tune")
     }
+    /// The scene's network of tracks: `network/db`, `network/work` (its prerender directory
+    /// inside), `network/walk`.
+    pub fn network(&self) -> PathBuf {
+        self.root.join("network")
+    }
     /// Headless flythrough frames.
     pub fn frames(&self) -> PathBuf {
         self.root.join("frames")

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::de::DeserializeOwned;
 
+mod network;
 mod results;
 mod scene;
 mod tables;
@@ -228,6 +229,7 @@ pub fn build(layout: &Layout, log: &RunLog, dir: &Path) -> Built {
     results::evaluation(&mut c);
     results::tuning(&mut c);
     results::frames(&mut c);
+    network::network(&mut c);
     results::later(&mut c);
     Built {
         blocks: c.blocks,

@@ -1,0 +1,287 @@
+//! Networks of tracks end to end: the castle's streets built into one database
+//! (`--track all`), the same picture at a junction from every track through it, culling
+//! judged at every segment (the junctions' included), a walk that turns at every junction
+//! against a straight one, and what bad networks and routes are told.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use common::{railview, scratch_dir, text};
+
+/// The castle's network at faces of 48 px, built once per test binary: its database and
+/// its work directory.
+fn network() -> &'static (PathBuf, PathBuf) {
+    static DB: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    DB.get_or_init(|| {
+        let dir = scratch_dir("network", "castle");
+        let (db, work) = (dir.join("db"), dir.join("work"));
+        let o = railview(&[
+            "build",
+            "--scene",
+            "castle",
+            "--track",
+            "all",
+            "--face-size",
+            "48",
+            "--out",
+            db.to_str().unwrap(),
+            "--work",
+            work.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", text(&o));
+        (db, work)
+    })
+}
+
+fn png(path: &Path) -> Vec<u8> {
+    let img = image::open(path).unwrap().to_rgb8();
+    img.into_raw()
+}
+
+fn psnr(a: &[u8], b: &[u8]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    let mse: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(&x, &y)| (x as f64 - y as f64).powi(2))
+        .sum::<f64>()
+        / a.len() as f64;
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        10.0 * (255.0f64 * 255.0 / mse).log10()
+    }
+}
+
+#[test]
+fn every_track_through_a_junction_draws_the_same_picture_there() {
+    let (db, _) = network();
+    let top = db::read_top(db).unwrap();
+    let net = top.network().unwrap();
+    assert!(
+        net.junctions.len() >= 3,
+        "{} junctions",
+        net.junctions.len()
+    );
+    let out = scratch_dir("network", "junction-frames");
+    for j in &net.junctions {
+        // Every track through it, at its arc length there.
+        let at: Vec<(String, f64)> = j
+            .branches
+            .iter()
+            .map(|b| {
+                let t = &net.tracks[b.track];
+                (t.name.clone(), net.stops[b.track][b.stop].s)
+            })
+            .collect();
+        for yaw in [0, 90, 180, 270] {
+            let frames: Vec<Vec<u8>> = at
+                .iter()
+                .enumerate()
+                .map(|(k, (track, s))| {
+                    let p = out.join(format!("j{}-{yaw}-{k}.png", j.viewpoint));
+                    let o = railview(&[
+                        "render",
+                        db.to_str().unwrap(),
+                        "--track",
+                        track,
+                        "--at",
+                        &s.to_string(),
+                        "--yaw",
+                        &yaw.to_string(),
+                        "--size",
+                        "96x72",
+                        "-o",
+                        p.to_str().unwrap(),
+                    ]);
+                    assert!(o.status.success(), "{}", text(&o));
+                    png(&p)
+                })
+                .collect();
+            for (k, f) in frames.iter().enumerate().skip(1) {
+                let db_ = psnr(&frames[0], f);
+                assert!(
+                    db_ >= 60.0,
+                    "junction {} yaw {yaw}: track `{}` against `{}`: {db_:.1} dB",
+                    j.viewpoint,
+                    at[k].0,
+                    at[0].0
+                );
+            }
+        }
+    }
+    std::fs::remove_dir_all(&out).ok();
+}
+
+#[test]
+fn culling_over_the_network_keeps_every_tile_the_oracle_sees_at_junctions_too() {
+    let (_, work) = network();
+    let pre = work.join("prerender");
+    let o = railview(&[
+        "cull",
+        pre.to_str().unwrap(),
+        "--variant",
+        "shrunk,rendered",
+        "--alpha",
+        "1",
+        "--oracle",
+        "--oracle-per-segment",
+        "16",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let rep: occlusion::report::CullReport =
+        serde_json::from_slice(&std::fs::read(pre.join("cull.json")).unwrap()).unwrap();
+    for r in &rep.runs {
+        let later = r.later_slabs();
+        assert_eq!(
+            later.false_culls,
+            Some(0),
+            "{}: false culls over the network",
+            r.variant.name()
+        );
+        eprintln!(
+            "{}: later tiles kept ÷ seen {:.2}",
+            r.variant.name(),
+            later.kept_per_seen().unwrap()
+        );
+    }
+    // The junctions' cells reach along every branch: a junction keeps at least what the
+    // same viewpoint keeps for its own track alone (spot check on the first junction).
+    let decisions: occlusion::report::TileDecisions =
+        serde_json::from_slice(&std::fs::read(pre.join("cull_tiles.json")).unwrap()).unwrap();
+    assert!(decisions
+        .runs
+        .iter()
+        .all(|r| r.viewpoints.len() == rep.viewpoints));
+}
+
+#[test]
+fn a_walk_that_turns_at_every_junction_streams_as_well_as_a_straight_one() {
+    let (db, _) = network();
+    let out = scratch_dir("network", "walks");
+    let walk = |route: &str, name: &str| {
+        let dir = out.join(name);
+        let o = railview(&[
+            "walk",
+            db.to_str().unwrap(),
+            "--route",
+            route,
+            "--speed",
+            "4",
+            "--bandwidth",
+            "2mbit",
+            "--latency",
+            "50ms",
+            "--strategy",
+            "visibility+prefetch",
+            "--out",
+            dir.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", text(&o));
+        let r: streamer::walk::WalkReport =
+            serde_json::from_slice(&std::fs::read(dir.join("walk.json")).unwrap()).unwrap();
+        r
+    };
+    let turns = walk("north,main,cross,west,south", "turns");
+    let straight = walk("main", "straight");
+    let (t, s) = (&turns.runs[0], &straight.runs[0]);
+    assert_eq!(t.turns.len(), 4, "{:?}", t.turns);
+    let ratio = t.mean_needed_fraction / s.mean_needed_fraction;
+    eprintln!(
+        "needed fraction: turning {:.3}, straight {:.3} ({ratio:.3}×); after each turn: {:?}",
+        t.mean_needed_fraction,
+        s.mean_needed_fraction,
+        t.turns
+            .iter()
+            .map(|x| x.first_complete_after_s)
+            .collect::<Vec<_>>()
+    );
+    assert!(ratio >= 0.95, "turning walk {ratio:.3}× the straight one");
+    // The first complete frame after a turn comes no later than the straight walk's after
+    // crossing a sample (its slowest recovery in the same window).
+    let window = turns.runs[0].turns.first().map_or(0, |x| x.frames) as usize;
+    let straight_worst = worst_recovery(s, window);
+    for x in &t.turns {
+        let after = x.first_complete_after_s.unwrap_or(f64::INFINITY);
+        assert!(
+            after <= straight_worst + 1e-9,
+            "after the turn {}→{}: {after} s, straight walk's worst {straight_worst} s",
+            x.from_track,
+            x.to_track
+        );
+    }
+    // A route whose tracks do not meet is refused, naming both.
+    let o = railview(&[
+        "walk",
+        db.to_str().unwrap(),
+        "--route",
+        "north,west",
+        "--bandwidth",
+        "unlimited",
+        "--strategy",
+        "naive",
+        "--out",
+        out.join("bad").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("tracks `north` and `west` do not meet"),
+        "{}",
+        text(&o)
+    );
+    std::fs::remove_dir_all(&out).ok();
+}
+
+/// The longest wait, over the straight walk's frames, from a frame that is not complete to
+/// the next complete one within `window` frames (0 when it never misses one).
+fn worst_recovery(run: &streamer::walk::RunReport, window: usize) -> f64 {
+    let f = &run.frames;
+    let mut worst: f64 = 0.0;
+    for (i, x) in f.iter().enumerate() {
+        if x.complete {
+            continue;
+        }
+        let next = f[i..]
+            .iter()
+            .take(window.max(1))
+            .find(|y| y.complete)
+            .map_or(f64::INFINITY, |y| y.t_s - x.t_s);
+        worst = worst.max(next);
+    }
+    worst
+}
+
+#[test]
+fn tracks_that_almost_meet_are_refused_with_file_line_and_distance() {
+    let dir = scratch_dir("network", "near-miss");
+    let scene = dir.join("streets.toml");
+    std::fs::write(
+        &scene,
+        "[sky]\nzenith = [0.3, 0.5, 0.9]\nhorizon = [0.8, 0.9, 1.0]\n\n\
+         [[material]]\nname = \"ground\"\ncolor = [0.5, 0.5, 0.5]\n\n\
+         [[object]]\ntype = \"box\"\nmin = [-20, -1, -20]\nmax = [20, 0, 20]\nmaterial = \"ground\"\n\n\
+         [[track]]\nname = \"a\"\npoints = [[0, 1.7, 0], [10, 1.7, 0]]\nspacing = 2.0\n\n\
+         [[track]]\nname = \"b\"\npoints = [[5, 1.7, 0.08], [5, 1.7, 8]]\nspacing = 2.0\n",
+    )
+    .unwrap();
+    let o = railview(&[
+        "prerender",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--track",
+        "all",
+        "--face-size",
+        "16",
+        "--out",
+        dir.join("pre").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success(), "{}", text(&o));
+    let t = text(&o);
+    assert!(
+        t.contains("streets.toml:") && t.contains("0.0800 m") && t.contains("track `b`"),
+        "{t}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
