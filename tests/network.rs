@@ -10,7 +10,7 @@ use std::sync::OnceLock;
 
 use common::{railview, scratch_dir, text};
 
-/// The castle's network at faces of 48 px, built once per test binary: its database and
+/// The castle's network at faces of 64 px, built once per test binary: its database and
 /// its work directory.
 fn network() -> &'static (PathBuf, PathBuf) {
     static DB: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
@@ -24,7 +24,7 @@ fn network() -> &'static (PathBuf, PathBuf) {
             "--track",
             "all",
             "--face-size",
-            "48",
+            "64",
             "--out",
             db.to_str().unwrap(),
             "--work",
@@ -141,11 +141,14 @@ fn culling_over_the_network_keeps_every_tile_the_oracle_sees_at_junctions_too() 
             "{}: false culls over the network",
             r.variant.name()
         );
-        eprintln!(
-            "{}: later tiles kept ÷ seen {:.2}",
-            r.variant.name(),
-            later.kept_per_seen().unwrap()
-        );
+        let ratio = later.kept_per_seen().unwrap();
+        eprintln!("{}: later tiles kept ÷ seen {ratio:.2}", r.variant.name());
+        // The variant made for imports is within 1.2× of what the oracle sees (the shrunk
+        // variant, which built-in scenes use by default, keeps more on the far slab this
+        // network's depth histogram gives: 1.41× here, 1.13× with main's slabs).
+        if r.variant == occlusion::Variant::Rendered {
+            assert!(ratio <= 1.2, "rendered: {ratio:.2}× the oracle");
+        }
     }
     // The junctions' cells reach along every branch: a junction keeps at least what the
     // same viewpoint keeps for its own track alone (spot check on the first junction).
@@ -284,4 +287,116 @@ fn tracks_that_almost_meet_are_refused_with_file_line_and_distance() {
         "{t}"
     );
     std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_junction_without_its_table_is_shown_missing_never_drawn_wrong() {
+    let (db, _) = network();
+    let dir = scratch_dir("network", "no-junction-table");
+    let copy = dir.join("db");
+    copy_dir(db, &copy);
+    let top = db::read_top(&copy).unwrap();
+    let net = top.network().unwrap();
+    // The junction where `main` meets `north`.
+    let j = net
+        .junctions
+        .iter()
+        .find(|j| {
+            let names: Vec<&str> = j
+                .branches
+                .iter()
+                .map(|b| net.tracks[b.track].name.as_str())
+                .collect();
+            names.contains(&"main") && names.contains(&"north")
+        })
+        .unwrap();
+    // Served while intact, then the table goes (a host that lost it).
+    let server = Server::start(&copy);
+    let table = copy.join(top.viewpoints[j.viewpoint].table.rel_path().unwrap());
+    std::fs::remove_file(&table).unwrap();
+    let o = railview(&["verify", copy.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains(&format!("viewpoint {}", j.viewpoint)),
+        "{}",
+        text(&o)
+    );
+    // A walk through it goes on; the frames that need it are not complete (nothing is drawn
+    // for a viewpoint whose tiles are unknown), and its table is given up.
+    let out = dir.join("walk");
+    let url = format!("http://{}", server.addr);
+    let o = railview(&[
+        "walk",
+        &url,
+        "--route",
+        "main,north",
+        "--speed",
+        "6",
+        "--bandwidth",
+        "unlimited",
+        "--strategy",
+        "visibility+prefetch",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    drop(server);
+    let r: streamer::walk::WalkReport =
+        serde_json::from_slice(&std::fs::read(out.join("walk.json")).unwrap()).unwrap();
+    let run = &r.runs[0];
+    assert!(run.table_faults >= 1, "{:?}", run.error);
+    let turn = &run.turns[0];
+    assert!(
+        turn.stalled > 0 && turn.first_complete_after_s.is_none_or(|t| t > 0.0),
+        "{turn:?}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// `railview serve DB` on a free loopback port, stopped when dropped.
+struct Server {
+    child: std::process::Child,
+    addr: std::net::SocketAddr,
+}
+
+impl Server {
+    fn start(db: &Path) -> Server {
+        use std::io::BufRead;
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_railview"))
+            .args(["serve", db.to_str().unwrap(), "--addr", "127.0.0.1:0"])
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("start railview serve");
+        let stderr = child.stderr.take().unwrap();
+        let mut lines = std::io::BufReader::new(stderr).lines();
+        let line = lines.next().expect("serve prints its address").unwrap();
+        let addr = line
+            .split("http://")
+            .nth(1)
+            .and_then(|a| a.split_whitespace().next())
+            .and_then(|a| a.parse().ok())
+            .unwrap_or_else(|| panic!("no address in `{line}`"));
+        std::thread::spawn(move || for _ in lines {});
+        Server { child, addr }
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let p = e.path();
+        if p.is_dir() {
+            copy_dir(&p, &to.join(e.file_name()));
+        } else {
+            std::fs::copy(&p, to.join(e.file_name())).unwrap();
+        }
+    }
 }
