@@ -448,7 +448,7 @@ fn tiles_of_a_missing_object_are_asked_again_then_shown_missing() {
         serde_json::from_slice(&std::fs::read(copy.join("manifest.json")).unwrap()).unwrap();
     // Every object viewpoint 5's tiles take their textures from (its pack, and the earlier
     // packs it points into) is gone.
-    let vp = &manifest["tracks"][0]["viewpoints"][5];
+    let vp = &manifest["viewpoints"][5];
     let table_hash = vp["table"]["hash"].as_str().unwrap();
     let objects = copy.join("objects");
     let table = std::fs::read(objects.join(&table_hash[..2]).join(table_hash)).unwrap();
@@ -481,4 +481,401 @@ fn tiles_of_a_missing_object_are_asked_again_then_shown_missing() {
         "{state}"
     );
     assert_eq!(state["shown"], "", "{state}");
+}
+
+/// The castle's street network (`--track all`: main, west, cross, south and north, meeting at
+/// five junctions) at face 64 (built once per test binary, ~15 s).
+fn castle_network() -> &'static Path {
+    static DB: OnceLock<PathBuf> = OnceLock::new();
+    DB.get_or_init(|| {
+        let dir = scratch_dir("browser", "network");
+        let db = dir.join("site").join("streets");
+        let o = railview(&[
+            "build",
+            "--scene",
+            "castle",
+            "--track",
+            "all",
+            "--face-size",
+            "64",
+            "--out",
+            db.to_str().unwrap(),
+            "--work",
+            dir.join("work").to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        db
+    })
+}
+
+/// A camera on a track of a network: the track's name, arc length, yaw, pitch and fov.
+#[derive(Clone, Debug)]
+struct NetView {
+    track: String,
+    at: f64,
+    yaw: f64,
+    pitch: f64,
+    fov: f64,
+}
+
+impl NetView {
+    fn query(&self) -> String {
+        format!(
+            "?track={}&at={}&yaw={}&pitch={}&fov={}",
+            self.track, self.at, self.yaw, self.pitch, self.fov
+        )
+    }
+}
+
+/// Waits for `railview: ready` with no error thrown or shown.
+fn wait_ready(b: &mut Browser, what: &str) {
+    let title = b.wait_title(READY_WITHIN, |t| {
+        t == "railview: ready" || t.contains("missing")
+    });
+    let state = page_state(b);
+    assert_eq!(title, "railview: ready", "{what}: {state}");
+    assert_eq!(state["errors"], serde_json::json!([]), "{what}: {state}");
+    assert_eq!(state["shown"], "", "{what}: {state}");
+}
+
+/// Opens `view` of the network served at `url` in a fresh browser and returns the frame once
+/// ready.
+fn browse_net(url: &str, view: &NetView, tag: &str) -> Frame {
+    let mut b = Browser::start(&scratch_dir("browser-profile", tag), SIZE.0, SIZE.1);
+    b.navigate(&format!("{url}{}", view.query()));
+    wait_ready(&mut b, &format!("{view:?}"));
+    let f = frame_of(&mut b);
+    assert_eq!((f.width, f.height), SIZE, "the canvas fills the window");
+    f
+}
+
+/// `railview render --track` of the same camera.
+fn native_net(db: &Path, view: &NetView, out: &Path) -> Frame {
+    let o = railview(&[
+        "render",
+        db.to_str().unwrap(),
+        "--track",
+        &view.track,
+        "--at",
+        &view.at.to_string(),
+        "--yaw",
+        &view.yaw.to_string(),
+        "--pitch",
+        &view.pitch.to_string(),
+        "--fov",
+        &view.fov.to_string(),
+        "--size",
+        &format!("{}x{}", SIZE.0, SIZE.1),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let img = image::open(out).unwrap().to_rgba8();
+    Frame {
+        width: img.width(),
+        height: img.height(),
+        rgba: img.into_raw(),
+    }
+}
+
+/// The browser's frame against `railview render`'s, within the fidelity of issue 36; the
+/// PSNR.
+fn assert_matches_native(web: &Frame, nat: &Frame, what: &str) -> f64 {
+    let (psnr, holes) = compare(web, nat);
+    eprintln!(
+        "{what}: {psnr:.2} dB, hole masks differ at {:.4} %",
+        holes * 100.0
+    );
+    assert!(
+        psnr >= MIN_PSNR_DB,
+        "{what}: {psnr:.2} dB against railview render (at least {MIN_PSNR_DB})"
+    );
+    assert!(
+        holes <= MAX_HOLE_DISAGREEMENT,
+        "{what}: hole masks differ at {:.3} % of pixels",
+        holes * 100.0
+    );
+    psnr
+}
+
+/// A way out of a junction: its track, the junction's arc length on it, its direction along
+/// the track and the yaw of its heading (the castle's streets are straight).
+#[derive(Clone, Debug)]
+struct Way {
+    track: String,
+    s: f64,
+    forward: bool,
+    yaw: f64,
+}
+
+/// The network's first crossing (a junction of four branches on two tracks) and its ways.
+fn crossing(db: &Path) -> Vec<Way> {
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(db.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["version"], 8, "the network's manifest is format 8");
+    let j = m["junctions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|j| j["branches"].as_array().unwrap().len() == 4)
+        .expect("a junction of four branches");
+    let pos = |v: &serde_json::Value| -> Vec<f64> {
+        m["viewpoints"][v.as_u64().unwrap() as usize]["position"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let here = pos(&j["viewpoint"]);
+    j["branches"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| {
+            let t = &m["tracks"][b["track"].as_u64().unwrap() as usize];
+            let stop = b["stop"].as_u64().unwrap() as usize;
+            let forward = b["forward"].as_bool().unwrap();
+            let next = &t["stops"][if forward { stop + 1 } else { stop - 1 }];
+            let there = pos(&next["viewpoint"]);
+            Way {
+                track: t["name"].as_str().unwrap().to_string(),
+                s: t["stops"][stop]["s"].as_f64().unwrap(),
+                forward,
+                yaw: (there[0] - here[0])
+                    .atan2(-(there[2] - here[2]))
+                    .to_degrees(),
+            }
+        })
+        .collect()
+}
+
+/// The value of `key` in a query string.
+fn query_param(search: &str, key: &str) -> Option<String> {
+    search
+        .trim_start_matches('?')
+        .split('&')
+        .find_map(|kv| kv.strip_prefix(&format!("{key}=")))
+        .map(str::to_string)
+}
+
+/// Polls the page's URL until its `track` is `name` (the URL follows the walk, at most every
+/// 250 ms); the query string.
+fn wait_url_track(b: &mut Browser, name: &str) -> String {
+    let start = std::time::Instant::now();
+    loop {
+        let search = b.eval("location.search").as_str().unwrap().to_string();
+        if query_param(&search, "track").as_deref() == Some(name) {
+            return search;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(10),
+            "the URL names no track `{name}`: {search}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// A key pressed and released, as a keyboard does it.
+fn press(b: &mut Browser, key: &str) {
+    for kind in ["keyDown", "keyUp"] {
+        b.call(
+            "Input.dispatchKeyEvent",
+            serde_json::json!({"type": kind, "key": key, "text": key}),
+        );
+    }
+}
+
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+fn at_a_junction_and_on_each_of_its_branches_the_browser_matches_railview_render() {
+    let db = castle_network();
+    let ways = crossing(db);
+    let server = serve(db, &[]);
+    let out = scratch_dir("browser", "junction");
+    // The junction from every track through it, one camera: its own view alone each time.
+    let mut views: Vec<NetView> = Vec::new();
+    for w in &ways {
+        if !views.iter().any(|v| v.track == w.track) {
+            views.push(NetView {
+                track: w.track.clone(),
+                at: w.s,
+                yaw: 30.0,
+                pitch: -5.0,
+                fov: 90.0,
+            });
+        }
+    }
+    let at_junction = views.len();
+    assert_eq!(at_junction, 2, "{ways:?}");
+    // A metre along each branch, looking along it.
+    for w in &ways {
+        views.push(NetView {
+            track: w.track.clone(),
+            at: w.s + if w.forward { 1.0 } else { -1.0 },
+            yaw: w.yaw,
+            pitch: -5.0,
+            fov: 90.0,
+        });
+    }
+    let mut frames = Vec::new();
+    for (i, v) in views.iter().enumerate() {
+        let web = browse_net(&server.url, v, &format!("junction-{i}"));
+        let nat = native_net(db, v, &out.join(format!("native-{i}.png")));
+        let what = if i < at_junction {
+            format!("at the junction from `{}` (s {})", v.track, v.at)
+        } else {
+            format!(
+                "on `{}` at s {} looking along yaw {:.0}",
+                v.track, v.at, v.yaw
+            )
+        };
+        assert_matches_native(&web, &nat, &what);
+        frames.push(web);
+    }
+    // Every track through the junction gives the same picture there.
+    for (v, f) in views.iter().zip(&frames).take(at_junction).skip(1) {
+        let (psnr, holes) = compare(&frames[0], f);
+        assert!(
+            psnr.is_infinite() && holes == 0.0,
+            "the junction from `{}` differs from `{}`: {psnr:.2} dB",
+            v.track,
+            views[0].track
+        );
+    }
+}
+
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+fn a_click_on_an_arrow_or_a_key_takes_that_branch_and_the_url_follows() {
+    let db = castle_network();
+    let ways = crossing(db);
+    let server = serve(db, &[]);
+    // Towards the crossing along a track, 4 m before it, looking the way the walk goes (the
+    // branch back along that track is the way it arrives).
+    let back = ways.iter().find(|w| !w.forward).unwrap().clone();
+    let start = NetView {
+        track: back.track.clone(),
+        at: back.s - 4.0,
+        yaw: back.yaw + 180.0,
+        pitch: -15.0,
+        fov: 90.0,
+    };
+    let mut b = Browser::start(&scratch_dir("browser-profile", "arrows"), SIZE.0, SIZE.1);
+    b.navigate(&format!("{}{}", server.url, start.query()));
+    wait_ready(&mut b, "start");
+    let state = page_state(&mut b);
+    let arrows = state["state"]["arrows"].as_array().unwrap().clone();
+    assert_eq!(
+        arrows.len(),
+        3,
+        "an arrow per way out but the way back: {state}"
+    );
+    let chosen: Vec<_> = arrows.iter().filter(|a| a["chosen"] == true).collect();
+    assert_eq!(chosen.len(), 1, "{state}");
+    assert_eq!(
+        chosen[0]["name"],
+        back.track.as_str(),
+        "straight on by default: {state}"
+    );
+    assert_eq!(chosen[0]["forward"], true, "{state}");
+    let status = b.eval("document.getElementById('status-text').textContent");
+    let status = status.as_str().unwrap();
+    assert!(
+        status.starts_with(&format!("{} · ", back.track)) && status.contains("junction in 4.0 m"),
+        "{status}"
+    );
+
+    // A click on another way's arrow walks onto its branch, a metre past the junction.
+    let target = arrows
+        .iter()
+        .find(|a| a["chosen"] == false && a["x"].is_f64())
+        .unwrap_or_else(|| panic!("no other way's arrow on the screen: {state}"));
+    let (x, y) = (target["x"].as_f64().unwrap(), target["y"].as_f64().unwrap());
+    for kind in ["mouseMoved", "mousePressed", "mouseReleased"] {
+        b.call(
+            "Input.dispatchMouseEvent",
+            serde_json::json!({"type": kind, "x": x, "y": y, "button": "left", "clickCount": 1}),
+        );
+    }
+    let name = target["name"].as_str().unwrap();
+    let forward = target["forward"].as_bool().unwrap();
+    let search = wait_url_track(&mut b, name);
+    let walker =
+        b.eval("({ s: window.railviewApp.walker.s, forward: window.railviewApp.walker.forward })");
+    let way = ways
+        .iter()
+        .find(|w| w.track == name && w.forward == forward)
+        .unwrap();
+    let s = walker["s"].as_f64().unwrap();
+    assert_eq!(walker["forward"], forward, "{walker}");
+    assert!(
+        ((s - way.s).abs() - 1.0).abs() < 1e-6 && (s > way.s) == forward,
+        "a click walks a metre onto `{name}` from s {}: at {s}",
+        way.s
+    );
+    let at: f64 = query_param(&search, "at").unwrap().parse().unwrap();
+    assert!((at - s).abs() < 1e-3, "{search}");
+    assert_eq!(
+        query_param(&search, "yaw")
+            .unwrap()
+            .parse::<f64>()
+            .unwrap()
+            .rem_euclid(360.0)
+            .round(),
+        start.yaw.rem_euclid(360.0).round(),
+        "the camera keeps its direction through the turn: {search}"
+    );
+    // What it shows there is what `railview render` draws.
+    wait_ready(&mut b, "after the click");
+    let there = NetView {
+        track: name.to_string(),
+        at: s,
+        ..start.clone()
+    };
+    let out = scratch_dir("browser", "arrows");
+    assert_matches_native(
+        &frame_of(&mut b),
+        &native_net(db, &there, &out.join("after-click.png")),
+        &format!("after a click onto `{name}`"),
+    );
+
+    // Back at the start: `]` moves the choice a way to the right, W walks through onto it.
+    b.eval(&format!(
+        "window.railviewGo({}, {}, '{}')",
+        start.at, start.yaw, start.track
+    ));
+    press(&mut b, "]");
+    let chosen = b.eval("window.railviewApp.walker.chosen");
+    assert!(chosen.is_object(), "`]` chose no branch");
+    let name = b
+        .eval(&format!(
+            "window.railviewApp.net.names[{}]",
+            chosen["track"].as_u64().unwrap()
+        ))
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert!(
+        name != start.track || chosen["forward"] == false,
+        "`]` kept the way straight on: {chosen}"
+    );
+    // 4 m to the junction in steps of 0.25 m, and one more past it.
+    for _ in 0..17 {
+        press(&mut b, "w");
+    }
+    wait_url_track(&mut b, &name);
+    let walker = b.eval("({ forward: window.railviewApp.walker.forward, chosen: window.railviewApp.walker.chosen })");
+    assert_eq!(walker["forward"], chosen["forward"], "{walker}");
+    assert_eq!(
+        walker["chosen"],
+        serde_json::Value::Null,
+        "a choice is used once"
+    );
 }

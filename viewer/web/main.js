@@ -1,19 +1,35 @@
 // The browser viewer: the manifest, the two reference views around the camera, their tiles
 // streamed as byte ranges of the packs (visible tiles first, coarse levels before fine
-// ones, then the next segment's as prefetch), decoded in workers, drawn with the blend rule.
-// URL contract: ?at=S&yaw=Y&pitch=P&fov=F opens that view; when every tile the view needs
-// has arrived and been drawn, document.title becomes "railview: ready".
+// ones, then the next segment's as prefetch, or near a junction every way out's), decoded in
+// workers, drawn with the blend rule. On a network of tracks the walk turns at junctions onto
+// the branch chosen ([ ] or q e, or a click on its arrow on the ground), else the one nearest
+// the view; views are held by viewpoint id, so a junction's is one view whatever the track.
+// URL contract: ?track=T&at=S&yaw=Y&pitch=P&fov=F opens that view (track by name, the first
+// by default), and the URL follows the walk; when every tile the view needs has arrived and
+// been drawn, document.title becomes "railview: ready".
 import { Renderer } from "./render.js";
-import { Track, blendPair } from "./track.js";
+import { Network, Walker, viewOf, sameBranch, branchWeights } from "./track.js";
 import { Store, FetchError } from "./fetch.js";
 import { decodeTable } from "./table.js";
 import { blake3Hex } from "./blake3.js";
-import { checkManifest, visibleTiles, tileKey } from "./plan.js";
+import { checkManifest, visibleTiles, tileKey, projector, projectPolygon, projectPoint, arrowShape } from "./plan.js";
 
 const MAX_MANIFEST_BYTES = 64 << 20;
 const MAX_TABLE_OBJECT = 64 << 20;
 const MAX_FAULTS = 3;
 const IN_FLIGHT = 4;
+// Arrows show the ways out of the next junction once it is this near (metres along the track).
+const ARROW_RANGE_M = 6;
+// The ground the arrows lie on, below the camera (metres).
+const EYE_ABOVE_GROUND_M = 1.5;
+// A click on an arrow walks onto its branch this far past the junction (metres).
+const CLICK_STEP_M = 1;
+// The walk's direction of travel turns round when the camera is turned further than this
+// from it (the cosine of about 100°), so that W walks the way the camera looks.
+const TURN_ROUND_COS = -0.17;
+// The URL follows the walk at most this often (ms).
+const URL_EVERY_MS = 250;
+const SVG = "http://www.w3.org/2000/svg";
 // Decoded bytes kept (textures and meshes; views beyond the drawn pair and the next are
 // evicted, least recently wanted first): `?budget=MB`, 512 MB by default.
 
@@ -21,6 +37,10 @@ const q = new URLSearchParams(location.search);
 const num = (k, d) => (q.has(k) && Number.isFinite(Number(q.get(k))) ? Number(q.get(k)) : d);
 const MEMORY_BUDGET = Math.min(Math.max(num("budget", 512), 1), 16384) * 1e6;
 const canvas = document.getElementById("view");
+const arrowLayer = document.getElementById("arrows");
+// The arrows' layer lies over the canvas and lets every pointer event through but those on
+// an arrow (styles set here, not in the page: no inline styles).
+Object.assign(arrowLayer.style, { position: "fixed", left: "0", top: "0", width: "100vw", height: "100vh", pointerEvents: "none", overflow: "visible" });
 const statusText = document.getElementById("status-text");
 const bar = document.getElementById("bar");
 
@@ -80,6 +100,12 @@ class Workers {
 // A tile mesh's bytes: positions and depths (f32) and the info word per vertex on the GPU,
 // the positions and stretch flags kept to rebuild the info words as finer levels arrive.
 const meshBytes = (t) => (t.pos ? t.pos.length * 8 + (t.pos.length / 3) * 4 + t.stretched.length : 0);
+const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+// An angle in degrees brought into −180..180 (180 stays 180).
+const wrap = (deg) => {
+  const d = Number.isFinite(deg) ? ((((deg + 180) % 360) + 360) % 360) - 180 : 0;
+  return d === -180 ? 180 : d;
+};
 
 class App {
   constructor() {
@@ -94,6 +120,16 @@ class App {
     this.dirty = true;
     this.stats = { missing: 0, faults: 0 };
     this.frameMs = [];
+    this.arrows = [];
+  }
+
+  // The track the walker is on.
+  get track() {
+    return this.net.tracks[this.walker.track];
+  }
+
+  get trackName() {
+    return this.net.names[this.walker.track];
   }
 
   // The first time each stage was reached (ms since the page was opened), for measurements.
@@ -106,32 +142,87 @@ class App {
     this.mark("start");
     const bytes = await this.store.get(`${this.base}manifest.json`, MAX_MANIFEST_BYTES);
     this.manifest = checkManifest(JSON.parse(new TextDecoder().decode(bytes)));
+    this.net = new Network(this.manifest);
     const name = q.get("track");
-    const tr = (name && this.manifest.tracks.find((t) => t.name === name)) || this.manifest.tracks[0];
-    this.trackEntry = tr;
-    this.track = new Track(tr.track_toml);
-    this.arcs = tr.viewpoints.map((v) => v.s);
-    const s = Math.min(Math.max(num("at", 0), 0), this.track.length);
-    this.cam = { s, yaw: num("yaw", this.track.yawAlong(s)), pitch: num("pitch", 0), fov: num("fov", 90) };
+    let t = name === null ? 0 : this.net.trackIndex(name);
+    if (t < 0) {
+      console.warn("no track of that name here; the first one is shown");
+      t = 0;
+    }
+    this.cam = { yaw: 0, pitch: num("pitch", 0), fov: num("fov", 90) };
+    const yaw = num("yaw", NaN);
+    this.go(t, num("at", 0), Number.isFinite(yaw) ? yaw : undefined);
     this.mark("manifest");
     this.bindInput();
     this.update();
     requestAnimationFrame(() => this.frame());
   }
 
-  // The pair around the camera, the views to prefetch, and the tiles each view needs.
+  // Puts the walker on track t at arc length s (clamped to the track) looking along `yaw`
+  // (along the track when undefined); it travels the way the camera looks.
+  go(t, s, yaw) {
+    const track = this.net.tracks[t];
+    s = Math.min(Math.max(Number.isFinite(s) ? s : 0, 0), track.length);
+    this.cam.yaw = yaw ?? track.yawAlong(s);
+    this.walker = new Walker(this.net, t, s, dot(viewOf(this.cam.yaw), track.tangentAt(s)) >= 0);
+  }
+
+  // The pair around the camera on the walker's track, the views to prefetch, and the tiles
+  // each view needs.
   update() {
-    const [a, b, wb] = blendPair(this.arcs, this.cam.s);
+    const w = this.walker;
+    const [a, b, wb, ka] = this.net.blendPair(w.track, w.s);
     // At a sample (the other weight 0) its own view alone, as the native renderer draws it.
     this.pair = b !== a && wb > 0 ? [[a, 1 - wb], [b, wb]] : [[a, 1]];
-    const ahead = b >= a ? Math.max(a, b) + 1 : Math.min(a, b) - 1;
-    const next = Math.min(Math.max(ahead, 0), this.arcs.length - 1);
     for (const v of this.views.values()) v.rank = 2;
-    this.want(next, 1);
+    for (const [vi, rank] of this.prefetch(ka, wb)) this.want(vi, rank);
     for (const [vi] of this.pair) this.want(vi, 0);
     this.evict();
     this.requeue();
+    this.placeArrows();
+    this.followUrl();
+    // Not ready until the new view has been drawn (the next frame's status says what it is).
+    document.title = "railview: moving";
     this.dirty = true;
+  }
+
+  // The views to prefetch, with their ranks (1: kept like the pair; up to 2: fetched after,
+  // evicted first): the next view ahead on the track, the way the walker travels; near a
+  // junction (ARROW_RANGE_M) also the junction's and the far end of every way out's first
+  // segment, the likeliest way first (client::route::branch_weights). Where the junction is
+  // the next view or the drawn one, the likeliest way's first segment is the next segment,
+  // kept like it.
+  prefetch(ka, wb) {
+    const w = this.walker;
+    const net = this.net;
+    const stops = net.stops[w.track];
+    const arcs = net.arcs[w.track];
+    let k;
+    if (w.forward) {
+      k = ka;
+      while (k < arcs.length && arcs[k] <= w.s) k++;
+      if (wb > 0) k++;
+    } else {
+      k = Math.min(ka + 1, arcs.length - 1);
+      while (k >= 0 && arcs[k] >= w.s) k--;
+      if (wb > 0) k--;
+    }
+    const nj = w.nextJunction();
+    const near = nj && nj.dist <= ARROW_RANGE_M ? nj : null;
+    const out = [];
+    // Standing on a junction, the next view is a way out's, ranked with them.
+    if (k >= 0 && k < stops.length && !(near && near.dist === 0)) out.push([stops[k].viewpoint, 1]);
+    if (near) {
+      const next = near.dist === 0 || near.stop === k;
+      out.push([near.junction.viewpoint, next ? 1 : 1.1]);
+      const view = viewOf(this.cam.yaw);
+      const ways = branchWeights(net, w.options(), view, w.heading(), w.chosen).sort((x, y) => y[1] - x[1]);
+      ways.forEach(([br], i) => {
+        const far = net.stops[br.track][br.stop + (br.forward ? 1 : -1)];
+        if (far) out.push([far.viewpoint, next && i === 0 ? 1 : 1.2 + (0.7 * i) / ways.length]);
+      });
+    }
+    return out;
   }
 
   want(vi, rank) {
@@ -140,13 +231,13 @@ class App {
       v = { vi, rank, table: null, tiles: new Map(), tex: null, bytes: 0, loading: null, used: 0 };
       this.views.set(vi, v);
     }
-    v.rank = rank;
+    v.rank = Math.min(v.rank, rank);
     v.used = performance.now();
     if (!v.table && !v.loading) v.loading = this.loadTable(v).catch((e) => showError(e));
   }
 
   async loadTable(v) {
-    const ref = this.trackEntry.viewpoints[v.vi].table;
+    const ref = this.manifest.viewpoints[v.vi].table;
     let bytes;
     for (let attempt = 0; ; attempt++) {
       try {
@@ -159,7 +250,7 @@ class App {
         await new Promise((r) => setTimeout(r, 200 * 2 ** attempt));
       }
     }
-    const table = await decodeTable(bytes, this.trackEntry.viewpoints[v.vi].index);
+    const table = await decodeTable(bytes, v.vi);
     if (this.views.get(v.vi) !== v) return;
     this.mark("table");
     v.table = table;
@@ -188,8 +279,8 @@ class App {
     for (const v of this.views.values()) {
       if (!v.table) continue;
       const pairRank = this.pair.findIndex(([vi]) => vi === v.vi);
-      const visible = new Set(visibleTiles(this.manifest, this.trackEntry.viewpoints[v.vi].position, cam, [...v.tiles.values()].map((t) => t.e)).map(tileKey));
-      if (v.rank > 1) continue;
+      if (v.rank >= 2) continue;
+      const visible = new Set(visibleTiles(this.manifest, this.manifest.viewpoints[v.vi].position, cam, [...v.tiles.values()].map((t) => t.e)).map(tileKey));
       for (const [key, t] of v.tiles) {
         const inView = visible.has(key);
         t.needed = pairRank >= 0 && inView;
@@ -353,8 +444,8 @@ class App {
     this.dirty = true;
   }
 
-  // Views beyond the pair and the next go back to nothing when over the memory budget,
-  // least recently wanted first.
+  // Views beyond the pair and the next (rank over 1) go back to nothing when over the memory
+  // budget, least recently wanted first.
   evict() {
     const bytes = (v) => v.bytes + [...v.tiles.values()].reduce((a, t) => a + meshBytes(t), 0);
     let total = [...this.views.values()].reduce((a, v) => a + bytes(v), 0);
@@ -392,7 +483,7 @@ class App {
     const dpr = window.devicePixelRatio || 1;
     const w = Math.max(1, Math.round(canvas.clientWidth * dpr));
     const h = Math.max(1, Math.round(canvas.clientHeight * dpr));
-    return { position: this.track.positionAt(this.cam.s), yaw: this.cam.yaw, pitch: this.cam.pitch, fov: this.cam.fov, width: w, height: h };
+    return { position: this.track.positionAt(this.walker.s), yaw: this.cam.yaw, pitch: this.cam.pitch, fov: this.cam.fov, width: w, height: h };
   }
 
   frame() {
@@ -401,6 +492,7 @@ class App {
     if (canvas.width !== cam.width || canvas.height !== cam.height) {
       canvas.width = cam.width;
       canvas.height = cam.height;
+      this.placeArrows();
       this.dirty = true;
     }
     if (!this.dirty) return;
@@ -422,7 +514,7 @@ class App {
       const v = this.views.get(vi);
       if (!v || !v.tex) continue;
       const meshes = [...v.tiles.values()].filter((t) => t.mesh).sort((a, b) => a.layer - b.layer).map((t) => t.mesh);
-      views.push({ weight, position: this.trackEntry.viewpoints[vi].position, faceSize: this.manifest.face_size, levels: v.levels, tex: v.tex, meshes });
+      views.push({ weight, position: this.manifest.viewpoints[vi].position, faceSize: this.manifest.face_size, levels: v.levels, tex: v.tex, meshes });
     }
     if (!views.length) return this.status(cam);
     if (views.length === 1) views[0].weight = 1;
@@ -463,9 +555,13 @@ class App {
     }
     const pct = need ? Math.floor((100 * have) / need) : pairLoaded ? 100 : 0;
     const st = this.store.stats;
-    statusText.textContent = `s ${this.cam.s.toFixed(2)} m · detail ${pct}% (${have}/${need} tiles${missing ? `, ${missing} missing` : ""}) · ${(st.bytes / 1e6).toFixed(2)} MB in ${st.requests} requests`;
+    // Track names come from the database: text only, never markup.
+    statusText.textContent = `${this.trackName} · s ${this.walker.s.toFixed(2)} m${this.junctionText()} · detail ${pct}% (${have}/${need} tiles${missing ? `, ${missing} missing` : ""}) · ${(st.bytes / 1e6).toFixed(2)} MB in ${st.requests} requests`;
     bar.style.width = `${pct}%`;
     window.railview = { need, have, missing, memory: this.memoryBytes(), budget: MEMORY_BUDGET, stats: st, faults: this.stats.faults, decodeMaxMs: this.workers.maxMs, decodeTotalMs: this.workers.totalMs, decodes: this.workers.count, mainMaxMs: this.mainMaxMs ?? 0, mainTotalMs: this.mainTotalMs ?? 0, frameMs: this.frameMs.slice(-50) };
+    const w = this.walker;
+    window.railview.walker = { track: this.trackName, s: w.s, forward: w.forward, chosen: w.chosen ? this.net.names[w.chosen.track] : null };
+    window.railview.arrows = this.arrows.map(({ branch, name, chosen, x, y }) => ({ ...branch, name, chosen, x, y }));
     // Times since the page was opened: every needed tile drawn at some level (what the
     // native walk counts as a complete frame), and at every level.
     if (pairLoaded && coarse === need && this.completeMs === undefined) this.completeMs = performance.now();
@@ -478,10 +574,129 @@ class App {
     else document.title = `railview: ${pct}%`;
   }
 
+  // The next junction's ways out, left to right, the one the walk takes marked.
+  junctionText() {
+    const a = this.walker.ahead();
+    if (!a || !a.ways.length) return "";
+    const next = this.walker.nextBranch(viewOf(this.cam.yaw));
+    const ways = a.ways.map((b) => `${sameBranch(b, next) ? "▶" : ""}${this.net.names[b.track]}${b.forward ? "+" : "−"}`);
+    const where = a.dist < 0.005 ? "here" : `in ${a.dist.toFixed(1)} m`;
+    return ` · junction ${where}: ${ways.join(" ")} (${this.walker.chosen ? "chosen" : "nearest the view"}; [ ] to choose)`;
+  }
+
+  // Moves ds metres along the network: forward the way the walker travels, backward (ds < 0)
+  // the other way, where a junction is crossed along the way nearest the motion.
   move(ds) {
     this.moved = true;
-    this.cam.s = Math.min(Math.max(this.cam.s + ds, 0), this.track.length);
+    const w = this.walker;
+    const view = viewOf(this.cam.yaw);
+    if (ds >= 0) {
+      w.advance(ds, view);
+    } else {
+      const chosen = w.chosen;
+      w.chosen = null;
+      w.forward = !w.forward;
+      w.advance(-ds, view.map((x) => -x));
+      w.forward = !w.forward;
+      w.chosen = chosen;
+    }
     this.update();
+  }
+
+  // Moves the choice at the next junction `step` ways to the right (left when negative).
+  choose(step) {
+    this.walker.choose(step, viewOf(this.cam.yaw));
+    this.update();
+  }
+
+  // Takes branch b at the next junction: walks onto it CLICK_STEP_M past the junction.
+  take(b) {
+    const w = this.walker;
+    const nj = w.nextJunction();
+    if (!nj) return;
+    w.chosen = b;
+    this.moved = true;
+    w.advance(nj.dist + CLICK_STEP_M, viewOf(this.cam.yaw));
+    this.update();
+  }
+
+  // The arrows on the ground at the next junction when it is within ARROW_RANGE_M: one per
+  // way out along its heading, the way the walk takes highlighted; SVG over the canvas, so a
+  // click or tap on one takes its branch.
+  placeArrows() {
+    const w = this.walker;
+    const a = w.ahead();
+    const width = canvas.clientWidth;
+    const height = canvas.clientHeight;
+    const shown = [];
+    if (a && a.dist <= ARROW_RANGE_M && a.ways.length && width > 0 && height > 0) {
+      const cam = this.camera();
+      const pr = projector(cam, width, height);
+      const center = this.net.viewpoints[a.junction.viewpoint];
+      const ground = cam.position[1] - EYE_ABOVE_GROUND_M;
+      const next = w.nextBranch(viewOf(this.cam.yaw));
+      const box = canvas.getBoundingClientRect();
+      for (const b of a.ways) {
+        const shape = arrowShape(center, this.net.branchHeading(b), ground);
+        if (!shape) continue;
+        const outline = projectPolygon(pr, shape.outline);
+        const grab = projectPoint(pr, shape.grab, width, height);
+        const label = projectPoint(pr, shape.label, width, height);
+        shown.push({ branch: b, name: this.net.names[b.track], chosen: sameBranch(b, next), outline, label,
+          x: grab ? grab[0] + box.left : null, y: grab ? grab[1] + box.top : null });
+      }
+    }
+    this.arrows = shown;
+    const nodes = [];
+    for (const ar of shown) {
+      if (!ar.outline.length) continue;
+      const g = document.createElementNS(SVG, "g");
+      const poly = document.createElementNS(SVG, "polygon");
+      poly.setAttribute("points", ar.outline.map((p) => `${p[0].toFixed(1)},${p[1].toFixed(1)}`).join(" "));
+      poly.style.fill = ar.chosen ? "rgba(255, 214, 64, 0.9)" : "rgba(255, 255, 255, 0.75)";
+      poly.style.stroke = "rgba(0, 0, 0, 0.6)";
+      poly.style.strokeWidth = "1.5";
+      poly.style.pointerEvents = "auto";
+      poly.style.cursor = "pointer";
+      poly.addEventListener("click", (e) => {
+        e.stopPropagation();
+        this.take(ar.branch);
+      });
+      g.append(poly);
+      if (ar.label) {
+        const text = document.createElementNS(SVG, "text");
+        text.setAttribute("x", ar.label[0].toFixed(1));
+        text.setAttribute("y", ar.label[1].toFixed(1));
+        text.textContent = ar.name;
+        text.style.fill = "#fff";
+        text.style.stroke = "rgba(0, 0, 0, 0.7)";
+        text.style.strokeWidth = "3";
+        text.style.paintOrder = "stroke";
+        text.style.font = "12px system-ui, sans-serif";
+        text.style.textAnchor = "middle";
+        g.append(text);
+      }
+      nodes.push(g);
+    }
+    arrowLayer.replaceChildren(...nodes);
+  }
+
+  // The URL follows the walk (history.replaceState, at most every URL_EVERY_MS, the latest
+  // state), keeping the other parameters.
+  followUrl() {
+    if (this.urlTimer) return;
+    const wait = Math.max(0, (this.urlAt ?? -Infinity) + URL_EVERY_MS - performance.now());
+    this.urlTimer = setTimeout(() => {
+      this.urlTimer = null;
+      this.urlAt = performance.now();
+      const p = new URLSearchParams(location.search);
+      p.set("track", this.trackName);
+      p.set("at", String(Number(this.walker.s.toFixed(3))));
+      p.set("yaw", String(Number(wrap(this.cam.yaw).toFixed(2))));
+      p.set("pitch", String(Number(this.cam.pitch.toFixed(2))));
+      p.set("fov", String(Number(this.cam.fov.toFixed(2))));
+      history.replaceState(history.state, "", `${location.pathname}?${p}${location.hash}`);
+    }, wait);
   }
 
   bindInput() {
@@ -494,6 +709,8 @@ class App {
       else if (k === "ArrowRight" || k === "d") this.look(5, 0);
       else if (k === "PageUp") this.look(0, 5);
       else if (k === "PageDown") this.look(0, -5);
+      else if (k === "[" || k === "q") this.choose(-1);
+      else if (k === "]" || k === "e") this.choose(1);
     });
     canvas.addEventListener("wheel", (e) => {
       e.preventDefault();
@@ -525,12 +742,15 @@ class App {
     canvas.addEventListener("touchend", () => (pinch = null));
   }
 
+  // Turns the camera; the walk's direction of travel turns round with it once the camera
+  // looks more than about 100° away from it.
   look(dyaw, dpitch) {
     this.moved = true;
     this.cam.yaw += dyaw;
     this.cam.pitch = Math.min(Math.max(this.cam.pitch + dpitch, -89), 89);
-    this.requeue();
-    this.dirty = true;
+    const w = this.walker;
+    if (dot(viewOf(this.cam.yaw), w.heading()) < TURN_ROUND_COS) w.forward = !w.forward;
+    this.update();
   }
 }
 
@@ -562,7 +782,6 @@ try {
   const app = new App();
   window.railviewApp = app;
   app.start().catch(showError);
-  // Moves the camera to arc length s (and optionally a direction), as the keys do.
   // Draws the current view n times, each waited for (a pixel read back: gl.finish alone
   // returns before Chromium's GPU process has drawn), and returns the draw times in ms.
   window.railviewFrameTimes = (n) => {
@@ -577,10 +796,12 @@ try {
     }
     return out;
   };
-  window.railviewGo = (s, yaw) => {
-    if (yaw !== undefined) app.cam.yaw = yaw;
-    app.cam.s = Math.min(Math.max(s, 0), app.track.length);
-    document.title = "railview: moving";
+  // Moves the camera to arc length s of the current track or of the track named `track`,
+  // looking along `yaw` (kept when undefined); returns the track's length.
+  window.railviewGo = (s, yaw, track) => {
+    const t = track === undefined ? app.walker.track : app.net.trackIndex(track);
+    if (t < 0) throw new Error(`no track ${track}`);
+    app.go(t, s, yaw ?? app.cam.yaw);
     app.update();
     return app.track.length;
   };

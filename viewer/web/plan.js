@@ -32,7 +32,9 @@ export function checkManifest(m) {
   if (perSide > LIMITS.maxTilesPerSide) fail(`face_size / tile_size = ${perSide} tiles per side; at most ${LIMITS.maxTilesPerSide}`);
   if (!Array.isArray(m.slabs) || m.slabs.length > LIMITS.maxSlabs) fail("slabs");
   m.slabs.forEach((sl, k) => {
-    if (!(typeof sl === "object" && sl !== null && Number.isFinite(sl.near) && Number.isFinite(sl.far) && sl.near >= 0 && sl.near < sl.far)) fail(`slabs[${k}] is not a depth range 0 ≤ near < far`);
+    // far: null for infinity.
+    const far = sl?.far === null ? Infinity : sl?.far;
+    if (!(typeof sl === "object" && sl !== null && Number.isFinite(sl.near) && typeof far === "number" && sl.near >= 0 && sl.near < far)) fail(`slabs[${k}] is not a depth range 0 ≤ near < far`);
   });
   const vps = m.viewpoints;
   if (!Array.isArray(vps) || vps.length < 1 || vps.length > LIMITS.maxViewpoints) fail(`viewpoints: ${vps?.length} (1 to ${LIMITS.maxViewpoints})`);
@@ -126,4 +128,74 @@ export function visibleTiles(manifest, refPos, cam, entries) {
     if (-cv[2] + rad < NEAR_M) return false;
     return planes.every((p) => dot(p, cv) >= -rad);
   });
+}
+
+// Where points of the world land on a `width × height` screen seen by `cam` (the camera of
+// visibleTiles; clip_from_cam of render.js): toCam gives (right, up, forward) metres from the
+// camera, toScreen the pixel of such a point (y down) in front of it.
+export function projector(cam, width, height) {
+  const yaw = (cam.yaw * Math.PI) / 180;
+  const pitch = (cam.pitch * Math.PI) / 180;
+  const f = [Math.sin(yaw) * Math.cos(pitch), Math.sin(pitch), -Math.cos(yaw) * Math.cos(pitch)];
+  const r = [Math.cos(yaw), 0, Math.sin(yaw)];
+  const u = cross(r, f);
+  const t = Math.tan((cam.fov * Math.PI) / 360);
+  const sx = 1 / t;
+  const sy = width / (height * t);
+  return {
+    toCam: (p) => {
+      const d = [0, 1, 2].map((k) => p[k] - cam.position[k]);
+      return [dot(d, r), dot(d, u), dot(d, f)];
+    },
+    toScreen: ([x, y, z]) => [((1 + (sx * x) / z) * width) / 2, ((1 - (sy * y) / z) * height) / 2],
+  };
+}
+
+// Points this close in front of the camera, or nearer, are cut off an outline.
+const CLIP_M = 0.05;
+
+// A polygon of world points as screen points, cut where it comes nearer than CLIP_M in front
+// of the camera; [] when none of it lies beyond.
+export function projectPolygon(pr, points) {
+  const c = points.map(pr.toCam);
+  const out = [];
+  for (let i = 0; i < c.length; i++) {
+    const a = c[i];
+    const b = c[(i + 1) % c.length];
+    const ina = a[2] >= CLIP_M;
+    if (ina) out.push(a);
+    if (ina !== b[2] >= CLIP_M) {
+      const t = (CLIP_M - a[2]) / (b[2] - a[2]);
+      out.push(a.map((x, k) => x + (b[k] - x) * t));
+    }
+  }
+  return out.length >= 3 ? out.map(pr.toScreen) : [];
+}
+
+// A screen point of a world point, or null behind the camera or off the screen.
+export function projectPoint(pr, p, width, height) {
+  const c = pr.toCam(p);
+  if (c[2] < CLIP_M) return null;
+  const [x, y] = pr.toScreen(c);
+  return x >= 0 && x < width && y >= 0 && y < height ? [x, y] : null;
+}
+
+// An arrow on the ground plane y = groundY, pointing from `center` along `heading` (its level
+// part): a shaft from `from` metres out, then a head; metres.
+export const ARROW = { from: 2.0, shaft: 0.9, head: 0.8, halfShaft: 0.16, halfHead: 0.45 };
+
+// The arrow's outline (world points), the point where it is grabbed (inside its head) and
+// where its label goes (past its tip); null for a vertical heading.
+export function arrowShape(center, heading, groundY) {
+  const l = Math.hypot(heading[0], heading[2]);
+  if (!(l > 1e-9)) return null;
+  const h = [heading[0] / l, heading[2] / l];
+  const at = (a, c) => [center[0] + h[0] * a - h[1] * c, groundY, center[2] + h[1] * a + h[0] * c];
+  const { from, shaft, head, halfShaft, halfHead } = ARROW;
+  const neck = from + shaft;
+  return {
+    outline: [at(from, -halfShaft), at(neck, -halfShaft), at(neck, -halfHead), at(neck + head, 0), at(neck, halfHead), at(neck, halfShaft), at(from, halfShaft)],
+    grab: at(neck + 0.3 * head, 0),
+    label: at(neck + head + 0.5, 0),
+  };
 }

@@ -152,10 +152,9 @@ function junctionsOf(stops, firstSegment) {
   return out;
 }
 
-const sameJunctions = (a, b) =>
-  a.length === b.length &&
-  a.every((j, i) => j.viewpoint === b[i].viewpoint && j.branches.length === b[i].branches.length &&
-    j.branches.every((x, k) => sameBranch(x, b[i].branches[k])));
+const sameJunction = (a, b) =>
+  a.viewpoint === b.viewpoint && a.branches.length === b.branches.length &&
+  a.branches.every((x, k) => sameBranch(x, b.branches[k]));
 
 // The network of a manifest that passed plan.js checkManifest (db::TopManifest::network): each
 // track's curve from its TOML, the viewpoints' positions by id, the stops (each within its
@@ -183,9 +182,11 @@ export class Network {
     });
     this.junctions = junctionsOf(this.stops, this.firstSegment);
     const listed = manifest.junctions ?? [];
-    if (!sameJunctions(listed, this.junctions)) {
+    if (listed.length !== this.junctions.length) {
       throw new Error(`manifest: junctions: the manifest lists ${listed.length} but its tracks' stops make ${this.junctions.length}`);
     }
+    const odd = listed.findIndex((j, i) => !sameJunction(j, this.junctions[i]));
+    if (odd >= 0) throw new Error(`manifest: junctions[${odd}] is not the junction its tracks' stops make there`);
     this.junctionAt = new Map(this.junctions.map((j) => [j.viewpoint, j]));
     // Per track, the positions among its stops of the junctions on it.
     this.junctionStops = this.stops.map((st) => st.flatMap((x, k) => (this.junctionAt.has(x.viewpoint) ? [k] : [])));
