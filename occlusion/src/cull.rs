@@ -74,7 +74,7 @@ pub enum Variant {
     Shrunk,
     /// Image-space occluder shrinking in depth renders from balls covering the cell
     /// ([`crate::rendered`]): for scenes whose solids are not at hand (POV-Ray imports).
-    /// Needs the renders ([`crate::rendered::cull_viewpoint_rendered`]); α does not apply.
+    /// Needs the renders ([`crate::rendered::cull_from_segments`]); α does not apply.
     Rendered,
 }
 

@@ -64,7 +64,7 @@ pub fn write_with(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -
     Ok(())
 }
 
-/// Write `bytes` to `path` whole, as [`write`] does but without flushing it to the disk: for
+/// Write `bytes` to `path` whole, as [`write()`] does but without flushing it to the disk: for
 /// the many small files of a step that ends with [`sync_file_system`] before anything that
 /// names them is written (a database's objects before its manifest). After a crash before
 /// that flush such a file may hold other bytes than written, so a reader that reuses one
