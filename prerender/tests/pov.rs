@@ -329,6 +329,89 @@ fn z_up_scene_maps_axes() {
     assert!(depth.get(Face::PosY, 8, 8).is_infinite());
 }
 
+#[test]
+fn depth_from_many_positions_in_shared_runs_matches_ground_truth() {
+    let out = tmp("free-depths");
+    let dir = PrerenderDir::new(&out);
+    let mut import = PovImport::new(repo_file("scenes/pov/analytic.pov"), options(&out)).unwrap();
+    let scene = Analytic::scene();
+    let up = UpAxis::Y;
+    // The witness: a reference viewpoint and its depth.
+    let w = vp(0, [0.0, 1.2, 0.0]);
+    import.render_base(&w, &dir).unwrap();
+    let w_depth = store::read_depth_exr(&dir.depth_exr(0)).unwrap();
+    // Seven positions share a few runs; the fourth is inside the box <3,0,-2>..<5,2.5,1>
+    // and sees nothing (rendered with the others, it would take their fog and show the
+    // box's inside as if it were a room).
+    let positions = [
+        [0.0, 1.2, 0.0],
+        [1.0, 0.8, 1.5],
+        [-1.5, 2.0, -0.5],
+        [4.0, 1.0, -0.5],
+        [0.5, 0.3, 3.0],
+        [-3.0, 1.0, 1.0],
+        [2.0, 4.0, -4.0],
+    ]
+    .map(DVec3::from_array);
+    for fog in [false, true] {
+        let req = prerender::pov::DepthRequest {
+            face_size: FACE,
+            nearest: 0.3,
+            farthest: 40.0,
+            fog,
+        };
+        let before = import.records().len();
+        let depths = import
+            .render_depths(&positions, req, &[(w.position, &w_depth)])
+            .unwrap();
+        assert_eq!(depths.len(), positions.len());
+        let runs = import.records().len() - before;
+        let passes = if fog { 2 } else { 1 };
+        assert!(
+            runs <= passes * 4,
+            "{runs} POV-Ray runs for {} positions",
+            positions.len()
+        );
+        for (i, (p, d)) in positions.iter().zip(&depths).enumerate() {
+            match d {
+                None => assert_eq!(i, 3, "only the position inside the box sees nothing"),
+                Some(d) => {
+                    let o = up.pov_from_railview(*p);
+                    let (mut checked, mut hits) = (0, 0);
+                    for px @ (face, x, y) in pixels(FACE) {
+                        if !stable(&scene, up, o, px, 0.0, f64::INFINITY) {
+                            continue;
+                        }
+                        checked += 1;
+                        let got = *d.get(face, x, y) as f64;
+                        let dir = up.pov_from_railview(pixel_dir(face, x, y, FACE));
+                        match scene.first_in(o, dir, 0.0, f64::INFINITY) {
+                            Some(t) => {
+                                hits += 1;
+                                assert!(
+                                    (got - t).abs() <= 1e-4 * t,
+                                    "position {i} {face:?} ({x}, {y}): {got} vs analytic {t}"
+                                );
+                            }
+                            None => assert_eq!(got, f64::INFINITY, "position {i} {face:?}"),
+                        }
+                    }
+                    assert!(checked > 6 * 256 * 95 / 100, "position {i}: {checked}");
+                    assert!(hits > 100, "position {i}: {hits} hits");
+                }
+            }
+        }
+        assert!(depths[3].is_none());
+    }
+    let left: Vec<_> = fs::read_dir(out.join("pov-work"))
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".png") || n.ends_with("_wrap.pov"))
+        .collect();
+    assert!(left.is_empty(), "renders and wrappers removed: {left:?}");
+}
+
 fn assert_no_sample(dir: &PrerenderDir) {
     assert!(
         dir.sample_meta(0).is_none(),

@@ -29,8 +29,17 @@ use crate::input::SlabLayer;
 use crate::oracle::Visibility;
 use crate::OcclusionError;
 
-/// Balls rendered and tested at a time (each holds a depth and a solid map of the face size).
-const BALLS_AT_A_TIME: usize = 8;
+/// Memory the balls rendered and tested at a time may hold (each a depth and a solid map of
+/// the face size, about 8 bytes a pixel with what their tests build).
+const BALL_MEMORY_BYTES: usize = 256 << 20;
+
+/// Balls rendered and tested at a time at `n` pixels a face side: as many as
+/// [`BALL_MEMORY_BYTES`] holds, from 8 to 256. A renderer that starts a process for each call
+/// (POV-Ray) then starts few.
+fn balls_at_a_time(n: u32) -> usize {
+    let per = 6 * (n as usize).pow(2) * 8;
+    (BALL_MEMORY_BYTES / per.max(1)).clamp(8, 256)
+}
 /// Above the finest level, blocks of this many pixels a side are the smallest tested.
 const MIN_BLOCK_ABOVE_FINEST: u32 = 8;
 
@@ -168,7 +177,7 @@ pub fn hidden_from_segment<'g, E>(
         if needed.is_empty() {
             continue;
         }
-        for chunk in needed.chunks(BALLS_AT_A_TIME) {
+        for chunk in needed.chunks(balls_at_a_time(grid.face_size)) {
             let centres: Vec<DVec3> = chunk.iter().map(|&b| balls[b as usize].centre).collect();
             let depths = render(&centres)?;
             verdict.stats.renders += chunk.len() as u64;

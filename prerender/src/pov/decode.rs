@@ -11,7 +11,7 @@ use std::path::Path;
 
 use tracks::CubeMap;
 
-use super::frame::MeshLayout;
+use super::frame::{BlockLayout, MeshLayout};
 use super::PovError;
 
 /// Fog distances and strength of one depth pass.
@@ -255,6 +255,31 @@ pub fn read_mesh_png16(path: &Path, layout: &MeshLayout) -> Result<Vec<[u16; 3]>
     }
     let px: Vec<[u16; 3]> = img.to_rgb16().pixels().map(|p| p.0).collect();
     Ok(cube_rows(&px, layout))
+}
+
+/// A [`BlockLayout`] render as 16-bit RGB cube-map pixels, face-major, one list a position.
+pub fn read_block_png16(path: &Path, layout: &BlockLayout) -> Result<Vec<Vec<[u16; 3]>>, PovError> {
+    let (w, h) = layout.image_size();
+    let img = read_png(path, w, h)?;
+    if img.color().bits_per_pixel() / img.color().channel_count() as u16 != 16 {
+        return Err(PovError::Output {
+            path: path.to_path_buf(),
+            message: format!("expected a 16-bit PNG, found {:?}", img.color()),
+        });
+    }
+    let img = img.to_rgb16();
+    let w = w as usize;
+    let n = layout.face_size as usize;
+    let mut out = vec![vec![[0u16; 3]; 6 * n * n]; layout.positions as usize];
+    for (j, row) in img.chunks_exact(3 * w).enumerate() {
+        if let Some((k, r)) = layout.cube_row(j as u32) {
+            let dst = &mut out[k as usize][r as usize * w..(r as usize + 1) * w];
+            for (d, p) in dst.iter_mut().zip(row.chunks_exact(3)) {
+                *d = [p[0], p[1], p[2]];
+            }
+        }
+    }
+    Ok(out)
 }
 
 /// A mesh-camera colour render as a cube map.

@@ -134,6 +134,64 @@ impl MeshLayout {
     }
 }
 
+/// Where each of several positions' cube-map rows sit in one render of them all
+/// (`mesh_camera` distribution 1, which takes the faces of its meshes in order, one a pixel).
+///
+/// A render spends about a second starting POV-Ray and parsing the scene however few pixels
+/// it traces, so depth alone from many positions is cheapest in one run. The same two bugs as
+/// [`MeshLayout`] shape the image: a *lead* of `BLOCK − 1` dummy rows at the first position
+/// fills the first block (image rows 0 and 1 both show face row 0); then every position owns
+/// [`BlockLayout::rows_per_position`] rows, a multiple of `BLOCK` that starts on a block, whose
+/// local rows `0, B, 2B, …` and whose rows past its `6·N` cube rows are dummies at that
+/// position. No block holds rays of two positions, and each block's first ray starts at the
+/// centre of the position it renders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BlockLayout {
+    pub face_size: u32,
+    pub positions: u32,
+}
+
+impl BlockLayout {
+    pub fn new(face_size: u32, positions: u32) -> BlockLayout {
+        BlockLayout {
+            face_size,
+            positions,
+        }
+    }
+
+    /// Mesh rows each position owns: enough blocks of `BLOCK − 1` cube rows for `6·N`.
+    pub fn rows_per_position(face_size: u32) -> u32 {
+        BLOCK * (6 * face_size).div_ceil(BLOCK - 1)
+    }
+
+    /// The cube row of a position's local mesh row `r`, `None` for a dummy.
+    pub fn local_row(face_size: u32, r: u32) -> Option<u32> {
+        if r.is_multiple_of(BLOCK) {
+            return None;
+        }
+        let c = r - r / BLOCK - 1;
+        (c < 6 * face_size).then_some(c)
+    }
+
+    /// Image size `(width, height)` POV-Ray must render.
+    pub fn image_size(&self) -> (u32, u32) {
+        (
+            self.face_size,
+            BLOCK + self.positions * Self::rows_per_position(self.face_size),
+        )
+    }
+
+    /// The position and cube row shown by image row `j`, `None` for a dummy row.
+    pub fn cube_row(&self, j: u32) -> Option<(u32, u32)> {
+        let i = j.checked_sub(BLOCK)?;
+        let per = Self::rows_per_position(self.face_size);
+        let k = i / per;
+        (k < self.positions)
+            .then(|| Self::local_row(self.face_size, i % per).map(|c| (k, c)))
+            .flatten()
+    }
+}
+
 /// Corners of a unit triangle centred on the origin whose mesh-camera ray goes along `dir`.
 ///
 /// The corners sit at 90°, 330° and 210° in the basis `(u, v) = (ref × dir, dir × u)`, so
@@ -158,19 +216,49 @@ pub fn triangle_for_dir(dir: DVec3) -> [DVec3; 3] {
 /// SDL text of the mesh camera for `layout`, directions in `up`'s frame: one triangle per
 /// cube-map pixel in [`tracks::CubeMap`] order, with the dummy rows of [`MeshLayout`].
 pub fn write_mesh_camera(layout: &MeshLayout, up: UpAxis) -> String {
-    let n = layout.face_size;
-    let faces = layout.rows.len() * n as usize;
-    let mut s = String::with_capacity(faces * 3 * 40 + 256);
+    let mut s = String::new();
+    write_mesh(&mut s, MESH_NAME, layout.face_size, &layout.rows, up);
+    s
+}
+
+/// Name of the declared mesh of one position in a [`BlockLayout`] render.
+pub const BLOCK_MESH_NAME: &str = "RvMeshBlock";
+/// Name of the declared lead of dummy rows of a [`BlockLayout`] render.
+pub const LEAD_MESH_NAME: &str = "RvMeshLead";
+
+/// SDL text of the meshes of a [`BlockLayout`] render at `face_size`: the lead and one
+/// position's rows, each translated to its position by the camera.
+pub fn write_block_meshes(face_size: u32, up: UpAxis) -> String {
+    let per = BlockLayout::rows_per_position(face_size);
+    let rows: Vec<Option<u32>> = (0..per)
+        .map(|r| BlockLayout::local_row(face_size, r))
+        .collect();
+    let mut s = String::new();
+    write_mesh(&mut s, BLOCK_MESH_NAME, face_size, &rows, up);
+    write_mesh(
+        &mut s,
+        LEAD_MESH_NAME,
+        face_size,
+        &vec![None; BLOCK as usize - 1],
+        up,
+    );
+    s
+}
+
+/// Append a declared `mesh2` of `rows` (`None`: a dummy row at the camera centre) to `s`.
+fn write_mesh(s: &mut String, name: &str, n: u32, rows: &[Option<u32>], up: UpAxis) {
+    let faces = rows.len() * n as usize;
+    s.reserve(faces * 3 * 40 + 256);
     // Writing into a String cannot fail.
     let _ = writeln!(
         s,
         "// railview mesh camera: cube map {n}x{n}x6, up {}, block {BLOCK}, one triangle per pixel\n\
-         #declare {MESH_NAME} = mesh2 {{\n  vertex_vectors {{ {},",
+         #declare {name} = mesh2 {{\n  vertex_vectors {{ {},",
         up.name(),
         3 * faces
     );
     let mut first = true;
-    for row in &layout.rows {
+    for row in rows {
         for x in 0..n {
             let sep = if first { "" } else { "," };
             first = false;
@@ -203,7 +291,6 @@ pub fn write_mesh_camera(layout: &MeshLayout, up: UpAxis) -> String {
         }
     }
     s.push_str("\n  }\n}\n");
-    s
 }
 
 #[cfg(test)]
@@ -257,6 +344,40 @@ mod tests {
             !text.contains(",\n  }"),
             "trailing comma is a POV-Ray parse error"
         );
+    }
+
+    #[test]
+    fn a_block_render_gives_every_position_its_own_blocks_and_all_its_rows_once() {
+        for n in [1, 2, 15, 16, 17, 64] {
+            for positions in [1, 2, 5] {
+                let layout = BlockLayout::new(n, positions);
+                let (w, h) = layout.image_size();
+                assert_eq!(w, n);
+                let mut seen = vec![Vec::new(); positions as usize];
+                let mut block_of = vec![None; h.div_ceil(BLOCK) as usize];
+                for j in 0..h {
+                    // Image row j ≥ 1 shows mesh row j − 1; row 0 shows mesh row 0 too.
+                    if j % BLOCK == 0 {
+                        assert_eq!(layout.cube_row(j), None, "n {n} image row {j}");
+                    }
+                    if let Some((k, r)) = layout.cube_row(j) {
+                        seen[k as usize].push(r);
+                        let b = &mut block_of[(j / BLOCK) as usize];
+                        assert!(b.is_none() || *b == Some(k), "a block holds two positions");
+                        *b = Some(k);
+                    }
+                }
+                for rows in seen {
+                    assert_eq!(rows, (0..6 * n).collect::<Vec<_>>(), "n {n}");
+                }
+                assert!(layout.cube_row(BLOCK - 1).is_none() && layout.cube_row(0).is_none());
+            }
+        }
+        let text = write_block_meshes(2, UpAxis::Y);
+        let per = BlockLayout::rows_per_position(2) as usize;
+        let faces = 2 * per + 2 * (BLOCK as usize - 1);
+        assert_eq!(text.matches('<').count(), 4 * faces);
+        assert!(text.contains(BLOCK_MESH_NAME) && text.contains(LEAD_MESH_NAME));
     }
 
     #[test]

@@ -385,6 +385,82 @@ impl PovImport {
         })
     }
 
+    /// Generate (once) the meshes of [`frame::BlockLayout`] renders at `face_size`.
+    fn block_include(&self, face_size: u32) -> Result<PathBuf, PovError> {
+        let path = self.opts.work_dir.join(format!(
+            "meshcam_block_{}_{face_size}_b{}.inc",
+            self.opts.up.name(),
+            frame::BLOCK
+        ));
+        if !path.exists() {
+            let text = frame::write_block_meshes(face_size, self.opts.up);
+            store::write_atomic(&path, text.as_bytes())?;
+        }
+        Ok(path)
+    }
+
+    /// A render of the scene from every one of `positions` (POV-Ray frame) at once, laid out
+    /// as [`frame::BlockLayout`], with no near or far limit; its wrapper is written to
+    /// `STEM_wrap.pov`, for the caller to remove with the image.
+    pub(super) fn block_job(
+        &mut self,
+        stem: &str,
+        kind: PassKind,
+        face_size: u32,
+        positions: &[DVec3],
+        fog: Option<&FogScales>,
+    ) -> Result<RenderJob, PovError> {
+        let mesh = self.block_include(face_size)?;
+        let mesh_sdl = sdl::sdl_string(&mesh).ok_or_else(|| PovError::Parameter {
+            name: "out",
+            message: format!(
+                "{}: the output path cannot be written in an SDL #include",
+                mesh.display()
+            ),
+        })?;
+        let wrapper = self.opts.work_dir.join(format!("{stem}_wrap.pov"));
+        let text = sdl::block_wrapper(kind, &self.scene_sdl, &mesh_sdl, &self.info, positions);
+        store::write_atomic(&wrapper, text.as_bytes())?;
+        let layout = frame::BlockLayout::new(face_size, positions.len() as u32);
+        let (width, height) = layout.image_size();
+        let mut declares = vec![(NEAR_NAME, 0.0), (names::RANGE, 0.0)];
+        if let Some(f) = fog {
+            declares.extend([
+                (names::D1, f.d[0]),
+                (names::D2, f.d[1]),
+                (names::D3, f.d[2]),
+                (names::K, f.k),
+            ]);
+        }
+        let format = match kind {
+            PassKind::Color => OutputFormat::Png8,
+            PassKind::Depth | PassKind::FogOnly => OutputFormat::Png16 {
+                file_gamma: self.file_gamma(),
+            },
+        };
+        Ok(RenderJob {
+            name: format!("{stem} ({})", self.scene.display()),
+            wrapper,
+            output: self.opts.work_dir.join(format!("{stem}.png")),
+            log: self.opts.work_dir.join("logs").join(format!("{stem}.log")),
+            width,
+            height,
+            format,
+            block_size: frame::BLOCK,
+            library_dirs: self
+                .scene
+                .parent()
+                .map(Path::to_path_buf)
+                .into_iter()
+                .collect(),
+            declares,
+            extra: match kind {
+                PassKind::Color => self.radiosity_args(),
+                PassKind::Depth | PassKind::FogOnly => Vec::new(),
+            },
+        })
+    }
+
     /// Record a finished render: progress, run log, the import's records.
     pub(super) fn record(
         &mut self,

@@ -126,6 +126,16 @@ impl OracleSource {
                 .collect()),
             OracleSource::Pov { import, .. } => {
                 let (mut lo, mut hi, mut fog) = (f64::INFINITY, 0.0f64, false);
+                // The ends' full depth: the witnesses that let positions share a run.
+                let mut full = Vec::with_capacity(ends.len());
+                for vp in ends {
+                    let path = dir.depth_exr(vp.index);
+                    let depth = store::read_depth_exr(&path)
+                        .with_context(|| format!("reading {}", path.display()))?;
+                    full.push((vp.position, depth));
+                }
+                let witnesses: Vec<(DVec3, &CubeMap<f32>)> =
+                    full.iter().map(|(p, d)| (*p, d)).collect();
                 for vp in ends {
                     let path = dir.lowres_depth_exr(vp.index);
                     let low = store::read_depth_exr(&path)
@@ -149,7 +159,7 @@ impl OracleSource {
                     fog,
                 };
                 Ok(import
-                    .render_depths(positions, req)
+                    .render_depths(positions, req, &witnesses)
                     .context("POV-Ray depth renders along the track")?)
             }
         }
