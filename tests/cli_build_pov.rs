@@ -94,9 +94,10 @@ fn build_pov_analytic_end_to_end_and_verify() {
         "{build}"
     );
     let manifest = json(&db.join("manifest.json"));
+    // Manifest format 8: the viewpoints once, the track as its stops (two: one segment).
+    assert_eq!(manifest["viewpoints"].as_array().unwrap().len(), 2);
     let track = &manifest["tracks"][0];
-    assert_eq!(track["viewpoints"].as_array().unwrap().len(), 2);
-    assert_eq!(track["segments"].as_array().unwrap().len(), 1);
+    assert_eq!(track["stops"].as_array().unwrap().len(), 2, "{track}");
     // Tiles are in each viewpoint's table (manifest format 2), read through the database.
     let full = db::Database::open(&db).unwrap();
     assert!(full.manifest().tracks[0].viewpoints[0]

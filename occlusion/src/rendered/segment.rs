@@ -88,20 +88,8 @@ pub fn hidden_from_segment<'g, E>(
     let Some(first) = ends.first() else {
         return Ok(Ok(SegmentVerdict::default()));
     };
-    let grid = *first.grid;
-    for e in ends {
-        if *e.grid != grid {
-            return Ok(Err(OcclusionError::Input {
-                what: "segment ends".into(),
-                message: "the two ends have different tile grids".into(),
-            }));
-        }
-        if let Err(err) = crate::cull::check_layers(&grid, e.layers) {
-            return Ok(Err(err));
-        }
-    }
-    let tol = match crate::cull::content_tolerance(&params.content, grid.face_size) {
-        Ok(t) => t,
+    let (grid, tol) = match checked_ends(first.grid, ends, params) {
+        Ok(checked) => checked,
         Err(e) => return Ok(Err(e)),
     };
     let mut verdict = SegmentVerdict {
@@ -240,6 +228,27 @@ pub fn hidden_from_segment<'g, E>(
         }
     }
     Ok(Ok(verdict))
+}
+
+/// The ends' common tile grid (each end's layers checked against it) and the depth
+/// tolerance of the oracle's match rule at its face size.
+fn checked_ends(
+    grid: &TileGrid,
+    ends: &[SegmentEnd],
+    params: &RenderedParams,
+) -> Result<(TileGrid, f64), OcclusionError> {
+    let grid = *grid;
+    for e in ends {
+        if *e.grid != grid {
+            return Err(OcclusionError::Input {
+                what: "segment ends".into(),
+                message: "the two ends have different tile grids".into(),
+            });
+        }
+        crate::cull::check_layers(&grid, e.layers)?;
+    }
+    let tol = crate::cull::content_tolerance(&params.content, grid.face_size)?;
+    Ok((grid, tol))
 }
 
 /// The layer pixels the reference viewpoint itself sees: opaque, with no nearer slab opaque
