@@ -2,14 +2,16 @@
 //!  --strategy naive,ach,visibility,ach+prefetch --out DIR`
 //!
 //! With a directory, a server is started in-process on 127.0.0.1 (an ephemeral port) and the
-//! walk streams from it over loopback HTTP; with an `http://` URL it streams from there.
+//! walk streams from it over loopback HTTP; with an `http://` URL it streams from there
+//! (`streamer::walk::stage`: this module only turns the options into its parameters).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context;
 use streamer::client::{BudgetParams, RetryPolicy, SchedulerConfig, ServerUrl};
-use streamer::server::{self, parse_duration, parse_rate, ServedDb};
+use streamer::server::{parse_duration, parse_rate};
+use streamer::walk::stage::{self, WalkParams, WalkSource};
 use streamer::walk::{self, synth, Strategy, WalkConfig, WalkEvent};
 use tracks::limits::{check_f64, check_u64};
 
@@ -176,25 +178,25 @@ fn config(args: &Args) -> anyhow::Result<WalkConfig> {
 }
 
 /// The server a walk streams from: a URL, or a directory served in-process.
-enum Source {
-    Url(ServerUrl),
-    Dir(PathBuf),
-}
-
-fn source(db: &str) -> anyhow::Result<Source> {
+fn source(db: &str) -> anyhow::Result<WalkSource> {
     if let Some((scheme, _)) = db.split_once("://") {
         if scheme.eq_ignore_ascii_case("http") {
-            return Ok(Source::Url(ServerUrl::parse(db)?));
+            return Ok(WalkSource::Url {
+                url: ServerUrl::parse(db)?,
+                text: db.to_string(),
+            });
         }
         anyhow::bail!(
             "`{db}`: only http:// URLs are supported (for {scheme}://, put a TLS proxy in front \
              of `railview serve`, or walk the database directory)"
         );
     }
-    Ok(Source::Dir(PathBuf::from(db)))
+    Ok(WalkSource::Dir(PathBuf::from(db)))
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+/// The walk's parameters from the command line, every string parsed and every number
+/// checked against its limit.
+fn params(args: &Args) -> anyhow::Result<WalkParams> {
     let strategies = args
         .strategy
         .split(',')
@@ -209,87 +211,69 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .collect::<Result<Vec<_>, _>>()
         .map_err(anyhow::Error::msg)
         .context("--bandwidth")?;
-    let config = config(&args)?;
+    let config = config(args)?;
     let source = source(&args.db)?;
-    let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
-    let result = rt.block_on(async {
-        let (url, server) = match source {
-            Source::Url(url) => (url, None),
-            Source::Dir(dir) => {
-                if args.synthetic {
-                    write_synthetic(&args, &dir)?;
-                }
-                let db = match ServedDb::open(&dir) {
-                    Ok(db) => db,
-                    Err(e) => {
-                        // Nothing measured, but walk.json says why.
-                        let report = walk::WalkReport {
-                            speed_mps: config.speed_mps,
-                            latency_s: config.latency_s,
-                            error: Some(e.to_string()),
-                            ..walk::WalkReport::default()
-                        };
-                        walk::write_outputs(&report, &args.out)?;
-                        return Err(e.into());
-                    }
-                };
-                let server = server::Loopback::start(db).await?;
-                (server.url.clone(), Some(server))
-            }
-        };
-        let bar = indicatif::ProgressBar::hidden();
-        let result = walk::run_walk(&url, &config, &strategies, &bandwidths, |e| match e {
-            WalkEvent::Planned {
-                runs,
-                frames_per_run,
-            } => {
-                eprintln!(
-                    "walk: {runs} runs of {frames_per_run} frames each ({:.0} s of simulated walk per run)",
-                    frames_per_run as f64 * config.frame_dt_s
-                );
-                bar.set_length(runs as u64 * frames_per_run);
-                bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
-                if let Ok(style) = indicatif::ProgressStyle::with_template(
-                    "{msg} {bar:40} {pos}/{len} frames, eta {eta}",
-                ) {
-                    bar.set_style(style);
-                }
-            }
-            WalkEvent::Frame { .. } => bar.inc(1),
-            WalkEvent::Finished(r) => bar.set_message(format!("{} done", r.strategy)),
-        })
-        .await;
-        bar.finish_and_clear();
-        if let Some(server) = server {
-            server.stop().await?;
-        }
-        anyhow::Ok(result)
-    })?;
-    // walk.json is written whatever happened: the finished runs and what a failed one
-    // measured stay.
-    let (report, error) = match result {
-        Ok(r) => (r, None),
-        Err(failed) => (failed.report, Some(failed.error)),
+    let synthetic = match source {
+        WalkSource::Dir(_) if args.synthetic => Some(synthetic(args)?),
+        _ => None,
     };
-    walk::write_outputs(&report, &args.out)?;
-    print!("{}", walk::summary_markdown(&report));
-    match error {
-        None => Ok(()),
-        Some(e) => Err(anyhow::Error::new(e).context(format!(
-            "walk of {} stopped ({} of {} runs finished; what was measured is in {})",
-            args.db,
-            report.runs.iter().filter(|r| r.completed).count(),
-            strategies.len() * bandwidths.len(),
-            args.out.join("walk.json").display()
-        ))),
-    }
+    Ok(WalkParams {
+        source,
+        out: args.out.clone(),
+        config,
+        strategies,
+        bandwidths,
+        synthetic,
+    })
 }
 
-fn write_synthetic(args: &Args, dir: &Path) -> anyhow::Result<()> {
+pub fn run(args: Args) -> anyhow::Result<()> {
+    run_stage(&params(&args)?)
+}
+
+/// Run the walk with its progress on the terminal and its summary on stdout.
+pub fn run_stage(params: &WalkParams) -> anyhow::Result<()> {
+    let frame_dt_s = params.config.frame_dt_s;
+    let bar = indicatif::ProgressBar::hidden();
+    let result = stage::run(params, |e| match e {
+        WalkEvent::Planned {
+            runs,
+            frames_per_run,
+        } => {
+            eprintln!(
+                "walk: {runs} runs of {frames_per_run} frames each ({:.0} s of simulated walk per run)",
+                frames_per_run as f64 * frame_dt_s
+            );
+            bar.set_length(runs as u64 * frames_per_run);
+            bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+            if let Ok(style) = indicatif::ProgressStyle::with_template(
+                "{msg} {bar:40} {pos}/{len} frames, eta {eta}",
+            ) {
+                bar.set_style(style);
+            }
+        }
+        WalkEvent::Frame { .. } => bar.inc(1),
+        WalkEvent::Finished(r) => bar.set_message(format!("{} done", r.strategy)),
+    });
+    bar.finish_and_clear();
+    // The summary of what was measured, also when the walk stopped early.
+    let report = match &result {
+        Ok(report) => Some(report),
+        Err(e) => e.report(),
+    };
+    if let Some(report) = report {
+        print!("{}", walk::summary_markdown(report));
+    }
+    result?;
+    Ok(())
+}
+
+/// The synthetic database's settings, checked.
+fn synthetic(args: &Args) -> anyhow::Result<synth::SynthParams> {
     check_u64("--synthetic-face", args.synthetic_face as u64, 8, 4096)?;
     check_f64("--synthetic-length (m)", args.synthetic_length, 0.1, 1000.0)?;
-    let params = synth::SynthParams::for_face(args.synthetic_face, args.synthetic_length);
-    synth::write_synthetic(dir, &params)
-        .with_context(|| format!("writing a synthetic database to {}", dir.display()))?;
-    Ok(())
+    Ok(synth::SynthParams::for_face(
+        args.synthetic_face,
+        args.synthetic_length,
+    ))
 }

@@ -31,6 +31,7 @@ pub mod bench;
 pub mod cpu;
 pub mod eval;
 pub mod feedback;
+pub mod flythrough;
 pub mod frame;
 pub mod gpu;
 pub mod headless;

@@ -7,8 +7,14 @@ use std::path::{Path, PathBuf};
 use db::ach::AchParams;
 use stages::build::{BuildParams, BuildScene};
 use stages::cull::{CullParams, OracleParams, Variants};
+use streamer::client::PriorityMode;
+use streamer::walk::stage::{rate_arg, WalkParams, WalkSource};
+use streamer::walk::{Strategy, WalkConfig};
 use tune::sweep::ViewParams;
 use tune::{Cost, CullChoice, Knobs, SweepParams, SweepSpec};
+use viewer::eval::stage::EvalParams;
+use viewer::eval::ViewSpec;
+use viewer::flythrough::FlythroughParams;
 
 use super::Args;
 use crate::cmd::{eval, flythrough, view, walk};
@@ -115,7 +121,7 @@ pub fn build_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
 pub const NETWORK_FACE: u32 = 64;
 
 /// The route through the castle's network the demo walks: a turn at every junction it passes.
-pub const NETWORK_ROUTE: &str = "north,main,cross,west,south";
+pub const NETWORK_ROUTE: &[&str] = &["north", "main", "cross", "west", "south"];
 
 /// The stages on the scene's network of tracks (every track: `--track all`): its database at
 /// faces of [`NETWORK_FACE`] px, its culling judged by the oracle (the junctions included),
@@ -147,57 +153,43 @@ pub fn network_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
         }),
         renders_per_segment: None,
     };
-    let walk_of = |route: &str, out: PathBuf| walk::Args {
-        db: path_arg(&db),
-        speed: args.walk_speed,
-        bandwidth: "2mbit".into(),
-        strategy: "visibility+prefetch".into(),
-        out,
-        latency: "50ms".into(),
-        memory_mb: None,
-        memory_static_mb: None,
-        dt_max: 0.5,
-        dt_static: 20.0,
-        t_static: 1.0,
-        cache_mb: 64.0,
-        in_flight: 6,
-        prefetch_turn: 10.0,
-        prefetch_horizon: 1.0,
-        prefetch_coverage: 0.9,
-        pause: 1.0,
-        route: Some(route.into()),
-        synthetic: false,
-        synthetic_face: 64,
-        synthetic_length: 12.0,
-        response_timeout: "10s".into(),
-        stall_timeout: "10s".into(),
-        give_up_after: "30s".into(),
+    let walk_of = |route: &[&str], out: PathBuf| {
+        let base = WalkParams::new(
+            WalkSource::Dir(db.clone()),
+            out,
+            vec![Strategy::Budget {
+                mode: PriorityMode::Visibility,
+                prefetch: true,
+            }],
+            vec![Some(2_000_000)],
+        );
+        WalkParams {
+            config: WalkConfig {
+                speed_mps: args.walk_speed,
+                pause_s: 1.0,
+                route: Some(route.iter().map(|t| t.to_string()).collect()),
+                ..base.config
+            },
+            ..base
+        }
     };
     let walks = [
         walk_of(NETWORK_ROUTE, root.join("walk-turns")),
-        walk_of("main", root.join("walk-straight")),
+        walk_of(&["main"], root.join("walk-straight")),
     ];
-    let walk_stage = |name: &'static str, w: walk::Args| Stage {
-        name,
-        command: vec![
-            "walk".into(),
-            w.db.clone(),
-            "--route".into(),
-            w.route.clone().unwrap_or_default(),
-            "--speed".into(),
-            w.speed.to_string(),
-            "--bandwidth".into(),
-            w.bandwidth.clone(),
-            "--strategy".into(),
-            w.strategy.clone(),
-            "--pause".into(),
-            w.pause.to_string(),
-            "--out".into(),
-            path_arg(&w.out),
-        ],
-        outputs: vec![w.out.join("walk.json")],
-        requires: vec!["network"],
-        run: Box::new(move || walk::run(w.clone())),
+    let walk_stage = |name: &'static str, w: WalkParams| {
+        let mut command = vec!["walk".into(), w.source.name()];
+        if let Some(route) = &w.config.route {
+            command.extend(["--route".into(), route.join(",")]);
+        }
+        walk_command(&mut command, &w);
+        Stage {
+            name,
+            command,
+            outputs: vec![w.out.join("walk.json")],
+            requires: vec!["network"],
+            run: Box::new(move || walk::run_stage(&w)),
+        }
     };
     let [turns, straight] = walks;
     vec![
@@ -252,74 +244,67 @@ pub fn use_stages(args: &Args, layout: &Layout) -> Vec<Stage> {
     ]
 }
 
+/// The options of a walk's command line after its source (and route): speed, bandwidths,
+/// strategies, pause and the output directory.
+fn walk_command(command: &mut Vec<String>, w: &WalkParams) {
+    let list = |v: Vec<String>| v.join(",");
+    command.extend([
+        "--speed".into(),
+        w.config.speed_mps.to_string(),
+        "--bandwidth".into(),
+        list(w.bandwidths.iter().map(|b| rate_arg(*b)).collect()),
+        "--strategy".into(),
+        list(w.strategies.iter().map(Strategy::name).collect()),
+        "--pause".into(),
+        w.config.pause_s.to_string(),
+        "--out".into(),
+        path_arg(&w.out),
+    ]);
+}
+
 fn walk_stage(args: &Args, layout: &Layout) -> Stage {
-    let w = walk::Args {
-        db: path_arg(&layout.db()),
-        speed: args.walk_speed,
-        bandwidth: "2mbit,unlimited".into(),
-        strategy: "naive,ach+prefetch,visibility+prefetch".into(),
-        out: layout.walk(),
-        latency: "50ms".into(),
-        memory_mb: None,
-        memory_static_mb: None,
-        dt_max: 0.5,
-        dt_static: 20.0,
-        t_static: 1.0,
-        cache_mb: 64.0,
-        in_flight: 6,
-        prefetch_turn: 10.0,
-        prefetch_horizon: 1.0,
-        prefetch_coverage: 0.9,
-        pause: 1.0,
-        route: None,
-        synthetic: false,
-        synthetic_face: 64,
-        synthetic_length: 12.0,
-        response_timeout: "10s".into(),
-        stall_timeout: "10s".into(),
-        give_up_after: "30s".into(),
+    let prefetch = |mode| Strategy::Budget {
+        mode,
+        prefetch: true,
     };
+    let base = WalkParams::new(
+        WalkSource::Dir(layout.db()),
+        layout.walk(),
+        vec![
+            Strategy::Naive,
+            prefetch(PriorityMode::Ach),
+            prefetch(PriorityMode::Visibility),
+        ],
+        vec![Some(2_000_000), None],
+    );
+    let w = WalkParams {
+        config: WalkConfig {
+            speed_mps: args.walk_speed,
+            pause_s: 1.0,
+            ..base.config
+        },
+        ..base
+    };
+    let mut command = vec!["walk".into(), w.source.name()];
+    walk_command(&mut command, &w);
     Stage {
         name: "walk",
-        command: vec![
-            "walk".into(),
-            w.db.clone(),
-            "--speed".into(),
-            w.speed.to_string(),
-            "--bandwidth".into(),
-            w.bandwidth.clone(),
-            "--strategy".into(),
-            w.strategy.clone(),
-            "--pause".into(),
-            w.pause.to_string(),
-            "--out".into(),
-            path_arg(&w.out),
-        ],
+        command,
         outputs: vec![layout.walk().join("walk.json")],
         requires: vec!["build"],
-        run: Box::new(move || walk::run(w.clone())),
+        run: Box::new(move || walk::run_stage(&w)),
     }
 }
 
 fn eval_stage(layout: &Layout) -> Stage {
-    let e = eval::Args {
-        db: path_arg(&layout.db()),
-        out: layout.eval(),
-        size: "matched".into(),
-        fov: 90.0,
-        per_segment: 1,
-        directions: 2,
-        pitch: "0".into(),
-        segments: None,
-        truth_supersample: 3,
-        truth_cache: None,
-        prerender: None,
-        configs: "all".into(),
-        worst: 3,
+    let e = EvalParams {
+        views: ViewSpec {
+            per_segment: 1,
+            directions: 2,
+            ..ViewSpec::default()
+        },
         timed_draws: 1,
-        track: None,
-        bound: true,
-        also: Vec::new(),
+        ..EvalParams::new(path_arg(&layout.db()), layout.eval())
     };
     Stage {
         name: "eval",
@@ -329,15 +314,15 @@ fn eval_stage(layout: &Layout) -> Stage {
             "--out".into(),
             path_arg(&e.out),
             "--per-segment".into(),
-            e.per_segment.to_string(),
+            e.views.per_segment.to_string(),
             "--directions".into(),
-            e.directions.to_string(),
+            e.views.directions.to_string(),
             "--timed-draws".into(),
             e.timed_draws.to_string(),
         ],
         outputs: vec![layout.eval().join("eval.json")],
         requires: vec!["build"],
-        run: Box::new(move || eval::run(e.clone())),
+        run: Box::new(move || eval::run_stage(&e)),
     }
 }
 
@@ -439,13 +424,10 @@ fn tune_stage(args: &Args, layout: &Layout) -> Stage {
 }
 
 fn flythrough_stage(layout: &Layout) -> Stage {
-    let f = flythrough::Args {
-        db: path_arg(&layout.db()),
-        output: layout.frames(),
+    let f = FlythroughParams {
         frames: 24,
-        size: "320x180".into(),
-        fov: 90.0,
-        track: None,
+        size: (320, 180),
+        ..FlythroughParams::new(path_arg(&layout.db()), layout.frames())
     };
     Stage {
         name: "flythrough",
@@ -453,15 +435,15 @@ fn flythrough_stage(layout: &Layout) -> Stage {
             "flythrough".into(),
             f.db.clone(),
             "-o".into(),
-            path_arg(&f.output),
+            path_arg(&f.out),
             "--frames".into(),
             f.frames.to_string(),
             "--size".into(),
-            f.size.clone(),
+            format!("{}x{}", f.size.0, f.size.1),
         ],
         outputs: vec![layout.frames().join("flythrough.json")],
         requires: vec!["build"],
-        run: Box::new(move || flythrough::run(f.clone())),
+        run: Box::new(move || flythrough::run_stage(&f)),
     }
 }
 

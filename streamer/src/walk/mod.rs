@@ -42,6 +42,7 @@
 pub mod load;
 mod plot;
 mod sim;
+pub mod stage;
 pub mod synth;
 
 use std::path::Path;

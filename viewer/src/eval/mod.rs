@@ -30,6 +30,7 @@ use crate::synth::Scene as SynthScene;
 pub mod bound;
 pub mod pictures;
 pub mod report;
+pub mod stage;
 
 /// The exact renderer of a walkthrough's scene.
 pub enum Truth {

@@ -1,11 +1,13 @@
 //! The sweep's measuring instruments: the GPU renderer, the ground truth and the views every
-//! database is evaluated on, made once; and the evaluation of one database (`eval.json`).
+//! database is evaluated on, made once (`viewer::eval::stage::Instruments`, what `railview
+//! eval` measures with); and the evaluation of one database (`eval.json`).
 
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 use stages::progress::{BarKind, Reporter};
-use viewer::eval::{self, EvalConfig, EvalInput, Truth, TruthCache, ViewSpec};
+use viewer::eval::stage::{Bound, Instruments};
+use viewer::eval::{self, EvalConfig, TruthCache, ViewSpec};
 
 use crate::error::{Error, Result};
 use crate::record::ErrorSummary;
@@ -53,12 +55,9 @@ pub(super) struct EvalRecord {
 
 /// The instruments, made once.
 pub(super) struct Bench {
-    renderer: viewer::gpu::Renderer,
-    pub truth: Truth,
-    cache: TruthCache,
+    /// The renderer, the truth and its cache, the views' size.
+    pub inst: Instruments,
     spec: ViewSpec,
-    pub size: (u32, u32),
-    fov: f64,
     base_face: u32,
     /// Reference-sample arc lengths of the base sampling: the views lie between them.
     arcs: Vec<f64>,
@@ -79,7 +78,7 @@ impl Bench {
     ) -> Result<Bench> {
         let walk = viewer::headless::open(&db.display().to_string(), None, Default::default())?;
         let size = eval::matched_size(base_face, views.fov_deg, 0.75);
-        let truth = Truth::for_walkthrough(
+        let truth = eval::Truth::for_walkthrough(
             &db.display().to_string(),
             &walk,
             Some(pre_dir),
@@ -102,14 +101,17 @@ impl Bench {
             arcs.len()
         );
         Ok(Bench {
-            renderer: viewer::gpu::Renderer::new(gpu)?,
-            truth,
-            cache: TruthCache {
-                dir: Some(root.join("truth")),
+            inst: Instruments {
+                renderer: viewer::gpu::Renderer::new(gpu)?,
+                truth,
+                cache: TruthCache {
+                    dir: Some(root.join("truth")),
+                },
+                size,
+                fov_deg: views.fov_deg,
+                timed_draws: 2,
             },
             spec,
-            size,
-            fov: views.fov_deg,
             base_face,
             arcs,
             views_key,
@@ -142,25 +144,11 @@ impl Bench {
             budget: viewer::DrawBudget::default(),
         }];
         let bar = progress.bar(views.len() as u64, "evaluating", BarKind::Steps);
-        let mut bound = match eval::bound::BoundSource::open(pre_dir) {
-            Ok(source) => Some((source, eval::bound::ClassTally::default())),
-            Err(_) => None,
-        };
-        let rows = eval::evaluate(
-            &mut self.renderer,
-            EvalInput {
-                walk: &mut walk,
-                truth: &mut self.truth,
-                cache: &self.cache,
-                configs: &configs,
-                views: &views,
-                size: self.size,
-                fov_deg: self.fov,
-                timed_draws: 2,
-                bound: bound.as_mut().map(|(source, tally)| (source, tally)),
-            },
-            |_| bar.inc(1),
-        )?;
+        // Without the configuration's prerender directory, no bound.
+        let mut bound = Bound::open(pre_dir).ok();
+        let rows = self
+            .inst
+            .evaluate(&mut walk, &configs, &views, bound.as_mut(), |_| bar.inc(1))?;
         bar.finish();
         let all = eval::summarize(&rows);
         let bound_mean = |name: &str| {
@@ -186,7 +174,7 @@ impl Bench {
                 psnr_at_samples_db: s.at_samples.psnr_mean_db,
             },
             frame_ms: s.frame_ms,
-            resolution_ratio: eval::resolution_ratio(face, self.fov, self.size.0),
+            resolution_ratio: eval::resolution_ratio(face, self.inst.fov_deg, self.inst.size.0),
             bound_black_db: bound_mean(eval::bound::EXACT_BLACK),
             bound_filled_db: bound_mean(eval::bound::EXACT_FILLED),
         };

@@ -248,15 +248,14 @@ impl Sweep {
         let json = out.join("walk.json");
         if !json.is_file() {
             let db = dir.join("db");
+            let command = format!(
+                "stage `walk {} --speed {} --bandwidth unlimited --strategy ach+prefetch --pause 1 --out {}`",
+                db.display(),
+                self.params.walk_speed,
+                out.display()
+            );
             crate::walk::standard_walk(&db, &out, self.params.walk_speed, &self.progress)
-                .with_context(|| {
-                    format!(
-                        "stage `walk {} --speed {} --bandwidth unlimited --strategy ach+prefetch --pause 1 --out {}`",
-                        db.display(),
-                        self.params.walk_speed,
-                        out.display()
-                    )
-                })?;
+                .context(command)?;
         }
         let v: serde_json::Value = prerender::store::read_json(&json)?;
         v["runs"][0]["bytes"]
@@ -348,11 +347,11 @@ impl Sweep {
             self.base_samples,
             v.per_segment,
             v.directions,
-            b.map_or(0, |b| b.size.0),
-            b.map_or(0, |b| b.size.1),
+            b.map_or(0, |b| b.inst.size.0),
+            b.map_or(0, |b| b.inst.size.1),
             v.fov_deg,
             self.params.spec.base.face_size,
-            b.map_or(String::new(), |b| b.truth.describe())
+            b.map_or(String::new(), |b| b.inst.truth.describe())
         )
     }
 
