@@ -3,8 +3,10 @@
 //! sample and between samples against `railview render` from the same camera (PSNR and hole
 //! masks), the same view over `railview serve` and over nginx with the README's configuration
 //! (the database folder as `railview build` wrote it, viewer included), a walk along the
-//! whole track with no errors and the decoded memory within its budget, and hosts that answer
-//! badly: damaged answers, one range at a time, objects lost.
+//! whole track with no errors and the decoded memory within its budget, the page under its
+//! strict Content-Security-Policy from both hosts (the headers, the layout, a console free of
+//! violations and failed requests), and hosts that answer badly: damaged answers, one range
+//! at a time, objects lost.
 //!
 //! Needs Chromium and nginx (`scripts/test.sh` installs them); `RAILVIEW_SKIP_BROWSER=1` or
 //! `RAILVIEW_SKIP_NGINX_TESTS=1` mark these tests ignored. About a minute.
@@ -16,8 +18,9 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use common::cdp::{base64_decode, Browser};
-use common::nginx::{readme_server_block, Nginx};
+use common::nginx::{get, readme_server_block, Nginx};
 use common::{railview, scratch_dir, stderr};
+use streamer::server::SECURITY_HEADERS;
 
 /// The fidelity the browser must keep against `railview render` (issue 36): PSNR of the
 /// colour, and the share of pixels whose hole flag differs.
@@ -55,6 +58,13 @@ fn castle() -> &'static Path {
 struct Server {
     child: std::process::Child,
     url: String,
+}
+
+impl Server {
+    fn port(&self) -> u16 {
+        let authority = self.url.trim_start_matches("http://").trim_end_matches('/');
+        authority.rsplit(':').next().unwrap().parse().unwrap()
+    }
 }
 
 impl Drop for Server {
@@ -244,6 +254,172 @@ fn nginx_with_the_readme_configuration_serves_the_same_view_as_railview_serve() 
         psnr.is_infinite() && holes == 0.0,
         "the same view over nginx differs: {psnr:.2} dB, holes {holes}; nginx: {}",
         nginx.errors()
+    );
+}
+
+/// Every file of the viewer at `prefix` on `127.0.0.1:port` (and the page at `prefix`
+/// itself) comes with its type and the headers `railview serve` sends with every answer.
+fn assert_strict_headers(host: &str, port: u16, prefix: &str) {
+    let pages = std::iter::once(("", "text/html; charset=utf-8"))
+        .chain(viewer::web::SITE.iter().map(|f| (f.name, f.content_type())));
+    for (name, content_type) in pages {
+        let path = format!("{prefix}{name}");
+        let r = get(port, &path, &[]);
+        assert_eq!(r.status, 200, "{host} {path}");
+        // nginx names no charset; the type itself must be the one browsers need.
+        let essence = |t: &str| t.split(';').next().unwrap_or("").trim().to_string();
+        assert_eq!(
+            r.header("content-type").map(essence),
+            Some(essence(content_type)),
+            "{host} {path}"
+        );
+        for (header, value) in SECURITY_HEADERS {
+            assert_eq!(
+                r.header(&header.to_ascii_lowercase()),
+                Some(value),
+                "{host} {path}: {header}"
+            );
+        }
+    }
+}
+
+#[test]
+fn railview_serve_sends_the_strict_headers_with_every_site_file() {
+    let server = serve(castle(), &[]);
+    assert_strict_headers("railview serve", server.port(), "/");
+    // Answers that are not the page carry them too.
+    let r = get(server.port(), "/manifest.json", &[]);
+    assert_eq!(r.status, 200);
+    let r404 = get(server.port(), "/favicon.ico", &[]);
+    assert_eq!(r404.status, 404);
+    for r in [r, r404] {
+        for (header, value) in SECURITY_HEADERS {
+            assert_eq!(r.header(&header.to_ascii_lowercase()), Some(value));
+        }
+    }
+}
+
+/// What a normal load must not report, one line each: an error of any kind (a refused or
+/// failed request, `console.error`, an uncaught exception) and any security or policy
+/// violation.
+fn console_problems(events: &[serde_json::Value]) -> Vec<String> {
+    let problem = |e: &serde_json::Value| -> Option<String> {
+        let p = &e["params"];
+        match e["method"].as_str()? {
+            "Log.entryAdded" => {
+                let entry = &p["entry"];
+                let source = entry["source"].as_str().unwrap_or("");
+                let level = entry["level"].as_str().unwrap_or("");
+                (level == "error" || source == "security" || source == "violation")
+                    .then(|| format!("{source} {level}: {} ({})", entry["text"], entry["url"]))
+            }
+            "Runtime.consoleAPICalled" => matches!(p["type"].as_str(), Some("error" | "assert"))
+                .then(|| format!("console.{}: {}", p["type"], p["args"])),
+            "Runtime.exceptionThrown" => Some(format!("uncaught: {}", p["exceptionDetails"])),
+            _ => None,
+        }
+    };
+    events.iter().filter_map(problem).collect()
+}
+
+/// Opens the viewer at `url` in a fresh browser watching its console, waits for `railview:
+/// ready` and checks the page as the strict policy leaves it: the canvas fills the window,
+/// the stylesheet applies, and nothing was refused, failed or violated. Then checks that the
+/// policy is in force and its violations are seen: an inline style added now is refused.
+fn assert_runs_under_the_strict_policy(url: &str, tag: &str) {
+    let mut b = Browser::start(&scratch_dir("browser-profile", tag), SIZE.0, SIZE.1);
+    b.watch_console();
+    b.navigate(&format!("{url}?at=5&yaw=20"));
+    let title = b.wait_title(READY_WITHIN, |t| {
+        t == "railview: ready" || t.contains("missing")
+    });
+    let state = page_state(&mut b);
+    assert_eq!(title, "railview: ready", "{tag}: {state}");
+    assert_eq!(state["errors"], serde_json::json!([]), "{tag}: {state}");
+    let layout = b.eval(
+        "(() => { const c = document.getElementById('view'); \
+           return { canvas: [c.clientWidth, c.clientHeight], window: [innerWidth, innerHeight], \
+                    status: getComputedStyle(document.getElementById('status')).position }; })()",
+    );
+    assert_eq!(
+        layout["canvas"], layout["window"],
+        "{tag}: the canvas does not fill the window: {layout}"
+    );
+    assert_eq!(
+        layout["window"],
+        serde_json::json!([SIZE.0, SIZE.1]),
+        "{tag}: {layout}"
+    );
+    assert_eq!(
+        layout["status"], "fixed",
+        "{tag}: viewer.css did not apply: {layout}"
+    );
+    let problems = console_problems(&b.console_events());
+    assert!(
+        problems.is_empty(),
+        "{tag}: the page reported:\n{}",
+        problems.join("\n")
+    );
+    b.eval(
+        "{ const s = document.createElement('style'); s.textContent = 'body { color: red }'; \
+           document.head.append(s); }",
+    );
+    let start = std::time::Instant::now();
+    let mut problems = Vec::new();
+    while problems.is_empty() && start.elapsed() < Duration::from_secs(10) {
+        std::thread::sleep(Duration::from_millis(100));
+        problems = console_problems(&b.console_events());
+    }
+    assert!(
+        problems
+            .iter()
+            .any(|p| p.contains("Content Security Policy")),
+        "{tag}: an inline style was not reported as refused: {problems:?}"
+    );
+}
+
+/// Requests in nginx's access log (its default format) answered with an error.
+fn failed_requests(access_log: &str) -> Vec<&str> {
+    access_log
+        .lines()
+        .filter(|l| {
+            let status = l
+                .split('"')
+                .nth(2)
+                .and_then(|r| r.split_whitespace().next());
+            status
+                .and_then(|s| s.parse::<u16>().ok())
+                .is_none_or(|s| s >= 400)
+        })
+        .collect()
+}
+
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+#[cfg_attr(
+    railview_skip_nginx,
+    ignore = "RAILVIEW_SKIP_NGINX_TESTS=1: nginx is not available"
+)]
+fn the_page_runs_under_the_strict_policy_from_railview_serve_and_nginx() {
+    let db = castle();
+    let server = serve(db, &[]);
+    let nginx = Nginx::start(&scratch_dir("browser", "nginx-policy"), |port| {
+        readme_server_block(db.parent().unwrap(), port)
+    });
+    assert_strict_headers("railview serve", server.port(), "/");
+    assert_strict_headers("nginx", nginx.port, "/castle/");
+    assert_runs_under_the_strict_policy(&server.url, "policy-serve");
+    assert_runs_under_the_strict_policy(&nginx.url("/castle/"), "policy-nginx");
+    // Every request of the load was answered (no 404 for an icon, nothing refused).
+    let log = std::fs::read_to_string(nginx.dir.join("access.log")).unwrap();
+    let failed = failed_requests(&log);
+    assert!(
+        failed.is_empty(),
+        "nginx answered with errors:\n{}",
+        failed.join("\n")
     );
 }
 

@@ -1,7 +1,9 @@
 //! Headless Chromium driven over the DevTools protocol, for the browser viewer's tests: a
 //! minimal WebSocket client (RFC 6455: one connection, text frames, client frames masked)
-//! over a loopback TCP stream, enough to open a page at a size, wait for its title and
-//! evaluate expressions in it. No npm package and no Node: Debian's Chromium alone.
+//! over a loopback TCP stream, enough to open a page at a size, wait for its title,
+//! evaluate expressions in it and collect what it reports to its console (errors, refused
+//! requests, Content-Security-Policy violations). No npm package and no Node: Debian's
+//! Chromium alone.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
@@ -29,6 +31,8 @@ pub struct Browser {
     session: String,
     next_id: u64,
     profile: PathBuf,
+    /// Console events since [`Browser::watch_console`] (kept only once it is called).
+    console: Option<Vec<Value>>,
 }
 
 impl Browser {
@@ -94,6 +98,7 @@ impl Browser {
             session: String::new(),
             next_id: 0,
             profile: profile.to_path_buf(),
+            console: None,
         };
         let target = browser.call("Target.createTarget", json!({"url": "about:blank"}));
         let attached = browser.call(
@@ -124,7 +129,28 @@ impl Browser {
                 assert!(v.get("error").is_none(), "{method}: {}", v["error"]);
                 return v["result"].clone();
             }
+            if let (Some(kept), Some(event)) = (self.console.as_mut(), v["method"].as_str()) {
+                if CONSOLE_EVENTS.contains(&event) {
+                    kept.push(v);
+                }
+            }
         }
+    }
+
+    /// Keeps, from now on, what the page reports to its console: the `Log` domain's entries
+    /// (refused requests, security and policy violations, browser messages) and the
+    /// `Runtime` domain's console calls and uncaught exceptions. Call before navigating.
+    pub fn watch_console(&mut self) {
+        self.console = Some(Vec::new());
+        self.call("Log.enable", json!({}));
+        self.call("Runtime.enable", json!({}));
+    }
+
+    /// The console events kept so far (after one more round trip, so that what the page
+    /// reported before this call has arrived), each as the protocol sent it.
+    pub fn console_events(&mut self) -> Vec<Value> {
+        self.eval("0");
+        self.console.clone().unwrap_or_default()
     }
 
     /// Evaluates `expr` in the page (awaiting a promise) and returns its value.
@@ -164,6 +190,13 @@ impl Browser {
         panic!("page title still `{title}` after {limit:?}");
     }
 }
+
+/// The events [`Browser::watch_console`] keeps.
+const CONSOLE_EVENTS: [&str; 3] = [
+    "Log.entryAdded",
+    "Runtime.consoleAPICalled",
+    "Runtime.exceptionThrown",
+];
 
 impl Drop for Browser {
     fn drop(&mut self) {

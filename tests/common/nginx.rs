@@ -1,7 +1,7 @@
 //! nginx on loopback for the static-host tests: an unprivileged configuration in a scratch
 //! directory (pid, logs and temporary paths there, a free port), the README's own `server`
-//! block where a test serves a database as the README says, and a raw HTTP/1.1 GET to look
-//! at headers.
+//! block where a test serves a database as the README says (checked to send the headers
+//! `railview serve` sends), and a raw HTTP/1.1 GET to look at headers.
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -62,7 +62,22 @@ pub fn readme_server_block(root: &Path, port: u16) -> String {
         listen && rooted,
         "the README's server block has listen and root lines"
     );
+    for line in security_header_lines() {
+        assert!(
+            block.contains(&line),
+            "the README's server block lacks `{line}`: it sends what `railview serve` sends"
+        );
+    }
     out
+}
+
+/// nginx's `add_header` lines for the headers `railview serve` sends with every answer
+/// (`streamer::server::SECURITY_HEADERS`), on error answers too.
+fn security_header_lines() -> Vec<String> {
+    streamer::server::SECURITY_HEADERS
+        .iter()
+        .map(|(name, value)| format!("add_header {name} \"{value}\" always;"))
+        .collect()
 }
 
 /// A port free on loopback now (nginx binds it next; a race with another process is

@@ -13,8 +13,8 @@ import { Store, FetchError } from "./fetch.js";
 import { decodeTable } from "./table.js";
 import { blake3Hex } from "./blake3.js";
 import { checkManifest, visibleTiles, tileKey, projector, projectPolygon, projectPoint, arrowShape } from "./plan.js";
+import { MAX_MANIFEST_BYTES } from "./limits.js";
 
-const MAX_MANIFEST_BYTES = 64 << 20;
 const MAX_TABLE_OBJECT = 64 << 20;
 const MAX_FAULTS = 3;
 const IN_FLIGHT = 4;
@@ -38,15 +38,12 @@ const num = (k, d) => (q.has(k) && Number.isFinite(Number(q.get(k))) ? Number(q.
 const MEMORY_BUDGET = Math.min(Math.max(num("budget", 512), 1), 16384) * 1e6;
 const canvas = document.getElementById("view");
 const arrowLayer = document.getElementById("arrows");
-// The arrows' layer lies over the canvas and lets every pointer event through but those on
-// an arrow (styles set here, not in the page: no inline styles).
-Object.assign(arrowLayer.style, { position: "fixed", left: "0", top: "0", width: "100vw", height: "100vh", pointerEvents: "none", overflow: "visible" });
 const statusText = document.getElementById("status-text");
 const bar = document.getElementById("bar");
 
 function showError(e) {
   const el = document.getElementById("error");
-  el.style.display = "block";
+  el.classList.add("shown");
   el.textContent = String(e.message ?? e);
   console.error(e);
 }
@@ -653,11 +650,8 @@ class App {
       const g = document.createElementNS(SVG, "g");
       const poly = document.createElementNS(SVG, "polygon");
       poly.setAttribute("points", ar.outline.map((p) => `${p[0].toFixed(1)},${p[1].toFixed(1)}`).join(" "));
-      poly.style.fill = ar.chosen ? "rgba(255, 214, 64, 0.9)" : "rgba(255, 255, 255, 0.75)";
-      poly.style.stroke = "rgba(0, 0, 0, 0.6)";
-      poly.style.strokeWidth = "1.5";
-      poly.style.pointerEvents = "auto";
-      poly.style.cursor = "pointer";
+      poly.classList.add("arrow");
+      if (ar.chosen) poly.classList.add("chosen");
       poly.addEventListener("click", (e) => {
         e.stopPropagation();
         this.take(ar.branch);
@@ -668,12 +662,7 @@ class App {
         text.setAttribute("x", ar.label[0].toFixed(1));
         text.setAttribute("y", ar.label[1].toFixed(1));
         text.textContent = ar.name;
-        text.style.fill = "#fff";
-        text.style.stroke = "rgba(0, 0, 0, 0.7)";
-        text.style.strokeWidth = "3";
-        text.style.paintOrder = "stroke";
-        text.style.font = "12px system-ui, sans-serif";
-        text.style.textAnchor = "middle";
+        text.classList.add("arrow-label");
         g.append(text);
       }
       nodes.push(g);

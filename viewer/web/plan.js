@@ -3,10 +3,12 @@
 // camera's frustum (viewer::plan::frustum_tiles, with a tile's bounding sphere from its
 // corners at its depth bounds).
 
-// tracks::limits
+import * as L from "./limits.js";
+
 export const LIMITS = {
-  maxFace: 8192, minTile: 4, maxTilesPerSide: 512, maxSlabs: 64, maxTracks: 1024, maxViewpoints: 100000,
-  maxTextBytes: 1 << 20, maxGridCells: 2 ** 26, maxCoord: 1e7,
+  maxFace: L.MAX_FACE_SIZE, minTile: L.MIN_TILE_SIZE, maxTilesPerSide: L.MAX_TILES_PER_SIDE, maxSlabs: L.MAX_SLABS,
+  maxTracks: L.MAX_TRACKS, maxViewpoints: L.MAX_VIEWPOINTS, maxTextBytes: L.MAX_TEXT_BYTES,
+  maxGridCells: L.MAX_GRID_CELLS, maxCoord: L.MAX_COORDINATE_M,
 };
 export const FORMAT = 8;
 const NEAR_M = 0.01;

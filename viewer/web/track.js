@@ -3,8 +3,9 @@
 // network of tracks that meet at junctions (tracks::network) and the walker that follows it
 // (streamer::client::route: the branch the user chose, else the one nearest the view).
 
+import { MAX_TRACK_POINTS } from "./limits.js";
+
 const SMOOTH_SUBDIVISIONS = 32;
-const MAX_POINTS = 1 << 16;
 
 const sub = (a, b) => a.map((x, i) => x - b[i]);
 const add = (a, b) => a.map((x, i) => x + b[i]);
@@ -16,9 +17,9 @@ export function parseTrackToml(text) {
   const m = /^points\s*=\s*(\[.*\])\s*$/m.exec(text);
   if (!m) throw new Error("track: no points in the manifest's track");
   const points = JSON.parse(m[1]);
-  if (!Array.isArray(points) || points.length < 2 || points.length > MAX_POINTS ||
+  if (!Array.isArray(points) || points.length < 2 || points.length > MAX_TRACK_POINTS ||
       !points.every((p) => Array.isArray(p) && p.length === 3 && p.every(Number.isFinite))) {
-    throw new Error("track: points must be 2 to 65536 finite [x, y, z]");
+    throw new Error(`track: points must be 2 to ${MAX_TRACK_POINTS} finite [x, y, z]`);
   }
   const smooth = /^smooth\s*=\s*["']catmull-rom["']/m.test(text);
   return { points, smooth };

@@ -14,6 +14,10 @@
 //! nginx's `gzip_static on;` does with the same files; `/manifest.json.blake3` is served so a
 //! client can check the decoded manifest.
 //!
+//! Every answer carries [`SECURITY_HEADERS`]: the browser viewer's page and modules run under
+//! the strict [`CONTENT_SECURITY_POLICY`], and nothing is sniffed into another type or leaks
+//! a referrer. A static host in front of a database sends the same (README, nginx block).
+//!
 //! Paths are never taken from the request: an object request names a hash, the hash is
 //! validated ([`tracks::manifest::object_rel_path`]) and must be one the manifest lists, and
 //! only then is `DB/objects/HH/HASH` opened.
@@ -66,6 +70,20 @@ pub use loopback::Loopback;
 pub use range::{multipart_body, parse_range, parse_ranges, RangeError};
 pub use routes::MAX_RANGES;
 pub use shape::{parse_duration, parse_rate, Shaped};
+
+/// The policy the browser viewer runs under: its own scripts, workers, styles, images and
+/// requests (same origin), nothing inline, no `<base>`, no form, never framed.
+pub const CONTENT_SECURITY_POLICY: &str = "default-src 'none'; script-src 'self'; \
+    worker-src 'self'; connect-src 'self'; style-src 'self'; img-src 'self'; base-uri 'none'; \
+    form-action 'none'; frame-ancestors 'none'";
+
+/// Headers sent with every response, name and value: [`CONTENT_SECURITY_POLICY`], no type
+/// sniffing (a module is run only if served as JavaScript) and no referrer.
+pub const SECURITY_HEADERS: [(&str, &str); 3] = [
+    ("Content-Security-Policy", CONTENT_SECURITY_POLICY),
+    ("X-Content-Type-Options", "nosniff"),
+    ("Referrer-Policy", "no-referrer"),
+];
 
 /// Server limits and simulation settings.
 #[derive(Clone, Debug)]
@@ -123,6 +141,7 @@ impl SiteFile {
             Some("js" | "mjs") => "text/javascript; charset=utf-8",
             Some("css") => "text/css; charset=utf-8",
             Some("json") => "application/json",
+            Some("svg") => "image/svg+xml",
             _ => "application/octet-stream",
         }
     }

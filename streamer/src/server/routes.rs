@@ -120,6 +120,10 @@ async fn route(s: &Shared, req: &Request<Incoming>) -> Resp {
             "unknown path; served: /manifest.json, /manifest.json.blake3, /objects/HH/HASH, /bundle?p=…",
         )
     };
+    let h = resp.headers_mut();
+    for (name, value) in super::SECURITY_HEADERS {
+        h.insert(name, HeaderValue::from_static(value));
+    }
     if head_only {
         // Same headers (Content-Length included), no body.
         let len = {

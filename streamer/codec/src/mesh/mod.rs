@@ -163,8 +163,8 @@ pub const MAX_CELLS: u64 = 1 << 24;
 /// Most vertices × triangles of a mesh: growing the connectivity scans the vertices on one
 /// side of each new edge. A 64² tile with a vertex on every pixel is 4225 × 8192 = 2²⁵.
 pub const MAX_WORK: u64 = 1 << 28;
-/// Largest face size.
-const MAX_SIDE: u64 = 1 << 20;
+/// Largest face size a mesh may name.
+pub const MAX_SIDE: u64 = 1 << 20;
 /// Largest side of a mesh's lattice box (keeps the connectivity's integer geometry in 64
 /// bits).
 pub const MAX_BOX_SIDE: u64 = 1 << 15;
