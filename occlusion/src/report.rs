@@ -287,9 +287,14 @@ pub fn markdown(report: &CullReport) -> String {
         for st in runs.iter().filter_map(|r| r.rendered) {
             s += &format!(
                 "\nLater-slab tiles: {} decided, {} culled (every pixel hidden behind a \
-                 continuous surface in every depth render); {} depth renders, {} \
-                 (pixel, render) tests.\n",
-                st.tiles, st.culled, st.renders, st.tests
+                 continuous surface in every depth render); {} depth renders ({:.1} s \
+                 waiting for whole renders, included in the time below), {} (pixel, render) \
+                 tests.\n",
+                st.tiles,
+                st.culled,
+                st.renders,
+                st.render_ms as f64 / 1e3,
+                st.tests
             );
         }
     }

@@ -500,6 +500,10 @@ pub struct RenderedStats {
     pub renders: u64,
     /// (pixel, ball) tests made.
     pub tests: u64,
+    /// Milliseconds spent waiting for whole depth renders (POV-Ray runs); 0 where depth is
+    /// cast ray by ray where the tests look.
+    #[serde(default)]
+    pub render_ms: u64,
 }
 
 impl RenderedStats {
@@ -508,6 +512,7 @@ impl RenderedStats {
         self.culled += o.culled;
         self.renders += o.renders;
         self.tests += o.tests;
+        self.render_ms += o.render_ms;
     }
 }
 

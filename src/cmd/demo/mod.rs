@@ -99,6 +99,7 @@ fn run_stage(
         command: command.clone(),
         status: StageStatus::Unavailable,
         seconds: 0.0,
+        cpu_seconds: None,
         message: None,
     };
     let missing: Vec<&str> = stage
@@ -117,9 +118,11 @@ fn run_stage(
         return finish(layout, log, record);
     }
     eprintln!("[{step}/{steps}] {}: {command}", stage.name);
-    let start = Instant::now();
+    let meter = ::stages::cost::Meter::start();
     let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| (stage.run)()));
-    record.seconds = start.elapsed().as_secs_f64();
+    let (cpu, wall) = meter.stop();
+    record.seconds = wall;
+    record.cpu_seconds = cpu.is_finite().then_some(cpu);
     match outcome {
         Ok(Ok(())) => {
             record.status = StageStatus::Done;

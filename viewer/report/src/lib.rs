@@ -191,6 +191,10 @@ pub struct StageRecord {
     pub status: StageStatus,
     /// Wall time of the run that completed it.
     pub seconds: f64,
+    /// CPU time of that run, user and system, every thread and the child processes it
+    /// waited for (POV-Ray); absent where the system does not say, and in older logs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cpu_seconds: Option<f64>,
     /// Why it is unavailable or failed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub message: Option<String>,

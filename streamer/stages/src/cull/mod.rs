@@ -33,8 +33,8 @@ use occlusion::report::{
 };
 use occlusion::{
     cull_from_segments, cull_viewpoint, cull_viewpoint_shrunk, hidden_from_segment, mark_visible,
-    score, BallDepth, Cell, CullParams as RunParams, MatchRule, SceneSolids, SegmentEnd,
-    Visibility,
+    score, BallDepth, Cell, CullParams as RunParams, MatchRule, RenderedStats, SceneSolids,
+    SegmentEnd, Visibility,
 };
 use prerender::runlog::RunLog;
 use prerender::scene::Scene;
@@ -539,10 +539,15 @@ impl Culling<'_> {
             self.render_seconds += render_s;
             self.inside += inside;
             let run = &mut self.reports[j];
-            run.seconds += (total - render_s).max(0.0);
+            // The variant's cost is its renders too: they are most of it for an import.
+            run.seconds += total;
+            let stats = RenderedStats {
+                render_ms: (render_s * 1e3).round() as u64,
+                ..verdict.stats
+            };
             run.rendered
                 .get_or_insert_with(Default::default)
-                .add(&verdict.stats);
+                .add(&stats);
             for (v, h) in ends.iter().zip(verdict.hidden) {
                 if let Some(o) = self.open.get_mut(v) {
                     o.hidden.push(h);

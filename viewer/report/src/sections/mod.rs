@@ -13,7 +13,7 @@ mod tables;
 
 use super::doc::{Block, Figure, Table};
 use super::images;
-use super::{Layout, RunLog, StageStatus};
+use super::{Layout, RunLog, StageRecord, StageStatus};
 
 /// The blocks of the page and the ids of sections whose inputs were missing.
 pub struct Built {
@@ -249,7 +249,9 @@ fn overview(c: &mut Ctx) {
         c.log.face_size,
         c.layout.root().display()
     )));
-    let rows = c
+    let done = |s: &&StageRecord| s.status == StageStatus::Done;
+    let cpu = |s: &StageRecord| s.cpu_seconds.map_or("–".into(), |c| format!("{c:.1}"));
+    let mut rows: Vec<Vec<String>> = c
         .log
         .stages
         .iter()
@@ -262,6 +264,11 @@ fn overview(c: &mut Ctx) {
                 } else {
                     "–".into()
                 },
+                if s.status == StageStatus::Done {
+                    cpu(s)
+                } else {
+                    "–".into()
+                },
                 s.command.clone(),
                 s.message
                     .as_deref()
@@ -271,10 +278,22 @@ fn overview(c: &mut Ctx) {
             ]
         })
         .collect();
+    let completed: Vec<&StageRecord> = c.log.stages.iter().filter(done).collect();
+    let cpu_all: Option<f64> = completed.iter().map(|s| s.cpu_seconds).sum();
+    rows.push(vec![
+        "all stages".into(),
+        format!("{} done", completed.len()),
+        format!("{:.1}", completed.iter().map(|s| s.seconds).sum::<f64>()),
+        cpu_all.map_or("–".into(), |c| format!("{c:.1}")),
+        String::new(),
+        String::new(),
+    ]);
     c.push(Block::Table(Table {
         id: "stages".into(),
-        caption: "Stages of this demo (wall time of the run that completed each)".into(),
-        header: ["stage", "status", "seconds", "command", "note"]
+        caption: "Stages of this demo: wall and CPU time of the run that completed each (CPU \
+                  of every thread and of the POV-Ray processes it ran)"
+            .into(),
+        header: ["stage", "status", "wall s", "CPU s", "command", "note"]
             .map(String::from)
             .to_vec(),
         rows,
