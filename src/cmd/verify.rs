@@ -21,12 +21,25 @@ pub struct Args {
     /// `.` and a `.tmp` marker in the database's directory, objects/ or objects/HH/).
     #[arg(long)]
     pub remove_temp: bool,
+    /// First write this railview's browser viewer beside the database (`index.html` and its
+    /// modules, as `railview build` does), replacing changed or older copies.
+    #[arg(long)]
+    pub rewrite_site: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.rewrite_site {
+        viewer::web::write_site(&args.db)
+            .with_context(|| format!("writing the browser viewer into {}", args.db.display()))?;
+    }
+    let site: Vec<(&str, &[u8])> = viewer::web::SITE
+        .iter()
+        .map(|f| (f.name, f.body.as_bytes()))
+        .collect();
     let opts = db::VerifyOptions {
         decode: args.decode,
         remove_temp: args.remove_temp,
+        site: &site,
     };
     let report = db::verify_with(&args.db, opts)
         .with_context(|| format!("verifying {}", args.db.display()))?;
@@ -41,6 +54,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             report.bytes_checked,
             report.tables_checked,
             report.level_ranges_checked
+        );
+        println!(
+            "{} of the browser viewer's {} files beside it as this railview writes them",
+            report.site_files_checked,
+            site.len()
         );
         if args.decode {
             println!(
@@ -141,6 +159,7 @@ mod tests {
             json: false,
             decode: true,
             remove_temp: false,
+            rewrite_site: false,
         };
         run(args()).unwrap();
         let path = dir.join(obj.rel_path().unwrap());

@@ -764,3 +764,53 @@ fn a_resumed_writer_removes_the_leftovers_of_a_killed_one() {
     assert!(is_temp_name(".tmpXyZ123") && is_temp_name(".a.tmp.3") && !is_temp_name("tmp"));
     fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn verify_checks_the_site_files_beside_a_database() {
+    let dir = tmpdir("site-files");
+    let (_m, _w) = build(&dir);
+    let site: &[(&str, &[u8])] = &[
+        ("index.html", b"<!doctype html><title>x</title>"),
+        ("main.js", b"export const x = 1;\n"),
+    ];
+    let opts = VerifyOptions {
+        site,
+        ..Default::default()
+    };
+    // Without them: intact, each absent file a note.
+    let r = verify_with(&dir, opts).unwrap();
+    assert!(r.is_intact(), "{:?}", r.problems);
+    assert_eq!(r.site_files_checked, 0);
+    let absent: Vec<_> = r
+        .notes
+        .iter()
+        .filter(|n| n.what.starts_with("absent"))
+        .collect();
+    assert_eq!(absent.len(), 2, "{:?}", r.notes);
+    // Written as given: both checked, no note about them.
+    for (name, body) in site {
+        fs::write(dir.join(name), body).unwrap();
+    }
+    let r = verify_with(&dir, opts).unwrap();
+    assert!(r.is_intact(), "{:?}", r.problems);
+    assert_eq!(r.site_files_checked, 2);
+    assert!(r.notes.iter().all(|n| !n.path.ends_with("main.js")));
+    // One byte changed (same length), then a file of another length: damage, named.
+    fs::write(dir.join("main.js"), b"export const x = 2;\n").unwrap();
+    let r = verify_with(&dir, opts).unwrap();
+    assert_eq!(r.problems.len(), 1, "{:?}", r.problems);
+    assert!(r.problems[0].path.ends_with("main.js"));
+    assert!(
+        r.problems[0].what.contains("differs"),
+        "{}",
+        r.problems[0].what
+    );
+    fs::write(dir.join("index.html"), b"<script>alert(1)</script>").unwrap();
+    let r = verify_with(&dir, opts).unwrap();
+    assert_eq!(r.problems.len(), 2, "{:?}", r.problems);
+    // Without a site to check, they are files that are not part of a database.
+    let r = verify(&dir).unwrap();
+    assert!(r.is_intact());
+    assert!(r.notes.iter().any(|n| n.path.ends_with("main.js")));
+    let _ = fs::remove_dir_all(&dir);
+}

@@ -39,8 +39,11 @@ pub struct Report {
     pub meshes_decoded: usize,
     /// Damage: the database is intact only when this is empty.
     pub problems: Vec<Problem>,
-    /// Harmless findings (unreferenced objects, files that are not part of a database).
+    /// Harmless findings (unreferenced objects, files that are not part of a database, site
+    /// files absent).
     pub notes: Vec<Problem>,
+    /// Site files ([`VerifyOptions::site`]) found with exactly their bytes.
+    pub site_files_checked: usize,
     /// Temporary files of interrupted writes (a leading `.` and a `.tmp` marker), in the
     /// database's directory, `objects/` or `objects/HH/`: harmless to readers, but not part
     /// of the database ([`VerifyOptions::remove_temp`] removes them).
@@ -59,7 +62,7 @@ impl Report {
 
 /// What [`verify_with`] checks beyond the files.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct VerifyOptions {
+pub struct VerifyOptions<'a> {
     /// Decode every PTM to its finest level and every mesh (the hashes say the bytes are the
     /// ones written, not that they decode), and check the rule of formats 5 on: colour 0
     /// under every texel with alpha 0 ([`super::clear_masked`]; readers divide coarse levels
@@ -67,6 +70,10 @@ pub struct VerifyOptions {
     pub decode: bool,
     /// Remove the stray temporary files found ([`Report::stray`]).
     pub remove_temp: bool,
+    /// The files a static host serves beside the database (the browser viewer: name and
+    /// bytes, as this program writes them). Each one present must hold exactly these bytes
+    /// (a changed page is damage: a host would serve it); one absent is a note.
+    pub site: &'a [(&'a str, &'a [u8])],
 }
 
 /// Checks the manifest (its values against the limits of [`tracks::limits`] too), its
@@ -80,7 +87,7 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
 /// [`verify`], with the checks of `opts`.
 pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
     let mut report = Report::default();
-    check_top_dir(dir, &mut report)?;
+    check_top_dir(dir, opts.site, &mut report)?;
     let top = read_top_checked(dir, &mut report);
     let decode = opts.decode.then(|| {
         top.as_ref()
@@ -100,14 +107,27 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
     Ok(report)
 }
 
-/// The database's own directory: the manifest's files and objects/, nothing else.
-fn check_top_dir(dir: &Path, report: &mut Report) -> Result<(), DbError> {
+/// The database's own directory: the manifest's files, objects/ and the site's files with
+/// their bytes, nothing else.
+fn check_top_dir(dir: &Path, site: &[(&str, &[u8])], report: &mut Report) -> Result<(), DbError> {
     let top_level = fs::read_dir(dir).map_err(|e| DbError::io(dir, e))?;
     let mut entries: Vec<_> = top_level.filter_map(Result::ok).collect();
     entries.sort_by_key(|e| e.file_name());
+    for &(name, _) in site {
+        if !entries.iter().any(|e| e.file_name() == name) {
+            report.notes.push(problem(
+                dir.join(name),
+                "absent: no browser viewer beside the database for a static host (`railview \
+                 build` writes it)"
+                    .into(),
+            ));
+        }
+    }
     for e in entries {
         let name = e.file_name().to_string_lossy().into_owned();
-        if super::is_temp_name(&name) {
+        if let Some(&(_, want)) = site.iter().find(|(n, _)| *n == name) {
+            check_site_file(&e.path(), want, report);
+        } else if super::is_temp_name(&name) {
             report.stray.push(problem(e.path(), TEMP_NOTE.into()));
         } else if ![
             MANIFEST_FILE,
@@ -123,6 +143,36 @@ fn check_top_dir(dir: &Path, report: &mut Report) -> Result<(), DbError> {
         }
     }
     Ok(())
+}
+
+/// A file of the browser viewer: exactly the bytes this program writes. Read whole only when
+/// its size matches, so a huge file costs nothing.
+fn check_site_file(path: &Path, want: &[u8], report: &mut Report) {
+    let same = match fs::metadata(path) {
+        Ok(m) if m.is_file() && m.len() == want.len() as u64 => match fs::read(path) {
+            Ok(bytes) => bytes == want,
+            Err(e) => {
+                report.problems.push(problem(path.into(), e.to_string()));
+                return;
+            }
+        },
+        Ok(_) => false,
+        Err(e) => {
+            report.problems.push(problem(path.into(), e.to_string()));
+            return;
+        }
+    };
+    if same {
+        report.site_files_checked += 1;
+    } else {
+        report.problems.push(problem(
+            path.into(),
+            "differs from the browser viewer this railview writes: changed, damaged, or \
+             written by another version (a static host would serve it as it is; `railview \
+             build` again, or `railview verify --rewrite-site`, writes this one)"
+                .into(),
+        ));
+    }
 }
 
 /// The top manifest, its gzip copy and its checksum file: the top when it parses.
