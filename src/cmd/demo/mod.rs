@@ -190,9 +190,11 @@ fn set_runtime_dir() {
 fn set_runtime_dir() {}
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // The limits every stage checks (tracks::limits), not a copy of them.
+    let max = tracks::limits::MAX_FACE_SIZE;
     anyhow::ensure!(
-        (8..=4096).contains(&args.face_size),
-        "--face-size {} is out of range (8..=4096)",
+        (8..=max).contains(&args.face_size),
+        "--face-size {} is out of range (8..={max})",
         args.face_size
     );
     let layout = Layout::new(&args.out);
