@@ -388,6 +388,89 @@ impl Drop for Server {
     }
 }
 
+/// A POV-Ray import of a network (`--track-name all`): a crossing of two tracks through
+/// `scenes/pov/analytic.pov` rendered once at the junction, the manifest's graph, and the
+/// culling from POV-Ray's depth renders judged by the oracle at every segment.
+#[test]
+fn a_pov_ray_import_builds_every_track_of_its_file_with_one_junction() {
+    let dir = scratch_dir("network", "pov");
+    let track = dir.join("crossing.toml");
+    std::fs::write(
+        &track,
+        "[[track]]\nname = \"a\"\npoints = [[-1, 1.2, 0], [1, 1.2, 0]]\ncount = 3\n\
+         [[track]]\nname = \"b\"\npoints = [[0, 1.2, -1], [0, 1.2, 0], [0, 1.2, 1]]\ncount = 3\n",
+    )
+    .unwrap();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/pov/analytic.pov");
+    let (db, work) = (dir.join("db"), dir.join("work"));
+    let o = railview(&[
+        "build",
+        "--pov",
+        scene.to_str().unwrap(),
+        "--track",
+        track.to_str().unwrap(),
+        "--track-name",
+        "all",
+        "--face-size",
+        "16",
+        "--out",
+        db.to_str().unwrap(),
+        "--work",
+        work.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(db.join("manifest.json")).unwrap()).unwrap();
+    // 3 + 3 viewpoints, the crossing shared: 5, one of them a junction of four branches.
+    assert_eq!(m["viewpoints"].as_array().unwrap().len(), 5, "{m}");
+    let stops = |t: usize| -> Vec<u64> {
+        m["tracks"][t]["stops"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| s["viewpoint"].as_u64().unwrap())
+            .collect()
+    };
+    let (a, b) = (stops(0), stops(1));
+    assert_eq!((a.len(), b.len()), (3, 3));
+    assert_eq!(a[1], b[1], "the crossing is one viewpoint: {a:?} {b:?}");
+    let junctions = m["junctions"].as_array().unwrap();
+    assert_eq!(junctions.len(), 1);
+    assert_eq!(junctions[0]["viewpoint"].as_u64(), Some(a[1]));
+    assert_eq!(junctions[0]["branches"].as_array().unwrap().len(), 4);
+    // Rendered once: one sample directory per viewpoint.
+    let samples = std::fs::read_dir(work.join("prerender/samples"))
+        .unwrap()
+        .count();
+    assert_eq!(samples, 5);
+    let o = railview(&["verify", db.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    // Culling from POV-Ray's renders, judged by its oracle over all four segments.
+    let pre = work.join("prerender");
+    let o = railview(&[
+        "cull",
+        pre.to_str().unwrap(),
+        "--alpha",
+        "1",
+        "--variant",
+        "rendered",
+        "--oracle",
+        "--oracle-per-segment",
+        "4",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let cull: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(pre.join("cull.json")).unwrap()).unwrap();
+    let md = std::fs::read_to_string(pre.join("cull.md")).unwrap();
+    let row = md
+        .lines()
+        .find(|l| l.starts_with("| 1 | rendered |"))
+        .unwrap_or_else(|| panic!("{md}"));
+    let false_culls = row.trim_end_matches('|').rsplit('|').next().unwrap().trim();
+    assert_eq!(false_culls, "0", "{row}\n{cull}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 fn copy_dir(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).unwrap();
     for e in std::fs::read_dir(from).unwrap() {

@@ -43,6 +43,13 @@ fn every_pov_track_file_parses() {
         let set = tracks::TrackSet::parse(&text, path.to_str().unwrap())
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         assert!(!set.tracks.is_empty(), "{}", path.display());
+        // Every file is a network whatever `--track-name` picks: no near misses.
+        let net = tracks::network::Network::new(set.tracks.clone())
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        if path.ends_with("patio-network.toml") {
+            assert_eq!(net.tracks.len(), 3, "{}", path.display());
+            assert_eq!(net.junctions.len(), 2, "{}", path.display());
+        }
         for t in &set.tracks {
             assert!(
                 t.viewpoints().len() >= 2,
