@@ -1055,3 +1055,76 @@ fn a_click_on_an_arrow_or_a_key_takes_that_branch_and_the_url_follows() {
         "a choice is used once"
     );
 }
+
+/// `scenes/street.toml` at face 64 (built once per test binary, a few seconds): an arcade of
+/// thin columns along the north side, lamp posts thinner than a pixel along the south side.
+fn street() -> &'static Path {
+    static DB: OnceLock<PathBuf> = OnceLock::new();
+    DB.get_or_init(|| {
+        let dir = scratch_dir("browser", "street");
+        let db = dir.join("site").join("street");
+        let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/street.toml");
+        let o = railview(&[
+            "build",
+            "--scene",
+            scene,
+            "--track",
+            "main",
+            "--face-size",
+            "64",
+            "--out",
+            db.to_str().unwrap(),
+            "--work",
+            dir.join("work").to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        db
+    })
+}
+
+/// Issue 44: thin occluders, seen sideways while walking. On the street (straight along +x,
+/// so yaw 0 looks north into the arcade and 180 south past the lamp posts): `VIEWS` positions
+/// spread evenly along the track (the middles of equal parts: between samples), and the
+/// stops nearest them (at samples), every other one looking north, the rest south.
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+fn browser_frames_match_railview_render_through_thin_occluders() {
+    const VIEWS: usize = 4;
+    let db = street();
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(db.join("manifest.json")).unwrap()).unwrap();
+    let track = &m["tracks"][0];
+    let length = track["length"].as_f64().unwrap();
+    let stops: Vec<f64> = track["stops"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["s"].as_f64().unwrap())
+        .collect();
+    let mut views = Vec::new();
+    for i in 0..VIEWS {
+        let between = length * (i as f64 + 0.5) / VIEWS as f64;
+        let at = stops
+            .iter()
+            .copied()
+            .min_by(|a, b| (a - between).abs().total_cmp(&(b - between).abs()))
+            .unwrap();
+        let yaw = if i % 2 == 0 { 0.0 } else { 180.0 };
+        views.push((between, yaw, 0.0, 90.0));
+        views.push((at, yaw, 0.0, 90.0));
+    }
+    assert!(
+        views.iter().any(|v| !stops.contains(&v.0)),
+        "some views lie between samples"
+    );
+    let server = serve(db, &[]);
+    let out = scratch_dir("browser", "street-render");
+    for (i, &view) in views.iter().enumerate() {
+        let web = browse(&server.url, view, &format!("street-{i}"));
+        let nat = native(db, view, &out.join(format!("native-{i}.png")));
+        assert_matches_native(&web, &nat, &format!("street view {view:?}"));
+    }
+}
