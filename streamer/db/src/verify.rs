@@ -13,6 +13,8 @@ use super::{
 };
 use codec::ptm;
 
+mod site;
+
 /// One thing wrong with a database.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Problem {
@@ -113,20 +115,12 @@ fn check_top_dir(dir: &Path, site: &[(&str, &[u8])], report: &mut Report) -> Res
     let top_level = fs::read_dir(dir).map_err(|e| DbError::io(dir, e))?;
     let mut entries: Vec<_> = top_level.filter_map(Result::ok).collect();
     entries.sort_by_key(|e| e.file_name());
-    for &(name, _) in site {
-        if !entries.iter().any(|e| e.file_name() == name) {
-            report.notes.push(problem(
-                dir.join(name),
-                "absent: no browser viewer beside the database for a static host (`railview \
-                 build` writes it)"
-                    .into(),
-            ));
-        }
-    }
+    let names: Vec<std::ffi::OsString> = entries.iter().map(|e| e.file_name()).collect();
+    site::note_absent(dir, site, &names, report);
     for e in entries {
         let name = e.file_name().to_string_lossy().into_owned();
         if let Some(&(_, want)) = site.iter().find(|(n, _)| *n == name) {
-            check_site_file(&e.path(), want, report);
+            site::check_file(&e.path(), want, report);
         } else if super::is_temp_name(&name) {
             report.stray.push(problem(e.path(), TEMP_NOTE.into()));
         } else if ![
@@ -143,36 +137,6 @@ fn check_top_dir(dir: &Path, site: &[(&str, &[u8])], report: &mut Report) -> Res
         }
     }
     Ok(())
-}
-
-/// A file of the browser viewer: exactly the bytes this program writes. Read whole only when
-/// its size matches, so a huge file costs nothing.
-fn check_site_file(path: &Path, want: &[u8], report: &mut Report) {
-    let same = match fs::metadata(path) {
-        Ok(m) if m.is_file() && m.len() == want.len() as u64 => match fs::read(path) {
-            Ok(bytes) => bytes == want,
-            Err(e) => {
-                report.problems.push(problem(path.into(), e.to_string()));
-                return;
-            }
-        },
-        Ok(_) => false,
-        Err(e) => {
-            report.problems.push(problem(path.into(), e.to_string()));
-            return;
-        }
-    };
-    if same {
-        report.site_files_checked += 1;
-    } else {
-        report.problems.push(problem(
-            path.into(),
-            "differs from the browser viewer this railview writes: changed, damaged, or \
-             written by another version (a static host would serve it as it is; `railview \
-             build` again, or `railview verify --rewrite-site`, writes this one)"
-                .into(),
-        ));
-    }
 }
 
 /// The top manifest, its gzip copy and its checksum file: the top when it parses.
