@@ -243,9 +243,8 @@ fn cube_rows<P: Copy>(img: &[P], layout: &MeshLayout) -> Vec<P> {
         .collect()
 }
 
-/// A mesh-camera render as 16-bit RGB cube-map pixels, face-major.
-pub fn read_mesh_png16(path: &Path, layout: &MeshLayout) -> Result<Vec<[u16; 3]>, PovError> {
-    let (w, h) = layout.image_size();
+/// A PNG of `w` × `h` pixels that must hold 16 bits a channel.
+fn read_png16(path: &Path, w: u32, h: u32) -> Result<image::DynamicImage, PovError> {
     let img = read_png(path, w, h)?;
     if img.color().bits_per_pixel() / img.color().channel_count() as u16 != 16 {
         return Err(PovError::Output {
@@ -253,6 +252,13 @@ pub fn read_mesh_png16(path: &Path, layout: &MeshLayout) -> Result<Vec<[u16; 3]>
             message: format!("expected a 16-bit PNG, found {:?}", img.color()),
         });
     }
+    Ok(img)
+}
+
+/// A mesh-camera render as 16-bit RGB cube-map pixels, face-major.
+pub fn read_mesh_png16(path: &Path, layout: &MeshLayout) -> Result<Vec<[u16; 3]>, PovError> {
+    let (w, h) = layout.image_size();
+    let img = read_png16(path, w, h)?;
     let px: Vec<[u16; 3]> = img.to_rgb16().pixels().map(|p| p.0).collect();
     Ok(cube_rows(&px, layout))
 }
@@ -260,13 +266,7 @@ pub fn read_mesh_png16(path: &Path, layout: &MeshLayout) -> Result<Vec<[u16; 3]>
 /// A [`BlockLayout`] render as 16-bit RGB cube-map pixels, face-major, one list a position.
 pub fn read_block_png16(path: &Path, layout: &BlockLayout) -> Result<Vec<Vec<[u16; 3]>>, PovError> {
     let (w, h) = layout.image_size();
-    let img = read_png(path, w, h)?;
-    if img.color().bits_per_pixel() / img.color().channel_count() as u16 != 16 {
-        return Err(PovError::Output {
-            path: path.to_path_buf(),
-            message: format!("expected a 16-bit PNG, found {:?}", img.color()),
-        });
-    }
+    let img = read_png16(path, w, h)?;
     let img = img.to_rgb16();
     let w = w as usize;
     let n = layout.face_size as usize;

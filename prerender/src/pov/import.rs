@@ -340,14 +340,27 @@ impl PovImport {
     ) -> Result<RenderJob, PovError> {
         let wrapper = self.wrapper(kind, face_size)?;
         let (width, height) = MeshLayout::new(face_size).image_size();
-        let output = self.opts.work_dir.join(format!("{stem}.png"));
-        let mut declares = vec![
+        let declares = vec![
             (names::CAM_X, view.pov.x),
             (names::CAM_Y, view.pov.y),
             (names::CAM_Z, view.pov.z),
             (NEAR_NAME, view.near),
             (names::RANGE, view.range),
         ];
+        Ok(self.render_job(stem, kind, wrapper, (width, height), declares, fog))
+    }
+
+    /// A job rendering `wrapper` into `STEM.png` of `size` pixels with `declares` (and the
+    /// fog's, for a fog pass), in the output format and with the arguments of `kind`.
+    fn render_job(
+        &self,
+        stem: &str,
+        kind: PassKind,
+        wrapper: PathBuf,
+        (width, height): (u32, u32),
+        mut declares: Vec<(&'static str, f64)>,
+        fog: Option<&FogScales>,
+    ) -> RenderJob {
         if let Some(f) = fog {
             declares.extend([
                 (names::D1, f.d[0]),
@@ -362,10 +375,10 @@ impl PovImport {
                 file_gamma: self.file_gamma(),
             },
         };
-        Ok(RenderJob {
+        RenderJob {
             name: format!("{stem} ({})", self.scene.display()),
             wrapper,
-            output,
+            output: self.opts.work_dir.join(format!("{stem}.png")),
             log: self.opts.work_dir.join("logs").join(format!("{stem}.log")),
             width,
             height,
@@ -382,7 +395,7 @@ impl PovImport {
                 PassKind::Color => self.radiosity_args(),
                 PassKind::Depth | PassKind::FogOnly => Vec::new(),
             },
-        })
+        }
     }
 
     /// Generate (once) the meshes of [`frame::BlockLayout`] renders at `face_size`.
@@ -422,43 +435,8 @@ impl PovImport {
         let text = sdl::block_wrapper(kind, &self.scene_sdl, &mesh_sdl, &self.info, positions);
         store::write_atomic(&wrapper, text.as_bytes())?;
         let layout = frame::BlockLayout::new(face_size, positions.len() as u32);
-        let (width, height) = layout.image_size();
-        let mut declares = vec![(NEAR_NAME, 0.0), (names::RANGE, 0.0)];
-        if let Some(f) = fog {
-            declares.extend([
-                (names::D1, f.d[0]),
-                (names::D2, f.d[1]),
-                (names::D3, f.d[2]),
-                (names::K, f.k),
-            ]);
-        }
-        let format = match kind {
-            PassKind::Color => OutputFormat::Png8,
-            PassKind::Depth | PassKind::FogOnly => OutputFormat::Png16 {
-                file_gamma: self.file_gamma(),
-            },
-        };
-        Ok(RenderJob {
-            name: format!("{stem} ({})", self.scene.display()),
-            wrapper,
-            output: self.opts.work_dir.join(format!("{stem}.png")),
-            log: self.opts.work_dir.join("logs").join(format!("{stem}.log")),
-            width,
-            height,
-            format,
-            block_size: frame::BLOCK,
-            library_dirs: self
-                .scene
-                .parent()
-                .map(Path::to_path_buf)
-                .into_iter()
-                .collect(),
-            declares,
-            extra: match kind {
-                PassKind::Color => self.radiosity_args(),
-                PassKind::Depth | PassKind::FogOnly => Vec::new(),
-            },
-        })
+        let declares = vec![(NEAR_NAME, 0.0), (names::RANGE, 0.0)];
+        Ok(self.render_job(stem, kind, wrapper, layout.image_size(), declares, fog))
     }
 
     /// Record a finished render: progress, run log, the import's records.

@@ -383,6 +383,20 @@ pub struct TurnRecord {
     pub stalled: u64,
 }
 
+impl TurnRecord {
+    /// `from→to` and the seconds to the first complete frame after the junction, followed by
+    /// `unit` (`never` where none came in the turn window).
+    pub fn label(&self, unit: &str) -> String {
+        format!(
+            "{}→{} {}",
+            self.from_track,
+            self.to_track,
+            self.first_complete_after_s
+                .map_or("never".into(), |x| format!("{x:.2}{unit}"))
+        )
+    }
+}
+
 /// All runs (`walk.json`). Read back, a field the file lacks takes its default.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(default)]
@@ -678,19 +692,7 @@ pub fn summary_markdown(r: &WalkReport) -> String {
               |---|---|---|---|---|---|---|\n";
         let opt = |v: Option<f64>| v.map_or("–".to_string(), |x| format!("{x:.3}"));
         for run in &r.runs {
-            let after: Vec<String> = run
-                .turns
-                .iter()
-                .map(|t| {
-                    format!(
-                        "{}→{} {}",
-                        t.from_track,
-                        t.to_track,
-                        t.first_complete_after_s
-                            .map_or("never".into(), |x| format!("{x:.2}"))
-                    )
-                })
-                .collect();
+            let after: Vec<String> = run.turns.iter().map(|t| t.label("")).collect();
             s += &format!(
                 "| {} | {} | {} | {} | {} | {} | {} |\n",
                 run.bandwidth_bps.map_or("unlimited".into(), format_bps),

@@ -222,19 +222,7 @@ fn turns(c: &mut Ctx) {
             continue;
         };
         for r in &rep.runs {
-            let after: Vec<String> = r
-                .turns
-                .iter()
-                .map(|t| {
-                    format!(
-                        "{}→{} {}",
-                        t.from_track,
-                        t.to_track,
-                        t.first_complete_after_s
-                            .map_or("never".into(), |x| format!("{x:.2} s"))
-                    )
-                })
-                .collect();
+            let after: Vec<String> = r.turns.iter().map(|t| t.label(" s")).collect();
             rows.push(vec![
                 rep.track.clone(),
                 format!("{:.0}", rep.length_m),
