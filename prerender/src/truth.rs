@@ -37,7 +37,7 @@ pub enum TruthError {
     #[error(
         "scene `{0}` is neither a built-in scene ({names}) nor a scene file that exists here \
          (a relative path is read from the current directory)",
-        names = crate::scenes::NAMES.join(", ")
+        names = crate::scenes::names_help()
     )]
     UnknownScene(String),
     #[error("scene file {path}: {message}")]

@@ -7,6 +7,8 @@
 //!   the gate and turns through the streets, so most of the town is hidden behind walls.
 //! - `nature` ([`nature`]): open. Rolling terrain mesh, trees, rocks, far hills; track `main`
 //!   winds across a meadow.
+//! - `town-K` ([`town`]): a street grid of about K km (K from 1 to 100) with one track per
+//!   street and a junction at every crossing, for builds whose size is a parameter.
 //!
 //! Each generator builds a [`SceneDesc`], writes it as TOML (plus its `[[track]]` tables) and
 //! parses that text back, so the built-in scenes exercise exactly the format users write.
@@ -19,9 +21,30 @@ use crate::scene::{Material, Object, Scene, SceneDesc, Shape, Texture};
 
 pub mod castle;
 pub mod nature;
+pub mod town;
 
-/// Names of the built-in scenes.
+/// Names of the built-in scenes of fixed size (the towns, `town-K`, are a family; see
+/// [`names_help`]).
 pub const NAMES: [&str; 2] = ["castle", "nature"];
+
+/// The built-in scenes as a message lists them: `castle, nature, town-K (K = 1 to 100 km of
+/// street)`.
+pub fn names_help() -> String {
+    format!(
+        "{}, {}K (K = {} to {} km of street)",
+        NAMES.join(", "),
+        town::PREFIX,
+        town::KM.start(),
+        town::KM.end()
+    )
+}
+
+/// Why `name` is no built-in scene when it looks like one (a town of a size there is none
+/// of), or `None`: the message for a name such as `town-0` that a caller would otherwise take
+/// for a file name.
+pub fn name_error(name: &str) -> Option<String> {
+    town::name_error(name)
+}
 
 /// A generated scene with its tracks and the TOML text it was parsed from.
 #[derive(Debug)]
@@ -32,12 +55,12 @@ pub struct BuiltinScene {
     pub toml: String,
 }
 
-/// The built-in scene `name` (see [`NAMES`]), or `None`.
+/// The built-in scene `name` (see [`NAMES`] and [`names_help`]), or `None`.
 pub fn builtin(name: &str) -> Option<BuiltinScene> {
     let (desc, tracks) = match name {
         "castle" => castle::generate(castle::SEED),
         "nature" => nature::generate(nature::SEED),
-        _ => return None,
+        _ => town::generate(town::km_of(name)?, town::SEED),
     };
     let mut toml = format!("# Built-in scene `{name}` (generated; deterministic).\n\n");
     toml.push_str(&to_toml(&desc).expect("generators use no image textures"));
@@ -149,6 +172,15 @@ mod tests {
             assert_eq!(from_file, a.tracks);
         }
         assert!(builtin("moon").is_none());
+        assert!(builtin("town-0").is_none());
+        assert!(builtin("town-101").is_none());
+        let town = builtin("town-1").unwrap();
+        let again = Scene::parse_toml(&town.toml, "again").unwrap();
+        assert_eq!(again.desc(), town.scene.desc());
+        let from_file = crate::parse::tracks_from_scene_toml(&town.toml, "x")
+            .unwrap()
+            .unwrap();
+        assert_eq!(from_file, town.tracks);
     }
 
     #[test]

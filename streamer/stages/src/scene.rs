@@ -59,9 +59,12 @@ pub fn load_scene(spec: &str) -> Result<(Scene, Option<TrackSet>)> {
     }
     let path = Path::new(spec);
     if !path.exists() {
+        if let Some(e) = prerender::scenes::name_error(spec) {
+            return Err(parameter!("{e}"));
+        }
         return Err(parameter!(
             "scene `{spec}` is neither a built-in scene ({}) nor an existing file",
-            prerender::scenes::NAMES.join(", ")
+            prerender::scenes::names_help()
         ));
     }
     let (scene, text) = parse_scene_file(path, spec, "reading scene file")?;
