@@ -1,6 +1,6 @@
-// Stated limits on numbers that come from a database (tracks::limits, the same names and
-// values: a test of viewer::web reads this file and compares each constant with Rust's, so
-// the two cannot drift apart). Each is checked before it sizes an allocation or a loop.
+// Stated limits on numbers that come from a database (tracks::limits and db's, the same names
+// and values: a test of viewer::web reads this file and compares each constant with Rust's,
+// so the two cannot drift apart). Each is checked before it sizes an allocation or a loop.
 
 // Largest cube-map face, pixels per side.
 export const MAX_FACE_SIZE = 8192;
@@ -24,3 +24,6 @@ export const MAX_GRID_CELLS = 2 ** 26;
 export const MAX_MANIFEST_BYTES = 256 << 20;
 // Largest coordinate or arc length, metres.
 export const MAX_COORDINATE_M = 1e7;
+// Longest decoded body of a viewpoint table (db::table::MAX_TABLE_BYTES); a table object is
+// its 6-byte header and that body, gzipped only where that is smaller.
+export const MAX_TABLE_BYTES = 64 << 20;

@@ -13,9 +13,8 @@ import { Store, FetchError } from "./fetch.js";
 import { decodeTable } from "./table.js";
 import { blake3Hex } from "./blake3.js";
 import { checkManifest, visibleTiles, tileKey, projector, projectPolygon, projectPoint, arrowShape } from "./plan.js";
-import { MAX_MANIFEST_BYTES } from "./limits.js";
+import { MAX_MANIFEST_BYTES, MAX_TABLE_BYTES } from "./limits.js";
 
-const MAX_TABLE_OBJECT = 64 << 20;
 const MAX_FAULTS = 3;
 const IN_FLIGHT = 4;
 // Arrows show the ways out of the next junction once it is this near (metres along the track).
@@ -238,7 +237,7 @@ class App {
     let bytes;
     for (let attempt = 0; ; attempt++) {
       try {
-        bytes = await this.store.get(this.store.url(ref.hash), MAX_TABLE_OBJECT);
+        bytes = await this.store.get(this.store.url(ref.hash), MAX_TABLE_BYTES + 6);
         if (bytes.length !== ref.size || blake3Hex(bytes) !== ref.hash) throw new FetchError(`table of viewpoint ${v.vi}: damaged`, true);
         break;
       } catch (e) {

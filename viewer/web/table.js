@@ -4,8 +4,9 @@
 // is the Rust module's documentation. Decoding never trusts a count: each is checked
 // against the bytes left before anything is sized by it.
 
+import { MAX_TABLE_BYTES } from "./limits.js";
+
 export const TABLE_VERSION = 5;
-export const MAX_TABLE_BYTES = 64 << 20;
 const MAX_OTHER_PACKS = 1 << 16;
 const KEPT = 1;
 const HAS_PTM = 2;
