@@ -113,8 +113,10 @@ async fn the_manifest_travels_gzipped_and_is_checked() {
     let got = conn.fetch_manifest().await.unwrap();
     assert_eq!(got.top, db::split::split(&m).unwrap().0);
     assert!(got.gzip && got.checked);
-    assert_eq!(got.requests, 2);
-    assert_eq!(got.transferred_bytes, gz.len() as u64 + 65);
+    // The root and its checksum file side by side, then the index's pieces.
+    let (piece_bytes, pieces, _) = index_cost(&dir);
+    assert_eq!(got.requests, 2 + pieces);
+    assert_eq!(got.transferred_bytes, gz.len() as u64 + 65 + piece_bytes);
     assert_eq!(got.json_bytes, json.len() as u64);
     assert_eq!(stats.bytes.load(Ordering::Relaxed), got.transferred_bytes);
     let _ = stop.send(());
@@ -142,7 +144,10 @@ async fn the_manifest_travels_gzipped_and_is_checked() {
     let mut conn = Connection::new(url(addr), RetryPolicy::default(), stats);
     let got = conn.fetch_manifest().await.unwrap();
     assert!(!got.gzip && got.checked);
-    assert_eq!(got.transferred_bytes, json.len() as u64 + 65);
+    assert_eq!(
+        got.transferred_bytes,
+        json.len() as u64 + 65 + index_cost(&dir).0
+    );
     let _ = stop.send(());
     let _ = std::fs::remove_dir_all(dir);
 }
@@ -155,6 +160,8 @@ struct Fake {
     gz_body: Vec<u8>,
     /// Body sent otherwise.
     identity_body: Vec<u8>,
+    /// The database, whose objects are served as they are.
+    dir: PathBuf,
 }
 
 /// A minimal keep-alive HTTP/1.1 server answering `Fake`'s bodies (hyper's server would not
@@ -194,6 +201,11 @@ async fn fake_server(fake: Fake) -> (SocketAddr, Arc<[std::sync::atomic::AtomicU
                     } else if path == "/manifest.json" {
                         c[1].fetch_add(1, Ordering::Relaxed);
                         ("200 OK", fake.identity_body.clone(), "")
+                    } else if let Some(Ok(b)) = path
+                        .strip_prefix("/objects/")
+                        .map(|rel| std::fs::read(fake.dir.join("objects").join(rel)))
+                    {
+                        ("200 OK", b, "")
                     } else {
                         ("404 Not Found", b"no\n".to_vec(), "")
                     };
@@ -234,6 +246,7 @@ async fn a_damaged_gzip_manifest_is_never_returned() {
             hash_file: hash_file.clone(),
             gz_body,
             identity_body: json.clone(),
+            dir: dir.clone(),
         })
         .await;
         let stats = Arc::new(ClientStats::default());
@@ -257,6 +270,7 @@ async fn a_damaged_gzip_manifest_is_never_returned() {
         hash_file: hash_file.clone(),
         gz_body: gzip(&other).unwrap(),
         identity_body: other.clone(),
+        dir: dir.clone(),
     })
     .await;
     let stats = Arc::new(ClientStats::default());
@@ -275,6 +289,7 @@ async fn a_damaged_gzip_manifest_is_never_returned() {
         hash_file,
         gz_body: bomb,
         identity_body: json,
+        dir: dir.clone(),
     })
     .await;
     let policy = RetryPolicy {
@@ -320,11 +335,13 @@ async fn the_walk_counts_the_manifest() {
     for (runs, body) in [(&runs[0], gz_len), (&runs[1], json_len)] {
         for r in runs {
             // The body and the checksum file, two requests side by side (one round trip),
-            // before anything else.
-            assert_eq!(r.manifest_bytes, body + 65);
+            // then the index's pieces a level of the tree a round trip, before anything else.
+            let (piece_bytes, _, levels) = index_cost(&dir);
+            let bytes = body + 65 + piece_bytes;
+            assert_eq!(r.manifest_bytes, bytes);
             let want = match r.bandwidth_bps {
-                Some(b) => cfg.latency_s + (body + 65) as f64 * 8.0 / b as f64,
-                None => cfg.latency_s,
+                Some(b) => (1 + levels) as f64 * cfg.latency_s + bytes as f64 * 8.0 / b as f64,
+                None => (1 + levels) as f64 * cfg.latency_s,
             };
             assert!(
                 (r.manifest_s - want).abs() < 1e-9,
@@ -358,7 +375,8 @@ async fn the_walk_counts_the_manifest() {
         runs: runs[0].clone(),
         error: None,
     });
-    assert!(md.contains("manifest bytes") && md.contains(&(gz_len + 65).to_string()));
+    let with_index = gz_len + 65 + index_cost(&dir).0;
+    assert!(md.contains("manifest bytes") && md.contains(&with_index.to_string()));
     let json = serde_json::to_value(&runs[0][0]).unwrap();
     assert!(json.get("manifest_bytes").is_some() && json.get("manifest_s").is_some());
     let _ = std::fs::remove_dir_all(dir);
@@ -481,4 +499,17 @@ fn an_item_table_grown_in_any_order_equals_the_one_built_at_once() {
     };
     assert_eq!(lists(&grown), lists(&whole));
     let _ = std::fs::remove_dir_all(dir);
+}
+
+/// The index's pieces of the database in `dir`: their bytes, their number, and the levels of
+/// the tree they fill (a round trip each).
+fn index_cost(dir: &Path) -> (u64, u64, u64) {
+    let (root, _) = db::read_root(dir).unwrap();
+    let levels = root.index.levels as u64 + u64::from(root.index.root.is_some());
+    let (_, refs) = db::read_index(dir, root).unwrap();
+    (
+        refs.iter().map(|r| r.size).sum(),
+        refs.len() as u64,
+        levels,
+    )
 }

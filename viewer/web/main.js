@@ -11,6 +11,7 @@ import { Renderer } from "./render.js";
 import { Network, Walker, viewOf, sameBranch, branchWeights } from "./track.js";
 import { Store, FetchError } from "./fetch.js";
 import { decodeTable } from "./table.js";
+import { readIndex, fetchChecked, MAX_PIECE_BYTES } from "./pieces.js";
 import { blake3Hex } from "./blake3.js";
 import { checkManifest, visibleTiles, tileKey, projector, projectPolygon, projectPoint, arrowShape } from "./plan.js";
 import { MAX_MANIFEST_BYTES, MAX_TABLE_BYTES } from "./limits.js";
@@ -137,7 +138,8 @@ class App {
   async start() {
     this.mark("start");
     const bytes = await this.store.get(`${this.base}manifest.json`, MAX_MANIFEST_BYTES);
-    this.manifest = checkManifest(JSON.parse(new TextDecoder().decode(bytes)));
+    const root = JSON.parse(new TextDecoder().decode(bytes));
+    this.manifest = checkManifest(await readIndex(root, (ref) => fetchChecked(this.store, ref, MAX_PIECE_BYTES)));
     this.net = new Network(this.manifest);
     const name = q.get("track");
     let t = name === null ? 0 : this.net.trackIndex(name);

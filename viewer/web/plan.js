@@ -10,7 +10,7 @@ export const LIMITS = {
   maxTracks: L.MAX_TRACKS, maxViewpoints: L.MAX_VIEWPOINTS, maxTextBytes: L.MAX_TEXT_BYTES,
   maxGridCells: L.MAX_GRID_CELLS, maxCoord: L.MAX_COORDINATE_M,
 };
-export const FORMAT = 8;
+export const FORMAT = 9;
 const NEAR_M = 0.01;
 
 const fail = (m) => {

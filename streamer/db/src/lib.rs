@@ -50,6 +50,7 @@
 
 pub mod ach;
 pub mod baseline;
+pub mod index;
 pub mod pack;
 mod prune;
 mod read;
@@ -67,7 +68,10 @@ use tracks::manifest::{object_rel_path, LevelRef, Manifest, ObjectRef, PtmRef, V
 use codec::ptm;
 
 pub use prune::{prune, Pruned};
-pub use read::{parse_top, read_limited, read_manifest, read_tables, read_top, Database};
+pub use read::{
+    parse_root, read_index, read_limited, read_manifest, read_piece, read_pieces, read_root,
+    read_tables, read_top, Database,
+};
 pub use split::{TopManifest, ViewTable, OLDEST_READ_VERSION, TOP_VERSION};
 pub use verify::{verify, verify_with, Problem, Report, VerifyOptions};
 
@@ -202,6 +206,8 @@ pub struct DbWriter {
     /// every viewpoint's payloads lie in its own pack (and no two viewpoints' tiles share a
     /// byte range a client could tell apart only by its checksum).
     pub share_across_viewpoints: bool,
+    /// Side of the index's chunks, metres ([`index::DEFAULT_CELL_M`] unless set).
+    pub cell: f64,
     /// Temporary files of an earlier, killed writer removed on opening.
     pub leftovers_removed: Vec<PathBuf>,
     /// The directory locks held while this writer lives ([`lock_dir`]).
@@ -227,6 +233,7 @@ impl DbWriter {
             objects_reused: 0,
             payloads_shared: 0,
             share_across_viewpoints: true,
+            cell: index::DEFAULT_CELL_M,
             bytes_shared: 0,
             leftovers_removed,
             _locks: vec![lock],
@@ -365,8 +372,13 @@ impl DbWriter {
                 self.put(ach)?;
             }
         }
+        let (root, pieces) =
+            index::pieces(&top, self.cell).map_err(|e| DbError::format(&path, e))?;
+        for p in &pieces {
+            self.put(p)?;
+        }
         let mut json =
-            serde_json::to_vec(&top).map_err(|e| DbError::format(&path, e.to_string()))?;
+            serde_json::to_vec(&root).map_err(|e| DbError::format(&path, e.to_string()))?;
         json.push(b'\n');
         // Every object on the disk before the manifest that names them.
         for root in [self.stage_root().to_path_buf(), self.root.clone()] {

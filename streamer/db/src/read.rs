@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 
 use tracks::manifest::{object_rel_path, Manifest, ObjectRef, PtmRef};
 
+use crate::index::{self, RootManifest};
 use crate::split::{self, TopManifest, ViewTable, OLDEST_READ_VERSION, TOP_VERSION};
 use crate::{hash_hex, hash_matches, DbError, MANIFEST_FILE, MANIFEST_HASH_FILE};
 
@@ -201,9 +202,17 @@ pub fn read_tables(dir: &Path, top: &TopManifest) -> Result<Manifest, DbError> {
     Ok(split::assemble(top, &refs))
 }
 
-/// Reads `DIR/manifest.json` (the top manifest), checking its checksum file when present and
-/// its version.
+/// Reads `DIR/manifest.json` (the root of the index, format 9), checking its checksum file
+/// when present and its version, then every piece of the index ([`read_pieces`]): the top
+/// manifest, whole.
 pub fn read_top(dir: &Path) -> Result<TopManifest, DbError> {
+    let (root, _) = read_root(dir)?;
+    read_pieces(dir, root)
+}
+
+/// Reads and checks `DIR/manifest.json` (against its checksum file when present): the root
+/// of the index and the bytes it was parsed from.
+pub fn read_root(dir: &Path) -> Result<(RootManifest, Vec<u8>), DbError> {
     let path = dir.join(MANIFEST_FILE);
     let bytes = read_limited(&path, tracks::limits::MAX_MANIFEST_BYTES)?;
     let hash_path = dir.join(MANIFEST_HASH_FILE);
@@ -220,7 +229,51 @@ pub fn read_top(dir: &Path) -> Result<TopManifest, DbError> {
         Err(e) if e.kind() == io::ErrorKind::NotFound => {}
         Err(e) => return Err(DbError::io(&hash_path, e)),
     }
-    parse_top(&path, &bytes)
+    Ok((parse_root(&path, &bytes)?, bytes))
+}
+
+/// Every node and chunk of `root`'s index, read from `DIR/objects/` (each within
+/// [`index::MAX_PIECE_BYTES`], checked against its hash), assembled into the top manifest
+/// and checked as a whole.
+pub fn read_pieces(dir: &Path, root: RootManifest) -> Result<TopManifest, DbError> {
+    Ok(read_index(dir, root)?.0)
+}
+
+/// [`read_pieces`], with the references of the pieces read (the index's own objects).
+pub fn read_index(
+    dir: &Path,
+    root: RootManifest,
+) -> Result<(TopManifest, Vec<ObjectRef>), DbError> {
+    let path = dir.join(MANIFEST_FILE);
+    let mut refs = Vec::new();
+    let top = index::read_all(root, |r: &ObjectRef| {
+        refs.push(r.clone());
+        read_piece(dir, r)
+    })
+    .map_err(|e| DbError::format(&path, e))?;
+    Ok((top, refs))
+}
+
+/// One piece of the index from `DIR/objects/`, checked against its reference.
+pub fn read_piece(dir: &Path, r: &ObjectRef) -> Result<Vec<u8>, DbError> {
+    let rel = r
+        .rel_path()
+        .ok_or_else(|| DbError::Request(format!("invalid object hash {:?}", r.hash)))?;
+    let path = dir.join(rel);
+    let bytes = read_limited(&path, index::MAX_PIECE_BYTES)?;
+    if bytes.len() as u64 != r.size || hash_hex(&bytes) != r.hash {
+        return Err(DbError::format(
+            &path,
+            format!(
+                "{} bytes hashing to {}; the index names {} bytes hashing to {}",
+                bytes.len(),
+                hash_hex(&bytes),
+                r.size,
+                r.hash
+            ),
+        ));
+    }
+    Ok(bytes)
 }
 
 /// The bytes of `path`, refused unread when the file is larger than `limit`.
@@ -247,9 +300,9 @@ pub fn read_limited(path: &Path, limit: u64) -> Result<Vec<u8>, DbError> {
     Ok(out)
 }
 
-/// Parses top-manifest bytes read from `path` and checks the version: format 7 is read;
-/// older ones are refused with a request to rebuild the database.
-pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
+/// Parses root bytes read from `path` (`manifest.json`) and checks the version and the
+/// limits: format 9 is read; older ones are refused with a request to rebuild the database.
+pub fn parse_root(path: &Path, bytes: &[u8]) -> Result<RootManifest, DbError> {
     #[derive(serde::Deserialize)]
     struct Version {
         version: u32,
@@ -258,9 +311,9 @@ pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
         .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
     if !(OLDEST_READ_VERSION..=TOP_VERSION).contains(&v.version) {
         let hint = if v.version < OLDEST_READ_VERSION {
-            " (format 8 holds the graph of a network of tracks: viewpoints once, each track's \
-             stops, the junctions): rebuild the database with `railview build` (it resumes \
-             from its work directory and re-encodes only)"
+            " (format 9 keeps the graph of tracks in spatial chunks reached through a small \
+             root, so that a client reads only what is near): rebuild the database with \
+             `railview build` (it resumes from its work directory and re-encodes only)"
         } else {
             ""
         };
@@ -277,11 +330,5 @@ pub fn parse_top(path: &Path, bytes: &[u8]) -> Result<TopManifest, DbError> {
             ),
         ));
     }
-    let top: TopManifest = serde_json::from_slice(bytes)
-        .map_err(|e| DbError::format(path, format!("line {}: {e}", e.line())))?;
-    top.check_limits()
-        .map_err(|e| DbError::format(path, format!("{e} (limits of this build)")))?;
-    top.network()
-        .map_err(|e| DbError::format(path, format!("the graph of tracks: {e}")))?;
-    Ok(top)
+    index::parse_root(bytes).map_err(|e| DbError::format(path, e))
 }

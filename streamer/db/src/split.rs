@@ -38,12 +38,14 @@ use tracks::{SlabRange, TrackSet};
 /// once — a table may name ranges of earlier viewpoints' packs; 7: the layout of 6, meshes of
 /// format 4 — pixel quads coded apart, so no mesh of a slab stage falls back to the plain
 /// layout; 8: a network — the viewpoints once, each track its stops (viewpoint ids and arc
-/// lengths), the junctions where tracks share a viewpoint).
-pub const TOP_VERSION: u32 = 8;
+/// lengths), the junctions where tracks share a viewpoint; 9: the graph of 8 in pieces —
+/// `manifest.json` a small root, the viewpoints, stops and junctions in spatial chunks
+/// reached through a quadtree of node objects, [`super::index`]).
+pub const TOP_VERSION: u32 = 9;
 
-/// The oldest format this crate reads: format 8 holds the graph of tracks, so older
+/// The oldest format this crate reads: format 9 keeps the graph in pieces, so older
 /// databases are refused with a request to rebuild them.
-pub const OLDEST_READ_VERSION: u32 = 8;
+pub const OLDEST_READ_VERSION: u32 = 9;
 
 pub use super::table::{
     decode_ach, decode_table, encode_ach, encode_table, TableError, MAX_TABLE_BYTES,

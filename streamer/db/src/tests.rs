@@ -139,9 +139,10 @@ fn all_files(dir: &Path) -> Vec<PathBuf> {
 fn write_open_read_levels() {
     let dir = tmpdir("rw");
     let (m, w) = build(&dir);
-    // 4 tile PTMs, 2 background tiles, 4 meshes, 2 packs, 2 viewpoint tables and the ACH
-    // object of viewpoint 0 (the one segment starts there), all distinct.
-    assert_eq!(w.objects_written, 15);
+    // 4 tile PTMs, 2 background tiles, 4 meshes, 2 packs, 2 viewpoint tables, the ACH
+    // object of viewpoint 0 (the one segment starts there) and the index's one chunk, all
+    // distinct.
+    assert_eq!(w.objects_written, 16);
     drop(w); // a second writer waits for the first to end
     let db = Database::open(&dir).unwrap();
     assert_eq!(db.manifest(), &m);
@@ -174,7 +175,7 @@ fn write_open_read_levels() {
     assert!(db.object_path("../../etc/passwd").is_none());
     // Rebuilding reuses every object (resume).
     let (_, w2) = build(&dir);
-    assert_eq!((w2.objects_written, w2.objects_reused), (0, 15));
+    assert_eq!((w2.objects_written, w2.objects_reused), (0, 16));
     let r = verify(&dir).unwrap();
     assert!(r.is_intact(), "{r:?}");
     assert_eq!(
@@ -184,7 +185,8 @@ fn write_open_read_levels() {
             r.level_ranges_checked,
             r.tables_checked
         ),
-        (2 + 2 + 1, 15, r.level_ranges_checked, 2)
+        // Two packs, two tables, one ACH object, one chunk of the index.
+        (2 + 2 + 1 + 1, 16, r.level_ranges_checked, 2)
     );
     // At least one range per background tile, every tile's mesh and one PTM range.
     assert!(r.level_ranges_checked >= 2 + 4 * 2);
@@ -238,7 +240,7 @@ fn a_flipped_byte_in_any_file_is_caught_and_named() {
     let dir = tmpdir("flip");
     build(&dir);
     let files = all_files(&dir);
-    assert_eq!(files.len(), 18);
+    assert_eq!(files.len(), 19);
     assert!(files.contains(&dir.join(MANIFEST_GZ_FILE)));
     for f in &files {
         let orig = fs::read(f).unwrap();
@@ -437,15 +439,7 @@ fn a_table_that_does_not_decode_is_reported() {
     let junk = w.put(&gzip(b"{\"not\":\"a table\"}").unwrap()).unwrap();
     let (mut top, _) = split::split(&m).unwrap();
     top.viewpoints[0].table = junk.clone();
-    let mut json = serde_json::to_vec(&top).unwrap();
-    json.push(b'\n');
-    write_atomic(&dir.join(MANIFEST_FILE), &json).unwrap();
-    write_atomic(
-        &dir.join(MANIFEST_HASH_FILE),
-        format!("{}\n", hash_hex(&json)).as_bytes(),
-    )
-    .unwrap();
-    write_atomic(&dir.join(MANIFEST_GZ_FILE), &gzip(&json).unwrap()).unwrap();
+    write_index(&mut w, &top);
     let r = verify(&dir).unwrap();
     let junk_path = dir.join(junk.rel_path().unwrap());
     assert!(
@@ -562,9 +556,9 @@ fn older_and_newer_formats_are_refused_with_what_to_do() {
         let _ = fs::remove_file(dir.join(format!("{MANIFEST_FILE}.gz")));
     };
     // Formats 4 and 5 (PTMs of format 2, uncompressed meshes, a payload in every pack that
-    // uses it) and 6 (meshes of format 2): rebuild.
+    // uses it), 6 (meshes of format 2) and 8 (the whole graph in manifest.json): rebuild.
     let mut top = db.top().clone();
-    for old in [4, 5, 6] {
+    for old in [4, 5, 6, 8] {
         top.version = old;
         write_top(&top);
         let err = Database::open(&dir).unwrap_err().to_string();
@@ -813,4 +807,23 @@ fn verify_checks_the_site_files_beside_a_database() {
     assert!(r.is_intact());
     assert!(r.notes.iter().any(|n| n.path.ends_with("main.js")));
     let _ = fs::remove_dir_all(&dir);
+}
+
+/// Writes `top` as the database's index (its pieces as objects, the root with its checksum
+/// file and gzip copy), as [`DbWriter::finish`] does.
+pub(crate) fn write_index(w: &mut DbWriter, top: &TopManifest) {
+    let (root, pieces) = crate::index::pieces(top, w.cell).unwrap();
+    for p in &pieces {
+        w.put(p).unwrap();
+    }
+    let mut json = serde_json::to_vec(&root).unwrap();
+    json.push(b'\n');
+    let dir = w.root().to_path_buf();
+    write_atomic(&dir.join(MANIFEST_FILE), &json).unwrap();
+    write_atomic(
+        &dir.join(MANIFEST_HASH_FILE),
+        format!("{}\n", hash_hex(&json)).as_bytes(),
+    )
+    .unwrap();
+    write_atomic(&dir.join(MANIFEST_GZ_FILE), &gzip(&json).unwrap()).unwrap();
 }

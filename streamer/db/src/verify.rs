@@ -8,7 +8,7 @@ use tracks::manifest::{object_rel_path, Manifest, ObjectRef, PackRange, PtmRef, 
 
 use super::split::{assemble, decode_ach, decode_table, TopManifest, ViewTable};
 use super::{
-    gunzip_limited, gzip, hash_hex, hash_matches, parse_top, DbError, MANIFEST_FILE,
+    gunzip_limited, gzip, hash_hex, hash_matches, parse_root, DbError, MANIFEST_FILE,
     MANIFEST_GZ_FILE, MANIFEST_HASH_FILE,
 };
 use codec::ptm;
@@ -90,7 +90,10 @@ pub fn verify(dir: &Path) -> Result<Report, DbError> {
 pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
     let mut report = Report::default();
     check_top_dir(dir, opts.site, &mut report)?;
-    let top = read_top_checked(dir, &mut report);
+    let (top, pieces) = match read_top_checked(dir, &mut report) {
+        Some((top, pieces)) => (Some(top), pieces),
+        None => (None, Vec::new()),
+    };
     let decode = opts.decode.then(|| {
         top.as_ref()
             .is_some_and(|t| t.coarse_levels_premultiplied())
@@ -103,6 +106,7 @@ pub fn verify_with(dir: &Path, opts: VerifyOptions) -> Result<Report, DbError> {
         let refs: Vec<Option<&ViewTable>> = tables.iter().map(|t| t.as_ref()).collect();
         assemble(top, &refs)
     });
+    let table_refs: Vec<ObjectRef> = pieces.into_iter().chain(table_refs).collect();
     let wanted = wanted_objects(dir, &table_refs, manifest.as_ref(), &mut report);
     check_objects(dir, &wanted, decode, &mut report);
     remove_stray(dir, opts, &mut report);
@@ -139,8 +143,9 @@ fn check_top_dir(dir: &Path, site: &[(&str, &[u8])], report: &mut Report) -> Res
     Ok(())
 }
 
-/// The top manifest, its gzip copy and its checksum file: the top when it parses.
-fn read_top_checked(dir: &Path, report: &mut Report) -> Option<TopManifest> {
+/// The root, its gzip copy and its checksum file, and every piece of the index: the top
+/// manifest when all of it reads, with the pieces' references.
+fn read_top_checked(dir: &Path, report: &mut Report) -> Option<(TopManifest, Vec<ObjectRef>)> {
     let manifest_path = dir.join(MANIFEST_FILE);
     let hash_path = dir.join(MANIFEST_HASH_FILE);
     let manifest_bytes = fs::read(&manifest_path);
@@ -178,12 +183,28 @@ fn read_top_checked(dir: &Path, report: &mut Report) -> Option<TopManifest> {
             }
         }
     }
-    match parse_top(&manifest_path, &bytes) {
-        Ok(top) => Some(top),
+    let root = match parse_root(&manifest_path, &bytes) {
+        Ok(root) => root,
         Err(e) => {
             report
                 .problems
                 .push(problem(manifest_path.clone(), strip_path(&e)));
+            return None;
+        }
+    };
+    // The pieces of the index: each one read is referenced; a bad one is named by its file.
+    let mut pieces: Vec<ObjectRef> = Vec::new();
+    let mut failed: Option<PathBuf> = None;
+    let got = super::index::read_all(root, |r: &ObjectRef| {
+        pieces.push(r.clone());
+        let at = r.rel_path().map(|rel| dir.join(rel));
+        super::read_piece(dir, r).inspect_err(|_| failed = at)
+    });
+    match got {
+        Ok(top) => Some((top, pieces)),
+        Err(e) => {
+            let path = failed.unwrap_or(manifest_path);
+            report.problems.push(problem(path, e));
             None
         }
     }

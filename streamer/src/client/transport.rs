@@ -282,15 +282,26 @@ impl LocalDir {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
             Err(e) => return Err(self.io(&hash_path, e)),
         };
-        let top = db::parse_top(&path, &json).map_err(|e| ClientError::Manifest(e.to_string()))?;
-        self.stats.requests.fetch_add(1, Ordering::Relaxed);
+        let root =
+            db::parse_root(&path, &json).map_err(|e| ClientError::Manifest(e.to_string()))?;
+        // The pieces of the index, each counted as a request of its size.
+        let mut piece_bytes = 0u64;
+        let mut pieces = 0u64;
+        let top = db::index::read_all(root, |r: &tracks::manifest::ObjectRef| {
+            let b = db::read_piece(&self.root, r)?;
+            piece_bytes += b.len() as u64;
+            pieces += 1;
+            Ok::<_, db::DbError>(b)
+        })
+        .map_err(|e| ClientError::Manifest(format!("{}: {e}", path.display())))?;
+        self.stats.requests.fetch_add(1 + pieces, Ordering::Relaxed);
         self.stats
             .bytes
-            .fetch_add(json.len() as u64, Ordering::Relaxed);
+            .fetch_add(json.len() as u64 + piece_bytes, Ordering::Relaxed);
         Ok(ManifestFetch {
             top,
-            transferred_bytes: json.len() as u64,
-            requests: 1,
+            transferred_bytes: json.len() as u64 + piece_bytes,
+            requests: 1 + pieces,
             round_trips: 1,
             json_bytes: json.len() as u64,
             gzip: false,

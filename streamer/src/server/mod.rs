@@ -295,17 +295,12 @@ impl ServedDb {
             root: root.to_path_buf(),
             error,
         };
-        let top = db::read_top(root).map_err(err)?;
+        // The bytes served are the bytes checked.
+        let (root_manifest, raw) = db::read_root(root).map_err(err)?;
+        let (top, pieces) = db::read_index(root, root_manifest).map_err(err)?;
         let manifest: Manifest = db::read_tables(root, &top).map_err(err)?;
-        // The bytes served are the bytes checked (re-read: the reader does not return them).
-        let raw = db::read_limited(&path, tracks::limits::MAX_MANIFEST_BYTES).map_err(err)?;
-        if db::parse_top(&path, &raw).ok().as_ref() != Some(&top) {
-            return Err(ServerError::Manifest {
-                path,
-                message: "changed while it was being opened".into(),
-            });
-        }
         let mut objects = manifest_objects(&manifest);
+        objects.extend(pieces.into_iter().map(|r| r.hash));
         objects.extend(top.viewpoints.iter().map(|v| v.table.hash.clone()));
         objects.extend(
             top.viewpoints

@@ -29,6 +29,35 @@ pub struct ManifestFetch {
 }
 
 impl Connection {
+    /// Every piece of the index under `root` ([`db::index`]), level by level, each
+    /// hash-checked, assembled into the top manifest: the top, the levels fetched (round
+    /// trips) and the pieces.
+    pub async fn fetch_index(
+        &mut self,
+        root: db::index::RootManifest,
+    ) -> Result<(TopManifest, u64, u64), ClientError> {
+        let mut walk = db::index::TreeWalk::new(root);
+        let mut levels = 0;
+        loop {
+            let batch = walk.next_batch();
+            if batch.is_empty() {
+                break;
+            }
+            levels += 1;
+            for (at, r) in batch {
+                let key = FetchKey {
+                    object: r.hash.as_str().into(),
+                    range: None,
+                };
+                let bytes = self.fetch_checked(&key, &r.hash, None).await?;
+                walk.give(&at, &r, &bytes).map_err(ClientError::Manifest)?;
+            }
+        }
+        let pieces = walk.pieces() as u64;
+        let top = walk.finish().map_err(ClientError::Manifest)?;
+        Ok((top, levels, pieces))
+    }
+
     /// The whole manifest: the top ([`Connection::fetch_manifest`]) and every viewpoint's
     /// table ([`Connection::fetch_table`]) and ACH object ([`Connection::fetch_ach`]),
     /// assembled (for tools that want everything at once; a viewer fetches tables as it
@@ -165,13 +194,16 @@ impl Connection {
                     continue;
                 }
             }
-            let top = db::parse_top(std::path::Path::new("manifest.json"), &json)
+            let root = db::parse_root(std::path::Path::new("manifest.json"), &json)
                 .map_err(|e| ClientError::Manifest(e.to_string()))?;
+            let before = self.stats.bytes.load(Ordering::Relaxed);
+            let (top, levels, pieces) = self.fetch_index(root).await?;
+            transferred += self.stats.bytes.load(Ordering::Relaxed) - before;
             return Ok(ManifestFetch {
                 top,
                 transferred_bytes: transferred,
-                requests,
-                round_trips,
+                requests: requests + pieces,
+                round_trips: round_trips + levels,
                 json_bytes: json.len() as u64,
                 gzip,
                 checked: expected.is_some(),
