@@ -507,9 +507,5 @@ fn index_cost(dir: &Path) -> (u64, u64, u64) {
     let (root, _) = db::read_root(dir).unwrap();
     let levels = root.index.levels as u64 + u64::from(root.index.root.is_some());
     let (_, refs) = db::read_index(dir, root).unwrap();
-    (
-        refs.iter().map(|r| r.size).sum(),
-        refs.len() as u64,
-        levels,
-    )
+    (refs.iter().map(|r| r.size).sum(), refs.len() as u64, levels)
 }
