@@ -25,6 +25,7 @@ pub const SITE: &[SiteFile] = site!(
     "render.js",
     "plan.js",
     "track.js",
+    "pieces.js",
     "limits.js",
     "fetch.js",
     "worker.js",
@@ -204,6 +205,12 @@ mod tests {
             ("ptm.js", "maxSide", ptm.max_side as f64),
             ("ptm.js", "maxDecodedBytes", ptm.max_decoded_bytes as f64),
             ("ptm.js", "MAX_NEAR", codec::ptm::MAX_NEAR as f64),
+            (
+                "pieces.js",
+                "MAX_PIECE_BYTES",
+                db::index::MAX_PIECE_BYTES as f64,
+            ),
+            ("pieces.js", "MAX_LEVELS", db::index::MAX_LEVELS as f64),
             (
                 "table.js",
                 "MAX_OTHER_PACKS",
