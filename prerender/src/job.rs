@@ -323,26 +323,32 @@ pub fn logged_work(
     complete: &[SampleMeta],
     layers: &[(usize, Vec<SlabRange>)],
 ) -> Result<LoggedWork, StoreError> {
-    use std::collections::BTreeMap;
+    use std::collections::{BTreeMap, BTreeSet};
     let (runs, warnings) = read_runs(dir.root())?;
+    // Looked up once per logged event: sets, not scans (a city logs 10⁵ samples).
+    let complete_keys: BTreeSet<(usize, u32, u32)> = complete
+        .iter()
+        .map(|m| (m.index, m.face_size, m.lowres_face_size))
+        .collect();
+    let mut layers_of: BTreeMap<usize, Vec<&Vec<SlabRange>>> = BTreeMap::new();
+    for (i, s) in layers {
+        layers_of.entry(*i).or_default().push(s);
+    }
     // Latest timing per sample: runs are oldest first, events in order, so later ones win.
     let mut base: BTreeMap<usize, Attributed<'_>> = BTreeMap::new();
     let mut layer_time: BTreeMap<usize, f64> = BTreeMap::new();
     for run in &runs {
         for e in &run.events {
             match e {
-                RunEvent::Sample(t) => {
-                    let matches = complete.iter().any(|m| {
-                        m.index == t.index
-                            && m.face_size == t.face_size
-                            && m.lowres_face_size == t.lowres_face_size
-                    });
-                    if matches {
-                        base.insert(t.index, (run.start.shard, run.start.host.as_str(), t));
-                    }
+                RunEvent::Sample(t)
+                    if complete_keys.contains(&(t.index, t.face_size, t.lowres_face_size)) =>
+                {
+                    base.insert(t.index, (run.start.shard, run.start.host.as_str(), t));
                 }
                 RunEvent::Layers(t)
-                    if layers.iter().any(|(i, s)| *i == t.index && *s == t.slabs) =>
+                    if layers_of
+                        .get(&t.index)
+                        .is_some_and(|l| l.iter().any(|s| **s == t.slabs)) =>
                 {
                     layer_time.insert(t.index, t.seconds);
                 }
@@ -407,10 +413,11 @@ pub fn write_report(
         .filter(|v| sample_is_complete(dir, v, input.face_size, input.lowres_face_size))
         .filter_map(|v| dir.sample_meta(v.index))
         .collect();
+    let complete: std::collections::BTreeSet<usize> = metas.iter().map(|m| m.index).collect();
     let missing: Vec<usize> = input
         .viewpoints
         .iter()
-        .filter(|v| !metas.iter().any(|m| m.index == v.index))
+        .filter(|v| !complete.contains(&v.index))
         .map(|v| v.index)
         .collect();
     let layers: Vec<(usize, Vec<SlabRange>)> = if input.slabs.is_empty() {

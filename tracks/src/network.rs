@@ -104,11 +104,15 @@ pub struct Network {
     pub stops: Vec<Vec<Stop>>,
     /// Every segment, track by track.
     pub segments: Vec<Segment>,
+    /// In order of viewpoint id (read it; [`Network::junction_at`] looks it up by an index
+    /// made with it).
     pub junctions: Vec<Junction>,
     /// Per viewpoint, the segments that touch it.
     incident: Vec<Vec<usize>>,
     /// Per track, the id of its first segment.
     first_segment: Vec<usize>,
+    /// Per viewpoint, its index in `junctions` if it is one.
+    junction_of: Vec<Option<usize>>,
 }
 
 /// A point two or more tracks share: where it is and at which arc length of each track.
@@ -298,23 +302,23 @@ impl Network {
             }
         }
         // A junction: a viewpoint more than one track stops at, or one a track stops at twice.
+        // Every stop's (track, position) listed under its viewpoint, tracks and stops in order.
+        let mut visits_of: Vec<Vec<(usize, usize)>> = vec![Vec::new(); viewpoints.len()];
+        for (ti, st) in stops.iter().enumerate() {
+            for (k, x) in st.iter().enumerate() {
+                if let Some(v) = visits_of.get_mut(x.viewpoint) {
+                    v.push((ti, k));
+                }
+            }
+        }
         let mut junctions = Vec::new();
-        for v in 0..viewpoints.len() {
-            let visits: Vec<(usize, usize)> = stops
-                .iter()
-                .enumerate()
-                .flat_map(|(ti, st)| {
-                    st.iter()
-                        .enumerate()
-                        .filter(move |(_, x)| x.viewpoint == v)
-                        .map(move |(k, _)| (ti, k))
-                })
-                .collect();
+        let mut junction_of = vec![None; viewpoints.len()];
+        for (v, visits) in visits_of.iter().enumerate() {
             if visits.len() < 2 {
                 continue;
             }
             let mut branches = Vec::new();
-            for &(ti, k) in &visits {
+            for &(ti, k) in visits {
                 let first = first_segment[ti];
                 if k > 0 {
                     branches.push(Branch {
@@ -333,6 +337,7 @@ impl Network {
                     });
                 }
             }
+            junction_of[v] = Some(junctions.len());
             junctions.push(Junction {
                 viewpoint: v,
                 branches,
@@ -346,6 +351,7 @@ impl Network {
             junctions,
             incident,
             first_segment,
+            junction_of,
         }
     }
 
@@ -377,7 +383,8 @@ impl Network {
 
     /// The junction at viewpoint `v`, if it is one.
     pub fn junction_at(&self, v: usize) -> Option<&Junction> {
-        self.junctions.iter().find(|j| j.viewpoint == v)
+        let k = self.junction_of.get(v).copied().flatten()?;
+        self.junctions.get(k).filter(|j| j.viewpoint == v)
     }
 
     /// The neighbours of viewpoint `v` along the network's segments.

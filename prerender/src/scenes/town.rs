@@ -2,12 +2,14 @@
 //!
 //! A square grid of `n × n` straight streets, `pitch` metres apart, chosen so that the streets
 //! add up to K km (`2 n (n − 1) pitch = 1000 K`, the pitch between 60 and 100 m). Each block
-//! between four streets is a raised pavement with a ring of buildings of varied frontages,
-//! depths, heights and facades around an open courtyard; lamp posts (thin occluders) line the
-//! pavements and a few trees stand on them. One track per street: `ew-J` runs east along
-//! `z = J · pitch`, `ns-I` north along `x = I · pitch`; every crossing is a control point of
-//! both, so the `n²` crossings are the network's junctions ([`tracks::network`]). Viewpoints
-//! are about a metre apart (never more than [`tracks::limits::MAX_VIEWPOINTS`] in all).
+//! between four streets, and each of a ring of blocks around the grid (so that the outer
+//! streets are lined on both sides too), is a raised pavement with a ring of buildings of
+//! varied frontages, depths, heights and facades around an open courtyard; lamp posts (thin
+//! occluders) line the pavements and a few trees stand on them. One track per street: `ew-J`
+//! runs east along `z = J · pitch`, `ns-I` north along `x = I · pitch`; every crossing is a
+//! control point of both, so the `n²` crossings are the network's junctions
+//! ([`tracks::network`]). Viewpoints are about a metre apart (never more than
+//! [`tracks::limits::MAX_VIEWPOINTS`] in all).
 
 use glam::DVec3;
 use tracks::limits::MAX_VIEWPOINTS;
@@ -110,8 +112,9 @@ impl Grid {
         self.pitch / self.per_block as f64
     }
 
-    /// Where street `i` runs (its x for `ns-i`, its z for `ew-i`).
-    fn at(&self, i: usize) -> f64 {
+    /// Where street `i` runs (its x for `ns-i`, its z for `ew-i`; −1 and `n` are the far
+    /// sides of the ring of blocks around the town).
+    fn at(&self, i: i64) -> f64 {
         i as f64 * self.pitch
     }
 }
@@ -134,8 +137,12 @@ pub fn generate(km: u32, seed: u64) -> (SceneDesc, TrackSet) {
         },
         m.asphalt,
     );
-    for bi in 0..g.streets - 1 {
-        for bj in 0..g.streets - 1 {
+    // The blocks between the streets and a ring of blocks around them, so that the outer
+    // streets are lined on both sides like every other (and the cost of a view does not
+    // depend on how much of the town lies at its edge).
+    let n = g.streets as i64;
+    for bi in -1..n {
+        for bj in -1..n {
             let (x0, z0) = (g.at(bi), g.at(bj));
             block(&mut b, &mut rng, &m, [x0, x0 + g.pitch], [z0, z0 + g.pitch]);
         }
@@ -330,7 +337,7 @@ fn tree(b: &mut Builder, rng: &mut Rng, m: &Palette, base: DVec3) {
 fn tracks(g: &Grid, km: u32) -> Vec<Track> {
     let source = format!("builtin:{PREFIX}{km}");
     let street = |name: String, at: &dyn Fn(f64) -> DVec3| {
-        let points = (0..g.streets).map(|k| at(g.at(k))).collect();
+        let points = (0..g.streets as i64).map(|k| at(g.at(k))).collect();
         Track::new(
             &name,
             points,
@@ -342,11 +349,11 @@ fn tracks(g: &Grid, km: u32) -> Vec<Track> {
     };
     let mut out = Vec::with_capacity(2 * g.streets);
     for j in 0..g.streets {
-        let z = g.at(j);
+        let z = g.at(j as i64);
         out.push(street(format!("ew-{j}"), &|x| DVec3::new(x, EYE, z)));
     }
     for i in 0..g.streets {
-        let x = g.at(i);
+        let x = g.at(i as i64);
         out.push(street(format!("ns-{i}"), &|z| DVec3::new(x, EYE, z)));
     }
     out
@@ -403,6 +410,10 @@ mod tests {
             let fours = net.junctions.iter().filter(|j| j.branches.len() == 4);
             assert_eq!(fours.count(), (n - 2) * (n - 2), "{km}");
             assert_eq!(net.viewpoints.len(), g.viewpoints(), "{km}");
+            let at_junctions = (0..net.viewpoints.len())
+                .filter(|&v| net.junction_at(v).is_some_and(|j| j.viewpoint == v))
+                .count();
+            assert_eq!(at_junctions, n * n, "{km}");
             assert!(net.viewpoints.len() >= 1000 * km as usize, "{km}");
         }
     }
