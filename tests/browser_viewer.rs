@@ -1128,3 +1128,168 @@ fn browser_frames_match_railview_render_through_thin_occluders() {
         assert_matches_native(&web, &nat, &format!("street view {view:?}"));
     }
 }
+
+/// `scenes/pov/analytic.pov` imported through POV-Ray along `scenes/pov/analytic-walk.toml`
+/// (three 2 m segments past its spheres and box, the sky above them) at face 32 (built once
+/// per test binary, ~20 s).
+fn pov_walk() -> &'static Path {
+    static DB: OnceLock<PathBuf> = OnceLock::new();
+    DB.get_or_init(|| {
+        let dir = scratch_dir("browser", "pov-walk");
+        let db = dir.join("site").join("analytic");
+        let repo = |rel: &str| Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
+        let o = railview(&[
+            "build",
+            "--pov",
+            repo("scenes/pov/analytic.pov").to_str().unwrap(),
+            "--track",
+            repo("scenes/pov/analytic-walk.toml").to_str().unwrap(),
+            "--up",
+            "y",
+            "--face-size",
+            "32",
+            "--out",
+            db.to_str().unwrap(),
+            "--work",
+            dir.join("work").to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        db
+    })
+}
+
+/// Issue 44's three scene kinds: a built-in scene (the castle), a scene file with thin
+/// occluders against the sky (the street) and a POV-Ray import.
+fn scene_kinds() -> [(&'static str, &'static Path); 3] {
+    [
+        ("castle", castle()),
+        ("street", street()),
+        ("pov-analytic", pov_walk()),
+    ]
+}
+
+/// `n` of the views `railview eval` evaluates `db` on (`viewer::eval::stage::chosen_views`
+/// with eval's defaults, thinned by `viewer::eval::spread`: half at samples, half between,
+/// along the whole track, every direction), as `(at, yaw, pitch, fov)`.
+fn eval_chosen_views(db: &Path, n: usize) -> Vec<(f64, f64, f64, f64)> {
+    use viewer::eval::{spread, stage};
+    let params = stage::EvalParams::new(db.to_str().unwrap(), scratch_dir("browser", "eval"));
+    let all = stage::chosen_views(&params).unwrap_or_else(|e| panic!("{}: {e}", db.display()));
+    let views: Vec<_> = spread(&all, n)
+        .iter()
+        .map(|v| (v.s, v.yaw_deg, v.pitch_deg, params.fov_deg))
+        .collect();
+    assert_eq!(
+        views.len(),
+        n,
+        "{}: eval chose {} views",
+        db.display(),
+        all.len()
+    );
+    views
+}
+
+/// A camera `(at, yaw, pitch, fov)` with its PSNR against `railview render` and the share of
+/// pixels whose hole flag differs.
+type ViewFidelity = ((f64, f64, f64, f64), f64, f64);
+
+/// One scene kind's comparison: each view's fidelity, and the time it took.
+struct KindFidelity {
+    kind: &'static str,
+    views: Vec<ViewFidelity>,
+    wall: Duration,
+}
+
+impl KindFidelity {
+    fn psnrs(&self) -> Vec<f64> {
+        let mut p: Vec<f64> = self.views.iter().map(|v| v.1).collect();
+        p.sort_by(f64::total_cmp);
+        p
+    }
+
+    fn summary(&self) -> String {
+        let p = self.psnrs();
+        format!(
+            "{}: {} views, min {:.2} dB, median {:.2} dB, worst hole disagreement {:.4} %, {:.0} s",
+            self.kind,
+            p.len(),
+            p[0],
+            p[p.len() / 2],
+            self.views.iter().map(|v| v.2).fold(0.0, f64::max) * 100.0,
+            self.wall.as_secs_f64()
+        )
+    }
+}
+
+/// The browser against `railview render` on `n` eval-chosen views of each scene kind.
+fn fidelity_on_eval_chosen_views(n: usize) -> Vec<KindFidelity> {
+    scene_kinds()
+        .iter()
+        .map(|&(kind, db)| {
+            let start = std::time::Instant::now();
+            let views = eval_chosen_views(db, n);
+            let server = serve(db, &[]);
+            let out = scratch_dir("browser", &format!("eval-views-{kind}"));
+            let views = views
+                .iter()
+                .enumerate()
+                .map(|(i, &view)| {
+                    let web = browse(&server.url, view, &format!("eval-{kind}-{i}"));
+                    let nat = native(db, view, &out.join(format!("native-{i}.png")));
+                    let (psnr, holes) = compare(&web, &nat);
+                    eprintln!(
+                        "{kind} {view:?}: {psnr:.2} dB, hole masks differ at {:.4} %",
+                        holes * 100.0
+                    );
+                    (view, psnr, holes)
+                })
+                .collect();
+            let k = KindFidelity {
+                kind,
+                views,
+                wall: start.elapsed(),
+            };
+            eprintln!("{}", k.summary());
+            k
+        })
+        .collect()
+}
+
+/// Every view of every kind within the fidelity of issue 36.
+fn assert_fidelity(kinds: &[KindFidelity]) {
+    for k in kinds {
+        for &(view, psnr, holes) in &k.views {
+            assert!(
+                psnr >= MIN_PSNR_DB && holes <= MAX_HOLE_DISAGREEMENT,
+                "{} view {view:?}: {psnr:.2} dB against railview render (at least \
+                 {MIN_PSNR_DB}), hole masks differ at {:.3} % of pixels",
+                k.kind,
+                holes * 100.0
+            );
+        }
+    }
+}
+
+/// Issue 44: the two renderers on views eval chooses, not hand-picked ones, on the three
+/// scene kinds: 8 of each kind's (4 at samples, 4 between), every direction.
+/// `measure_fidelity_on_eval_chosen_views` takes 24 of each.
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+fn browser_frames_match_railview_render_on_eval_chosen_views() {
+    assert_fidelity(&fidelity_on_eval_chosen_views(8));
+}
+
+/// Issue 44's fidelity measurement (BENCHMARKS.md): 24 eval-chosen views of each scene kind
+/// (12 at samples, 12 between), min and median PSNR per kind and the time each took.
+#[test]
+#[ignore = "a measurement: cargo test --release --test browser_viewer -- --ignored --nocapture measure_fidelity"]
+fn measure_fidelity_on_eval_chosen_views() {
+    let kinds = fidelity_on_eval_chosen_views(24);
+    for k in &kinds {
+        println!("{}", k.summary());
+    }
+    assert_fidelity(&kinds);
+}

@@ -354,6 +354,48 @@ pub fn views_at_samples(walk: &Walkthrough, spec: &ViewSpec) -> Vec<EvalView> {
         .collect()
 }
 
+/// `n` of `views` spread along the track: half of them (rounded up) from the views at
+/// samples and the rest from those between (all of them when there are no more than `n`).
+/// Within each half the positions share its views evenly (each position `⌊k/P⌋` or `⌈k/P⌉`
+/// of them, those with one spread along the track when there are fewer views than
+/// positions), and the directions rotate from one pick to the next. A view set of
+/// [`stage::chosen_views`] thinned to what a slower comparison can afford, still along the
+/// whole track, in every direction, at and between samples.
+pub fn spread(views: &[EvalView], n: usize) -> Vec<EvalView> {
+    if views.len() <= n {
+        return views.to_vec();
+    }
+    let (at, between): (Vec<EvalView>, Vec<EvalView>) = views.iter().partition(|v| v.at_reference);
+    let want_between = (n / 2).min(between.len());
+    let want_at = (n - want_between).min(at.len());
+    let want_between = (n - want_at).min(between.len());
+    let mut out = spread_positions(&at, want_at);
+    out.extend(spread_positions(&between, want_between));
+    out
+}
+
+/// `k` of `part` (views in order, those of one position together), as [`spread`] shares
+/// them out.
+fn spread_positions(part: &[EvalView], k: usize) -> Vec<EvalView> {
+    let mut groups: Vec<&[EvalView]> = Vec::new();
+    let mut from = 0;
+    for i in 1..=part.len() {
+        let same = |a: &EvalView, b: &EvalView| a.track == b.track && a.s == b.s;
+        if i == part.len() || !same(&part[i], &part[from]) {
+            groups.push(&part[from..i]);
+            from = i;
+        }
+    }
+    let g = groups.len();
+    let mut out = Vec::with_capacity(k);
+    for (p, group) in groups.iter().enumerate() {
+        let count = ((p + 1) * k / g - p * k / g).min(group.len());
+        let offset = out.len();
+        out.extend((0..count).map(|j| group[(offset + j) % group.len()]));
+    }
+    out
+}
+
 /// Mark the views that lie at one of `walk`'s samples (within a millimetre).
 pub fn mark_references(walk: &Walkthrough, views: &mut [EvalView]) {
     let (_, arcs) = walk.order_and_arcs();
@@ -792,6 +834,38 @@ mod tests {
         let at = views_at_samples(&w, &spec);
         assert_eq!(at.len(), arcs.len() * 8);
         assert!(at.iter().all(|x| x.at_reference));
+    }
+
+    #[test]
+    fn a_spread_keeps_every_part_of_the_track_and_every_direction() {
+        let w = synth_street(8, &SynthScene::street_slabs(), LayerMeshing::default()).unwrap();
+        let arcs: Vec<f64> = w.views.iter().map(|v| v.s).collect();
+        let spec = ViewSpec::default();
+        let mut all = views_at_samples(&w, &spec);
+        all.extend(views_between(&w, &arcs, &spec));
+        for n in [1, 5, 12, 24, 40] {
+            let got = spread(&all, n);
+            assert_eq!(got.len(), n);
+            let at = got.iter().filter(|v| v.at_reference).count();
+            let at_all = all.iter().filter(|v| v.at_reference).count();
+            assert_eq!(at, n.div_ceil(2).min(at_all), "n {n}");
+            for (i, a) in got.iter().enumerate() {
+                assert!(all.contains(a));
+                assert!(got[..i].iter().all(|b| b != a), "n {n}: {a:?} twice");
+            }
+        }
+        // 24 of them: both ends of the track, and every direction both at and between samples.
+        let got = spread(&all, 24);
+        let at: Vec<&EvalView> = got.iter().filter(|v| v.at_reference).collect();
+        assert!(at.iter().any(|v| v.s == arcs[arcs.len() - 1]));
+        for part in [true, false] {
+            for rel in [0.0, 90.0, 180.0, 270.0] {
+                assert!(got
+                    .iter()
+                    .any(|v| v.at_reference == part && v.yaw_from_track_deg == rel));
+            }
+        }
+        assert_eq!(spread(&all[..3], 24), all[..3].to_vec());
     }
 
     #[test]

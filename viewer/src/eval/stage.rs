@@ -433,6 +433,22 @@ impl Views {
     }
 }
 
+/// The views [`run`] evaluates `params.db` on (every track's, or the named track's, at its
+/// samples then between them, as `params.views` places them), without rendering anything:
+/// what other renderers are compared on (the browser viewer's fidelity test and its
+/// measurement take these, or [`spread`](super::spread) of them).
+pub fn chosen_views(params: &EvalParams) -> Result<Vec<EvalView>, StageError> {
+    params.check()?;
+    let db = &params.db;
+    let opts = LoadOptions {
+        every_track: params.track.is_none(),
+        ..LoadOptions::default()
+    };
+    let mut walk = open(db, params.track.as_deref(), opts)
+        .map_err(|e| StageError::from(e).context(format!("opening {db}")))?;
+    Ok(Views::new(&mut walk, params).on(&mut walk))
+}
+
 /// Evaluate `params.db` (and the walkthroughs weighed beside it) against the ground truth
 /// and write the outputs; `progress` hears how far it is.
 pub fn run(
