@@ -1293,3 +1293,94 @@ fn measure_fidelity_on_eval_chosen_views() {
     }
     assert_fidelity(&kinds);
 }
+
+/// Sends one DevTools touch event of `kind` with the fingers down at `points` (ids 0, 1, …;
+/// none for the `touchEnd` of the last finger).
+fn touch(b: &mut Browser, kind: &str, points: &[(f64, f64)]) {
+    let points: Vec<serde_json::Value> = points
+        .iter()
+        .enumerate()
+        .map(|(id, &(x, y))| serde_json::json!({ "x": x, "y": y, "id": id }))
+        .collect();
+    b.call(
+        "Input.dispatchTouchEvent",
+        serde_json::json!({ "type": kind, "touchPoints": points }),
+    );
+}
+
+/// The camera as the page holds it: yaw, pitch (degrees) and arc length (metres).
+fn camera_of(b: &mut Browser) -> (f64, f64, f64) {
+    let c = b.eval(
+        "({ yaw: railviewApp.cam.yaw, pitch: railviewApp.cam.pitch, s: railviewApp.walker.s })",
+    );
+    let f = |k: &str| c[k].as_f64().unwrap_or_else(|| panic!("no {k} in {c}"));
+    (f("yaw"), f("pitch"), f("s"))
+}
+
+/// Touch (issue 44), through the DevTools protocol's touch events: one finger dragged to the
+/// left turns the view to the right by the angle it covers (the mouse's drag), and two
+/// fingers moved down together walk forward 0.02 m a pixel without turning it; each changes
+/// the picture once drawn, and nothing reaches the console as an error.
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+fn a_one_finger_drag_looks_around_and_two_fingers_walk() {
+    let server = serve(castle(), &[]);
+    let mut b = Browser::start(&scratch_dir("browser-profile", "touch"), SIZE.0, SIZE.1);
+    b.watch_console();
+    b.navigate(&format!("{}?at=10&yaw=0&pitch=0&fov=90", server.url));
+    wait_ready(&mut b, "before touching");
+    let (cam0, frame0) = (camera_of(&mut b), frame_of(&mut b));
+    // Drawn again once the tiles the new view needs have arrived.
+    let settle = |b: &mut Browser, what: &str| {
+        std::thread::sleep(Duration::from_millis(300));
+        wait_ready(b, what);
+        frame_of(b)
+    };
+
+    // One finger, 120 px to the left in six steps: 120 × 90° / 480 px = 22.5° to the right.
+    let (x, y) = (f64::from(SIZE.0) / 2.0, f64::from(SIZE.1) / 2.0);
+    touch(&mut b, "touchStart", &[(x, y)]);
+    for k in 1..=6 {
+        touch(&mut b, "touchMove", &[(x - 20.0 * k as f64, y)]);
+    }
+    touch(&mut b, "touchEnd", &[]);
+    let cam1 = camera_of(&mut b);
+    assert!(
+        (cam1.0 - cam0.0 - 22.5).abs() < 0.5 && cam1.1 == cam0.1 && cam1.2 == cam0.2,
+        "a one-finger drag: camera {cam0:?} → {cam1:?}"
+    );
+    let frame1 = settle(&mut b, "after a one-finger drag");
+    let (psnr, _) = compare(&frame0, &frame1);
+    assert!(
+        psnr < 25.0,
+        "the view turned but the picture did not ({psnr:.1} dB)"
+    );
+
+    // Two fingers, 100 px down together in five steps: 2 m forward, the view not turned.
+    let fingers = |dy: f64| [(x - 60.0, y - 60.0 + dy), (x + 60.0, y - 60.0 + dy)];
+    touch(&mut b, "touchStart", &fingers(0.0)[..1]);
+    touch(&mut b, "touchStart", &fingers(0.0));
+    for k in 1..=5 {
+        touch(&mut b, "touchMove", &fingers(20.0 * k as f64));
+    }
+    touch(&mut b, "touchEnd", &fingers(100.0)[..1]);
+    touch(&mut b, "touchEnd", &[]);
+    let cam2 = camera_of(&mut b);
+    assert!(
+        ((cam2.2 - cam1.2).abs() - 2.0).abs() < 0.05 && cam2.0 == cam1.0 && cam2.1 == cam1.1,
+        "a two-finger move: camera {cam1:?} → {cam2:?}"
+    );
+    let frame2 = settle(&mut b, "after a two-finger move");
+    let (psnr, _) = compare(&frame1, &frame2);
+    assert!(
+        psnr < 30.0,
+        "the walk moved but the picture did not ({psnr:.1} dB)"
+    );
+
+    let problems = console_problems(&b.console_events());
+    assert!(problems.is_empty(), "console: {problems:#?}");
+    assert_eq!(page_state(&mut b)["errors"], serde_json::json!([]));
+}

@@ -708,17 +708,17 @@ class App {
     }, { passive: false });
     let last = null;
     canvas.addEventListener("pointerdown", (e) => {
-      last = [e.clientX, e.clientY];
+      last = e.isPrimary ? [e.clientX, e.clientY] : null;
       canvas.setPointerCapture(e.pointerId);
     });
     canvas.addEventListener("pointerup", () => (last = null));
     canvas.addEventListener("pointermove", (e) => {
-      if (!last) return;
+      if (!last || !e.isPrimary) return;
       const deg = this.cam.fov / canvas.clientWidth;
       this.look(-(e.clientX - last[0]) * deg, (e.clientY - last[1]) * deg);
       last = [e.clientX, e.clientY];
     });
-    // Two fingers: move along the track by their vertical travel.
+    // Two fingers move along the track by their vertical travel (a second one stops the look above).
     let pinch = null;
     canvas.addEventListener("touchstart", (e) => {
       if (e.touches.length === 2) pinch = (e.touches[0].clientY + e.touches[1].clientY) / 2;
