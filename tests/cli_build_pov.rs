@@ -93,8 +93,9 @@ fn build_pov_analytic_end_to_end_and_verify() {
         build["culling"].as_str().unwrap().starts_with("rendered"),
         "{build}"
     );
-    let manifest = json(&db.join("manifest.json"));
-    // Manifest format 8: the viewpoints once, the track as its stops (two: one segment).
+    let manifest = serde_json::to_value(db::read_top(&db).unwrap()).unwrap();
+    // The graph (format 9's pieces, assembled): the viewpoints once, the track as its stops
+    // (two: one segment).
     assert_eq!(manifest["viewpoints"].as_array().unwrap().len(), 2);
     let track = &manifest["tracks"][0];
     assert_eq!(track["stops"].as_array().unwrap().len(), 2, "{track}");

@@ -419,8 +419,7 @@ fn a_pov_ray_import_builds_every_track_of_its_file_with_one_junction() {
         work.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", text(&o));
-    let m: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(db.join("manifest.json")).unwrap()).unwrap();
+    let m: serde_json::Value = serde_json::to_value(db::read_top(&db).unwrap()).unwrap();
     // 3 + 3 viewpoints, the crossing shared: 5, one of them a junction of four branches.
     assert_eq!(m["viewpoints"].as_array().unwrap().len(), 5, "{m}");
     let stops = |t: usize| -> Vec<u64> {

@@ -19,8 +19,10 @@
 //! a referrer. A static host in front of a database sends the same (README, nginx block).
 //!
 //! Paths are never taken from the request: an object request names a hash, the hash is
-//! validated ([`tracks::manifest::object_rel_path`]) and must be one the manifest lists, and
-//! only then is `DB/objects/HH/HASH` opened.
+//! validated ([`tracks::manifest::object_rel_path`]), and only then is `DB/objects/HH/HASH`
+//! opened: any object file of the database is served, as a static host serves the directory.
+//! The server reads only the root of the index when it opens a database, so its memory is
+//! bounded by its connections, not by the number of objects.
 //!
 //! Hostile and broken peers are bounded ([`ServerConfig`] has every limit):
 //! - time: a request head must arrive within `header_timeout` of its first byte (a slow
@@ -46,7 +48,6 @@ mod range;
 mod routes;
 mod shape;
 
-use std::collections::HashSet;
 use std::convert::Infallible;
 use std::future::Future;
 use std::path::{Path, PathBuf};
@@ -59,7 +60,7 @@ use hyper_util::rt::{TokioIo, TokioTimer};
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 use tokio::task::JoinSet;
-use tracks::manifest::{object_rel_path, Manifest};
+use tracks::manifest::object_rel_path;
 
 use admit::{Admission, Clock, CloseReason, Registry, TimeLimits};
 use guard::Guarded;
@@ -283,36 +284,20 @@ pub struct ServedDb {
     manifest_gz: Option<(Bytes, String)>,
     /// `manifest.json.blake3`, when present.
     manifest_hash: Option<Bytes>,
-    objects: HashSet<String>,
 }
 
 impl ServedDb {
-    /// Read and check `root/manifest.json` (through the database reader: version, and the
-    /// checksum file when present); remember every object hash it lists.
+    /// Read and check `root/manifest.json`, the root of the index (through the database
+    /// reader: version, limits, and the checksum file when present).
     pub fn open(root: &Path) -> Result<ServedDb, ServerError> {
-        let path = root.join("manifest.json");
         let err = |error: db::DbError| ServerError::Database {
             root: root.to_path_buf(),
             error,
         };
-        // The bytes served are the bytes checked.
-        let (root_manifest, raw) = db::read_root(root).map_err(err)?;
-        let (top, pieces) = db::read_index(root, root_manifest).map_err(err)?;
-        let manifest: Manifest = db::read_tables(root, &top).map_err(err)?;
-        let mut objects = manifest_objects(&manifest);
-        objects.extend(pieces.into_iter().map(|r| r.hash));
-        objects.extend(top.viewpoints.iter().map(|v| v.table.hash.clone()));
-        objects.extend(
-            top.viewpoints
-                .iter()
-                .filter_map(|v| v.ach.as_ref().map(|a| a.hash.clone())),
-        );
-        if let Some(bad) = objects.iter().find(|h| object_rel_path(h).is_none()) {
-            return Err(ServerError::Manifest {
-                path,
-                message: format!("object hash `{bad}` is not 64 lowercase hex digits"),
-            });
-        }
+        // The bytes served are the bytes checked. Only the root is read: objects are
+        // looked up on disk as they are asked for, so what the server holds does not grow
+        // with the database.
+        let (_, raw) = db::read_root(root).map_err(err)?;
         let read_optional = |name: &str| -> Result<Option<Vec<u8>>, ServerError> {
             let path = root.join(name);
             if std::fs::metadata(&path).is_ok_and(|m| m.len() > tracks::limits::MAX_MANIFEST_BYTES)
@@ -359,8 +344,13 @@ impl ServedDb {
             manifest_bytes: Bytes::from(raw),
             manifest_gz,
             manifest_hash,
-            objects,
         })
+    }
+
+    /// Whether `hash` names an object file of the database (a valid hash whose file is in
+    /// `objects/`): what is served, as a static host serves the directory.
+    pub fn has_object(&self, hash: &str) -> bool {
+        object_rel_path(hash).is_some_and(|rel| self.root.join(rel).is_file())
     }
 
     /// Whether a valid `manifest.json.gz` is served to clients that accept gzip.
@@ -390,27 +380,6 @@ pub fn accepts_gzip(value: &str) -> bool {
         }
     }
     star
-}
-
-/// Every object hash a manifest refers to.
-pub fn manifest_objects(m: &Manifest) -> HashSet<String> {
-    let mut out = HashSet::new();
-    for t in &m.tracks {
-        for vp in &t.viewpoints {
-            for bg in &vp.background {
-                out.insert(bg.ptm.object.hash.clone());
-            }
-            for tile in &vp.tiles {
-                if let Some(p) = &tile.ptm {
-                    out.insert(p.object.hash.clone());
-                }
-                if let Some(m) = &tile.mesh {
-                    out.insert(m.hash.clone());
-                }
-            }
-        }
-    }
-    out
 }
 
 pub(crate) struct Shared {

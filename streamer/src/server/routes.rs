@@ -257,7 +257,7 @@ async fn object(s: &Shared, rest: &str, req: &Request<Incoming>) -> Result<Resp,
     if hh != &hash[..2] {
         return Err(bad());
     }
-    if !s.db.objects.contains(hash) {
+    if !s.db.has_object(hash) {
         return Err(reply(
             StatusCode::NOT_FOUND,
             format!("object {hash} is not in this database"),
@@ -378,7 +378,7 @@ async fn bundle(s: &Shared, req: &Request<Incoming>) -> Result<Resp, Resp> {
     let mut slot: HashMap<&str, usize> = HashMap::new();
     let mut which = Vec::with_capacity(entries.len());
     for (i, e) in entries.iter().enumerate() {
-        if !s.db.objects.contains(&e.object) {
+        if !s.db.has_object(&e.object) {
             return Err(reply(
                 StatusCode::UNPROCESSABLE_ENTITY,
                 format!(
