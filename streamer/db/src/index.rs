@@ -555,7 +555,7 @@ impl Assembly {
 }
 
 /// A walk through the whole index, for a reader that fetches its own way (sync or async):
-/// [`TreeWalk::next`] names a piece to fetch, [`TreeWalk::give`] takes its bytes (checked
+/// [`TreeWalk::next_batch`] names the pieces to fetch, [`TreeWalk::give`] takes its bytes (checked
 /// against its hash by the caller), [`TreeWalk::finish`] gives the top manifest.
 #[derive(Debug)]
 pub struct TreeWalk {

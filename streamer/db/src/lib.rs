@@ -1,6 +1,7 @@
 //! db: the walkthrough database — a directory of immutable content-addressed objects plus a
 //! manifest (types in [`tracks::manifest`]) — and everything that reads or writes it; no
-//! network, no async. Stored split ([`split`], format 7): a small top manifest, one binary
+//! network, no async. Stored split ([`split`]) and in pieces ([`index`], format 9): a small
+//! root, the graph of tracks in spatial chunks under a quadtree of node objects, one binary
 //! tile table per viewpoint ([`table`]), one pack per viewpoint ([`pack`]) holding its tiles'
 //! meshes and PTM level groups, and the ACH lists of the segments starting at each viewpoint
 //! ([`ach`]); tables, ACH lists and packs are objects. The payloads' own formats are
@@ -32,14 +33,16 @@
 //! ```
 //!
 //! ```text
-//! DB/manifest.json          the TopManifest (format 7), written last, atomically
+//! DB/manifest.json          the root of the index ([`index::RootManifest`], format 9),
+//!                           written last, atomically
 //! DB/manifest.json.blake3   lowercase hex BLAKE3 of manifest.json (so a flipped byte in the
 //!                           manifest is caught too), written right after it
 //! DB/manifest.json.gz       gzip of manifest.json's exact bytes, written after it: what a
 //!                           server sends a client that accepts gzip (nginx `gzip_static`
 //!                           serves the same file); optional (older databases lack it)
 //! DB/objects/HH/HASH        payloads named by their BLAKE3; HH = the hash's first two digits
-//!                           (backgrounds, each viewpoint's table and pack; a writer without
+//!                           (the index's nodes and chunks, each viewpoint's table, ACH
+//!                           lists and pack; a writer without
 //!                           a stage, [`DbWriter::with_stage`], also leaves the tiles' own PTM
 //!                           and mesh objects here, which the manifest no longer refers to)
 //! ```
