@@ -72,8 +72,8 @@ use codec::ptm;
 
 pub use prune::{prune, Pruned};
 pub use read::{
-    parse_root, read_index, read_limited, read_manifest, read_piece, read_pieces, read_root,
-    read_tables, read_top, Database,
+    check_index, parse_root, read_index, read_limited, read_manifest, read_piece, read_pieces,
+    read_root, read_tables, read_top, Database,
 };
 pub use split::{TopManifest, ViewTable, OLDEST_READ_VERSION, TOP_VERSION};
 pub use verify::{verify, verify_with, Problem, Report, VerifyOptions};

@@ -254,6 +254,84 @@ pub fn read_index(
     Ok((top, refs))
 }
 
+/// Checks every piece of `root`'s index and every table and ACH object it names (present,
+/// hash, decode) one chunk at a time, holding no more than a chunk and the tree's frontier:
+/// what a server checks before it serves a database, without keeping the graph. The error
+/// names the damaged file.
+pub fn check_index(dir: &Path, root: &RootManifest) -> Result<(), DbError> {
+    let db = Database {
+        root: dir.to_path_buf(),
+        top: TopManifest {
+            version: root.version,
+            scene: String::new(),
+            face_size: root.face_size,
+            tile_size: root.tile_size,
+            slabs: Vec::new(),
+            cull_alpha: None,
+            cull_variant: None,
+            viewpoints: Vec::new(),
+            tracks: Vec::new(),
+            junctions: Vec::new(),
+        },
+        manifest: Manifest {
+            version: 0,
+            scene: String::new(),
+            face_size: root.face_size,
+            tile_size: root.tile_size,
+            slabs: Vec::new(),
+            cull_alpha: None,
+            cull_variant: None,
+            tracks: Vec::new(),
+        },
+    };
+    let mut todo: Vec<(index::PieceAt, ObjectRef)> = root
+        .index
+        .root
+        .iter()
+        .map(|r| {
+            let at = index::PieceAt {
+                level: root.index.levels,
+                x: 0,
+                z: 0,
+            };
+            (at, r.clone())
+        })
+        .collect();
+    let mut seen = 0usize;
+    while let Some((at, r)) = todo.pop() {
+        let bytes = read_piece(dir, &r)?;
+        let path = dir.join(r.rel_path().unwrap_or_default());
+        let named = |e: String| DbError::format(&path, e);
+        if at.level > 0 {
+            let node = index::decode_node(&bytes, &at).map_err(named)?;
+            todo.extend(node.children_at().map(|(a, c)| (a, c.clone())));
+            continue;
+        }
+        let chunk = index::decode_chunk(&bytes, &at, root).map_err(named)?;
+        seen += chunk.viewpoints.len();
+        if seen > root.viewpoints {
+            return Err(named(format!(
+                "the chunks hold more than the root's {} viewpoints",
+                root.viewpoints
+            )));
+        }
+        for v in &chunk.viewpoints {
+            let bytes = db.read_object(&v.table)?;
+            let path = db.object_path(&v.table.hash).unwrap_or_default();
+            split::decode_table(&bytes, v.index)
+                .map_err(|e| DbError::format(&path, format!("viewpoint {}: {e}", v.index)))?;
+            if let Some(ach) = &v.ach {
+                let bytes = db.read_object(ach)?;
+                let path = db.object_path(&ach.hash).unwrap_or_default();
+                split::decode_ach(&bytes, v.index).map_err(|e| {
+                    DbError::format(&path, format!("ACH lists of viewpoint {}: {e}", v.index))
+                })?;
+            }
+        }
+    }
+    Ok(())
+}
+
 /// One piece of the index from `DIR/objects/`, checked against its reference.
 pub fn read_piece(dir: &Path, r: &ObjectRef) -> Result<Vec<u8>, DbError> {
     let rel = r

@@ -200,14 +200,13 @@ fn read_top_checked(dir: &Path, report: &mut Report) -> Option<(TopManifest, Vec
         let at = r.rel_path().map(|rel| dir.join(rel));
         super::read_piece(dir, r).inspect_err(|_| failed = at)
     });
-    match got {
-        Ok(top) => Some((top, pieces)),
-        Err(e) => {
-            let path = failed.unwrap_or(manifest_path);
-            report.problems.push(problem(path, e));
-            None
-        }
-    }
+    got.map(|top| (top, pieces))
+        .map_err(|e| {
+            report
+                .problems
+                .push(problem(failed.unwrap_or(manifest_path), e))
+        })
+        .ok()
 }
 
 /// Every viewpoint's table: present, hash, decode; a bad one is named by viewpoint. Returns

@@ -21,8 +21,9 @@
 //! Paths are never taken from the request: an object request names a hash, the hash is
 //! validated ([`tracks::manifest::object_rel_path`]), and only then is `DB/objects/HH/HASH`
 //! opened: any object file of the database is served, as a static host serves the directory.
-//! The server reads only the root of the index when it opens a database, so its memory is
-//! bounded by its connections, not by the number of objects.
+//! When it opens a database the server checks every piece of the index and every table a
+//! chunk at a time and keeps only the root, so its memory is bounded by its connections, not
+//! by the number of objects.
 //!
 //! Hostile and broken peers are bounded ([`ServerConfig`] has every limit):
 //! - time: a request head must arrive within `header_timeout` of its first byte (a slow
@@ -294,10 +295,12 @@ impl ServedDb {
             root: root.to_path_buf(),
             error,
         };
-        // The bytes served are the bytes checked. Only the root is read: objects are
-        // looked up on disk as they are asked for, so what the server holds does not grow
-        // with the database.
-        let (_, raw) = db::read_root(root).map_err(err)?;
+        // The bytes served are the bytes checked. Only the root is kept: objects are looked
+        // up on disk as they are asked for, so what the server holds does not grow with the
+        // database.
+        // Every piece, table and ACH object is checked once, a chunk at a time.
+        let (root_manifest, raw) = db::read_root(root).map_err(err)?;
+        db::check_index(root, &root_manifest).map_err(err)?;
         let read_optional = |name: &str| -> Result<Option<Vec<u8>>, ServerError> {
             let path = root.join(name);
             if std::fs::metadata(&path).is_ok_and(|m| m.len() > tracks::limits::MAX_MANIFEST_BYTES)
