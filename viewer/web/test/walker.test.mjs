@@ -1,4 +1,5 @@
-// The browser viewer's network code without a page: the top manifest of format 8 against its
+// The browser viewer's network code without a page: the top manifest of format 9 (its pieces
+// assembled, pieces.test.mjs) against its
 // limits (plan.js checkManifest, db::TopManifest::check_limits), the network and its
 // junctions (track.js Network, tracks::network), the walker (track.js Walker, the rules of
 // streamer/src/client/route.rs and its tests) and the arrows' geometry (plan.js).
@@ -7,57 +8,18 @@ import { test } from "node:test";
 import assert from "node:assert/strict";
 import { checkManifest, projector, projectPolygon, projectPoint, arrowShape, LIMITS } from "../plan.js";
 import { Network, Walker, waysOut, nearestToView, branchWeights, sameBranch, viewOf } from "../track.js";
-
-const HASH = "ab".repeat(32);
-const X = [1, 0, 0];
-const NEG_X = [-1, 0, 0];
-const Z = [0, 0, 1];
-const NEG_Z = [0, 0, -1];
-
-// The town of client::route's tests: `ew` along x crossing `ns` along z at the origin, `spur`
-// leaving `ew`'s east end towards −z; stops every 2.5 m (2 m on `spur`), viewpoints numbered
-// track by track, a junction at its first appearance (tracks::network).
-function town() {
-  const toml = (name, points) => `[[track]]\nname = "${name}"\npoints = ${JSON.stringify(points)}\nspacing = 2.5\n`;
-  const viewpoints = [];
-  const vp = (p) => {
-    viewpoints.push({ index: viewpoints.length, position: p, table: { hash: HASH, size: 10 } });
-    return viewpoints.length - 1;
-  };
-  const ew = [];
-  for (let k = 0; k <= 8; k++) ew.push({ viewpoint: vp([-10 + 2.5 * k, 1.7, 0]), s: 2.5 * k });
-  const ns = [];
-  for (let k = 0; k <= 8; k++) ns.push({ viewpoint: k === 4 ? 4 : vp([0, 1.7, -10 + 2.5 * k]), s: 2.5 * k });
-  const spur = [];
-  for (let k = 0; k <= 4; k++) spur.push({ viewpoint: k === 0 ? 8 : vp([10, 1.7, -2 * k]), s: 2 * k });
-  return {
-    version: 8, scene: "town", face_size: 64, tile_size: 32, slabs: [{ near: 0, far: 20 }, { near: 20, far: null }],
-    cull_alpha: null, cull_variant: null, viewpoints,
-    tracks: [
-      { name: "ew", track_toml: toml("ew", [[-10, 1.7, 0], [0, 1.7, 0], [10, 1.7, 0]]), length: 20, stops: ew },
-      { name: "ns", track_toml: toml("ns", [[0, 1.7, -10], [0, 1.7, 10]]), length: 20, stops: ns },
-      { name: "spur", track_toml: toml("spur", [[10, 1.7, 0], [10, 1.7, -8]]), length: 8, stops: spur },
-    ],
-    // Segments: ew 0–7, ns 8–15, spur 16–19.
-    junctions: [
-      { viewpoint: 4, branches: [
-        { track: 0, stop: 4, forward: false, segment: 3 }, { track: 0, stop: 4, forward: true, segment: 4 },
-        { track: 1, stop: 4, forward: false, segment: 11 }, { track: 1, stop: 4, forward: true, segment: 12 }] },
-      { viewpoint: 8, branches: [{ track: 0, stop: 8, forward: false, segment: 7 }, { track: 2, stop: 0, forward: true, segment: 16 }] },
-    ],
-  };
-}
+import { town, HASH, X, NEG_X, Z, NEG_Z } from "./town.mjs";
 
 const net = () => new Network(checkManifest(town()));
 const heading = (n, b) => n.branchHeading(b);
 const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 const near = (a, b, eps = 1e-9) => Math.abs(a - b) <= eps;
 
-test("format 8 is read and every other format refused with the rebuild message", () => {
+test("format 9 is read and every other format refused with the rebuild message", () => {
   assert.ok(checkManifest(town()));
-  for (const version of [7, 9, undefined]) {
+  for (const version of [7, 8, 10, undefined]) {
     const m = { ...town(), version };
-    assert.throws(() => checkManifest(m), /reads format 8 \(rebuild the database with `railview build`\)/);
+    assert.throws(() => checkManifest(m), /reads format 9 \(rebuild the database with `railview build`\)/);
   }
 });
 
