@@ -1,7 +1,9 @@
 //! Prerendering split over processes that share one directory, as a batch system runs it:
 //! the same inputs give the same bytes (a database built from shards is the one a single run
 //! builds), and shards started at the same instant, each as PID 1 of its own PID namespace
-//! (as every pod of a Kubernetes Job is), never fail or disturb each other.
+//! (as every pod of a Kubernetes Job is), never fail or disturb each other. A town network
+//! with every track, built from shards as the Slurm job files build it, is the database one
+//! machine builds.
 //!
 //! The namespace test runs `unshare --pid --fork --mount-proc` (util-linux; as root, or with a
 //! user namespace otherwise). Where namespaces cannot be made it fails, saying so; set
@@ -117,6 +119,73 @@ fn two_builds_of_the_same_inputs_are_the_same_bytes() {
         }
         assert!(w.join("runs").read_dir().unwrap().count() == 1);
     }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A town network, every track (`town-1 --track all`, about 1 000 viewpoints at faces of 16),
+/// prerendered as three shards running together in one directory, one thread each as a Slurm
+/// array's tasks get by default, then merged and built as `deploy/slurm-merge.sbatch` builds
+/// it: the database is, byte for byte, the one a single `railview build` writes, and so is
+/// the work directory apart from reports and run logs.
+#[test]
+fn a_town_network_built_in_shards_is_the_one_machine_database() {
+    const SHARDS: usize = 3;
+    let dir = scratch_dir("cli-batch", "town");
+    let scene = ["--scene", "town-1", "--track", "all", "--face-size", "16"];
+    let path = |p: &Path| p.to_str().unwrap().to_owned();
+    // `railview build` as one machine runs it, and as the merge job resumes it.
+    let build = |work: &Path, db: &Path| {
+        let (work, db) = (path(work), path(db));
+        let mut a = vec!["build"];
+        a.extend(scene);
+        a.extend(["--work", &work, "--out", &db]);
+        run_ok(&a);
+    };
+    let (one_work, one_db) = (dir.join("one.work"), dir.join("one-db"));
+    build(&one_work, &one_db);
+
+    let work = dir.join("shards.work");
+    let prerender = path(&work.join("prerender"));
+    let children: Vec<_> = (0..SHARDS)
+        .map(|k| {
+            Command::new(env!("CARGO_BIN_EXE_railview"))
+                .arg("prerender")
+                .args(scene)
+                .args(["--shard", &format!("{k}/{SHARDS}"), "--out", &prerender])
+                .env("RAYON_NUM_THREADS", "1")
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .expect("start a shard")
+        })
+        .collect();
+    for (k, c) in children.into_iter().enumerate() {
+        let o = c.wait_with_output().unwrap();
+        assert!(o.status.success(), "shard {k}/{SHARDS}:\n{}", stderr(&o));
+    }
+    let mut merge = vec!["prerender", "--merge"];
+    merge.extend(scene);
+    merge.extend(["--out", &prerender]);
+    run_ok(&merge);
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(work.join("prerender/prerender.json")).unwrap())
+            .unwrap();
+    assert_eq!(report["shards"].as_array().map(Vec::len), Some(SHARDS));
+    let samples = report["extra"]["complete_samples"].as_u64().unwrap();
+    assert!(samples > 500, "town-1 has {samples} samples");
+    let db = dir.join("shards-db");
+    build(&work, &db);
+
+    assert_same_files(
+        "database from shards against one machine",
+        &files_under(&one_db, &|_| true),
+        &files_under(&db, &|_| true),
+    );
+    assert_same_files(
+        "work directory from shards against one machine",
+        &files_under(&one_work, &|rel| is_content(rel)),
+        &files_under(&work, &|rel| is_content(rel)),
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 
