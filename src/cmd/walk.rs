@@ -74,6 +74,10 @@ pub struct Args {
     /// of the last (turn stalls are reported apart). Default: the first track, whole.
     #[arg(long)]
     pub route: Option<String>,
+    /// Stop this many metres along the walk (the route, or the track), so that walks on
+    /// networks of any size cover the same length. Default: the whole route.
+    #[arg(long)]
+    pub length: Option<f64>,
     /// Write a synthetic corridor database into the DB directory first (tests and demos).
     #[arg(long)]
     pub synthetic: bool,
@@ -173,6 +177,10 @@ fn config(args: &Args) -> anyhow::Result<WalkConfig> {
             }
             None => None,
         },
+        max_length_m: args
+            .length
+            .map(|m| check_f64("--length (m)", m, 0.1, tracks::limits::MAX_COORDINATE_M))
+            .transpose()?,
         ..WalkConfig::default()
     })
 }

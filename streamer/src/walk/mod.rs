@@ -84,6 +84,9 @@ pub struct WalkConfig {
     /// Walk through these tracks instead (names; from the first's far end into each next at
     /// their junction, to the far end of the last): [`crate::client::Route`].
     pub route: Option<Vec<String>>,
+    /// Stop the walk this many metres along it (the route, or the track), when set: the same
+    /// length of walk on networks of any size.
+    pub max_length_m: Option<f64>,
     /// Frames within this many metres after a turn count as the turn's ([`RunReport::turns`]).
     pub turn_window_m: f64,
     /// Keep every run's requests, in the order they went out ([`RunReport::request_log`]).
@@ -142,6 +145,7 @@ impl Default for WalkConfig {
             samples_y: 36,
             track: 0,
             route: None,
+            max_length_m: None,
             turn_window_m: 4.0,
             record_requests: false,
             retry: RetryPolicy::default(),
@@ -271,7 +275,29 @@ pub fn route_of(net: &Network, cfg: &WalkConfig) -> Result<Route, WalkError> {
             .clone()],
     };
     let refs: Vec<&str> = names.iter().map(String::as_str).collect();
-    Route::new(net, &refs).map_err(|e| WalkError::Config(format!("--route: {e}")))
+    let mut route =
+        Route::new(net, &refs).map_err(|e| WalkError::Config(format!("--route: {e}")))?;
+    if let Some(max) = cfg.max_length_m {
+        cut_route(&mut route, max);
+    }
+    Ok(route)
+}
+
+/// Cuts `route` to its first `max` metres: the leg that reaches `max` ends there, later legs
+/// and their turns are dropped.
+fn cut_route(route: &mut Route, max: f64) {
+    let mut left = max.max(0.0);
+    for k in 0..route.legs.len() {
+        let (t, a, b) = route.legs[k];
+        let len = (b - a).abs();
+        if len >= left {
+            route.legs[k] = (t, a, a + left * (b - a).signum());
+            route.legs.truncate(k + 1);
+            route.turns.truncate(k);
+            return;
+        }
+        left -= len;
+    }
 }
 
 /// One frame of a run.
@@ -548,8 +574,8 @@ pub async fn run_walk(
     Ok(report)
 }
 
-/// The manifest and every table (the walker's eyes: what each frame needs), and what
-/// fetching the manifest cost.
+/// The manifest and the tables along the route (the walker's eyes: what each frame
+/// needs), and what fetching the manifest cost.
 async fn fetch_scene(
     conn: &mut Connection,
     config: &WalkConfig,
@@ -560,12 +586,46 @@ async fn fetch_scene(
         requests: fetched.requests,
         round_trips: fetched.round_trips,
     };
-    // The whole database, for what each frame needs (the walker's eyes, not its client: the
-    // runs fetch the tables again, on their links, as a viewer would).
+    // The tables of the route's tracks, for what each frame needs (the walker's eyes, not
+    // its client: the runs fetch the tables again, on their links, as a viewer would). A
+    // frame needs the two viewpoints around it and its segment's ACH list, so the viewpoints
+    // at the ends of the segments the route runs along are all the eyes need, however large
+    // the network.
     // A table that is damaged or missing on the server is one the walker cannot see either
     // (its viewpoint shows nothing); the runs count it when they ask for it.
+    let net = fetched
+        .top
+        .network()
+        .map_err(|e| WalkError::Database(format!("the graph of tracks: {e}")))?;
+    let route = route_of(&net, config)?;
+    let mut seen = vec![false; fetched.top.viewpoints.len()];
+    for &(t, a, b) in &route.legs {
+        let stops = net.stops.get(t).map_or(&[][..], |v| v.as_slice());
+        // The stops from the last at or before the leg's start to the first at or after its
+        // end: every segment the leg runs along, both ends.
+        let (lo, hi) = (a.min(b), a.max(b));
+        let first = stops.partition_point(|st| st.s <= lo).saturating_sub(1);
+        let last = stops
+            .partition_point(|st| st.s < hi)
+            .min(stops.len().saturating_sub(1));
+        for st in stops.get(first..=last).into_iter().flatten() {
+            if let Some(x) = seen.get_mut(st.viewpoint) {
+                *x = true;
+            }
+        }
+    }
+    drop(net);
     let mut tables = Vec::new();
     for v in &fetched.top.viewpoints {
+        if !seen[v.index] {
+            tables.push(ViewTable {
+                viewpoint: v.index,
+                background: Vec::new(),
+                tiles: Vec::new(),
+                segments: Vec::new(),
+            });
+            continue;
+        }
         let mut table = match conn.fetch_table(&v.table, v.index).await {
             Ok(t) => t,
             Err(e) if e.is_object_fault() || matches!(e, ClientError::Manifest(_)) => {
@@ -720,5 +780,29 @@ pub fn format_bps(b: u64) -> String {
         format!("{} kbit/s", b / 1000)
     } else {
         format!("{b} bit/s")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_route_is_cut_at_its_length_within_the_leg_that_reaches_it() {
+        let whole = Route {
+            legs: vec![(0, 10.0, 0.0), (1, 5.0, 25.0), (2, 0.0, 8.0)],
+            turns: vec![3, 7],
+        };
+        let mut r = whole.clone();
+        cut_route(&mut r, 16.0);
+        assert_eq!(r.legs, vec![(0, 10.0, 0.0), (1, 5.0, 11.0)]);
+        assert_eq!(r.turns, vec![3]);
+        let mut r = whole.clone();
+        cut_route(&mut r, 4.0);
+        assert_eq!((r.legs, r.turns), (vec![(0, 10.0, 6.0)], vec![]));
+        let mut r = whole.clone();
+        cut_route(&mut r, 1000.0);
+        assert_eq!(r.legs, whole.legs);
+        assert_eq!(r.turns, whole.turns);
     }
 }

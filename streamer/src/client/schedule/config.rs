@@ -117,6 +117,10 @@ pub struct SchedulerConfig {
     /// When a damaged or missing part or table is asked for again (seconds of the driver's
     /// clock), and when it is given up.
     pub failures: FailurePolicy,
+    /// Tables are fetched in the background only for viewpoints within this distance along
+    /// the network (metres), so that what a client asks for and holds grows with what is near
+    /// the walker, not with the size of the network.
+    pub background_table_radius_m: f64,
 }
 
 impl Default for SchedulerConfig {
@@ -142,6 +146,7 @@ impl Default for SchedulerConfig {
             error_pause_s: 0.5,
             share_parts: true,
             failures: FailurePolicy::default(),
+            background_table_radius_m: 200.0,
         }
     }
 }

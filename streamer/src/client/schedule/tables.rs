@@ -127,10 +127,13 @@ impl Scheduler {
     }
 
     /// The nearest viewpoint (along the network) whose table is neither in nor on the wire,
-    /// as background wants (one goes at a time).
+    /// within [`SchedulerConfig::background_table_radius_m`](super::SchedulerConfig), as
+    /// background wants (one goes at a time).
     pub(super) fn background_table(&self, running: &KeySet, dist: &[f64]) -> Option<Vec<Want>> {
         let d = |v: usize| dist.get(v).copied().unwrap_or(f64::INFINITY);
+        let radius = self.config.background_table_radius_m;
         let v = (0..self.tables.len())
+            .filter(|&v| d(v) <= radius)
             .filter(|&v| !self.table_requested(v, running))
             .filter(|&v| {
                 !self

@@ -1,0 +1,94 @@
+//! What a database's index costs a client: the root's bytes, every piece (nodes and chunks,
+//! their number and bytes, the largest chunk) and what a client that reads only the pieces
+//! on the way to one cell needs before its first view there (the root, a node per level, the
+//! chunk).
+//!
+//! ```text
+//! cargo run --release -p db --example index_cost -- DB [X Z]
+//! ```
+//!
+//! `X Z` (metres) is the place of the first view; by default the first track's first
+//! viewpoint. Prints one JSON object.
+
+use std::path::PathBuf;
+
+use db::index::{decode_chunk, decode_node, PieceAt};
+use tracks::manifest::ObjectRef;
+
+fn main() -> Result<(), String> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let dir = PathBuf::from(args.first().ok_or("usage: index_cost DB [X Z]")?);
+    let (root, raw) = db::read_root(&dir).map_err(|e| e.to_string())?;
+    let (top, refs) = db::read_index(&dir, root.clone()).map_err(|e| e.to_string())?;
+    let at = match (args.get(1), args.get(2)) {
+        (Some(x), Some(z)) => (
+            x.parse::<f64>().map_err(|e| format!("X: {e}"))?,
+            z.parse::<f64>().map_err(|e| format!("Z: {e}"))?,
+        ),
+        _ => {
+            let first = top.tracks.first().and_then(|t| t.stops.first());
+            let p = first.map(|s| top.viewpoints[s.viewpoint].position);
+            p.map(|p| (p.x, p.z))
+                .ok_or("the database has no viewpoint")?
+        }
+    };
+    let cell = root
+        .index
+        .cell_of(at.0, at.1)
+        .ok_or_else(|| format!("({}, {}) lies outside the index", at.0, at.1))?;
+    // The path from the root to that cell's chunk.
+    let read = |r: &ObjectRef| db::read_piece(&dir, r).map_err(|e| e.to_string());
+    let mut path_bytes = 0u64;
+    let mut chunk_viewpoints = 0usize;
+    let mut next = root.index.root.clone().map(|r| {
+        let at = PieceAt {
+            level: root.index.levels,
+            x: 0,
+            z: 0,
+        };
+        (at, r)
+    });
+    while let Some((at, r)) = next.take() {
+        let bytes = read(&r)?;
+        path_bytes += bytes.len() as u64;
+        if at.level == 0 {
+            chunk_viewpoints = decode_chunk(&bytes, &at, &root)?.viewpoints.len();
+            break;
+        }
+        let node = decode_node(&bytes, &at)?;
+        let shift = at.level - 1;
+        next = node
+            .children_at()
+            .find(|(a, _)| (a.x, a.z) == (cell.0 >> shift, cell.1 >> shift))
+            .map(|(a, c)| (a, c.clone()));
+    }
+    let mut chunks = Vec::new();
+    for r in &refs {
+        let bytes = read(r)?;
+        let json =
+            db::gunzip_limited(&bytes, db::index::MAX_PIECE_BYTES).map_err(|e| e.to_string())?;
+        if json.starts_with(b"{\"x\"") {
+            chunks.push(bytes.len() as u64);
+        }
+    }
+    let out = serde_json::json!({
+        "database": dir.display().to_string(),
+        "viewpoints": top.viewpoints.len(),
+        "tracks": top.tracks.len(),
+        "junctions": top.junctions.len(),
+        "cell_m": root.index.cell,
+        "levels": root.index.levels,
+        "root_bytes": raw.len(),
+        "pieces": refs.len(),
+        "piece_bytes": refs.iter().map(|r| r.size).sum::<u64>(),
+        "chunks": chunks.len(),
+        "largest_chunk_bytes": chunks.iter().max(),
+        "mean_chunk_bytes": chunks.iter().sum::<u64>() / chunks.len().max(1) as u64,
+        "first_view_at": [at.0, at.1],
+        "first_view_cell": [cell.0, cell.1],
+        "first_view_chunk_viewpoints": chunk_viewpoints,
+        "first_view_index_bytes": raw.len() as u64 + path_bytes,
+    });
+    println!("{out:#}");
+    Ok(())
+}
