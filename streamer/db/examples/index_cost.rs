@@ -5,10 +5,13 @@
 //!
 //! ```text
 //! cargo run --release -p db --example index_cost -- DB [X Z]
+//! cargo run --release -p db --example index_cost -- DB --cells 16,32,64,128,256
 //! ```
 //!
 //! `X Z` (metres) is the place of the first view; by default the first track's first
-//! viewpoint. Prints one JSON object.
+//! viewpoint. Prints one JSON object. With `--cells`, the database's graph is cut again into
+//! chunks of each size (in memory, nothing written) and one line per size gives the pieces,
+//! their bytes, the largest chunk, and the index a first view at the first viewpoint needs.
 
 use std::path::PathBuf;
 
@@ -17,9 +20,17 @@ use tracks::manifest::ObjectRef;
 
 fn main() -> Result<(), String> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let dir = PathBuf::from(args.first().ok_or("usage: index_cost DB [X Z]")?);
+    let dir = PathBuf::from(args.first().ok_or("usage: index_cost DB [X Z | --cells A,B,…]")?);
     let (root, raw) = db::read_root(&dir).map_err(|e| e.to_string())?;
     let (top, refs) = db::read_index(&dir, root.clone()).map_err(|e| e.to_string())?;
+    if args.get(1).map(String::as_str) == Some("--cells") {
+        let sizes = args.get(2).ok_or("--cells: sizes in metres, comma separated")?;
+        for cell in sizes.split(',') {
+            let cell: f64 = cell.trim().parse().map_err(|e| format!("--cells {cell}: {e}"))?;
+            println!("{}", recut(&top, cell)?);
+        }
+        return Ok(());
+    }
     let at = match (args.get(1), args.get(2)) {
         (Some(x), Some(z)) => (
             x.parse::<f64>().map_err(|e| format!("X: {e}"))?,
@@ -91,4 +102,59 @@ fn main() -> Result<(), String> {
     });
     println!("{out:#}");
     Ok(())
+}
+
+/// The graph cut into chunks of `cell` metres: pieces, bytes, the largest chunk, and the
+/// index a first view at the first track's first viewpoint needs (root, path, chunk).
+fn recut(top: &db::TopManifest, cell: f64) -> Result<serde_json::Value, String> {
+    let (root, pieces) = db::index::pieces(top, cell)?;
+    let store: std::collections::HashMap<String, &Vec<u8>> =
+        pieces.iter().map(|b| (db::hash_hex(b), b)).collect();
+    let p = top
+        .tracks
+        .first()
+        .and_then(|t| t.stops.first())
+        .map(|s| top.viewpoints[s.viewpoint].position)
+        .ok_or("the database has no viewpoint")?;
+    let target = root.index.cell_of(p.x, p.z).ok_or("the first viewpoint is outside")?;
+    let root_bytes = serde_json::to_vec(&root).map_err(|e| e.to_string())?.len() as u64 + 1;
+    let mut path = 0u64;
+    let mut next = root.index.root.clone().map(|r| {
+        let at = PieceAt {
+            level: root.index.levels,
+            x: 0,
+            z: 0,
+        };
+        (at, r)
+    });
+    while let Some((at, r)) = next.take() {
+        let bytes = store[&r.hash];
+        path += bytes.len() as u64;
+        if at.level == 0 {
+            break;
+        }
+        let node = decode_node(bytes, &at)?;
+        let shift = at.level - 1;
+        next = node
+            .children_at()
+            .find(|(a, _)| (a.x, a.z) == (target.0 >> shift, target.1 >> shift))
+            .map(|(a, c)| (a, c.clone()));
+    }
+    let chunks: Vec<u64> = pieces
+        .iter()
+        .filter(|b| {
+            db::gunzip_limited(b, db::index::MAX_PIECE_BYTES).is_ok_and(|j| j.starts_with(b"{\"x\""))
+        })
+        .map(|b| b.len() as u64)
+        .collect();
+    Ok(serde_json::json!({
+        "cell_m": cell,
+        "levels": root.index.levels,
+        "pieces": pieces.len(),
+        "piece_bytes": pieces.iter().map(|b| b.len() as u64).sum::<u64>(),
+        "chunks": chunks.len(),
+        "largest_chunk_bytes": chunks.iter().max(),
+        "root_bytes": root_bytes,
+        "first_view_index_bytes": root_bytes + path,
+    }))
 }
