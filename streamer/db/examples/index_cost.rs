@@ -20,13 +20,21 @@ use tracks::manifest::ObjectRef;
 
 fn main() -> Result<(), String> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let dir = PathBuf::from(args.first().ok_or("usage: index_cost DB [X Z | --cells A,B,…]")?);
+    let dir = PathBuf::from(
+        args.first()
+            .ok_or("usage: index_cost DB [X Z | --cells A,B,…]")?,
+    );
     let (root, raw) = db::read_root(&dir).map_err(|e| e.to_string())?;
     let (top, refs) = db::read_index(&dir, root.clone()).map_err(|e| e.to_string())?;
     if args.get(1).map(String::as_str) == Some("--cells") {
-        let sizes = args.get(2).ok_or("--cells: sizes in metres, comma separated")?;
+        let sizes = args
+            .get(2)
+            .ok_or("--cells: sizes in metres, comma separated")?;
         for cell in sizes.split(',') {
-            let cell: f64 = cell.trim().parse().map_err(|e| format!("--cells {cell}: {e}"))?;
+            let cell: f64 = cell
+                .trim()
+                .parse()
+                .map_err(|e| format!("--cells {cell}: {e}"))?;
             println!("{}", recut(&top, cell)?);
         }
         return Ok(());
@@ -116,7 +124,10 @@ fn recut(top: &db::TopManifest, cell: f64) -> Result<serde_json::Value, String> 
         .and_then(|t| t.stops.first())
         .map(|s| top.viewpoints[s.viewpoint].position)
         .ok_or("the database has no viewpoint")?;
-    let target = root.index.cell_of(p.x, p.z).ok_or("the first viewpoint is outside")?;
+    let target = root
+        .index
+        .cell_of(p.x, p.z)
+        .ok_or("the first viewpoint is outside")?;
     let root_bytes = serde_json::to_vec(&root).map_err(|e| e.to_string())?.len() as u64 + 1;
     let mut path = 0u64;
     let mut next = root.index.root.clone().map(|r| {
@@ -143,7 +154,8 @@ fn recut(top: &db::TopManifest, cell: f64) -> Result<serde_json::Value, String> 
     let chunks: Vec<u64> = pieces
         .iter()
         .filter(|b| {
-            db::gunzip_limited(b, db::index::MAX_PIECE_BYTES).is_ok_and(|j| j.starts_with(b"{\"x\""))
+            db::gunzip_limited(b, db::index::MAX_PIECE_BYTES)
+                .is_ok_and(|j| j.starts_with(b"{\"x\""))
         })
         .map(|b| b.len() as u64)
         .collect();
