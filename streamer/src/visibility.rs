@@ -122,71 +122,23 @@ impl SceneIndex {
         for v in listed {
             by_id[v.index] = Some(v);
         }
-        let empty = |index: usize| tracks::manifest::ViewpointEntry {
-            index,
-            s: 0.0,
-            position: DVec3::ZERO,
-            background: Vec::new(),
-            tiles: Vec::new(),
-        };
-        let owned: Vec<tracks::manifest::ViewpointEntry> = by_id
+        // A viewpoint without tiles (its table not in yet, or a gap in the ids) holds no
+        // per-tile arrays, so an index over a large network costs what its loaded part does.
+        let viewpoints = by_id
             .iter()
-            .enumerate()
-            .filter(|(_, v)| v.is_none())
-            .map(|(i, _)| empty(i))
-            .collect();
-        let all: Vec<&tracks::manifest::ViewpointEntry> = by_id
-            .iter()
-            .enumerate()
-            .map(|(i, v)| {
-                v.unwrap_or_else(|| &owned[owned.iter().position(|o| o.index == i).unwrap_or(0)])
-            })
-            .collect();
-        let viewpoints = all
-            .into_iter()
-            .map(|vp| {
-                let mut layers: Vec<Layer> = (0..slabs)
-                    .map(|_| Layer {
-                        tiles: vec![None; grid.tile_count()],
-                    })
-                    .collect();
-                let mut depth = Vec::with_capacity(vp.tiles.len());
-                let mut cones = Vec::with_capacity(vp.tiles.len());
-                let mut far: f64 = 0.0;
-                let mut near = f64::INFINITY;
-                for (i, tile) in vp.tiles.iter().enumerate() {
-                    depth.push((tile.depth_min, tile.depth_max));
-                    let usable = tile.kept
-                        && tile.ptm.is_some()
-                        && tile.opaque_pixels > 0
-                        && tile.depth_min.is_finite()
-                        && tile.depth_max.is_finite()
-                        && tile.depth_min > 0.0
-                        && tile.depth_max >= tile.depth_min
-                        && tile.tile.tx < grid.tiles_per_side()
-                        && tile.tile.ty < grid.tiles_per_side();
-                    cones.push(usable.then(|| tile_cone(grid, tile.tile, tile.depth_min)));
-                    if let (true, Some(layer)) = (usable, layers.get_mut(tile.slab as usize)) {
-                        layer.tiles[grid.tile_index(tile.tile)] = Some(i);
-                        far = far.max(tile.depth_max);
-                        near = near.min(tile.depth_min);
-                    }
+            .map(|v| match v {
+                Some(vp) if !(vp.tiles.is_empty() && vp.background.is_empty()) => {
+                    index_viewpoint(grid, slabs, vp)
                 }
-                let mut background = vec![None; grid.tile_count()];
-                for (i, b) in vp.background.iter().enumerate() {
-                    if b.tile.tx < grid.tiles_per_side() && b.tile.ty < grid.tiles_per_side() {
-                        background[grid.tile_index(b.tile)] = Some(i);
-                    }
-                }
-                ViewpointIndex {
-                    position: vp.position,
-                    layers,
-                    depth,
-                    far,
-                    near,
-                    background,
-                    cones,
-                }
+                v => ViewpointIndex {
+                    position: v.map_or(DVec3::ZERO, |vp| vp.position),
+                    layers: Vec::new(),
+                    depth: Vec::new(),
+                    far: 0.0,
+                    near: f64::INFINITY,
+                    background: Vec::new(),
+                    cones: Vec::new(),
+                },
             })
             .collect();
         Some(SceneIndex { grid, viewpoints })
@@ -254,7 +206,7 @@ impl SceneIndex {
         let vp = self.viewpoints.get(vi)?;
         let dir = dir.try_normalize()?;
         let background = self.tile_index_at(dir).and_then(|ti| {
-            let tile = vp.background[ti]?;
+            let tile = vp.background.get(ti).copied().flatten()?;
             Some((
                 Surface::Background {
                     viewpoint: vi,
@@ -419,6 +371,57 @@ fn tile_cone(grid: TileGrid, t: tracks::TileId, depth_min: f64) -> (DVec3, f64, 
 /// ([`tracks::segment::blend_weights`], smoothstep across the segment), so the pixels a
 /// sample counts for each view are weighted as the renderer blends them.
 pub use tracks::segment::blend_weights;
+
+/// The lookup tables of one viewpoint with tiles: its tiles per slab and tile position, their
+/// depth bounds and cones, and its background tiles.
+fn index_viewpoint(
+    grid: TileGrid,
+    slabs: usize,
+    vp: &tracks::manifest::ViewpointEntry,
+) -> ViewpointIndex {
+    let mut layers: Vec<Layer> = (0..slabs)
+        .map(|_| Layer {
+            tiles: vec![None; grid.tile_count()],
+        })
+        .collect();
+    let mut depth = Vec::with_capacity(vp.tiles.len());
+    let mut cones = Vec::with_capacity(vp.tiles.len());
+    let mut far: f64 = 0.0;
+    let mut near = f64::INFINITY;
+    for (i, tile) in vp.tiles.iter().enumerate() {
+        depth.push((tile.depth_min, tile.depth_max));
+        let usable = tile.kept
+            && tile.ptm.is_some()
+            && tile.opaque_pixels > 0
+            && tile.depth_min.is_finite()
+            && tile.depth_max.is_finite()
+            && tile.depth_min > 0.0
+            && tile.depth_max >= tile.depth_min
+            && tile.tile.tx < grid.tiles_per_side()
+            && tile.tile.ty < grid.tiles_per_side();
+        cones.push(usable.then(|| tile_cone(grid, tile.tile, tile.depth_min)));
+        if let (true, Some(layer)) = (usable, layers.get_mut(tile.slab as usize)) {
+            layer.tiles[grid.tile_index(tile.tile)] = Some(i);
+            far = far.max(tile.depth_max);
+            near = near.min(tile.depth_min);
+        }
+    }
+    let mut background = vec![None; grid.tile_count()];
+    for (i, b) in vp.background.iter().enumerate() {
+        if b.tile.tx < grid.tiles_per_side() && b.tile.ty < grid.tiles_per_side() {
+            background[grid.tile_index(b.tile)] = Some(i);
+        }
+    }
+    ViewpointIndex {
+        position: vp.position,
+        layers,
+        depth,
+        far,
+        near,
+        background,
+        cones,
+    }
+}
 
 #[cfg(test)]
 mod tests {
