@@ -585,7 +585,8 @@ fn measure_first_complete_view_and_frame_time() {
         eprintln!(
             "{name}: complete view {:.0} ms, ready {:.0} ms after opening the page; \
              {} bytes in {} requests; draw at {w}x{h}: median {:.1} ms (min {:.1}, max {:.1}); \
-             longest main-thread arrival {:.1} ms, longest worker decode {:.1} ms",
+             longest main-thread arrival {:.1} ms, longest worker decode {:.1} ms; \
+             {} frames drawn; {} decodes; marks (ms) {}",
             s["completeMs"].as_f64().unwrap_or(f64::NAN),
             s["readyMs"].as_f64().unwrap_or(f64::NAN),
             s["stats"]["bytes"],
@@ -595,6 +596,9 @@ fn measure_first_complete_view_and_frame_time() {
             ms[ms.len() - 1],
             s["mainMaxMs"].as_f64().unwrap_or(f64::NAN),
             s["decodeMaxMs"].as_f64().unwrap_or(f64::NAN),
+            s["framesDrawn"],
+            s["decodes"],
+            s["marks"],
         );
     }
 }

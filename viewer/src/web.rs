@@ -28,6 +28,7 @@ pub const SITE: &[SiteFile] = site!(
     "pieces.js",
     "limits.js",
     "fetch.js",
+    "pool.js",
     "worker.js",
     "table.js",
     "ptm.js",

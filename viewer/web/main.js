@@ -15,6 +15,7 @@ import { readIndex, fetchChecked, MAX_PIECE_BYTES } from "./pieces.js";
 import { blake3Hex } from "./blake3.js";
 import { checkManifest, visibleTiles, tileKey, projector, projectPolygon, projectPoint, arrowShape } from "./plan.js";
 import { MAX_MANIFEST_BYTES, MAX_TABLE_BYTES } from "./limits.js";
+import { Workers } from "./pool.js";
 
 const MAX_FAULTS = 3;
 const IN_FLIGHT = 4;
@@ -29,6 +30,8 @@ const CLICK_STEP_M = 1;
 const TURN_ROUND_COS = -0.17;
 // The URL follows the walk at most this often (ms).
 const URL_EVERY_MS = 250;
+// Before the first complete view, a partial frame is drawn at most this often (ms).
+const FIRST_PARTIAL_MS = 1000;
 const SVG = "http://www.w3.org/2000/svg";
 // Decoded bytes kept (textures and meshes; views beyond the drawn pair and the next are
 // evicted, least recently wanted first): `?budget=MB`, 512 MB by default.
@@ -46,52 +49,6 @@ function showError(e) {
   el.classList.add("shown");
   el.textContent = String(e.message ?? e);
   console.error(e);
-}
-
-// A pool of decoding workers, each given one job at a time; waiting jobs go out by
-// priority (the drawn pair's visible tiles before the rest), not in arrival order.
-class Workers {
-  constructor(n) {
-    this.pool = Array.from({ length: n }, () => new Worker(new URL("./worker.js", import.meta.url), { type: "module" }));
-    this.idle = [...this.pool];
-    this.jobs = [];
-    this.id = 0;
-    this.maxMs = 0;
-    this.totalMs = 0;
-    this.count = 0;
-    for (const w of this.pool) {
-      w.onmessage = (ev) => {
-        this.maxMs = Math.max(this.maxMs, ev.data.ms ?? 0);
-        this.totalMs += ev.data.ms ?? 0;
-        this.count++;
-        const cb = w.job.resolve;
-        w.job = null;
-        this.idle.push(w);
-        this.next();
-        cb(ev.data);
-      };
-    }
-  }
-  run(msg, pri = 0) {
-    return new Promise((resolve) => {
-      this.jobs.push({ msg: { ...msg, id: ++this.id }, resolve, pri, order: this.id });
-      this.next();
-    });
-  }
-  next() {
-    while (this.idle.length && this.jobs.length) {
-      let best = 0;
-      for (let i = 1; i < this.jobs.length; i++) {
-        const a = this.jobs[i];
-        const b = this.jobs[best];
-        if (a.pri < b.pri || (a.pri === b.pri && a.order < b.order)) best = i;
-      }
-      const job = this.jobs.splice(best, 1)[0];
-      const w = this.idle.pop();
-      w.job = job;
-      w.postMessage(job.msg);
-    }
-  }
 }
 
 // A tile mesh's bytes: positions and depths (f32) and the info word per vertex on the GPU,
@@ -151,6 +108,7 @@ class App {
     const yaw = num("yaw", NaN);
     this.go(t, num("at", 0), Number.isFinite(yaw) ? yaw : undefined);
     this.mark("manifest");
+    this.shownAt = performance.now();
     this.bindInput();
     this.update();
     requestAnimationFrame(() => this.frame());
@@ -266,7 +224,7 @@ class App {
     }
     this.evict();
     this.requeue();
-    this.dirty = true;
+    this.changed(v);
   }
 
   // Priorities: the drawn pair's visible tiles (the heavier view first), coarse ranges
@@ -302,8 +260,9 @@ class App {
   pump() {
     while (this.inFlight < IN_FLIGHT && this.queue.length) {
       // Finer levels, the rest of the pair and the prefetch wait while the coarsest levels
-      // and meshes of the view's own tiles travel (a complete view first, then detail).
-      if (this.queue[0].pri >= 1 && this.urgentInFlight > 0) break;
+      // and meshes of the view's own tiles travel (a complete view first, then detail); on
+      // opening the page, until that first complete view has been drawn.
+      if (this.queue[0].pri >= 1 && (this.urgentInFlight > 0 || !this.firstView)) break;
       const first = this.queue.shift();
       const batch = [first];
       // Parts of the same pack at the same priority travel in one request.
@@ -439,7 +398,14 @@ class App {
   settle(v, t) {
     if (t.meshDone && t.decoded === t.e.ptm.levels.length) t.state = "done";
     this.evict();
-    this.dirty = true;
+    this.changed(v);
+  }
+
+  // Something of view v changed: drawn again when it is one of the drawn pair; a prefetched
+  // view's change shows nowhere but in the status, brought up to date without a frame.
+  changed(v) {
+    if (this.pair.some(([vi]) => vi === v.vi)) this.dirty = true;
+    else this.stale = true;
   }
 
   // Views beyond the pair and the next (rank over 1) go back to nothing when over the memory
@@ -493,15 +459,23 @@ class App {
       this.placeArrows();
       this.dirty = true;
     }
-    if (!this.dirty) return;
+    if (!this.dirty) {
+      if (this.stale) this.status(cam);
+      this.stale = false;
+      return;
+    }
+    // Until the first complete view a frame is drawn only when every tile it needs can be
+    // (or at most every FIRST_PARTIAL_MS): partial frames would take the decoders' CPU.
+    const now = performance.now();
+    if (!this.firstView && !this.moved && now - (this.lastDrawEnd ?? this.shownAt) < FIRST_PARTIAL_MS && !this.coarseComplete()) return;
     // The frame-time budget: at most half the time drawing, so that a slow rasteriser
     // (SwiftShader: a third of a second at 1280×720) leaves the decoders the rest while
     // tiles arrive; a moving camera is drawn at once.
-    const now = performance.now();
     const last = this.frameMs[this.frameMs.length - 1] ?? 0;
     if (!this.moved && now - (this.lastDrawEnd ?? 0) < last) return;
     this.moved = false;
     this.dirty = false;
+    this.stale = false;
     this.render(cam);
     this.lastDrawEnd = performance.now();
   }
@@ -525,9 +499,20 @@ class App {
       return;
     }
     this.frameMs.push(performance.now() - t0);
+    this.framesDrawn = (this.framesDrawn ?? 0) + 1;
     this.mark("first draw done");
     if (this.frameMs.length > 200) this.frameMs.splice(0, 100);
     this.status(cam);
+  }
+
+  // Whether every tile the drawn pair needs has its mesh and a level (or is missing).
+  coarseComplete() {
+    for (const [vi] of this.pair) {
+      const v = this.views.get(vi);
+      if (!v || !v.table) return false;
+      for (const t of v.tiles.values()) if (t.needed && !(t.decoded > 0 && t.meshDone) && t.state !== "missing") return false;
+    }
+    return true;
   }
 
   status() {
@@ -556,13 +541,19 @@ class App {
     // Track names come from the database: text only, never markup.
     statusText.textContent = `${this.trackName} · s ${this.walker.s.toFixed(2)} m${this.junctionText()} · detail ${pct}% (${have}/${need} tiles${missing ? `, ${missing} missing` : ""}) · ${(st.bytes / 1e6).toFixed(2)} MB in ${st.requests} requests`;
     bar.style.width = `${pct}%`;
-    window.railview = { need, have, missing, memory: this.memoryBytes(), budget: MEMORY_BUDGET, stats: st, faults: this.stats.faults, decodeMaxMs: this.workers.maxMs, decodeTotalMs: this.workers.totalMs, decodes: this.workers.count, mainMaxMs: this.mainMaxMs ?? 0, mainTotalMs: this.mainTotalMs ?? 0, frameMs: this.frameMs.slice(-50) };
+    window.railview = { need, have, missing, memory: this.memoryBytes(), budget: MEMORY_BUDGET, stats: st, faults: this.stats.faults, decodeMaxMs: this.workers.maxMs, decodeTotalMs: this.workers.totalMs, decodes: this.workers.count, mainMaxMs: this.mainMaxMs ?? 0, mainTotalMs: this.mainTotalMs ?? 0, frameMs: this.frameMs.slice(-50), framesDrawn: this.framesDrawn ?? 0 };
     const w = this.walker;
     window.railview.walker = { track: this.trackName, s: w.s, forward: w.forward, chosen: w.chosen ? this.net.names[w.chosen.track] : null };
     window.railview.arrows = this.arrows.map(({ branch, name, chosen, x, y }) => ({ ...branch, name, chosen, x, y }));
     // Times since the page was opened: every needed tile drawn at some level (what the
     // native walk counts as a complete frame), and at every level.
     if (pairLoaded && coarse === need && this.completeMs === undefined) this.completeMs = performance.now();
+    // Drawn with every tile it needs (or given up): now the rest is asked for.
+    if (pairLoaded && coarse + missing === need && !this.firstView && this.frameMs.length) {
+      this.firstView = true;
+      this.mark("first complete view");
+      this.pump();
+    }
     if (pairLoaded && have === need && this.readyMs === undefined) this.readyMs = performance.now();
     window.railview.completeMs = this.completeMs;
     window.railview.marks = this.marks;
