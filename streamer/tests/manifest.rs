@@ -509,3 +509,58 @@ fn index_cost(dir: &Path) -> (u64, u64, u64) {
     let (_, refs) = db::read_index(dir, root).unwrap();
     (refs.iter().map(|r| r.size).sum(), refs.len() as u64, levels)
 }
+
+#[tokio::test]
+async fn site_files_travel_gzipped_to_clients_that_accept_it() {
+    let (dir, _) = temp_db("site-gzip");
+    const BODY: &str = "export const X = 1;\n// padding that compresses well: aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa\n";
+    static SITE: &[server::SiteFile] = &[
+        server::SiteFile {
+            name: "index.html",
+            body: "<!doctype html>",
+        },
+        server::SiteFile {
+            name: "main.js",
+            body: BODY,
+        },
+    ];
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let (tx, rx) = oneshot::channel::<()>();
+    let config = ServerConfig {
+        site: SITE,
+        ..ServerConfig::default()
+    };
+    tokio::spawn(server::run(
+        listener,
+        ServedDb::open(&dir).unwrap(),
+        config,
+        Arc::new(ServerStats::default()),
+        async {
+            let _ = rx.await;
+        },
+    ));
+    let (status, h, body) = raw_get(addr, "/main.js", "Accept-Encoding: gzip, br\r\n").await;
+    assert_eq!(status, 200);
+    assert_eq!(header(&h, "content-encoding"), Some("gzip"));
+    assert_eq!(header(&h, "vary"), Some("accept-encoding"));
+    assert!(body.len() < BODY.len());
+    assert_eq!(gunzip_limited(&body, 1 << 20).unwrap(), BODY.as_bytes());
+    for extra in [
+        "",
+        "Accept-Encoding: gzip;q=0\r\n",
+        "Accept-Encoding: br\r\n",
+    ] {
+        let (status, h, body) = raw_get(addr, "/main.js", extra).await;
+        assert_eq!(status, 200);
+        assert_eq!(header(&h, "content-encoding"), None, "{extra}");
+        assert_eq!(body, BODY.as_bytes(), "{extra}");
+    }
+    // A file gzip would not make smaller goes as it is, with no Vary.
+    let (_, h, body) = raw_get(addr, "/", "Accept-Encoding: gzip\r\n").await;
+    assert_eq!(header(&h, "content-encoding"), None);
+    assert_eq!(header(&h, "vary"), None);
+    assert_eq!(body, b"<!doctype html>");
+    let _ = tx.send(());
+    let _ = std::fs::remove_dir_all(dir);
+}

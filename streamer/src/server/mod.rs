@@ -389,6 +389,10 @@ pub(crate) struct Shared {
     pub(crate) db: ServedDb,
     pub(crate) config: ServerConfig,
     pub(crate) stats: Arc<ServerStats>,
+    /// Per site file (in `config.site`'s order), its gzip when that is smaller: sent to
+    /// clients that accept gzip (the viewer's modules are a third of their size so, which is
+    /// most of a first view's time on a slow link).
+    pub(crate) site_gz: Vec<Option<bytes::Bytes>>,
 }
 
 /// Serve `db` on `listener` until `shutdown` completes, then drain open connections (up to
@@ -409,7 +413,22 @@ pub async fn run(
     );
     let clock = Clock::new();
     let registry = Arc::new(Mutex::new(Registry::default()));
-    let shared = Arc::new(Shared { db, config, stats });
+    let site_gz = config
+        .site
+        .iter()
+        .map(|f| {
+            db::gzip(f.body.as_bytes())
+                .ok()
+                .filter(|gz| gz.len() < f.body.len())
+                .map(bytes::Bytes::from)
+        })
+        .collect();
+    let shared = Arc::new(Shared {
+        db,
+        config,
+        stats,
+        site_gz,
+    });
     let (stop_tx, stop_rx) = watch::channel(false);
     let mut tasks = JoinSet::new();
     // The sweeper: closes connections that ran out of time, several times per shortest limit.

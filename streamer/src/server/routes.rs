@@ -103,16 +103,26 @@ async fn route(s: &Shared, req: &Request<Incoming>) -> Resp {
         object(s, rest, req).await.unwrap_or_else(|r| r)
     } else if path == "/bundle" && s.config.bundles {
         bundle(s, req).await.unwrap_or_else(|r| r)
-    } else if let Some(f) = site_file(s, path) {
-        let mut r = Response::new(ServeBody::full(bytes::Bytes::from_static(
-            f.body.as_bytes(),
-        )));
+    } else if let Some((k, f)) = site_file(s, path) {
+        let gz = s.site_gz.get(k).cloned().flatten();
+        let send_gz = gz.is_some() && accepts_gzip_header(req);
+        let body = match gz {
+            Some(gz) if send_gz => gz,
+            _ => bytes::Bytes::from_static(f.body.as_bytes()),
+        };
+        let mut r = Response::new(ServeBody::full(body));
         let h = r.headers_mut();
         h.insert(
             header::CONTENT_TYPE,
             HeaderValue::from_static(f.content_type()),
         );
         h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+        if s.site_gz.get(k).is_some_and(Option::is_some) {
+            h.insert(header::VARY, HeaderValue::from_static("Accept-Encoding"));
+        }
+        if send_gz {
+            h.insert(header::CONTENT_ENCODING, HeaderValue::from_static("gzip"));
+        }
         r
     } else {
         reply(
@@ -138,13 +148,26 @@ async fn route(s: &Shared, req: &Request<Incoming>) -> Resp {
     resp
 }
 
-/// The site file at `path` (`/` is `index.html`).
-fn site_file(s: &Shared, path: &str) -> Option<super::SiteFile> {
+/// The site file at `path` (`/` is `index.html`), with its place in the site's list.
+fn site_file(s: &Shared, path: &str) -> Option<(usize, super::SiteFile)> {
     let name = match path {
         "/" => "index.html",
         p => p.strip_prefix('/')?,
     };
-    s.config.site.iter().find(|f| f.name == name).copied()
+    s.config
+        .site
+        .iter()
+        .enumerate()
+        .find(|(_, f)| f.name == name)
+        .map(|(k, f)| (k, *f))
+}
+
+/// Whether the request's `Accept-Encoding` allows gzip.
+fn accepts_gzip_header(req: &Request<Incoming>) -> bool {
+    req.headers()
+        .get_all(header::ACCEPT_ENCODING)
+        .iter()
+        .any(|v| v.to_str().is_ok_and(accepts_gzip))
 }
 
 /// `resp` with `Connection: close`.
@@ -156,11 +179,7 @@ fn closing(mut resp: Resp) -> Resp {
 
 /// `/manifest.json`: the gzip copy when the client accepts it, else the identity bytes.
 fn manifest(s: &Shared, req: &Request<Incoming>) -> Resp {
-    let gzip_ok = req
-        .headers()
-        .get_all(header::ACCEPT_ENCODING)
-        .iter()
-        .any(|v| v.to_str().is_ok_and(accepts_gzip));
+    let gzip_ok = accepts_gzip_header(req);
     let (body, etag, gz) = match &s.db.manifest_gz {
         Some((gz, etag)) if gzip_ok => (gz.clone(), etag.as_str(), true),
         _ => (
