@@ -789,7 +789,7 @@ struct Way {
 
 /// The network's first crossing (a junction of four branches on two tracks) and its ways.
 fn crossing(db: &Path) -> Vec<Way> {
-    let m: serde_json::Value = serde_json::to_value(db::read_top(&db).unwrap()).unwrap();
+    let m: serde_json::Value = serde_json::to_value(db::read_top(db).unwrap()).unwrap();
     assert_eq!(m["version"], 9, "the network's manifest is format 9");
     let j = m["junctions"]
         .as_array()
@@ -1096,7 +1096,7 @@ fn street() -> &'static Path {
 fn browser_frames_match_railview_render_through_thin_occluders() {
     const VIEWS: usize = 4;
     let db = street();
-    let m: serde_json::Value = serde_json::to_value(db::read_top(&db).unwrap()).unwrap();
+    let m: serde_json::Value = serde_json::to_value(db::read_top(db).unwrap()).unwrap();
     let track = &m["tracks"][0];
     let length = track["length"].as_f64().unwrap();
     let stops: Vec<f64> = track["stops"]
