@@ -385,6 +385,29 @@ pub fn accepts_gzip(value: &str) -> bool {
     star
 }
 
+impl Shared {
+    /// What every connection shares; each site file's gzip, when that is smaller, is made
+    /// here once.
+    fn new(db: ServedDb, config: ServerConfig, stats: Arc<ServerStats>) -> Shared {
+        let site_gz = config
+            .site
+            .iter()
+            .map(|f| {
+                db::gzip(f.body.as_bytes())
+                    .ok()
+                    .filter(|gz| gz.len() < f.body.len())
+                    .map(bytes::Bytes::from)
+            })
+            .collect();
+        Shared {
+            db,
+            config,
+            stats,
+            site_gz,
+        }
+    }
+}
+
 pub(crate) struct Shared {
     pub(crate) db: ServedDb,
     pub(crate) config: ServerConfig,
@@ -413,22 +436,7 @@ pub async fn run(
     );
     let clock = Clock::new();
     let registry = Arc::new(Mutex::new(Registry::default()));
-    let site_gz = config
-        .site
-        .iter()
-        .map(|f| {
-            db::gzip(f.body.as_bytes())
-                .ok()
-                .filter(|gz| gz.len() < f.body.len())
-                .map(bytes::Bytes::from)
-        })
-        .collect();
-    let shared = Arc::new(Shared {
-        db,
-        config,
-        stats,
-        site_gz,
-    });
+    let shared = Arc::new(Shared::new(db, config, stats));
     let (stop_tx, stop_rx) = watch::channel(false);
     let mut tasks = JoinSet::new();
     // The sweeper: closes connections that ran out of time, several times per shortest limit.
