@@ -15,7 +15,7 @@
 
 use std::path::PathBuf;
 
-use db::index::{decode_chunk, decode_node, PieceAt};
+use db::index::{decode_chunk, decode_node};
 use tracks::manifest::ObjectRef;
 
 fn main() -> Result<(), String> {
@@ -57,30 +57,8 @@ fn main() -> Result<(), String> {
         .ok_or_else(|| format!("({}, {}) lies outside the index", at.0, at.1))?;
     // The path from the root to that cell's chunk.
     let read = |r: &ObjectRef| db::read_piece(&dir, r).map_err(|e| e.to_string());
-    let mut path_bytes = 0u64;
-    let mut chunk_viewpoints = 0usize;
-    let mut next = root.index.root.clone().map(|r| {
-        let at = PieceAt {
-            level: root.index.levels,
-            x: 0,
-            z: 0,
-        };
-        (at, r)
-    });
-    while let Some((at, r)) = next.take() {
-        let bytes = read(&r)?;
-        path_bytes += bytes.len() as u64;
-        if at.level == 0 {
-            chunk_viewpoints = decode_chunk(&bytes, &at, &root)?.viewpoints.len();
-            break;
-        }
-        let node = decode_node(&bytes, &at)?;
-        let shift = at.level - 1;
-        next = node
-            .children_at()
-            .find(|(a, _)| (a.x, a.z) == (cell.0 >> shift, cell.1 >> shift))
-            .map(|(a, c)| (a, c.clone()));
-    }
+    let (path_bytes, chunk) = path_to(&root, cell, read)?;
+    let chunk_viewpoints = chunk.map_or(0, |c| c.viewpoints.len());
     let mut chunks = Vec::new();
     for r in &refs {
         let bytes = read(r)?;
@@ -129,28 +107,8 @@ fn recut(top: &db::TopManifest, cell: f64) -> Result<serde_json::Value, String> 
         .cell_of(p.x, p.z)
         .ok_or("the first viewpoint is outside")?;
     let root_bytes = serde_json::to_vec(&root).map_err(|e| e.to_string())?.len() as u64 + 1;
-    let mut path = 0u64;
-    let mut next = root.index.root.clone().map(|r| {
-        let at = PieceAt {
-            level: root.index.levels,
-            x: 0,
-            z: 0,
-        };
-        (at, r)
-    });
-    while let Some((at, r)) = next.take() {
-        let bytes = store[&r.hash];
-        path += bytes.len() as u64;
-        if at.level == 0 {
-            break;
-        }
-        let node = decode_node(bytes, &at)?;
-        let shift = at.level - 1;
-        next = node
-            .children_at()
-            .find(|(a, _)| (a.x, a.z) == (target.0 >> shift, target.1 >> shift))
-            .map(|(a, c)| (a, c.clone()));
-    }
+    let fetch = |r: &ObjectRef| Ok::<_, String>(store[&r.hash].clone());
+    let (path, _) = path_to(&root, target, fetch)?;
     let chunks: Vec<u64> = pieces
         .iter()
         .filter(|b| {
@@ -169,4 +127,29 @@ fn recut(top: &db::TopManifest, cell: f64) -> Result<serde_json::Value, String> 
         "root_bytes": root_bytes,
         "first_view_index_bytes": root_bytes + path,
     }))
+}
+
+/// The bytes of the pieces from the root to cell `cell`'s chunk (a node a level, then the
+/// chunk), and that chunk when the cell has one.
+fn path_to(
+    root: &db::index::RootManifest,
+    cell: (u64, u64),
+    mut fetch: impl FnMut(&ObjectRef) -> Result<Vec<u8>, String>,
+) -> Result<(u64, Option<db::index::Chunk>), String> {
+    let mut bytes_read = 0u64;
+    let mut next = root.index.root_piece();
+    while let Some((at, r)) = next.take() {
+        let bytes = fetch(&r)?;
+        bytes_read += bytes.len() as u64;
+        if at.level == 0 {
+            return Ok((bytes_read, Some(decode_chunk(&bytes, &at, root)?)));
+        }
+        let node = decode_node(&bytes, &at)?;
+        let shift = at.level - 1;
+        next = node
+            .children_at()
+            .find(|(a, _)| (a.x, a.z) == (cell.0 >> shift, cell.1 >> shift))
+            .map(|(a, c)| (a, c.clone()));
+    }
+    Ok((bytes_read, None))
 }

@@ -133,6 +133,17 @@ pub struct PieceAt {
 }
 
 impl IndexRoot {
+    /// The tree's top piece and where it lies (a chunk when `levels` is 0); `None` without
+    /// viewpoints.
+    pub fn root_piece(&self) -> Option<(PieceAt, ObjectRef)> {
+        let at = PieceAt {
+            level: self.levels,
+            x: 0,
+            z: 0,
+        };
+        self.root.clone().map(|r| (at, r))
+    }
+
     /// The cell of a horizontal position (x, z), `None` outside the tree.
     pub fn cell_of(&self, x: f64, z: f64) -> Option<(u64, u64)> {
         let side = 1u64 << self.levels.min(MAX_LEVELS);
@@ -567,15 +578,7 @@ pub struct TreeWalk {
 
 impl TreeWalk {
     pub fn new(root: RootManifest) -> TreeWalk {
-        let mut todo = Vec::new();
-        if let Some(r) = &root.index.root {
-            let at = PieceAt {
-                level: root.index.levels,
-                x: 0,
-                z: 0,
-            };
-            todo.push((at, r.clone()));
-        }
+        let todo = root.index.root_piece().into_iter().collect();
         // A tree over at most one chunk per viewpoint has at most as many nodes per level.
         let limit = (MAX_LEVELS as usize + 1) * root.viewpoints.max(1);
         TreeWalk {

@@ -53,21 +53,7 @@ impl Database {
 
     /// The whole object, checked against its size and hash.
     pub fn read_object(&self, obj: &ObjectRef) -> Result<Vec<u8>, DbError> {
-        let path = self
-            .object_path(&obj.hash)
-            .ok_or_else(|| DbError::Request(format!("invalid object hash {:?}", obj.hash)))?;
-        let bytes = fs::read(&path).map_err(|e| DbError::io(&path, e))?;
-        if bytes.len() as u64 != obj.size {
-            return Err(DbError::format(
-                &path,
-                format!("size {} (manifest says {})", bytes.len(), obj.size),
-            ));
-        }
-        let got = hash_hex(&bytes);
-        if got != obj.hash {
-            return Err(DbError::format(&path, format!("content hash is {got}")));
-        }
-        Ok(bytes)
+        read_object_in(&self.root, obj)
     }
 
     /// `len` bytes at `offset` of an object (not hash-checked: ranges carry their own hash).
@@ -259,44 +245,7 @@ pub fn read_index(
 /// what a server checks before it serves a database, without keeping the graph. The error
 /// names the damaged file.
 pub fn check_index(dir: &Path, root: &RootManifest) -> Result<(), DbError> {
-    let db = Database {
-        root: dir.to_path_buf(),
-        top: TopManifest {
-            version: root.version,
-            scene: String::new(),
-            face_size: root.face_size,
-            tile_size: root.tile_size,
-            slabs: Vec::new(),
-            cull_alpha: None,
-            cull_variant: None,
-            viewpoints: Vec::new(),
-            tracks: Vec::new(),
-            junctions: Vec::new(),
-        },
-        manifest: Manifest {
-            version: 0,
-            scene: String::new(),
-            face_size: root.face_size,
-            tile_size: root.tile_size,
-            slabs: Vec::new(),
-            cull_alpha: None,
-            cull_variant: None,
-            tracks: Vec::new(),
-        },
-    };
-    let mut todo: Vec<(index::PieceAt, ObjectRef)> = root
-        .index
-        .root
-        .iter()
-        .map(|r| {
-            let at = index::PieceAt {
-                level: root.index.levels,
-                x: 0,
-                z: 0,
-            };
-            (at, r.clone())
-        })
-        .collect();
+    let mut todo: Vec<(index::PieceAt, ObjectRef)> = root.index.root_piece().into_iter().collect();
     let mut seen = 0usize;
     while let Some((at, r)) = todo.pop() {
         let bytes = read_piece(dir, &r)?;
@@ -316,20 +265,40 @@ pub fn check_index(dir: &Path, root: &RootManifest) -> Result<(), DbError> {
             )));
         }
         for v in &chunk.viewpoints {
-            let bytes = db.read_object(&v.table)?;
-            let path = db.object_path(&v.table.hash).unwrap_or_default();
+            // Read and decode each object; a failure names its file.
+            let named = |o: &ObjectRef, e: String| {
+                DbError::format(&dir.join(o.rel_path().unwrap_or_default()), e)
+            };
+            let bytes = read_object_in(dir, &v.table)?;
             split::decode_table(&bytes, v.index)
-                .map_err(|e| DbError::format(&path, format!("viewpoint {}: {e}", v.index)))?;
+                .map_err(|e| named(&v.table, format!("viewpoint {}: {e}", v.index)))?;
             if let Some(ach) = &v.ach {
-                let bytes = db.read_object(ach)?;
-                let path = db.object_path(&ach.hash).unwrap_or_default();
-                split::decode_ach(&bytes, v.index).map_err(|e| {
-                    DbError::format(&path, format!("ACH lists of viewpoint {}: {e}", v.index))
-                })?;
+                split::decode_ach(&read_object_in(dir, ach)?, v.index)
+                    .map_err(|e| named(ach, format!("ACH lists of viewpoint {}: {e}", v.index)))?;
             }
         }
     }
     Ok(())
+}
+
+/// The whole object `obj` of the database in `dir`, checked against its size and hash.
+fn read_object_in(dir: &Path, obj: &ObjectRef) -> Result<Vec<u8>, DbError> {
+    let path = obj
+        .rel_path()
+        .map(|rel| dir.join(rel))
+        .ok_or_else(|| DbError::Request(format!("invalid object hash {:?}", obj.hash)))?;
+    let bytes = fs::read(&path).map_err(|e| DbError::io(&path, e))?;
+    if bytes.len() as u64 != obj.size {
+        return Err(DbError::format(
+            &path,
+            format!("size {} (manifest says {})", bytes.len(), obj.size),
+        ));
+    }
+    let got = hash_hex(&bytes);
+    if got != obj.hash {
+        return Err(DbError::format(&path, format!("content hash is {got}")));
+    }
+    Ok(bytes)
 }
 
 /// One piece of the index from `DIR/objects/`, checked against its reference.

@@ -183,15 +183,9 @@ fn read_top_checked(dir: &Path, report: &mut Report) -> Option<(TopManifest, Vec
             }
         }
     }
-    let root = match parse_root(&manifest_path, &bytes) {
-        Ok(root) => root,
-        Err(e) => {
-            report
-                .problems
-                .push(problem(manifest_path.clone(), strip_path(&e)));
-            return None;
-        }
-    };
+    let root = parse_root(&manifest_path, &bytes)
+        .map_err(|e| (report.problems).push(problem(manifest_path.clone(), strip_path(&e))))
+        .ok()?;
     // The pieces of the index: each one read is referenced; a bad one is named by its file.
     let mut pieces: Vec<ObjectRef> = Vec::new();
     let mut failed: Option<PathBuf> = None;
