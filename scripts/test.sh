@@ -20,6 +20,16 @@ ensure_packages strict povray povray-includes povray-examples \
   xvfb xauth chromium slurm-wlm munge nginx nodejs
 ensure_runtime_dir
 
+# The build and the tests need disk: a release target of about 2 GB (6 GB with the profile's
+# incremental state; CI turns it off) and up to about 1 GB of temporary files at a time.
+free_kb() { df -Pk "$1" | awk 'NR == 2 { print $4 }'; }
+for dir in . "${TMPDIR:-/tmp}"; do
+  if [ "$(free_kb "$dir")" -lt $((3 * 1024 * 1024)) ]; then
+    echo "warning: $(cd "$dir" && pwd) has $(($(free_kb "$dir") / 1024)) MB free;" \
+      "the tests need about 3 GB (set CARGO_INCREMENTAL=0 to save 4 GB of build state)" >&2
+  fi
+done
+
 cargo fmt --all --check
 cargo clippy --release --workspace --all-targets --locked -- -D warnings
 # Every crate's documentation builds without warnings (broken intra-doc links included).
@@ -38,5 +48,6 @@ demo_dir=$(mktemp -d)
 trap 'rm -rf "$demo_dir"' EXIT
 demo_args=(--no-window --face-size 16 --walk-speed 36)
 ./scripts/demo.sh "${demo_args[@]}" --out "$demo_dir/default"
+rm -rf "${demo_dir:?}/default"
 VK_ICD_FILENAMES=/nonexistent VK_DRIVER_FILES=/nonexistent \
   ./scripts/demo.sh "${demo_args[@]}" --out "$demo_dir/without-vulkan"
