@@ -103,6 +103,7 @@ const MARCH_STEPS: usize = 48;
 /// One track of a manifest, indexed for visibility queries.
 pub struct SceneIndex {
     grid: TileGrid,
+    slabs: usize,
     viewpoints: Vec<ViewpointIndex>,
 }
 
@@ -122,26 +123,29 @@ impl SceneIndex {
         for v in listed {
             by_id[v.index] = Some(v);
         }
-        // A viewpoint without tiles (its table not in yet, or a gap in the ids) holds no
-        // per-tile arrays, so an index over a large network costs what its loaded part does.
+        // A gap in the ids (a viewpoint no track lists) is an empty viewpoint at the origin.
         let viewpoints = by_id
             .iter()
             .map(|v| match v {
-                Some(vp) if !(vp.tiles.is_empty() && vp.background.is_empty()) => {
-                    index_viewpoint(grid, slabs, vp)
-                }
-                v => ViewpointIndex {
-                    position: v.map_or(DVec3::ZERO, |vp| vp.position),
-                    layers: Vec::new(),
-                    depth: Vec::new(),
-                    far: 0.0,
-                    near: f64::INFINITY,
-                    background: Vec::new(),
-                    cones: Vec::new(),
-                },
+                Some(vp) => viewpoint_index(grid, slabs, vp),
+                None => empty_viewpoint(DVec3::ZERO),
             })
             .collect();
-        Some(SceneIndex { grid, viewpoints })
+        Some(SceneIndex {
+            grid,
+            slabs,
+            viewpoints,
+        })
+    }
+
+    /// Indexes viewpoint `vp.index` again (its table arrived): the cost of that viewpoint,
+    /// not of the scene. An id beyond those of the manifest the index was made from is left
+    /// out.
+    pub fn update(&mut self, vp: &tracks::manifest::ViewpointEntry) {
+        let (grid, slabs) = (self.grid, self.slabs);
+        if let Some(slot) = self.viewpoints.get_mut(vp.index) {
+            *slot = viewpoint_index(grid, slabs, vp);
+        }
     }
 
     /// Whether tile `tile` of viewpoint `viewpoint` can fall inside `camera`'s view frustum —
@@ -372,6 +376,32 @@ fn tile_cone(grid: TileGrid, t: tracks::TileId, depth_min: f64) -> (DVec3, f64, 
 /// sample counts for each view are weighted as the renderer blends them.
 pub use tracks::segment::blend_weights;
 
+/// A viewpoint's index; one without tiles (its table not in yet) holds no per-tile arrays, so
+/// an index over a large network costs what its loaded part does.
+fn viewpoint_index(
+    grid: TileGrid,
+    slabs: usize,
+    vp: &tracks::manifest::ViewpointEntry,
+) -> ViewpointIndex {
+    if vp.tiles.is_empty() && vp.background.is_empty() {
+        empty_viewpoint(vp.position)
+    } else {
+        index_viewpoint(grid, slabs, vp)
+    }
+}
+
+fn empty_viewpoint(position: DVec3) -> ViewpointIndex {
+    ViewpointIndex {
+        position,
+        layers: Vec::new(),
+        depth: Vec::new(),
+        far: 0.0,
+        near: f64::INFINITY,
+        background: Vec::new(),
+        cones: Vec::new(),
+    }
+}
+
 /// The lookup tables of one viewpoint with tiles: its tiles per slab and tile position, their
 /// depth bounds and cones, and its background tiles.
 fn index_viewpoint(
@@ -475,6 +505,42 @@ mod tests {
             .map(|c| c.pixels())
             .sum();
         assert!(tiles > 0.9 * total, "{tiles} of {total}");
+    }
+
+    #[test]
+    fn an_index_updated_viewpoint_by_viewpoint_sees_what_a_full_one_does() {
+        let (full, m) = corridor("update");
+        let mut empty = m.clone();
+        for v in empty
+            .tracks
+            .iter_mut()
+            .flat_map(|t| t.viewpoints.iter_mut())
+        {
+            v.tiles.clear();
+            v.background.clear();
+        }
+        let mut index = SceneIndex::new(&empty).unwrap();
+        let cam = cam_at(&m, 1, 160);
+        let pair = [(1, 0.5), (2, 0.5)];
+        assert!(index.count(&cam, &pair, 40, 20).is_empty());
+        for v in m.tracks[0].viewpoints.iter().rev() {
+            index.update(v);
+        }
+        assert_eq!(
+            index.count(&cam, &pair, 40, 20),
+            full.count(&cam, &pair, 40, 20)
+        );
+        let (mut far, mut near) = (
+            m.tracks[0].viewpoints[0].clone(),
+            empty.tracks[0].viewpoints[0].clone(),
+        );
+        far.index = index.viewpoints.len();
+        near.index = 0;
+        // An id the index does not know is left out; an emptied viewpoint sees nothing.
+        index.update(&far);
+        index.update(&near);
+        assert_eq!(index.viewpoints.len(), full.viewpoints.len());
+        assert!(index.trace(0, cam.position, DVec3::X).is_none());
     }
 
     #[test]

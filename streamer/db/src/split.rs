@@ -380,6 +380,52 @@ pub fn split(m: &Manifest) -> Result<(TopManifest, TableBytes), TableError> {
     Ok((top, all))
 }
 
+/// Where each viewpoint stops on `top`'s tracks, by viewpoint id: `(track, stop)` pairs in
+/// track order (a junction's viewpoint stops on several tracks). What
+/// [`update_viewpoint`] needs to find a viewpoint's entries without going over the others.
+pub fn stops_by_viewpoint(top: &TopManifest) -> Vec<Vec<(usize, usize)>> {
+    let mut out = vec![Vec::new(); top.viewpoints.len()];
+    for (t, track) in top.tracks.iter().enumerate() {
+        for (k, st) in track.stops.iter().enumerate() {
+            if let Some(at) = out.get_mut(st.viewpoint) {
+                at.push((t, k));
+            }
+        }
+    }
+    out
+}
+
+/// Brings viewpoint `vi`'s entries in `m` (a manifest [`assemble`] made from `top`) up to
+/// `table`: its tiles and background on every track that stops there and the ACH lists of the
+/// segments that start there, as [`assemble`] would give them with that table; `at` is
+/// [`stops_by_viewpoint`]`(top)[vi]`. The cost is that of the one table, not of the network.
+pub fn update_viewpoint(
+    m: &mut Manifest,
+    top: &TopManifest,
+    vi: usize,
+    at: &[(usize, usize)],
+    table: Option<&ViewTable>,
+) {
+    for &(t, k) in at {
+        let (Some(track), Some(top_track)) = (m.tracks.get_mut(t), top.tracks.get(t)) else {
+            continue;
+        };
+        if let Some(v) = track.viewpoints.get_mut(k).filter(|v| v.index == vi) {
+            v.background = table.map(|tb| tb.background.clone()).unwrap_or_default();
+            v.tiles = table.map(|tb| tb.tiles.clone()).unwrap_or_default();
+        }
+        let Some(to) = top_track.stops.get(k + 1).map(|st| st.viewpoint) else {
+            continue;
+        };
+        if let Some(seg) = track.segments.get_mut(k).filter(|s| s.from == vi) {
+            seg.ach = table
+                .and_then(|tb| tb.segments.iter().find(|s| s.to == to))
+                .map(|s| s.ach.clone())
+                .unwrap_or_default();
+        }
+    }
+}
+
 /// The full manifest as far as the tables go: `tables[v]` is viewpoint `v`'s table when it
 /// has arrived. Viewpoints without one have no tiles; segments whose `from` table is missing
 /// have no ACH entries. Each track lists its viewpoints (the same entry on every track that

@@ -512,6 +512,27 @@ fn split_and_assemble_round_trip_and_partial_tables_leave_tiles_out() {
         m.tracks[0].viewpoints[1].tiles
     );
     assert!(part.tracks[0].segments[0].ach.is_empty());
+    // Filled in one viewpoint at a time, in any order, the manifest is what `assemble` makes
+    // of the tables so far, also where a viewpoint stops on two tracks (a second track, the
+    // first reversed: its segment starts at viewpoint 1, whose table has no ACH for it).
+    let mut net = top.clone();
+    let mut back = net.tracks[0].clone();
+    back.name = "back".into();
+    back.stops.reverse();
+    net.tracks.push(back);
+    let at = split::stops_by_viewpoint(&net);
+    assert_eq!(at[1], [(0, 1), (1, 0)]);
+    for order in [[0, 1], [1, 0]] {
+        let mut m = split::assemble(&net, &[]);
+        let mut row: Vec<Option<&ViewTable>> = vec![None; 2];
+        for vi in order {
+            row[vi] = Some(&tables[vi]);
+            split::update_viewpoint(&mut m, &net, vi, &at[vi], row[vi]);
+            assert_eq!(m, split::assemble(&net, &row), "order {order:?}");
+        }
+        split::update_viewpoint(&mut m, &net, 0, &at[0], None);
+        assert_eq!(m, split::assemble(&net, &[None, Some(&tables[1])]));
+    }
     // A table is never taken for another viewpoint.
     assert!(split::decode_table(&bytes[0].table, 1).is_err());
     assert!(split::decode_table(b"garbage", 0).is_err());

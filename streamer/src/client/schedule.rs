@@ -178,8 +178,10 @@ pub struct Scheduler {
     budget: BudgetParams,
     /// Whether the server answers `/bundle` (as far as seen).
     bundles: bool,
-    /// Tables arrived since the manifest and index were rebuilt.
-    tables_dirty: bool,
+    /// Viewpoints whose table or ACH lists arrived since the manifest and index were updated.
+    changed: Vec<usize>,
+    /// Where each viewpoint stops on the tracks (`db::split::stops_by_viewpoint`).
+    stops: Vec<Vec<(usize, usize)>>,
     /// Live counts of the latest tick (CPU estimate merged with the caller's).
     live: Vec<LiveCount>,
     /// Object faults of parts, and of tables and ACH objects (driver's clock).
@@ -227,6 +229,7 @@ impl Scheduler {
         let mut cache = Cache::new(if naive { u64::MAX } else { config.cache_bytes });
         cache.record_evictions();
         let index = SceneIndex::new(&manifest);
+        let stops = db::split::stops_by_viewpoint(&top);
         let held = vec![0; table.items.len()];
         let link = LinkEstimate::new(config.prior_bps, config.prior_latency_s);
         let config_failures = config.failures;
@@ -239,6 +242,7 @@ impl Scheduler {
             chosen: None,
             dist_memo: None,
             manifest,
+            stops,
             tables: vec![None; n_vp],
             achs: vec![None; n_vp],
             table_keys,
@@ -264,7 +268,7 @@ impl Scheduler {
             cancelled: KeySet::default(),
             paused_until: None,
             bundles: true,
-            tables_dirty: false,
+            changed: Vec::new(),
             live: Vec::new(),
             failures: FailureBook::new(config_failures),
             table_failures: FailureBook::new(config_failures),
@@ -414,13 +418,13 @@ impl Scheduler {
                 }
                 if let Some(&vi) = self.table_keys.get(&done.key) {
                     if self.tables[vi].is_none() && self.table_arrived(vi, &data) {
-                        self.tables_dirty = true;
+                        self.changed.push(vi);
                     }
                     return;
                 }
                 if let Some(&vi) = self.ach_keys.get(&done.key) {
                     if self.achs[vi].is_none() && self.ach_arrived(vi, &data) {
-                        self.tables_dirty = true;
+                        self.changed.push(vi);
                     }
                     return;
                 }

@@ -1,14 +1,13 @@
 //! Viewpoint tables in the scheduler: which to ask for when, and what happens when they
-//! arrive (decoded, their items added, the manifest and visibility index rebuilt once per
-//! tick's worth of tables).
+//! arrive (decoded, their items added, their viewpoints' entries in the manifest and the
+//! visibility index updated once per tick's worth of tables).
 
 use bytes::Bytes;
 
 use super::{whole, whole_piece, Scheduler, Want, WantClass};
 use crate::client::http::KeySet;
 use crate::client::schedule::Arrival;
-use crate::visibility::SceneIndex;
-use db::split::{assemble, decode_ach, decode_table, ViewTable};
+use db::split::{decode_ach, decode_table, update_viewpoint};
 
 impl Scheduler {
     /// The objects to fetch for viewpoint `v` that are neither in nor on the wire: its table,
@@ -241,9 +240,22 @@ impl Scheduler {
                 .memory_static_bytes
                 .max(scaled.memory_static_bytes);
         }
-        let row: Vec<Option<&ViewTable>> = self.tables.iter().map(|t| t.as_ref()).collect();
-        self.manifest = assemble(&self.top, &row);
-        self.index = SceneIndex::new(&self.manifest);
+        // Only the viewpoints whose table or ACH lists came: a rebuild of the whole manifest
+        // and index cost (and held twice) what every table so far does.
+        let mut changed = std::mem::take(&mut self.changed);
+        changed.sort_unstable();
+        changed.dedup();
+        for vi in changed {
+            let at = self.stops.get(vi).map_or(&[][..], Vec::as_slice);
+            let table = self.tables.get(vi).and_then(Option::as_ref);
+            update_viewpoint(&mut self.manifest, &self.top, vi, at, table);
+            let entry = at
+                .first()
+                .and_then(|&(t, k)| self.manifest.tracks.get(t)?.viewpoints.get(k));
+            if let (Some(index), Some(entry)) = (&mut self.index, entry) {
+                index.update(entry);
+            }
+        }
         // New tiles and items: count, prefetch and pin again.
         self.cpu_counts = None;
         self.prefetch_memo = None;
