@@ -582,6 +582,14 @@ fn measure_first_complete_view_and_frame_time() {
             .collect();
         ms.sort_by(f64::total_cmp);
         let s = &state["state"];
+        // Where the page's own load goes before main.js runs: the navigation's and each
+        // module's timing (ms since the page was opened).
+        let load = b.eval(
+            "JSON.stringify([performance.getEntriesByType('navigation')[0]]\
+             .concat(performance.getEntriesByType('resource').filter((r) => /\\.(js|css|html)$/.test(r.name)))\
+             .map((e) => [e.name.split('/').pop() || 'page', Math.round(e.startTime), Math.round(e.responseStart), Math.round(e.responseEnd), Math.round(e.domInteractive ?? 0)]))",
+        );
+        eprintln!("{name}: load (name, start, first byte, end, DOM interactive): {load}");
         eprintln!(
             "{name}: complete view {:.0} ms, ready {:.0} ms after opening the page; \
              {} bytes in {} requests; draw at {w}x{h}: median {:.1} ms (min {:.1}, max {:.1}); \

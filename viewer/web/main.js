@@ -65,9 +65,6 @@ class App {
   constructor() {
     this.base = new URL(".", location.href).href;
     this.store = new Store(this.base);
-    this.renderer = new Renderer(canvas);
-    // At least two workers: one decodes while the other's result is uploaded.
-    this.workers = new Workers(Math.max(2, Math.min(4, (navigator.hardwareConcurrency || 2) - 1)));
     this.views = new Map();
     this.queue = [];
     this.inFlight = 0;
@@ -94,7 +91,15 @@ class App {
 
   async start() {
     this.mark("start");
-    const bytes = await this.store.get(`${this.base}manifest.json`, MAX_MANIFEST_BYTES);
+    // The manifest is asked for first: the workers' modules and the renderer (a WebGL
+    // context, 0.15–0.3 s of the main thread under SwiftShader) are made while it travels.
+    const asked = this.store.get(`${this.base}manifest.json`, MAX_MANIFEST_BYTES);
+    asked.catch(() => {}); // awaited below; a renderer that fails first is the error shown
+    // At least two workers: one decodes while the other's result is uploaded.
+    this.workers = new Workers(Math.max(2, Math.min(4, (navigator.hardwareConcurrency || 2) - 1)));
+    this.renderer = new Renderer(canvas);
+    this.mark("renderer");
+    const bytes = await asked;
     const root = JSON.parse(new TextDecoder().decode(bytes));
     this.manifest = checkManifest(await readIndex(root, (ref) => fetchChecked(this.store, ref, MAX_PIECE_BYTES)));
     this.net = new Network(this.manifest);

@@ -154,24 +154,39 @@ void main() {
   color = vec4(to_srgb(found), 0.5);
 }`;
 
+// Compiles and links a program without waiting for either: asking for the status at once
+// would hold the page (about 0.4 s under SwiftShader) before it could ask for its manifest,
+// while the GPU process compiles on its own. `linked` checks it when it is first used.
 function compile(gl, vs, fs) {
   const prog = gl.createProgram();
+  const shaders = [];
   for (const [type, src] of [[gl.VERTEX_SHADER, vs], [gl.FRAGMENT_SHADER, fs]]) {
     const s = gl.createShader(type);
     gl.shaderSource(s, src);
     gl.compileShader(s);
-    if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(`shader: ${gl.getShaderInfoLog(s)}`);
     gl.attachShader(prog, s);
+    shaders.push(s);
   }
   gl.linkProgram(prog);
-  if (!gl.getProgramParameter(prog, gl.LINK_STATUS)) throw new Error(`program: ${gl.getProgramInfoLog(prog)}`);
-  const u = {};
-  const n = gl.getProgramParameter(prog, gl.ACTIVE_UNIFORMS);
-  for (let i = 0; i < n; i++) {
-    const name = gl.getActiveUniform(prog, i).name;
-    u[name] = gl.getUniformLocation(prog, name);
+  return { prog, shaders, u: null };
+}
+
+// The program `p` once linked, with its uniforms' locations; a compile or link error is
+// thrown with the compiler's log.
+function linked(gl, p) {
+  if (p.u) return p;
+  for (const s of p.shaders) {
+    if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(`shader: ${gl.getShaderInfoLog(s)}`);
   }
-  return { prog, u };
+  if (!gl.getProgramParameter(p.prog, gl.LINK_STATUS)) throw new Error(`program: ${gl.getProgramInfoLog(p.prog)}`);
+  const u = {};
+  const n = gl.getProgramParameter(p.prog, gl.ACTIVE_UNIFORMS);
+  for (let i = 0; i < n; i++) {
+    const name = gl.getActiveUniform(p.prog, i).name;
+    u[name] = gl.getUniformLocation(p.prog, name);
+  }
+  p.u = u;
+  return p;
 }
 
 // Camera basis (tracks::PerspectiveCamera::basis): yaw 0 looks along −z, 90 along +x.
@@ -213,11 +228,25 @@ export class Renderer {
     if (!gl) throw new Error("this browser has no WebGL2");
     if (!gl.getExtension("EXT_color_buffer_float")) throw new Error("WebGL2 without EXT_color_buffer_float");
     this.gl = gl;
-    this.mesh = compile(gl, MESH_VS, MESH_FS);
-    this.composite = compile(gl, FULL_VS, COMPOSITE_FS);
-    this.fill = compile(gl, FULL_VS, FILL_FS);
+    this.programs = {
+      mesh: compile(gl, MESH_VS, MESH_FS),
+      composite: compile(gl, FULL_VS, COMPOSITE_FS),
+      fill: compile(gl, FULL_VS, FILL_FS),
+    };
     this.empty = gl.createVertexArray();
     this.targets = null;
+  }
+
+  get mesh() {
+    return linked(this.gl, this.programs.mesh);
+  }
+
+  get composite() {
+    return linked(this.gl, this.programs.composite);
+  }
+
+  get fill() {
+    return linked(this.gl, this.programs.fill);
   }
 
   // A view's texture: `layers` slab layers + background (layer 0), each a face column n × 6n
