@@ -160,6 +160,44 @@ pub fn choose(
     choose_with_edges(hist, &edges, max_spacing_m, face_size, params)
 }
 
+/// [`choose`] over `count` maps that `read(k)` gives one at a time (twice each: the depth
+/// range and the edges first, then the histogram), so that a track of any length needs one
+/// map in memory at once, not all. The same choice as [`choose`] on all of them.
+pub fn choose_streamed<E>(
+    count: usize,
+    mut read: impl FnMut(usize) -> Result<CubeMap<f32>, E>,
+    max_spacing_m: f64,
+    face_size: u32,
+    params: &ChooseParams,
+) -> Result<SlabChoice, E> {
+    let half_baseline = if max_spacing_m.is_finite() {
+        max_spacing_m.max(0.0)
+    } else {
+        0.0
+    } / 2.0;
+    let min_gap = theta_pixel(face_size) * params.threshold_px;
+    let views = count.max(1) as f64;
+    let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+    let mut edges = Vec::new();
+    for k in 0..count {
+        let m = read(k)?;
+        let (a, b) = crate::histogram::depth_range(&m);
+        (lo, hi) = (lo.min(a), hi.max(b));
+        map_occlusion_edges(&m, half_baseline, min_gap, views, &mut edges);
+    }
+    let mut hist = DepthHistogram::over(lo, hi, params.bins);
+    for k in 0..count {
+        hist.add(&read(k)?, views);
+    }
+    Ok(choose_with_edges(
+        hist,
+        &edges,
+        max_spacing_m,
+        face_size,
+        params,
+    ))
+}
+
 /// A pair of neighbouring low-res pixels across which the surface jumps: a viewer `B/2`
 /// off the viewpoint sees a gap open between them wider than the threshold.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -182,11 +220,26 @@ pub fn occlusion_edges(
     min_gap_rad: f64,
 ) -> Vec<OcclusionEdge> {
     let mut out = Vec::new();
-    if half_baseline_m <= 0.0 {
-        return out;
-    }
     let views = maps.len().max(1) as f64;
     for m in maps {
+        map_occlusion_edges(m, half_baseline_m, min_gap_rad, views, &mut out);
+    }
+    out
+}
+
+/// [`occlusion_edges`] of one map `m` of `views`, appended to `out` (each edge's weight is
+/// divided by `views`).
+pub fn map_occlusion_edges(
+    m: &CubeMap<f32>,
+    half_baseline_m: f64,
+    min_gap_rad: f64,
+    views: f64,
+    out: &mut Vec<OcclusionEdge>,
+) {
+    if half_baseline_m <= 0.0 {
+        return;
+    }
+    {
         let n = m.face_size();
         let dn = |x: u32, y: u32| -> f64 {
             let (u, v) = tracks::cubemap::uv_from_pixel_f(x as f64 + 0.5, y as f64 + 0.5, n);
@@ -230,7 +283,6 @@ pub fn occlusion_edges(
             }
         }
     }
-    out
 }
 
 /// [`choose`] on a histogram and occlusion edges already computed.
@@ -706,6 +758,47 @@ mod tests {
         assert_eq!(acc.len(), 1);
         // (B/2)(1/2 − 1/50) = 0.96 rad, far above one pixel.
         assert!((acc[0].parallax_rad - 2.0 * (0.5 - 0.02)).abs() < 0.1);
+    }
+
+    #[test]
+    fn maps_read_one_at_a_time_give_the_choice_of_all_at_once() {
+        let maps = [
+            two_depths(16, 2.0, 50.0),
+            two_depths(16, 3.0, 40.0),
+            CubeMap::from_fn(16, |f, x, y| {
+                if f == tracks::Face::PosY {
+                    f32::INFINITY
+                } else {
+                    1.0 + (x * y) as f32 * 0.5
+                }
+            }),
+        ];
+        for spacing in [4.0, 0.0, f64::INFINITY] {
+            let all = choose(&maps, spacing, 256, &ChooseParams::default());
+            let mut reads = 0;
+            let one = choose_streamed(
+                maps.len(),
+                |k| {
+                    reads += 1;
+                    Ok::<_, ()>(maps[k].clone())
+                },
+                spacing,
+                256,
+                &ChooseParams::default(),
+            )
+            .unwrap();
+            assert_eq!(one, all, "spacing {spacing}");
+            assert_eq!(reads, 2 * maps.len());
+        }
+        // A map that cannot be read stops the choice with its error.
+        let err = choose_streamed(
+            2,
+            |k| if k == 1 { Err(k) } else { Ok(maps[0].clone()) },
+            4.0,
+            256,
+            &ChooseParams::default(),
+        );
+        assert_eq!(err.unwrap_err(), 1);
     }
 
     #[test]

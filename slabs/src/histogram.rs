@@ -26,26 +26,45 @@ pub struct DepthHistogram {
     pub depth_max_m: Option<f64>,
 }
 
+/// The nearest and farthest finite positive depth of `m`: `(INFINITY, 0)` when it has none.
+pub fn depth_range(m: &CubeMap<f32>) -> (f64, f64) {
+    let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+    for &d in m.as_slice() {
+        let d = d as f64;
+        if d.is_finite() && d > 0.0 {
+            lo = lo.min(d);
+            hi = hi.max(d);
+        }
+    }
+    (lo, hi)
+}
+
 impl DepthHistogram {
     /// Bin the finite positive depths of `maps` (all must share one face size; an empty
     /// slice gives an empty histogram) into `bins` bins (at least 1).
     pub fn build(maps: &[CubeMap<f32>], bins: usize) -> DepthHistogram {
-        let bins = bins.max(1);
-        let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
-        for m in maps {
-            for &d in m.as_slice() {
-                let d = d as f64;
-                if d.is_finite() && d > 0.0 {
-                    lo = lo.min(d);
-                    hi = hi.max(d);
-                }
-            }
-        }
+        let (lo, hi) = maps
+            .iter()
+            .map(depth_range)
+            .fold((f64::INFINITY, 0.0f64), |(lo, hi), (a, b)| {
+                (lo.min(a), hi.max(b))
+            });
         let views = maps.len().max(1) as f64;
+        let mut h = DepthHistogram::over(lo, hi, bins);
+        for m in maps {
+            h.add(m, views);
+        }
+        h
+    }
+
+    /// An empty histogram of `bins` bins (at least 1) over the depths `lo..=hi` (the fold of
+    /// every map's [`depth_range`]; `hi` of 0 when there is no finite depth): what
+    /// [`DepthHistogram::build`] starts from, for maps read one at a time.
+    pub fn over(lo: f64, hi: f64, bins: usize) -> DepthHistogram {
         let mut h = DepthHistogram {
             log10_min: 0.0,
             log10_max: 1.0,
-            weights: vec![0.0; bins],
+            weights: vec![0.0; bins.max(1)],
             sky_sr: 0.0,
             invalid_sr: 0.0,
             depth_min_m: None,
@@ -61,28 +80,30 @@ impl DepthHistogram {
             h.depth_min_m = Some(lo);
             h.depth_max_m = Some(hi);
         }
-        for m in maps {
-            let n = m.face_size();
-            // Solid angles of one face, shared by the six faces.
-            let sa: Vec<f64> = (0..n * n)
-                .map(|i| pixel_solid_angle(i % n, i / n, n))
-                .collect();
-            for face in Face::ALL {
-                for (i, &d) in m.face(face).iter().enumerate() {
-                    let w = sa[i] / views;
-                    let d = d as f64;
-                    if d == f64::INFINITY {
-                        h.sky_sr += w;
-                    } else if d.is_finite() && d > 0.0 {
-                        let b = h.bin_of(d);
-                        h.weights[b] += w;
-                    } else {
-                        h.invalid_sr += w;
-                    }
+        h
+    }
+
+    /// Adds map `m`, one of `views` viewpoints (its pixels weigh their solid angle ÷ `views`).
+    pub fn add(&mut self, m: &CubeMap<f32>, views: f64) {
+        let n = m.face_size();
+        // Solid angles of one face, shared by the six faces.
+        let sa: Vec<f64> = (0..n * n)
+            .map(|i| pixel_solid_angle(i % n, i / n, n))
+            .collect();
+        for face in Face::ALL {
+            for (i, &d) in m.face(face).iter().enumerate() {
+                let w = sa[i] / views;
+                let d = d as f64;
+                if d == f64::INFINITY {
+                    self.sky_sr += w;
+                } else if d.is_finite() && d > 0.0 {
+                    let b = self.bin_of(d);
+                    self.weights[b] += w;
+                } else {
+                    self.invalid_sr += w;
                 }
             }
         }
-        h
     }
 
     pub fn bins(&self) -> usize {

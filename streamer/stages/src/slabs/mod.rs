@@ -17,7 +17,7 @@ use slabs::io as sio;
 use slabs::mesh::MeshParams;
 use slabs::report::SlabsReport;
 use slabs::tiles::{tile_sample, LayerInput, MeshKind, TileParams};
-use tracks::{CubeMap, SlabRange};
+use tracks::SlabRange;
 
 pub(crate) use layers::pov_import_from_report;
 
@@ -240,18 +240,22 @@ fn choose(
     existing: &[Option<LayersMeta>],
     max_spacing: f64,
 ) -> Result<SlabChoice> {
-    let lowres: Vec<CubeMap<f32>> = indices
-        .iter()
-        .map(|&i| sio::read_lowres(dir, i))
-        .collect::<std::result::Result<_, _>>()
-        .context("reading the low-resolution depth passes")?;
     let choose_params = ChooseParams {
         threshold_px: params.threshold_px,
         ..ChooseParams::default()
     };
     let rendered: Option<Vec<SlabRange>> =
         existing.iter().flatten().next().map(|m| m.slabs.clone());
-    let auto = boundaries::choose(&lowres, max_spacing, pre.face_size, &choose_params);
+    // One low-resolution depth map in memory at a time (read twice): all of town-10's
+    // 10 256 took 1 GB.
+    let auto = boundaries::choose_streamed(
+        indices.len(),
+        |k| sio::read_lowres(dir, indices[k]),
+        max_spacing,
+        pre.face_size,
+        &choose_params,
+    )
+    .context("reading the low-resolution depth passes")?;
     let want: Option<Vec<SlabRange>> = match &params.slabs {
         SlabSpec::Auto(0) => None,
         SlabSpec::Auto(d) => Some(boundaries::adjust(&auto, *d)),
