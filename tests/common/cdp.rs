@@ -187,7 +187,12 @@ impl Browser {
             }
             std::thread::sleep(Duration::from_millis(100));
         }
-        panic!("page title still `{title}` after {limit:?}");
+        // What the page itself saw: its errors, or that its script never ran (a module
+        // that failed to load or to parse stops the page before it can say so).
+        let errors = self.eval(
+            "window.railviewErrors === undefined ? 'main.js never ran' : JSON.stringify(window.railviewErrors)",
+        );
+        panic!("page title still `{title}` after {limit:?}; the page's errors: {errors}");
     }
 }
 
