@@ -226,6 +226,44 @@ fn browser_frames_match_railview_render_at_and_between_samples() {
     }
 }
 
+/// Faces smaller than the tiles (16 px with the default 32 px tiles, as the towns and the
+/// suite's demo are built): one tile is the whole face, as `tracks::limits::check_grid`
+/// allows. The page refused such a manifest (`tile_size 32`) until it followed that rule.
+#[test]
+#[cfg_attr(
+    railview_skip_browser,
+    ignore = "RAILVIEW_SKIP_BROWSER=1: Chromium is not available"
+)]
+fn a_face_smaller_than_a_tile_is_drawn_as_railview_render_draws_it() {
+    let dir = scratch_dir("browser", "face16");
+    let db = dir.join("db");
+    let o = railview(&[
+        "build",
+        "--scene",
+        "castle",
+        "--track",
+        "main",
+        "--face-size",
+        "16",
+        "--out",
+        db.to_str().unwrap(),
+        "--work",
+        dir.join("work").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let server = serve(&db, &[]);
+    let view = VIEWS[0];
+    let web = browse(&server.url, view, "face16");
+    let nat = native(&db, view, &dir.join("native.png"));
+    let (psnr, holes) = compare(&web, &nat);
+    eprintln!("face 16, view {view:?}: {psnr:.2} dB, hole masks differ at {holes:.4}");
+    assert!(psnr >= MIN_PSNR_DB, "{psnr:.2} dB against railview render");
+    assert!(
+        holes <= MAX_HOLE_DISAGREEMENT,
+        "hole masks differ at {holes:.4}"
+    );
+}
+
 #[test]
 #[cfg_attr(
     railview_skip_browser,
@@ -555,11 +593,23 @@ fn a_host_that_answers_one_range_at_a_time_gets_one_range_a_request() {
 /// --latency 50ms`, the time from opening the page to the first complete view (every tile
 /// it needs drawn at some level, what the walk counts) and to `railview: ready` (every
 /// level); then unthrottled, SwiftShader's draw time of that view, and the longest
-/// main-thread stall of an arrival (uploads) and decode of a piece in a worker.
+/// main-thread stall of an arrival (uploads) and decode of a piece in a worker. With
+/// `RAILVIEW_FIRST_VIEW_DBS=DB,DB…` it measures those databases (each on its first track)
+/// instead of the castle, e.g. towns built by `scripts/bench-town.sh`.
 #[test]
 #[ignore = "a measurement: cargo test --release --test browser_viewer -- --ignored --nocapture"]
 fn measure_first_complete_view_and_frame_time() {
-    let db = castle();
+    let dbs: Vec<PathBuf> = match std::env::var("RAILVIEW_FIRST_VIEW_DBS") {
+        Ok(list) => list.split(',').map(PathBuf::from).collect(),
+        Err(_) => vec![castle().to_path_buf()],
+    };
+    for db in &dbs {
+        eprintln!("{}:", db.display());
+        measure_first_view(db);
+    }
+}
+
+fn measure_first_view(db: &Path) {
     let (w, h) = (1280, 720);
     for (name, extra) in [
         (

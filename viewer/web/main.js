@@ -216,7 +216,8 @@ class App {
     this.mark("table");
     v.table = table;
     const m = this.manifest;
-    v.levels = Math.round(Math.log2(m.tile_size)) + 1;
+    // A tile's levels: a tile larger than the face is cut to it (PTM levels of the face's size).
+    v.levels = Math.round(Math.log2(Math.min(m.tile_size, 2 ** Math.ceil(Math.log2(m.face_size))))) + 1;
     v.tex = this.renderer.createLayers(m.face_size, m.slabs.length + 1, v.levels);
     this.mark("texture");
     v.bytes = (m.face_size * 6 * m.face_size * 4 * (m.slabs.length + 1) * 4) / 3;

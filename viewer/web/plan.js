@@ -29,7 +29,10 @@ export function checkManifest(m) {
   if (m.version !== FORMAT) fail(`format ${m.version}; this viewer reads format ${FORMAT} (rebuild the database with \`railview build\`)`);
   const pow2 = (v) => Number.isInteger(v) && v > 0 && (v & (v - 1)) === 0;
   if (!Number.isInteger(m.face_size) || m.face_size < 1 || m.face_size > LIMITS.maxFace) fail(`face_size ${m.face_size}`);
-  if (!pow2(m.tile_size) || m.tile_size > m.face_size || m.tile_size < Math.min(LIMITS.minTile, m.face_size)) fail(`tile_size ${m.tile_size}`);
+  // tracks::limits::check_grid: a power of two from MIN_TILE_SIZE (or the face's size rounded
+  // up to one, when smaller); a tile larger than the face is the whole face (faces of 16 px
+  // with tiles of 32, as the towns are built).
+  if (!pow2(m.tile_size) || m.tile_size < Math.min(LIMITS.minTile, 2 ** Math.ceil(Math.log2(m.face_size)))) fail(`tile_size ${m.tile_size}`);
   const perSide = Math.ceil(m.face_size / m.tile_size);
   if (perSide > LIMITS.maxTilesPerSide) fail(`face_size / tile_size = ${perSide} tiles per side; at most ${LIMITS.maxTilesPerSide}`);
   if (!Array.isArray(m.slabs) || m.slabs.length > LIMITS.maxSlabs) fail("slabs");

@@ -54,6 +54,19 @@ test("the manifest's limits are the Rust ones", () => {
     spoil(m);
     assert.throws(() => checkManifest(m), new RegExp(`manifest: ${what}`), what);
   }
+  // As tracks::limits::check_grid: a tile larger than the face (faces of 16 px, tiles of
+  // 32, as `--scene town-K --face-size 16` builds) is the whole face; smaller faces allow
+  // tiles down to their own size.
+  for (const [face, tile] of [[16, 32], [16, 16], [3, 4], [2, 2]]) {
+    const m = town();
+    m.face_size = face;
+    m.tile_size = tile;
+    assert.doesNotThrow(() => checkManifest(m), `face ${face}, tile ${tile}`);
+  }
+  const small = town();
+  small.face_size = 3;
+  small.tile_size = 2;
+  assert.throws(() => checkManifest(small), /manifest: tile_size 2/);
 });
 
 test("the junctions are those the stops make, else the manifest is refused", () => {
