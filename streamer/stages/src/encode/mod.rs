@@ -450,37 +450,53 @@ fn manifest(
     writer: &mut DbWriter,
 ) -> Result<()> {
     let decided = culling.decisions.as_ref();
-    let tracks = net
-        .tracks
-        .iter()
-        .enumerate()
-        .map(|(ti, t)| {
-            let one = TrackSet {
-                tracks: vec![t.clone()],
-            };
-            let entries = net.stops[ti]
-                .iter()
-                .map(|st| ViewpointEntry {
-                    s: st.s,
-                    ..viewpoints[st.viewpoint].clone()
-                })
-                .collect();
-            let segs = net
-                .track_segments(ti)
-                .iter()
-                .enumerate()
-                .filter_map(|(k, _)| net.segment_id(ti, k))
-                .map(|e| segments[e].clone())
-                .collect();
-            TrackEntry {
-                name: t.name.clone(),
-                track_toml: one.to_toml(),
-                length: t.length(),
-                viewpoints: entries,
-                segments: segs,
+    // Each entry moves into the last track that lists it and is cloned only for the others
+    // (a junction's viewpoint): a copy of every tile entry was the build's peak (town-10).
+    let seg_ids =
+        |ti: usize| (0..net.track_segments(ti).len()).filter_map(move |k| net.segment_id(ti, k));
+    let mut vp_uses = vec![0usize; viewpoints.len()];
+    let mut seg_uses = vec![0usize; segments.len()];
+    for (ti, stops) in net.stops.iter().enumerate() {
+        for st in stops {
+            if let Some(u) = vp_uses.get_mut(st.viewpoint) {
+                *u += 1;
             }
-        })
-        .collect();
+        }
+        for e in seg_ids(ti) {
+            if let Some(u) = seg_uses.get_mut(e) {
+                *u += 1;
+            }
+        }
+    }
+    let mut viewpoints = Last::new(viewpoints, vp_uses);
+    let mut segments = Last::new(segments, seg_uses);
+    let mut tracks = Vec::with_capacity(net.tracks.len());
+    for (ti, t) in net.tracks.iter().enumerate() {
+        let one = TrackSet {
+            tracks: vec![t.clone()],
+        };
+        let mut entries = Vec::with_capacity(net.stops[ti].len());
+        for st in &net.stops[ti] {
+            let entry = viewpoints
+                .get(st.viewpoint)
+                .with_context(|| format!("viewpoint {}: no entry encoded", st.viewpoint))?;
+            entries.push(ViewpointEntry { s: st.s, ..entry });
+        }
+        let segs = seg_ids(ti)
+            .map(|e| {
+                segments
+                    .get(e)
+                    .with_context(|| format!("segment {e}: no ACH entry"))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        tracks.push(TrackEntry {
+            name: t.name.clone(),
+            track_toml: one.to_toml(),
+            length: t.length(),
+            viewpoints: entries,
+            segments: segs,
+        });
+    }
     let manifest = Manifest {
         version: MANIFEST_VERSION,
         scene: pre.scene.clone(),
@@ -493,6 +509,33 @@ fn manifest(
     };
     writer.finish(&manifest)?;
     Ok(())
+}
+
+/// Values handed out as often as they were counted: cloned until the last, which is moved.
+struct Last<T> {
+    items: Vec<Option<T>>,
+    uses: Vec<usize>,
+}
+
+impl<T: Clone> Last<T> {
+    fn new(items: Vec<T>, uses: Vec<usize>) -> Last<T> {
+        Last {
+            items: items.into_iter().map(Some).collect(),
+            uses,
+        }
+    }
+
+    /// Item `i` (`None` beyond the items, or once its counted uses are spent).
+    fn get(&mut self, i: usize) -> Option<T> {
+        let u = self.uses.get_mut(i)?;
+        *u = u.checked_sub(1)?;
+        let slot = self.items.get_mut(i)?;
+        if *u == 0 {
+            slot.take()
+        } else {
+            slot.clone()
+        }
+    }
 }
 
 /// What `WORK/baseline.json` keeps: the baseline per viewpoint and the BLAKE3 of the files it
@@ -556,4 +599,21 @@ pub fn walk_size(dir: &Path) -> u64 {
             }
         })
         .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Last;
+
+    #[test]
+    fn last_clones_until_the_last_use_then_moves_and_then_has_nothing() {
+        let mut l = Last::new(vec![String::from("a"), String::from("b")], vec![2, 1]);
+        assert_eq!(l.get(0).as_deref(), Some("a"));
+        assert_eq!(l.items[0].as_deref(), Some("a"));
+        assert_eq!(l.get(0).as_deref(), Some("a"));
+        assert!(l.items[0].is_none());
+        assert_eq!(l.get(0), None);
+        assert_eq!(l.get(1).as_deref(), Some("b"));
+        assert_eq!(l.get(2), None);
+    }
 }
