@@ -326,19 +326,37 @@ impl DbWriter {
     /// else in the database, unreferenced by the manifest. Returns the packed manifest
     /// as [`Database::open`] reads it back.
     pub fn finish(&mut self, manifest: &Manifest) -> Result<Manifest, DbError> {
-        let mut packed = manifest.clone();
+        self.finish_owned(manifest.clone())
+    }
+
+    /// [`DbWriter::finish`] on a manifest it may pack in place (no copy of every tile
+    /// entry: a city's build holds one).
+    pub fn finish_owned(&mut self, mut packed: Manifest) -> Result<Manifest, DbError> {
         let mut payloads = pack::Payloads::default();
         // Each viewpoint packed once, in id order (a junction is listed by every track
-        // through it); the packed entry replaces it on every track.
+        // through it); the packed entry replaces it on every track, so it is kept for the
+        // viewpoints listed more than once.
         let mut done: HashMap<usize, ViewpointEntry> = HashMap::new();
-        let mut order: Vec<(usize, usize)> = packed
+        let mut order: Vec<(usize, usize, usize)> = packed
             .tracks
             .iter()
             .enumerate()
-            .flat_map(|(ti, t)| t.viewpoints.iter().enumerate().map(move |(vi, _)| (ti, vi)))
+            .flat_map(|(ti, t)| {
+                t.viewpoints
+                    .iter()
+                    .enumerate()
+                    .map(move |(vi, v)| (v.index, ti, vi))
+            })
             .collect();
-        order.sort_by_key(|&(ti, vi)| (packed.tracks[ti].viewpoints[vi].index, ti, vi));
-        for (ti, vi) in order {
+        order.sort_unstable();
+        let listed = |k: usize| order.get(k).map(|o| o.0);
+        let repeated: Vec<bool> = (0..order.len())
+            .map(|k| {
+                let id = listed(k);
+                (k > 0 && listed(k - 1) == id) || listed(k + 1) == id
+            })
+            .collect();
+        for (k, &(_, ti, vi)) in order.iter().enumerate() {
             let v = &mut packed.tracks[ti].viewpoints[vi];
             if let Some(p) = done.get(&v.index) {
                 v.background = p.background.clone();
@@ -361,7 +379,9 @@ impl DbWriter {
                 }
                 v.background = background;
                 v.tiles = tiles;
-                done.insert(v.index, v.clone());
+                if repeated[k] {
+                    done.insert(v.index, v.clone());
+                }
             }
         }
         self.payloads_shared = payloads.shared;

@@ -507,7 +507,7 @@ fn manifest(
         cull_variant: decided.and(culling.variant).map(|v| v.name().to_string()),
         tracks,
     };
-    writer.finish(&manifest)?;
+    writer.finish_owned(manifest)?;
     Ok(())
 }
 
