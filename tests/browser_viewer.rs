@@ -37,22 +37,27 @@ fn castle() -> &'static Path {
     DB.get_or_init(|| {
         let dir = scratch_dir("browser", "castle");
         let db = dir.join("site").join("castle");
-        let o = railview(&[
-            "build",
-            "--scene",
-            "castle",
-            "--track",
-            "main",
-            "--face-size",
-            "128",
-            "--out",
-            db.to_str().unwrap(),
-            "--work",
-            dir.join("work").to_str().unwrap(),
-        ]);
-        assert!(o.status.success(), "{}", stderr(&o));
+        build_castle(&db, &dir.join("work"), "128");
         db
     })
+}
+
+/// `railview build` of the castle's main track at faces of `face` px into `db`.
+fn build_castle(db: &Path, work: &Path, face: &str) {
+    let o = railview(&[
+        "build",
+        "--scene",
+        "castle",
+        "--track",
+        "main",
+        "--face-size",
+        face,
+        "--out",
+        db.to_str().unwrap(),
+        "--work",
+        work.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
 }
 
 struct Server {
@@ -237,20 +242,7 @@ fn browser_frames_match_railview_render_at_and_between_samples() {
 fn a_face_smaller_than_a_tile_is_drawn_as_railview_render_draws_it() {
     let dir = scratch_dir("browser", "face16");
     let db = dir.join("db");
-    let o = railview(&[
-        "build",
-        "--scene",
-        "castle",
-        "--track",
-        "main",
-        "--face-size",
-        "16",
-        "--out",
-        db.to_str().unwrap(),
-        "--work",
-        dir.join("work").to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_castle(&db, &dir.join("work"), "16");
     let server = serve(&db, &[]);
     let view = VIEWS[0];
     let web = browse(&server.url, view, "face16");
