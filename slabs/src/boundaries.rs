@@ -147,17 +147,23 @@ pub fn choose(
     params: &ChooseParams,
 ) -> SlabChoice {
     let hist = DepthHistogram::build(lowres_depths, params.bins);
-    let b = if max_spacing_m.is_finite() {
-        max_spacing_m.max(0.0)
-    } else {
-        0.0
-    };
+    let b = baseline(max_spacing_m);
     let edges = occlusion_edges(
         lowres_depths,
         b / 2.0,
         theta_pixel(face_size) * params.threshold_px,
     );
     choose_with_edges(hist, &edges, max_spacing_m, face_size, params)
+}
+
+/// The baseline `B` the boundaries are chosen for: the largest spacing of neighbouring
+/// viewpoints, 0 when there is none (one viewpoint) or it is not finite.
+fn baseline(max_spacing_m: f64) -> f64 {
+    if max_spacing_m.is_finite() {
+        max_spacing_m.max(0.0)
+    } else {
+        0.0
+    }
 }
 
 /// [`choose`] over `count` maps that `read(k)` gives one at a time (twice each: the depth
@@ -170,11 +176,7 @@ pub fn choose_streamed<E>(
     face_size: u32,
     params: &ChooseParams,
 ) -> Result<SlabChoice, E> {
-    let half_baseline = if max_spacing_m.is_finite() {
-        max_spacing_m.max(0.0)
-    } else {
-        0.0
-    } / 2.0;
+    let half_baseline = baseline(max_spacing_m) / 2.0;
     let min_gap = theta_pixel(face_size) * params.threshold_px;
     let views = count.max(1) as f64;
     let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
@@ -239,45 +241,42 @@ pub fn map_occlusion_edges(
     if half_baseline_m <= 0.0 {
         return;
     }
-    {
-        let n = m.face_size();
-        let dn = |x: u32, y: u32| -> f64 {
-            let (u, v) = tracks::cubemap::uv_from_pixel_f(x as f64 + 0.5, y as f64 + 0.5, n);
-            (1.0 + u * u + v * v).sqrt()
+    let n = m.face_size();
+    let dn = |x: u32, y: u32| -> f64 {
+        let (u, v) = tracks::cubemap::uv_from_pixel_f(x as f64 + 0.5, y as f64 + 0.5, n);
+        (1.0 + u * u + v * v).sqrt()
+    };
+    for face in tracks::Face::ALL {
+        let q = |x: i64, y: i64| -> Option<(f64, f64)> {
+            if x < 0 || y < 0 || x >= n as i64 || y >= n as i64 {
+                return None;
+            }
+            let r = *m.get(face, x as u32, y as u32) as f64;
+            (r.is_finite() && r > 0.0).then(|| (dn(x as u32, y as u32) / r, r))
         };
-        for face in tracks::Face::ALL {
-            let q = |x: i64, y: i64| -> Option<(f64, f64)> {
-                if x < 0 || y < 0 || x >= n as i64 || y >= n as i64 {
-                    return None;
-                }
-                let r = *m.get(face, x as u32, y as u32) as f64;
-                (r.is_finite() && r > 0.0).then(|| (dn(x as u32, y as u32) / r, r))
-            };
-            for y in 0..n as i64 {
-                for x in 0..n as i64 {
-                    let Some((qa, ra)) = q(x, y) else { continue };
-                    for (dx, dy) in [(1i64, 0i64), (0, 1)] {
-                        let Some((qb, rb)) = q(x + dx, y + dy) else {
-                            continue;
-                        };
-                        let e1 = q(x - dx, y - dy)
-                            .map_or((qb - qa).abs(), |(qp, _)| (qb - (2.0 * qa - qp)).abs());
-                        let e2 = q(x + 2 * dx, y + 2 * dy)
-                            .map_or((qa - qb).abs(), |(qn, _)| (qa - (2.0 * qb - qn)).abs());
-                        // Residual in inverse radial depth, then the gap it opens at B/2.
-                        let resid = e1.min(e2) / dn(x as u32, y as u32);
-                        let gap = half_baseline_m * (1.0 / ra.min(rb) - 1.0 / ra.max(rb));
-                        if half_baseline_m * resid > min_gap_rad && gap > min_gap_rad {
-                            out.push(OcclusionEdge {
-                                near_m: ra.min(rb),
-                                far_m: ra.max(rb),
-                                // Solid angle revealed at B/2: gap × edge length.
-                                weight_sr: gap
-                                    * tracks::cubemap::pixel_solid_angle(x as u32, y as u32, n)
-                                        .sqrt()
-                                    / views,
-                            });
-                        }
+        for y in 0..n as i64 {
+            for x in 0..n as i64 {
+                let Some((qa, ra)) = q(x, y) else { continue };
+                for (dx, dy) in [(1i64, 0i64), (0, 1)] {
+                    let Some((qb, rb)) = q(x + dx, y + dy) else {
+                        continue;
+                    };
+                    let e1 = q(x - dx, y - dy)
+                        .map_or((qb - qa).abs(), |(qp, _)| (qb - (2.0 * qa - qp)).abs());
+                    let e2 = q(x + 2 * dx, y + 2 * dy)
+                        .map_or((qa - qb).abs(), |(qn, _)| (qa - (2.0 * qb - qn)).abs());
+                    // Residual in inverse radial depth, then the gap it opens at B/2.
+                    let resid = e1.min(e2) / dn(x as u32, y as u32);
+                    let gap = half_baseline_m * (1.0 / ra.min(rb) - 1.0 / ra.max(rb));
+                    if half_baseline_m * resid > min_gap_rad && gap > min_gap_rad {
+                        out.push(OcclusionEdge {
+                            near_m: ra.min(rb),
+                            far_m: ra.max(rb),
+                            // Solid angle revealed at B/2: gap × edge length.
+                            weight_sr: gap
+                                * tracks::cubemap::pixel_solid_angle(x as u32, y as u32, n).sqrt()
+                                / views,
+                        });
                     }
                 }
             }
@@ -293,11 +292,7 @@ pub fn choose_with_edges(
     face_size: u32,
     params: &ChooseParams,
 ) -> SlabChoice {
-    let b = if max_spacing_m.is_finite() {
-        max_spacing_m.max(0.0)
-    } else {
-        0.0
-    };
+    let b = baseline(max_spacing_m);
     let theta = theta_pixel(face_size);
     let all = hist.total() + hist.sky_sr + hist.invalid_sr;
     let mut report = CriterionReport {
